@@ -1,0 +1,819 @@
+"""Rigid-body dynamics of a serial manipulator read from a URDF, as CasADi expressions.
+
+The URDF is parsed with ``urdf_parser_py`` (the ROS parser). The chain between a base link
+and a tip link is reduced to one rigid body per moving joint: links attached by fixed joints
+(or by joints the caller locks) are lumped into the body they ride on. The dynamics are a
+recursive Newton-Euler algorithm written over CasADi ``SX`` symbols, so that every quantity
+(mass matrix, bias forces, forward dynamics, task-space point and its Jacobian) comes with
+exact derivatives of any order, and the solver can compile them.
+
+Why our own recursive Newton-Euler and not a URDF-to-CasADi library: the solver needs the
+model as symbolic expressions it can differentiate twice and compile together with the
+costate equations, plus URDF ``<dynamics damping>`` as viscous friction and a task space
+restricted to some coordinates. The algorithm is forty lines; it is checked against closed
+forms and against Pinocchio in the tests.
+
+Conventions: joint torques (N m) or forces (N) ``tau``; normalised controls
+``u = tau / tau_max`` with ``|u_i| <= 1``; state ``x = (q, qd)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from .errors import ModelError
+
+__all__ = ["Body", "RobotModel", "load_robot", "default_urdf_path"]
+
+MOVING_TYPES = ("revolute", "continuous", "prismatic")
+#: Lumped bodies lighter than this (kg) count as "no inertia".
+MIN_MASS = 1e-12
+#: Relative tolerance for calling joint axes parallel when detecting a planar chain.
+PLANAR_TOL = 1e-9
+STANDARD_GRAVITY = (0.0, 0.0, -9.80665)
+
+
+def default_urdf_path() -> Path:
+    """Path of the paper's arm, ``config/galicki_3r.urdf``, installed or in the source tree.
+
+    Returns
+    -------
+    pathlib.Path
+        The installed copy under ``share/tocontrol_ros/config`` when the package is in the
+        ament index, else the copy in the source tree.
+    """
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        share = Path(get_package_share_directory("tocontrol_ros"))
+        candidate = share / "config" / "galicki_3r.urdf"
+        if candidate.is_file():
+            return candidate
+    except Exception:  # noqa: BLE001 - not installed in an ament index: use the source tree
+        pass
+    return Path(__file__).resolve().parents[2] / "config" / "galicki_3r.urdf"
+
+
+def _rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
+    """Rotation matrix of URDF roll-pitch-yaw angles, ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p),
+                              math.cos(y), math.sin(y))
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def _origin(elem) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) of a URDF ``<origin>`` (identity when absent)."""
+    if elem is None:
+        return np.eye(3), np.zeros(3)
+    xyz = np.zeros(3) if elem.xyz is None else np.asarray(elem.xyz, dtype=float)
+    rpy = np.zeros(3) if elem.rpy is None else np.asarray(elem.rpy, dtype=float)
+    return _rpy_matrix(rpy), xyz
+
+
+def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Numeric rotation by ``angle`` (rad) about the unit vector ``axis``."""
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
+
+
+@dataclass(frozen=True)
+class Body:
+    """One moving joint and the rigid body it moves (numeric constants of the chain).
+
+    Attributes
+    ----------
+    joint : str
+        Name of the URDF joint.
+    kind : str
+        ``"revolute"`` (also for URDF ``continuous``) or ``"prismatic"``.
+    rotation, translation : ndarray, shape (3, 3) and (3,)
+        Placement of the joint frame in the previous body's frame (m).
+    axis : ndarray, shape (3,)
+        Unit joint axis in the joint (= body) frame.
+    mass : float
+        Lumped mass of the body (kg).
+    com : ndarray, shape (3,)
+        Centre of mass in the body frame (m).
+    inertia : ndarray, shape (3, 3)
+        Inertia about the centre of mass, body axes (kg m^2).
+    links : tuple of str
+        URDF links lumped into this body.
+    """
+
+    joint: str
+    kind: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    axis: np.ndarray
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+    links: tuple[str, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class RobotModel:
+    """A serial manipulator with bounded joint torques, with symbolic and numeric dynamics.
+
+    Build it with :func:`load_robot`. Dynamics: ``M(q) qdd + b(q, qd) = tau`` with
+    ``b = C(q, qd) qd + g(q) + D qd`` (Coriolis/centrifugal, gravity, viscous friction) and
+    ``|tau_i| <= tau_max_i``. The task-space point ``P(q)`` is the tip frame's origin in the
+    base frame, restricted to ``task_axes``.
+
+    Attributes
+    ----------
+    name : str
+        URDF robot name.
+    joint_names : tuple of str, length n
+    bodies : tuple of Body, length n
+    tip_rotation, tip_translation : ndarray, shape (3, 3) and (3,)
+        Tip frame in the last body's frame.
+    base_link, tip_link : str
+    gravity : ndarray, shape (3,)
+        Gravity acceleration in the base frame (m/s^2).
+    task_axes : tuple of int
+        Which base-frame coordinates (0 = x, 1 = y, 2 = z) form the task space; ``m`` of them.
+    tau_max : ndarray, shape (n,)
+        Torque (N m) or force (N) limits, from URDF ``<limit effort>``.
+    damping : ndarray, shape (n,)
+        Viscous friction (N m s/rad or N s/m), from URDF ``<dynamics damping>``.
+    q_lower, q_upper : ndarray, shape (n,)
+        Position limits (rad or m); infinite for continuous joints. Kept for checks.
+    qd_max : ndarray, shape (n,)
+        Velocity limits (rad/s or m/s); infinite when absent. Kept for checks.
+    coulomb : ndarray, shape (n,)
+        URDF ``<dynamics friction>``; reported, not modelled (it is discontinuous).
+    """
+
+    name: str
+    joint_names: tuple[str, ...]
+    bodies: tuple[Body, ...]
+    tip_rotation: np.ndarray
+    tip_translation: np.ndarray
+    base_link: str
+    tip_link: str
+    gravity: np.ndarray
+    task_axes: tuple[int, ...]
+    tau_max: np.ndarray
+    damping: np.ndarray
+    q_lower: np.ndarray
+    q_upper: np.ndarray
+    qd_max: np.ndarray
+    coulomb: np.ndarray
+    _functions: dict = field(default_factory=dict, repr=False, compare=False)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return len(self.bodies)
+
+    @property
+    def m(self) -> int:
+        """Task-space dimension."""
+        return len(self.task_axes)
+
+    # ----------------------------------------------------- symbolic algorithms
+    def _joint_transform(self, body: Body, q):
+        """Symbolic rotation (3, 3) and translation (3,) of a body in its parent's frame."""
+        a = ca.DM(body.axis)
+        r0 = ca.DM(body.rotation)
+        p0 = ca.DM(body.translation)
+        if body.kind == "prismatic":
+            return r0, p0 + ca.mtimes(r0, a) * q
+        k = ca.skew(a)
+        rj = ca.DM.eye(3) + ca.sin(q) * k + (1 - ca.cos(q)) * ca.mtimes(k, k)
+        return ca.mtimes(r0, rj), p0
+
+    def rnea_sym(self, q, qd, qdd, gravity: bool = True, friction: bool = True):
+        """Inverse dynamics ``tau = M(q) qdd + b(q, qd)`` as a CasADi expression.
+
+        Parameters
+        ----------
+        q, qd, qdd : casadi.SX or MX, shape (n, 1)
+            Joint positions (rad, m), velocities and accelerations.
+        gravity, friction : bool
+            Include the gravity and the viscous-friction terms.
+
+        Returns
+        -------
+        casadi.SX or MX, shape (n, 1)
+            Joint torques (N m) or forces (N).
+        """
+        n = self.n
+        w = ca.DM.zeros(3)
+        wd = ca.DM.zeros(3)
+        vd = -ca.DM(self.gravity) if gravity else ca.DM.zeros(3)
+        frames, forces, torques = [], [], []
+        for i, body in enumerate(self.bodies):
+            rot, pos = self._joint_transform(body, q[i])
+            e = rot.T
+            a = ca.DM(body.axis)
+            w_in = ca.mtimes(e, w)
+            wd_in = ca.mtimes(e, wd)
+            vd_new = ca.mtimes(e, vd + ca.cross(wd, pos) + ca.cross(w, ca.cross(w, pos)))
+            if body.kind == "prismatic":
+                w, wd = w_in, wd_in
+                vd = vd_new + 2 * ca.cross(w, a * qd[i]) + a * qdd[i]
+            else:
+                w = w_in + a * qd[i]
+                wd = wd_in + a * qdd[i] + ca.cross(w_in, a * qd[i])
+                vd = vd_new
+            c = ca.DM(body.com)
+            inertia = ca.DM(body.inertia)
+            acc_com = vd + ca.cross(wd, c) + ca.cross(w, ca.cross(w, c))
+            force = body.mass * acc_com
+            torque = ca.mtimes(inertia, wd) + ca.cross(w, ca.mtimes(inertia, w))
+            frames.append((rot, pos))
+            forces.append(force)
+            torques.append(torque + ca.cross(c, force))
+        tau = [None] * n
+        f_next = ca.DM.zeros(3)
+        n_next = ca.DM.zeros(3)
+        for i in range(n - 1, -1, -1):
+            if i + 1 < n:
+                rot_next, pos_next = frames[i + 1]
+                f_child = ca.mtimes(rot_next, f_next)
+                n_child = ca.mtimes(rot_next, n_next) + ca.cross(pos_next, f_child)
+            else:
+                f_child = ca.DM.zeros(3)
+                n_child = ca.DM.zeros(3)
+            f_next = forces[i] + f_child
+            n_next = torques[i] + n_child
+            a = ca.DM(self.bodies[i].axis)
+            moment = f_next if self.bodies[i].kind == "prismatic" else n_next
+            tau[i] = ca.dot(moment, a)
+            if friction:
+                tau[i] = tau[i] + float(self.damping[i]) * qd[i]
+        return ca.vertcat(*tau)
+
+    def tip_pose_sym(self, q):
+        """Tip frame in the base frame: rotation (3, 3) and position (3, 1), symbolic."""
+        rot = ca.DM.eye(3)
+        pos = ca.DM.zeros(3)
+        for i, body in enumerate(self.bodies):
+            r, p = self._joint_transform(body, q[i])
+            pos = pos + ca.mtimes(rot, p)
+            rot = ca.mtimes(rot, r)
+        pos = pos + ca.mtimes(rot, ca.DM(self.tip_translation))
+        rot = ca.mtimes(rot, ca.DM(self.tip_rotation))
+        return rot, pos
+
+    def point_sym(self, q):
+        """Task-space point ``P(q)``, shape (m, 1), symbolic (m)."""
+        _, pos = self.tip_pose_sym(q)
+        return ca.vertcat(*[pos[k] for k in self.task_axes])
+
+    def mass_matrix_sym(self, q):
+        """Joint-space inertia matrix ``M(q)``, shape (n, n), symbolic."""
+        sym = ca.SX if isinstance(q, ca.SX) else ca.MX
+        qdd = sym.sym("qdd", self.n)
+        tau = self.rnea_sym(q, sym.zeros(self.n), qdd, gravity=False, friction=False)
+        # tau is linear in qdd, so its Jacobian is M(q) and does not depend on qdd.
+        return ca.jacobian(tau, qdd)
+
+    def bias_sym(self, q, qd):
+        """Bias forces ``b(q, qd)`` (Coriolis/centrifugal, gravity, friction), (n, 1)."""
+        zeros = ca.SX.zeros(self.n) if isinstance(q, ca.SX) else ca.MX.zeros(self.n)
+        return self.rnea_sym(q, qd, zeros)
+
+    def forward_dynamics_sym(self, q, qd, tau):
+        """Joint accelerations ``qdd = M(q)^-1 (tau - b(q, qd))``, shape (n, 1), symbolic."""
+        return ca.solve(self.mass_matrix_sym(q), tau - self.bias_sym(q, qd))
+
+    def state_derivative_sym(self, x, u):
+        """State-space dynamics ``xd = f(x, u)`` with normalised controls ``u = tau / tau_max``.
+
+        Parameters
+        ----------
+        x : casadi.SX, shape (2n, 1)
+            State ``(q, qd)``.
+        u : casadi.SX, shape (n, 1)
+            Normalised controls (dimensionless).
+
+        Returns
+        -------
+        casadi.SX, shape (2n, 1)
+        """
+        n = self.n
+        q, qd = x[:n], x[n:]
+        qdd = self.forward_dynamics_sym(q, qd, ca.DM(self.tau_max) * u)
+        return ca.vertcat(qd, qdd)
+
+    # ------------------------------------------------------ compiled functions
+    def function(self, name: str) -> ca.Function:
+        """A CasADi function of the model, built on first use and cached.
+
+        Parameters
+        ----------
+        name : str
+            One of ``"M"`` (q -> M), ``"bias"`` ((q, qd) -> b), ``"fd"`` ((q, qd, tau) -> qdd),
+            ``"id"`` ((q, qd, qdd) -> tau), ``"P"`` (q -> P), ``"J"`` (q -> dP/dq, (m, n)),
+            ``"f"`` ((x, u) -> xd), ``"energy"`` ((q, qd) -> (kinetic, potential), J).
+
+        Returns
+        -------
+        casadi.Function
+            Differentiable to any order with ``jacobian()``/``hessian`` machinery.
+        """
+        if name in self._functions:
+            return self._functions[name]
+        n = self.n
+        q = ca.SX.sym("q", n)
+        qd = ca.SX.sym("qd", n)
+        v = ca.SX.sym("v", n)
+        builders = {
+            "M": lambda: ca.Function("M", [q], [self.mass_matrix_sym(q)], ["q"], ["M"]),
+            "bias": lambda: ca.Function("bias", [q, qd], [self.bias_sym(q, qd)],
+                                        ["q", "qd"], ["b"]),
+            "fd": lambda: ca.Function("fd", [q, qd, v],
+                                      [self.forward_dynamics_sym(q, qd, v)],
+                                      ["q", "qd", "tau"], ["qdd"]),
+            "id": lambda: ca.Function("id", [q, qd, v], [self.rnea_sym(q, qd, v)],
+                                      ["q", "qd", "qdd"], ["tau"]),
+            "P": lambda: ca.Function("P", [q], [self.point_sym(q)], ["q"], ["P"]),
+            "J": lambda: ca.Function("J", [q], [ca.jacobian(self.point_sym(q), q)],
+                                     ["q"], ["J"]),
+            "f": lambda: self._state_function(),
+            "energy": lambda: self._energy_function(),
+        }
+        if name not in builders:
+            raise KeyError(f"`name` must be one of {sorted(builders)}, got {name!r}")
+        self._functions[name] = builders[name]()
+        return self._functions[name]
+
+    def _state_function(self) -> ca.Function:
+        x = ca.SX.sym("x", 2 * self.n)
+        u = ca.SX.sym("u", self.n)
+        return ca.Function("f", [x, u], [self.state_derivative_sym(x, u)], ["x", "u"], ["xd"])
+
+    def _energy_function(self) -> ca.Function:
+        n = self.n
+        q = ca.SX.sym("q", n)
+        qd = ca.SX.sym("qd", n)
+        kinetic = 0.5 * ca.dot(qd, ca.mtimes(self.mass_matrix_sym(q), qd))
+        # Potential energy: -sum m_i g . c_i with c_i each body's centre of mass in the base.
+        rot = ca.DM.eye(3)
+        pos = ca.DM.zeros(3)
+        potential = 0
+        for i, body in enumerate(self.bodies):
+            r, p = self._joint_transform(body, q[i])
+            pos = pos + ca.mtimes(rot, p)
+            rot = ca.mtimes(rot, r)
+            com = pos + ca.mtimes(rot, ca.DM(body.com))
+            potential = potential - body.mass * ca.dot(ca.DM(self.gravity), com)
+        return ca.Function("energy", [q, qd], [kinetic, potential], ["q", "qd"], ["T", "V"])
+
+    # ------------------------------------------------------- numeric wrappers
+    def _vec(self, name: str, value, size: int) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (size,):
+            raise ValueError(f"`{name}` must have shape ({size},), got {arr.shape}")
+        return arr
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Joint-space inertia matrix, shape (n, n) (kg m^2 for revolute joints)."""
+        return np.array(self.function("M")(self._vec("q", q, self.n)))
+
+    def bias(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Bias forces ``C qd + g + D qd``, shape (n,) (N m)."""
+        return np.array(self.function("bias")(self._vec("q", q, self.n),
+                                               self._vec("qd", qd, self.n))).ravel()
+
+    def forward_dynamics(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Joint accelerations for torques ``tau`` (N m), shape (n,) (rad/s^2)."""
+        return np.array(self.function("fd")(self._vec("q", q, self.n),
+                                             self._vec("qd", qd, self.n),
+                                             self._vec("tau", tau, self.n))).ravel()
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Joint torques that produce ``qdd``, shape (n,) (N m)."""
+        return np.array(self.function("id")(self._vec("q", q, self.n),
+                                             self._vec("qd", qd, self.n),
+                                             self._vec("qdd", qdd, self.n))).ravel()
+
+    def point(self, q: np.ndarray) -> np.ndarray:
+        """Task-space point ``P(q)``, shape (m,) (m)."""
+        return np.array(self.function("P")(self._vec("q", q, self.n))).ravel()
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """Task-space Jacobian ``dP/dq``, shape (m, n)."""
+        return np.array(self.function("J")(self._vec("q", q, self.n)))
+
+    def energy(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+        """Kinetic and potential energy (J) at ``(q, qd)``."""
+        kin, pot = self.function("energy")(self._vec("q", q, self.n),
+                                           self._vec("qd", qd, self.n))
+        return float(kin), float(pot)
+
+    def reach(self) -> float:
+        """Upper bound of the distance from the first joint to the tip (m)."""
+        return float(sum(np.linalg.norm(b.translation) for b in self.bodies[1:])
+                     + np.linalg.norm(self.tip_translation)
+                     + sum(abs(hi - lo) for b, lo, hi in zip(self.bodies, self.q_lower,
+                                                              self.q_upper, strict=True)
+                           if b.kind == "prismatic"))
+
+    # ------------------------------------------------------------- reporting
+    def summary(self) -> str:
+        """A human-readable description of the model: chain, inertias, limits, task space."""
+        axes = "".join("xyz"[k] for k in self.task_axes)
+        lines = [
+            f"robot '{self.name}': {self.n} joints, base '{self.base_link}' -> tip "
+            f"'{self.tip_link}', task space {axes} (m = {self.m}, redundancy n - m = "
+            f"{self.n - self.m})",
+            f"gravity {np.array2string(self.gravity, precision=4)} m/s^2 (base frame)",
+            f"{'joint':<14}{'type':<11}{'mass kg':>9}{'tau_max':>9}{'damping':>9}"
+            f"{'q range':>20}{'qd_max':>9}  links",
+        ]
+        for i, b in enumerate(self.bodies):
+            rng = ("continuous" if not np.isfinite(self.q_lower[i])
+                   else f"[{self.q_lower[i]:.3g}, {self.q_upper[i]:.3g}]")
+            lines.append(
+                f"{b.joint:<14}{b.kind:<11}{b.mass:>9.3f}{self.tau_max[i]:>9.3g}"
+                f"{self.damping[i]:>9.3g}{rng:>20}{self.qd_max[i]:>9.3g}  "
+                + ", ".join(b.links))
+        if np.any(self.coulomb != 0):
+            lines.append("note: URDF <dynamics friction> (Coulomb) is reported, not modelled")
+        return "\n".join(lines)
+
+    def check_dynamics(self, seed: int = 0, samples: int = 5) -> str:
+        """Self-check at random states: M symmetric positive definite, ID(FD(tau)) = tau.
+
+        Parameters
+        ----------
+        seed : int
+            Seed of the random states.
+        samples : int
+            Number of random states.
+
+        Returns
+        -------
+        str
+            A short report with the worst figures found.
+        """
+        rng = np.random.default_rng(seed)
+        worst_sym = worst_rt = 0.0
+        min_eig = np.inf
+        for _ in range(samples):
+            q = rng.uniform(-np.pi, np.pi, self.n)
+            q = np.clip(q, self.q_lower, self.q_upper)
+            qd = rng.uniform(-1, 1, self.n)
+            tau = rng.uniform(-1, 1, self.n) * self.tau_max
+            mass = self.mass_matrix(q)
+            worst_sym = max(worst_sym, float(np.max(np.abs(mass - mass.T))))
+            min_eig = min(min_eig, float(np.linalg.eigvalsh(mass).min()))
+            qdd = self.forward_dynamics(q, qd, tau)
+            back = self.inverse_dynamics(q, qd, qdd)
+            worst_rt = max(worst_rt, float(np.max(np.abs(back - tau)) / np.max(self.tau_max)))
+        ok = worst_sym < 1e-12 and min_eig > 0 and worst_rt < 1e-10
+        return "\n".join([
+            f"dynamics check over {samples} random states (seed {seed}): "
+            + ("OK" if ok else "FAILED"),
+            f"  max |M - M^T|                      {worst_sym:.2e}",
+            f"  min eigenvalue of M                {min_eig:.4g} kg m^2",
+            f"  max |ID(q, qd, FD(q, qd, tau)) - tau| / tau_max  {worst_rt:.2e}",
+        ])
+
+
+# ---------------------------------------------------------------------- loading
+def _read_urdf(source):
+    from urdf_parser_py.urdf import URDF
+
+    text = None
+    label = "URDF string"
+    if isinstance(source, os.PathLike) or (
+            isinstance(source, str) and not source.lstrip().startswith("<")):
+        path = Path(source)
+        label = str(path)
+        if not path.is_file():
+            raise ModelError(f"URDF file not found: {path}")
+        text = path.read_text()
+    elif isinstance(source, str):
+        text = source
+    else:
+        raise ModelError(f"`source` must be a URDF path or XML string, got "
+                         f"{type(source).__name__}")
+    # urdf_parser_py reports unknown tags on stderr and raises on structural errors.
+    import contextlib
+    import io
+
+    sink = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(sink):
+            robot = URDF.from_xml_string(text)
+    except Exception as exc:  # noqa: BLE001 - parser raises lxml, ParseError, ValueError...
+        raise ModelError(f"malformed URDF ({label}): {exc}") from exc
+    return robot, label
+
+
+def load_robot(
+    source: str | os.PathLike,
+    base_link: str | None = None,
+    tip_link: str | None = None,
+    gravity: Sequence[float] = STANDARD_GRAVITY,
+    task_axes: str | Sequence[int] | None = None,
+    locked_joints: Mapping[str, float] | None = None,
+) -> RobotModel:
+    """Load a serial chain from a URDF file or string.
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        Path of a URDF file, or the URDF XML itself (e.g. a ``robot_description``).
+    base_link : str, optional
+        Link fixed to the world. Default: the URDF's root link.
+    tip_link : str, optional
+        Link whose origin is the end-effector point. Default: the only leaf link.
+    gravity : sequence of 3 float
+        Gravity acceleration in the base frame (m/s^2).
+    task_axes : str or sequence of int, optional
+        Coordinates of the tip position forming the task space, e.g. ``"xy"`` or ``(0, 1)``.
+        Default: the plane of motion for a planar chain (all revolute axes parallel), else
+        ``"xyz"``.
+    locked_joints : mapping of str to float, optional
+        Moving joints to treat as fixed at the given position (rad or m), e.g. gripper
+        fingers that branch off the base-tip path.
+
+    Returns
+    -------
+    RobotModel
+
+    Raises
+    ------
+    ModelError
+        Malformed URDF, missing links, a chain that branches or closes, an unsupported
+        joint type, a body without inertia, a missing or non-positive limit.
+    """
+    robot, label = _read_urdf(source)
+    locked = dict(locked_joints or {})
+    gravity_arr = np.asarray(gravity, dtype=float)
+    if gravity_arr.shape != (3,) or not np.all(np.isfinite(gravity_arr)):
+        raise ModelError(f"`gravity` must be 3 finite numbers, got {gravity!r}")
+
+    links = {link.name: link for link in robot.links}
+    joints = {j.name: j for j in robot.joints}
+    for name in locked:
+        if name not in joints:
+            raise ModelError(f"`locked_joints` names joint {name!r}, which is not in {label}")
+    parent_joint: dict[str, object] = {}
+    children: dict[str, list] = {name: [] for name in links}
+    for j in robot.joints:
+        for role, link_name in (("parent", j.parent), ("child", j.child)):
+            if link_name not in links:
+                raise ModelError(f"joint {j.name!r}: {role} link {link_name!r} is not defined")
+        if j.child in parent_joint:
+            raise ModelError(
+                f"closed chain: link {j.child!r} is the child of both joint "
+                f"{parent_joint[j.child].name!r} and joint {j.name!r}")
+        parent_joint[j.child] = j
+        children[j.parent].append(j)
+
+    roots = [name for name in links if name not in parent_joint]
+    if base_link is None:
+        if len(roots) != 1:
+            raise ModelError(f"closed chain or several trees: root links {roots}; "
+                             f"pass `base_link`")
+        base_link = roots[0]
+    if base_link not in links:
+        raise ModelError(f"base link {base_link!r} is not a link of {label} "
+                         f"(links: {sorted(links)})")
+    if tip_link is None:
+        leaves = _leaves_below(base_link, children)
+        if len(leaves) != 1:
+            raise ModelError(f"several leaf links below {base_link!r}: {leaves}; pass "
+                             f"`tip_link`")
+        tip_link = leaves[0]
+    if tip_link not in links:
+        raise ModelError(f"tip link {tip_link!r} is not a link of {label} "
+                         f"(links: {sorted(links)})")
+
+    # Path of joints from the base to the tip.
+    path = []
+    link = tip_link
+    while link != base_link:
+        if link not in parent_joint:
+            raise ModelError(f"tip link {tip_link!r} is not below base link {base_link!r}")
+        j = parent_joint[link]
+        path.append(j)
+        link = j.parent
+    path.reverse()
+    on_path = {j.name for j in path}
+    for j in path:
+        if j.type not in MOVING_TYPES + ("fixed",):
+            raise ModelError(f"joint {j.name!r}: unsupported type {j.type!r} (supported: "
+                             f"revolute, continuous, prismatic, fixed)")
+    moving = [j for j in path if j.type in MOVING_TYPES and j.name not in locked]
+    if not moving:
+        raise ModelError(f"no moving joint between {base_link!r} and {tip_link!r}")
+
+    def joint_motion(j, value):
+        rot, pos = _origin(j.origin)
+        axis = _joint_axis(j)
+        if j.type == "prismatic":
+            return rot, pos + rot @ axis * value
+        return rot @ _axis_rotation(axis, value), pos
+
+    def collect(root_link: str, next_joint):
+        """Links rigidly attached to ``root_link``, with their pose in its frame."""
+        poses = {root_link: (np.eye(3), np.zeros(3))}
+        stack = [root_link]
+        while stack:
+            lk = stack.pop()
+            rot_l, pos_l = poses[lk]
+            for j in children[lk]:
+                if next_joint is not None and j is next_joint:
+                    continue
+                if j.type in MOVING_TYPES and j.name not in locked:
+                    where = "on" if j.name in on_path else "off"
+                    raise ModelError(
+                        f"branching chain: moving joint {j.name!r} ({where} the "
+                        f"{base_link!r} -> {tip_link!r} path) branches off link {lk!r}; "
+                        f"choose another tip link or lock it with `locked_joints`")
+                if j.type not in MOVING_TYPES + ("fixed",):
+                    raise ModelError(f"joint {j.name!r}: unsupported type {j.type!r}")
+                value = float(locked.get(j.name, 0.0))
+                r, p = joint_motion(j, value) if j.type != "fixed" else _origin(j.origin)
+                poses[j.child] = (rot_l @ r, pos_l + rot_l @ p)
+                stack.append(j.child)
+        return poses
+
+    bodies = []
+    tau_max, damping, lower, upper, vmax, coulomb = [], [], [], [], [], []
+    frame_poses = collect(base_link, moving[0])
+    tip_pose = None
+    for idx, j in enumerate(moving):
+        rot_parent, pos_parent = frame_poses[j.parent]
+        rot_o, pos_o = _origin(j.origin)
+        nxt = moving[idx + 1] if idx + 1 < len(moving) else None
+        poses = collect(j.child, nxt)
+        mass, com, inertia = _lump_inertia(poses, links)
+        if mass < MIN_MASS:
+            raise ModelError(
+                f"link {j.child!r} (moved by joint {j.name!r}) has no <inertial> mass, nor "
+                f"does anything rigidly attached to it; the dynamics need mass and inertia")
+        bodies.append(Body(
+            joint=j.name, kind="prismatic" if j.type == "prismatic" else "revolute",
+            rotation=rot_parent @ rot_o, translation=pos_parent + rot_parent @ pos_o,
+            axis=_joint_axis(j), mass=mass, com=com, inertia=inertia,
+            links=tuple(poses)))
+        t_max, lo, hi, v_max = _joint_limits(j)
+        tau_max.append(t_max)
+        lower.append(lo)
+        upper.append(hi)
+        vmax.append(v_max)
+        dyn = j.dynamics
+        damping.append(float(dyn.damping or 0.0) if dyn is not None else 0.0)
+        coulomb.append(float(dyn.friction or 0.0) if dyn is not None else 0.0)
+        if damping[-1] < 0:
+            raise ModelError(f"joint {j.name!r}: <dynamics damping> must be >= 0, got "
+                             f"{damping[-1]}")
+        if tip_link in poses:
+            tip_pose = poses[tip_link]
+        frame_poses = poses
+    if tip_pose is None:  # pragma: no cover - the tip is on the path by construction
+        raise ModelError(f"tip link {tip_link!r} not reached")
+
+    model_axes = _task_axes(task_axes, bodies)
+    model = RobotModel(
+        name=robot.name or "robot",
+        joint_names=tuple(b.joint for b in bodies),
+        bodies=tuple(bodies),
+        tip_rotation=tip_pose[0], tip_translation=tip_pose[1],
+        base_link=base_link, tip_link=tip_link,
+        gravity=gravity_arr, task_axes=model_axes,
+        tau_max=np.array(tau_max), damping=np.array(damping),
+        q_lower=np.array(lower), q_upper=np.array(upper), qd_max=np.array(vmax),
+        coulomb=np.array(coulomb),
+    )
+    _check_positive_definite(model)
+    return model
+
+
+def _leaves_below(base: str, children: dict) -> list[str]:
+    leaves, stack = [], [base]
+    while stack:
+        lk = stack.pop()
+        if not children[lk]:
+            leaves.append(lk)
+        stack.extend(j.child for j in children[lk])
+    return sorted(leaves)
+
+
+def _joint_axis(j) -> np.ndarray:
+    axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
+    norm = np.linalg.norm(axis)
+    if axis.shape != (3,) or not np.isfinite(norm) or norm < 1e-12:
+        raise ModelError(f"joint {j.name!r}: <axis xyz> must be a non-zero 3-vector, got "
+                         f"{j.axis!r}")
+    return axis / norm
+
+
+def _joint_limits(j) -> tuple[float, float, float, float]:
+    lim = j.limit
+    if lim is None or lim.effort is None:
+        raise ModelError(f"joint {j.name!r}: <limit effort> is missing; the torque limit is "
+                         f"the control bound")
+    effort = float(lim.effort)
+    if not effort > 0 or not math.isfinite(effort):
+        raise ModelError(f"joint {j.name!r}: <limit effort> must be positive and finite, "
+                         f"got {lim.effort}")
+    velocity = math.inf if lim.velocity is None else float(lim.velocity)
+    if not velocity > 0:
+        raise ModelError(f"joint {j.name!r}: <limit velocity> must be positive, got "
+                         f"{lim.velocity}")
+    if j.type == "continuous":
+        return effort, -math.inf, math.inf, velocity
+    lo = -math.inf if lim.lower is None else float(lim.lower)
+    hi = math.inf if lim.upper is None else float(lim.upper)
+    if not lo < hi:
+        raise ModelError(f"joint {j.name!r}: position limits must satisfy lower < upper, got "
+                         f"lower={lim.lower} upper={lim.upper}")
+    return effort, lo, hi, velocity
+
+
+def _lump_inertia(poses: dict, links: dict) -> tuple[float, np.ndarray, np.ndarray]:
+    """Total mass (kg), centre of mass (3,) and inertia about it (3, 3) of rigid links."""
+    masses, coms, inertias = [], [], []
+    for name, (rot_l, pos_l) in poses.items():
+        inertial = links[name].inertial
+        if inertial is None or inertial.mass is None:
+            continue
+        mass = float(inertial.mass)
+        if mass < 0:
+            raise ModelError(f"link {name!r}: <mass> must be >= 0, got {mass}")
+        rot_i, pos_i = _origin(inertial.origin)
+        ine = inertial.inertia
+        tensor = np.zeros((3, 3)) if ine is None else np.array([
+            [ine.ixx, ine.ixy, ine.ixz], [ine.ixy, ine.iyy, ine.iyz],
+            [ine.ixz, ine.iyz, ine.izz]], dtype=float)
+        if np.any(np.linalg.eigvalsh(tensor) < -1e-12 * max(1.0, np.abs(tensor).max())):
+            raise ModelError(f"link {name!r}: <inertia> is not positive semi-definite")
+        rot = rot_l @ rot_i
+        masses.append(mass)
+        coms.append(pos_l + rot_l @ pos_i)
+        inertias.append(rot @ tensor @ rot.T)
+    total = float(sum(masses))
+    if total < MIN_MASS:
+        return 0.0, np.zeros(3), np.zeros((3, 3))
+    com = sum(mi * ci for mi, ci in zip(masses, coms, strict=True)) / total
+    inertia = np.zeros((3, 3))
+    for mi, ci, ii in zip(masses, coms, inertias, strict=True):
+        d = ci - com
+        inertia += ii + mi * (np.dot(d, d) * np.eye(3) - np.outer(d, d))
+    return total, com, inertia
+
+
+def _task_axes(task_axes, bodies: list[Body]) -> tuple[int, ...]:
+    if task_axes is not None:
+        if isinstance(task_axes, str):
+            if not task_axes or any(c not in "xyz" for c in task_axes) or \
+                    len(set(task_axes)) != len(task_axes):
+                raise ModelError(f"`task_axes` must be distinct letters of 'xyz', got "
+                                 f"{task_axes!r}")
+            return tuple("xyz".index(c) for c in task_axes)
+        axes = tuple(int(k) for k in task_axes)
+        if not axes or any(k not in (0, 1, 2) for k in axes) or len(set(axes)) != len(axes):
+            raise ModelError(f"`task_axes` must be distinct indices in 0..2, got {task_axes!r}")
+        return axes
+    # Planar detection at q = 0: every revolute axis parallel to one base axis e, every
+    # prismatic axis orthogonal to it, every link offset in the plane -> the other two axes.
+    rot = np.eye(3)
+    revolute, prismatic = [], []
+    offsets = []
+    for b in bodies:
+        offsets.append(rot @ b.translation)
+        rot = rot @ b.rotation
+        (prismatic if b.kind == "prismatic" else revolute).append(rot @ b.axis)
+    for e in range(3):
+        unit = np.eye(3)[e]
+        if revolute and all(abs(abs(a @ unit) - 1) < PLANAR_TOL for a in revolute) and \
+                all(abs(a @ unit) < PLANAR_TOL for a in prismatic):
+            return tuple(k for k in range(3) if k != e)
+    return (0, 1, 2)
+
+
+def _check_positive_definite(model: RobotModel) -> None:
+    q = np.clip(np.zeros(model.n), model.q_lower, model.q_upper)
+    mass = model.mass_matrix(q)
+    diag = np.diag(mass)
+    for i, value in enumerate(diag):
+        if not value > 1e-12 * max(1.0, diag.max()):
+            raise ModelError(
+                f"joint {model.joint_names[i]!r}: the bodies it moves have no inertia about "
+                f"or along its axis (M[{i},{i}] = {value:.3g}); add mass or inertia")
+    if np.linalg.eigvalsh(mass).min() <= 0:
+        raise ModelError("the mass matrix is not positive definite at q = 0; check the "
+                         "<inertial> elements")
