@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -500,9 +501,12 @@ def _read_urdf(source):
         label = str(path)
         if not path.is_file():
             raise ModelError(f"URDF file not found: {path}")
-        text = path.read_text()
+        # Bytes, so that lxml honours an `<?xml ... encoding="..."?>` declaration (it
+        # rejects a str that carries one, and xacro output always does).
+        text = path.read_bytes()
     elif isinstance(source, str):
-        text = source
+        # A str is already decoded: its encoding declaration is stale, and lxml refuses it.
+        text = re.sub(r"^\s*<\?xml[^>]*\?>", "", source, count=1)
     else:
         raise ModelError(f"`source` must be a URDF path or XML string, got "
                          f"{type(source).__name__}")
