@@ -1,0 +1,79 @@
+"""setup.py's EXECUTABLES, the ros2-run wrappers and the modules agree.
+
+Also checks the wrapper's choice of interpreter on both routes with stand-in
+interpreters, without installing anything.
+"""
+
+import ast
+import os
+import shutil
+import subprocess
+
+import pytest
+
+PACKAGE = "tocontrol_ros"
+WRAPPER_DIR = ("scripts", "ros2run")
+
+
+def _wrapper_dir(repo):
+    return repo.joinpath(*WRAPPER_DIR)
+
+
+def test_one_wrapper_per_executable(repo, executables):
+    wrappers = {p.name for p in _wrapper_dir(repo).iterdir() if not p.name.startswith(".")}
+    assert wrappers == set(executables), (
+        "scripts/ros2run/ must hold exactly one wrapper per setup.py EXECUTABLES entry"
+    )
+
+
+def test_wrappers_are_executable_posix_sh(repo, executables):
+    for name, module in executables.items():
+        path = _wrapper_dir(repo) / name
+        text = path.read_text()
+        assert text.startswith("#!/bin/sh\n"), path
+        assert os.access(path, os.X_OK), f"{path} lacks the exec bit (git update-index --chmod)"
+        assert f'exec "$PY" -m {module} "$@"' in text, f"{path} does not run {module}"
+        subprocess.run(["sh", "-n", str(path)], check=True)
+
+
+def test_modules_have_main_and_run_as_scripts(repo, executables):
+    for name, module in executables.items():
+        assert module.startswith(PACKAGE + "."), f"{name}: {module} is outside the package"
+        path = repo.joinpath(*module.split(".")).with_suffix(".py")
+        assert path.is_file(), f"{name}: no module file {path}"
+        tree = ast.parse(path.read_text(), filename=str(path))
+        functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+        assert "main" in functions, f"{module} has no top-level main()"
+        guards = [
+            n
+            for n in tree.body
+            if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test)
+        ]
+        assert guards, f'{module} lacks `if __name__ == "__main__":` (python -m runs it)'
+
+
+def _fake_python(path, label):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f'#!/bin/sh\necho "{label} $*"\n')
+    path.chmod(0o755)
+
+
+@pytest.mark.parametrize("route", ["pip", "colcon"])
+def test_wrapper_picks_interpreter(repo, tmp_path, route):
+    prefix = tmp_path / "prefix"
+    wrapper = prefix / "lib" / PACKAGE / "demo"
+    wrapper.parent.mkdir(parents=True)
+    shutil.copy2(_wrapper_dir(repo) / "demo", wrapper)
+    if route == "pip":
+        _fake_python(prefix / "bin" / "python3", "prefix-python")
+    _fake_python(tmp_path / "path" / "python3", "path-python")
+    env = {"PATH": f"{tmp_path / 'path'}:/usr/bin:/bin"}
+    out = subprocess.run(
+        [str(wrapper), "--urdf", "a b.urdf"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    expected = "prefix-python" if route == "pip" else "path-python"
+    assert out == f"{expected} -m tocontrol_ros.demo --urdf a b.urdf"
