@@ -1,0 +1,186 @@
+"""Inverse kinematics: configurations that put the tip at a task-space point.
+
+The solver seeds its starts with configurations spread over the self-motion manifold of
+each end point. For a planar arm the manifold is swept by the absolute angle of the last
+link (``phi = sum q`` for revolute joints about parallel axes) and the elbow sign; for the
+standard planar 3R (link offsets along each frame's x axis) this is closed form. Other arms
+use Levenberg-Marquardt (``scipy.optimize.least_squares``) from spread seeds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .model import RobotModel
+
+__all__ = ["solve_ik", "ik_family", "wrap_angles"]
+
+#: A configuration counts as reaching a point when ``|P(q) - p|`` is below this (m).
+IK_TOL = 1e-9
+
+
+def wrap_angles(q: np.ndarray, model: RobotModel) -> np.ndarray:
+    """Wrap continuous (unlimited revolute) joints into (-pi, pi]; other joints unchanged."""
+    q = np.array(q, dtype=float)
+    cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
+    q[cont] = np.pi - np.mod(np.pi - q[cont], 2 * np.pi)
+    return q
+
+
+def _bounds(model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+    return model.q_lower.copy(), model.q_upper.copy()
+
+
+def _lm(model: RobotModel, p: np.ndarray, seed: np.ndarray, phi: float | None = None):
+    fk = model.function("P")
+    jac = model.function("J")
+    lo, hi = _bounds(model)
+    seed = np.clip(seed, np.where(np.isfinite(lo), lo + 1e-9, -np.inf),
+                   np.where(np.isfinite(hi), hi - 1e-9, np.inf))
+
+    def res(q):
+        r = np.array(fk(q)).ravel() - p
+        if phi is not None:
+            d = np.sum(q) - phi
+            r = np.append(r, np.arctan2(np.sin(d), np.cos(d)))
+        return r
+
+    def jacobian(q):
+        j = np.array(jac(q))
+        if phi is not None:
+            j = np.vstack([j, np.ones(model.n)])
+        return j
+
+    sol = least_squares(res, seed, jac=jacobian, bounds=(lo, hi), method="trf",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+    err = np.linalg.norm(np.array(fk(sol.x)).ravel() - p)
+    return sol.x, err
+
+
+def _planar3r_lengths(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
+    """Offsets of a standard planar 3R (all frames aligned, offsets along x), else None."""
+    if model.n != 3 or model.m != 2 or model.task_axes != (0, 1):
+        return None
+    for b in model.bodies:
+        if b.kind != "revolute" or not np.allclose(b.rotation, np.eye(3)) or \
+                not np.allclose(b.axis, [0, 0, 1]):
+            return None
+    offsets = [b.translation for b in model.bodies[1:]] + [model.tip_translation]
+    if not np.allclose(model.tip_rotation, np.eye(3)):
+        return None
+    if any(abs(o[1]) > 1e-12 or o[0] <= 0 for o in offsets):
+        return None
+    return model.bodies[0].translation[:2], offsets[0][0], offsets[1][0], offsets[2][0]
+
+
+def _planar3r(model: RobotModel, p: np.ndarray, phi: float, elbow: int) -> np.ndarray | None:
+    base, l1, l2, l3 = _planar3r_lengths(model)
+    w = p - base - l3 * np.array([np.cos(phi), np.sin(phi)])
+    c2 = (w @ w - l1**2 - l2**2) / (2 * l1 * l2)
+    if abs(c2) > 1:
+        return None
+    q2 = elbow * np.arccos(np.clip(c2, -1, 1))
+    q1 = np.arctan2(w[1], w[0]) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
+    q = np.array([q1, q2, phi - q1 - q2])
+    return q
+
+
+def solve_ik(model: RobotModel, p, q_seed=None, tries: int = 8,
+             rng: np.random.Generator | None = None) -> np.ndarray | None:
+    """One configuration with ``P(q) = p``, or None when none is found.
+
+    Parameters
+    ----------
+    model : RobotModel
+    p : array_like, shape (m,)
+        Task-space point (m).
+    q_seed : array_like, shape (n,), optional
+        First seed; random seeds within the limits follow.
+    tries : int
+        Number of seeds.
+    rng : numpy.random.Generator, optional
+        Source of the random seeds (default: seeded, so results repeat).
+
+    Returns
+    -------
+    ndarray, shape (n,) or None
+    """
+    p = np.asarray(p, dtype=float)
+    rng = np.random.default_rng(0) if rng is None else rng
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    seeds = [np.asarray(q_seed, dtype=float)] if q_seed is not None else []
+    seeds += [rng.uniform(lo, hi) for _ in range(tries)]
+    for seed in seeds:
+        q, err = _lm(model, p, seed)
+        if err < IK_TOL:
+            return wrap_angles(q, model)
+    return None
+
+
+def ik_family(model: RobotModel, p, count: int = 12,
+              rng: np.random.Generator | None = None) -> list[np.ndarray]:
+    """Configurations spread over the self-motion manifold of ``p``.
+
+    Parameters
+    ----------
+    model : RobotModel
+    p : array_like, shape (m,)
+        Task-space point (m).
+    count : int
+        Planar arms: number of absolute angles of the last link, each with both elbows.
+        Other arms: number of seeds.
+    rng : numpy.random.Generator, optional
+
+    Returns
+    -------
+    list of ndarray, shape (n,)
+        Distinct configurations (continuous joints wrapped into (-pi, pi]); empty when
+        ``p`` is out of reach.
+    """
+    p = np.asarray(p, dtype=float)
+    rng = np.random.default_rng(0) if rng is None else rng
+    found: list[np.ndarray] = []
+
+    def add(q):
+        if q is None:
+            return
+        q = wrap_angles(q, model)
+        if np.linalg.norm(model.point(q) - p) > IK_TOL:
+            return
+        if all(np.linalg.norm(np.angle(np.exp(1j * (q - f)))) > 1e-6 for f in found):
+            found.append(q)
+
+    phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
+    if _planar3r_lengths(model) is not None:
+        for phi in phis:
+            for elbow in (1, -1):
+                add(_planar3r(model, p, phi, elbow))
+        return found
+    planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
+        model.n >= 3 and _axes_parallel(model)
+    if planar:
+        for phi in phis:
+            for elbow in (1, -1):
+                seed = np.full(model.n, 0.3 * elbow)
+                q, err = _lm(model, p, seed, phi=phi)
+                if err < IK_TOL:
+                    add(q)
+        return found
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    for _ in range(count):
+        q, err = _lm(model, p, rng.uniform(lo, hi))
+        if err < IK_TOL:
+            add(q)
+    return found
+
+
+def _axes_parallel(model: RobotModel) -> bool:
+    rot = np.eye(3)
+    axes = []
+    for b in model.bodies:
+        rot = rot @ b.rotation
+        axes.append(rot @ b.axis)
+    return all(abs(abs(a @ axes[0]) - 1) < 1e-9 for a in axes)

@@ -1,0 +1,156 @@
+"""Pontryagin's maximum principle on the strictly convex control set ``sum u_i^(2k) <= 1``.
+
+Notation of the paper (Galicki): state ``x = (q, qd)`` of size 2n, costate ``psi`` of size
+2n, dynamics ``xd = f(x, u) = A(x) + B(x) u`` (5), Hamiltonian (9)
+
+    H = -1 + <A(x), psi> + sum_i S_i u_i,   S = B(x)^T psi = diag(tau_max) M(q)^-1 psi_qd,
+
+the control that maximises ``H`` on the set (8) (eq. 15, odd roots keep the sign)
+
+    u_i = sign(S_i) |S_i|^(1/(2k-1)) / (sum_j |S_j|^(2k/(2k-1)))^(1/(2k)),
+
+and the canonical system (16): ``xd = dH/dpsi``, ``psid = -dH/dx``. Because ``u*`` maximises
+``H`` over a set that does not depend on ``x``, ``dH/dx`` is the partial derivative at fixed
+``u`` evaluated at ``u*`` (envelope theorem), which is what is built here.
+
+Smoothing: for k > 1 the map ``S -> u`` has an infinite slope where some ``S_i = 0``. The
+solver may replace ``|S_i|`` by ``a_i = sqrt(S_i^2 + delta^2 |S|^2)``; ``delta`` is relative to
+``|S|`` so that the law stays homogeneous of degree 0 in ``S`` like (15). ``delta = 0`` is
+the paper's law exactly; the solver drives ``delta`` to 0.
+
+Time is normalised, ``t = T tau`` with ``tau`` in [0, 1], so that the free final time is a
+parameter: ``dz/dtau = T F(z)`` with ``z = (x, psi)``.
+"""
+
+from __future__ import annotations
+
+import re
+
+import casadi as ca
+import numpy as np
+
+from .model import RobotModel
+
+__all__ = ["CanonicalSystem", "control_law"]
+
+
+def control_law(s, k, delta=0.0):
+    """The maximising control (15), optionally smoothed, for symbolic or numeric ``S``.
+
+    Parameters
+    ----------
+    s : casadi.SX or ndarray, shape (n,) or (n, N)
+        Switching functions ``S_i`` (columns are time samples for arrays).
+    k : float or casadi.SX
+        Convexification exponent, ``k >= 1``.
+    delta : float or casadi.SX
+        Relative smoothing; 0 gives (15) exactly.
+
+    Returns
+    -------
+    Same type as ``s``
+        Normalised controls with ``sum u_i^(2k) = 1`` (``< 1`` when ``delta > 0``).
+    """
+    p = 1.0 / (2 * k - 1)
+    if isinstance(s, (ca.SX, ca.MX)):
+        norm2 = ca.sumsqr(s)
+        a = ca.sqrt(s * s + delta**2 * norm2)
+        den = ca.sum1(a ** (2 * k * p)) ** (1.0 / (2 * k))
+        return s * a ** (p - 1) / den
+    s = np.asarray(s, dtype=float)
+    norm2 = np.sum(s * s, axis=0)
+    a = np.sqrt(s * s + delta**2 * norm2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        num = np.where(a > 0, s * a ** (p - 1), 0.0)
+    den = np.sum(a ** (2 * k * p), axis=0) ** (1.0 / (2 * k))
+    return num / den
+
+
+class CanonicalSystem:
+    """Symbolic canonical system of one model, and the compiled functions built on it.
+
+    Parameters
+    ----------
+    model : RobotModel
+
+    Attributes
+    ----------
+    z : casadi.SX, shape (4n, 1)
+        ``(q, qd, psi_q, psi_qd)``.
+    par : casadi.SX, shape (3, 1)
+        ``(k, delta, torque_scale)``; ``torque_scale = 1 - reserve`` multiplies ``tau_max``.
+    rhs : casadi.SX, shape (4n, 1)
+        ``F(z)`` in physical time (per second).
+    u, s, ham : casadi.SX
+        Control (n), switching functions (n) and Hamiltonian (scalar) at ``z``.
+    """
+
+    def __init__(self, model: RobotModel) -> None:
+        self.model = model
+        n = model.n
+        self.n = n
+        self.z = ca.SX.sym("z", 4 * n)
+        self.par = ca.SX.sym("par", 3)
+        k, delta, scale = self.par[0], self.par[1], self.par[2]
+        q, qd = self.z[:n], self.z[n:2 * n]
+        psi = self.z[2 * n:]
+        x = self.z[:2 * n]
+        tau_max = ca.DM(model.tau_max) * scale
+        mass = model.mass_matrix_sym(q)
+        bias = model.bias_sym(q, qd)
+        self.s = tau_max * ca.solve(mass, psi[n:])
+        self.u = control_law(self.s, k, delta)
+        uf = ca.SX.sym("uf", n)  # u held fixed for the envelope-theorem derivative
+        xd = ca.vertcat(qd, ca.solve(mass, tau_max * uf - bias))
+        ham_u = -1 + ca.dot(psi, xd)
+        psid = -ca.gradient(ham_u, x)
+        self.rhs = ca.substitute(ca.vertcat(xd, psid), uf, self.u)
+        self.ham = ca.substitute(ham_u, uf, self.u)
+        self._cache: dict = {}
+        self.compile_status = "not compiled yet"
+
+    def pointwise(self) -> ca.Function:
+        """``(z, par) -> (F, u, S, H)`` at one point (physical time); maps over columns."""
+        if "pointwise" not in self._cache:
+            self._cache["pointwise"] = ca.Function(
+                "pointwise", [self.z, self.par], [self.rhs, self.u, self.s, self.ham],
+                ["z", "par"], ["F", "u", "S", "H"])
+        return self._cache["pointwise"]
+
+    def rhs_function(self) -> ca.Function:
+        """``(z, par) -> F(z)``, physical time."""
+        if "rhs" not in self._cache:
+            self._cache["rhs"] = ca.Function("F", [self.z, self.par], [self.rhs])
+        return self._cache["rhs"]
+
+    def step_function(self) -> ca.Function:
+        """One RK4 step and its Jacobians: ``(z, h, par) -> (z1, dz1/dz, dz1/dh)``.
+
+        ``h`` is the physical step (s). Compiled to C and cached on disk (see
+        :mod:`tocontrol_ros.core.compiled`).
+        """
+        if "step" not in self._cache:
+            from .compiled import compile_function
+
+            z0 = ca.SX.sym("z0", 4 * self.n)
+            h = ca.SX.sym("h")
+            f = self.rhs_function()
+            k1 = f(z0, self.par)
+            k2 = f(z0 + 0.5 * h * k1, self.par)
+            k3 = f(z0 + 0.5 * h * k2, self.par)
+            k4 = f(z0 + h * k3, self.par)
+            z1 = z0 + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            name = re.sub(r"\W", "_", self.model.name)
+            fun = ca.Function(f"tocontrol_rk4_{name}_{self.n}",
+                              [z0, h, self.par],
+                              [z1, ca.jacobian(z1, z0), ca.jacobian(z1, h)],
+                              ["z0", "h", "par"], ["z1", "dz1_dz0", "dz1_dh"])
+            self._cache["step"], self.compile_status = compile_function(fun)
+        return self._cache["step"]
+
+    def step_map(self, count: int) -> ca.Function:
+        """:meth:`step_function` mapped over ``count`` columns (one step per interval)."""
+        key = ("step_map", count)
+        if key not in self._cache:
+            self._cache[key] = self.step_function().map(count, "serial")
+        return self._cache[key]

@@ -1,0 +1,162 @@
+"""Planning problems: start and target, each a task-space point or a joint state.
+
+A point leaves the configuration free on the self-motion manifold ``P(q) = p`` (the paper's
+setting, with ``qd = 0``); a joint state fixes ``q`` and ``qd`` (the robot's current state;
+a target joint state is always at rest).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ProblemError
+from .model import RobotModel
+
+__all__ = ["Endpoint", "Problem", "point", "joint_state"]
+
+#: Convexification exponents above this make ``|S|^(1/(2k-1))`` numerically a sign function.
+MAX_K = 64.0
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """One end of a motion.
+
+    Attributes
+    ----------
+    kind : {"point", "state"}
+    value : ndarray
+        The task-space point, shape (m,) (m), or the joint state ``(q, qd)``, shape (2n,).
+    """
+
+    kind: str
+    value: np.ndarray = field(repr=False)
+
+    def __repr__(self) -> str:
+        return f"Endpoint({self.kind}, {np.array2string(self.value, precision=4)})"
+
+
+def _finite(name: str, arr, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        a = np.asarray(arr, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ProblemError(f"`{name}` must be numeric, got {arr!r}") from exc
+    if a.shape != shape:
+        raise ProblemError(f"`{name}` must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ProblemError(f"`{name}` must be finite, got {a.tolist()}")
+    return a
+
+
+def point(p) -> Endpoint:
+    """A task-space point end (configuration free, at rest). Shape checked by :class:`Problem`."""
+    return Endpoint("point", np.atleast_1d(np.asarray(p, dtype=float)))
+
+
+def joint_state(q, qd=None) -> Endpoint:
+    """A joint-state end: positions ``q`` (rad, m) and velocities ``qd`` (default 0)."""
+    q = np.atleast_1d(np.asarray(q, dtype=float))
+    qd = np.zeros_like(q) if qd is None else np.atleast_1d(np.asarray(qd, dtype=float))
+    return Endpoint("state", np.concatenate([q, qd]))
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A time-optimal point-to-point problem for one model.
+
+    Parameters
+    ----------
+    model : RobotModel
+    start, target : Endpoint
+        Built with :func:`point` or :func:`joint_state`; a target joint state must be at rest.
+    k : float
+        Convexification exponent of the control set ``sum u_i^(2k) <= 1``, ``1 <= k <= 64``.
+        Integers reproduce the paper; the solver continues from 1 up to ``k``.
+    reserve : float
+        Torque reserve ``r`` in [0, 1): plan against ``(1 - r) tau_max``.
+
+    Raises
+    ------
+    ProblemError
+        Wrong shapes, NaN or infinite values, ``k`` or ``reserve`` out of range, an
+        unreachable point, a joint state outside the position limits, a moving target state.
+    """
+
+    model: RobotModel
+    start: Endpoint
+    target: Endpoint
+    k: float = 1.0
+    reserve: float = 0.0
+
+    def __post_init__(self) -> None:
+        model = self.model
+        try:
+            k = float(self.k)
+        except (TypeError, ValueError) as exc:
+            raise ProblemError(f"`k` must be a number, got {self.k!r}") from exc
+        if not (np.isfinite(k) and 1.0 <= k <= MAX_K):
+            raise ProblemError(f"`k` must be in [1, {MAX_K:g}], got {self.k!r}")
+        object.__setattr__(self, "k", k)
+        r = float(self.reserve)
+        if not (np.isfinite(r) and 0.0 <= r < 1.0):
+            raise ProblemError(f"`reserve` must be in [0, 1), got {self.reserve!r}")
+        for name in ("start", "target"):
+            end = getattr(self, name)
+            if not isinstance(end, Endpoint):
+                raise ProblemError(f"`{name}` must be an Endpoint (use point() or "
+                                   f"joint_state()), got {type(end).__name__}")
+            if end.kind == "point":
+                p = _finite(f"{name} point", end.value, (model.m,))
+                _check_reachable(model, name, p)
+            elif end.kind == "state":
+                x = _finite(f"{name} joint state", end.value, (2 * model.n,))
+                q = x[:model.n]
+                bad = np.flatnonzero((q < model.q_lower) | (q > model.q_upper))
+                if bad.size:
+                    i = int(bad[0])
+                    raise ProblemError(
+                        f"`{name}` joint {model.joint_names[i]!r} at {q[i]:.6g} is outside its "
+                        f"limits [{model.q_lower[i]:.6g}, {model.q_upper[i]:.6g}]")
+                if name == "target" and np.any(x[model.n:] != 0):
+                    raise ProblemError("`target` joint state must be at rest (qd = 0), got "
+                                       f"qd = {x[model.n:].tolist()}")
+            else:
+                raise ProblemError(f"`{name}.kind` must be 'point' or 'state', got "
+                                   f"{end.kind!r}")
+
+    @property
+    def start_point(self) -> np.ndarray:
+        """The start end-effector point, shape (m,), whatever the kind of start."""
+        if self.start.kind == "point":
+            return self.start.value
+        return self.model.point(self.start.value[:self.model.n])
+
+    @property
+    def target_point(self) -> np.ndarray:
+        """The target end-effector point, shape (m,)."""
+        if self.target.kind == "point":
+            return self.target.value
+        return self.model.point(self.target.value[:self.model.n])
+
+    def is_trivial(self, tol: float = 1e-9) -> bool:
+        """True when the start already satisfies the target at rest (nothing to move)."""
+        n = self.model.n
+        if self.start.kind == "state" and np.any(np.abs(self.start.value[n:]) > tol):
+            return False
+        if self.start.kind == "state" and self.target.kind == "state":
+            return bool(np.all(np.abs(self.start.value - self.target.value) <= tol))
+        if self.target.kind == "state":
+            return False
+        return bool(np.linalg.norm(self.start_point - self.target_point) <= tol)
+
+
+def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
+    """Reject points that no configuration reaches (numerical IK, a few starts)."""
+    from .ik import solve_ik
+
+    q = solve_ik(model, p)
+    if q is None:
+        raise ProblemError(f"`{name}` point {p.tolist()} is not reachable by {model.name!r} "
+                           f"(reach about {model.reach():.4g} m from the first joint)")

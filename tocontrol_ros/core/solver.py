@@ -1,0 +1,729 @@
+"""Time-optimal planning: guess, continuation, multistart, warm start, verification.
+
+:func:`plan` is the one-shot entry point. For one start it
+
+1. solves a coarse direct transcription (k = 1) from a pair of inverse-kinematics seeds; its
+   multipliers are the initial costates (:mod:`tocontrol_ros.core.direct`);
+2. solves the boundary-value problem (16), (21) by multiple shooting and Newton at k = 1
+   (:mod:`tocontrol_ros.core.shooting`);
+3. continues in ``k`` (doubling up to the requested value, bisecting a step that fails),
+   with the control law smoothed by ``delta`` at intermediate values;
+4. at the requested ``k``, drives ``delta`` down until ``T`` no longer changes and refines
+   the mesh until every interval's RK4 error estimate is below tolerance;
+5. verifies the result (residual, ``H``, re-integration of the nominal torques).
+
+Multistart runs step 1 from several seed pairs spread over the self-motion manifolds,
+groups the direct solutions by basin and continues the most promising ones; the best is
+returned and the others listed. A warm start skips the guess and continues from a previous
+solution (e.g. after the target moved).
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .direct import DirectCollocation, DirectResult, initial_path
+from .ik import ik_family
+from .pmp import CanonicalSystem
+from .problem import Problem
+from .shooting import NewtonReport, ShootingGrid, newton_solve
+from .trajectory import Trajectory
+
+__all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan"]
+
+
+class Status(enum.Enum):
+    """Outcome of :func:`plan`; the value is a readable sentence."""
+
+    SUCCESS = "solved and verified"
+    TRIVIAL = "start and target coincide: nothing to move"
+    NO_GUESS = "the direct method found no feasible initial guess"
+    NEWTON_FAILED = "Newton's method did not converge at k = 1"
+    CONTINUATION_FAILED = "continuation in k stalled before the requested k"
+    VERIFICATION_FAILED = "converged, but the verification failed"
+    CANCELLED = "cancelled"
+    TIME_LIMIT = "time limit reached"
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Tolerances and limits of :func:`plan` (validated on construction).
+
+    Attributes
+    ----------
+    tol : float
+        Newton converges when the max-norm of the BVP equations is below this.
+    max_newton : int
+        Newton iterations per solve (each continuation step is one solve).
+    intervals : int
+        Initial number of shooting intervals.
+    steps : int
+        RK4 steps per shooting interval.
+    guess_intervals : int
+        Mesh intervals of the direct method that makes the initial guess.
+    integration_tol : float
+        Mesh refinement: max RK4 error estimate per interval (max-norm of ``z``).
+    max_intervals : int
+        Mesh refinement stops here.
+    smoothing : tuple of float
+        Decreasing ``delta`` schedule tried at the requested ``k`` (for k > 1).
+    smoothing_intermediate : float
+        ``delta`` used at intermediate continuation values of ``k``.
+    smoothing_tol : float
+        Decreasing ``delta`` stops once ``T`` changes by less than this, relatively.
+    min_k_step : float
+        Continuation gives up when a failed step in ``k`` would be bisected below this.
+    starts : int
+        Seed pairs tried by the direct method (1 = single start).
+    candidates : int
+        Distinct direct solutions continued to the requested ``k`` by shooting.
+    ik_count : int
+        Angles of the self-motion family per end point (see :func:`ik_family`).
+    verify : bool
+        Re-integrate the nominal torques through the model (adaptive integrator).
+    verify_point_tol : float
+        Re-integration must reach the target within this (m).
+    verify_velocity_tol : float
+        ...and end at rest within this (rad/s or m/s).
+    time_limit : float
+        Wall-time budget (s); the best result so far is reported when it runs out.
+    """
+
+    tol: float = 1e-10
+    max_newton: int = 30
+    intervals: int = 12
+    steps: int = 6
+    guess_intervals: int = 12
+    integration_tol: float = 1e-9
+    max_intervals: int = 400
+    smoothing: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 0.0)
+    smoothing_intermediate: float = 1e-3
+    smoothing_tol: float = 1e-9
+    min_k_step: float = 0.05
+    starts: int = 1
+    candidates: int = 1
+    ik_count: int = 8
+    verify: bool = True
+    verify_point_tol: float = 1e-4
+    verify_velocity_tol: float = 1e-3
+    time_limit: float = 60.0
+
+    def __post_init__(self) -> None:
+        positive = ("tol", "integration_tol", "smoothing_tol", "min_k_step",
+                    "verify_point_tol", "verify_velocity_tol", "time_limit",
+                    "smoothing_intermediate")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"`{name}` must be a positive number, got {value!r}")
+        for name in ("max_newton", "intervals", "steps", "guess_intervals", "max_intervals",
+                     "starts", "candidates", "ik_count"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, np.integer)) and value >= 1):
+                raise ValueError(f"`{name}` must be an integer >= 1, got {value!r}")
+        sm = tuple(float(d) for d in self.smoothing)
+        if not sm or any(d < 0 or not np.isfinite(d) for d in sm) or \
+                any(b >= a for a, b in zip(sm, sm[1:], strict=False)):
+            raise ValueError(f"`smoothing` must be a non-empty strictly decreasing sequence "
+                             f"of numbers >= 0, got {self.smoothing!r}")
+        object.__setattr__(self, "smoothing", sm)
+
+
+@dataclass(frozen=True)
+class StartRecord:
+    """One start of a multistart: its seeds and what became of it.
+
+    Attributes
+    ----------
+    index : int
+        Rank of the seed pair (0 = the first start).
+    q_start, q_target : ndarray, shape (n,)
+        Seed configurations (rad, m).
+    guess_T : float
+        ``T`` of the direct method at k = 1 (s), NaN when it failed.
+    T : float
+        Final ``T`` at the requested k (s), NaN when not continued or failed.
+    status : str
+    """
+
+    index: int
+    q_start: np.ndarray
+    q_target: np.ndarray
+    guess_T: float
+    T: float
+    status: str
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of :func:`plan`, in the manner of ``scipy.integrate.solve_bvp``'s result.
+
+    Attributes
+    ----------
+    success : bool
+    status : Status
+    message : str
+    T : float
+        Minimum time (s); NaN when there is no solution.
+    k : float
+        Exponent reached (the requested one on success).
+    trajectory : Trajectory or None
+    residual : float
+        Max-norm of the BVP equations (continuity, boundary, transversality, ``H(T)``).
+    iterations : int
+        Newton iterations, all continuation steps of the returned start included.
+    timings : dict of str to float
+        Wall time per phase (s): ``guess``, ``shooting``, ``refine``, ``verify``, ``total``.
+    continuation : tuple of (k, delta, T, iterations, residual)
+    max_abs_u : float
+        ``max_i,t |u_i|``: the headroom left is ``1 - max_abs_u``.
+    delta : float
+        Smoothing of the control law in the returned solution (0 = the paper's law).
+    intervals : int
+        Shooting intervals of the final mesh.
+    verification : dict
+        ``point_error`` (m), ``velocity_error``, ``max_abs_H``, ``max_set_error``
+        (``max |sum u^2k - 1|``) and ``reintegration`` details.
+    warnings : tuple of str
+        E.g. URDF position or velocity limits violated (joint and time).
+    starts : tuple of StartRecord
+    """
+
+    success: bool
+    status: Status
+    message: str
+    T: float
+    k: float
+    trajectory: Trajectory | None
+    residual: float
+    iterations: int
+    timings: dict
+    continuation: tuple
+    max_abs_u: float
+    delta: float
+    intervals: int
+    verification: dict = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    starts: tuple[StartRecord, ...] = ()
+    problem: Problem | None = field(default=None, repr=False)
+    _state: dict = field(default_factory=dict, repr=False)
+
+
+# ----------------------------------------------------------------- planner cache
+class Planner:
+    """Holds the compiled functions of one model, reused across many solves.
+
+    Parameters
+    ----------
+    model : RobotModel
+    """
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.system = CanonicalSystem(model)
+        self._direct: dict = {}
+        self._lock = threading.Lock()
+
+    def direct(self, problem: Problem, intervals: int, box: bool = False,
+               tol: float = 1e-8) -> DirectCollocation:
+        """The direct transcription for this problem's kinds (built once, cached)."""
+        key = (intervals, problem.start.kind, problem.target.kind, box,
+               1.0 - problem.reserve, tol)
+        with self._lock:
+            if key not in self._direct:
+                self._direct[key] = DirectCollocation(
+                    self.model, intervals, problem.start.kind, problem.target.kind, box=box,
+                    torque_scale=1.0 - problem.reserve, tol=tol)
+            return self._direct[key]
+
+    def plan(self, problem: Problem, options: SolverOptions | None = None,
+             warm_start: PlanResult | None = None, should_stop=None) -> PlanResult:
+        """See :func:`plan`."""
+        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
+
+
+_PLANNERS: dict[int, Planner] = {}
+
+
+def plan(problem: Problem, options: SolverOptions | None = None,
+         warm_start: PlanResult | None = None, should_stop=None) -> PlanResult:
+    """Solve a time-optimal problem.
+
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions, optional
+    warm_start : PlanResult, optional
+        A previous successful result of the same model, start kind and target kind: its
+        solution is continued to this problem (no guess, no continuation in ``k`` when the
+        exponents match). Falls back to a cold solve when it does not converge.
+    should_stop : callable, optional
+        Polled between Newton iterations; returning True cancels the solve.
+
+    Returns
+    -------
+    PlanResult
+        Never raises for numerical failure: see ``success``, ``status`` and ``message``.
+    """
+    planner = _PLANNERS.get(id(problem.model))
+    if planner is None or planner.model is not problem.model:
+        planner = Planner(problem.model)
+        _PLANNERS[id(problem.model)] = planner
+    return planner.plan(problem, options, warm_start, should_stop)
+
+
+# ---------------------------------------------------------------------- helpers
+def _values(problem: Problem) -> np.ndarray:
+    return np.concatenate([problem.start.value, problem.target.value])
+
+
+def _seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarray, ...]]:
+    """Seed pairs (q_start, q_target), most promising first.
+
+    Each start configuration of the family is paired with each target configuration, the
+    target unwrapped to the nearest equivalent angles (the short way) and, for continuous
+    distal joints, also one full turn the other way; pairs are ranked by a bang-bang time
+    estimate with diagonal inertia.
+    """
+    model = problem.model
+    n = model.n
+    if problem.start.kind == "state":
+        starts = [problem.start.value[:n]]
+    else:
+        starts = ik_family(model, problem.start.value, options.ik_count)
+    if problem.target.kind == "state":
+        targets = [problem.target.value[:n]]
+    else:
+        targets = ik_family(model, problem.target.value, options.ik_count)
+    cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
+    acc = model.tau_max * (1 - problem.reserve)
+    pairs = []
+    for qa in starts:
+        inertia = np.diag(model.mass_matrix(qa))
+        for qb in targets:
+            d = qb - qa
+            if problem.target.kind == "point":
+                d = np.where(cont, np.angle(np.exp(1j * d)), d)
+            variants = [d]
+            if problem.target.kind == "point" and cont[-1]:
+                turn = np.zeros(n)
+                turn[-1] = -2 * np.pi * np.sign(d[-1]) if d[-1] != 0 else 2 * np.pi
+                variants.append(d + turn)
+            for dv in variants:
+                est = float(np.max(2 * np.sqrt(np.abs(dv) * inertia / acc)))
+                pairs.append((est, qa, qa + dv))
+    pairs.sort(key=lambda p: p[0])
+    return [(qa, qb) for _, qa, qb in pairs]
+
+
+def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:
+    tau_d = direct.t / direct.T
+    z = np.hstack([direct.x, direct.psi])
+    return np.stack([np.interp(tau_nodes, tau_d, z[:, i]) for i in range(z.shape[1])], axis=1)
+
+
+def _k_schedule(k: float) -> list[float]:
+    ks = [1.0]
+    while ks[-1] * 2 < k:
+        ks.append(ks[-1] * 2)
+    if k > 1:
+        ks.append(float(k))
+    return ks
+
+
+@dataclass
+class _Run:
+    """Mutable state of one start while it is being solved."""
+
+    grid: ShootingGrid
+    w: np.ndarray
+    k: float
+    delta: float
+    iterations: int = 0
+    log: list = field(default_factory=list)
+    residual: float = np.inf
+
+
+class _Stop(Exception):
+    """Internal: the deadline passed or the caller cancelled."""
+
+    def __init__(self, status: Status) -> None:
+        super().__init__(status.value)
+        self.status = status
+
+
+def _newton(planner: Planner, run: _Run, problem: Problem, k: float, delta: float,
+            options: SolverOptions, deadline: float, should_stop) -> NewtonReport:
+    par = np.array([k, delta, 1.0 - problem.reserve])
+    rep = newton_solve(run.grid, run.w, _values(problem), par, tol=options.tol,
+                       max_iter=options.max_newton, deadline=deadline,
+                       should_stop=should_stop)
+    run.iterations += rep.iterations
+    if rep.message == "cancelled":
+        raise _Stop(Status.CANCELLED)
+    if rep.message == "time limit reached":
+        raise _Stop(Status.TIME_LIMIT)
+    if rep.converged:
+        run.w, run.k, run.delta, run.residual = rep.w, k, delta, rep.residual
+        t_final = run.grid.unpack(rep.w)[1]
+        run.log.append((k, delta, t_final, rep.iterations, rep.residual))
+    return rep
+
+
+def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
+    """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
+    targets = _k_schedule(problem.k)[1:]
+    for k_goal in targets:
+        while run.k < k_goal:
+            k_try = k_goal
+            while True:
+                rep = _newton(planner, run, problem, k_try, options.smoothing_intermediate,
+                              options, deadline, should_stop)
+                if rep.converged:
+                    break
+                k_try = run.k + 0.5 * (k_try - run.k)
+                if k_try - run.k < options.min_k_step:
+                    return False
+    return True
+
+
+def _refine(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
+    """Split intervals whose RK4 error estimate exceeds the tolerance; re-solve."""
+    par = np.array([run.k, run.delta, 1.0 - problem.reserve])
+    while True:
+        grid = run.grid
+        nodes, t_final, nu0, nuT = grid.unpack(run.w)
+        z_s, _, _ = grid.flow(nodes, t_final, par, sensitivities=False)
+        fine = ShootingGrid(planner.system, grid.lengths, 2 * grid.steps,
+                            grid.start_kind, grid.target_kind)
+        z_2s, _, _ = fine.flow(nodes, t_final, par, sensitivities=False)
+        err = np.max(np.abs(z_2s - z_s), axis=1) * 16 / 15  # Richardson, RK4
+        bad = err > options.integration_tol
+        if not np.any(bad):
+            return True
+        if grid.N + int(bad.sum()) > options.max_intervals:
+            return False
+        lengths, new_nodes = [], [nodes[0]]
+        half = ShootingGrid(planner.system, grid.lengths / 2, grid.steps,
+                            grid.start_kind, grid.target_kind)
+        z_half, _, _ = half.flow(nodes, t_final, par, sensitivities=False)
+        for j in range(grid.N):
+            if bad[j]:
+                lengths += [grid.lengths[j] / 2] * 2
+                new_nodes += [z_half[j], nodes[j + 1]]
+            else:
+                lengths.append(grid.lengths[j])
+                new_nodes.append(nodes[j + 1])
+        run.grid = ShootingGrid(planner.system, np.array(lengths), grid.steps,
+                                grid.start_kind, grid.target_kind)
+        run.w = run.grid.pack(np.array(new_nodes), t_final, nu0, nuT)
+        rep = _newton(planner, run, problem, run.k, run.delta, options, deadline,
+                      should_stop)
+        if not rep.converged:
+            return False
+
+
+def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop) -> list:
+    """Drive delta down at the requested k until T stops changing; refine the mesh."""
+    notes = []
+    if problem.k == 1.0:
+        if run.delta != 0.0:
+            _newton(planner, run, problem, 1.0, 0.0, options, deadline, should_stop)
+        if not _refine(planner, run, problem, options, deadline, should_stop):
+            notes.append("mesh refinement stopped at the interval limit")
+        return notes
+    t_prev = None
+    for delta in options.smoothing:
+        saved = (run.grid, run.w, run.delta)
+        rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
+                      should_stop)
+        if not rep.converged:
+            run.grid, run.w, run.delta = saved
+            notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
+                         f"converge at delta = {delta:g} ({rep.message})")
+            break
+        if not _refine(planner, run, problem, options, deadline, should_stop):
+            notes.append("mesh refinement stopped at the interval limit")
+        t_now = run.grid.unpack(run.w)[1]
+        if t_prev is not None and abs(t_now - t_prev) <= options.smoothing_tol * t_now:
+            break
+        t_prev = t_now
+    return notes
+
+
+def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
+    grid = run.grid
+    nodes, t_final, _, _ = grid.unpack(run.w)
+    par = np.array([run.k, run.delta, 1.0 - problem.reserve])
+    rk4 = planner.system.step_map(grid.N)
+    z = nodes[:-1].T.copy()
+    h = (t_final * grid.lengths / grid.steps)[None, :]
+    cols = [z.T]
+    for _ in range(grid.steps):
+        z = np.array(rk4(z, h, par)[0])
+        cols.append(z.T)
+    stacked = np.stack(cols, axis=1)  # (N, steps + 1, nz)
+    z_grid = np.concatenate([stacked[:, :-1].reshape(-1, grid.nz), nodes[-1:]])
+    t_grid = np.concatenate([
+        (grid.tau[j] + grid.lengths[j] * np.arange(grid.steps) / grid.steps) * t_final
+        for j in range(grid.N)] + [[t_final]])
+    return Trajectory(planner.system, t_grid, z_grid, par)
+
+
+def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11) -> dict:
+    """Independent checks of a solution.
+
+    Re-integrates the model under the nominal torques ``tau(t)`` of the trajectory with an
+    adaptive integrator (scipy's DOP853) from the trajectory's initial state, and evaluates
+    ``H`` and the control-set equation on a fine sampling.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : Trajectory
+    rtol : float
+        Relative tolerance of the integrator (absolute: ``rtol / 10``).
+
+    Returns
+    -------
+    dict
+        ``point_error`` (m): distance of the re-integrated end point to the target point;
+        ``state_error``: max-norm of the re-integrated final state minus the trajectory's;
+        ``velocity_error``: max |qd(T)| of the re-integration (rad/s); ``max_abs_H``;
+        ``max_set_error``: max |sum u^2k - 1|; ``nfev``.
+    """
+    from scipy.integrate import solve_ivp
+
+    model = problem.model
+    n = model.n
+    f = model.function("f")
+    scale = 1.0 - problem.reserve
+
+    def rhs(t, x):
+        u = trajectory.control(t)
+        return np.array(f(x, u * scale)).ravel()
+
+    x0 = trajectory.state(0.0)[0, :2 * n]
+    sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=rtol,
+                    atol=rtol / 10)
+    x_end = sol.y[:, -1]
+    planned_end = trajectory.state(trajectory.T)[0, :2 * n]
+    sample = trajectory.evaluate(np.linspace(0, trajectory.T, 2001))
+    k = trajectory.par[0]
+    set_err = np.abs(np.sum(sample.u ** (2 * k), axis=1) - 1)
+    return {
+        "point_error": float(np.linalg.norm(model.point(x_end[:n]) - problem.target_point)),
+        "state_error": float(np.max(np.abs(x_end - planned_end))),
+        "velocity_error": float(np.max(np.abs(x_end[n:]))),
+        "max_abs_H": float(np.max(np.abs(sample.H))),
+        "max_set_error": float(np.max(set_err)),
+        "max_abs_u": float(np.max(np.abs(sample.u))),
+        "nfev": int(sol.nfev),
+        "integrator_success": bool(sol.success),
+    }
+
+
+def _limit_warnings(problem: Problem, trajectory: Trajectory) -> tuple[str, ...]:
+    model = problem.model
+    sample = trajectory.sample(min(1e-3, trajectory.T / 200))
+    out = []
+    for i, name in enumerate(model.joint_names):
+        for label, values, lo, hi in (
+                ("position", sample.q[:, i], model.q_lower[i], model.q_upper[i]),
+                ("velocity", sample.qd[:, i], -model.qd_max[i], model.qd_max[i])):
+            bad = np.flatnonzero((values < lo) | (values > hi))
+            if bad.size:
+                j = int(bad[0])
+                out.append(f"joint {name!r} violates its URDF {label} limit [{lo:.4g}, "
+                           f"{hi:.4g}] at t = {sample.t[j]:.4f} s (value {values[j]:.4g}; "
+                           f"limits are checked, not enforced)")
+    return tuple(out)
+
+
+def _failure(problem, status: Status, message: str, timings: dict, starts=(),
+             run: _Run | None = None) -> PlanResult:
+    return PlanResult(
+        success=False, status=status, message=f"{status.value}: {message}",
+        T=float("nan"), k=run.k if run else float("nan"), trajectory=None,
+        residual=run.residual if run else float("nan"),
+        iterations=run.iterations if run else 0, timings=timings,
+        continuation=tuple(run.log) if run else (), max_abs_u=float("nan"),
+        delta=run.delta if run else float("nan"), intervals=run.grid.N if run else 0,
+        starts=tuple(starts), problem=problem)
+
+
+def _solve_from_guess(planner, problem, options, direct: DirectResult, deadline,
+                      should_stop) -> tuple[_Run, Status, str]:
+    """Shooting at k = 1 from a direct solution, then continuation and smoothing."""
+    lengths = np.full(options.intervals, 1.0 / options.intervals)
+    grid = ShootingGrid(planner.system, lengths, options.steps, problem.start.kind,
+                        problem.target.kind)
+    nodes = _nodes_from_direct(direct, grid.tau)
+    run = _Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
+    rep = _newton(planner, run, problem, 1.0, 0.0, options, deadline, should_stop)
+    if not rep.converged:
+        return run, Status.NEWTON_FAILED, rep.message
+    if not _continue_k(planner, run, problem, options, deadline, should_stop):
+        return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
+    return run, Status.SUCCESS, ""
+
+
+def _plan(planner: Planner, problem: Problem, options: SolverOptions,
+          warm_start: PlanResult | None, should_stop) -> PlanResult:
+    t_start = time.perf_counter()
+    deadline = t_start + options.time_limit
+    timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
+    if problem.model is not planner.model:
+        raise ValueError("`problem.model` is not the planner's model")
+    if problem.is_trivial():
+        timings["total"] = time.perf_counter() - t_start
+        return PlanResult(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value,
+                          T=0.0, k=problem.k, trajectory=None, residual=0.0, iterations=0,
+                          timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
+                          intervals=0, problem=problem)
+    notes: list[str] = []
+    run = None
+    records: list[StartRecord] = []
+    try:
+        if warm_start is not None:
+            run = _warm(planner, problem, options, warm_start, deadline, should_stop)
+            timings["shooting"] += time.perf_counter() - t_start
+            if run is None:
+                notes.append("warm start did not converge; solved cold")
+        if run is None:
+            run, records, status, message = _cold(planner, problem, options, deadline,
+                                                  should_stop, timings)
+            if status is not Status.SUCCESS:
+                timings["total"] = time.perf_counter() - t_start
+                return _failure(problem, status, message, timings, records, run)
+        t0 = time.perf_counter()
+        if not (run.k == problem.k and run.delta == 0.0 and warm_start is not None
+                and run.log and run.log[-1][1] == 0.0):
+            notes += _final_smoothing(planner, run, problem, options, deadline, should_stop)
+        else:
+            if not _refine(planner, run, problem, options, deadline, should_stop):
+                notes.append("mesh refinement stopped at the interval limit")
+        timings["refine"] += time.perf_counter() - t0
+    except _Stop as stop:
+        timings["total"] = time.perf_counter() - t_start
+        return _failure(problem, stop.status, "solve interrupted", timings, records, run)
+
+    traj = _trajectory(planner, run, problem)
+    t0 = time.perf_counter()
+    checks = verify(problem, traj) if options.verify else {}
+    timings["verify"] = time.perf_counter() - t0
+    sample = traj.evaluate(np.linspace(0, traj.T, 2001))
+    max_u = float(np.max(np.abs(sample.u)))
+    status, message = Status.SUCCESS, Status.SUCCESS.value
+    if options.verify:
+        bad = []
+        if checks["point_error"] > options.verify_point_tol:
+            bad.append(f"re-integrated end point misses the target by "
+                       f"{checks['point_error']:.3g} m")
+        if checks["velocity_error"] > options.verify_velocity_tol:
+            bad.append(f"re-integrated end velocity {checks['velocity_error']:.3g}")
+        if bad:
+            status = Status.VERIFICATION_FAILED
+            message = f"{status.value}: " + "; ".join(bad)
+    if status is Status.SUCCESS and run.residual > options.tol:
+        status = Status.VERIFICATION_FAILED
+        message = f"{status.value}: residual {run.residual:.3g} above tol"
+    timings["total"] = time.perf_counter() - t_start
+    t_final = run.grid.unpack(run.w)[1]
+    records = [replace(r, T=t_final) if r.status == "returned" else r for r in records]
+    return PlanResult(
+        success=status is Status.SUCCESS, status=status, message=message, T=t_final,
+        k=run.k, trajectory=traj, residual=run.residual, iterations=run.iterations,
+        timings=timings, continuation=tuple(run.log), max_abs_u=max_u, delta=run.delta,
+        intervals=run.grid.N, verification=checks,
+        warnings=tuple(notes) + _limit_warnings(problem, traj), starts=tuple(records),
+        problem=problem, _state={"lengths": run.grid.lengths.copy(), "w": run.w.copy(),
+                                 "steps": run.grid.steps})
+
+
+def _cold(planner, problem, options, deadline, should_stop, timings):
+    """Multistart: direct guesses from seed pairs, the best distinct ones continued."""
+    t0 = time.perf_counter()
+    pairs = _seed_pairs(problem, options)[:options.starts]
+    if not pairs:
+        return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
+    direct = planner.direct(problem, options.guess_intervals)
+    guesses = []
+    for idx, (qa, qb) in enumerate(pairs):
+        if should_stop is not None and should_stop():
+            raise _Stop(Status.CANCELLED)
+        if time.perf_counter() > deadline:
+            raise _Stop(Status.TIME_LIMIT)
+        t_guess, x_guess, u_guess = initial_path(problem.model, qa, qb,
+                                                 options.guess_intervals,
+                                                 1.0 - problem.reserve)
+        res = direct.solve(problem.start.value, problem.target.value, 1.0, t_guess,
+                           x_guess, u_guess)
+        guesses.append((idx, qa, qb, res))
+    timings["guess"] += time.perf_counter() - t0
+    ok = [g for g in guesses if g[3].success]
+    records = {g[0]: StartRecord(g[0], g[1], g[2], g[3].T if g[3].success else np.nan,
+                                 np.nan, "guess only" if g[3].success else
+                                 f"direct method failed: {g[3].message}") for g in guesses}
+    if not ok:
+        return None, list(records.values()), Status.NO_GUESS, guesses[0][3].message
+    # Distinct basins: direct solutions whose end configurations differ.
+    ok.sort(key=lambda g: g[3].T)
+    distinct = []
+    for g in ok:
+        ends = np.concatenate([g[3].x[0, :planner.model.n], g[3].x[-1, :planner.model.n]])
+        if all(np.max(np.abs(ends - e)) > 1e-3 for _, e in distinct):
+            distinct.append((g, ends))
+    best = None
+    failures = []
+    t0 = time.perf_counter()
+    for g, _ in distinct[:options.candidates]:
+        run, status, message = _solve_from_guess(planner, problem, options, g[3], deadline,
+                                                 should_stop)
+        t_final = run.grid.unpack(run.w)[1]
+        if status is Status.SUCCESS:
+            records[g[0]] = replace(records[g[0]], T=t_final, status="continued")
+            if best is None or t_final < best[0].grid.unpack(best[0].w)[1]:
+                best = (run, g[0])
+        else:
+            records[g[0]] = replace(records[g[0]], status=f"{status.value}: {message}")
+            failures.append((run, status, message))
+    timings["shooting"] += time.perf_counter() - t0
+    if best is None:
+        run, status, message = failures[0]
+        return run, list(records.values()), status, message
+    records[best[1]] = replace(records[best[1]], status="returned")
+    return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
+
+
+def _warm(planner, problem, options, warm: PlanResult, deadline, should_stop):
+    """Continue a previous solution to a new problem; None when it does not converge."""
+    st = warm._state
+    prev = warm.problem
+    if not st or prev is None or prev.model is not problem.model or \
+            prev.start.kind != problem.start.kind or prev.target.kind != problem.target.kind:
+        return None
+    grid = ShootingGrid(planner.system, st["lengths"], st["steps"], problem.start.kind,
+                        problem.target.kind)
+    run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta)
+    k_target = problem.k
+    delta = warm.delta if warm.k == k_target else options.smoothing_intermediate
+    if warm.k != k_target and k_target < warm.k:
+        delta = options.smoothing_intermediate
+    rep = _newton(planner, run, problem, k_target if warm.k == k_target else warm.k, delta,
+                  options, deadline, should_stop)
+    if not rep.converged:
+        return None
+    if warm.k != k_target:
+        targets = [k_target]
+        for k_goal in targets:
+            rep = _newton(planner, run, problem, k_goal, options.smoothing_intermediate,
+                          options, deadline, should_stop)
+            if not rep.converged:
+                return None
+    return run

@@ -1,0 +1,141 @@
+"""The solution of the boundary-value problem as an object evaluated at any time.
+
+The solver's discrete solution is the RK4 grid of the canonical state ``z = (x, psi)``. The
+trajectory evaluates ``z(t)`` by one RK4 step of length ``t - t_j`` from the grid point
+``t_j <= t`` before it, which is exact at the grid points and has the solver's accuracy in
+between; everything else (controls, torques, accelerations, switching functions,
+Hamiltonian) is a function of ``z(t)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .pmp import CanonicalSystem
+
+__all__ = ["Trajectory", "TrajectorySample"]
+
+
+@dataclass(frozen=True)
+class TrajectorySample:
+    """Values of a trajectory at ``len(t)`` times.
+
+    Attributes
+    ----------
+    t : ndarray, shape (K,)
+        Times (s).
+    q, qd, qdd : ndarray, shape (K, n)
+        Joint positions (rad, m), velocities (rad/s) and accelerations (rad/s^2).
+    u : ndarray, shape (K, n)
+        Normalised controls, ``sum u_i^(2k) = 1``.
+    tau : ndarray, shape (K, n)
+        Nominal joint torques (N m): ``u * tau_max * (1 - reserve)``.
+    psi : ndarray, shape (K, 2n)
+        Costates.
+    S : ndarray, shape (K, n)
+        Switching functions.
+    H : ndarray, shape (K,)
+        Hamiltonian (zero along an exact solution).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    u: np.ndarray
+    tau: np.ndarray
+    psi: np.ndarray
+    S: np.ndarray
+    H: np.ndarray
+
+
+class Trajectory:
+    """A time-optimal trajectory: evaluate it at any time, or sample it.
+
+    Parameters
+    ----------
+    system : CanonicalSystem
+    t_grid : ndarray, shape (K,)
+        Increasing times of the RK4 grid (s), from 0 to ``T``.
+    z_grid : ndarray, shape (K, 4n)
+        Canonical state at the grid times.
+    par : ndarray, shape (3,)
+        ``(k, delta, torque_scale)`` of the solution.
+    """
+
+    def __init__(self, system: CanonicalSystem, t_grid: np.ndarray, z_grid: np.ndarray,
+                 par: np.ndarray) -> None:
+        self.system = system
+        self.n = system.n
+        self.t_grid = np.asarray(t_grid, dtype=float)
+        self.z_grid = np.asarray(z_grid, dtype=float)
+        self.par = np.asarray(par, dtype=float)
+        self.T = float(self.t_grid[-1])
+        self.joint_names = system.model.joint_names
+        self._tau_scale = system.model.tau_max * self.par[2]
+        key = "rk4_plain"
+        if key not in system._cache:
+            z0 = ca.SX.sym("z0", 4 * self.n)
+            h = ca.SX.sym("h")
+            f = system.rhs_function()
+            k1 = f(z0, system.par)
+            k2 = f(z0 + 0.5 * h * k1, system.par)
+            k3 = f(z0 + 0.5 * h * k2, system.par)
+            k4 = f(z0 + h * k3, system.par)
+            system._cache[key] = ca.Function(
+                "rk4", [z0, h, system.par], [z0 + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)])
+        self._rk4 = system._cache[key]
+        self._point = system.pointwise()
+
+    def state(self, t) -> np.ndarray:
+        """Canonical state ``z(t)``, shape (K, 4n) for K times (clipped to [0, T])."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        idx = np.clip(np.searchsorted(self.t_grid, t, side="right") - 1, 0,
+                      len(self.t_grid) - 1)
+        h = t - self.t_grid[idx]
+        z0 = self.z_grid[idx]
+        out = np.array(self._rk4.map(len(t))(z0.T, h[None, :], self.par)).T
+        exact = h == 0
+        out[exact] = z0[exact]
+        return out
+
+    def evaluate(self, t) -> TrajectorySample:
+        """All quantities at times ``t`` (s), scalar or shape (K,).
+
+        Returns
+        -------
+        TrajectorySample
+        """
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        z = self.state(t)
+        n = self.n
+        f, u, s, ham = self._point.map(len(t))(z.T, self.par)
+        f, u, s = np.array(f).T, np.array(u).T, np.array(s).T
+        return TrajectorySample(
+            t=t, q=z[:, :n], qd=z[:, n:2 * n], qdd=f[:, n:2 * n], u=u,
+            tau=u * self._tau_scale, psi=z[:, 2 * n:], S=s, H=np.array(ham).ravel())
+
+    def sample(self, dt: float) -> TrajectorySample:
+        """Samples every ``dt`` seconds from 0, always including ``T``.
+
+        Parameters
+        ----------
+        dt : float
+            Sample period (s), positive.
+        """
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"`dt` must be positive and finite, got {dt!r}")
+        t = np.arange(0.0, self.T, dt)
+        if len(t) == 0 or self.T - t[-1] > 1e-12:
+            t = np.append(t, self.T)
+        else:
+            t[-1] = self.T
+        return self.evaluate(t)
+
+    def control(self, t: float) -> np.ndarray:
+        """Normalised control at one time, shape (n,)."""
+        z = self.state(t)[0]
+        return np.array(self._point(z, self.par)[1]).ravel()
