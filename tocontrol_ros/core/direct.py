@@ -72,7 +72,6 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
     u : ndarray, shape (intervals + 1, n)
         Normalised torques of the path by inverse dynamics, clipped to the unit box.
     """
-    n = model.n
     dq = qT - q0
     inertia = np.diag(model.mass_matrix(q0))
     acc = model.tau_max * torque_scale / inertia

@@ -29,7 +29,7 @@ import re
 import casadi as ca
 import numpy as np
 
-from .model import RobotModel
+from .model import RobotModel, spd_solve
 
 __all__ = ["CanonicalSystem", "control_law"]
 
@@ -98,10 +98,10 @@ class CanonicalSystem:
         tau_max = ca.DM(model.tau_max) * scale
         mass = model.mass_matrix_sym(q)
         bias = model.bias_sym(q, qd)
-        self.s = tau_max * ca.solve(mass, psi[n:])
+        self.s = tau_max * spd_solve(mass, psi[n:])
         self.u = control_law(self.s, k, delta)
         uf = ca.SX.sym("uf", n)  # u held fixed for the envelope-theorem derivative
-        xd = ca.vertcat(qd, ca.solve(mass, tau_max * uf - bias))
+        xd = ca.vertcat(qd, spd_solve(mass, tau_max * uf - bias))
         ham_u = -1 + ca.dot(psi, xd)
         psid = -ca.gradient(ham_u, x)
         self.rhs = ca.substitute(ca.vertcat(xd, psid), uf, self.u)
@@ -123,13 +123,15 @@ class CanonicalSystem:
             self._cache["rhs"] = ca.Function("F", [self.z, self.par], [self.rhs])
         return self._cache["rhs"]
 
-    def step_function(self) -> ca.Function:
-        """One RK4 step and its Jacobians: ``(z, h, par) -> (z1, dz1/dz, dz1/dh)``.
+    def step_function(self, sensitivities: bool = True) -> ca.Function:
+        """One RK4 step: ``(z, h, par) -> (z1, dz1/dz, dz1/dh)``, or ``-> z1`` alone.
 
         ``h`` is the physical step (s). Compiled to C and cached on disk (see
-        :mod:`tocontrol_ros.core.compiled`).
+        :mod:`tocontrol_ros.core.compiled`); the version without Jacobians is several times
+        cheaper and serves line searches, error estimates and sampling.
         """
-        if "step" not in self._cache:
+        key = ("step", sensitivities)
+        if key not in self._cache:
             from .compiled import compile_function
 
             z0 = ca.SX.sym("z0", 4 * self.n)
@@ -141,16 +143,21 @@ class CanonicalSystem:
             k4 = f(z0 + h * k3, self.par)
             z1 = z0 + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
             name = re.sub(r"\W", "_", self.model.name)
-            fun = ca.Function(f"tocontrol_rk4_{name}_{self.n}",
-                              [z0, h, self.par],
-                              [z1, ca.jacobian(z1, z0), ca.jacobian(z1, h)],
-                              ["z0", "h", "par"], ["z1", "dz1_dz0", "dz1_dh"])
-            self._cache["step"], self.compile_status = compile_function(fun)
-        return self._cache["step"]
+            if sensitivities:
+                fun = ca.Function(f"tocontrol_rk4j_{name}_{self.n}", [z0, h, self.par],
+                                  [z1, ca.jacobian(z1, z0), ca.jacobian(z1, h)],
+                                  ["z0", "h", "par"], ["z1", "dz1_dz0", "dz1_dh"])
+            else:
+                fun = ca.Function(f"tocontrol_rk4_{name}_{self.n}", [z0, h, self.par], [z1],
+                                  ["z0", "h", "par"], ["z1"])
+            self._cache[key], status = compile_function(fun)
+            if sensitivities:
+                self.compile_status = status
+        return self._cache[key]
 
-    def step_map(self, count: int) -> ca.Function:
+    def step_map(self, count: int, sensitivities: bool = True) -> ca.Function:
         """:meth:`step_function` mapped over ``count`` columns (one step per interval)."""
-        key = ("step_map", count)
+        key = ("step_map", count, sensitivities)
         if key not in self._cache:
-            self._cache[key] = self.step_function().map(count, "serial")
+            self._cache[key] = self.step_function(sensitivities).map(count, "serial")
         return self._cache[key]

@@ -29,7 +29,57 @@ from scipy.sparse.linalg import splu
 
 from .pmp import CanonicalSystem
 
-__all__ = ["ShootingGrid", "NewtonReport", "newton_solve"]
+__all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate"]
+
+
+def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, steps: int,
+              t_final: float, par: np.ndarray, sensitivities: bool = True):
+    """Integrate ``dz/dtau = T F(z)`` over intervals, each with ``steps`` RK4 steps.
+
+    Parameters
+    ----------
+    system : CanonicalSystem
+    starts : ndarray, shape (N, 4n)
+        State at the start of each interval.
+    lengths : ndarray, shape (N,)
+        Interval lengths in normalised time.
+    steps : int
+    t_final : float
+        ``T`` (s).
+    par : ndarray, shape (3,)
+        ``(k, delta, torque_scale)``.
+    sensitivities : bool
+
+    Returns
+    -------
+    z1 : ndarray, shape (N, 4n)
+        End states.
+    a : ndarray, shape (N, 4n, 4n)
+        ``dz1/dz0`` per interval (None without sensitivities).
+    b : ndarray, shape (N, 4n)
+        ``dz1/dT`` per interval (None without sensitivities).
+    """
+    count = len(lengths)
+    nz = starts.shape[1]
+    step_map = system.step_map(count, sensitivities)
+    dtau = np.asarray(lengths, dtype=float) / steps
+    h = (t_final * dtau)[None, :]
+    z = np.ascontiguousarray(starts.T)
+    a_tot = b_tot = None
+    for i in range(steps):
+        if not sensitivities:
+            z = np.array(step_map(z, h, par))
+            continue
+        z_new, a_s, b_s = step_map(z, h, par)
+        z = np.array(z_new)
+        a_s = np.array(a_s).reshape(nz, count, nz).transpose(1, 0, 2)
+        db = np.array(b_s).T * dtau[:, None]  # dz1/dT = dz1/dh * dh/dT
+        if i == 0:
+            a_tot, b_tot = a_s, db
+        else:
+            a_tot = a_s @ a_tot
+            b_tot = np.einsum("nij,nj->ni", a_s, b_tot) + db
+    return z.T, a_tot, b_tot
 
 
 @dataclass(frozen=True)
@@ -88,33 +138,9 @@ class ShootingGrid:
         self._pattern()
 
     def flow(self, nodes: np.ndarray, t_final: float, par: np.ndarray, sensitivities=True):
-        """Integrate every interval from its start node.
-
-        Returns
-        -------
-        z1 : ndarray, shape (N, 4n)
-            End states.
-        a : ndarray, shape (N, 4n, 4n)
-            ``dz1/dz0`` per interval (None without sensitivities).
-        b : ndarray, shape (N, 4n)
-            ``dz1/dT`` per interval (None without sensitivities).
-        """
-        dtau = self.lengths / self.steps
-        h = (t_final * dtau)[None, :]
-        z = nodes[:-1].T.copy()  # (nz, N)
-        a_tot = b_tot = None
-        for i in range(self.steps):
-            z_new, a_s, b_s = self.step_map(z, h, par)
-            z = np.array(z_new)
-            if sensitivities:
-                a_s = np.array(a_s).reshape(self.nz, self.N, self.nz).transpose(1, 0, 2)
-                db = np.array(b_s).T * dtau[:, None]  # dz1/dT = dz1/dh * dh/dT
-                if i == 0:
-                    a_tot, b_tot = a_s, db
-                else:
-                    a_tot = a_s @ a_tot
-                    b_tot = np.einsum("nij,nj->ni", a_s, b_tot) + db
-        return z.T, a_tot, b_tot
+        """Integrate every interval from its start node (see :func:`integrate`)."""
+        return integrate(self.system, nodes[:-1], self.lengths, self.steps, t_final, par,
+                         sensitivities)
 
     # ------------------------------------------------------------ boundary
     def _boundary_function(self) -> ca.Function:
