@@ -224,7 +224,7 @@ class RobotModel:
     q_upper: np.ndarray
     qd_max: np.ndarray
     coulomb: np.ndarray
-    _functions: dict = field(default_factory=dict, repr=False, compare=False)
+    _functions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ sizes
     @property

@@ -637,8 +637,10 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     run = None
     records: list[StartRecord] = []
     try:
+        finished = False
         if warm_start is not None:
-            run = _warm(planner, problem, options, warm_start, deadline, should_stop)
+            run, finished = _warm(planner, problem, options, warm_start, deadline,
+                                  should_stop)
             timings["shooting"] += time.perf_counter() - t_start
             if run is None:
                 notes.append("warm start did not converge; solved cold")
@@ -649,12 +651,11 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
                 timings["total"] = time.perf_counter() - t_start
                 return _failure(problem, status, message, timings, records, run)
         t0 = time.perf_counter()
-        if not (run.k == problem.k and run.delta == 0.0 and warm_start is not None
-                and run.log and run.log[-1][1] == 0.0):
-            notes += _final_smoothing(planner, run, problem, options, deadline, should_stop)
-        else:
+        if finished:
             if not _refine(planner, run, problem, options, deadline, should_stop):
                 notes.append("mesh refinement stopped at the interval limit")
+        else:
+            notes += _final_smoothing(planner, run, problem, options, deadline, should_stop)
         timings["refine"] += time.perf_counter() - t0
     except _StopError as stop:
         timings["total"] = time.perf_counter() - t_start
@@ -749,28 +750,32 @@ def _cold(planner, problem, options, deadline, should_stop, timings):
 
 
 def _warm(planner, problem, options, warm: PlanResult, deadline, should_stop):
-    """Continue a previous solution to a new problem; None when it does not converge."""
+    """Continue a previous solution to a new problem.
+
+    Returns
+    -------
+    (run, finished) or (None, False)
+        ``finished`` when the previous exponent and smoothing were kept, so only the mesh
+        check remains; None when it does not converge.
+    """
     st = warm._state
     prev = warm.problem
     if not st or prev is None or prev.model is not problem.model or \
-            prev.start.kind != problem.start.kind or prev.target.kind != problem.target.kind:
-        return None
+            prev.start.kind != problem.start.kind or prev.target.kind != problem.target.kind \
+            or prev.reserve != problem.reserve:
+        return None, False
     grid = ShootingGrid(planner.system, st["lengths"], st["steps"], problem.start.kind,
                         problem.target.kind)
     run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta)
-    k_target = problem.k
-    delta = warm.delta if warm.k == k_target else options.smoothing_intermediate
-    if warm.k != k_target and k_target < warm.k:
-        delta = options.smoothing_intermediate
-    rep = _newton(planner, run, problem, k_target if warm.k == k_target else warm.k, delta,
-                  options, deadline, should_stop)
-    if not rep.converged:
-        return None
-    if warm.k != k_target:
-        targets = [k_target]
-        for k_goal in targets:
-            rep = _newton(planner, run, problem, k_goal, options.smoothing_intermediate,
-                          options, deadline, should_stop)
-            if not rep.converged:
-                return None
-    return run
+    if warm.k == problem.k:
+        rep = _newton(planner, run, problem, warm.k, warm.delta, options, deadline,
+                      should_stop)
+        return (run, True) if rep.converged else (None, False)
+    # Another exponent: move the boundary values at the old k (intermediate smoothing),
+    # then step k directly; the final smoothing schedule follows in the caller.
+    for k in (warm.k, problem.k):
+        rep = _newton(planner, run, problem, k, max(warm.delta, options.smoothing_intermediate),
+                      options, deadline, should_stop)
+        if not rep.converged:
+            return None, False
+    return run, False
