@@ -839,10 +839,15 @@ def _task_axes(task_axes, bodies: list[Body]) -> tuple[int, ...]:
                 raise ModelError(f"`task_axes` must be distinct letters of 'xyz', got "
                                  f"{task_axes!r}")
             return tuple("xyz".index(c) for c in task_axes)
-        axes = tuple(int(k) for k in task_axes)
-        if not axes or any(k not in (0, 1, 2) for k in axes) or len(set(axes)) != len(axes):
-            raise ModelError(f"`task_axes` must be distinct indices in 0..2, got {task_axes!r}")
-        return axes
+        try:
+            axes = tuple(task_axes)
+        except TypeError:
+            axes = ()
+        if not axes or any(isinstance(k, bool) or k not in (0, 1, 2) for k in axes) or \
+                len(set(axes)) != len(axes):
+            raise ModelError(f"`task_axes` must be distinct letters of 'xyz' or distinct "
+                             f"indices in 0..2, got {task_axes!r}")
+        return tuple(int(k) for k in axes)
     # Planar detection at q = 0: every revolute axis parallel to one base axis e, every
     # prismatic axis orthogonal to it, every link offset in the plane -> the other two axes.
     rot = np.eye(3)

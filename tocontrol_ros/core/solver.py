@@ -399,9 +399,26 @@ def _interval_errors(planner, starts, lengths, steps, t_final, par) -> np.ndarra
     return np.max(np.abs(z_2s - z_s), axis=1) * 16 / 15
 
 
-def _refine(planner, run: _Run, problem, options, deadline, should_stop,
-            rounds: int = 6) -> bool:
+def _refine(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
     """Refine the mesh until every interval's RK4 error estimate meets the tolerance.
+
+    The tolerance is approached in decades (1e-3, 1e-4, ... down to ``integration_tol``):
+    Newton on a coarse mesh moves the nodes most of the way cheaply, and the fine meshes,
+    whose iterations cost most, start close to their solution.
+    """
+    tol = options.integration_tol
+    levels = [t for t in (1e-3, 1e-4, 1e-5) if t > 10 * tol] + [tol]
+    for level in levels:
+        # Intermediate levels only place the nodes; the last one solves to `tol`.
+        opts = options if level == tol else replace(options, tol=max(options.tol, 1e-7))
+        if not _refine_to(planner, run, problem, level, opts, deadline, should_stop):
+            return False
+    return True
+
+
+def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
+               rounds: int = 6) -> bool:
+    """One level of :func:`_refine`.
 
     Each round first splits intervals on the current solution alone (the new nodes are
     integrated from the old ones), repeating until the estimate passes, and only then runs
@@ -416,12 +433,12 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
         err = _interval_errors(planner, starts, lengths, steps, t_final, par)
         changed = False
         for _inner in range(8):
-            bad = err > options.integration_tol
+            bad = err > tol
             if not np.any(bad):
                 break
             # Local RK4 error ~ h^5 where the law is smooth, lower order across switches:
             # split with a conservative exponent, at least two and at most eight parts.
-            parts = np.where(bad, np.clip(np.ceil(1.2 * (err / options.integration_tol)
+            parts = np.where(bad, np.clip(np.ceil(1.2 * (err / tol)
                                                   ** 0.25), 2, 8), 1).astype(int)
             if int(parts.sum()) > options.max_intervals:
                 return False
