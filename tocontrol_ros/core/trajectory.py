@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from .pmp import CanonicalSystem
@@ -76,18 +75,8 @@ class Trajectory:
         self.T = float(self.t_grid[-1])
         self.joint_names = system.model.joint_names
         self._tau_scale = system.model.tau_max * self.par[2]
-        key = "rk4_plain"
-        if key not in system._cache:
-            z0 = ca.SX.sym("z0", 4 * self.n)
-            h = ca.SX.sym("h")
-            f = system.rhs_function()
-            k1 = f(z0, system.par)
-            k2 = f(z0 + 0.5 * h * k1, system.par)
-            k3 = f(z0 + 0.5 * h * k2, system.par)
-            k4 = f(z0 + h * k3, system.par)
-            system._cache[key] = ca.Function(
-                "rk4", [z0, h, system.par], [z0 + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)])
-        self._rk4 = system._cache[key]
+        # The solver's own compiled RK4 step (no Jacobians): exact at the grid points.
+        self._rk4 = system.step_function(sensitivities=False)
         self._point = system.pointwise()
 
     def state(self, t) -> np.ndarray:
@@ -97,7 +86,10 @@ class Trajectory:
                       len(self.t_grid) - 1)
         h = t - self.t_grid[idx]
         z0 = self.z_grid[idx]
-        out = np.array(self._rk4.map(len(t))(z0.T, h[None, :], self.par)).T
+        if len(t) == 1:  # the integrator's hot path: skip building a mapped function
+            out = np.array(self._rk4(z0[0], h[0], self.par)).T
+        else:
+            out = np.array(self._rk4.map(len(t))(z0.T, h[None, :], self.par)).T
         exact = h == 0
         out[exact] = z0[exact]
         return out
