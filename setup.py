@@ -26,6 +26,7 @@ PACKAGE_NAME = "tocontrol_ros"
 # (test/packaging/test_executables.py checks that the two agree).
 EXECUTABLES = {
     "demo": "tocontrol_ros.demo",
+    "figures": "tocontrol_ros.figures",
 }
 
 WRAPPER_DIR = os.path.join("scripts", "ros2run")
