@@ -1,0 +1,166 @@
+"""Warm start, moving start, torque reserve, the trajectory object and limit warnings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.model import load_robot
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.solver import Status, plan
+
+P_START = np.array([1.0, 1.0])
+P_TARGET = np.array([2.2, 1.5])
+MOVE = np.array([0.03, 0.04])  # 5 cm
+RESERVE = 0.2
+
+
+@pytest.fixture(scope="module")
+def base(galicki):
+    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4))
+
+
+@pytest.fixture(scope="module")
+def moved(galicki, base):
+    problem = Problem(galicki, point(P_START), point(P_TARGET + MOVE), k=4)
+    return {"cold": plan(problem), "warm": plan(problem, warm_start=base)}
+
+
+@pytest.fixture(scope="module")
+def reserved(galicki):
+    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4, reserve=RESERVE))
+
+
+def test_warm_start_matches_cold_solve_with_fewer_iterations(base, moved):
+    cold, warm = moved["cold"], moved["warm"]
+    assert base.success and cold.success and warm.success, (cold.message, warm.message)
+    assert not any("solved cold" in w for w in warm.warnings), warm.warnings
+    assert warm.starts == ()  # no guess phase: continued from the previous solution
+    print(f"moved target: cold T={cold.T:.10f} ({cold.iterations} Newton iterations, "
+          f"{cold.timings['total']:.2f} s), warm T={warm.T:.10f} ({warm.iterations} "
+          f"iterations, {warm.timings['total']:.2f} s); warm deltas "
+          f"{[c[1] for c in warm.continuation]}")
+    assert warm.iterations < cold.iterations
+    assert warm.T == pytest.approx(cold.T, rel=1e-7)
+    assert warm.T != pytest.approx(base.T, rel=1e-3)
+
+
+def test_moving_start_to_point(galicki, base):
+    q0 = base.trajectory.evaluate(0.0).q[0]
+    qd0 = np.array([0.5, -0.3, 1.0])
+    res = plan(Problem(galicki, joint_state(q0, qd0), point(P_TARGET), k=4))
+    assert res.success, res.message
+    start = res.trajectory.evaluate(0.0)
+    np.testing.assert_allclose(start.q[0], q0, atol=1e-10)
+    np.testing.assert_allclose(start.qd[0], qd0, atol=1e-10)
+    end = res.trajectory.evaluate(res.T)
+    np.testing.assert_allclose(galicki.point(end.q[0]), P_TARGET, atol=1e-7)
+    np.testing.assert_allclose(end.qd[0], 0.0, atol=1e-7)
+    assert res.verification["point_error"] < 1e-4
+    assert res.T != pytest.approx(base.T, rel=1e-3)
+
+
+def test_torque_reserve_leaves_headroom_and_costs_time(galicki, base, reserved):
+    assert reserved.success, reserved.message
+    sample = reserved.trajectory.sample(reserved.T / 1000)
+    ratio = np.max(np.abs(sample.tau), axis=0) / galicki.tau_max
+    print(f"reserve {RESERVE}: T={reserved.T:.6f} s vs {base.T:.6f} s, "
+          f"max |tau| / tau_max = {np.round(ratio, 4)}")
+    assert np.all(ratio <= (1 - RESERVE) * (1 + 1e-9))
+    assert np.max(ratio) > (1 - RESERVE) * 0.95  # the reduced limits are used
+    assert reserved.T > base.T
+
+
+def test_sample_starts_at_zero_and_ends_at_t_exactly(base):
+    traj = base.trajectory
+    for dt in (0.01, base.T / 7, 0.3, 10.0):
+        s = traj.sample(dt)
+        assert s.t[0] == 0.0
+        assert s.t[-1] == base.T
+        assert np.all(np.diff(s.t) > 0)
+        assert np.all(np.diff(s.t)[:-1] == pytest.approx(dt))
+        assert s.q.shape == (len(s.t), 3) and s.psi.shape == (len(s.t), 6)
+    with pytest.raises(ValueError, match="`dt`"):
+        traj.sample(0.0)
+
+
+def test_evaluate_at_grid_times_matches_the_grid(base):
+    traj = base.trajectory
+    s = traj.evaluate(traj.t_grid)
+    np.testing.assert_array_equal(s.q, traj.z_grid[:, :3])
+    np.testing.assert_array_equal(s.qd, traj.z_grid[:, 3:6])
+    np.testing.assert_array_equal(s.psi, traj.z_grid[:, 6:])
+    # Between grid points: one RK4 step from the grid point before.
+    mid = 0.5 * (traj.t_grid[:-1] + traj.t_grid[1:])
+    s_mid = traj.evaluate(mid)
+    assert np.max(np.abs(np.diff(s_mid.q, axis=0))) < 0.1
+
+
+def test_trajectory_reaches_the_target_point(galicki, base):
+    end = base.trajectory.evaluate(base.T)
+    np.testing.assert_allclose(galicki.point(end.q[0]), P_TARGET, atol=1e-8)
+    np.testing.assert_allclose(end.qd[0], 0.0, atol=1e-8)
+    start = base.trajectory.evaluate(0.0)
+    np.testing.assert_allclose(galicki.point(start.q[0]), P_START, atol=1e-8)
+
+
+@pytest.mark.parametrize("which", ["base", "reserved"])
+def test_torques_and_accelerations_are_consistent(galicki, base, reserved, which):
+    res = {"base": base, "reserved": reserved}[which]
+    r = res.problem.reserve
+    s = res.trajectory.sample(res.T / 50)
+    np.testing.assert_allclose(s.tau, s.u * galicki.tau_max * (1 - r), rtol=1e-14)
+    for i in range(len(s.t)):
+        qdd = galicki.forward_dynamics(s.q[i], s.qd[i], s.tau[i])
+        np.testing.assert_allclose(s.qdd[i], qdd, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(s.H, 0.0, atol=1e-6)
+
+
+#: The x-y table of test_solver_closed_form with a tight upper limit on joint x.
+#: (Its direct guess keeps the limits as bounds: with a limit that no motion can respect,
+#: e.g. below the shortest stopping distance, plan() returns NO_GUESS instead of a warned
+#: solution.)
+TIGHT_URDF = """<?xml version="1.0"?>
+<robot name="xy_table">
+  <link name="base"/>
+  <joint name="x" type="prismatic">
+    <parent link="base"/><child link="carriage"/>
+    <axis xyz="1 0 0"/>
+    <limit effort="10.0" lower="-1" upper="0.265" velocity="100"/>
+  </joint>
+  <link name="carriage">
+    <inertial><mass value="3.0"/>
+      <inertia ixx="0.02" ixy="0" ixz="0" iyy="0.03" iyz="0" izz="0.04"/></inertial>
+  </link>
+  <joint name="y" type="prismatic">
+    <parent link="carriage"/><child link="slide"/>
+    <origin xyz="0.1 0.2 0.05"/>
+    <axis xyz="0 1 0"/>
+    <limit effort="3.0" lower="-5" upper="5" velocity="100"/>
+  </joint>
+  <link name="slide">
+    <inertial><mass value="2.0"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>
+  </link>
+</robot>
+"""
+
+
+def test_position_limit_violation_is_warned_with_the_joint_name():
+    """Moving at 1 m/s towards x's upper limit, the optimal motion overshoots it.
+
+    Braking with all of x's force (a = 2 m/s^2) would stop the carriage at 0.25 m, inside
+    the limit 0.265 m (so the direct guess, which keeps the limits, is feasible); the optimum
+    at k = 1 shares the control with y and reaches 0.2756 m (measured with wide limits).
+    """
+    model = load_robot(TIGHT_URDF, task_axes="xy")
+    res = plan(Problem(model, joint_state([0.0, 0.0], [1.0, 0.0]),
+                       joint_state([-0.5, 0.6]), k=1))
+    assert res.success, res.message
+    assert res.status is Status.SUCCESS  # limits are checked, not enforced
+    q_max = np.max(res.trajectory.sample(1e-3).q[:, 0])
+    assert q_max == pytest.approx(0.2756, abs=1e-3)
+    position = [w for w in res.warnings if "position limit" in w]
+    assert len(position) == 1, res.warnings
+    assert "'x'" in position[0]
+    assert not any("'y'" in w for w in res.warnings)

@@ -1,0 +1,127 @@
+"""Bad input raises ``ProblemError`` naming the argument; numerical outcomes never raise."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.errors import ProblemError, TocontrolError
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.solver import PlanResult, SolverOptions, Status, plan
+
+P_START = (1.0, 1.0)
+P_TARGET = (2.2, 1.5)
+Q_OK = (0.1, 0.2, 0.3)
+
+
+@pytest.mark.parametrize("start, target, kwargs, match", [
+    (point((math.nan, 1.0)), point(P_TARGET), {}, r"`start point` must be finite"),
+    (point(P_START), point((2.2, math.inf)), {}, r"`target point` must be finite"),
+    (point((1.0, 1.0, 0.0)), point(P_TARGET), {}, r"`start point` must have shape \(2,\)"),
+    (point(P_START), point((2.2,)), {}, r"`target point` must have shape \(2,\)"),
+    (point(P_START), point((10.0, 0.0)), {}, r"`target` point .* not reachable"),
+    (point((0.0, -7.0)), point(P_TARGET), {}, r"`start` point .* not reachable"),
+    (point(P_START), point(P_TARGET), {"k": 0.5}, r"`k` must be in \[1, 64\]"),
+    (point(P_START), point(P_TARGET), {"k": 100.0}, r"`k` must be in \[1, 64\]"),
+    (point(P_START), point(P_TARGET), {"k": math.nan}, r"`k` must be in"),
+    (point(P_START), point(P_TARGET), {"k": "four"}, r"`k` must be a number"),
+    (point(P_START), point(P_TARGET), {"reserve": 1.0}, r"`reserve` must be in \[0, 1\)"),
+    (point(P_START), point(P_TARGET), {"reserve": -0.1}, r"`reserve` must be in \[0, 1\)"),
+    (point(P_START), point(P_TARGET), {"reserve": math.nan}, r"`reserve` must be in"),
+    (point(P_START), joint_state(Q_OK, (0.0, 0.1, 0.0)), {},
+     r"`target` joint state must be at rest"),
+    (joint_state((0.1, 0.2)), point(P_TARGET), {}, r"`start joint state` must have shape \(6,\)"),
+    (point(P_START), joint_state((0.1, 0.2, 0.3, 0.4)), {},
+     r"`target joint state` must have shape \(6,\)"),
+    (joint_state((0.1, math.nan, 0.3)), point(P_TARGET), {},
+     r"`start joint state` must be finite"),
+    ((1.0, 1.0), point(P_TARGET), {}, r"`start` must be an Endpoint"),
+], ids=["nan-start", "inf-target", "start-3d", "target-1d", "target-unreachable",
+        "start-unreachable", "k-small", "k-large", "k-nan", "k-string", "reserve-1",
+        "reserve-negative", "reserve-nan", "target-moving", "start-state-short",
+        "target-state-long", "start-state-nan", "start-not-endpoint"])
+def test_bad_problem_raises_problem_error(galicki, start, target, kwargs, match):
+    with pytest.raises(ProblemError, match=match) as info:
+        Problem(galicki, start, target, **kwargs)
+    assert isinstance(info.value, ValueError)
+    assert isinstance(info.value, TocontrolError)
+
+
+def test_start_equal_to_target_is_trivial(galicki):
+    res = plan(Problem(galicki, point(P_START), point(P_START), k=4))
+    assert isinstance(res, PlanResult)
+    assert res.success
+    assert res.status is Status.TRIVIAL
+    assert res.T == 0.0
+    assert res.iterations == 0
+
+
+def test_resting_state_on_the_target_point_is_trivial(galicki):
+    q = np.array(Q_OK)
+    res = plan(Problem(galicki, joint_state(q), point(galicki.point(q))))
+    assert res.status is Status.TRIVIAL
+    assert res.T == 0.0
+
+
+def test_moving_state_on_the_target_point_is_not_trivial(galicki):
+    q = np.array(Q_OK)
+    problem = Problem(galicki, joint_state(q, (0.0, 0.0, 0.5)), point(galicki.point(q)))
+    assert not problem.is_trivial()
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"tol": 0.0}, r"`tol` must be a positive number"),
+    ({"tol": math.nan}, r"`tol` must be a positive number"),
+    ({"time_limit": -1.0}, r"`time_limit` must be a positive number"),
+    ({"integration_tol": math.inf}, r"`integration_tol` must be a positive number"),
+    ({"max_newton": 0}, r"`max_newton` must be an integer >= 1"),
+    ({"intervals": 2.5}, r"`intervals` must be an integer >= 1"),
+    ({"starts": 0}, r"`starts` must be an integer >= 1"),
+    ({"candidates": -1}, r"`candidates` must be an integer >= 1"),
+    ({"smoothing": ()}, r"`smoothing` must be a non-empty strictly decreasing"),
+    ({"smoothing": (1e-4, 1e-3)}, r"`smoothing` must be a non-empty strictly decreasing"),
+    ({"smoothing": (1e-3, -1e-4)}, r"`smoothing` must be a non-empty strictly decreasing"),
+])
+def test_bad_options_raise(kwargs, match):
+    # SolverOptions raises a plain ValueError (not a ProblemError) naming the field.
+    with pytest.raises(ValueError, match=match):
+        SolverOptions(**kwargs)
+
+
+def test_options_defaults_are_valid_and_frozen():
+    opts = SolverOptions(smoothing=[1e-3, 0])
+    assert opts.smoothing == (1e-3, 0.0)
+    with pytest.raises(AttributeError):
+        opts.tol = 1.0  # type: ignore[misc]
+
+
+def test_tiny_time_limit_returns_time_limit_status(galicki):
+    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4),
+               SolverOptions(time_limit=1e-9))
+    assert not res.success
+    assert res.status is Status.TIME_LIMIT
+    assert math.isnan(res.T)
+    assert res.trajectory is None
+    assert res.message.startswith(Status.TIME_LIMIT.value)
+
+
+def test_should_stop_cancels(galicki):
+    calls = []
+
+    def stop():
+        calls.append(1)
+        return True
+
+    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4), should_stop=stop)
+    assert not res.success
+    assert res.status is Status.CANCELLED
+    assert res.trajectory is None
+    assert calls
+
+
+def test_status_values_are_distinct_readable_strings():
+    values = [status.value for status in Status]
+    assert all(isinstance(v, str) and v for v in values)
+    assert len(set(values)) == len(values)
