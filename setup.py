@@ -27,6 +27,7 @@ PACKAGE_NAME = "tocontrol_ros"
 EXECUTABLES = {
     "demo": "tocontrol_ros.demo",
     "figures": "tocontrol_ros.figures",
+    "tracker": "tocontrol_ros.tracker",
 }
 
 WRAPPER_DIR = os.path.join("scripts", "ros2run")

@@ -22,6 +22,7 @@ MODULE_DEPENDENCIES = {
     "rclpy": ("rclpy", "ros-jazzy-rclpy"),
     "ament_index_python": ("ament_index_python", "ros-jazzy-rclpy"),
     "rcl_interfaces": ("rcl_interfaces", "ros-jazzy-rclpy"),
+    "rosgraph_msgs": ("rosgraph_msgs", "ros-jazzy-rclpy"),
     "builtin_interfaces": ("builtin_interfaces", "ros-jazzy-common-interfaces"),
     "std_msgs": ("std_msgs", "ros-jazzy-common-interfaces"),
     "std_srvs": ("std_srvs", "ros-jazzy-common-interfaces"),

@@ -846,6 +846,10 @@ class Tracker:
             done += size
         return np.vstack(xs), np.vstack(us), np.vstack(sats)
 
+    def prepare(self) -> None:
+        """Build (and compile) the control-period function now rather than on first use."""
+        self._chunk_function(1)
+
     # ---------------------------------------------------------------- commands
     def start(self, nominal: NominalTrajectory) -> TrackingSummary | None:
         """Execute ``nominal`` from now, from the current plant state.

@@ -1,0 +1,271 @@
+"""The tracker node in-process, over DDS, with a private rclpy Context per test.
+
+Each test runs the node and a probe node (publishes trajectories, records what the tracker
+publishes) on one executor in a thread, in its own namespace and on its own trajectory
+topic, so that latched messages of one test never reach another. The simulation runs 20
+times faster than real time. Trajectories are smooth rest-to-rest motions whose torques are
+the model's inverse dynamics (no solver needed).
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from builtin_interfaces.msg import Duration
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.tracker import (
+    PAPER_START_Q,
+    QOS_STATUS,
+    QOS_STREAM,
+    QOS_TRAJECTORY,
+    TrackerNode,
+)
+
+pytestmark = pytest.mark.ros
+
+JOINTS = ["joint1", "joint2", "joint3"]
+TIME_SCALE = 20.0
+_ids = itertools.count()
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_robot(default_urdf_path())
+
+
+def motion_msg(model, q0, dq, duration, dt=0.01, names=JOINTS) -> JointTrajectory:
+    """A rest-to-rest quintic motion as the planner would publish it."""
+    t = np.linspace(0.0, duration, int(round(duration / dt)) + 1)
+    s = t / duration
+    d = np.asarray(dq, dtype=float)
+    q = np.asarray(q0) + (10 * s**3 - 15 * s**4 + 6 * s**5)[:, None] * d
+    qd = ((30 * s**2 - 60 * s**3 + 30 * s**4) / duration)[:, None] * d
+    qdd = ((60 * s - 180 * s**2 + 120 * s**3) / duration**2)[:, None] * d
+    tau = np.array(model.function("id")(q.T, qd.T, qdd.T)).T
+    order = [JOINTS.index(n) for n in names]
+    msg = JointTrajectory(joint_names=list(names))
+    for i in range(t.size):
+        ns = int(round(t[i] * 1e9))
+        msg.points.append(JointTrajectoryPoint(
+            positions=q[i, order].tolist(), velocities=qd[i, order].tolist(),
+            accelerations=qdd[i, order].tolist(), effort=tau[i, order].tolist(),
+            time_from_start=Duration(sec=ns // 10**9, nanosec=ns % 10**9)))
+    return msg
+
+
+class Harness:
+    """Tracker + probe in a private context, spun in a thread."""
+
+    def __init__(self, overrides=()):
+        self.ns = f"/tt{next(_ids)}"
+        self.topic = f"{self.ns}/trajectory"
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        params = [Parameter("time_scale", value=TIME_SCALE),
+                  Parameter("publish_rate", value=50.0),
+                  Parameter("trajectory_topic", value=self.topic), *overrides]
+        try:
+            self.node = TrackerNode(context=self.context, namespace=self.ns,
+                                    parameter_overrides=params)
+        except Exception:
+            rclpy.try_shutdown(context=self.context)
+            raise
+        self.probe = Node("probe", context=self.context, namespace=self.ns)
+        self.lock = threading.Lock()
+        self.joint_states, self.errors, self.statuses, self.clock = [], [], [], []
+        self.pub = self.probe.create_publisher(JointTrajectory, self.topic, QOS_TRAJECTORY)
+        self.probe.create_subscription(JointState, f"{self.ns}/joint_states",
+                                       self._keep(self.joint_states), QOS_STREAM)
+        self.probe.create_subscription(JointState, f"{self.ns}/tracker/tracking_error",
+                                       self._keep(self.errors), QOS_STREAM)
+        self.probe.create_subscription(DiagnosticStatus, f"{self.ns}/tracker/status",
+                                       self._keep(self.statuses), QOS_STATUS)
+        self.probe.create_subscription(Clock, "/clock", self._keep(self.clock), QOS_STREAM)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        self.wait(lambda: self.pub.get_subscription_count() > 0, "tracker subscription")
+
+    def _keep(self, store):
+        def callback(msg):
+            with self.lock:
+                store.append(msg)
+        return callback
+
+    def wait(self, condition, what, timeout=15.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                if condition():
+                    return
+            time.sleep(0.01)
+        raise AssertionError(f"timed out waiting for {what}")
+
+    def status_with(self, fragment, level=None, timeout=15.0):
+        def found():
+            return [s for s in self.statuses if fragment in s.message
+                    and (level is None or s.level == level)]
+        self.wait(lambda: found(), f"a status containing {fragment!r}", timeout)
+        with self.lock:
+            return found()[0]
+
+    def stop(self):
+        self.executor.shutdown(timeout_sec=2.0)
+        self.thread.join(timeout=2.0)
+        self.node.destroy_node()
+        self.probe.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def harness():
+    h = Harness()
+    yield h
+    h.stop()
+
+
+def _values(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+def test_executes_a_trajectory_and_reports(harness, model):
+    q0 = np.array(PAPER_START_Q)
+    harness.wait(lambda: len(harness.joint_states) >= 3, "joint_states")
+    first = harness.joint_states[0]
+    assert list(first.name) == JOINTS
+    np.testing.assert_allclose(first.position, q0, atol=1e-9)
+    dq = [0.2, -0.2, 0.3]
+    harness.pub.publish(motion_msg(model, q0, dq, 1.0))
+    accepted = harness.status_with("executing trajectory")
+    assert accepted.level == DiagnosticStatus.OK and _values(accepted)["points"] == "101"
+    done = harness.status_with("trajectory completed")
+    values = _values(done)
+    assert done.level == DiagnosticStatus.OK and done.name.endswith("/tracker")
+    # Identical plant, consistent torques sampled every 10 ms: PD keeps it within 1 mm.
+    assert float(values["final_point_error"]) < 1e-3
+    assert float(values["max_error.joint3"]) < 1e-3
+    assert float(values["saturated_fraction"]) == 0.0
+    assert float(values["duration"]) == pytest.approx(1.0)
+    # Then it holds the final configuration.
+    time.sleep(0.2)
+    with harness.lock:
+        last = harness.joint_states[-1]
+        errors = list(harness.errors)
+    np.testing.assert_allclose(last.position, q0 + dq, atol=1e-3)
+    assert np.max(np.abs(last.velocity)) < 1e-2
+    assert len(last.effort) == 3 and np.all(np.abs(last.effort) <= model.tau_max)
+    # Stamps are simulated time, regular at publish_rate.
+    with harness.lock:
+        stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                  for m in harness.joint_states]
+    steps = np.diff(stamps)
+    assert np.all(steps > 0) and np.median(steps) == pytest.approx(0.02, abs=1e-6)
+    assert list(errors[-1].name) == JOINTS and len(errors[-1].position) == 3
+    assert max(max(abs(v) for v in e.position) for e in errors) < 1e-3
+
+
+def _nan(msg):
+    msg.points[3].positions[1] = float("nan")
+    return msg
+
+
+def _backwards(msg):
+    msg.points[5].time_from_start, msg.points[6].time_from_start = \
+        msg.points[6].time_from_start, msg.points[5].time_from_start
+    return msg
+
+
+def _no_effort(msg):
+    for p in msg.points:
+        p.effort = []
+    return msg
+
+
+@pytest.mark.parametrize("corrupt, fragment", [
+    (lambda m: JointTrajectory(joint_names=["a", "b", "c"], points=m.points),
+     "do not match the robot's joints"),
+    (_nan, "positions must be finite; element (3, 1) is nan"),
+    (_backwards, "time_from_start must be strictly increasing; t[5]"),
+    (_no_effort, "point 0: effort has 0 values for 3 joints"),
+    (lambda m: JointTrajectory(joint_names=JOINTS), "no points"),
+])
+def test_bad_trajectories_are_rejected_and_the_arm_holds(harness, model, corrupt, fragment):
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(corrupt(motion_msg(model, q0, [0.3, 0.3, 0.3], 1.0)))
+    status = harness.status_with("trajectory rejected")
+    assert status.level == DiagnosticStatus.ERROR
+    assert fragment in status.message and "holding" in status.message
+    count = len(harness.joint_states)
+    harness.wait(lambda: len(harness.joint_states) > count + 5, "joint_states after")
+    assert not harness.node.tracker.running
+    np.testing.assert_allclose(harness.joint_states[-1].position, q0, atol=1e-9)
+    # A good one afterwards still runs, in any joint order.
+    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, -0.1], 0.5,
+                                   names=["joint3", "joint1", "joint2"]))
+    done = harness.status_with("trajectory completed")
+    assert float(_values(done)["final_point_error"]) < 1e-3
+    np.testing.assert_allclose(harness.node.tracker.q, q0 + [0.1, 0.0, -0.1], atol=1e-3)
+
+
+def test_a_new_trajectory_preempts_from_the_current_state(harness, model):
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 3.0))
+    harness.status_with("executing trajectory")
+    harness.wait(lambda: harness.node.tracker.trajectory_time() > 1.0, "progress")
+    assert harness.node.tracker.running
+    # As the planner does after a new goal: plan from where the arm is.
+    q_now = harness.node.tracker.q
+    harness.pub.publish(motion_msg(model, q_now, [-0.1, 0.1, -0.1], 1.0))
+    preempted = harness.status_with("preempted")
+    values = _values(preempted)
+    assert values["outcome"] == "preempted" and float(values["duration"]) == pytest.approx(3.0)
+    assert 1.0 < float(values["elapsed"]) < 3.0
+    done = harness.status_with("trajectory completed")
+    assert float(_values(done)["duration"]) == pytest.approx(1.0)
+    np.testing.assert_allclose(harness.node.tracker.q, q_now + [-0.1, 0.1, -0.1], atol=3e-3)
+    with harness.lock:
+        executing = [s for s in harness.statuses if "executing" in s.message]
+    assert len(executing) == 2
+
+
+def test_clock_is_published_with_simulated_time():
+    h = Harness([Parameter("publish_clock", value=True)])
+    try:
+        h.wait(lambda: len(h.clock) > 10, "/clock")
+        with h.lock:
+            times = [c.clock.sec + 1e-9 * c.clock.nanosec for c in h.clock]
+            stamp = h.joint_states[-1].header.stamp
+        assert np.all(np.diff(times) >= 0)
+        assert times[0] < 1.0  # starts from zero, not from the wall clock
+        assert stamp.sec < 1000
+    finally:
+        h.stop()
+
+
+@pytest.mark.parametrize("overrides, error", [
+    ([Parameter("sim_rate", value=1500.0)], ProblemError),
+    ([Parameter("kp", value=[1.0, 2.0])], ProblemError),
+    ([Parameter("initial_positions", value=[0.0, 0.0])], ProblemError),
+    ([Parameter("time_scale", value=0.0)], InvalidParameterValueException),
+    ([Parameter("payload_mass", value=-1.0)], InvalidParameterValueException),
+])
+def test_bad_parameters_are_refused_at_start(overrides, error):
+    with pytest.raises(error):
+        Harness(overrides)

@@ -1,0 +1,458 @@
+"""The tracker node: executes planned trajectories on a simulated arm, nominal torques + PD.
+
+Run as ``ros2 run tocontrol_ros tracker`` (either install route), ``tocontrol-tracker`` (pip)
+or ``python -m tocontrol_ros.tracker``; parameters from ``config/tracker.yaml`` with
+``--ros-args --params-file``. The simulation and the control law are
+:mod:`tocontrol_ros.core.tracking`; this node converts messages, keeps the clock and
+publishes. Interfaces (one page each in ``msg_docs/``):
+
+- subscribed: the planner's ``trajectory_msgs/msg/JointTrajectory`` (parameter
+  ``trajectory_topic``, default ``/planner/trajectory``; reliable, transient local, so the
+  planner's latched last plan arrives on start-up). A trajectory starts when it is received
+  (``header.stamp`` is not used) and replaces the running one from the current plant state;
+- published: ``joint_states`` (``sensor_msgs/msg/JointState``: position, velocity,
+  effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
+  position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
+  ``(u - u_nom) tau_max``), ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``: accepted,
+  rejected, completed and preempted trajectories, with the run summary), and ``/clock``
+  (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true.
+
+Time: a wall-clock timer (``update_rate``) advances the simulation by the wall time elapsed
+times ``time_scale``, in whole control periods. Messages are stamped with the simulated
+time: offset from the node's start time (so that with ``time_scale = 1`` stamps follow the
+node's clock), or from zero when ``publish_clock`` is true, and then ``/clock`` carries the
+same time (other nodes follow it with ``use_sim_time``). ``joint_states`` and
+``~/tracking_error`` are published every ``1 / publish_rate`` seconds of simulated time.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+from trajectory_msgs.msg import JointTrajectory
+
+from tocontrol_ros.core.errors import ProblemError, TocontrolError
+from tocontrol_ros.core.model import RobotModel, default_urdf_path, load_robot
+from tocontrol_ros.core.tracking import (
+    NominalTrajectory,
+    PlantConfig,
+    Tracker,
+    TrackingGains,
+    TrackingSummary,
+)
+
+__all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
+           "nominal_from_msg", "summary_status", "main"]
+
+#: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
+#: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
+PAPER_START_Q = (-0.5487769600, 2.2111963800, 1.1613502200)
+
+#: The planner's trajectory is latched: late subscribers get the last plan.
+QOS_TRAJECTORY = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                            reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Streams: reliable publishers match both reliable and best-effort subscribers.
+QOS_STREAM = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: Status events; the last few are kept for late subscribers.
+QOS_STATUS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Control periods one timer tick may simulate (a few tens of ms of work); beyond, the
+#: simulation drops time (it cannot keep up with ``time_scale``) rather than starve the
+#: executor.
+MAX_TICK_PERIODS = 10_000
+
+
+class TrajectoryRejectedError(ProblemError):
+    """A trajectory message the tracker cannot execute; the message says why."""
+
+
+# -------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class _Spec:
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+
+
+#: Every parameter: name, default (fixing the type; ``None`` = an optional double array),
+#: description with units, inclusive range. All are read-only: the model, the plant and
+#: the compiled control law are built at start-up.
+PARAMETERS: tuple[_Spec, ...] = (
+    _Spec("robot_description", "", "URDF XML of the robot; empty: read `urdf_path`"),
+    _Spec("urdf_path", "", "URDF file; empty (and no robot_description): the bundled arm of "
+          "the paper, config/galicki_3r.urdf"),
+    _Spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
+    _Spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
+    _Spec("kp", [100.0, 100.0, 30.0], "Proportional gains per joint (or one for all), "
+          "normalised: fraction of tau_max per rad (per m)"),
+    _Spec("kd", [10.0, 10.0, 3.0], "Derivative gains per joint (or one for all), "
+          "normalised: fraction of tau_max per rad/s (per m/s)"),
+    _Spec("mass_scale", 1.0, "Plant: factor on every link mass", 0.01, 100.0),
+    _Spec("inertia_scale", 1.0, "Plant: factor on every link inertia about its centre of "
+          "mass", 0.01, 100.0),
+    _Spec("friction_scale", 1.0, "Plant: factor on the viscous friction of every joint",
+          0.0, 100.0),
+    _Spec("payload_mass", 0.0, "Plant: point mass at the tip frame origin (kg)", 0.0, 1000.0),
+    _Spec("torque_noise", 0.0, "Plant: torque noise standard deviation, fraction of tau_max, "
+          "drawn per joint and control period", 0.0, 1.0),
+    _Spec("noise_seed", 0, "Plant: seed of the torque noise", 0, 2**31 - 1),
+    _Spec("initial_offset", None, "Plant: offset of the initial state from "
+          "initial_positions: n positions (rad, m) or 2n (positions, velocities); unset: "
+          "none"),
+    _Spec("initial_positions", None, "Initial configuration (rad, m), held until the first "
+          "trajectory; unset: the paper example's start on the bundled arm, else zero "
+          "(clipped to the joint limits)"),
+    _Spec("sim_rate", 2000.0, "Plant integration rate (Hz, fixed-step RK4); an integer "
+          "multiple of control_rate", 1.0, 1.0e6),
+    _Spec("control_rate", 1000.0, "Control-law rate (Hz); the control is held over each "
+          "period", 1.0, 1.0e5),
+    _Spec("publish_rate", 100.0, "Rate of joint_states and ~/tracking_error (Hz of "
+          "simulated time)", 0.1, 1.0e4),
+    _Spec("update_rate", 100.0, "Rate of the simulation timer (Hz of wall time)", 1.0,
+          1000.0),
+    _Spec("time_scale", 1.0, "Simulated seconds per wall second (1: real time; larger: "
+          "faster than real time, for tests and batch runs)", 0.001, 1000.0),
+    _Spec("publish_clock", False, "Publish the simulated time on /clock (stamps then count "
+          "from zero)"),
+    _Spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
+          "trajectory_msgs/JointTrajectory"),
+)
+
+
+def _descriptor(spec: _Spec) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=spec.description, read_only=True)
+    if spec.low is not None:
+        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
+                                            step=0)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                         to_value=float(spec.high), step=0.0)]
+    return d
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The node's parameters, checked and converted (see :data:`PARAMETERS`)."""
+
+    robot_description: str
+    urdf_path: str
+    base_link: str
+    tip_link: str
+    gains: TrackingGains
+    plant: PlantConfig
+    initial_positions: tuple[float, ...]
+    publish_rate: float
+    update_rate: float
+    time_scale: float
+    publish_clock: bool
+    trajectory_topic: str
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any]) -> TrackerConfig:
+        """Build from parameter values (``None`` for an unset optional array).
+
+        Raises
+        ------
+        ProblemError
+            A value the core rejects (the message names it).
+        """
+        plant = PlantConfig(
+            mass_scale=values["mass_scale"], inertia_scale=values["inertia_scale"],
+            friction_scale=values["friction_scale"], payload_mass=values["payload_mass"],
+            torque_noise=values["torque_noise"], noise_seed=int(values["noise_seed"]),
+            initial_offset=tuple(values["initial_offset"] or ()),
+            sim_rate=values["sim_rate"], control_rate=values["control_rate"])
+        return cls(
+            robot_description=values["robot_description"], urdf_path=values["urdf_path"],
+            base_link=values["base_link"], tip_link=values["tip_link"],
+            gains=TrackingGains(kp=tuple(values["kp"]), kd=tuple(values["kd"])),
+            plant=plant, initial_positions=tuple(values["initial_positions"] or ()),
+            publish_rate=float(values["publish_rate"]),
+            update_rate=float(values["update_rate"]), time_scale=float(values["time_scale"]),
+            publish_clock=bool(values["publish_clock"]),
+            trajectory_topic=values["trajectory_topic"])
+
+    def load_model(self) -> tuple[RobotModel, bool]:
+        """The robot model, and whether it is the bundled arm."""
+        kwargs = {"base_link": self.base_link or None, "tip_link": self.tip_link or None}
+        if self.robot_description.strip():
+            return load_robot(self.robot_description, **kwargs), False
+        if self.urdf_path:
+            return load_robot(self.urdf_path, **kwargs), False
+        return load_robot(default_urdf_path(), **kwargs), True
+
+    def start_configuration(self, model: RobotModel, bundled: bool) -> np.ndarray:
+        """``initial_positions``, or the default described in :data:`PARAMETERS`."""
+        if self.initial_positions:
+            q = np.asarray(self.initial_positions, dtype=float)
+            if q.shape != (model.n,) or not np.all(np.isfinite(q)):
+                raise ProblemError(f"`initial_positions` must be {model.n} finite values, "
+                                   f"got {list(self.initial_positions)}")
+            return q
+        if bundled and model.n == len(PAPER_START_Q):
+            return np.array(PAPER_START_Q)
+        return np.clip(np.zeros(model.n), model.q_lower, model.q_upper)
+
+
+# ------------------------------------------------------------------- conversions
+def _seconds(duration) -> float:
+    return duration.sec + duration.nanosec * 1e-9
+
+
+def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> NominalTrajectory:
+    """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
+
+    Every point needs positions, velocities, accelerations and effort (the nominal torques,
+    N m) for all joints; ``time_from_start`` must increase strictly. The joints may come in
+    any order.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, missing or short fields, NaN, times that do
+        not increase; the message names the point and the field.
+    """
+    names = list(msg.joint_names)
+    want = list(joint_names)
+    if len(set(names)) != len(names):
+        raise TrajectoryRejectedError(f"joint_names has duplicates: {names}")
+    if sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"joint_names {names} do not match the robot's joints "
+                                      f"{want}")
+    if not msg.points:
+        raise TrajectoryRejectedError("the trajectory has no points")
+    order = [names.index(j) for j in want]
+    n, k = len(want), len(msg.points)
+    arrays = {f: np.empty((k, n)) for f in ("positions", "velocities", "accelerations",
+                                            "effort")}
+    t = np.empty(k)
+    for i, p in enumerate(msg.points):
+        for field, arr in arrays.items():
+            values = getattr(p, field)
+            if len(values) != n:
+                raise TrajectoryRejectedError(
+                    f"point {i}: {field} has {len(values)} values for {n} joints (the tracker "
+                    f"needs positions, velocities, accelerations and effort)")
+            arr[i] = np.asarray(values, dtype=float)[order]
+        t[i] = _seconds(p.time_from_start)
+    try:
+        return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
+                                 arrays["accelerations"], arrays["effort"],
+                                 joint_names=want)
+    except ProblemError as exc:
+        text = str(exc).replace("`t`", "time_from_start").replace(
+            "`q`", "positions").replace("`qd`", "velocities").replace(
+            "`qdd`", "accelerations").replace("`effort`", "effort")
+        raise TrajectoryRejectedError(text) from exc
+
+
+def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
+                   joint_names: Sequence[str]) -> DiagnosticStatus:
+    """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
+    worst = int(np.argmax(summary.max_error))
+    verb = "completed" if summary.outcome == "completed" else (
+        f"preempted after {summary.elapsed:.3f} s of {summary.duration:.3f} s")
+    message = (f"trajectory {verb}: final end-effector error {summary.final_point_error:.3g} "
+               f"m, max tracking error {summary.max_error[worst]:.3g} rad "
+               f"({joint_names[worst]}), saturated {100 * summary.saturated_fraction:.1f} % "
+               f"of the time, largest feedback share {summary.max_feedback:.3g}")
+    values = [KeyValue(key=key, value=value if isinstance(value, str) else f"{value:.9g}")
+              for key, value in summary.as_dict(joint_names).items()]
+    return DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=message,
+                            hardware_id=hardware_id, values=values)
+
+
+def _stamp(seconds: float) -> Time:
+    ns = int(round(seconds * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+# -------------------------------------------------------------------------- node
+class TrackerNode(Node):
+    """Simulated arm under the tracking law; see the module docstring for its interfaces.
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+    """
+
+    def __init__(self, node_name: str = "tracker", **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        values = {}
+        for spec in PARAMETERS:
+            if spec.default is None:
+                self.declare_parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
+                                       _descriptor(spec))
+                try:
+                    values[spec.name] = list(self.get_parameter(spec.name).value)
+                except ParameterUninitializedException:
+                    values[spec.name] = None
+            else:
+                values[spec.name] = self.declare_parameter(
+                    spec.name, spec.default, _descriptor(spec)).value
+        self.config = TrackerConfig.from_values(values)
+        self.model, bundled = self.config.load_model()
+        self.joint_names = list(self.model.joint_names)
+        q0 = self.config.start_configuration(self.model, bundled)
+        self.tracker = Tracker(self.model, self.config.plant, self.config.gains, q0=q0)
+        self.tracker.prepare()  # compile the control period now, not in the first tick
+
+        self._pub_joints = self.create_publisher(JointState, "joint_states", QOS_STREAM)
+        self._pub_error = self.create_publisher(JointState, "~/tracking_error", QOS_STREAM)
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
+        self._pub_clock = (self.create_publisher(Clock, "/clock", QOS_STREAM)
+                           if self.config.publish_clock else None)
+        self.create_subscription(JointTrajectory, self.config.trajectory_topic,
+                                 self._on_trajectory, QOS_TRAJECTORY)
+        self._epoch = 0.0 if self.config.publish_clock else (
+            self.get_clock().now().nanoseconds * 1e-9)
+        self._publish_period = 1.0 / self.config.publish_rate
+        self._next_publish = self._publish_period
+        self._wall_start = time.monotonic()
+        self._sim_offset = 0.0  # simulated time dropped when the simulation fell behind
+        self.trajectories_received = 0
+        self._publish_state(self._initial_row())
+        self.create_timer(1.0 / self.config.update_rate, self._on_timer)
+        self.get_logger().info(
+            f"tracking on {self.model.name!r} ({self.model.n} joints) from "
+            f"{self.config.trajectory_topic}; plant: {self._plant_text()}; "
+            f"time_scale {self.config.time_scale:g}")
+
+    # ---------------------------------------------------------------- helpers
+    def _plant_text(self) -> str:
+        p = self.config.plant
+        if p.identical and p.torque_noise == 0 and not p.initial_offset:
+            return f"identical to the model, {p.sim_rate:g} Hz, control {p.control_rate:g} Hz"
+        return (f"mass x{p.mass_scale:g}, inertia x{p.inertia_scale:g}, friction "
+                f"x{p.friction_scale:g}, payload {p.payload_mass:g} kg, noise "
+                f"{p.torque_noise:g}, offset {list(p.initial_offset)}, {p.sim_rate:g} Hz, "
+                f"control {p.control_rate:g} Hz")
+
+    def _status(self, level: bytes, message: str, values: Mapping[str, str] = ()) -> None:
+        self._pub_status.publish(DiagnosticStatus(
+            level=level, name=self.get_fully_qualified_name(), message=message,
+            hardware_id=self.model.name,
+            values=[KeyValue(key=k, value=v) for k, v in dict(values).items()]))
+
+    def _initial_row(self) -> dict:
+        n = self.model.n
+        return {"t": self.tracker.t, "q": self.tracker.q, "qd": self.tracker.qd,
+                "error": np.zeros(n), "error_rate": np.zeros(n), "feedback": np.zeros(n),
+                "tau": np.zeros(n)}
+
+    # -------------------------------------------------------------- callbacks
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        self.trajectories_received += 1
+        try:
+            nominal = nominal_from_msg(msg, self.joint_names)
+        except TrajectoryRejectedError as exc:
+            running = "continuing the current trajectory" if self.tracker.running \
+                else "holding"
+            self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {exc}; {running}")
+            self.get_logger().warning(f"trajectory rejected: {exc}")
+            return
+        offset = float(np.max(np.abs(nominal.q[0] - self.tracker.q)))
+        preempted = self.tracker.start(nominal)
+        if preempted is not None:
+            self._pub_status.publish(self._summary_status(preempted))
+        self._status(DiagnosticStatus.OK,
+                     f"executing trajectory: {len(nominal)} points, T = "
+                     f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
+                     f"position",
+                     {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
+                      "start_offset": f"{offset:.9g}",
+                      "start_time": f"{self._epoch + self.tracker.t:.9f}"})
+
+    def _summary_status(self, summary: TrackingSummary) -> DiagnosticStatus:
+        return summary_status(summary, self.get_fully_qualified_name(), self.model.name,
+                              self.joint_names)
+
+    def _on_timer(self) -> None:
+        wall = time.monotonic()
+        target = (wall - self._wall_start) * self.config.time_scale - self._sim_offset
+        tracker = self.tracker
+        behind = int(math.ceil((target - tracker.t) / tracker.h - 1e-9))
+        if behind > MAX_TICK_PERIODS:
+            # Cannot keep up with time_scale: simulate what one tick may, drop the rest.
+            dropped = (behind - MAX_TICK_PERIODS) * tracker.h
+            self._sim_offset += dropped
+            target -= dropped
+            self.get_logger().warning(
+                f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
+                f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
+        report = tracker.advance(target)
+        for summary in report.summaries:
+            self._pub_status.publish(self._summary_status(summary))
+        log = report.log
+        if len(log):
+            # The first control instant at or after each publishing time.
+            due = np.arange(self._next_publish, log.t[-1] + 1e-9, self._publish_period)
+            rows = np.unique(np.searchsorted(log.t, due - 1e-9))
+            for i in rows:
+                self._publish_state({
+                    "t": log.t[i], "q": log.q[i], "qd": log.qd[i], "error": log.error[i],
+                    "error_rate": log.error_rate[i],
+                    "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max,
+                    "tau": log.tau[i]})
+            self._next_publish += due.size * self._publish_period
+        if self._pub_clock is not None:
+            self._pub_clock.publish(Clock(clock=_stamp(self._epoch + tracker.t)))
+
+    def _publish_state(self, row: Mapping[str, Any]) -> None:
+        header = Header(stamp=_stamp(self._epoch + float(row["t"])), frame_id="")
+        self._pub_joints.publish(JointState(
+            header=header, name=self.joint_names, position=np.asarray(row["q"]).tolist(),
+            velocity=np.asarray(row["qd"]).tolist(), effort=np.asarray(row["tau"]).tolist()))
+        self._pub_error.publish(JointState(
+            header=header, name=self.joint_names,
+            position=np.asarray(row["error"]).tolist(),
+            velocity=np.asarray(row["error_rate"]).tolist(),
+            effort=np.asarray(row["feedback"]).tolist()))
+
+
+def main(args=None) -> None:
+    """Entry point of ``ros2 run tocontrol_ros tracker``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = TrackerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except TocontrolError as exc:
+        print(f"tracker: {exc}", file=sys.stderr)
+        raise SystemExit(2) from exc
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
