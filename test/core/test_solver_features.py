@@ -7,7 +7,10 @@ import pytest
 
 from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.solver import Status, plan
+from tocontrol_ros.core.solver import SolverOptions, Status, plan
+
+#: One start: these tests do not depend on the basin, and multistart costs time.
+SINGLE = SolverOptions(starts=1, candidates=1)
 
 P_START = np.array([1.0, 1.0])
 P_TARGET = np.array([2.2, 1.5])
@@ -17,18 +20,18 @@ RESERVE = 0.2
 
 @pytest.fixture(scope="module")
 def base(galicki):
-    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4))
+    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4), SINGLE)
 
 
 @pytest.fixture(scope="module")
 def moved(galicki, base):
     problem = Problem(galicki, point(P_START), point(P_TARGET + MOVE), k=4)
-    return {"cold": plan(problem), "warm": plan(problem, warm_start=base)}
+    return {"cold": plan(problem, SINGLE), "warm": plan(problem, SINGLE, warm_start=base)}
 
 
 @pytest.fixture(scope="module")
 def reserved(galicki):
-    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4, reserve=RESERVE))
+    return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4, reserve=RESERVE), SINGLE)
 
 
 def test_warm_start_matches_cold_solve_with_fewer_iterations(base, moved):
@@ -48,7 +51,7 @@ def test_warm_start_matches_cold_solve_with_fewer_iterations(base, moved):
 def test_moving_start_to_point(galicki, base):
     q0 = base.trajectory.evaluate(0.0).q[0]
     qd0 = np.array([0.5, -0.3, 1.0])
-    res = plan(Problem(galicki, joint_state(q0, qd0), point(P_TARGET), k=4))
+    res = plan(Problem(galicki, joint_state(q0, qd0), point(P_TARGET), k=4), SINGLE)
     assert res.success, res.message
     start = res.trajectory.evaluate(0.0)
     np.testing.assert_allclose(start.q[0], q0, atol=1e-10)

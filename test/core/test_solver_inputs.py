@@ -11,6 +11,9 @@ from tocontrol_ros.core.errors import ProblemError, TocontrolError
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import PlanResult, SolverOptions, Status, plan
 
+#: One start: these tests do not depend on the basin, and multistart costs time.
+SINGLE = SolverOptions(starts=1, candidates=1)
+
 P_START = (1.0, 1.0)
 P_TARGET = (2.2, 1.5)
 Q_OK = (0.1, 0.2, 0.3)
@@ -85,7 +88,7 @@ def test_moving_state_on_the_target_point_is_not_trivial(galicki):
     ({"smoothing": (1e-3, -1e-4)}, r"`smoothing` must be a non-empty strictly decreasing"),
 ])
 def test_bad_options_raise(kwargs, match):
-    # SolverOptions raises a plain ValueError (not a ProblemError) naming the field.
+    # SolverOptions raises ProblemError (a ValueError) naming the field.
     with pytest.raises(ValueError, match=match):
         SolverOptions(**kwargs)
 
@@ -114,7 +117,8 @@ def test_should_stop_cancels(galicki):
         calls.append(1)
         return True
 
-    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4), should_stop=stop)
+    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4), SINGLE,
+               should_stop=stop)
     assert not res.success
     assert res.status is Status.CANCELLED
     assert res.trajectory is None

@@ -23,7 +23,10 @@ import pytest
 
 from tocontrol_ros.core.direct import DirectCollocation
 from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import Status, plan, verify
+from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
+
+#: One start: these tests do not depend on the basin, and multistart costs time.
+SINGLE = SolverOptions(starts=1, candidates=1)
 
 P_START = np.array([1.0, 1.0])
 P_TARGET = np.array([2.2, 1.5])
@@ -35,7 +38,8 @@ DIRECT_RTOL = 1e-5
 
 @pytest.fixture(scope="module")
 def solutions(galicki):
-    return {k: plan(Problem(galicki, point(P_START), point(P_TARGET), k=k)) for k in KS}
+    return {k: plan(Problem(galicki, point(P_START), point(P_TARGET), k=k), SINGLE)
+            for k in KS}
 
 
 def _direct(model, dc: DirectCollocation, res):

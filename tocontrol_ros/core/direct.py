@@ -168,10 +168,10 @@ class DirectCollocation:
         self.lbg = np.concatenate(lbg)
         self.ubg = np.concatenate(ubg)
         big = 1e20
-        q_lo = np.where(np.isfinite(model.q_lower), model.q_lower, -big)
-        q_hi = np.where(np.isfinite(model.q_upper), model.q_upper, big)
-        lbx_x = np.tile(np.concatenate([q_lo, -big * np.ones(n)]), N + 1)
-        ubx_x = np.tile(np.concatenate([q_hi, big * np.ones(n)]), N + 1)
+        # Joint position limits are checked on the result, not enforced (as in the shooting
+        # solver, where the maximum principle has no state constraints): no state bounds.
+        lbx_x = -big * np.ones(2 * n * (N + 1))
+        ubx_x = big * np.ones(2 * n * (N + 1))
         ulim = 1.0 if box else 1.0 + 1e-9
         self.lbx = np.concatenate([lbx_x, -ulim * np.ones(self._nu + self._num), [1e-3]])
         self.ubx = np.concatenate([ubx_x, ulim * np.ones(self._nu + self._num), [big]])

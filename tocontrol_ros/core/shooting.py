@@ -65,6 +65,12 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
     dtau = np.asarray(lengths, dtype=float) / steps
     h = (t_final * dtau)[None, :]
     z = np.ascontiguousarray(starts.T)
+    with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are checked
+        return _chain(step_map, z, h, par, dtau, steps, count, nz, sensitivities)
+
+
+def _chain(step_map, z, h, par, dtau, steps, count, nz, sensitivities):
+    """Chain ``steps`` RK4 steps and, optionally, their Jacobians (see :func:`integrate`)."""
     a_tot = b_tot = None
     for i in range(steps):
         if not sensitivities:

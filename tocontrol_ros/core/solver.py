@@ -28,13 +28,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .direct import DirectCollocation, DirectResult, initial_path
+from .errors import ProblemError
 from .ik import ik_family
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .shooting import NewtonReport, ShootingGrid, integrate, newton_solve
 from .trajectory import Trajectory
 
-__all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan"]
+__all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan", "verify"]
 
 
 class Status(enum.Enum):
@@ -46,8 +47,8 @@ class Status(enum.Enum):
     NEWTON_FAILED = "Newton's method did not converge at k = 1"
     CONTINUATION_FAILED = "continuation in k stalled before the requested k"
     VERIFICATION_FAILED = "converged, but the verification failed"
-    CANCELLED = "cancelled"
-    TIME_LIMIT = "time limit reached"
+    CANCELLED = "cancelled by the caller (a newer request or a shutdown)"
+    TIME_LIMIT = "the time limit ran out before the solve finished"
 
 
 @dataclass(frozen=True)
@@ -79,9 +80,11 @@ class SolverOptions:
     min_k_step : float
         Continuation gives up when a failed step in ``k`` would be bisected below this.
     starts : int
-        Seed pairs tried by the direct method (1 = single start).
+        Seed pairs tried by the direct method (1 = single start). The paper's arm has many
+        local optima and the first seed pair is seldom in the best basin, hence 16.
     candidates : int
-        Distinct direct solutions continued to the requested ``k`` by shooting.
+        Distinct direct solutions (best ``T`` at k = 1 first) continued to the requested
+        ``k`` by shooting; the best final ``T`` is returned.
     ik_count : int
         Angles of the self-motion family per end point (see :func:`ik_family`).
     verify : bool
@@ -99,14 +102,14 @@ class SolverOptions:
     intervals: int = 12
     steps: int = 6
     guess_intervals: int = 12
-    integration_tol: float = 1e-6
+    integration_tol: float = 3e-7
     max_intervals: int = 400
     smoothing: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 0.0)
     smoothing_intermediate: float = 1e-3
     smoothing_tol: float = 1e-8
     min_k_step: float = 0.05
-    starts: int = 1
-    candidates: int = 1
+    starts: int = 16
+    candidates: int = 3
     ik_count: int = 8
     verify: bool = True
     verify_point_tol: float = 1e-4
@@ -120,16 +123,16 @@ class SolverOptions:
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise ValueError(f"`{name}` must be a positive number, got {value!r}")
+                raise ProblemError(f"`{name}` must be a positive number, got {value!r}")
         for name in ("max_newton", "intervals", "steps", "guess_intervals", "max_intervals",
                      "starts", "candidates", "ik_count"):
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
-                raise ValueError(f"`{name}` must be an integer >= 1, got {value!r}")
+                raise ProblemError(f"`{name}` must be an integer >= 1, got {value!r}")
         sm = tuple(float(d) for d in self.smoothing)
         if not sm or any(d < 0 or not np.isfinite(d) for d in sm) or \
                 any(b >= a for a, b in zip(sm, sm[1:], strict=False)):
-            raise ValueError(f"`smoothing` must be a non-empty strictly decreasing sequence "
+            raise ProblemError(f"`smoothing` must be a non-empty strictly decreasing sequence "
                              f"of numbers >= 0, got {self.smoothing!r}")
         object.__setattr__(self, "smoothing", sm)
 
