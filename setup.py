@@ -27,6 +27,9 @@ PACKAGE_NAME = "tocontrol_ros"
 EXECUTABLES = {
     "demo": "tocontrol_ros.demo",
     "figures": "tocontrol_ros.figures",
+    "recorder": "tocontrol_ros.recorder",
+    "replay": "tocontrol_ros.replay",
+    "report": "tocontrol_ros.report",
     "tracker": "tocontrol_ros.tracker",
 }
 

@@ -1,0 +1,100 @@
+"""The recorder as a real process: SIGINT/SIGTERM finish the file, SIGKILL leaves it readable.
+
+The publisher runs in this process at the tracker's joint-state rate; every message it
+published must be in the file.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import rclpy
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+from rclpy.context import Context
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from tocontrol_ros import mcap_io
+
+pytestmark = pytest.mark.ros
+REPO = Path(__file__).resolve().parents[2]
+RATE = 200.0  # Hz, the tracker's joint-state rate order
+
+
+def recorder_command():
+    """The installed ``ros2 run`` executable if there is one, else ``python -m``."""
+    installed = Path(sys.prefix) / "lib" / "tocontrol_ros" / "recorder"
+    if installed.is_file():
+        return [str(installed)], dict(os.environ)
+    if os.environ.get("TOCONTROL_DEV_VENV"):
+        pytest.fail(f"not installed: {installed}")
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return [sys.executable, "-m", "tocontrol_ros.recorder"], env
+
+
+def stream_messages(path):
+    """Messages readable by a non-seeking reader, up to the first incomplete record."""
+    out = []
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                if type(record).__name__ == "Message":
+                    out.append(record)
+        except Exception:  # noqa: BLE001 (the truncated tail of a killed recording)
+            pass
+    return out
+
+
+@pytest.mark.parametrize("sig, seconds", [(signal.SIGINT, 2.0), (signal.SIGTERM, 1.0),
+                                          (signal.SIGKILL, 1.0)])
+def test_signals_and_message_count(tmp_path, sig, seconds):
+    topic = f"/t{uuid.uuid4().hex[:8]}/joint_states"
+    out = tmp_path / "run.mcap"
+    command, env = recorder_command()
+    proc = subprocess.Popen(
+        [*command, "--ros-args", "-p", f"output:={out}", "-p", f"topics:=[{topic}]",
+         "-p", "discovery_period:=0.05", "-p", "flush_period:=0.2"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("signal_test_publisher", context=ctx)
+    try:
+        pub = node.create_publisher(JointState, topic, QoSProfile(
+            depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        deadline = time.monotonic() + 20.0
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stdout.read()
+            time.sleep(0.02)
+        assert pub.get_subscription_count() == 1, "the recorder never subscribed"
+        count = int(seconds * RATE)
+        start = time.monotonic()
+        for i in range(count):
+            pub.publish(JointState(name=["j1", "j2", "j3"], position=[i * 1e-3] * 3,
+                                   effort=[float(i)] * 3))
+            time.sleep(max(0.0, start + (i + 1) / RATE - time.monotonic()))
+        time.sleep(0.6)  # > flush_period: what was received is in the file
+        proc.send_signal(sig)
+        output, _ = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    if sig == signal.SIGKILL:
+        with open(out, "rb") as f:
+            with pytest.raises(Exception):  # noqa: B017 (no summary, no footer)
+                list(make_reader(f).iter_messages())
+        messages = stream_messages(out)
+    else:
+        assert proc.returncode == 0, output
+        channels = mcap_io.read_channels(out)  # uses the summary
+        assert channels[topic].message_count == count, output
+        messages = [r for r in mcap_io.iter_records(out)]
+    assert len(messages) == count, output

@@ -1,0 +1,218 @@
+"""Recorder and replay in-process, over DDS, with a private rclpy Context per test.
+
+Round trip: what the recorder wrote equals, byte for byte, what a raw subscription received
+and the exact CDR of the published message, and decodes (rosbags, mcap-ros2-support) to the
+published fields. Replay: inter-message times follow the recording at rate 1 and 10.
+"""
+
+import array
+import os
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+
+from tocontrol_ros import mcap_io
+from tocontrol_ros.recorder import Recorder
+from tocontrol_ros.replay import Player
+
+pytestmark = pytest.mark.ros
+AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
+DecoderFactory = pytest.importorskip("mcap_ros2.decoder").DecoderFactory
+
+def unique(topic):
+    """A topic of this test's own: parallel sessions may share the DDS domain."""
+    return f"/t{uuid.uuid4().hex[:8]}{topic}"
+
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.fixture
+def context():
+    assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(executor, condition, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return condition()
+
+
+def _same(a, b, where="msg"):
+    """Field-by-field equality of an rclpy message and a decoded one (rosbags/mcap_ros2)."""
+    if hasattr(a, "get_fields_and_field_types"):
+        for name in a.get_fields_and_field_types():
+            _same(getattr(a, name), getattr(b, name), f"{where}.{name}")
+    elif isinstance(a, bytes):  # byte/uint8 fields: rclpy bytes, decoders int
+        assert list(a) == ([b] if isinstance(b, int) else list(b)), where
+    elif isinstance(a, (list, tuple, np.ndarray, array.array)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, float):
+        assert a == pytest.approx(float(b), rel=0, abs=0) or (np.isnan(a) and np.isnan(b)), where
+    else:
+        assert a == b, where
+
+
+def test_round_trip_byte_for_byte_and_field_by_field(context, tmp_path):
+    from test_mcap_io import sample_messages  # noqa: PLC0415 (test helper module)
+
+    types = ["trajectory_msgs/msg/JointTrajectory", "diagnostic_msgs/msg/DiagnosticStatus",
+             "sensor_msgs/msg/JointState", "visualization_msgs/msg/MarkerArray"]
+    samples = sample_messages()
+    names = ["/planner/trajectory", "/planner/status", "/joint_states", "/planner/markers"]
+    traj_topic, js_topic = unique(names[0]), unique(names[2])
+    topics = {traj_topic: types[0], unique(names[1]): types[1], js_topic: types[2],
+              unique(names[3]): types[3]}
+    node = rclpy.create_node("publisher", context=context)
+    pubs = {t: node.create_publisher(mcap_io.message_class(ty), t,
+                                     LATCHED if t == traj_topic else 50)
+            for t, ty in topics.items()}
+    witness = {t: [] for t in topics}
+    for t, ty in topics.items():
+        node.create_subscription(mcap_io.message_class(ty), t,
+                                 lambda data, info, t=t: witness[t].append((data, info)),
+                                 LATCHED if t == traj_topic else 50, raw=True)
+    # Published before the recorder exists: only transient local brings it in.
+    pubs[traj_topic].publish(samples[types[0]])
+    out = tmp_path / "rt.mcap"
+    recorder = Recorder(context=context, parameter_overrides=[
+        Parameter("output", value=str(out)), Parameter("topics", value=list(topics)),
+        Parameter("discovery_period", value=0.05)])
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(recorder)
+    try:
+        assert spin_until(executor, lambda: not recorder.pending_topics
+                          and all(p.get_subscription_count() >= 2 for p in pubs.values()))
+        sent = {t: [] for t in topics}
+        sent[traj_topic].append(samples[types[0]])
+        for i in range(20):
+            for t, ty in topics.items():
+                if t == traj_topic:
+                    continue
+                msg = samples[ty]
+                if ty == types[2]:
+                    msg = JointState(header=Header(frame_id=f"f{i}"), name=["a"],
+                                     position=[float(i)], effort=[0.5 * i])
+                pubs[t].publish(msg)
+                sent[t].append(msg)
+            executor.spin_once(timeout_sec=0.001)
+        total = sum(len(v) for v in sent.values())
+        assert spin_until(executor, lambda: recorder.writer.message_count >= total
+                          and sum(len(w) for w in witness.values()) >= total)
+    finally:
+        recorder.close()
+        executor.shutdown()
+        recorder.destroy_node()
+        node.destroy_node()
+
+    channels = mcap_io.read_channels(out)
+    assert {t: c.type for t, c in channels.items()} == topics
+    assert channels[traj_topic].offered_qos_profiles[0]["durability"] == (
+        "transient_local")
+    assert channels[js_topic].type_hash.startswith("RIHS01_")
+    records = {t: [r for r in mcap_io.iter_records(out) if r.topic == t] for t in topics}
+    for t in topics:
+        assert len(records[t]) == len(sent[t]) == len(witness[t]), t
+        for rec, msg, (raw, info) in zip(records[t], sent[t], witness[t], strict=True):
+            assert rec.data == raw == mcap_io.serialize_exact(msg), t
+            assert rec.publish_time == info["source_timestamp"]
+            assert rec.log_time >= rec.publish_time
+
+    with AnyReader([Path(out)]) as reader:
+        decoded = {t: [] for t in topics}
+        for conn, _, raw in reader.messages():
+            decoded[conn.topic].append(reader.deserialize(raw, conn.msgtype))
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        mcap_decoded = {t: [] for t in topics}
+        for _, channel, _, msg in make_reader(
+                f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            mcap_decoded[channel.topic].append(msg)
+    for t in topics:
+        for msg, a, b in zip(sent[t], decoded[t], mcap_decoded[t], strict=True):
+            _same(msg, a, f"{t} rosbags")
+            _same(msg, b, f"{t} mcap_ros2")
+
+
+def _write_stream(path, intervals_ms, topic="/joint_states"):
+    log = 1_000_000_000_000
+    times = [log]
+    with mcap_io.RecordingWriter(path) as writer:
+        writer.add_topic(topic, "sensor_msgs/msg/JointState", [LATCHED])
+        for i, dt in enumerate([0, *intervals_ms]):
+            log += int(dt * 1e6)
+            times.append(log)
+            msg = JointState(name=["a"], position=[float(i)])
+            writer.write(topic, mcap_io.serialize_exact(msg), log_time=log)
+    return np.diff(times[1:]) * 1e-9
+
+
+@pytest.mark.parametrize("rate", [1.0, 10.0])
+def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
+    rng = np.random.default_rng(0)
+    n = 60 if rate == 1.0 else 200
+    intervals = rng.uniform(4.0, 16.0, n)  # ms: 100 Hz with jitter
+    path = tmp_path / "stream.mcap"
+    topic = unique("/joint_states")
+    recorded = _write_stream(path, intervals, topic)
+    node = rclpy.create_node("replay_test", context=context)
+    got = []
+    node.create_subscription(JointState, topic,
+                             lambda m, info: got.append(info["received_timestamp"]),
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+                             raw=True)
+    player = Player(node, path, rate=rate)
+    qos = player.publishers[topic].qos_profile
+    assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        assert spin_until(executor, lambda: player.publishers[topic]
+                          .get_subscription_count() == 1)
+        assert player.play_once() == n + 1
+        assert spin_until(executor, lambda: len(got) == n + 1)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    replayed = np.diff(got) * 1e-9
+    err = np.abs(replayed - recorded / rate)
+    # Receive times (DDS) of a local reliable topic: typically 0.1 ms off. The machine may be
+    # busy (two cores, parallel test runs), so single late wake-ups are tolerated.
+    assert np.median(err) < 1e-3, err
+    assert np.quantile(err, 0.9) < 5e-3, err
+    assert np.max(err) < 30e-3, err
+    total = (got[-1] - got[0]) * 1e-9
+    assert total == pytest.approx(recorded.sum() / rate, abs=10e-3)  # absolute schedule: no drift
+
+
+def test_replay_rejects_unknown_topics(context, tmp_path):
+    path = tmp_path / "stream.mcap"
+    _write_stream(path, [10.0])
+    node = rclpy.create_node("replay_bad", context=context)
+    try:
+        with pytest.raises(ValueError, match="not in"):
+            Player(node, path, topics=["/nope"])
+        with pytest.raises(ValueError, match="rate"):
+            Player(node, path, rate=0.0)
+    finally:
+        node.destroy_node()

@@ -1,0 +1,273 @@
+"""Recorder: ``ros2 run tocontrol_ros recorder`` writes topics to a rosbag2-compatible MCAP.
+
+Subscribes to a set of topics (by default everything the planner and tracker publish, plus
+their inputs) with raw (serialized) messages, so nothing is deserialized on the way, and
+writes each message's exact CDR bytes with its receive time (log time) and the publisher's
+source timestamp (publish time). Each topic's type and the QoS its publishers offer are
+taken from the ROS graph when a publisher first appears; the subscription asks for what all
+publishers offer (reliable, transient local), so a latched plan is captured too.
+
+SIGINT and SIGTERM finish the file (last chunk, summary, indexes) after taking what is
+already queued; a process killed outright leaves a file readable up to its last complete
+chunk (chunks are written at least every ``flush_period`` seconds). The output never
+overwrites an existing file.
+
+Parameters (all read-only; see ``config/recorder.yaml``): ``topics``, ``output``,
+``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``.
+"""
+
+import signal
+import sys
+import time
+from dataclasses import dataclass
+
+import rclpy
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.signals import SignalHandlerOptions
+
+from tocontrol_ros import mcap_io
+
+#: Everything the planner and the tracker publish, and their inputs.
+DEFAULT_TOPICS = (
+    "/planner/goal",
+    "/planner/trajectory",
+    "/planner/status",
+    "/planner/ee_path",
+    "/planner/markers",
+    "/joint_states",
+    "/tracker/tracking_error",
+    "/tracker/status",
+)
+#: How long (s) a stop request keeps taking messages already queued in the middleware.
+DRAIN_TIME = 0.3
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """Validated recorder parameters.
+
+    Attributes
+    ----------
+    topics : tuple of str
+        Absolute topic names to record.
+    output : str
+        Output file; empty means ``runs/<YYYYmmdd-HHMMSS>.mcap`` in the working directory.
+    compression : str
+        ``none``, ``zstd`` or ``lz4`` (chunk compression).
+    discovery_period : float
+        How often (s) to look for publishers of topics not yet subscribed.
+    chunk_size : int
+        MCAP chunk size (bytes).
+    flush_period : float
+        Longest time (s) a received message stays only in memory.
+    queue_depth : int
+        Subscription history depth (messages): generous, so bursts are not dropped.
+    """
+
+    topics: tuple
+    output: str
+    compression: str
+    discovery_period: float
+    chunk_size: int
+    flush_period: float
+    queue_depth: int
+
+
+def _descriptor(description, type_, **ranges):
+    return ParameterDescriptor(description=description, type=type_, read_only=True, **ranges)
+
+
+PARAMETERS = {
+    "topics": (list(DEFAULT_TOPICS), _descriptor(
+        "Topics to record (absolute names).", ParameterType.PARAMETER_STRING_ARRAY)),
+    "output": ("", _descriptor(
+        "Output .mcap file; empty: runs/<YYYYmmdd-HHMMSS>.mcap. Never overwritten.",
+        ParameterType.PARAMETER_STRING)),
+    "compression": ("none", _descriptor(
+        "Chunk compression: none, zstd or lz4.", ParameterType.PARAMETER_STRING)),
+    "discovery_period": (0.2, _descriptor(
+        "Period (s) of the search for publishers of topics not yet subscribed.",
+        ParameterType.PARAMETER_DOUBLE,
+        floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)])),
+    "chunk_size": (mcap_io.DEFAULT_CHUNK_SIZE, _descriptor(
+        "MCAP chunk size (bytes, uncompressed).", ParameterType.PARAMETER_INTEGER,
+        integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024)])),
+    "flush_period": (mcap_io.DEFAULT_FLUSH_PERIOD, _descriptor(
+        "Longest time (s) a received message is held in memory before it is written.",
+        ParameterType.PARAMETER_DOUBLE,
+        floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)])),
+    "queue_depth": (1000, _descriptor(
+        "Subscription history depth (messages).", ParameterType.PARAMETER_INTEGER,
+        integer_range=[IntegerRange(from_value=1, to_value=100000)])),
+}
+
+
+def read_config(node):
+    """Declare the parameters on `node` and return them as a :class:`RecorderConfig`.
+
+    Raises
+    ------
+    ValueError
+        For a compression name outside none/zstd/lz4 or a relative topic name.
+    """
+    values = {}
+    for name, (default, descriptor) in PARAMETERS.items():
+        values[name] = node.declare_parameter(name, default, descriptor).value
+    if values["compression"] not in mcap_io.COMPRESSIONS:
+        raise ValueError(f"parameter `compression` must be one of "
+                         f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
+    topics = tuple(values["topics"])
+    bad = [t for t in topics if not t.startswith("/")]
+    if bad or not topics:
+        raise ValueError(f"parameter `topics` must list absolute topic names, got {topics!r}")
+    values["topics"] = tuple(dict.fromkeys(topics))
+    return RecorderConfig(**values)
+
+
+def subscription_qos(offered, depth):
+    """QoS that matches every offered profile (as rosbag2 adapts its requests).
+
+    Reliable only if every publisher is reliable, transient local only if every publisher
+    is; keep-last `depth`.
+    """
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+class Recorder(Node):
+    """Node that records topics into a :class:`tocontrol_ros.mcap_io.RecordingWriter`.
+
+    Parameters
+    ----------
+    writer : RecordingWriter, optional
+        Where to write; opened from the ``output`` parameter if None.
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``).
+    """
+
+    def __init__(self, writer=None, **kwargs):
+        super().__init__("recorder", **kwargs)
+        self.config = read_config(self)
+        if writer is None:
+            path = self.config.output or str(mcap_io.default_output_path())
+            writer = mcap_io.RecordingWriter(
+                path, compression=self.config.compression, chunk_size=self.config.chunk_size,
+                flush_period=self.config.flush_period)
+        self.writer = writer
+        self._recorded = {}
+        self.get_logger().info(f"recording {len(self.config.topics)} topics to "
+                               f"{self.writer.path}")
+        self.create_timer(self.config.discovery_period, self.discover)
+        self.create_timer(min(self.config.flush_period, 0.5), self.writer.flush_if_due)
+        self.discover()
+
+    @property
+    def pending_topics(self):
+        """Topics still waiting for a publisher."""
+        return [t for t in self.config.topics if t not in self._recorded]
+
+    def discover(self):
+        """Subscribe to each wanted topic that has gained a publisher."""
+        for topic in self.pending_topics:
+            infos = self.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            types = sorted({info.topic_type for info in infos})
+            type_name = types[0]
+            if len(types) > 1:
+                self.get_logger().warning(
+                    f"{topic}: publishers of several types {types}; recording {type_name}")
+                infos = [info for info in infos if info.topic_type == type_name]
+            offered = [info.qos_profile for info in infos]
+            try:
+                msg_class = mcap_io.message_class(type_name)
+                self.writer.add_topic(topic, type_name, offered, infos[0].topic_type_hash)
+            except mcap_io.McapIOError as err:
+                self.get_logger().error(f"{topic}: not recorded: {err}")
+                self._recorded[topic] = None
+                continue
+            self._recorded[topic] = self.create_subscription(
+                msg_class, topic, self._callback(topic),
+                subscription_qos(offered, self.config.queue_depth), raw=True)
+            self.get_logger().info(f"recording {topic} ({type_name})")
+
+    def _callback(self, topic):
+        write = self.writer.write
+
+        def on_message(data, info):
+            received = info.get("received_timestamp") or time.time_ns()
+            source = info.get("source_timestamp") or received
+            write(topic, data, received, source, info.get("publication_sequence_number") or 0)
+
+        return on_message
+
+    def close(self):
+        """Finish the file (summary and indexes) and log what it holds."""
+        if self.writer.closed:
+            return
+        self.writer.close()
+        counts = ", ".join(f"{t} {n}" for t, (_, n) in self.writer.topics.items())
+        self.get_logger().info(f"wrote {self.writer.message_count} messages to "
+                               f"{self.writer.path} ({counts or 'no topics'})")
+
+
+def spin_until_stopped(executor, stop, drain_time=DRAIN_TIME):
+    """Spin until ``stop()`` is true, then take what is already queued for `drain_time` s."""
+    while not stop():
+        executor.spin_once(timeout_sec=0.1)
+    deadline = time.monotonic() + drain_time
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.01)
+
+
+def main(args=None):
+    """Run the recorder until SIGINT or SIGTERM, then finish the file."""
+    # Own handlers: a signal stops the loop, queued messages are still taken, and the
+    # file is finished before the context shuts down.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stopping = []
+    previous = {sig: signal.signal(sig, lambda *_: stopping.append(True))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    status = 0
+    try:
+        node = Recorder()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, lambda: bool(stopping))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, mcap_io.McapIOError) as err:
+        print(f"recorder: {err}", file=sys.stderr)
+        status = 2
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
