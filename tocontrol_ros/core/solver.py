@@ -103,7 +103,7 @@ class SolverOptions:
     steps: int = 6
     guess_intervals: int = 12
     integration_tol: float = 3e-7
-    max_intervals: int = 400
+    max_intervals: int = 1000
     smoothing: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 0.0)
     smoothing_intermediate: float = 1e-3
     smoothing_tol: float = 1e-8
@@ -402,25 +402,28 @@ def _interval_errors(planner, starts, lengths, steps, t_final, par) -> np.ndarra
     return np.max(np.abs(z_2s - z_s), axis=1) * 16 / 15
 
 
-def _refine(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
+def _refine(planner, run: _Run, problem, options, deadline, should_stop,
+            tol: float | None = None) -> str:
     """Refine the mesh until every interval's RK4 error estimate meets the tolerance.
 
     The tolerance is approached in decades (1e-3, 1e-4, ... down to ``integration_tol``):
     Newton on a coarse mesh moves the nodes most of the way cheaply, and the fine meshes,
     whose iterations cost most, start close to their solution.
     """
-    tol = options.integration_tol
-    levels = [t for t in (1e-3, 1e-4, 1e-5) if t > 10 * tol] + [tol]
+    final = options.integration_tol if tol is None else tol
+    levels = [t for t in (1e-3, 1e-4, 1e-5) if t > 10 * final] + [final]
     for level in levels:
         # Intermediate levels only place the nodes; the last one solves to `tol`.
-        opts = options if level == tol else replace(options, tol=max(options.tol, 1e-7))
-        if not _refine_to(planner, run, problem, level, opts, deadline, should_stop):
-            return False
-    return True
+        last = level == final and tol is None
+        opts = options if last else replace(options, tol=max(options.tol, 1e-7))
+        why = _refine_to(planner, run, problem, level, opts, deadline, should_stop)
+        if why:
+            return f"mesh refinement to {level:g} stopped: {why}"
+    return ""
 
 
 def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
-               rounds: int = 6) -> bool:
+               rounds: int = 6) -> str:
     """One level of :func:`_refine`.
 
     Each round first splits intervals on the current solution alone (the new nodes are
@@ -443,8 +446,19 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
             # split with a conservative exponent, at least two and at most eight parts.
             parts = np.where(bad, np.clip(np.ceil(1.2 * (err / tol)
                                                   ** 0.25), 2, 8), 1).astype(int)
-            if int(parts.sum()) > options.max_intervals:
-                return False
+            room = options.max_intervals - len(lengths)
+            if room <= 0:
+                return f"interval limit ({options.max_intervals}) reached"
+            extra = int((parts - 1).sum())
+            if extra > room:  # split the worst intervals first, within the limit
+                order = np.argsort(-err)
+                budget = room
+                capped = np.ones_like(parts)
+                for j in order:
+                    if parts[j] > 1 and budget > 0:
+                        capped[j] = min(parts[j], budget + 1)
+                        budget -= capped[j] - 1
+                parts = capped
             idx = np.flatnonzero(parts > 1)
             sub_len = lengths[idx] / parts[idx]
             cur = starts[idx].copy()
@@ -476,15 +490,17 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                                           t_final, par)
             changed = True
         if not changed:
-            return True
+            return ""
+        saved = (run.grid, run.w)
         run.grid = ShootingGrid(system, lengths, steps, run.grid.start_kind,
                                 run.grid.target_kind)
         run.w = run.grid.pack(np.vstack([starts, nodes[-1:]]), t_final, nu0, nuT)
         rep = _newton(planner, run, problem, run.k, run.delta, options, deadline,
                       should_stop)
         if not rep.converged:
-            return False
-    return False
+            run.grid, run.w = saved
+            return f"Newton did not converge on {len(lengths)} intervals ({rep.message})"
+    return f"no convergence of the mesh in {rounds} rounds"
 
 
 def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop) -> list:
@@ -493,8 +509,9 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
     if problem.k == 1.0:
         if run.delta != 0.0:
             _newton(planner, run, problem, 1.0, 0.0, options, deadline, should_stop)
-        if not _refine(planner, run, problem, options, deadline, should_stop):
-            notes.append("mesh refinement stopped at the interval limit")
+        why = _refine(planner, run, problem, options, deadline, should_stop)
+        if why:
+            notes.append(why)
         return notes
     t_prev = None
     for delta in options.smoothing:
@@ -504,7 +521,8 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
         if not rep.converged:
             # A coarse mesh may not resolve the steeper law: refine, then try again.
             run.grid, run.w, run.delta = saved
-            _refine(planner, run, problem, options, deadline, should_stop)
+            if _refine(planner, run, problem, options, deadline, should_stop):
+                run.grid, run.w, run.delta = saved
             saved = (run.grid, run.w, run.delta)
             t_prev = run.grid.unpack(run.w)[1]
             rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
@@ -514,12 +532,21 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
                 notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
                              f"converge at delta = {delta:g} ({rep.message})")
                 break
+        if delta == options.smoothing[0]:
+            # Resolve the switches while the law is still smooth, so that the smaller
+            # deltas start from an accurate solution (a coarse mesh can put Newton on the
+            # fine mesh far from its root).
+            saved = (run.grid, run.w, run.delta)
+            if _refine(planner, run, problem, options, deadline, should_stop,
+                       tol=max(options.integration_tol, 1e-4)):
+                run.grid, run.w, run.delta = saved
         t_now = run.grid.unpack(run.w)[1]
         if t_prev is not None and abs(t_now - t_prev) <= options.smoothing_tol * t_now:
             break
         t_prev = t_now
-    if not _refine(planner, run, problem, options, deadline, should_stop):
-        notes.append("mesh refinement stopped at the interval limit")
+    why = _refine(planner, run, problem, options, deadline, should_stop)
+    if why:
+        notes.append(why)
     return notes
 
 
@@ -672,8 +699,9 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
                 return _failure(problem, status, message, timings, records, run)
         t0 = time.perf_counter()
         if finished:
-            if not _refine(planner, run, problem, options, deadline, should_stop):
-                notes.append("mesh refinement stopped at the interval limit")
+            why = _refine(planner, run, problem, options, deadline, should_stop)
+            if why:
+                notes.append(why)
         else:
             notes += _final_smoothing(planner, run, problem, options, deadline, should_stop)
         timings["refine"] += time.perf_counter() - t0
