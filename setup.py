@@ -27,6 +27,7 @@ PACKAGE_NAME = "tocontrol_ros"
 EXECUTABLES = {
     "demo": "tocontrol_ros.demo",
     "figures": "tocontrol_ros.figures",
+    "planner": "tocontrol_ros.planner",
     "recorder": "tocontrol_ros.recorder",
     "replay": "tocontrol_ros.replay",
     "report": "tocontrol_ros.report",

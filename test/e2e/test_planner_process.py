@@ -1,0 +1,252 @@
+"""The planner as a separate process (its installed executable), driven by a client node.
+
+Under ``scripts/dev`` the executable is ``<sys.prefix>/lib/tocontrol_ros/planner``, the
+wrapper that ``ros2 run tocontrol_ros planner`` runs; elsewhere (a venv without the project
+installed) ``python -m tocontrol_ros.planner`` from the source tree stands in.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from planner_harness import (
+    FINAL_EVENTS,
+    GOAL_BAD,
+    PAPER_START,
+    PAPER_TARGET,
+    PARAM_BAD,
+    SERVICE_BAD,
+    PlannerClient,
+    close,
+    goal_storm,
+    path_end,
+    rss_kib,
+    storm_events,
+)
+
+from tocontrol_ros.conversions import seconds
+from tocontrol_ros.core.model import default_urdf_path, load_robot
+
+pytestmark = pytest.mark.ros
+REPO = Path(__file__).resolve().parents[2]
+#: Storm bound (KiB); see test_goal_storm.
+STORM_RSS_BOUND = 8 * 1024
+
+
+def planner_command() -> tuple[list[str], dict]:
+    exe = Path(sys.prefix) / "lib" / "tocontrol_ros" / "planner"
+    if exe.is_file():
+        return [str(exe)], {}
+    if os.environ.get("TOCONTROL_DEV_VENV"):
+        pytest.fail(f"{exe} is not installed (scripts/dev should have installed it)")
+    return [sys.executable, "-m", "tocontrol_ros.planner"], {"PYTHONPATH": str(REPO)}
+
+
+class PlannerProcess:
+    """``planner --ros-args -r __ns:=<ns> -p ...`` in a subprocess, log in a file."""
+
+    def __init__(self, tmp_path: Path, namespace: str, params: dict | None = None):
+        cmd, extra_env = planner_command()
+        args = ["--ros-args", "-r", f"__ns:={namespace}"]
+        for name, value in (params or {}).items():
+            args += ["-p", f"{name}:={value}"]
+        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   OPENBLAS_NUM_THREADS="1", **extra_env)
+        env.setdefault("ROS_DOMAIN_ID", "0")
+        self.log_path = tmp_path / f"planner{namespace.replace('/', '_')}.log"
+        self._log = open(self.log_path, "w")  # noqa: SIM115  (closed in stop())
+        self.proc = subprocess.Popen(cmd + args, env=env, stdout=self._log,
+                                     stderr=subprocess.STDOUT)
+        self.name = f"{namespace}/planner"
+
+    def log(self) -> str:
+        return self.log_path.read_text()
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 10.0) -> tuple[int, float]:
+        """Send ``sig``; return the exit code and the time to exit (s)."""
+        t0 = time.monotonic()
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5.0)
+        elapsed = time.monotonic() - t0
+        self._log.close()
+        return self.proc.returncode, elapsed
+
+
+def _wait_warm(client: PlannerClient, proc: PlannerProcess, timeout: float = 120.0) -> None:
+    try:
+        client.wait_ready(timeout)
+    except AssertionError:
+        raise AssertionError(f"planner did not come up; its log:\n{proc.log()}") from None
+
+
+@pytest.fixture(scope="module")
+def process(tmp_path_factory):
+    proc = PlannerProcess(tmp_path_factory.mktemp("e2e"), f"/e2e_{os.getpid()}")
+    yield proc
+    code, _ = proc.stop()
+    assert code == 0, proc.log()
+
+
+@pytest.fixture(scope="module")
+def client(process):
+    c = PlannerClient(process.name)
+    _wait_warm(c, process)
+    yield c
+    c.close()
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_robot(default_urdf_path())
+
+
+def test_service_round_trip_paper_example(client, model):
+    n = len(client.trajectories)
+    path, status, elapsed = client.call_plan(PAPER_START, PAPER_TARGET)
+    print(f"e2e round trip {elapsed:.3f} s; {status.message}")
+    assert status.event == "solved", status.message
+    assert close(path_end(path), PAPER_TARGET + (0.0,), 1e-6)
+    # The trajectory agrees with the answer and the status: same T, ends at the target, at rest.
+    msg = client.wait_for(lambda: len(client.trajectories) > n and client.trajectories[-1],
+                          10.0, "trajectory")
+    T = float(status.values["T"])
+    assert seconds(msg.points[-1].time_from_start) == pytest.approx(T, abs=1e-9)
+    assert seconds(path.poses[-1].header.stamp) - seconds(path.header.stamp) == \
+        pytest.approx(T, abs=1e-8)
+    assert len(msg.points) == len(path.poses) == int(status.values["samples"])
+    for point, pose in zip(msg.points, path.poses, strict=True):
+        p = pose.pose.position
+        np.testing.assert_allclose(model.point(np.array(point.positions)), [p.x, p.y],
+                                   atol=1e-9)
+    np.testing.assert_allclose(model.point(np.array(msg.points[-1].positions)), PAPER_TARGET,
+                               atol=1e-7)
+    np.testing.assert_allclose(msg.points[-1].velocities, 0.0, atol=1e-6)
+    assert np.all(np.abs([p.effort for p in msg.points]) <= model.tau_max * (1 + 1e-9))
+
+
+def test_goal_topic_from_joint_state(client):
+    q, qd = [0.3, 1.0, -0.5], [0.2, 0.0, -0.1]
+    client.wait_subscribed(client.joint_pub)
+    client.wait_subscribed(client.goal_pub)
+    for _ in range(5):
+        client.send_joint_state(["joint1", "joint2", "joint3"], q, qd)
+        time.sleep(0.02)
+    since = len(client.status_list())
+    client.send_goal((2.0, 2.0))
+    status = client.final_status(since, 60.0)
+    assert status.event == "solved", status.message
+    np.testing.assert_allclose(status.vector("start_q"), q, atol=1e-12)
+    np.testing.assert_allclose(status.vector("start_qd"), qd, atol=1e-12)
+
+
+@pytest.mark.parametrize("case, start, goal, start_frame, goal_frame, fragment", SERVICE_BAD,
+                         ids=[c[0] for c in SERVICE_BAD])
+def test_bad_service_input(client, case, start, goal, start_frame, goal_frame, fragment):
+    path, status, _ = client.call_plan(start, goal, start_frame, goal_frame, timeout=30.0)
+    assert len(path.poses) == 0
+    assert status.level == 2 and fragment in status.message, status.message
+
+
+@pytest.mark.parametrize("case, goal, frame, fragment", GOAL_BAD, ids=[c[0] for c in GOAL_BAD])
+def test_bad_goal_input(client, case, goal, frame, fragment):
+    client.wait_subscribed(client.goal_pub)
+    since = len(client.status_list())
+    client.send_goal(goal, frame)
+    status = client.final_status(since, 30.0)
+    assert status.level == 2 and fragment in status.message, status.message
+
+
+def test_joint_state_with_other_names_then_still_serving(client):
+    client.wait_subscribed(client.joint_pub)
+    for _ in range(5):
+        client.send_joint_state(["a", "b", "c"], [0.0, 0.0, 0.0])
+        time.sleep(0.02)
+    path, status, _ = client.call_plan(None, PAPER_TARGET, start_frame="")
+    assert len(path.poses) == 0 and status.level == 2
+    assert "lacks the planner's joint(s)" in status.message
+    path, status, _ = client.call_plan(PAPER_START, (2.1, 1.5))
+    assert status.event == "solved" and len(path.poses) > 0
+
+
+@pytest.mark.parametrize("values, fragment", PARAM_BAD, ids=[str(v) for v, _ in PARAM_BAD])
+def test_parameter_rejected(client, values, fragment):
+    (result,) = client.set_parameters(**values)
+    assert not result.successful and fragment in result.reason, result.reason
+
+
+def test_goal_storm(client, process):
+    """50 goals within a second: alive afterwards, the last served, RSS growth bounded."""
+    client.wait_subscribed(client.goal_pub)
+    assert all(r.successful for r in client.set_parameters(joint_state_timeout=0.0))
+    try:
+        goal_storm(client, 10, 2.0)  # settles allocations first
+        rss0 = rss_kib(process.proc.pid)
+        since, sent, status, total = goal_storm(client, 50, 2.1)
+        rss1 = rss_kib(process.proc.pid)
+        events = storm_events(client, since)
+        print(f"e2e storm: sent in {sent:.2f} s, last served after {total:.2f} s; {events}; "
+              f"planner RSS {rss0} -> {rss1} KiB")
+        assert sent < 1.0
+        assert status.event == "solved", status.message
+        accepted = events.get("accepted", 0)
+        assert accepted >= 10
+        client.wait_for(lambda: sum(v for k, v in storm_events(client, since).items()
+                                    if k in FINAL_EVENTS) >= accepted, 10.0,
+                        "an outcome per goal")
+        # Measured growth: about 1 MiB. A solve with its messages retains about 0.25 MiB
+        # (tracemalloc), so keeping per-request state of the 50 goals would show up.
+        assert rss1 - rss0 < STORM_RSS_BOUND
+        assert process.proc.poll() is None
+        assert client.get_parameters("k") == [4.0]
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "solved"
+    finally:
+        client.set_parameters(joint_state_timeout=1.0)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_shutdown_during_solve(tmp_path, sig):
+    ns = f"/e2e_{os.getpid()}_{sig.name}"
+    proc = PlannerProcess(tmp_path, ns, {"starts": 24, "candidates": 4})
+    client = PlannerClient(proc.name)
+    try:
+        _wait_warm(client, proc)
+        client.wait_subscribed(client.goal_pub)
+        # Wait for the warm-up to finish: a goal then starts a solve at once.
+        client.wait_for(lambda: "ready after" in proc.log(), 120.0, "ready")
+        since = len(client.status_list())
+        client.send_goal(PAPER_TARGET)
+        client.wait_for(lambda: any(s.event == "accepted"
+                                    for s in client.status_list()[since:]), 10.0, "accepted")
+        time.sleep(0.5)
+        assert not any(s.event == "solved" for s in client.status_list()[since:])
+        code, elapsed = proc.stop(sig)
+        print(f"{sig.name} during a solve: exit {code} after {elapsed:.3f} s")
+        log = proc.log()
+        assert code == 0, log
+        assert elapsed < 5.0
+        assert "Traceback" not in log, log
+    finally:
+        client.close()
+        if proc.proc.poll() is None:
+            proc.stop(signal.SIGKILL)
+
+
+def test_bad_robot_exits_with_reason(tmp_path):
+    proc = PlannerProcess(tmp_path, f"/e2e_{os.getpid()}_bad", {"tip_link": "nowhere"})
+    try:
+        code = proc.proc.wait(60.0)
+    finally:
+        proc.stop(signal.SIGKILL)
+    assert code == 1
+    assert "tip link 'nowhere' is not a link" in proc.log()

@@ -1,0 +1,293 @@
+"""A client of the planner node for tests: in-process (test/ros) and across processes (test/e2e).
+
+Importable as ``planner_harness`` because pytest (prepend import mode) puts ``test/`` on
+``sys.path`` for ``test/conftest.py``. Everything here is bounded in time: every wait takes
+a timeout and fails the test when it runs out.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PointStamped
+from nav_msgs.msg import Path
+from nav_msgs.srv import GetPlan
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
+
+#: The paper's example (Section 5).
+PAPER_START = (1.0, 1.0)
+PAPER_TARGET = (2.2, 1.5)
+#: Bad ~/plan calls: id, start, goal, start frame, goal frame, fragment of the message.
+SERVICE_BAD = [
+    ("nan", PAPER_START, (float("nan"), 1.5), "base_link", "base_link",
+     "`goal.pose.position.x` must be finite"),
+    ("inf", (1.0, float("inf")), PAPER_TARGET, "base_link", "base_link",
+     "`start.pose.position.y` must be finite"),
+    ("unreachable", PAPER_START, (9.0, 0.0), "base_link", "base_link", "not reachable"),
+    ("frame", PAPER_START, PAPER_TARGET, "base_link", "map", "frame_id 'map'"),
+    ("same", PAPER_START, PAPER_START, "base_link", "base_link", "equals the start"),
+    ("off-plane", PAPER_START, (2.2, 1.5, 0.3), "base_link", "base_link",
+     "`goal.pose.position.z` = 0.3 m is off"),
+]
+#: Bad ~/goal messages: id, goal, frame, fragment of the message.
+GOAL_BAD = [
+    ("nan", (float("nan"), 1.0), "base_link", "`goal.point.x` must be finite"),
+    ("frame", PAPER_TARGET, "world", "frame_id 'world'"),
+    ("unreachable", (0.0, 6.0), "base_link", "not reachable"),
+]
+#: Rejected parameter changes: values, fragment of the reason.
+PARAM_BAD = [
+    ({"k": 100.0}, "out of range"),
+    ({"reserve": -0.1}, "out of range"),
+    ({"starts": 0}, "out of range"),
+    ({"candidates": 5}, "must not exceed `starts`"),
+    ({"default_start": [1.0, 1.0, 0.0]}, "`default_start` must have 2 entries"),
+    ({"robot": "other.urdf"}, "read-only"),
+    ({"frame_id": "map"}, "read-only"),
+    ({"k": "four"}, "type"),
+]
+FINAL_EVENTS = ("solved", "failed", "superseded", "cancelled", "timed out")
+_counter = itertools.count()
+
+
+@dataclass(frozen=True)
+class Status:
+    """A received ``DiagnosticStatus``, decoded."""
+
+    level: int
+    message: str
+    values: dict
+    received: float
+
+    @property
+    def event(self) -> str:
+        return self.values.get("event", "")
+
+    @property
+    def request_id(self) -> int | None:
+        rid = self.values.get("request_id")
+        return int(rid) if rid is not None else None
+
+    def vector(self, key: str) -> list[float]:
+        return [float(v) for v in self.values[key].strip("[]").split(",")]
+
+
+def rss_kib(pid: int | str = "self") -> int:
+    """Resident set size of a process (KiB), from /proc."""
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    raise RuntimeError("no VmRSS in /proc status")
+
+
+class PlannerClient:
+    """A node that talks to one planner: calls, goals, joint states, parameters, status.
+
+    Parameters
+    ----------
+    planner : str
+        Fully qualified name of the planner node, e.g. ``"/ns/planner"``.
+    context : rclpy.Context, optional
+        Default: a private context of its own (shut down by :meth:`close`).
+    """
+
+    def __init__(self, planner: str, context=None) -> None:
+        self.planner = planner
+        self._own_context = context is None
+        self.context = context or rclpy.Context()
+        if self._own_context:
+            rclpy.init(context=self.context)
+        ns = planner.rsplit("/", 1)[0]
+        self.node = rclpy.create_node(f"planner_test_client_{os.getpid()}_{next(_counter)}",
+                                      context=self.context)
+        self._lock = threading.Lock()
+        self.statuses: list[Status] = []
+        self.trajectories: list[JointTrajectory] = []
+        self.paths: list[Path] = []
+        self.markers: list[MarkerArray] = []
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node = self.node
+        node.create_subscription(DiagnosticStatus, f"{planner}/status", self._on_status,
+                                 QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        node.create_subscription(JointTrajectory, f"{planner}/trajectory",
+                                 lambda m: self._append(self.trajectories, m), latched)
+        node.create_subscription(Path, f"{planner}/ee_path",
+                                 lambda m: self._append(self.paths, m), latched)
+        node.create_subscription(MarkerArray, f"{planner}/markers",
+                                 lambda m: self._append(self.markers, m), latched)
+        self.goal_pub = node.create_publisher(PointStamped, f"{planner}/goal", 10)
+        self.joint_pub = node.create_publisher(JointState, f"{ns}/joint_states", 10)
+        self.plan_client = node.create_client(GetPlan, f"{planner}/plan")
+        self.set_client = node.create_client(SetParameters, f"{planner}/set_parameters")
+        self.get_client = node.create_client(GetParameters, f"{planner}/get_parameters")
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001  (context shut down under us at close)
+            pass
+
+    def _append(self, bucket: list, msg) -> None:
+        with self._lock:
+            bucket.append(msg)
+
+    def _on_status(self, msg: DiagnosticStatus) -> None:
+        level = msg.level[0] if isinstance(msg.level, bytes) else int(msg.level)
+        status = Status(level, msg.message, {kv.key: kv.value for kv in msg.values},
+                        time.monotonic())
+        self._append(self.statuses, status)
+
+    # ---------------------------------------------------------------- waiting
+    def wait_for(self, predicate, timeout: float, what: str):
+        """Poll ``predicate()`` until it returns a truthy value; fail after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            value = predicate()
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}; "
+                                     f"statuses: {[s.message for s in self.status_list()[-8:]]}")
+            time.sleep(0.01)
+
+    def status_list(self) -> list[Status]:
+        with self._lock:
+            return list(self.statuses)
+
+    def wait_ready(self, timeout: float = 120.0) -> None:
+        """Wait until the planner's services are up."""
+        for client in (self.plan_client, self.set_client, self.get_client):
+            assert client.wait_for_service(timeout_sec=timeout), f"{client.srv_name} not up"
+
+    def final_status(self, since: int, timeout: float, match=None) -> Status:
+        """The first final status (solved, failed, ...) after index ``since`` that matches."""
+        def find():
+            for s in self.status_list()[since:]:
+                if s.event in FINAL_EVENTS and (match is None or match(s)):
+                    return s
+            return None
+        return self.wait_for(find, timeout, "a final status")
+
+    # ---------------------------------------------------------------- requests
+    def call_plan(self, start, goal, start_frame="base_link", goal_frame="base_link",
+                  timeout: float = 120.0) -> tuple[Path, Status, float]:
+        """Call ``~/plan``; return the path, the request's final status, the call's time (s)."""
+        req = GetPlan.Request()
+        req.start.header.frame_id = start_frame
+        req.goal.header.frame_id = goal_frame
+        for pose, xyz in ((req.start.pose, start), (req.goal.pose, goal)):
+            if xyz is not None:
+                pose.position.x, pose.position.y = float(xyz[0]), float(xyz[1])
+                pose.position.z = float(xyz[2]) if len(xyz) > 2 else 0.0
+        since = len(self.status_list())
+        t0 = time.monotonic()
+        future = self.plan_client.call_async(req)
+        self.wait_for(future.done, timeout, "the ~/plan response")
+        elapsed = time.monotonic() - t0
+        target = target_key(goal) if goal is not None else None
+        status = self.final_status(
+            since, 10.0, match=lambda s: s.values.get("target") in (None, target))
+        return future.result().plan, status, elapsed
+
+    def send_goal(self, xyz, frame="base_link") -> None:
+        msg = PointStamped()
+        msg.header.frame_id = frame
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.point.x, msg.point.y = float(xyz[0]), float(xyz[1])
+        msg.point.z = float(xyz[2]) if len(xyz) > 2 else 0.0
+        self.goal_pub.publish(msg)
+
+    def send_joint_state(self, names, q, qd=()) -> None:
+        msg = JointState(name=list(names), position=[float(v) for v in q],
+                         velocity=[float(v) for v in qd])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.joint_pub.publish(msg)
+
+    def wait_subscribed(self, publisher, timeout: float = 10.0) -> None:
+        self.wait_for(lambda: publisher.get_subscription_count() > 0, timeout,
+                      f"a subscriber on {publisher.topic_name}")
+
+    # -------------------------------------------------------------- parameters
+    def set_parameters(self, **values) -> list:
+        """Set parameters through the service; return the SetParametersResult list."""
+        req = SetParameters.Request(
+            parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        future = self.set_client.call_async(req)
+        self.wait_for(future.done, 10.0, "set_parameters")
+        return future.result().results
+
+    def get_parameters(self, *names) -> list:
+        future = self.get_client.call_async(GetParameters.Request(names=list(names)))
+        self.wait_for(future.done, 10.0, "get_parameters")
+        return [parameter_value_to_python(v) for v in future.result().values]
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        self.node.destroy_node()
+        if self._own_context:
+            rclpy.try_shutdown(context=self.context)
+        self._thread.join(timeout=2.0)
+
+
+def path_end(path: Path) -> tuple[float, float, float]:
+    p = path.poses[-1].pose.position
+    return (p.x, p.y, p.z)
+
+
+def goal_storm(client: PlannerClient, count: int, x0: float, period: float = 0.018):
+    """Send ``count`` goals, one every ``period`` s, along x from ``x0``; wait for the last.
+
+    Returns
+    -------
+    since : int
+        Index of the first status of the storm in ``client.statuses``.
+    sent : float
+        Time taken to send them (s).
+    status : Status
+        The last goal's final status.
+    total : float
+        From the first goal to the last one's final status (s).
+    """
+    since = len(client.status_list())
+    t0 = time.monotonic()
+    for i in range(count):
+        client.send_goal((x0 + 0.002 * i, 1.5))
+        time.sleep(max(0.0, t0 + (i + 1) * period - time.monotonic()))
+    sent = time.monotonic() - t0
+    last = target_key((x0 + 0.002 * (count - 1), 1.5))
+    status = client.final_status(since, 90.0, match=lambda s: s.values.get("target") == last)
+    return since, sent, status, time.monotonic() - t0
+
+
+def storm_events(client: PlannerClient, since: int) -> dict:
+    """Count of each status event since index ``since``."""
+    events = [s.event for s in client.status_list()[since:]]
+    return {e: events.count(e) for e in sorted(set(events))}
+
+
+def target_key(xy) -> str:
+    """The ``target`` value of ``~/status`` for a planar target (as the node formats it)."""
+    return "[" + ", ".join(f"{float(v):.9g}" for v in xy[:2]) + "]"
+
+
+def close(a, b, tol: float) -> bool:
+    return all(math.isclose(x, y, abs_tol=tol) for x, y in zip(a, b, strict=True))

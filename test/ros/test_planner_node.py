@@ -1,0 +1,321 @@
+"""The planner node in-process: a private rclpy context, the node spun by its own executor,
+driven by a client node over DDS (services, topics, parameters)."""
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from planner_harness import (
+    FINAL_EVENTS,
+    GOAL_BAD,
+    PAPER_START,
+    PAPER_TARGET,
+    PARAM_BAD,
+    SERVICE_BAD,
+    PlannerClient,
+    close,
+    goal_storm,
+    path_end,
+    rss_kib,
+    storm_events,
+)
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
+
+from tocontrol_ros.conversions import seconds
+from tocontrol_ros.core.errors import ModelError
+from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
+
+pytestmark = pytest.mark.ros
+NAMESPACE = f"/inproc_{os.getpid()}"
+PLANNER = f"{NAMESPACE}/planner"
+JOINTS = ("joint1", "joint2", "joint3")
+
+
+class Running:
+    """A planner node spun by a MultiThreadedExecutor in a thread, in a private context."""
+
+    def __init__(self, overrides=(), namespace=NAMESPACE):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = PlannerNode(context=self.context, namespace=namespace,
+                                parameter_overrides=list(overrides))
+        self.executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS,
+                                              context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def stop(self):
+        self.node.destroy_node()
+        self.executor.shutdown(timeout_sec=2.0)
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=2.0)
+
+
+@pytest.fixture(scope="module")
+def planner():
+    running = Running()
+    yield running
+    running.stop()
+
+
+@pytest.fixture(scope="module")
+def client(planner):
+    c = PlannerClient(PLANNER)
+    c.wait_ready(30.0)
+    assert planner.node.ready.wait(120.0), "warm-up did not finish"
+    yield c
+    c.close()
+
+
+def test_service_round_trip_paper_example(planner, client):
+    path, status, elapsed = client.call_plan(PAPER_START, PAPER_TARGET)
+    print(f"round trip {elapsed:.3f} s; {status.message}")
+    assert status.event == "solved" and status.level == 0, status.message
+    assert len(path.poses) > 10
+    assert path.header.frame_id == "base_link"
+    assert close(path_end(path), PAPER_TARGET + (0.0,), 1e-6)
+    first = path.poses[0].pose.position
+    assert close((first.x, first.y, first.z), PAPER_START + (0.0,), 1e-6)
+    T = float(status.values["T"])
+    stamps = [seconds(p.header.stamp) for p in path.poses]
+    assert np.all(np.diff(stamps) > 0)
+    assert stamps[-1] - stamps[0] == pytest.approx(T, abs=1e-8)
+    # The paper's T at k = 4 is about half a second (0.54 from a single start).
+    assert 0.4 < T < 0.8
+    for key in ("request_id", "k", "iterations", "solve_time", "residual", "max_abs_u",
+                "start", "target"):
+        assert key in status.values, key
+    assert float(status.values["max_abs_u"]) < 1.0
+
+
+def test_trajectory_matches_solver_result(planner, client):
+    client.call_plan(PAPER_START, PAPER_TARGET)
+    result = planner.node.last_result
+    period = planner.node.config.sample_period
+    msg = client.wait_for(lambda: client.trajectories and client.trajectories[-1], 10.0,
+                          "a trajectory")
+    sample = result.trajectory.sample(period)
+    assert tuple(msg.joint_names) == JOINTS
+    assert len(msg.points) == len(sample.t)
+    t = np.array([seconds(p.time_from_start) for p in msg.points])
+    np.testing.assert_allclose(t, sample.t, atol=1e-9)
+    assert t[-1] == pytest.approx(result.T, abs=1e-9)
+    for field, ref in (("positions", sample.q), ("velocities", sample.qd),
+                       ("accelerations", sample.qdd), ("effort", sample.tau)):
+        got = np.array([getattr(p, field) for p in msg.points])
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12, err_msg=field)
+    last = msg.points[-1]
+    model = planner.node.model
+    np.testing.assert_allclose(model.point(np.array(last.positions)), PAPER_TARGET, atol=1e-7)
+    np.testing.assert_allclose(last.velocities, 0.0, atol=1e-6)
+    # Nominal torques stay inside the limits (the convexified set keeps |u_i| < 1).
+    effort = np.abs(np.array([p.effort for p in msg.points]))
+    assert np.all(effort <= model.tau_max * (1 + 1e-9))
+    markers = client.wait_for(lambda: client.markers and client.markers[-1], 10.0, "markers")
+    arms = [m for m in markers.markers if m.ns == "arm"]
+    assert len(arms) == planner.node.config.marker_snapshots
+    assert len(arms[0].points) == model.n + 2
+
+
+def test_goal_topic_from_joint_state(planner, client):
+    q = np.array([0.2, 1.1, -0.4])
+    qd = np.array([0.3, -0.2, 0.1])
+    client.wait_subscribed(client.joint_pub)
+    client.wait_subscribed(client.goal_pub)
+    # Model joints in another order, plus a joint of another part of the robot.
+    names = ["gripper", "joint3", "joint1", "joint2"]
+    for _ in range(5):
+        client.send_joint_state(names, [0.0, q[2], q[0], q[1]], [0.0, qd[2], qd[0], qd[1]])
+        time.sleep(0.02)
+    since = len(client.status_list())
+    n_traj = len(client.trajectories)
+    client.send_goal((2.0, 2.0))
+    status = client.final_status(since, 60.0)
+    assert status.event == "solved", status.message
+    np.testing.assert_allclose(status.vector("start_q"), q, atol=1e-9)
+    np.testing.assert_allclose(status.vector("start_qd"), qd, atol=1e-9)
+    msg = client.wait_for(lambda: len(client.trajectories) > n_traj and
+                          client.trajectories[-1], 10.0, "the new trajectory")
+    np.testing.assert_allclose(msg.points[0].positions, q, atol=1e-8)
+    np.testing.assert_allclose(msg.points[0].velocities, qd, atol=1e-8)
+    end = planner.node.model.point(np.array(msg.points[-1].positions))
+    np.testing.assert_allclose(end, (2.0, 2.0), atol=1e-7)
+    np.testing.assert_allclose(msg.points[-1].velocities, 0.0, atol=1e-6)
+
+
+def test_goal_without_recent_joint_state_starts_from_default(planner, client):
+    assert all(r.successful for r in client.set_parameters(joint_state_timeout=0.0))
+    try:
+        since = len(client.status_list())
+        client.send_goal((2.2, 1.4))
+        status = client.final_status(since, 60.0)
+        assert status.event == "solved", status.message
+        np.testing.assert_allclose(status.vector("start"), PAPER_START, atol=1e-12)
+    finally:
+        client.set_parameters(joint_state_timeout=1.0)
+
+
+
+
+@pytest.mark.parametrize("case, start, goal, start_frame, goal_frame, fragment", SERVICE_BAD,
+                         ids=[c[0] for c in SERVICE_BAD])
+def test_bad_service_input(client, case, start, goal, start_frame, goal_frame, fragment):
+    path, status, _ = client.call_plan(start, goal, start_frame, goal_frame, timeout=30.0)
+    assert len(path.poses) == 0
+    assert status.level == 2 and status.event == "failed"
+    assert fragment in status.message, status.message
+
+
+
+
+@pytest.mark.parametrize("case, goal, frame, fragment", GOAL_BAD, ids=[c[0] for c in GOAL_BAD])
+def test_bad_goal_input(client, case, goal, frame, fragment):
+    client.wait_subscribed(client.goal_pub)
+    since = len(client.status_list())
+    client.send_goal(goal, frame)
+    status = client.final_status(since, 30.0)
+    assert status.level == 2 and fragment in status.message, status.message
+
+
+def test_joint_state_with_other_names_is_rejected(planner, client):
+    client.wait_subscribed(client.joint_pub)
+    for _ in range(5):
+        client.send_joint_state(["a", "b", "c"], [0.0, 0.0, 0.0])
+        time.sleep(0.02)
+    since = len(client.status_list())
+    client.send_goal(PAPER_TARGET)
+    status = client.final_status(since, 30.0)
+    assert status.level == 2 and "lacks the planner's joint(s)" in status.message
+    # The same through the service with "start = current state" (empty frame_id).
+    path, status, _ = client.call_plan(None, PAPER_TARGET, start_frame="")
+    assert len(path.poses) == 0 and "joint_states.name" in status.message
+    # Still serving.
+    path, status, _ = client.call_plan(PAPER_START, (2.1, 1.5))
+    assert status.event == "solved" and len(path.poses) > 0
+
+
+
+
+@pytest.mark.parametrize("values, fragment", PARAM_BAD, ids=[str(v) for v, _ in PARAM_BAD])
+def test_parameter_rejected(planner, client, values, fragment):
+    before = planner.node.config
+    (result,) = client.set_parameters(**values)
+    assert not result.successful
+    assert fragment in result.reason, result.reason
+    assert planner.node.config == before
+
+
+def test_parameter_change_applies_to_next_request(planner, client):
+    assert all(r.successful for r in client.set_parameters(sample_period=0.05))
+    try:
+        n = len(client.trajectories)
+        path, status, _ = client.call_plan(PAPER_START, (2.2, 1.55))
+        assert status.event == "solved"
+        msg = client.wait_for(lambda: len(client.trajectories) > n and client.trajectories[-1],
+                              10.0, "trajectory")
+        t = [seconds(p.time_from_start) for p in msg.points]
+        np.testing.assert_allclose(np.diff(t)[:-1], 0.05, atol=1e-9)
+        assert client.get_parameters("sample_period") == [0.05]
+    finally:
+        client.set_parameters(sample_period=0.01)
+
+
+def test_newest_service_call_supersedes_older(planner, client):
+    results = {}
+
+    def call(name, goal):
+        results[name] = client.call_plan(PAPER_START, goal)
+
+    first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
+    first.start()
+    client.wait_for(lambda: any(s.event == "accepted" and "2.3" in s.values.get("target", "")
+                                for s in client.status_list()), 30.0, "first accepted")
+    second = threading.Thread(target=call, args=("second", (2.25, 1.3)))
+    second.start()
+    first.join(60.0)
+    second.join(60.0)
+    path1, _, _ = results["first"]
+    path2, status2, _ = results["second"]
+    assert len(path1.poses) == 0
+    superseded = [s for s in client.status_list() if s.event == "superseded"]
+    assert superseded and superseded[-1].level == 1
+    assert status2.event == "solved" and len(path2.poses) > 0
+
+
+def test_goal_storm(planner, client):
+    """50 goals within a second: the node stays alive, the last one is served, RSS bounded."""
+    client.wait_subscribed(client.goal_pub)
+    assert all(r.successful for r in client.set_parameters(joint_state_timeout=0.0))
+    try:
+        # A first, smaller storm settles allocations (message types, solver caches).
+        goal_storm(client, 10, 2.0)
+        rss0 = rss_kib()
+        since, sent, status, total = goal_storm(client, 50, 2.1)
+        rss1 = rss_kib()
+        assert sent < 1.0
+        assert status.event == "solved", status.message
+        events = storm_events(client, since)
+        print(f"storm: sent in {sent:.2f} s, last served after {total:.2f} s; events {events}; "
+              f"RSS {rss0} -> {rss1} KiB")
+        accepted = events.get("accepted", 0)
+        assert accepted >= 10
+        # Every accepted goal gets exactly one outcome.
+        client.wait_for(lambda: sum(v for k, v in storm_events(client, since).items()
+                                    if k in FINAL_EVENTS) >= accepted, 10.0,
+                        "an outcome per goal")
+        assert sum(v for k, v in storm_events(client, since).items()
+                   if k in FINAL_EVENTS) == accepted
+        # Bound 8 MiB; measured growth about 1 MiB. One solve with its messages retains about
+        # 0.25 MiB (tracemalloc), so keeping per-request state of the 50 goals would show up.
+        assert rss1 - rss0 < 8 * 1024
+        # Alive: parameters and plans are still served.
+        assert client.get_parameters("k") == [4.0]
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "solved"
+    finally:
+        client.set_parameters(joint_state_timeout=1.0)
+
+
+def test_bad_robot_is_refused_at_start():
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(ModelError, match="tip link 'nowhere'"):
+            PlannerNode(context=context, namespace=f"{NAMESPACE}_bad",
+                        parameter_overrides=[Parameter("tip_link", value="nowhere")])
+        with pytest.raises(ModelError):
+            PlannerNode(context=context, namespace=f"{NAMESPACE}_bad2",
+                        parameter_overrides=[Parameter("robot", value="<robot name='x'/>")])
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_shutdown_during_solve_is_prompt():
+    # A slow multistart so that the solve is surely running when the node goes.
+    ns = f"{NAMESPACE}_shutdown"
+    running = Running([Parameter("starts", value=24), Parameter("candidates", value=4)],
+                      namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(120.0)
+        client.wait_subscribed(client.goal_pub)
+        since = len(client.status_list())
+        client.send_goal(PAPER_TARGET)
+        client.wait_for(lambda: any(s.event == "accepted" for s in client.status_list()[since:]),
+                        10.0, "accepted")
+        time.sleep(0.5)
+        assert not any(s.event == "solved" for s in client.status_list()[since:])
+        t0 = time.monotonic()
+        running.stop()
+        elapsed = time.monotonic() - t0
+        print(f"shutdown during a solve took {elapsed:.3f} s")
+        assert elapsed < 3.0
+        assert not running.node._worker.is_alive()
+    finally:
+        client.close()

@@ -1,0 +1,590 @@
+"""The planner node: time-optimal plans on request, over standard ROS 2 interfaces only.
+
+Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-planner``
+(pip) or ``python -m tocontrol_ros.planner``; parameters from ``config/planner.yaml`` with
+``--ros-args --params-file``. Interfaces (one page each in ``msg_docs/``):
+
+- service ``~/plan`` (``nav_msgs/srv/GetPlan``): start and goal end-effector points; the
+  answer is the end-effector path stamped with the planned times, empty on failure;
+- topic ``~/goal`` (``geometry_msgs/msg/PointStamped``): plan from the robot's current state
+  (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
+- published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local),
+  ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
+  ``~/ee_path`` (``nav_msgs/msg/Path``), ``~/markers`` (``visualization_msgs/msg/MarkerArray``).
+
+Concurrency: callbacks only convert and queue. One worker thread solves; it is fed by a
+slot that holds the newest request (newest wins: a request that arrives while another is
+pending or being solved supersedes it, and a running solve is stopped through the solver's
+``should_stop``). Service callbacks run in a reentrant group and wait for their request's
+outcome; everything else stays served meanwhile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PointStamped
+from nav_msgs.msg import Path
+from nav_msgs.srv import GetPlan
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.utilities import remove_ros_args
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
+
+from tocontrol_ros import conversions as conv
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.planner_config import (
+    PARAMETERS,
+    ConfigError,
+    PlannerConfig,
+    config_from_values,
+    descriptor,
+    solver_options,
+)
+
+__all__ = ["PlannerNode", "PlanRequest", "LatestSlot", "main", "QOS_LATCHED", "QOS_STATUS",
+           "QOS_GOAL", "QOS_JOINT_STATES"]
+
+#: Start and target closer than this (m), with the start at rest, is "nothing to plan".
+SAME_POINT_TOL = 1e-6
+#: Threads of the executor: service calls each hold one while they wait for their outcome.
+EXECUTOR_THREADS = 8
+#: How often a waiting service callback looks at the shutdown flag (s).
+WAIT_POLL = 0.05
+#: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
+#: while the C compiler of the first-ever solve runs).
+JOIN_TIMEOUT = 3.0
+
+#: Outputs for late subscribers (a viewer, a tracker started after the plan): the last one.
+QOS_LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: One message per request event; deep enough for a burst of requests.
+QOS_STATUS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: Goals: reliable; newest wins anyway, so a short queue is enough.
+QOS_GOAL = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+#: Joint states: best effort matches both reliable and best-effort publishers.
+QOS_JOINT_STATES = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.VOLATILE)
+
+
+@dataclass(eq=False)
+class PlanRequest:
+    """One request, from its acceptance to its outcome.
+
+    Attributes
+    ----------
+    id : int
+        Increasing per node, from 1 (``request_id`` in ``~/status``).
+    source : {"service", "goal"}
+    start : tuple
+        ``("point", p)`` with p of shape (m,) (m), or ``("state", q, qd)`` (rad, rad/s).
+    target : ndarray, shape (m,)
+        Task-space target point (m).
+    config : PlannerConfig
+        Parameters at acceptance (later changes apply to later requests).
+    """
+
+    id: int
+    source: str
+    start: tuple
+    target: np.ndarray
+    config: PlannerConfig
+    received: float = field(default_factory=time.monotonic)
+    done: threading.Event = field(default_factory=threading.Event)
+    cancelled: threading.Event = field(default_factory=threading.Event)
+    cancel_reason: tuple[str, str] = ("", "")
+    path: Path | None = None
+
+    def cancel(self, event: str, reason: str) -> None:
+        """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""
+        if not self.cancelled.is_set():
+            self.cancel_reason = (event, reason)
+            self.cancelled.set()
+
+
+class LatestSlot:
+    """Hand-over between the callbacks and the worker: one pending and one running item.
+
+    ``put`` replaces the pending item (newest wins) and reports what it replaced and what is
+    running, atomically, so that no request can slip between "taken" and "running".
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._pending = None
+        self._running = None
+        self._closed = False
+
+    def put(self, item):
+        """Make ``item`` the pending one; return ``(replaced pending, running)``."""
+        with self._cond:
+            if self._closed:
+                raise RuntimeError("the slot is closed (node shutting down)")
+            replaced, self._pending = self._pending, item
+            self._cond.notify_all()
+            return replaced, self._running
+
+    def take(self, timeout: float | None = None):
+        """Move the pending item to running and return it; None when closed (or timeout)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._pending is not None or self._closed, timeout)
+            if self._closed or self._pending is None:
+                return None
+            self._running, self._pending = self._pending, None
+            return self._running
+
+    def finished(self, item) -> None:
+        """The worker is done with ``item``."""
+        with self._cond:
+            if self._running is item:
+                self._running = None
+
+    def has_pending(self) -> bool:
+        """True while an item waits for the worker."""
+        with self._cond:
+            return self._pending is not None
+
+    def close(self):
+        """Refuse further items, wake the worker; return the pending item (or None)."""
+        with self._cond:
+            self._closed = True
+            leftover, self._pending = self._pending, None
+            self._cond.notify_all()
+            return leftover
+
+
+def _load_model(config: PlannerConfig):
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+
+    return load_robot(config.robot or default_urdf_path(), base_link=config.base_link or None,
+                      tip_link=config.tip_link or None, gravity=config.gravity,
+                      task_axes=config.task_axes or None)
+
+
+class PlannerNode(Node):
+    """Serves time-optimal plans (see the module docstring and ``msg_docs/``).
+
+    Parameters
+    ----------
+    node_name : str
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+
+    Raises
+    ------
+    ConfigError
+        A parameter value the planner cannot use.
+    ModelError
+        The robot description cannot be turned into a model (message from the core).
+    """
+
+    def __init__(self, node_name: str = "planner", **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        for spec in PARAMETERS:
+            self.declare_parameter(spec.name, spec.default, descriptor(spec))
+        config = config_from_values(self._parameter_values())
+        self.model = _load_model(config)
+        self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
+        self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
+        from tocontrol_ros.core.solver import Planner
+
+        self.planner = Planner(self.model)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self._status_lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._slot = LatestSlot()
+        self._joint_state: tuple[JointState, float] | None = None
+        self._last_result = None
+        self.ready = threading.Event()
+
+        self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory",
+                                                     QOS_LATCHED)
+        self._pub_path = self.create_publisher(Path, "~/ee_path", QOS_LATCHED)
+        self._pub_markers = self.create_publisher(MarkerArray, "~/markers", QOS_LATCHED)
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
+        waiting = ReentrantCallbackGroup()
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_service(GetPlan, "~/plan", self._on_plan, callback_group=waiting)
+        self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
+                                 callback_group=inputs)
+        self.create_subscription(JointState, "joint_states", self._on_joint_state,
+                                 QOS_JOINT_STATES, callback_group=inputs)
+        self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
+            f"{''.join('xyz'[a] for a in self.model.task_axes)}) in frame "
+            f"{self.frame.frame_id!r}")
+
+    # ------------------------------------------------------------ parameters
+    def _parameter_values(self) -> dict:
+        return {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        values = self._parameter_values()
+        values.update({p.name: p.value for p in params})
+        try:
+            config = config_from_values(values, task_dim=self.model.m)
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        with self._lock:
+            self._config = config
+        return SetParametersResult(successful=True)
+
+    @property
+    def last_result(self):
+        """The last successful :class:`~tocontrol_ros.core.solver.PlanResult` (or None)."""
+        return self._last_result
+
+    @property
+    def config(self) -> PlannerConfig:
+        """The parameters as they are now (each request keeps the ones at its acceptance)."""
+        with self._lock:
+            return self._config
+
+    # -------------------------------------------------------------- callbacks
+    def _on_joint_state(self, msg: JointState) -> None:
+        with self._lock:
+            self._joint_state = (msg, time.monotonic())
+
+    def _current_start(self, config: PlannerConfig) -> tuple:
+        """The robot's current state if a recent joint state is there, else default_start."""
+        with self._lock:
+            latest = self._joint_state
+        if latest is not None and time.monotonic() - latest[1] <= config.joint_state_timeout:
+            q, qd = conv.joint_state_from_msg(latest[0], self.model.joint_names)
+            return ("state", q, qd)
+        return ("point", np.array(config.default_start))
+
+    def _on_goal(self, msg: PointStamped) -> None:
+        rid = next(self._ids)
+        config = self.config
+        try:
+            target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
+            start = self._current_start(config)
+        except conv.ConversionError as exc:
+            self._reject(rid, "goal", str(exc))
+            return
+        self._submit(PlanRequest(rid, "goal", start, target, config))
+
+    def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
+        rid = next(self._ids)
+        config = self.config
+        try:
+            if request.start.header.frame_id == "":
+                start = self._current_start(config)
+            else:
+                start = ("point", conv.point_from_msg(
+                    request.start.pose.position, request.start.header.frame_id, self.frame,
+                    "start.pose.position"))
+            target = conv.point_from_msg(request.goal.pose.position,
+                                         request.goal.header.frame_id, self.frame,
+                                         "goal.pose.position")
+        except conv.ConversionError as exc:
+            self._reject(rid, "service", str(exc))
+            response.plan = conv.empty_path(self.frame.frame_id, self._now())
+            return response
+        req = PlanRequest(rid, "service", start, target, config)
+        self._submit(req)
+        deadline = time.monotonic() + config.service_timeout
+        while not req.done.wait(WAIT_POLL):
+            if self._stopping.is_set():
+                break
+            if time.monotonic() > deadline:
+                req.cancel("timed out", f"no outcome within service_timeout = "
+                           f"{config.service_timeout:g} s")
+                break
+        path = req.path if req.done.is_set() else None
+        response.plan = path if path is not None else conv.empty_path(self.frame.frame_id,
+                                                                      self._now())
+        return response
+
+    def _submit(self, req: PlanRequest) -> None:
+        self._status(req, "OK", "accepted", f"request {req.id} accepted")
+        try:
+            replaced, running = self._slot.put(req)
+        except RuntimeError:
+            self._finish(req, "WARN", "cancelled", "node shutting down")
+            return
+        if replaced is not None:
+            self._finish(replaced, "WARN", "superseded",
+                         f"superseded by request {req.id} before its solve started")
+        if running is not None:
+            running.cancel("superseded", f"superseded by request {req.id} during its solve")
+
+    # ------------------------------------------------------------ status out
+    def _now(self):
+        return self.get_clock().now().to_msg()
+
+    def _values(self, req: PlanRequest, event: str, extra: dict | None = None) -> dict:
+        start = req.start[1] if req.start[0] == "point" else None
+        values = {"request_id": req.id, "event": event, "source": req.source,
+                  "start": start, "start_q": None if start is not None else req.start[1],
+                  "start_qd": None if start is not None else req.start[2],
+                  "target": req.target, "frame_id": self.frame.frame_id,
+                  "k": req.config.k}
+        values.update(extra or {})
+        return values
+
+    def _publish_status(self, level: str, message: str, values: dict) -> None:
+        msg = conv.status_msg(level, self.get_fully_qualified_name(), message,
+                              self.model.name, values)
+        with self._status_lock:
+            try:
+                self._pub_status.publish(msg)
+            except Exception:  # noqa: BLE001  (publisher gone during shutdown)
+                return
+        if level == "ERROR":
+            self.get_logger().error(message)
+        elif level == "WARN":
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().info(message)
+
+    def _status(self, req: PlanRequest, level: str, event: str, message: str,
+                extra: dict | None = None) -> None:
+        self._publish_status(level, message, self._values(req, event, extra))
+
+    def _reject(self, rid: int, source: str, reason: str) -> None:
+        self._publish_status("ERROR", f"request {rid} rejected: {reason}",
+                             {"request_id": rid, "event": "failed", "source": source,
+                              "frame_id": self.frame.frame_id})
+
+    def _finish(self, req: PlanRequest, level: str, event: str, message: str,
+                extra: dict | None = None, path: Path | None = None) -> None:
+        latency = time.monotonic() - req.received
+        self._status(req, level, event, f"request {req.id} {event}: {message}",
+                     {"latency": latency, **(extra or {})})
+        req.path = path
+        req.done.set()
+
+    # ----------------------------------------------------------------- worker
+    def _run(self) -> None:
+        self._warm_up()
+        while not self._stopping.is_set():
+            req = self._slot.take()
+            if req is None:
+                break
+            try:
+                self._serve(req)
+            except Exception as exc:  # noqa: BLE001  (a bug must not stop the planner)
+                self.get_logger().error(f"request {req.id}: internal error: {exc!r}")
+                if not req.done.is_set():
+                    self._finish(req, "ERROR", "failed", f"internal error: {exc!r}")
+            finally:
+                self._slot.finished(req)
+
+    def _warm_up(self) -> None:
+        """Solve a throw-away problem so that compilation does not delay the first request.
+
+        Stops early (cancelled) when a request arrives or the node shuts down; a request
+        then pays what is left.
+        """
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+        self._publish_status("OK", "warming up (the first start on a machine compiles the "
+                             "model's C code, 10-20 s)", {"event": "warming up"})
+        t0 = time.monotonic()
+        config = self.config
+        model = self.model
+        note = ""
+        try:
+            qa = np.clip(np.full(model.n, 0.3), model.q_lower, model.q_upper)
+            # A generic move (alternating signs: not along a singular direction).
+            qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
+            options = dataclasses.replace(solver_options(config), verify=False)
+            for start in (point(model.point(qa)), joint_state(qa)):
+                problem = Problem(model, start, point(model.point(qb)), k=config.k,
+                                  reserve=config.reserve)
+                result = self.planner.plan(
+                    problem, options,
+                    should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
+                if not result.success:
+                    note = f" (warm-up solve: {result.message})"
+                    break
+        except TocontrolError as exc:
+            note = f" (warm-up skipped: {exc})"
+        if self._stopping.is_set():
+            return
+        self.ready.set()
+        self._publish_status("OK", f"ready after {time.monotonic() - t0:.1f} s{note}",
+                             {"event": "ready", "warmup_time": time.monotonic() - t0})
+
+    def _should_stop(self, req: PlanRequest):
+        return lambda: req.cancelled.is_set() or self._stopping.is_set()
+
+    def _serve(self, req: PlanRequest) -> None:
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        config = req.config
+        if req.cancelled.is_set():
+            self._finish(req, "WARN", *req.cancel_reason)
+            return
+        try:
+            start = point(req.start[1]) if req.start[0] == "point" else \
+                joint_state(req.start[1], req.start[2])
+            problem = Problem(self.model, start, point(req.target), k=config.k,
+                              reserve=config.reserve)
+        except TocontrolError as exc:
+            self._finish(req, "ERROR", "failed", str(exc))
+            return
+        at_rest = req.start[0] == "point" or not np.any(req.start[2])
+        start_point = problem.start_point
+        gap = float(np.linalg.norm(start_point - req.target))
+        if at_rest and gap < SAME_POINT_TOL:
+            self._finish(req, "ERROR", "failed",
+                         f"the target {req.target.tolist()} equals the start "
+                         f"{start_point.tolist()} (within {SAME_POINT_TOL:g} m): nothing to plan",
+                         {"start": start_point})
+            return
+        warm = self._last_result if config.warm_start and _warm_compatible(
+            self._last_result, problem) else None
+        result = self.planner.plan(problem, solver_options(config), warm_start=warm,
+                                   should_stop=self._should_stop(req))
+        extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
+                 "solve_time": result.timings.get("total"), "residual": result.residual,
+                 "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
+                 "solver_status": result.status.name}
+        if req.cancelled.is_set() or self._stopping.is_set():
+            event, reason = req.cancel_reason if req.cancelled.is_set() else \
+                ("cancelled", "node shutting down")
+            self._finish(req, "WARN", event, reason, extra)
+            return
+        if not result.success:
+            self._finish(req, "ERROR", "failed", result.message, extra)
+            return
+        self._last_result = result
+        sample = result.trajectory.sample(config.sample_period)
+        stamp = self._now()
+        frame_id = self.frame.frame_id
+        path = conv.path_msg(self.model, sample, frame_id, stamp)
+        snaps = result.trajectory.evaluate(
+            np.linspace(0.0, result.T, config.marker_snapshots)).q
+        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                       for p in path.poses])
+        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
+                                   start_point), conv.embed_point(self.frame, req.target),
+                                   frame_id, stamp)
+        try:
+            self._pub_trajectory.publish(conv.trajectory_msg(sample, self.model.joint_names,
+                                                             frame_id, stamp))
+            self._pub_path.publish(path)
+            self._pub_markers.publish(markers)
+        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+            req.done.set()
+            return
+        verified = "verified" if config.verify else "not re-integrated (verify = false)"
+        message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} "
+                   f"Newton iterations, {result.timings['total']:.3f} s, residual "
+                   f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
+        level = "OK"
+        if result.warnings:
+            level = "WARN"
+            message += "; warnings: " + "; ".join(result.warnings)
+        self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
+                     path=path)
+
+    # --------------------------------------------------------------- shutdown
+    def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:
+        """Stop the worker: cancel the running solve, answer the pending request, join."""
+        self._stopping.set()
+        leftover = self._slot.close()
+        if leftover is not None:
+            self._finish(leftover, "WARN", "cancelled", "node shutting down")
+        if self._worker.is_alive() and threading.current_thread() is not self._worker:
+            self._worker.join(timeout)
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then destroy the node."""
+        self.stop_worker()
+        super().destroy_node()
+
+
+def _warm_compatible(previous, problem) -> bool:
+    """A previous result can warm-start ``problem``: same kinds, k and reserve."""
+    if previous is None or previous.problem is None:
+        return False
+    prev = previous.problem
+    return (prev.model is problem.model and prev.start.kind == problem.start.kind
+            and prev.target.kind == problem.target.kind and prev.k == problem.k
+            and prev.reserve == problem.reserve)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line: no options of its own besides ``--help``; ROS arguments pass through."""
+    return argparse.ArgumentParser(
+        prog="planner",
+        description="Serve time-optimal plans: service ~/plan (nav_msgs/srv/GetPlan), topic "
+        "~/goal (geometry_msgs/msg/PointStamped); publishes ~/trajectory, ~/status, "
+        "~/ee_path, ~/markers. Interfaces and parameters: msg_docs/ in the source tree.",
+        epilog="ROS arguments: --ros-args --params-file config/planner.yaml -p k:=8.0 "
+        "-r __ns:=/arm",
+    )
+
+
+def main(args=None) -> int:
+    """Run the planner node until Ctrl-C, SIGTERM or an external shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments (``--ros-args ...``)
+        included; ``sys.argv`` if None.
+
+    Returns
+    -------
+    int
+        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    node = None
+    try:
+        try:
+            node = PlannerNode()
+        except (TocontrolError, ParameterException) as exc:
+            print(f"planner: cannot start: {exc}", file=sys.stderr)
+            return 1
+        executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
