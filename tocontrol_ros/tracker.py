@@ -27,6 +27,7 @@ same time (other nodes follow it with ``use_sim_time``). ``joint_states`` and
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 import time
@@ -39,11 +40,12 @@ import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import ParameterUninitializedException
+from rclpy.exceptions import ParameterException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -60,7 +62,7 @@ from tocontrol_ros.core.tracking import (
 )
 
 __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
-           "nominal_from_msg", "summary_status", "main"]
+           "nominal_from_msg", "summary_status", "build_parser", "main"]
 
 #: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
 #: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
@@ -436,23 +438,50 @@ class TrackerNode(Node):
             effort=np.asarray(row["feedback"]).tolist()))
 
 
-def main(args=None) -> None:
-    """Entry point of ``ros2 run tocontrol_ros tracker``."""
-    rclpy.init(args=args)
+def build_parser() -> argparse.ArgumentParser:
+    """Command line of ``ros2 run tocontrol_ros tracker``: only ``--help`` (ROS parameters)."""
+    parameters = "\n".join(f"  {spec.name}: {spec.description}" for spec in PARAMETERS)
+    return argparse.ArgumentParser(
+        prog="tracker", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Execute planned trajectories on a simulated arm: nominal torques plus "
+        "PD feedback, saturated to |u_i| <= 1. Settings are ROS parameters "
+        "(--ros-args -p name:=value or --params-file config/tracker.yaml).",
+        epilog="parameters (all read-only):\n" + parameters)
+
+
+def main(args=None) -> int:
+    """Run the tracker node until Ctrl-C, SIGTERM or an external shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments included; ``sys.argv``
+        if None.
+
+    Returns
+    -------
+    int
+        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
     node = None
     try:
-        node = TrackerNode()
+        try:
+            node = TrackerNode()
+        except (TocontrolError, ParameterException) as exc:
+            print(f"tracker: cannot start: {exc}", file=sys.stderr)
+            return 1
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except TocontrolError as exc:
-        print(f"tracker: {exc}", file=sys.stderr)
-        raise SystemExit(2) from exc
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
