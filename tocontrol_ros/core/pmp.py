@@ -161,3 +161,93 @@ class CanonicalSystem:
         if key not in self._cache:
             self._cache[key] = self.step_function(sensitivities).map(count, "serial")
         return self._cache[key]
+
+    @property
+    def stagewise(self) -> bool:
+        """Whether the step Jacobian is chained stage by stage in numpy (large models).
+
+        The whole-step Jacobian as one expression grows like ``4 (4n)`` times the right-hand
+        side: fine for the 3R arm (about 30 thousand operations), but a million for a
+        7-joint arm, which a C compiler takes many minutes over. Above
+        :data:`WHOLE_STEP_LIMIT` operations the solver compiles only ``F`` and ``dF/dz``
+        and chains the four RK4 stages and their Jacobians in numpy (same numbers).
+        """
+        if "stagewise" not in self._cache:
+            estimate = self.rhs_function().n_instructions() * 4 * (4 * self.n + 1)
+            self._cache["stagewise"] = estimate > WHOLE_STEP_LIMIT
+        return self._cache["stagewise"]
+
+    def rhs_jacobian_function(self) -> ca.Function:
+        """``(z, par) -> (F(z), dF/dz)``, compiled and cached like the step function."""
+        if "fj" not in self._cache:
+            from .compiled import compile_function
+
+            name = re.sub(r"\W", "_", self.model.name)
+            fun = ca.Function(f"tocontrol_fj_{name}_{self.n}", [self.z, self.par],
+                              [self.rhs, ca.jacobian(self.rhs, self.z)],
+                              ["z", "par"], ["F", "dF_dz"])
+            self._cache["fj"], self.compile_status = compile_function(fun)
+        return self._cache["fj"]
+
+    def step_batch(self, z: np.ndarray, h: np.ndarray, par: np.ndarray,
+                   sensitivities: bool = True):
+        """One RK4 step for each column of ``z``.
+
+        Parameters
+        ----------
+        z : ndarray, shape (4n, N)
+            States.
+        h : ndarray, shape (1, N)
+            Physical steps (s).
+        par : ndarray, shape (3,)
+            ``(k, delta, torque_scale)``.
+        sensitivities : bool
+
+        Returns
+        -------
+        z1 : ndarray, shape (4n, N)
+        a : ndarray, shape (N, 4n, 4n) or None
+            ``dz1/dz`` per column.
+        b : ndarray, shape (N, 4n) or None
+            ``dz1/dh`` per column.
+        """
+        count = z.shape[1]
+        nz = 4 * self.n
+        if not sensitivities:
+            return np.array(self.step_map(count, False)(z, h, par)), None, None
+        if not self.stagewise:
+            z1, a, b = self.step_map(count, True)(z, h, par)
+            a = np.array(a).reshape(nz, count, nz).transpose(1, 0, 2)
+            return np.array(z1), a, np.array(b).T
+        key = ("fj_map", count)
+        if key not in self._cache:
+            self._cache[key] = self.rhs_jacobian_function().map(count, "serial")
+        fj = self._cache[key]
+        hv = np.asarray(h, dtype=float).ravel()
+        eye = np.eye(nz)
+
+        def stage(zs):
+            f, jac = fj(zs, par)
+            return np.array(f), np.array(jac).reshape(nz, count, nz).transpose(1, 0, 2)
+
+        f1, j1 = stage(z)
+        f2, j2 = stage(z + 0.5 * hv * f1)
+        f3, j3 = stage(z + 0.5 * hv * f2)
+        f4, j4 = stage(z + hv * f3)
+        z1 = z + hv / 6.0 * (f1 + 2 * f2 + 2 * f3 + f4)
+        hh = hv[:, None, None]
+        d1 = j1                                   # dK_i/dz, (N, nz, nz)
+        d2 = j2 @ (eye + 0.5 * hh * d1)
+        d3 = j3 @ (eye + 0.5 * hh * d2)
+        d4 = j4 @ (eye + hh * d3)
+        a = eye + hh / 6.0 * (d1 + 2 * d2 + 2 * d3 + d4)
+        # dK_i/dh, (N, nz): K2 = F(z + h/2 K1), so dK2/dh = J2 K1 / 2, and so on.
+        e2 = 0.5 * np.einsum("nij,nj->ni", j2, f1.T)
+        e3 = np.einsum("nij,nj->ni", j3, 0.5 * f2.T + 0.5 * hv[:, None] * e2)
+        e4 = np.einsum("nij,nj->ni", j4, f3.T + hv[:, None] * e3)
+        b = (f1 + 2 * f2 + 2 * f3 + f4).T / 6.0 + hv[:, None] / 6.0 * (2 * e2 + 2 * e3 + e4)
+        return z1, a, b
+
+
+#: Operations of the whole-step Jacobian above which it is chained stage by stage.
+WHOLE_STEP_LIMIT = 200_000

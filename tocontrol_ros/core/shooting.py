@@ -59,32 +59,21 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
     b : ndarray, shape (N, 4n)
         ``dz1/dT`` per interval (None without sensitivities).
     """
-    count = len(lengths)
-    nz = starts.shape[1]
-    step_map = system.step_map(count, sensitivities)
     dtau = np.asarray(lengths, dtype=float) / steps
     h = (t_final * dtau)[None, :]
     z = np.ascontiguousarray(starts.T)
-    with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are checked
-        return _chain(step_map, z, h, par, dtau, steps, count, nz, sensitivities)
-
-
-def _chain(step_map, z, h, par, dtau, steps, count, nz, sensitivities):
-    """Chain ``steps`` RK4 steps and, optionally, their Jacobians (see :func:`integrate`)."""
     a_tot = b_tot = None
-    for i in range(steps):
-        if not sensitivities:
-            z = np.array(step_map(z, h, par))
-            continue
-        z_new, a_s, b_s = step_map(z, h, par)
-        z = np.array(z_new)
-        a_s = np.array(a_s).reshape(nz, count, nz).transpose(1, 0, 2)
-        db = np.array(b_s).T * dtau[:, None]  # dz1/dT = dz1/dh * dh/dT
-        if i == 0:
-            a_tot, b_tot = a_s, db
-        else:
-            a_tot = a_s @ a_tot
-            b_tot = np.einsum("nij,nj->ni", a_s, b_tot) + db
+    with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are checked
+        for i in range(steps):
+            z, a_s, b_s = system.step_batch(z, h, par, sensitivities)
+            if not sensitivities:
+                continue
+            db = b_s * dtau[:, None]  # dz1/dT = dz1/dh * dh/dT
+            if i == 0:
+                a_tot, b_tot = a_s, db
+            else:
+                a_tot = a_s @ a_tot
+                b_tot = np.einsum("nij,nj->ni", a_s, b_tot) + db
     return z.T, a_tot, b_tot
 
 
@@ -139,7 +128,6 @@ class ShootingGrid:
         self.n_nuT = m if target_kind == "point" else 0
         self.size = self.nz * (self.N + 1) + 1 + self.n_nu0 + self.n_nuT
         self.tau = np.concatenate([[0.0], np.cumsum(self.lengths)])
-        self.step_map = system.step_map(self.N)
         self.bc = self._boundary_function()
         self._pattern()
 
