@@ -16,6 +16,7 @@ Parameters (all read-only; see ``config/recorder.yaml``): ``topics``, ``output``
 ``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``.
 """
 
+import argparse
 import signal
 import sys
 import time
@@ -37,6 +38,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros import mcap_io
 
@@ -239,11 +241,37 @@ def spin_until_stopped(executor, stop, drain_time=DRAIN_TIME):
         executor.spin_once(timeout_sec=0.01)
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """Command line of ``ros2 run tocontrol_ros recorder``: only ``--help`` (ROS parameters)."""
+    parameters = "\n".join(f"  {name}: {desc.description}"
+                           for name, (_, desc) in PARAMETERS.items())
+    return argparse.ArgumentParser(
+        prog="recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Record topics to a rosbag2-compatible MCAP file until SIGINT or "
+        "SIGTERM. Settings are ROS parameters (--ros-args -p name:=value or "
+        "--params-file config/recorder.yaml).",
+        epilog="parameters (all read-only):\n" + parameters)
+
+
 def main(args=None):
-    """Run the recorder until SIGINT or SIGTERM, then finish the file."""
+    """Run the recorder until SIGINT or SIGTERM, then finish the file.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments included; ``sys.argv``
+        if None.
+
+    Returns
+    -------
+    int
+        0 after a clean stop, 2 for bad parameters or an existing output file.
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
     # Own handlers: a signal stops the loop, queued messages are still taken, and the
     # file is finished before the context shuts down.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stopping = []
     previous = {sig: signal.signal(sig, lambda *_: stopping.append(True))
                 for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -419,6 +419,12 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
         why = _refine_to(planner, run, problem, level, opts, deadline, should_stop)
         if why:
             return f"mesh refinement to {level:g} stopped: {why}"
+    if tol is None and run.residual > options.tol:
+        # The mesh was already fine at the last level: its last solve used a looser tol.
+        rep = _newton(planner, run, problem, run.k, run.delta, options, deadline,
+                      should_stop)
+        if not rep.converged:
+            return f"Newton did not reach tol on the final mesh ({rep.message})"
     return ""
 
 
