@@ -567,7 +567,7 @@ def main(args=None) -> int:
     argv = list(sys.argv if args is None else args)
     build_parser().parse_args(remove_ros_args(argv)[1:])
     rclpy.init(args=argv)
-    node = None
+    node = executor = None
     try:
         try:
             node = PlannerNode()
@@ -582,6 +582,9 @@ def main(args=None) -> int:
     finally:
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            # Joins the executor's thread pool, so that interpreter exit does not wait on it.
+            executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
     return 0
 

@@ -34,8 +34,9 @@ from tocontrol_ros.core.model import default_urdf_path, load_robot
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
-#: Storm bound (KiB); see test_goal_storm.
-STORM_RSS_BOUND = 8 * 1024
+#: Storm bound (KiB): measured growth 1-4 MiB (allocator noise); one solve's result with its
+#: messages is about 0.25 MiB (tracemalloc), so retaining that for each of 50 goals fails.
+STORM_RSS_BOUND = 12 * 1024
 
 
 def planner_command() -> tuple[list[str], dict]:
@@ -203,8 +204,6 @@ def test_goal_storm(client, process):
         client.wait_for(lambda: sum(v for k, v in storm_events(client, since).items()
                                     if k in FINAL_EVENTS) >= accepted, 10.0,
                         "an outcome per goal")
-        # Measured growth: about 1 MiB. A solve with its messages retains about 0.25 MiB
-        # (tracemalloc), so keeping per-request state of the 50 goals would show up.
         assert rss1 - rss0 < STORM_RSS_BOUND
         assert process.proc.poll() is None
         assert client.get_parameters("k") == [4.0]
@@ -233,8 +232,7 @@ def test_shutdown_during_solve(tmp_path, sig):
         code, elapsed = proc.stop(sig)
         print(f"{sig.name} during a solve: exit {code} after {elapsed:.3f} s")
         log = proc.log()
-        assert code == 0, log
-        assert elapsed < 5.0
+        assert code == 0 and elapsed < 5.0, f"exit {code} after {elapsed:.1f} s; log:\n{log}"
         assert "Traceback" not in log, log
     finally:
         client.close()

@@ -270,9 +270,10 @@ def test_goal_storm(planner, client):
                         "an outcome per goal")
         assert sum(v for k, v in storm_events(client, since).items()
                    if k in FINAL_EVENTS) == accepted
-        # Bound 8 MiB; measured growth about 1 MiB. One solve with its messages retains about
-        # 0.25 MiB (tracemalloc), so keeping per-request state of the 50 goals would show up.
-        assert rss1 - rss0 < 8 * 1024
+        # Bound 12 MiB; measured growth 1-4 MiB (allocator noise). One solve's result with its
+        # messages is about 0.25 MiB (tracemalloc), so retaining that per goal (12.5 MiB for
+        # 50) fails the test.
+        assert rss1 - rss0 < 12 * 1024
         # Alive: parameters and plans are still served.
         assert client.get_parameters("k") == [4.0]
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
