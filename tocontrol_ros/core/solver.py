@@ -722,6 +722,8 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     sample = traj.evaluate(np.linspace(0, traj.T, 2001))
     max_u = float(np.max(np.abs(sample.u)))
     status, message = Status.SUCCESS, Status.SUCCESS.value
+    if not options.verify:
+        message = "solved (converged; re-integration check off: SolverOptions(verify=False))"
     if options.verify:
         bad = []
         if checks["point_error"] > options.verify_point_tol:
