@@ -1,19 +1,42 @@
-"""Demo: load a manipulator, check its dynamics, plan a time-optimal motion and verify it.
+"""Demo: the whole system on the paper's example, end to end.
 
-With no arguments it runs the paper's example: the planar 3R arm from (1.0, 1.0) to
-(2.2, 1.5) with k = 4. With ``--urdf`` it loads another arm and, if ``--start`` and
-``--target`` are given (task-space points, m), plans between them.
+``ros2 run tocontrol_ros demo`` (or ``tocontrol-demo``, ``python -m tocontrol_ros.demo``):
 
-Run as ``tocontrol-demo`` (pip), ``ros2 run tocontrol_ros demo`` (either route) or
-``python -m tocontrol_ros.demo``.
+1. loads the arm and checks its dynamics;
+2. starts the recorder, the planner and the tracker as separate processes (the same
+   executables ``ros2 run`` starts; ROS parameters on their command lines);
+3. asks the planner, on its ``~/plan`` service, for the paper's motion from (1.0, 1.0) to
+   (2.2, 1.5) with k = 4 (configurations free, multistart);
+4. starts the simulated arm at the plan's first configuration, lets the tracker execute
+   the plan (nominal torques plus PD feedback), then sends a goal back to the start on the
+   planner's ``~/goal`` topic, which plans from the arm's measured state;
+5. stops the recorder (SIGINT: the file is finished), writes the report from the recording
+   alone and prints a summary table.
+
+``--core-only`` skips ROS: model check plus one in-process plan, verified by
+re-integration. ROS settings come from the environment (``ROS_DOMAIN_ID``,
+``ROS_AUTOMATIC_DISCOVERY_RANGE``); ``scripts/dev demo`` sets them to stay on this machine.
 """
+
+from __future__ import annotations
 
 import argparse
 import os
+import signal
+import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 DEFAULT_URDF = "galicki_3r.urdf"
+PAPER_START = (1.0, 1.0)
+PAPER_TARGET = (2.2, 1.5)
+#: Longest waits (s). The first planner start on a fresh machine compiles C (10-20 s).
+READY_TIMEOUT = 240.0
+PLAN_TIMEOUT = 120.0
+RUN_TIMEOUT = 60.0
+STOP_TIMEOUT = 20.0
 
 
 def default_urdf_path():
@@ -27,16 +50,12 @@ def build_parser():
     """Return the demo's command-line parser."""
     parser = argparse.ArgumentParser(
         prog="demo",
-        description="Load a manipulator from a URDF; print its summary and a check of "
-        "its dynamics.",
+        description="Plan the paper's example, execute it on the simulated arm, record the "
+        "run and report it (planner, tracker and recorder as separate processes).",
     )
-    parser.add_argument(
-        "--urdf",
-        type=Path,
-        default=None,
-        metavar="PATH",
-        help=f"URDF file of the arm (default: the bundled config/{DEFAULT_URDF})",
-    )
+    parser.add_argument("--urdf", type=Path, default=None, metavar="PATH",
+                        help=f"URDF of the arm (default: the bundled config/{DEFAULT_URDF}); "
+                        "with --core-only")
     parser.add_argument("--start", type=float, nargs="+", default=None, metavar="X",
                         help="start end-effector point (default: the paper's 1.0 1.0)")
     parser.add_argument("--target", type=float, nargs="+", default=None, metavar="X",
@@ -45,6 +64,10 @@ def build_parser():
                         help="convexification exponent k >= 1 (default 4)")
     parser.add_argument("--starts", type=int, default=16,
                         help="multistart seed pairs (default 16)")
+    parser.add_argument("--out", type=Path, default=Path("runs"), metavar="DIR",
+                        help="folder of the recording and its report (default runs/)")
+    parser.add_argument("--core-only", action="store_true",
+                        help="no ROS: check the model and plan in this process")
     return parser
 
 
@@ -62,32 +85,38 @@ def main(argv=None):
         Process exit status (0 on success).
     """
     args = build_parser().parse_args(argv)
-    # Imported after argument parsing so that --help stays fast and works without
-    # the numerical stack loaded.
+    # Imported after argument parsing so that --help stays fast.
     from tocontrol_ros.core.model import load_robot
 
     path = args.urdf if args.urdf is not None else default_urdf_path()
     if not os.path.isfile(path):
         raise SystemExit(f"demo: --urdf: no such file: {path}")
-
     model = load_robot(str(path))
     print(model.summary())
     print(model.check_dynamics())
-    if args.urdf is not None and (args.start is None or args.target is None):
-        return 0
+    start = tuple(args.start) if args.start is not None else PAPER_START
+    target = tuple(args.target) if args.target is not None else PAPER_TARGET
+    if args.core_only:
+        return _core_only(model, start, target, args.k, args.starts)
+    if args.urdf is not None:
+        raise SystemExit("demo: --urdf works with --core-only (the ROS pipeline runs the "
+                         "nodes' own robot parameter)")
+    return _pipeline(start, target, args.k, args.starts, args.out)
+
+
+# --------------------------------------------------------------------- core only
+def _core_only(model, start, target, k, starts) -> int:
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.problem import Problem, point
     from tocontrol_ros.core.solver import SolverOptions, plan
 
-    start = args.start if args.start is not None else [1.0, 1.0]
-    target = args.target if args.target is not None else [2.2, 1.5]
     try:
-        problem = Problem(model, point(start), point(target), k=args.k)
+        problem = Problem(model, point(start), point(target), k=k)
     except ProblemError as exc:
         raise SystemExit(f"demo: {exc}") from exc
-    print(f"\nplanning {start} -> {target} with k = {args.k:g}, {args.starts} starts "
+    print(f"\nplanning {list(start)} -> {list(target)} with k = {k:g}, {starts} starts "
           f"(the first run compiles the solver, about 15 s; later runs use the cache)")
-    result = plan(problem, SolverOptions(starts=args.starts, candidates=3))
+    result = plan(problem, SolverOptions(starts=starts, candidates=min(3, starts)))
     print(f"  {result.status.name}: {result.message}")
     if not result.success:
         return 1
@@ -100,12 +129,278 @@ def main(argv=None):
     print(f"  re-integration of the nominal torques: end point off by "
           f"{ver['point_error']:.1e} m, end speed {ver['velocity_error']:.1e} rad/s; "
           f"max |H| = {ver['max_abs_H']:.1e}")
-    for rec in result.starts:
-        if rec.status in ("returned", "continued"):
-            print(f"  start {rec.index:2d}: T = {rec.T:.6f} s ({rec.status})")
     for warning in result.warnings:
         print(f"  warning: {warning}")
     return 0
+
+
+# ---------------------------------------------------------------------- pipeline
+class _Child:
+    """One node process, its output kept in a log file."""
+
+    def __init__(self, name: str, module: str, params: dict, log_dir: Path) -> None:
+        self.name = name
+        cmd = [sys.executable, "-m", module, "--ros-args", "-r", f"__node:={name}"]
+        for key, value in params.items():
+            cmd += ["-p", f"{key}:={_param_text(value)}"]
+        self.log_path = log_dir / f"{name}.log"
+        self._log = open(self.log_path, "w")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT,
+                                     env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, timeout: float = STOP_TIMEOUT) -> int:
+        if self.alive():
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5.0)
+        self._log.close()
+        return self.proc.returncode
+
+    def tail(self, lines: int = 15) -> str:
+        self._log.flush()
+        text = self.log_path.read_text(errors="replace").splitlines()
+        return "\n".join(f"    {name_line}" for name_line in text[-lines:])
+
+
+def _param_text(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_param_text(v) for v in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+class _Listener:
+    """The demo's own ROS node: status topics, the plan service, the goal topic."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PointStamped
+        from nav_msgs.srv import GetPlan
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from trajectory_msgs.msg import JointTrajectory
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("tocontrol_demo", context=self.context)
+        self.lock = threading.Lock()
+        self.planner_status: list = []
+        self.tracker_status: list = []
+        self.trajectories: list = []
+        self.joint_states = 0
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        # The tracker keeps its last status events for late subscribers: discovery of a
+        # new process can finish after its first (short) run has completed.
+        history = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(DiagnosticStatus, "/planner/status",
+                                      lambda m: self._add(self.planner_status, m), reliable)
+        self.node.create_subscription(DiagnosticStatus, "/tracker/status",
+                                      lambda m: self._add(self.tracker_status, m), history)
+        self.node.create_subscription(JointTrajectory, "/planner/trajectory",
+                                      lambda m: self._add(self.trajectories, m), latched)
+        self.node.create_subscription(JointState, "/joint_states", self._on_js, 50)
+        self.goal_pub = self.node.create_publisher(PointStamped, "/planner/goal", 10)
+        self.client = self.node.create_client(GetPlan, "/planner/plan")
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _add(self, bucket: list, msg) -> None:
+        with self.lock:
+            bucket.append(msg)
+
+    def _on_js(self, _msg) -> None:
+        with self.lock:
+            self.joint_states += 1
+
+    def wait_for(self, predicate, timeout: float, children=()) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                if predicate():
+                    return True
+            for child in children:
+                if not child.alive():
+                    raise RuntimeError(f"{child.name} exited early (status "
+                                       f"{child.proc.returncode}); its log:\n{child.tail()}")
+            time.sleep(0.05)
+        return False
+
+    def call_plan(self, start, target, frame: str, timeout: float):
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.srv import GetPlan
+
+        if not self.client.wait_for_service(timeout_sec=timeout):
+            raise RuntimeError("the planner's ~/plan service did not appear")
+        req = GetPlan.Request()
+        req.start = PoseStamped()
+        req.goal = PoseStamped()
+        req.start.header.frame_id = req.goal.header.frame_id = frame
+        req.start.pose.position.x, req.start.pose.position.y = start[:2]
+        req.goal.pose.position.x, req.goal.pose.position.y = target[:2]
+        future = self.client.call_async(req)
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not future.done():
+            raise RuntimeError("the planner did not answer ~/plan in time")
+        return future.result()
+
+    def send_goal(self, target, frame: str) -> None:
+        from geometry_msgs.msg import PointStamped
+
+        msg = PointStamped()
+        msg.header.frame_id = frame
+        msg.point.x, msg.point.y = target[:2]
+        self.goal_pub.publish(msg)
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop.set()
+        self._thread.join(2.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _values(status) -> dict:
+    return {kv.key: kv.value for kv in status.values}
+
+
+def _pipeline(start, target, k, starts, out_dir: Path) -> int:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    recording = out_dir / f"demo-{stamp}.mcap"
+    log_dir = out_dir / f"demo-{stamp}_logs"
+    log_dir.mkdir()
+    print(f"\nROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '(unset: 0)')}, "
+          f"ROS_AUTOMATIC_DISCOVERY_RANGE="
+          f"{os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '(unset)')}; node logs in "
+          f"{log_dir}")
+    listener = _Listener()
+    children: list[_Child] = []
+    legs = []
+    try:
+        children.append(_Child("recorder", "tocontrol_ros.recorder",
+                               {"output": str(recording)}, log_dir))
+        planner = _Child("planner", "tocontrol_ros.planner",
+                         {"k": float(k), "starts": starts, "candidates": min(3, starts),
+                          "sample_period": 0.002, "verify": True}, log_dir)
+        children.append(planner)
+        print("waiting for the planner (the first start on a machine compiles the solver, "
+              "10-20 s) ...")
+        # "ready" is a volatile status event: if discovery completes after it, the service
+        # still answers once the warm-up is over, so wait for either.
+        if not listener.wait_for(lambda: any(_values(s).get("event") == "ready"
+                                             for s in listener.planner_status)
+                                 or listener.client.service_is_ready(),
+                                 READY_TIMEOUT, children):
+            raise RuntimeError(f"the planner was not ready in {READY_TIMEOUT:g} s:\n"
+                               f"{planner.tail()}")
+        frame = "base_link"
+        print(f"leg 1: ~/plan service, {list(start)} -> {list(target)}, k = {k:g}, "
+              f"{starts} starts")
+        t0 = time.monotonic()
+        response = listener.call_plan(start, target, frame, PLAN_TIMEOUT + READY_TIMEOUT)
+        if not response.plan.poses:
+            last = listener.planner_status[-1].message if listener.planner_status else "?"
+            raise RuntimeError(f"the planner returned an empty path: {last}")
+        print(f"  answered in {time.monotonic() - t0:.2f} s with {len(response.plan.poses)} "
+              f"path poses")
+        if not listener.wait_for(lambda: listener.trajectories, 10.0, children):
+            raise RuntimeError("no trajectory on /planner/trajectory")
+        first = listener.trajectories[-1]
+        q0 = list(first.points[0].positions)
+        tracker = _Child("tracker", "tocontrol_ros.tracker",
+                         {"initial_positions": [float(v) for v in q0]}, log_dir)
+        children.append(tracker)
+        legs.append(_await_leg(listener, "leg 1 (service, free start)", 1, children))
+        print(f"leg 2: ~/goal topic back to {list(start)}, from the arm's measured state")
+        n_plans = len(listener.trajectories)
+        listener.send_goal(start, frame)
+        if not listener.wait_for(lambda: len(listener.trajectories) > n_plans, PLAN_TIMEOUT,
+                                 children):
+            raise RuntimeError("no new trajectory after the goal")
+        legs.append(_await_leg(listener, "leg 2 (goal topic, from joint_states)", 2,
+                               children))
+    except RuntimeError as exc:
+        print(f"demo: {exc}", file=sys.stderr)
+        for child in reversed(children):
+            child.stop()
+        listener.close()
+        return 1
+    # The recorder first, so that it records until the others stop publishing.
+    codes = {child.name: child.stop() for child in children}
+    js_count = listener.joint_states
+    listener.close()
+    print("\nprocesses stopped: " + ", ".join(f"{n} exit {c}" for n, c in codes.items()))
+    from tocontrol_ros import report
+
+    print(f"\nreport from the recording {recording}:")
+    status = report.main([str(recording), "--out", str(out_dir / f"demo-{stamp}_report")])
+    _print_table(legs, recording, js_count)
+    return 0 if status == 0 and all(c == 0 for c in codes.values()) else 1
+
+
+def _await_leg(listener: _Listener, label: str, count: int, children) -> dict:
+    """Wait for the count-th completed tracker run; collect the planner's and tracker's data."""
+    done = lambda: sum(s.message.startswith("trajectory completed")  # noqa: E731
+                       for s in listener.tracker_status) >= count
+    if not listener.wait_for(done, RUN_TIMEOUT, children):
+        with listener.lock:
+            seen = [s.message for s in listener.tracker_status]
+        raise RuntimeError(f"{label}: the tracker did not complete the trajectory (its "
+                           f"status messages: {seen}; {listener.joint_states} joint states)")
+    with listener.lock:
+        solved = [s for s in listener.planner_status if _values(s).get("event") == "solved"]
+        run = [s for s in listener.tracker_status
+               if s.message.startswith("trajectory completed")][count - 1]
+    plan_values = _values(solved[-1]) if solved else {}
+    run_values = _values(run)
+    print(f"  {label}: {run.message}")
+    return {"label": label, "plan": plan_values, "run": run_values}
+
+
+def _fmt(value, spec: str) -> str:
+    try:
+        return format(float(value), spec)
+    except (TypeError, ValueError):
+        return "-"
+
+
+def _print_table(legs: list, recording: Path, js_count: int) -> None:
+    print("\nsummary")
+    print(f"{'leg':<40}{'T (s)':>9}{'max|u|':>8}{'solve s':>9}{'EE err m':>10}"
+          f"{'max e rad':>11}{'sat %':>7}")
+    for leg in legs:
+        p, r = leg["plan"], leg["run"]
+        max_err = max((float(v) for key, v in r.items() if key.startswith("max_error")),
+                      default=float("nan"))
+        print(f"{leg['label']:<40}{_fmt(p.get('T'), '9.4f')}"
+              f"{_fmt(p.get('max_abs_u'), '8.4f')}{_fmt(p.get('solve_time'), '9.2f')}"
+              f"{_fmt(r.get('final_point_error'), '10.2e')}{_fmt(max_err, '11.2e')}"
+              f"{_fmt(100 * float(r.get('saturated_fraction', 'nan')), '7.1f')}")
+    print(f"recording: {recording} ({js_count} joint_states seen by the demo)")
 
 
 if __name__ == "__main__":

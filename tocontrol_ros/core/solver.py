@@ -520,40 +520,64 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
             notes.append(why)
         return notes
     t_prev = None
+    converged = []  # snapshots after each delta, to fall back to a smoother law
     for delta in options.smoothing:
-        saved = (run.grid, run.w, run.delta)
+        saved = _snapshot(run)
         rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
                       should_stop)
         if not rep.converged:
             # A coarse mesh may not resolve the steeper law: refine, then try again.
-            run.grid, run.w, run.delta = saved
+            _restore(run, saved)
             if _refine(planner, run, problem, options, deadline, should_stop):
-                run.grid, run.w, run.delta = saved
-            saved = (run.grid, run.w, run.delta)
+                _restore(run, saved)
+            saved = _snapshot(run)
             t_prev = run.grid.unpack(run.w)[1]
             rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
                           should_stop)
             if not rep.converged:
-                run.grid, run.w, run.delta = saved
+                _restore(run, saved)
                 notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
                              f"converge at delta = {delta:g} ({rep.message})")
                 break
         if delta == options.smoothing[0]:
-            # Resolve the switches while the law is still smooth, so that the smaller
-            # deltas start from an accurate solution (a coarse mesh can put Newton on the
-            # fine mesh far from its root).
-            saved = (run.grid, run.w, run.delta)
-            if _refine(planner, run, problem, options, deadline, should_stop,
-                       tol=max(options.integration_tol, 1e-4)):
-                run.grid, run.w, run.delta = saved
+            # Resolve the switches to the final tolerance while the law is still smooth:
+            # the smaller deltas then only move a fine-mesh solution a little. (Refining
+            # after delta is small can stall Newton: where a stage point lands near a
+            # switch the law's slope is ~delta^(-(2k-2)/(2k-1)), and the linear model
+            # holds only in a tiny neighbourhood.)
+            saved = _snapshot(run)
+            if _refine(planner, run, problem, options, deadline, should_stop):
+                _restore(run, saved)
+        converged.append(_snapshot(run))
         t_now = run.grid.unpack(run.w)[1]
         if t_prev is not None and abs(t_now - t_prev) <= options.smoothing_tol * t_now:
             break
         t_prev = t_now
     why = _refine(planner, run, problem, options, deadline, should_stop)
-    if why:
-        notes.append(why)
+    if not why:
+        return notes
+    # Near-singular derivatives of the law at a small delta can stall Newton on the refined
+    # mesh: fall back to the previous, smoother deltas (T changed by little between them).
+    failed_delta = run.delta
+    for snap in reversed(converged[:-1]):
+        _restore(run, snap)
+        if not _refine(planner, run, problem, options, deadline, should_stop):
+            notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
+                         f"delta = {failed_delta:g} failed ({why})")
+            return notes
+    if converged:
+        _restore(run, converged[-1])
+    notes.append(why)
     return notes
+
+
+def _snapshot(run: _Run) -> tuple:
+    return (run.grid, run.w.copy(), run.k, run.delta, run.residual)
+
+
+def _restore(run: _Run, snap: tuple) -> None:
+    run.grid, w, run.k, run.delta, run.residual = snap
+    run.w = w.copy()
 
 
 def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
