@@ -40,18 +40,13 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-)
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros import conversions as conv
+from tocontrol_ros import qos
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.planner_config import (
     PARAMETERS,
@@ -76,21 +71,13 @@ WAIT_POLL = 0.05
 JOIN_TIMEOUT = 3.0
 
 #: Outputs for late subscribers (a viewer, a tracker started after the plan): the last one.
-QOS_LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+QOS_LATCHED = qos.LATCHED
 #: One message per request event; deep enough for a burst of requests.
-QOS_STATUS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
+QOS_STATUS = qos.status_profile(100, latched=False)
 #: Goals: reliable; newest wins anyway, so a short queue is enough.
-QOS_GOAL = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+QOS_GOAL = qos.RELIABLE
 #: Joint states: best effort matches both reliable and best-effort publishers.
-QOS_JOINT_STATES = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                              reliability=ReliabilityPolicy.BEST_EFFORT,
-                              durability=DurabilityPolicy.VOLATILE)
+QOS_JOINT_STATES = qos.BEST_EFFORT
 
 
 @dataclass(eq=False)

@@ -44,13 +44,13 @@ from rclpy.exceptions import ParameterException, ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
+from tocontrol_ros import qos
 from tocontrol_ros.core.errors import ProblemError, TocontrolError
 from tocontrol_ros.core.model import RobotModel, default_urdf_path, load_robot
 from tocontrol_ros.core.tracking import (
@@ -69,17 +69,11 @@ __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedErro
 PAPER_START_Q = (-0.5487769600, 2.2111963800, 1.1613502200)
 
 #: The planner's trajectory is latched: late subscribers get the last plan.
-QOS_TRAJECTORY = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                            reliability=ReliabilityPolicy.RELIABLE,
-                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+QOS_TRAJECTORY = qos.LATCHED
 #: Streams: reliable publishers match both reliable and best-effort subscribers.
-QOS_STREAM = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
+QOS_STREAM = qos.RELIABLE
 #: Status events; the last few are kept for late subscribers.
-QOS_STATUS = QoSProfile(depth=20, history=HistoryPolicy.KEEP_LAST,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+QOS_STATUS = qos.status_profile(20, latched=True)
 #: Control periods one timer tick may simulate (a few tens of ms of work); beyond, the
 #: simulation drops time (it cannot keep up with ``time_scale``) rather than starve the
 #: executor.
