@@ -381,6 +381,7 @@ def _newton(planner: Planner, run: _Run, problem: Problem, k: float, delta: floa
 def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
     """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
     targets = _k_schedule(problem.k)[1:]
+    refined_at = None
     for k_goal in targets:
         while run.k < k_goal:
             k_try = k_goal
@@ -391,7 +392,17 @@ def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> 
                     break
                 k_try = run.k + 0.5 * (k_try - run.k)
                 if k_try - run.k < options.min_k_step:
-                    return False
+                    # The mesh may be too coarse for the steeper law: refine it at the
+                    # current k, once per stall, and try again.
+                    if refined_at == run.k:
+                        return False
+                    refined_at = run.k
+                    saved = _snapshot(run)
+                    if _refine(planner, run, problem, options, deadline, should_stop,
+                               tol=max(options.integration_tol, 1e-4)):
+                        _restore(run, saved)
+                        return False
+                    k_try = k_goal
     return True
 
 
@@ -729,9 +740,19 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
                 return _failure(problem, status, message, timings, records, run)
         t0 = time.perf_counter()
         if finished:
+            saved = _snapshot(run)
             why = _refine(planner, run, problem, options, deadline, should_stop)
-            if why:
-                notes.append(why)
+            if why or run.residual > options.tol:
+                # The kept smoothing does not refine cleanly: the full schedule instead.
+                _restore(run, saved)
+                rep = _newton(planner, run, problem, run.k, options.smoothing[0], options,
+                              deadline, should_stop)
+                if rep.converged:
+                    notes += _final_smoothing(planner, run, problem, options, deadline,
+                                              should_stop)
+                else:
+                    _restore(run, saved)
+                    notes.append(why or "the warm solution did not reach tol")
         else:
             notes += _final_smoothing(planner, run, problem, options, deadline, should_stop)
         timings["refine"] += time.perf_counter() - t0
@@ -850,7 +871,14 @@ def _warm(planner, problem, options, warm: PlanResult, deadline, should_stop):
     if warm.k == problem.k:
         rep = _newton(planner, run, problem, warm.k, warm.delta, options, deadline,
                       should_stop)
-        return (run, True) if rep.converged else (None, False)
+        if rep.converged:
+            return run, True
+        # At a small delta the law is nearly singular and a moved problem can stall Newton:
+        # restart the smoothing schedule from the previous solution instead.
+        run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta)
+        rep = _newton(planner, run, problem, warm.k, options.smoothing[0], options, deadline,
+                      should_stop)
+        return (run, False) if rep.converged else (None, False)
     # Another exponent: move the boundary values at the old k (intermediate smoothing),
     # then step k directly; the final smoothing schedule follows in the caller.
     for k in (warm.k, problem.k):
