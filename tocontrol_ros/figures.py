@@ -29,7 +29,7 @@ TARGET = (2.2, 1.5)
 #: 4e-6 (relative) from N = 200 to N = 400 (bang-bang switches fall between mesh points).
 BOX_INTERVALS = 200
 BOX_TOL = 1e-9
-#: Multistart that finds the best basin of the paper's example (see bench/bench_solver.py).
+#: Multistart that finds the best basin of the paper's example (see BENCHMARKS.md).
 STARTS = 16
 CANDIDATES = 3
 #: Arm snapshots in Figure 4.

@@ -1,0 +1,152 @@
+"""All benchmarks in one process; writes BENCHMARKS.md (issue 7).
+
+Run from the repository root::
+
+    scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
+    scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
+    python bench/run_all.py [--quick] [--out FILE] [--only paper,peers,random,scaling]
+
+Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
+``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
+example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
+links, the Panda). Every timing is taken in this one process, side by side; compiled
+functions go to a fresh temporary cache so that first-run costs are measured, not inherited.
+"""
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# `python -P bench/run_all.py` (as scripts/dev runs it) does not put bench/ on sys.path;
+# the repository goes last so that an installed tocontrol_ros still wins.
+sys.path.append(str(Path(__file__).resolve().parents[1]))
+
+from bench import common  # noqa: E402  (sets the thread variables before numpy)
+
+
+def _parse(argv):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="3 runs per case, 8 random pairs, planar arms 2, 3, 5 and one "
+                             "Panda run: checks the pipeline in a few minutes")
+    parser.add_argument("--runs", type=int, default=None,
+                        help="timed runs per case (default 10; 3 with --quick)")
+    parser.add_argument("--pairs", type=int, default=None,
+                        help="random start/target pairs (default 50; 8 with --quick)")
+    parser.add_argument("--pair-starts", type=int, default=16,
+                        help="multistart starts for the random pairs (16)")
+    parser.add_argument("--pair-candidates", type=int, default=3,
+                        help="multistart candidates for the random pairs (3)")
+    parser.add_argument("--budget", type=float, default=None,
+                        help="seconds per case before its runs are reduced (45; 15 quick)")
+    parser.add_argument("--only", default="paper,peers,random,scaling",
+                        help="comma-separated parts (peers needs paper)")
+    parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
+    parser.add_argument("--keep-cache", action="store_true",
+                        help="use the usual compile cache instead of a fresh one")
+    args = parser.parse_args(argv)
+    args.runs = args.runs or (3 if args.quick else 10)
+    args.pairs = args.pairs or (8 if args.quick else 50)
+    args.budget = args.budget or (15.0 if args.quick else 45.0)
+    args.only = [p.strip() for p in args.only.split(",") if p.strip()]
+    bad = set(args.only) - {"paper", "peers", "random", "scaling"}
+    if bad:
+        parser.error(f"--only: unknown parts {sorted(bad)}")
+    if "peers" in args.only and "paper" not in args.only:
+        parser.error("--only: peers needs paper (it reuses its solutions)")
+    if args.runs < 1 or args.pairs < 1:
+        parser.error("--runs and --pairs must be >= 1")
+    return args
+
+
+def main(argv=None):
+    args = _parse(argv)
+    cache = None
+    if not args.keep_cache:
+        cache = tempfile.mkdtemp(prefix="tocontrol-bench-cache-")
+        os.environ["TOCONTROL_CACHE"] = cache
+    try:
+        return _run(args)
+    finally:
+        if cache:
+            shutil.rmtree(cache, ignore_errors=True)
+
+
+def _run(args):
+    from bench import paper, peers, random_pairs, scaling
+
+    t0 = time.perf_counter()
+    info = common.machine_info()
+    load_start = common.load_text()
+    common.log(f"run_all: {info['CPU']}, {info['cores (usable)']} cores, load {load_start}, "
+               f"{'quick' if args.quick else 'full'}")
+    model = common.paper_model()
+    sections = []
+    paper_out = None
+    if "paper" in args.only:
+        ts = time.perf_counter()
+        sec, paper_out = paper.run(model, args.runs, args.budget, first_run=True)
+        sec.seconds = time.perf_counter() - ts
+        sections.append(sec)
+    if "peers" in args.only:
+        ts = time.perf_counter()
+        sec = peers.run(model, paper_out, args.runs, args.budget)
+        sec.seconds = time.perf_counter() - ts
+        sections.append(sec)
+    if "random" in args.only:
+        ts = time.perf_counter()
+        sec = random_pairs.run(model, args.pairs, args.pair_starts, args.pair_candidates)
+        sec.seconds = time.perf_counter() - ts
+        sections.append(sec)
+    if "scaling" in args.only:
+        ts = time.perf_counter()
+        if args.quick:
+            scaling.PLANAR_NS = (2, 3, 5)
+        sec = scaling.run(runs=3 if args.quick else 5, panda_runs=1 if args.quick else 2)
+        sec.seconds = time.perf_counter() - ts
+        sections.append(sec)
+    total = time.perf_counter() - t0
+    load_end = common.load_text()
+    text = _report(args, info, load_start, load_end, sections, total)
+    args.out.write_text(text)
+    common.log(f"wrote {args.out} ({total:.0f} s)")
+    return 0
+
+
+def _report(args, info, load_start, load_end, sections, total):
+    mode = "quick (`--quick`)" if args.quick else "full"
+    busy = max(float(load_start.split()[0]), float(load_end.split()[0])) > 1.0
+    lines = [
+        "# Benchmarks",
+        "",
+        "Generated by `scripts/dev bench` (`bench/run_all.py`; do not edit by hand), "
+        f"{mode} mode. Every figure below comes from this one process, side by side; wall "
+        "times; compiled functions in a fresh temporary cache (first-run costs are "
+        "measured, not inherited).",
+        "",
+        "## Machine",
+        "",
+    ]
+    rows = list(info.items()) + [("load average at start (1, 5, 15 min)", load_start),
+                                 ("load average at the end", load_end),
+                                 ("benchmark wall time", f"{total:.0f} s")]
+    lines += common.table(["", ""], rows)
+    if busy:
+        lines += ["", "**The load average was above 1**: other processes shared the two "
+                  "cores during this run, so the timings are pessimistic (inflated) and the "
+                  "relative figures measured side by side are the ones to trust."]
+    targets = [t for s in sections for t in s.targets]
+    if targets:
+        lines += ["", "## Targets", ""]
+        lines += common.table(["target", "met?"], targets)
+    for s in sections:
+        lines += ["", f"## {s.title}", "", f"({s.seconds:.0f} s of the run.)", ""] + s.lines
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
