@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import re
 import threading
+from collections import OrderedDict
 
 import casadi as ca
 import numpy as np
@@ -108,6 +109,7 @@ class CanonicalSystem:
         self.rhs = ca.substitute(ca.vertcat(xd, psid), uf, self.u)
         self.ham = ca.substitute(ham_u, uf, self.u)
         self._cache: dict = {}
+        self._sized: OrderedDict = OrderedDict()
         self._buffer_lock = threading.Lock()
         self.compile_status = "not compiled yet"
 
@@ -162,9 +164,22 @@ class CanonicalSystem:
     def step_map(self, count: int, sensitivities: bool = True) -> ca.Function:
         """:meth:`step_function` mapped over ``count`` columns (one step per interval)."""
         key = ("step_map", count, sensitivities)
-        if key not in self._cache:
-            self._cache[key] = self.step_function(sensitivities).map(count, "serial")
-        return self._cache[key]
+        fun = self._sized.get(key)
+        if fun is None:
+            fun = self._remember(key, self.step_function(sensitivities).map(count, "serial"))
+        return fun
+
+    def _remember(self, key, value):
+        """Keep a per-size object, evicting the least recently used beyond a bound.
+
+        Mesh refinement meets many interval counts; a long-running planner would otherwise
+        keep a mapped function and its buffers for every count it ever saw.
+        """
+        self._sized[key] = value
+        self._sized.move_to_end(key)
+        while len(self._sized) > SIZED_CACHE:
+            self._sized.popitem(last=False)
+        return value
 
     def _buffer(self, count: int, sensitivities: bool):
         """Evaluation buffer of :meth:`step_map`: numpy arrays CasADi reads and writes.
@@ -173,7 +188,9 @@ class CanonicalSystem:
         Inputs and outputs are the column-major layouts, i.e. C-ordered ``(count, ...)``.
         """
         key = ("buffer", count, sensitivities)
-        if key not in self._cache:
+        if key in self._sized:
+            self._sized.move_to_end(key)
+        else:
             nz = 4 * self.n
             buf, evaluate = self.step_map(count, sensitivities).buffer()
             ins = (np.zeros((count, nz)), np.zeros((count, 1)), np.zeros((count, 3)))
@@ -184,8 +201,8 @@ class CanonicalSystem:
                 buf.set_arg(i, memoryview(arr))
             for i, arr in enumerate(outs):
                 buf.set_res(i, memoryview(arr))
-            self._cache[key] = (buf, evaluate, ins, outs)
-        return self._cache[key]
+            self._remember(key, (buf, evaluate, ins, outs))
+        return self._sized[key]
 
     @property
     def stagewise(self) -> bool:
@@ -251,9 +268,9 @@ class CanonicalSystem:
                 # transposed.
                 return outs[0].T.copy(), outs[1].transpose(0, 2, 1).copy(), outs[2].copy()
         key = ("fj_map", count)
-        if key not in self._cache:
-            self._cache[key] = self.rhs_jacobian_function().map(count, "serial")
-        fj = self._cache[key]
+        fj = self._sized.get(key)
+        if fj is None:
+            fj = self._remember(key, self.rhs_jacobian_function().map(count, "serial"))
         hv = np.asarray(h, dtype=float).ravel()
         eye = np.eye(nz)
 
@@ -280,5 +297,7 @@ class CanonicalSystem:
         return z1, a, b
 
 
+#: Per-size mapped functions and buffers kept (least recently used evicted first).
+SIZED_CACHE = 24
 #: Operations of the whole-step Jacobian above which it is chained stage by stage.
 WHOLE_STEP_LIMIT = 200_000
