@@ -33,7 +33,7 @@ from .ik import ik_family
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .shooting import NewtonReport, ShootingGrid, integrate, newton_solve
-from .trajectory import Trajectory
+from .trajectory import Trajectory, TrajectorySample
 
 __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan", "verify"]
 
@@ -610,7 +610,8 @@ def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
     return Trajectory(planner.system, t_grid, z_grid, par)
 
 
-def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11) -> dict:
+def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
+           sample: TrajectorySample | None = None) -> dict:
     """Independent checks of a solution.
 
     Re-integrates the model under the nominal torques ``tau(t)`` of the trajectory with an
@@ -623,6 +624,9 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11) -> dic
     trajectory : Trajectory
     rtol : float
         Relative tolerance of the integrator (absolute: ``rtol / 10``).
+    sample : TrajectorySample, optional
+        The fine sampling on which ``H`` and the control set are checked; default: 2001
+        equally spaced times.
 
     Returns
     -------
@@ -648,7 +652,8 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11) -> dic
                     atol=rtol / 10)
     x_end = sol.y[:, -1]
     planned_end = trajectory.state(trajectory.T)[0, :2 * n]
-    sample = trajectory.evaluate(np.linspace(0, trajectory.T, 2001))
+    if sample is None:
+        sample = trajectory.evaluate(np.linspace(0, trajectory.T, 2001))
     k = trajectory.par[0]
     set_err = np.abs(np.sum(sample.u ** (2 * k), axis=1) - 1)
     return {
@@ -663,9 +668,14 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11) -> dic
     }
 
 
-def _limit_warnings(problem: Problem, trajectory: Trajectory) -> tuple[str, ...]:
+def _fine_sample(trajectory: Trajectory) -> TrajectorySample:
+    """One sampling for every check of a result: 2001 times, and no coarser than 1 ms."""
+    count = max(2001, int(np.ceil(trajectory.T / 1e-3)) + 1)
+    return trajectory.evaluate(np.linspace(0, trajectory.T, count))
+
+
+def _limit_warnings(problem: Problem, sample: TrajectorySample) -> tuple[str, ...]:
     model = problem.model
-    sample = trajectory.sample(min(1e-3, trajectory.T / 200))
     out = []
     for i, name in enumerate(model.joint_names):
         for label, values, lo, hi in (
@@ -761,15 +771,15 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         return _failure(problem, stop.status, "solve interrupted", timings, records, run)
 
     traj = _trajectory(planner, run, problem)
+    sample = _fine_sample(traj)
     t0 = time.perf_counter()
-    checks = verify(problem, traj) if options.verify else {}
+    checks = verify(problem, traj, sample=sample) if options.verify else {}
     timings["verify"] = time.perf_counter() - t0
-    sample = traj.evaluate(np.linspace(0, traj.T, 2001))
     max_u = float(np.max(np.abs(sample.u)))
     status, message = Status.SUCCESS, Status.SUCCESS.value
     if not options.verify:
         message = "solved (converged; re-integration check off: SolverOptions(verify=False))"
-    if options.verify:
+    else:
         bad = []
         if checks["point_error"] > options.verify_point_tol:
             bad.append(f"re-integrated end point misses the target by "
@@ -790,7 +800,7 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         k=run.k, trajectory=traj, residual=run.residual, iterations=run.iterations,
         timings=timings, continuation=tuple(run.log), max_abs_u=max_u, delta=run.delta,
         intervals=run.grid.N, verification=checks,
-        warnings=tuple(notes) + _limit_warnings(problem, traj), starts=tuple(records),
+        warnings=tuple(notes) + _limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, _state={"lengths": run.grid.lengths.copy(), "w": run.w.copy(),
                                  "steps": run.grid.steps})
 
