@@ -595,12 +595,11 @@ def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
     grid = run.grid
     nodes, t_final, _, _ = grid.unpack(run.w)
     par = np.array([run.k, run.delta, 1.0 - problem.reserve])
-    rk4 = planner.system.step_map(grid.N, sensitivities=False)
     z = nodes[:-1].T.copy()
     h = (t_final * grid.lengths / grid.steps)[None, :]
     cols = [z.T]
     for _ in range(grid.steps):
-        z = np.array(rk4(z, h, par))
+        z = planner.system.step_batch(z, h, par, sensitivities=False)[0]
         cols.append(z.T)
     stacked = np.stack(cols, axis=1)  # (N, steps + 1, nz)
     z_grid = np.concatenate([stacked[:, :-1].reshape(-1, grid.nz), nodes[-1:]])
