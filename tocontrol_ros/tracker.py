@@ -403,8 +403,6 @@ class TrackerNode(Node):
                 f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
                 f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
         report = tracker.advance(target)
-        for summary in report.summaries:
-            self._pub_status.publish(self._summary_status(summary))
         log = report.log
         if len(log):
             # The first control instant at or after each publishing time.
@@ -417,6 +415,10 @@ class TrackerNode(Node):
                     "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max,
                     "tau": log.tau[i]})
             self._next_publish += due.size * self._publish_period
+        # After the states: whoever acts on "completed" (e.g. sends the next goal, which the
+        # planner plans from the latest joint state) has seen the final state by then.
+        for summary in report.summaries:
+            self._pub_status.publish(self._summary_status(summary))
         if self._pub_clock is not None:
             self._pub_clock.publish(Clock(clock=_stamp(self._epoch + tracker.t)))
 
