@@ -9,6 +9,8 @@ use Levenberg-Marquardt (``scipy.optimize.least_squares``) from spread seeds.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -59,7 +61,19 @@ def _lm(model: RobotModel, p: np.ndarray, seed: np.ndarray, phi: float | None = 
 
 
 def _planar3r_lengths(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
-    """Offsets of a standard planar 3R (all frames aligned, offsets along x), else None."""
+    """Offsets of a standard planar 3R (all frames aligned, offsets along x), else None.
+
+    Computed once per model (the solver asks for every seed).
+    """
+    if model not in _PLANAR3R:
+        _PLANAR3R[model] = _planar3r_lengths_of(model)
+    return _PLANAR3R[model]
+
+
+_PLANAR3R: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _planar3r_lengths_of(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
     if model.n != 3 or model.m != 2 or model.task_axes != (0, 1):
         return None
     for b in model.bodies:

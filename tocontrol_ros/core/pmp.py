@@ -121,6 +121,16 @@ class CanonicalSystem:
                 ["z", "par"], ["F", "u", "S", "H"])
         return self._cache["pointwise"]
 
+    def pointwise_map(self, count: int) -> ca.Function:
+        """:meth:`pointwise` mapped over ``count`` columns (kept per size, like the steps)."""
+        key = ("pointwise_map", count)
+        fun = self._sized.get(key)
+        if fun is None:
+            fun = self._remember(key, self.pointwise().map(count, "serial"))
+        else:
+            self._sized.move_to_end(key)
+        return fun
+
     def rhs_function(self) -> ca.Function:
         """``(z, par) -> F(z)``, physical time."""
         if "rhs" not in self._cache:

@@ -29,11 +29,42 @@ from scipy.sparse.linalg import splu
 
 from .pmp import CanonicalSystem
 
-__all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate"]
+__all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
+
+#: Grading exponent of the RK4 steps next to a switch (:func:`step_fractions`).
+GRADING = 4.0
+#: Newton keeps its factorised Jacobian while each step shrinks max |G| at least this much.
+CHORD_CONTRACTION = 0.25
+
+
+def step_fractions(kinds: np.ndarray, steps: int, grading: float = GRADING) -> np.ndarray:
+    """RK4 step lengths of each interval as fractions of the interval.
+
+    Parameters
+    ----------
+    kinds : ndarray of int, shape (N,)
+        0: uniform steps; 1: steps graded towards the interval's end (a switch of the
+        control law there); -1: graded towards its start.
+    steps : int
+    grading : float
+        Step ``s`` of a graded interval ends at ``(s / steps) ** grading`` of the interval,
+        counted from the switch.
+
+    Returns
+    -------
+    ndarray, shape (N, steps)
+        Rows sum to 1.
+    """
+    kinds = np.asarray(kinds, dtype=int)
+    uniform = np.full(steps, 1.0 / steps)
+    towards_start = np.diff((np.arange(steps + 1) / steps) ** grading)
+    table = {0: uniform, -1: towards_start, 1: towards_start[::-1]}
+    return np.array([table[int(c)] for c in kinds]).reshape(len(kinds), steps)
 
 
 def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, steps: int,
-              t_final: float, par: np.ndarray, sensitivities: bool = True):
+              t_final: float, par: np.ndarray, sensitivities: bool = True,
+              fractions: np.ndarray | None = None):
     """Integrate ``dz/dtau = T F(z)`` over intervals, each with ``steps`` RK4 steps.
 
     Parameters
@@ -49,6 +80,9 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
     par : ndarray, shape (3,)
         ``(k, delta, torque_scale)``.
     sensitivities : bool
+    fractions : ndarray, shape (N, steps), optional
+        Step lengths as fractions of each interval (:func:`step_fractions`); default
+        uniform.
 
     Returns
     -------
@@ -57,15 +91,19 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
     a : ndarray, shape (N, 4n, 4n)
         ``dz1/dz0`` per interval (None without sensitivities).
     b : ndarray, shape (N, 4n)
-        ``dz1/dT`` per interval (None without sensitivities).
+        ``dz1/dT`` per interval (None without sensitivities). The end state depends on
+        ``T`` and the interval's length only through their product, so ``dz1/dlength`` is
+        ``b * T / length``.
     """
-    dtau = np.asarray(lengths, dtype=float) / steps
-    h = (t_final * dtau)[None, :]
+    lengths = np.asarray(lengths, dtype=float)
+    if fractions is None:
+        fractions = np.full((len(lengths), steps), 1.0 / steps)
     z = np.ascontiguousarray(starts.T)
     a_tot = b_tot = None
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are checked
         for i in range(steps):
-            z, a_s, b_s = system.step_batch(z, h, par, sensitivities)
+            dtau = lengths * fractions[:, i]
+            z, a_s, b_s = system.step_batch(z, (t_final * dtau)[None, :], par, sensitivities)
             if not sensitivities:
                 continue
             db = b_s * dtau[:, None]  # dz1/dT = dz1/dh * dh/dT
@@ -110,31 +148,68 @@ class ShootingGrid:
     steps : int
         RK4 steps per interval.
     start_kind, target_kind : {"point", "state"}
+    kinds : ndarray of int, shape (N,), optional
+        Step grading per interval (see :func:`step_fractions`); default all uniform.
+    breaks : sequence of (int, int), optional
+        Switch nodes ``(node, i)``: node ``node`` (0 < node < N, increasing) sits where the
+        switching function ``S_i`` changes sign. Each adds its normalised time as an unknown
+        and ``S_i(z_node) = 0`` as an equation, so the mesh moves with the switches; the
+        intervals between two break nodes keep their relative lengths.
     """
 
     def __init__(self, system: CanonicalSystem, lengths: np.ndarray, steps: int,
-                 start_kind: str, target_kind: str) -> None:
+                 start_kind: str, target_kind: str, kinds: np.ndarray | None = None,
+                 breaks=()) -> None:
         self.system = system
         self.lengths = np.asarray(lengths, dtype=float)
         self.N = len(self.lengths)
         self.steps = steps
         self.start_kind = start_kind
         self.target_kind = target_kind
+        self.kinds = (np.zeros(self.N, dtype=int) if kinds is None
+                      else np.asarray(kinds, dtype=int).copy())
+        self.fractions = step_fractions(self.kinds, steps)
+        self.breaks = tuple((int(j), int(i)) for j, i in breaks)
+        nodes_b = [j for j, _ in self.breaks]
+        if any(not 0 < j < self.N for j in nodes_b) or np.any(np.diff(nodes_b) <= 0):
+            raise ValueError(f"break nodes must increase within (0, {self.N}): {nodes_b}")
+        self.B = len(self.breaks)
+        bounds = np.concatenate([[0], nodes_b, [self.N]]).astype(int)
+        self._segment = np.searchsorted(bounds, np.arange(self.N), side="right") - 1
+        seg_len = np.add.reduceat(self.lengths, bounds[:-1])
+        self._rel = self.lengths / seg_len[self._segment]
         model = system.model
         n, m = model.n, model.m
         self.n, self.m = n, m
         self.nz = 4 * n
         self.n_nu0 = m if start_kind == "point" else 0
         self.n_nuT = m if target_kind == "point" else 0
-        self.size = self.nz * (self.N + 1) + 1 + self.n_nu0 + self.n_nuT
+        self._col_T = self.nz * (self.N + 1)
+        self._col_b = self._col_T + 1 + self.n_nu0 + self.n_nuT
+        self.size = self._col_b + self.B
         self.tau = np.concatenate([[0.0], np.cumsum(self.lengths)])
         self.bc = self._boundary_function()
+        self._switch = self._switch_function() if self.B else None
         self._pattern()
 
-    def flow(self, nodes: np.ndarray, t_final: float, par: np.ndarray, sensitivities=True):
+    # ------------------------------------------------------------ mesh
+    def lengths_of(self, w: np.ndarray) -> np.ndarray:
+        """Interval lengths (N,) at unknowns ``w`` (they move with the break times)."""
+        if not self.B:
+            return self.lengths
+        bounds = np.concatenate([[0.0], w[self._col_b:], [1.0]])
+        return self._rel * np.diff(bounds)[self._segment]
+
+    def tau_of(self, w: np.ndarray) -> np.ndarray:
+        """Node times (N + 1,) in normalised time at unknowns ``w``."""
+        return np.concatenate([[0.0], np.cumsum(self.lengths_of(w))])
+
+    def flow(self, nodes: np.ndarray, t_final: float, par: np.ndarray, sensitivities=True,
+             lengths: np.ndarray | None = None):
         """Integrate every interval from its start node (see :func:`integrate`)."""
-        return integrate(self.system, nodes[:-1], self.lengths, self.steps, t_final, par,
-                         sensitivities)
+        lengths = self.lengths if lengths is None else lengths
+        return integrate(self.system, nodes[:-1], lengths, self.steps, t_final, par,
+                         sensitivities, self.fractions)
 
     # ------------------------------------------------------------ boundary
     def _boundary_function(self) -> ca.Function:
@@ -169,14 +244,27 @@ class ShootingGrid:
         cache[key] = fun
         return fun
 
+    def _switch_function(self) -> ca.Function:
+        """``(z, par) -> (S, dS/dz)``."""
+        cache = self.system._cache
+        if "switch" not in cache:
+            sy = self.system
+            cache["switch"] = ca.Function("S", [sy.z, sy.par],
+                                          [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
+        return cache["switch"]
+
     # ------------------------------------------------------- sparse pattern
     def _pattern(self) -> None:
-        """Row/column indices of the Jacobian's non-zeros, in the order values are filled."""
+        """Row/column indices of the Jacobian's non-zeros, in the order values are filled.
+
+        The values are filled in this order on every evaluation; the permutation to
+        compressed-column order is computed here, once.
+        """
         nz, N = self.nz, self.N
         rows, cols = [], []
         it = np.arange(nz)
         rr, cc = np.meshgrid(it, it, indexing="ij")
-        col_T = nz * (N + 1)
+        col_T = self._col_T
         for j in range(N):
             r0 = j * nz
             rows.append((r0 + rr).ravel())   # -A_j at block column j
@@ -185,7 +273,15 @@ class ShootingGrid:
             cols.append((j + 1) * nz + it)
             rows.append(r0 + it)             # -b_j at column T
             cols.append(np.full(nz, col_T))
-        self._n_cont = len(np.concatenate(rows)) if rows else 0
+        # Break times: interval j of segment s ends at break s and starts at break s - 1.
+        self._break_cols = []
+        for j in range(N):
+            s = self._segment[j]
+            for b in (s, s - 1):
+                if 0 <= b < self.B:
+                    rows.append(j * nz + it)
+                    cols.append(np.full(nz, self._col_b + b))
+                    self._break_cols.append((j, 1.0 if b == s else -1.0))
         nbc = nz + 1 + self.n_nu0 + self.n_nuT
         r_bc = nz * N + np.arange(nbc)
         blocks = [np.arange(nz), N * nz + np.arange(nz),
@@ -195,51 +291,98 @@ class ShootingGrid:
             rr2, cc2 = np.meshgrid(r_bc, b, indexing="ij")
             rows.append(rr2.ravel())
             cols.append(cc2.ravel())
-        self._rows = np.concatenate(rows)
-        self._cols = np.concatenate(cols)
+        for r, (node, _) in enumerate(self.breaks):  # S_i(z_node) = 0
+            rows.append(np.full(nz, nz * N + nbc + r))
+            cols.append(node * nz + it)
+        rows = np.concatenate(rows)
+        cols = np.concatenate(cols)
+        order = np.lexsort((rows, cols))
+        if np.any((np.diff(cols[order]) == 0) & (np.diff(rows[order]) == 0)):
+            raise AssertionError("duplicate entries in the Jacobian pattern")
+        self._order = order
+        self._indices = rows[order].astype(np.int32)
+        self._indptr = np.searchsorted(cols[order], np.arange(self.size + 1)).astype(np.int32)
         self._eye = np.ones(nz)
 
     # ------------------------------------------------------------ pack/unpack
     def unpack(self, w: np.ndarray):
-        """Split unknowns into nodes (N + 1, 4n), T, nu0 (m or 0), nuT (m or 0)."""
+        """Split unknowns into nodes (N + 1, 4n), T, nu0 (m or 0), nuT (m or 0).
+
+        The break times, if any, are ``w[grid.size - grid.B:]`` (see :meth:`lengths_of`).
+        """
         nz, N = self.nz, self.N
         nodes = w[:nz * (N + 1)].reshape(N + 1, nz)
-        t_final = w[nz * (N + 1)]
-        nu0 = w[nz * (N + 1) + 1: nz * (N + 1) + 1 + self.n_nu0]
-        nuT = w[nz * (N + 1) + 1 + self.n_nu0:]
+        t_final = w[self._col_T]
+        nu0 = w[self._col_T + 1: self._col_T + 1 + self.n_nu0]
+        nuT = w[self._col_T + 1 + self.n_nu0: self._col_b]
         return nodes, float(t_final), nu0, nuT
 
     def pack(self, nodes: np.ndarray, t_final: float, nu0=None, nuT=None) -> np.ndarray:
-        """Inverse of :meth:`unpack` (missing multipliers start at 0)."""
+        """Inverse of :meth:`unpack` (missing multipliers start at 0; break times from the
+        construction-time lengths)."""
         nu0 = np.zeros(self.n_nu0) if nu0 is None else np.asarray(nu0, dtype=float)
         nuT = np.zeros(self.n_nuT) if nuT is None else np.asarray(nuT, dtype=float)
-        return np.concatenate([np.asarray(nodes, dtype=float).ravel(), [t_final], nu0, nuT])
+        t_breaks = self.tau[[j for j, _ in self.breaks]]
+        return np.concatenate([np.asarray(nodes, dtype=float).ravel(), [t_final], nu0, nuT,
+                               t_breaks])
 
     # ------------------------------------------------------------ equations
     def residual(self, w: np.ndarray, values: np.ndarray, par: np.ndarray,
                  jacobian: bool = True):
         """Equations ``G(w)`` (size,) and, optionally, their sparse Jacobian (CSC)."""
         nodes, t_final, nu0, nuT = self.unpack(w)
-        z1, a, b = self.flow(nodes, t_final, par, sensitivities=jacobian)
+        lengths = self.lengths_of(w)
+        z1, a, b = self.flow(nodes, t_final, par, sensitivities=jacobian, lengths=lengths)
         cont = (nodes[1:] - z1).ravel()
         bc_out = self.bc(nodes[0], nodes[-1], nu0, nuT, values, par)
-        g = np.concatenate([cont, np.array(bc_out[0]).ravel()])
+        parts = [cont, np.array(bc_out[0]).ravel()]
+        switch = [self._switch(nodes[j], par) for j, _ in self.breaks]
+        parts += [np.array([float(out[0][i])]) for out, (_, i) in zip(switch, self.breaks,
+                                                                     strict=True)]
+        g = np.concatenate(parts)
         if not jacobian:
             return g, None
-        vals = []
-        for j in range(self.N):
-            vals += [-a[j].ravel(), self._eye, -b[j]]
+        vals = [np.concatenate([-a.reshape(self.N, -1), np.broadcast_to(self._eye,
+                                                                         (self.N, self.nz)),
+                                -b], axis=1).ravel()]
+        if self.B:
+            dlen = b * (t_final / lengths)[:, None]  # dz1/dlength
+            for j, sign in self._break_cols:
+                vals.append(-dlen[j] * sign * self._rel[j])
         for blk in bc_out[1:]:
             vals.append(np.array(blk).ravel())
-        data = np.concatenate(vals)
-        jac = sp.csc_matrix((data, (self._rows, self._cols)), shape=(self.size, self.size))
+        for out, (_, i) in zip(switch, self.breaks, strict=True):
+            vals.append(np.array(out[1])[i])
+        data = np.concatenate(vals)[self._order]
+        jac = sp.csc_matrix((data, self._indices, self._indptr), shape=(self.size, self.size))
         return g, jac
+
+    def admissible_step(self, w: np.ndarray, step: np.ndarray) -> float:
+        """Largest fraction of ``step`` (at most 1) that keeps ``T`` and every interval
+        length above a fifth of its current value."""
+        lam = 1.0
+        col_T = self._col_T
+        if step[col_T] < 0 and w[col_T] + step[col_T] <= 0.2 * w[col_T]:
+            lam = 0.8 * w[col_T] / -step[col_T]
+        if self.B:
+            now = self.lengths_of(w)
+            while lam > 1e-6 and np.any(self.lengths_of(w + lam * step) <= 0.2 * now):
+                lam *= 0.5
+        return lam
 
 
 def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np.ndarray,
                  tol: float = 1e-10, max_iter: int = 40, deadline: float | None = None,
-                 should_stop=None) -> NewtonReport:
+                 should_stop=None, contraction: float = CHORD_CONTRACTION) -> NewtonReport:
     """Damped Newton on ``G(w) = 0`` with a backtracking line search on ``|G|^2 / 2``.
+
+    The factorised Jacobian is kept while it works (chord steps): after a full step that
+    shrank ``max |G|`` by at least ``contraction``, the next step reuses the old LU factors,
+    and is accepted only if it shrinks ``max |G|`` as much again; otherwise the Jacobian is
+    evaluated anew at the current point and a damped Newton step taken. The Jacobian (the
+    RK4 sensitivities) costs about six residuals and its factorisation two more, so near a
+    solution (mesh refinement, warm starts, small continuation steps) this saves most of
+    the work; convergence is always judged on ``G`` itself.
 
     Parameters
     ----------
@@ -252,19 +395,22 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
     tol : float
         Convergence when ``max |G| <= tol``.
     max_iter : int
+        Iterations, chord steps included.
     deadline : float, optional
         ``time.perf_counter()`` value after which to give up.
     should_stop : callable, optional
         Returns True to cancel (checked every iteration).
+    contraction : float
+        Required reduction factor of ``max |G|`` to keep (and to accept) chord steps; 0
+        gives plain Newton.
 
     Returns
     -------
     NewtonReport
     """
     w = np.array(w0, dtype=float)
-    col_T = grid.nz * (grid.N + 1)
     g, jac = grid.residual(w, values, par)
-    merit = 0.5 * float(g @ g)
+    lu = None  # LU factors of a Jacobian; `jac` is None when they are not at `w`
     for it in range(1, max_iter + 1):
         if not np.all(np.isfinite(g)):
             return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
@@ -275,15 +421,25 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
             return NewtonReport(False, w, res, it - 1, "cancelled")
         if deadline is not None and time.perf_counter() > deadline:
             return NewtonReport(False, w, res, it - 1, "time limit reached")
+        if jac is None:  # chord step with the kept factors
+            step = -lu.solve(g)
+            lam = grid.admissible_step(w, step)
+            if lam == 1.0 and np.all(np.isfinite(step)):
+                g_new, _ = grid.residual(w + step, values, par, jacobian=False)
+                res_new = float(np.max(np.abs(g_new)))
+                if np.isfinite(res_new) and res_new <= contraction * res:
+                    w, g = w + step, g_new
+                    continue
+            g, jac = grid.residual(w, values, par)  # the factors went stale: a Newton step
         try:
-            step = -splu(jac).solve(g)
+            lu = splu(jac)
+            step = -lu.solve(g)
         except RuntimeError:
             return NewtonReport(False, w, res, it - 1, "singular Newton matrix")
         if not np.all(np.isfinite(step)):
             return NewtonReport(False, w, res, it - 1, "singular Newton matrix")
-        lam = 1.0
-        if step[col_T] < 0 and w[col_T] + step[col_T] <= 0.2 * w[col_T]:
-            lam = 0.8 * w[col_T] / -step[col_T]  # keep T positive
+        merit = 0.5 * float(g @ g)
+        lam = grid.admissible_step(w, step)  # keeps T and the intervals positive
         while True:
             w_new = w + lam * step
             g_new, _ = grid.residual(w_new, values, par, jacobian=False)
@@ -294,8 +450,10 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
         if not np.isfinite(merit_new):
             return NewtonReport(False, w, res, it, "non-finite residual along the step")
         w = w_new
-        g, jac = grid.residual(w, values, par)
-        merit = 0.5 * float(g @ g)
+        if lam == 1.0 and float(np.max(np.abs(g_new))) <= contraction * res:
+            g, jac = g_new, None  # try the same factors next
+        else:
+            g, jac = grid.residual(w, values, par)
     res = float(np.max(np.abs(g)))
     return NewtonReport(res <= tol, w, res, max_iter,
                         "converged" if res <= tol else "iteration limit reached")

@@ -32,7 +32,7 @@ from .errors import ProblemError
 from .ik import ik_family
 from .pmp import CanonicalSystem
 from .problem import Problem
-from .shooting import NewtonReport, ShootingGrid, integrate, newton_solve
+from .shooting import NewtonReport, ShootingGrid, integrate, newton_solve, step_fractions
 from .trajectory import Trajectory, TrajectorySample
 
 __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan", "verify"]
@@ -79,6 +79,10 @@ class SolverOptions:
         Decreasing ``delta`` stops once ``T`` changes by less than this, relatively.
     min_k_step : float
         Continuation gives up when a failed step in ``k`` would be bisected below this.
+    switch_nodes : bool
+        For k > 1, put a mesh node at every sign change of a switching function, with its
+        time an unknown and the RK4 steps graded towards it (far fewer intervals for the
+        same accuracy, and the mesh follows the switches in warm starts).
     starts : int
         Seed pairs tried by the direct method (1 = single start). The paper's arm has many
         local optima and the first seed pair is seldom in the best basin, hence 16.
@@ -108,6 +112,7 @@ class SolverOptions:
     smoothing_intermediate: float = 1e-3
     smoothing_tol: float = 1e-8
     min_k_step: float = 0.05
+    switch_nodes: bool = True
     starts: int = 16
     candidates: int = 3
     ik_count: int = 8
@@ -406,10 +411,13 @@ def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> 
     return True
 
 
-def _interval_errors(planner, starts, lengths, steps, t_final, par) -> np.ndarray:
+def _interval_errors(planner, starts, lengths, steps, t_final, par, kinds=None) -> np.ndarray:
     """RK4 error estimate per interval (Richardson: steps vs 2 * steps), max-norm of z."""
-    z_s = integrate(planner.system, starts, lengths, steps, t_final, par, False)[0]
-    z_2s = integrate(planner.system, starts, lengths, 2 * steps, t_final, par, False)[0]
+    kinds = np.zeros(len(lengths), dtype=int) if kinds is None else kinds
+    z_s = integrate(planner.system, starts, lengths, steps, t_final, par, False,
+                    step_fractions(kinds, steps))[0]
+    z_2s = integrate(planner.system, starts, lengths, 2 * steps, t_final, par, False,
+                     step_fractions(kinds, 2 * steps))[0]
     return np.max(np.abs(z_2s - z_s), axis=1) * 16 / 15
 
 
@@ -422,7 +430,7 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
     whose iterations cost most, start close to their solution.
     """
     final = options.integration_tol if tol is None else tol
-    levels = [t for t in (1e-3, 1e-4, 1e-5) if t > 10 * final] + [final]
+    levels = [t for t in (1e-3, 1e-4, 1e-5) if t > 10 * final and not run.grid.B] + [final]
     for level in levels:
         # Intermediate levels only place the nodes; the last one solves to `tol`.
         last = level == final and tol is None
@@ -439,21 +447,34 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
     return ""
 
 
+def _part_kinds(kind: int, parts: int) -> list[int]:
+    """Step grading of the parts of a split interval: the part at a switch keeps it."""
+    out = [0] * parts
+    if kind == 1:
+        out[-1] = 1
+    elif kind == -1:
+        out[0] = -1
+    return out
+
+
 def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                rounds: int = 6) -> str:
     """One level of :func:`_refine`.
 
     Each round first splits intervals on the current solution alone (the new nodes are
     integrated from the old ones), repeating until the estimate passes, and only then runs
-    Newton on the new mesh: one Newton solve per round, usually one or two rounds.
+    Newton on the new mesh: one Newton solve per round, usually one or two rounds. Switch
+    nodes stay switch nodes; a split interval's graded steps stay in the part at the switch.
     """
     par = np.array([run.k, run.delta, 1.0 - problem.reserve])
     steps = run.grid.steps
     system = planner.system
     for _ in range(rounds):
         nodes, t_final, nu0, nuT = run.grid.unpack(run.w)
-        starts, lengths = nodes[:-1], run.grid.lengths
-        err = _interval_errors(planner, starts, lengths, steps, t_final, par)
+        starts, lengths = nodes[:-1], run.grid.lengths_of(run.w)
+        kinds = run.grid.kinds
+        node_of = np.arange(len(lengths) + 1)  # original node -> node of the new mesh
+        err = _interval_errors(planner, starts, lengths, steps, t_final, par, kinds)
         changed = False
         for _inner in range(8):
             bad = err > tol
@@ -478,39 +499,51 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                 parts = capped
             idx = np.flatnonzero(parts > 1)
             sub_len = lengths[idx] / parts[idx]
+            sub_kinds = np.zeros((len(idx), int(parts.max())), dtype=int)
+            for r, j in enumerate(idx):
+                sub_kinds[r, :parts[j]] = _part_kinds(kinds[j], parts[j])
             cur = starts[idx].copy()
             subs = [cur.copy()]
             for p in range(1, int(parts.max())):
                 active = parts[idx] > p
                 cur[active] = integrate(system, cur[active], sub_len[active], steps,
-                                        t_final, par, False)[0]
+                                        t_final, par, False,
+                                        step_fractions(sub_kinds[active, p - 1], steps))[0]
                 subs.append(np.where(active[:, None], cur, np.nan))
             subs = np.stack(subs, axis=1)  # (bad, max parts, nz), NaN past each one's parts
-            new_starts, new_lengths, new_err, fresh = [], [], [], []
+            new_starts, new_lengths, new_err, new_kinds, fresh = [], [], [], [], []
             row = {j: r for r, j in enumerate(idx)}
+            new_node = np.zeros(len(lengths) + 1, dtype=int)
             for j in range(len(lengths)):
+                new_node[j] = len(new_starts)
                 if j in row:
                     r = row[j]
-                    for p in range(parts[j]):
+                    for p, kind in enumerate(_part_kinds(kinds[j], parts[j])):
                         new_starts.append(subs[r, p])
                         new_lengths.append(sub_len[r])
                         new_err.append(np.nan)
+                        new_kinds.append(kind)
                         fresh.append(len(new_starts) - 1)
                 else:
                     new_starts.append(starts[j])
                     new_lengths.append(lengths[j])
                     new_err.append(err[j])
+                    new_kinds.append(kinds[j])
+            new_node[-1] = len(new_starts)
+            node_of = new_node[node_of]
             starts, lengths = np.array(new_starts), np.array(new_lengths)
+            kinds = np.array(new_kinds, dtype=int)
             err = np.array(new_err)
             fresh = np.array(fresh)
             err[fresh] = _interval_errors(planner, starts[fresh], lengths[fresh], steps,
-                                          t_final, par)
+                                          t_final, par, kinds[fresh])
             changed = True
         if not changed:
             return ""
         saved = (run.grid, run.w)
+        breaks = [(int(node_of[j]), i) for j, i in run.grid.breaks]
         run.grid = ShootingGrid(system, lengths, steps, run.grid.start_kind,
-                                run.grid.target_kind)
+                                run.grid.target_kind, kinds=kinds, breaks=breaks)
         run.w = run.grid.pack(np.vstack([starts, nodes[-1:]]), t_final, nu0, nuT)
         rep = _newton(planner, run, problem, run.k, run.delta, options, deadline,
                       should_stop)
@@ -518,6 +551,71 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
             run.grid, run.w = saved
             return f"Newton did not converge on {len(lengths)} intervals ({rep.message})"
     return f"no convergence of the mesh in {rounds} rounds"
+
+
+def _switches(planner, run: _Run, problem: Problem) -> list[tuple[float, int]]:
+    """Sign changes of the switching functions along the solution: (tau, i), in order.
+
+    Located by linear interpolation between the RK4 step points; a component whose sign
+    changes more than once within one step is skipped (its zeros are too close to
+    separate at this resolution; mesh refinement takes care of them).
+    """
+    t_grid, z_grid = _dense(planner, run, problem)
+    par = np.array([run.k, run.delta, 1.0 - problem.reserve])
+    s = np.array(planner.system.pointwise_map(len(t_grid))(z_grid.T, par)[2]).T
+    t_final = t_grid[-1]
+    out = []
+    for i in range(s.shape[1]):
+        sign = np.sign(s[:, i])
+        for j in np.flatnonzero(sign[:-1] * sign[1:] < 0):
+            frac = s[j, i] / (s[j, i] - s[j + 1, i])
+            out.append(((t_grid[j] + frac * (t_grid[j + 1] - t_grid[j])) / t_final, i))
+    return sorted(out)
+
+
+def _switch_mesh(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
+    """Move to a mesh with a node at every switch of the control law.
+
+    Where a switching function ``S_i`` changes sign, ``u_i ~ |S_i|^(1/(2k-1))`` has an
+    infinite slope and a uniform RK4 mesh converges slowly. Here each switch becomes a node
+    whose time is an unknown (with ``S_i = 0`` there, see :class:`ShootingGrid`), and the
+    two intervals that meet at it take RK4 steps graded towards it: the mesh follows the
+    switches as Newton (or a warm start) moves them. Returns False, leaving ``run``
+    unchanged, when there is no switch or Newton does not converge on the new mesh.
+    """
+    found = _switches(planner, run, problem)
+    gap = 0.5 / options.intervals  # switches closer than this to each other or to an end
+    chosen: list[tuple[float, int]] = []  # are left to the ordinary refinement
+    for tau, i in found:
+        if gap <= tau <= 1 - gap and (not chosen or tau - chosen[-1][0] >= gap):
+            chosen.append((tau, i))
+    if not chosen:
+        return False
+    bounds = [0.0] + [tau for tau, _ in chosen] + [1.0]
+    lengths, kinds, breaks = [], [], []
+    for seg in range(len(bounds) - 1):
+        length = bounds[seg + 1] - bounds[seg]
+        count = max(2, int(np.ceil(length * options.intervals)))
+        seg_kinds = [0] * count
+        if seg > 0:
+            seg_kinds[0] = -1
+            breaks.append((len(lengths), chosen[seg - 1][1]))
+        if seg < len(bounds) - 2:
+            seg_kinds[-1] = 1
+        lengths += [length / count] * count
+        kinds += seg_kinds
+    grid = ShootingGrid(planner.system, np.array(lengths), run.grid.steps,
+                        run.grid.start_kind, run.grid.target_kind, kinds=np.array(kinds),
+                        breaks=breaks)
+    _, t_final, nu0, nuT = run.grid.unpack(run.w)
+    nodes = _trajectory(planner, run, problem).state(grid.tau * t_final)
+    saved = _snapshot(run)
+    run.grid, run.w = grid, grid.pack(nodes, t_final, nu0, nuT)
+    rep = _newton(planner, run, problem, run.k, run.delta, options, deadline, should_stop)
+    if not rep.converged:
+        _restore(run, saved)
+        return False
+    return True
 
 
 def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop) -> list:
@@ -532,6 +630,8 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
         return notes
     t_prev = None
     converged = []  # snapshots after each delta, to fall back to a smoother law
+    switched = options.switch_nodes and _switch_mesh(planner, run, problem, options,
+                                                     deadline, should_stop)
     for delta in options.smoothing:
         saved = _snapshot(run)
         rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
@@ -550,7 +650,7 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
                 notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
                              f"converge at delta = {delta:g} ({rep.message})")
                 break
-        if delta == options.smoothing[0]:
+        if delta == options.smoothing[0] and not switched:
             # Resolve the switches to the final tolerance while the law is still smooth:
             # the smaller deltas then only move a fine-mesh solution a little. (Refining
             # after delta is small can stall Newton: where a stage point lands near a
@@ -565,6 +665,10 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
             break
         t_prev = t_now
     why = _refine(planner, run, problem, options, deadline, should_stop)
+    if not why and switched:
+        # The smoothing loop above ran on the coarse switch mesh: confirm on the refined
+        # mesh that the next smaller delta no longer changes T (else keep going down).
+        notes += _confirm_smoothing(planner, run, problem, options, deadline, should_stop)
     if not why:
         return notes
     # Near-singular derivatives of the law at a small delta can stall Newton on the refined
@@ -582,6 +686,28 @@ def _final_smoothing(planner, run: _Run, problem, options, deadline, should_stop
     return notes
 
 
+def _confirm_smoothing(planner, run: _Run, problem, options, deadline, should_stop) -> list:
+    """Decrease delta on the final mesh until ``T`` changes by less than smoothing_tol."""
+    smaller = [d for d in options.smoothing if d < run.delta]
+    for delta in smaller:
+        saved = _snapshot(run)
+        t_prev = run.grid.unpack(run.w)[1]
+        rep = _newton(planner, run, problem, problem.k, delta, options, deadline,
+                      should_stop)
+        if not rep.converged:
+            _restore(run, saved)
+            return [f"smoothing kept at delta = {run.delta:g}: Newton did not converge at "
+                    f"delta = {delta:g} on the final mesh ({rep.message})"]
+        why = _refine(planner, run, problem, options, deadline, should_stop)
+        if why:
+            _restore(run, saved)
+            return [f"smoothing kept at delta = {run.delta:g}: {why} at delta = {delta:g}"]
+        t_now = run.grid.unpack(run.w)[1]
+        if abs(t_now - t_prev) <= options.smoothing_tol * t_now:
+            break
+    return []
+
+
 def _snapshot(run: _Run) -> tuple:
     return (run.grid, run.w.copy(), run.k, run.delta, run.residual)
 
@@ -591,21 +717,31 @@ def _restore(run: _Run, snap: tuple) -> None:
     run.w = w.copy()
 
 
-def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
+def _dense(planner: Planner, run: _Run, problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """The solution at every RK4 step point: times (K,) in s and states (K, 4n)."""
     grid = run.grid
     nodes, t_final, _, _ = grid.unpack(run.w)
     par = np.array([run.k, run.delta, 1.0 - problem.reserve])
+    lengths = grid.lengths_of(run.w)
     z = nodes[:-1].T.copy()
-    h = (t_final * grid.lengths / grid.steps)[None, :]
     cols = [z.T]
-    for _ in range(grid.steps):
+    for i in range(grid.steps):
+        h = (t_final * lengths * grid.fractions[:, i])[None, :]
         z = planner.system.step_batch(z, h, par, sensitivities=False)[0]
         cols.append(z.T)
     stacked = np.stack(cols, axis=1)  # (N, steps + 1, nz)
     z_grid = np.concatenate([stacked[:, :-1].reshape(-1, grid.nz), nodes[-1:]])
-    t_grid = np.concatenate([
-        (grid.tau[j] + grid.lengths[j] * np.arange(grid.steps) / grid.steps) * t_final
-        for j in range(grid.N)] + [[t_final]])
+    offsets = np.concatenate([np.zeros((grid.N, 1)), np.cumsum(grid.fractions, axis=1)[:, :-1]],
+                             axis=1)
+    tau = grid.tau_of(run.w)
+    t_grid = np.concatenate([((tau[:-1, None] + lengths[:, None] * offsets) * t_final).ravel(),
+                             [t_final]])
+    return t_grid, z_grid
+
+
+def _trajectory(planner: Planner, run: _Run, problem: Problem) -> Trajectory:
+    t_grid, z_grid = _dense(planner, run, problem)
+    par = np.array([run.k, run.delta, 1.0 - problem.reserve])
     return Trajectory(planner.system, t_grid, z_grid, par)
 
 
@@ -800,8 +936,9 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         timings=timings, continuation=tuple(run.log), max_abs_u=max_u, delta=run.delta,
         intervals=run.grid.N, verification=checks,
         warnings=tuple(notes) + _limit_warnings(problem, sample), starts=tuple(records),
-        problem=problem, _state={"lengths": run.grid.lengths.copy(), "w": run.w.copy(),
-                                 "steps": run.grid.steps})
+        problem=problem, _state={"lengths": run.grid.lengths_of(run.w).copy(), "w": run.w.copy(),
+                                 "steps": run.grid.steps, "kinds": run.grid.kinds.copy(),
+                                 "breaks": run.grid.breaks})
 
 
 def _cold(planner, problem, options, deadline, should_stop, timings):
@@ -875,7 +1012,7 @@ def _warm(planner, problem, options, warm: PlanResult, deadline, should_stop):
             or prev.reserve != problem.reserve:
         return None, False
     grid = ShootingGrid(planner.system, st["lengths"], st["steps"], problem.start.kind,
-                        problem.target.kind)
+                        problem.target.kind, kinds=st["kinds"], breaks=st["breaks"])
     run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta)
     if warm.k == problem.k:
         rep = _newton(planner, run, problem, warm.k, warm.delta, options, deadline,

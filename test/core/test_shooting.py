@@ -1,0 +1,141 @@
+"""Multiple shooting: graded steps, switch nodes, the sparse Jacobian and chord Newton."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.shooting import ShootingGrid, integrate, newton_solve, step_fractions
+from tocontrol_ros.core.solver import Planner, SolverOptions, _values, plan
+
+P_START = np.array([1.0, 1.0])
+P_TARGET = np.array([2.2, 1.5])
+SINGLE = SolverOptions(starts=1, candidates=1)
+
+
+@pytest.fixture(scope="module")
+def solved(galicki):
+    """The paper's example at k = 4 (one start) with switch nodes, and without."""
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4)
+    return {"problem": problem, "nodes": plan(problem, SINGLE),
+            "uniform": plan(problem, SolverOptions(starts=1, candidates=1,
+                                                   switch_nodes=False))}
+
+
+def test_step_fractions_sum_to_one_and_grade_towards_the_switch():
+    fr = step_fractions(np.array([0, 1, -1]), 6)
+    np.testing.assert_allclose(fr.sum(axis=1), 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(fr[0], 1 / 6)
+    assert np.all(np.diff(fr[2]) > 0) and np.all(np.diff(fr[1]) < 0)  # small at the switch
+    np.testing.assert_allclose(fr[1], fr[2][::-1])
+    assert fr[2][0] == pytest.approx((1 / 6) ** 4)
+    # Doubling the steps splits every step of the graded mesh (Richardson estimates).
+    fine = np.cumsum(step_fractions(np.array([-1]), 12)[0])[1::2]
+    np.testing.assert_allclose(fine, np.cumsum(fr[2]), rtol=1e-13)
+
+
+def _fd_jacobian(grid, w, values, par, eps=1e-7):
+    cols = []
+    for i in range(len(w)):
+        d = np.zeros_like(w)
+        d[i] = eps * max(1.0, abs(w[i]))
+        gp = grid.residual(w + d, values, par, jacobian=False)[0]
+        gm = grid.residual(w - d, values, par, jacobian=False)[0]
+        cols.append((gp - gm) / (2 * d[i]))
+    return np.array(cols).T
+
+
+def test_jacobian_with_switch_nodes_matches_finite_differences(galicki, solved):
+    res, problem = solved["nodes"], solved["problem"]
+    st = res._state
+    assert st["breaks"], "the k = 4 solution should have switch nodes"
+    system = Planner(galicki).system
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    # Away from the solution, and with a smooth law, so that differences are meaningful.
+    rng = np.random.default_rng(3)
+    w = st["w"] * (1 + 1e-3 * rng.standard_normal(len(st["w"])))
+    par = np.array([4.0, 1e-2, 1.0])
+    values = _values(problem)
+    _, jac = grid.residual(w, values, par)
+    fd = _fd_jacobian(grid, w, values, par)
+    scale = np.maximum(1.0, np.abs(fd))
+    err = np.abs(jac.toarray() - fd) / scale
+    print(f"{grid.size} unknowns, {grid.B} breaks: max scaled |J - FD| = {err.max():.2e}")
+    assert err.max() < 1e-5
+    # The break-time columns are there and not zero.
+    assert np.abs(jac.toarray()[:, grid.size - grid.B:]).max() > 1e-3
+
+
+def test_switch_nodes_sit_on_sign_changes_of_s(galicki, solved):
+    res = solved["nodes"]
+    assert res.success, res.message
+    st = res._state
+    system = Planner(galicki).system
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    nodes, t_final, _, _ = grid.unpack(st["w"])
+    tau = grid.tau_of(st["w"])
+    for node, i in grid.breaks:
+        t = tau[node] * t_final
+        s_node = res.trajectory.evaluate(t).S[0, i]
+        before = res.trajectory.evaluate(t - 1e-4).S[0, i]
+        after = res.trajectory.evaluate(t + 1e-4).S[0, i]
+        print(f"switch of S_{i} at t = {t:.6f} s: S = {s_node:.1e}, "
+              f"S(t -/+ 0.1 ms) = {before:.2e} / {after:.2e}")
+        assert abs(s_node) < 1e-9
+        assert before * after < 0
+    assert grid.kinds[[j for j, _ in grid.breaks]].tolist() == [-1] * grid.B
+    assert grid.kinds[[j - 1 for j, _ in grid.breaks]].tolist() == [1] * grid.B
+
+
+def test_switch_nodes_give_the_same_answer_as_a_uniform_refinement(galicki, solved):
+    a, b = solved["nodes"], solved["uniform"]
+    assert a.success and b.success, (a.message, b.message)
+    assert not b._state["breaks"]
+    print(f"T with switch nodes {a.T:.12f} ({a.intervals} intervals, {a.iterations} "
+          f"iterations), uniform refinement {b.T:.12f} ({b.intervals}, {b.iterations})")
+    assert a.T == pytest.approx(b.T, rel=1e-8)
+    for r in (a, b):
+        assert r.verification["max_abs_H"] < 1e-6
+        assert r.verification["point_error"] < 1e-5
+
+
+def test_chord_newton_converges_to_the_newton_solution(galicki, solved):
+    res, problem = solved["nodes"], solved["problem"]
+    st = res._state
+    system = Planner(galicki).system
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    moved = Problem(galicki, point(P_START), point(P_TARGET + [0.003, 0.004]), k=4)
+    par = np.array([res.k, res.delta, 1.0])
+    plain = newton_solve(grid, st["w"], _values(moved), par, contraction=0.0)
+    chord = newton_solve(grid, st["w"], _values(moved), par)
+    print(f"plain Newton {plain.iterations} iterations, with chord steps {chord.iterations}")
+    assert plain.converged and chord.converged
+    np.testing.assert_allclose(chord.w, plain.w, rtol=0, atol=1e-8)
+
+
+def test_integrate_sensitivities_with_graded_steps(galicki, solved):
+    """dz1/dz0 and dz1/dT of graded intervals against central differences."""
+    st = solved["nodes"]._state
+    system = Planner(galicki).system
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    nodes, t_final, _, _ = grid.unpack(st["w"])
+    sel = np.flatnonzero(grid.kinds != 0)[:4]
+    lengths = grid.lengths_of(st["w"])[sel]
+    par = np.array([4.0, 1e-2, 1.0])
+    fr = grid.fractions[sel]
+    z0 = nodes[sel]
+    _, a, b = integrate(system, z0, lengths, grid.steps, t_final, par, True, fr)
+    eps = 1e-6
+    up = integrate(system, z0, lengths, grid.steps, t_final + eps, par, False, fr)[0]
+    dn = integrate(system, z0, lengths, grid.steps, t_final - eps, par, False, fr)[0]
+    np.testing.assert_allclose(b, (up - dn) / (2 * eps), rtol=1e-5, atol=1e-6)
+    d = np.zeros_like(z0)
+    d[:, 5] = eps
+    up = integrate(system, z0 + d, lengths, grid.steps, t_final, par, False, fr)[0]
+    dn = integrate(system, z0 - d, lengths, grid.steps, t_final, par, False, fr)[0]
+    np.testing.assert_allclose(a[:, :, 5], (up - dn) / (2 * eps), rtol=1e-5, atol=1e-6)
