@@ -103,7 +103,7 @@ def test_switch_nodes_give_the_same_answer_as_a_uniform_refinement(galicki, solv
 
 
 def test_chord_newton_converges_to_the_newton_solution(galicki, solved):
-    res, problem = solved["nodes"], solved["problem"]
+    res = solved["nodes"]
     st = res._state
     system = Planner(galicki).system
     grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",

@@ -318,8 +318,11 @@ class ShootingGrid:
         return nodes, float(t_final), nu0, nuT
 
     def pack(self, nodes: np.ndarray, t_final: float, nu0=None, nuT=None) -> np.ndarray:
-        """Inverse of :meth:`unpack` (missing multipliers start at 0; break times from the
-        construction-time lengths)."""
+        """Inverse of :meth:`unpack`.
+
+        Missing multipliers start at 0; the break times are those of the lengths given at
+        construction.
+        """
         nu0 = np.zeros(self.n_nu0) if nu0 is None else np.asarray(nu0, dtype=float)
         nuT = np.zeros(self.n_nuT) if nuT is None else np.asarray(nuT, dtype=float)
         t_breaks = self.tau[[j for j, _ in self.breaks]]
@@ -358,8 +361,10 @@ class ShootingGrid:
         return g, jac
 
     def admissible_step(self, w: np.ndarray, step: np.ndarray) -> float:
-        """Largest fraction of ``step`` (at most 1) that keeps ``T`` and every interval
-        length above a fifth of its current value."""
+        """Largest fraction of ``step`` (at most 1) that keeps ``T`` positive.
+
+        ``T`` and every interval length stay above a fifth of their current values.
+        """
         lam = 1.0
         col_T = self._col_T
         if step[col_T] < 0 and w[col_T] + step[col_T] <= 0.2 * w[col_T]:
