@@ -584,7 +584,7 @@ def _switch_mesh(planner, run: _Run, problem, options, deadline, should_stop) ->
     unchanged, when there is no switch or Newton does not converge on the new mesh.
     """
     found = _switches(planner, run, problem)
-    gap = 0.5 / options.intervals  # switches closer than this to each other or to an end
+    gap = 0.2 / options.intervals  # switches closer than this to each other or to an end
     chosen: list[tuple[float, int]] = []  # are left to the ordinary refinement
     for tau, i in found:
         if gap <= tau <= 1 - gap and (not chosen or tau - chosen[-1][0] >= gap):
