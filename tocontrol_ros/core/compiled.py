@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -23,8 +24,13 @@ import casadi as ca
 
 __all__ = ["compile_function", "cache_dir"]
 
-#: gcc -O1 is within a few per cent of -O2 at run time and compiles faster.
-CFLAGS = ("-O1", "-shared", "-fPIC")
+#: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
+#: about 1.5 times faster than portable -O1 on this project's machine (bench: 14 -> 9.4 us
+#: per step of the paper's arm); compile time is the same (~10 s). Such a library only runs
+#: on the CPU it was built for, so the cache key includes the CPU's identity.
+CFLAGS = ("-O2", "-march=native", "-shared", "-fPIC")
+#: Used when the compiler rejects -march=native.
+PORTABLE_CFLAGS = ("-O1", "-shared", "-fPIC")
 _lock = threading.Lock()
 
 
@@ -41,6 +47,18 @@ def _compiler() -> str | None:
     if os.environ.get("TOCONTROL_COMPILE", "1") == "0":
         return None
     return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+
+
+def _cpu_tag() -> bytes:
+    """The machine and CPU (model and feature flags) that -march=native compiles for."""
+    tag = platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags", "Features"))]
+        tag += "".join(sorted(set(lines)))
+    except OSError:
+        tag += platform.processor()
+    return tag.encode()
 
 
 def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
@@ -70,16 +88,20 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
         finally:
             os.chdir(cwd)
         source = Path(tmp, f"{name}.c").read_bytes()
-        digest = hashlib.sha256(source + " ".join(CFLAGS).encode()).hexdigest()[:20]
+        digest = hashlib.sha256(source + " ".join(CFLAGS).encode() + _cpu_tag()
+                                ).hexdigest()[:20]
         target = cache_dir() / f"{name}_{digest}.so"
         how = "cached"
         with _lock:
             if not target.is_file():
                 how = "compiled"
                 partial = Path(tmp, f"{name}.so")
-                proc = subprocess.run([cc, *CFLAGS, f"{name}.c", "-o", str(partial), "-lm"],
-                                      cwd=tmp, capture_output=True, text=True)
-                if proc.returncode != 0:
+                for flags in (CFLAGS, PORTABLE_CFLAGS):
+                    proc = subprocess.run([cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
+                                          cwd=tmp, capture_output=True, text=True)
+                    if proc.returncode == 0:
+                        break
+                else:
                     return fun, f"virtual machine (compiler failed: {proc.stderr[-300:]})"
                 staged = target.with_suffix(f".{os.getpid()}.tmp")
                 shutil.copyfile(partial, staged)
