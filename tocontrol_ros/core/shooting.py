@@ -19,6 +19,7 @@ void, as it should be). The system is square: ``4n(N+1) + 1 + 2m`` unknowns and 
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from .compiled import compile_function
 from .pmp import CanonicalSystem
 
 __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
@@ -34,7 +36,11 @@ __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fr
 #: Grading exponent of the RK4 steps next to a switch (:func:`step_fractions`).
 GRADING = 4.0
 #: Newton keeps its factorised Jacobian while each step shrinks max |G| at least this much.
-CHORD_CONTRACTION = 0.25
+CHORD_CONTRACTION = 0.5
+
+
+def _c_name(name: str) -> str:
+    return re.sub(r"\W", "_", name)
 
 
 def step_fractions(kinds: np.ndarray, steps: int, grading: float = GRADING) -> np.ndarray:
@@ -239,18 +245,21 @@ class ShootingGrid:
         res.append(ham(zT, self.system.par))
         r = ca.vertcat(*res)
         args = [z0, zT, nu0, nuT]
-        fun = ca.Function("bc", [z0, zT, nu0, nuT, values, self.system.par],
-                          [r] + [ca.jacobian(r, a) for a in args])
-        cache[key] = fun
-        return fun
+        fun = ca.Function(f"tocontrol_bc_{self.start_kind}_{self.target_kind}_"
+                          f"{_c_name(model.name)}_{n}",
+                          [z0, zT, nu0, nuT, values, self.system.par],
+                          [r] + [ca.densify(ca.jacobian(r, a)) for a in args])
+        cache[key] = compile_function(fun)[0]  # evaluated with every residual
+        return cache[key]
 
     def _switch_function(self) -> ca.Function:
         """``(z, par) -> (S, dS/dz)``."""
         cache = self.system._cache
         if "switch" not in cache:
             sy = self.system
-            cache["switch"] = ca.Function("S", [sy.z, sy.par],
-                                          [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
+            fun = ca.Function(f"tocontrol_switch_{_c_name(sy.model.name)}_{sy.n}",
+                              [sy.z, sy.par], [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
+            cache["switch"] = compile_function(fun)[0]
         return cache["switch"]
 
     # ------------------------------------------------------- sparse pattern
