@@ -114,11 +114,19 @@ class CanonicalSystem:
         self.compile_status = "not compiled yet"
 
     def pointwise(self) -> ca.Function:
-        """``(z, par) -> (F, u, S, H)`` at one point (physical time); maps over columns."""
+        """``(z, par) -> (F, u, S, H)`` at one point (physical time); maps over columns.
+
+        Compiled and cached like the step function: it samples every result and serves
+        the verification's re-integration.
+        """
         if "pointwise" not in self._cache:
-            self._cache["pointwise"] = ca.Function(
-                "pointwise", [self.z, self.par], [self.rhs, self.u, self.s, self.ham],
-                ["z", "par"], ["F", "u", "S", "H"])
+            from .compiled import compile_function
+
+            name = re.sub(r"\W", "_", self.model.name)
+            fun = ca.Function(
+                f"tocontrol_pointwise_{name}_{self.n}", [self.z, self.par],
+                [self.rhs, self.u, self.s, self.ham], ["z", "par"], ["F", "u", "S", "H"])
+            self._cache["pointwise"] = compile_function(fun)[0]
         return self._cache["pointwise"]
 
     def pointwise_map(self, count: int) -> ca.Function:

@@ -308,25 +308,28 @@ def _seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarr
         targets = [problem.target.value[:n]]
     else:
         targets = ik_family(model, problem.target.value, options.ik_count)
+    if not starts or not targets:
+        return []
     cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
     acc = model.tau_max * (1 - problem.reserve)
-    pairs = []
-    for qa in starts:
-        inertia = np.diag(model.mass_matrix(qa))
-        for qb in targets:
-            d = qb - qa
-            if problem.target.kind == "point":
-                d = np.where(cont, np.angle(np.exp(1j * d)), d)
-            variants = [d]
-            if problem.target.kind == "point" and cont[-1]:
-                turn = np.zeros(n)
-                turn[-1] = -2 * np.pi * np.sign(d[-1]) if d[-1] != 0 else 2 * np.pi
-                variants.append(d + turn)
-            for dv in variants:
-                est = float(np.max(2 * np.sqrt(np.abs(dv) * inertia / acc)))
-                pairs.append((est, qa, qa + dv))
-    pairs.sort(key=lambda p: p[0])
-    return [(qa, qb) for _, qa, qb in pairs]
+    qa = np.array(starts)                                   # (S, n)
+    inertia = np.array([np.diag(model.mass_matrix(q)) for q in starts])
+    d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
+    if problem.target.kind == "point":
+        d = np.where(cont, np.angle(np.exp(1j * d)), d)
+    variants = [d]
+    if problem.target.kind == "point" and cont[-1]:
+        last = d[..., -1]
+        turn = np.zeros_like(d)
+        turn[..., -1] = np.where(last != 0, -2 * np.pi * np.sign(last), 2 * np.pi)
+        variants.append(d + turn)
+    # (S, G, V, n), in the order start, target, variant; ranked by a stable sort.
+    dv = np.stack(variants, axis=2)
+    est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
+    order = np.argsort(est.ravel(), kind="stable")
+    s_idx, _, _ = np.unravel_index(order, est.shape)
+    flat = dv.reshape(-1, n)
+    return [(qa[i], qa[i] + flat[j]) for i, j in zip(s_idx, order, strict=True)]
 
 
 def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:

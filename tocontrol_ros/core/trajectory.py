@@ -51,6 +51,22 @@ class TrajectorySample:
     H: np.ndarray
 
 
+#: Many times are evaluated in chunks of this size (the last one padded), so that the mapped
+#: functions and buffers of one size serve every call.
+CHUNK = 256
+
+
+def _chunks(*arrays: np.ndarray) -> tuple[list[np.ndarray], ...]:
+    """Split arrays along axis 0 into CHUNK rows each, padding the last by repetition."""
+    count = len(arrays[0])
+    pad = -count % CHUNK
+    out = []
+    for a in arrays:
+        full = np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) if pad else a
+        out.append([full[i:i + CHUNK] for i in range(0, len(full), CHUNK)])
+    return tuple(out)
+
+
 class Trajectory:
     """A time-optimal trajectory: evaluate it at any time, or sample it.
 
@@ -89,7 +105,9 @@ class Trajectory:
         if len(t) == 1:  # the integrator's hot path: skip building a mapped function
             out = np.array(self._rk4(z0[0], h[0], self.par)).T
         else:
-            out = self.system.step_batch(z0.T, h[None, :], self.par, sensitivities=False)[0].T
+            out = np.concatenate([
+                self.system.step_batch(zc.T, hc[None, :], self.par, sensitivities=False)[0].T
+                for zc, hc in zip(*_chunks(z0, h), strict=True)])[:len(t)]
         exact = h == 0
         out[exact] = z0[exact]
         return out
@@ -104,8 +122,13 @@ class Trajectory:
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
         z = self.state(t)
         n = self.n
-        f, u, s, ham = self.system.pointwise_map(len(t))(z.T, self.par)
-        f, u, s = np.array(f).T, np.array(u).T, np.array(s).T
+        if len(t) == 1:
+            outs = [np.array(v).T for v in self._point(z[0], self.par)]
+        else:
+            fun = self.system.pointwise_map(CHUNK)
+            parts = [[np.array(v).T for v in fun(zc.T, self.par)] for zc in _chunks(z)[0]]
+            outs = [np.concatenate(p)[:len(t)] for p in zip(*parts, strict=True)]
+        f, u, s, ham = outs
         return TrajectorySample(
             t=t, q=z[:, :n], qd=z[:, n:2 * n], qdd=f[:, n:2 * n], u=u,
             tau=u * self._tau_scale, psi=z[:, 2 * n:], S=s, H=np.array(ham).ravel())
