@@ -139,6 +139,49 @@ class CanonicalSystem:
             self._sized.move_to_end(key)
         return fun
 
+    def pointwise_batch(self, z: np.ndarray, par: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`pointwise` at every row of ``z``, through a numpy evaluation buffer.
+
+        Rows are evaluated in chunks of :data:`POINT_CHUNK` (the last one padded).
+
+        Parameters
+        ----------
+        z : ndarray, shape (K, 4n)
+        par : ndarray, shape (3,)
+
+        Returns
+        -------
+        F : ndarray, shape (K, 4n)
+        u, S : ndarray, shape (K, n)
+        H : ndarray, shape (K,)
+        """
+        if len(z) != POINT_CHUNK:  # one buffer size serves every call
+            pad = -len(z) % POINT_CHUNK
+            full = np.concatenate([z, np.repeat(z[-1:], pad, axis=0)]) if pad else z
+            parts = [self.pointwise_batch(full[i:i + POINT_CHUNK], par)
+                     for i in range(0, len(full), POINT_CHUNK)]
+            return tuple(np.concatenate(p)[:len(z)] for p in zip(*parts, strict=True))
+        count, n = POINT_CHUNK, self.n
+        key = ("pointwise_buffer", count)
+        with self._buffer_lock:
+            if key in self._sized:
+                self._sized.move_to_end(key)
+            else:
+                buf, evaluate = self.pointwise_map(count).buffer()
+                ins = (np.zeros((count, 4 * n)), np.zeros((count, 3)))
+                outs = (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
+                        np.zeros((count, 1)))
+                for i, arr in enumerate(ins):
+                    buf.set_arg(i, memoryview(arr))
+                for i, arr in enumerate(outs):
+                    buf.set_res(i, memoryview(arr))
+                self._remember(key, (buf, evaluate, ins, outs))
+            _, evaluate, (zin, pin), outs = self._sized[key]
+            zin[:] = z
+            pin[:] = par
+            evaluate()
+            return outs[0].copy(), outs[1].copy(), outs[2].copy(), outs[3][:, 0].copy()
+
     def rhs_function(self) -> ca.Function:
         """``(z, par) -> F(z)``, physical time."""
         if "rhs" not in self._cache:
@@ -315,6 +358,8 @@ class CanonicalSystem:
         return z1, a, b
 
 
+#: Rows per evaluation of :meth:`CanonicalSystem.pointwise_batch`.
+POINT_CHUNK = 256
 #: Per-size mapped functions and buffers kept (least recently used evicted first).
 SIZED_CACHE = 24
 #: Operations of the whole-step Jacobian above which it is chained stage by stage.

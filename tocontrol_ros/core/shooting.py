@@ -134,6 +134,9 @@ class NewtonReport:
         Max-norm of the equations at ``w``.
     iterations : int
     message : str
+    factors : scipy.sparse.linalg.SuperLU or None
+        LU factors of the last Jacobian evaluated (not necessarily at ``w``): a later solve
+        on the same grid (the next ``delta``, a warm start) can begin with chord steps.
     """
 
     converged: bool
@@ -141,6 +144,7 @@ class NewtonReport:
     residual: float
     iterations: int
     message: str
+    factors: object = None
 
 
 class ShootingGrid:
@@ -387,7 +391,8 @@ class ShootingGrid:
 
 def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np.ndarray,
                  tol: float = 1e-10, max_iter: int = 40, deadline: float | None = None,
-                 should_stop=None, contraction: float = CHORD_CONTRACTION) -> NewtonReport:
+                 should_stop=None, contraction: float = CHORD_CONTRACTION,
+                 factors=None) -> NewtonReport:
     """Damped Newton on ``G(w) = 0`` with a backtracking line search on ``|G|^2 / 2``.
 
     The factorised Jacobian is kept while it works (chord steps): after a full step that
@@ -417,20 +422,27 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
     contraction : float
         Required reduction factor of ``max |G|`` to keep (and to accept) chord steps; 0
         gives plain Newton.
+    factors : scipy.sparse.linalg.SuperLU, optional
+        LU factors of a Jacobian of this grid near ``w0`` (e.g. the previous solve's
+        :attr:`NewtonReport.factors`): the first step is a chord step on them.
 
     Returns
     -------
     NewtonReport
     """
     w = np.array(w0, dtype=float)
-    g, jac = grid.residual(w, values, par)
-    lu = None  # LU factors of a Jacobian; `jac` is None when they are not at `w`
+    if contraction > 0 and factors is not None and factors.shape == (grid.size, grid.size):
+        lu = factors  # LU factors of a Jacobian; `jac` is None when they are not at `w`
+        g, jac = grid.residual(w, values, par, jacobian=False)
+    else:
+        g, jac = grid.residual(w, values, par)
+        lu = None
     for it in range(1, max_iter + 1):
         if not np.all(np.isfinite(g)):
             return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
         res = float(np.max(np.abs(g)))
         if res <= tol:
-            return NewtonReport(True, w, res, it - 1, "converged")
+            return NewtonReport(True, w, res, it - 1, "converged", lu)
         if should_stop is not None and should_stop():
             return NewtonReport(False, w, res, it - 1, "cancelled")
         if deadline is not None and time.perf_counter() > deadline:
@@ -470,4 +482,4 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
             g, jac = grid.residual(w, values, par)
     res = float(np.max(np.abs(g)))
     return NewtonReport(res <= tol, w, res, max_iter,
-                        "converged" if res <= tol else "iteration limit reached")
+                        "converged" if res <= tol else "iteration limit reached", lu)

@@ -358,6 +358,11 @@ class _Run:
     iterations: int = 0
     log: list = field(default_factory=list)
     residual: float = np.inf
+    factors: tuple | None = None  # (grid, LU factors of a Jacobian on that grid)
+
+    def lu(self):
+        """The kept LU factors if they belong to the current grid, else None."""
+        return self.factors[1] if self.factors and self.factors[0] is self.grid else None
 
 
 class _StopError(Exception):
@@ -373,8 +378,10 @@ def _newton(planner: Planner, run: _Run, problem: Problem, k: float, delta: floa
     par = np.array([k, delta, 1.0 - problem.reserve])
     rep = newton_solve(run.grid, run.w, _values(problem), par, tol=options.tol,
                        max_iter=options.max_newton, deadline=deadline,
-                       should_stop=should_stop)
+                       should_stop=should_stop, factors=run.lu())
     run.iterations += rep.iterations
+    if rep.factors is not None:
+        run.factors = (run.grid, rep.factors)
     if rep.message == "cancelled":
         raise _StopError(Status.CANCELLED)
     if rep.message == "time limit reached":
@@ -565,7 +572,7 @@ def _switches(planner, run: _Run, problem: Problem) -> list[tuple[float, int]]:
     """
     t_grid, z_grid = _dense(planner, run, problem)
     par = np.array([run.k, run.delta, 1.0 - problem.reserve])
-    s = np.array(planner.system.pointwise_map(len(t_grid))(z_grid.T, par)[2]).T
+    s = planner.system.pointwise_batch(z_grid, par)[2]
     t_final = t_grid[-1]
     out = []
     for i in range(s.shape[1]):
@@ -941,7 +948,7 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         warnings=tuple(notes) + _limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, _state={"lengths": run.grid.lengths_of(run.w).copy(), "w": run.w.copy(),
                                  "steps": run.grid.steps, "kinds": run.grid.kinds.copy(),
-                                 "breaks": run.grid.breaks})
+                                 "breaks": run.grid.breaks, "factors": run.lu()})
 
 
 def _cold(planner, problem, options, deadline, should_stop, timings):
@@ -1016,7 +1023,8 @@ def _warm(planner, problem, options, warm: PlanResult, deadline, should_stop):
         return None, False
     grid = ShootingGrid(planner.system, st["lengths"], st["steps"], problem.start.kind,
                         problem.target.kind, kinds=st["kinds"], breaks=st["breaks"])
-    run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta)
+    run = _Run(grid=grid, w=st["w"].copy(), k=warm.k, delta=warm.delta,
+               factors=(grid, st.get("factors")))
     if warm.k == problem.k:
         rep = _newton(planner, run, problem, warm.k, warm.delta, options, deadline,
                       should_stop)

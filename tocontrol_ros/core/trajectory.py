@@ -123,12 +123,9 @@ class Trajectory:
         z = self.state(t)
         n = self.n
         if len(t) == 1:
-            outs = [np.array(v).T for v in self._point(z[0], self.par)]
+            f, u, s, ham = [np.array(v).T for v in self._point(z[0], self.par)]
         else:
-            fun = self.system.pointwise_map(CHUNK)
-            parts = [[np.array(v).T for v in fun(zc.T, self.par)] for zc in _chunks(z)[0]]
-            outs = [np.concatenate(p)[:len(t)] for p in zip(*parts, strict=True)]
-        f, u, s, ham = outs
+            f, u, s, ham = self.system.pointwise_batch(z, self.par)
         return TrajectorySample(
             t=t, q=z[:, :n], qd=z[:, n:2 * n], qdd=f[:, n:2 * n], u=u,
             tau=u * self._tau_scale, psi=z[:, 2 * n:], S=s, H=np.array(ham).ravel())
