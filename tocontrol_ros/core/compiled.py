@@ -25,10 +25,15 @@ import casadi as ca
 __all__ = ["compile_function", "cache_dir"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
-#: about 1.5 times faster than portable -O1 on this project's machine (bench: 14 -> 9.4 us
-#: per step of the paper's arm); compile time is the same (~10 s). Such a library only runs
-#: on the CPU it was built for, so the cache key includes the CPU's identity.
+#: about 1.5 times faster than portable -O1 on this project's machine (14 -> 9.4 us per step
+#: of the paper's arm, with -O2). Such a library only runs on the CPU it was built for, so
+#: the cache key includes the CPU's identity.
 CFLAGS = ("-O2", "-march=native", "-shared", "-fPIC")
+#: gcc's -O2 time grows much faster than linearly with the size of these straight-line
+#: functions (the paper arm's 0.6 MB step: 7.7 s; a planar 6R's 5.9 MB: 350 s against 25 s
+#: at -O1), so sources above this many bytes get :data:`LARGE_CFLAGS`.
+LARGE_SOURCE = 1_000_000
+LARGE_CFLAGS = ("-O1", "-march=native", "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.
 PORTABLE_CFLAGS = ("-O1", "-shared", "-fPIC")
 _lock = threading.Lock()
@@ -88,7 +93,8 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
         finally:
             os.chdir(cwd)
         source = Path(tmp, f"{name}.c").read_bytes()
-        digest = hashlib.sha256(source + " ".join(CFLAGS).encode() + _cpu_tag()
+        cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+        digest = hashlib.sha256(source + " ".join(cflags).encode() + _cpu_tag()
                                 ).hexdigest()[:20]
         target = cache_dir() / f"{name}_{digest}.so"
         how = "cached"
@@ -96,7 +102,7 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
             if not target.is_file():
                 how = "compiled"
                 partial = Path(tmp, f"{name}.so")
-                for flags in (CFLAGS, PORTABLE_CFLAGS):
+                for flags in (cflags, PORTABLE_CFLAGS):
                     proc = subprocess.run([cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
                                           cwd=tmp, capture_output=True, text=True)
                     if proc.returncode == 0:
