@@ -37,6 +37,9 @@ __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fr
 GRADING = 4.0
 #: Newton keeps its factorised Jacobian while each step shrinks max |G| at least this much.
 CHORD_CONTRACTION = 0.5
+#: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
+STALL_STEP = 0.05
+STALL_COUNT = 4
 
 
 def _c_name(name: str) -> str:
@@ -437,6 +440,7 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
     else:
         g, jac = grid.residual(w, values, par)
         lu = None
+    small = 0  # consecutive damped Newton steps shorter than STALL_STEP
     for it in range(1, max_iter + 1):
         if not np.all(np.isfinite(g)):
             return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
@@ -475,6 +479,13 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
             lam *= 0.5
         if not np.isfinite(merit_new):
             return NewtonReport(False, w, res, it, "non-finite residual along the step")
+        # Damped steps that barely reduce the residual: Newton is stuck (a continuation
+        # step too long, a bad guess); say so now instead of using up max_iter.
+        small = small + 1 if lam < STALL_STEP else 0
+        if small >= STALL_COUNT:
+            return NewtonReport(False, w_new, float(np.max(np.abs(g_new))), it,
+                                f"stalled ({STALL_COUNT} damped steps below {STALL_STEP:g} "
+                                f"in a row)", lu)
         w = w_new
         if lam == 1.0 and float(np.max(np.abs(g_new))) <= contraction * res:
             g, jac = g_new, None  # try the same factors next

@@ -8,9 +8,19 @@
    (:mod:`tocontrol_ros.core.shooting`);
 3. continues in ``k`` (doubling up to the requested value, bisecting a step that fails),
    with the control law smoothed by ``delta`` at intermediate values;
-4. at the requested ``k``, drives ``delta`` down until ``T`` no longer changes and refines
-   the mesh until every interval's RK4 error estimate is below tolerance;
+4. at the requested ``k`` (> 1), moves to a mesh with a node at every sign change of a
+   switching function ``S_i`` (switch nodes: the node's time is an unknown with
+   ``S_i = 0`` there, and the RK4 steps next to it are graded towards it, see
+   :class:`~tocontrol_ros.core.shooting.ShootingGrid`), drives ``delta`` down until ``T`` no
+   longer changes, refines the mesh until every interval's RK4 error estimate is below
+   tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
+   unchanged;
 5. verifies the result (residual, ``H``, re-integration of the nominal torques).
+
+Newton keeps its LU factors while they work (chord steps, also across the solves of one
+mesh and into a warm start). Because the switch nodes move with the switches, a warm start
+after a small move usually keeps the previous mesh: a few Newton iterations and one error
+estimate.
 
 Multistart runs step 1 from several seed pairs spread over the self-motion manifolds,
 groups the direct solutions by basin and continues the most promising ones; the best is
