@@ -37,6 +37,8 @@ __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fr
 GRADING = 4.0
 #: Newton keeps its factorised Jacobian while each step shrinks max |G| at least this much.
 CHORD_CONTRACTION = 0.5
+#: ...and for at most this many chord steps per Jacobian (they converge only linearly).
+CHORD_MAX = 3
 #: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
 STALL_STEP = 0.05
 STALL_COUNT = 4
@@ -441,6 +443,7 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
         g, jac = grid.residual(w, values, par)
         lu = None
     small = 0  # consecutive damped Newton steps shorter than STALL_STEP
+    chords = 0  # chord steps since the last Jacobian
     for it in range(1, max_iter + 1):
         if not np.all(np.isfinite(g)):
             return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
@@ -451,7 +454,7 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
             return NewtonReport(False, w, res, it - 1, "cancelled")
         if deadline is not None and time.perf_counter() > deadline:
             return NewtonReport(False, w, res, it - 1, "time limit reached")
-        if jac is None:  # chord step with the kept factors
+        if jac is None and chords < CHORD_MAX:  # chord step with the kept factors
             step = -lu.solve(g)
             lam = grid.admissible_step(w, step)
             if lam == 1.0 and np.all(np.isfinite(step)):
@@ -459,8 +462,11 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
                 res_new = float(np.max(np.abs(g_new)))
                 if np.isfinite(res_new) and res_new <= contraction * res:
                     w, g = w + step, g_new
+                    chords += 1
                     continue
-            g, jac = grid.residual(w, values, par)  # the factors went stale: a Newton step
+        if jac is None:  # the factors went stale or served long enough: a Newton step
+            g, jac = grid.residual(w, values, par)
+        chords = 0
         try:
             lu = splu(jac)
             step = -lu.solve(g)
