@@ -18,11 +18,12 @@ import shutil
 import subprocess
 import tempfile
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["compile_function", "cache_dir"]
+__all__ = ["compile_function", "compile_functions", "cache_dir"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
 #: about 1.5 times faster than portable -O1 on this project's machine (14 -> 9.4 us per step
@@ -66,6 +67,31 @@ def _cpu_tag() -> bytes:
     return tag.encode()
 
 
+def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
+    """Compile ``tmp/name.c`` into the cache (unless there already), keyed by its source."""
+    source = Path(tmp, f"{name}.c").read_bytes()
+    cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+    digest = hashlib.sha256(source + " ".join(cflags).encode() + _cpu_tag()
+                            ).hexdigest()[:20]
+    target = cache_dir() / f"{name}_{digest}.so"
+    how = "cached"
+    with _lock:
+        if not target.is_file():
+            how = "compiled"
+            partial = Path(tmp, f"{name}.so")
+            for flags in (cflags, PORTABLE_CFLAGS):
+                proc = subprocess.run([cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
+                                      cwd=tmp, capture_output=True, text=True)
+                if proc.returncode == 0:
+                    break
+            else:
+                return None, f"virtual machine (compiler failed: {proc.stderr[-300:]})"
+            staged = target.with_suffix(f".{os.getpid()}.tmp")
+            shutil.copyfile(partial, staged)
+            os.replace(staged, target)  # atomic: parallel processes never see half a file
+    return target, how
+
+
 def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
     """Return a compiled equivalent of ``fun`` (or ``fun`` itself when no compiler).
 
@@ -92,24 +118,40 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
             fun.generate(f"{name}.c")
         finally:
             os.chdir(cwd)
-        source = Path(tmp, f"{name}.c").read_bytes()
-        cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
-        digest = hashlib.sha256(source + " ".join(cflags).encode() + _cpu_tag()
-                                ).hexdigest()[:20]
-        target = cache_dir() / f"{name}_{digest}.so"
-        how = "cached"
-        with _lock:
-            if not target.is_file():
-                how = "compiled"
-                partial = Path(tmp, f"{name}.so")
-                for flags in (cflags, PORTABLE_CFLAGS):
-                    proc = subprocess.run([cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
-                                          cwd=tmp, capture_output=True, text=True)
-                    if proc.returncode == 0:
-                        break
-                else:
-                    return fun, f"virtual machine (compiler failed: {proc.stderr[-300:]})"
-                staged = target.with_suffix(f".{os.getpid()}.tmp")
-                shutil.copyfile(partial, staged)
-                os.replace(staged, target)  # atomic: parallel processes never see half a file
+        target, how = _build(cc, name, tmp)
+    if target is None:
+        return fun, how
     return ca.external(name, str(target)), how
+
+
+def compile_functions(name: str, funs: Sequence[ca.Function]
+                      ) -> tuple[list[ca.Function], str]:
+    """Compile several functions into one library (shared dependencies generated once).
+
+    Parameters
+    ----------
+    name : str
+        Name of the library (a C identifier); the cache key is a hash of the source.
+    funs : sequence of casadi.Function
+        SX or MX functions with distinct names.
+
+    Returns
+    -------
+    functions : list of casadi.Function
+        Compiled equivalents in the order of ``funs`` (``funs`` themselves when no
+        compiler).
+    how : str
+        ``"cached"``, ``"compiled"`` or ``"virtual machine (reason)"``.
+    """
+    cc = _compiler()
+    if cc is None:
+        return list(funs), "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
+    with tempfile.TemporaryDirectory() as tmp:
+        gen = ca.CodeGenerator(f"{name}.c")
+        for fun in funs:
+            gen.add(fun)
+        gen.generate(tmp + os.sep)
+        target, how = _build(cc, name, tmp)
+    if target is None:
+        return list(funs), how
+    return [ca.external(fun.name(), str(target)) for fun in funs], how

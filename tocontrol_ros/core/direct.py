@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from .compiled import compile_functions
 from .model import RobotModel
 
 __all__ = ["DirectResult", "DirectCollocation", "initial_path"]
@@ -83,13 +84,354 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
     q = q0 + np.outer(s, dq)
     qd = np.outer(ds, dq)
     qdd = np.outer(dds, dq)
-    u = np.array([model.inverse_dynamics(q[i], qd[i], qdd[i]) for i in range(intervals + 1)])
+    # One call for all nodes (CasADi maps a function over extra columns).
+    u = np.array(model.function("id")(q.T, qd.T, qdd.T)).T
     u = np.clip(u / (model.tau_max * torque_scale), -0.9, 0.9)
     return t_final, np.hstack([q, qd]), u
 
 
+class _Layout:
+    """Where the variables and constraints of the NLP sit (indices into ``w`` and ``g``).
+
+    ``w = (vec X, vec U, vec UM, T)`` with ``X`` (2n, N + 1), ``U`` (n, N + 1), ``UM``
+    (n, N) stored column by column; ``g = (vec defects, control set (unless box), start
+    conditions, target conditions)``.
+    """
+
+    def __init__(self, n: int, m: int, intervals: int, start_kind: str, target_kind: str,
+                 box: bool) -> None:
+        self.n, self.m, self.N, self.box = n, m, intervals, box
+        N = intervals
+        self.nx = 2 * n * (N + 1)
+        self.nu = n * (N + 1)
+        self.num = n * N
+        self.nw = self.nx + self.nu + self.num + 1
+        self.iT = self.nw - 1
+        self.kinds = (start_kind, target_kind)
+        self.sizes = tuple(m if kind == "point" else 2 * n for kind in self.kinds)
+        self.npar = sum(self.sizes) + 1
+        self.r_ctrl = 2 * n * N
+        self.n_ctrl = 0 if box else 2 * N + 1
+        self.r_bound = (self.r_ctrl + self.n_ctrl,
+                        self.r_ctrl + self.n_ctrl + self._rows(start_kind))
+        self.ng = self.r_bound[1] + self._rows(target_kind)
+        lbg = [np.zeros(self.r_ctrl), -np.inf * np.ones(self.n_ctrl),
+               np.zeros(self.ng - self.r_ctrl - self.n_ctrl)]
+        self.lbg = np.concatenate(lbg)
+        self.ubg = np.zeros(self.ng)
+
+    def _rows(self, kind: str) -> int:
+        return self.m + self.n if kind == "point" else 2 * self.n
+
+    def x(self, j: int) -> np.ndarray:
+        """Indices of the state at node ``j``."""
+        return 2 * self.n * j + np.arange(2 * self.n)
+
+    def u(self, p: int) -> np.ndarray:
+        """Indices of control column ``p`` of ``(U, UM)`` (nodes 0..N, then midpoints)."""
+        return self.nx + self.n * p + np.arange(self.n)
+
+    def z(self, j: int) -> np.ndarray:
+        """Indices of ``(x_j, u_j)`` at node ``j``."""
+        return np.concatenate([self.x(j), self.u(j)])
+
+    def interval(self, j: int) -> np.ndarray:
+        """Indices of ``(z_j, z_j+1, um_j, T)``, the variables of interval ``j``."""
+        return np.concatenate([self.z(j), self.z(j + 1), self.u(self.N + 1 + j), [self.iT]])
+
+
+class _Scatter:
+    """Sums blocks of values into one sparse matrix through a constant 0/1 matrix.
+
+    Blocks are registered with :meth:`add` (the global row and column of each value, in the
+    order of the values), then :meth:`build` makes the sparsity (upper triangle only when
+    ``triu``) and the matrix ``P`` with ``nonzeros = P @ values`` (entries that fall at the
+    same place add up).
+    """
+
+    def __init__(self, nrow: int, ncol: int, triu: bool = False) -> None:
+        self.shape = (nrow, ncol)
+        self.triu = triu
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+
+    def add(self, rows, cols) -> None:
+        rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
+        self.rows.append(rows.ravel(order="F"))
+        self.cols.append(cols.ravel(order="F"))
+
+    def block(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """A dense block (values column by column) at ``rows`` x ``cols``."""
+        self.add(np.asarray(rows)[:, None], np.asarray(cols)[None, :])
+
+    def apply(self, values: ca.MX) -> ca.MX:
+        nrow, ncol = self.shape
+        rows = np.concatenate(self.rows)
+        cols = np.concatenate(self.cols)
+        assert values.numel() == rows.size, (values.numel(), rows.size)
+        keep = np.flatnonzero(rows <= cols) if self.triu else np.arange(rows.size)
+        key = cols[keep] * nrow + rows[keep]
+        uniq, inv = np.unique(key, return_inverse=True)
+        sp = ca.Sparsity.triplet(nrow, ncol, (uniq % nrow).tolist(), (uniq // nrow).tolist())
+        gather = ca.DM(ca.Sparsity.triplet(uniq.size, rows.size, inv.tolist(), keep.tolist()),
+                       1.0)
+        return ca.sparsity_cast(ca.mtimes(gather, values), sp)
+
+
+def _point_functions(model: RobotModel, torque_scale: float) -> list[ca.Function]:
+    """The dynamics at one point ``z = (q, qd, u)`` and its derivatives (SX).
+
+    Returns
+    -------
+    list of casadi.Function
+        ``direct_f``: (x, u) -> ``f = (qd, a)``; ``direct_dyn``: (x, u) -> (``a``,
+        ``da/dz`` (n, 3n)); ``direct_dyn_hess``: (x, u, v) -> ``Hess_z(v^T a)`` (3n, 3n).
+    """
+    n = model.n
+    x_sym = ca.SX.sym("x", 2 * n)
+    u_sym = ca.SX.sym("u", n)
+    v_sym = ca.SX.sym("v", n)
+    scale = ca.DM(model.tau_max * torque_scale)
+    qdd = model.forward_dynamics_sym(x_sym[:n], x_sym[n:], scale * u_sym)
+    z_sym = ca.vertcat(x_sym, u_sym)
+    return [
+        ca.Function("direct_f", [x_sym, u_sym], [ca.vertcat(x_sym[n:], qdd)]),
+        ca.Function("direct_dyn", [x_sym, u_sym],
+                    [qdd, ca.densify(ca.jacobian(qdd, z_sym))]),
+        ca.Function("direct_dyn_hess", [x_sym, u_sym, v_sym],
+                    [ca.densify(ca.hessian(ca.dot(v_sym, qdd), z_sym)[0])])]
+
+
+def _unpack(lay: _Layout, w: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
+    n, N = lay.n, lay.N
+    return (ca.reshape(w[:lay.nx], 2 * n, N + 1),
+            ca.reshape(w[lay.nx:lay.nx + lay.nu], n, N + 1),
+            ca.reshape(w[lay.nx + lay.nu:lay.iT], n, N), w[lay.iT])
+
+
+def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
+    """The constraints and the derivatives' assembly from per-point values (MX).
+
+    Per point ``z = (q, qd, u)`` the dynamics ``f(z) = (qd, a(z))``; ``A = da/dz``,
+    ``F = df/dz``. Interval ``j`` (``s = h/6``, ``sigma = h/8``, ``h = T/N``) has the midpoint
+    ``xm = (x_j + x_j+1)/2 + sigma (f_j - f_j+1)``, ``zm = (xm, um_j)`` and the defect
+    ``c_j = x_j+1 - x_j - s (f_j + 4 f(zm) + f_j+1)``.
+
+    Jacobian of ``c_j``: ``-E - s (F_j + 4 Fm_x (E/2 + sigma F_j))`` in ``z_j``,
+    ``E - s (F_j+1 + 4 Fm_x (E/2 - sigma F_j+1))`` in ``z_j+1``, ``-4 s Fm_u`` in ``um_j``
+    and ``-(f_j + f_j+1 + 4 fm)/(6N) - 4 s Fm_x (f_j - f_j+1)/(8N)`` in ``T``.
+
+    Hessian of ``lambda^T c_j``: the curvature of ``a`` enters only as ``Hess(w^T a)`` at a
+    point, ``w`` being the adjoint of that point's ``a``: ``-4 s lambda_v`` at the midpoint
+    (seen through ``D = d(zm)/d(z_j, z_j+1, um_j, T)``: ``D^T H D``), and
+    ``-s lambda_v -+ 4 s sigma gx_v`` at the left/right node (``g = Fm^T lambda``, ``gx`` its
+    state part, ``_v`` the velocity rows), summed over the two intervals of a node. The rest
+    is bilinear in ``T``: ``T``-``z_j``: ``-F_j^T lambda/(6N) - E^T gx/(3N) - T F_j^T gx/(6N^2)``,
+    ``T``-``z_j+1``: ``-F_j+1^T lambda/(6N) - E^T gx/(3N) + T F_j+1^T gx/(6N^2)``, ``T``-``um_j``:
+    ``-2 gc/(3N)``, ``T``-``T``: ``-gx^T (f_j - f_j+1)/(6N^2)``.
+
+    Returns
+    -------
+    list of casadi.Function
+        ``direct_asm_g``: (w, p, F, FM) -> g; ``direct_asm_jac``: (w, p, A, AM, F, FM) ->
+        (g, jac); ``direct_asm_adj``: (w, lam_g, AM) -> (midpoint weights, ``g`` per
+        interval, node weights); ``direct_asm_hess``: (w, p, lam_g, A, F, HM, G, H) -> upper
+        triangle of the Lagrangian's Hessian. ``F``, ``A``, ``H`` are the nodes' ``f``,
+        ``da/dz`` and weighted Hessians side by side, ``FM``, ``AM``, ``HM`` the midpoints'.
+    """
+    n, m, N = lay.n, lay.m, lay.N
+    q_sym = ca.SX.sym("q", n)
+    nu_sym = ca.SX.sym("nu", m)
+    point = model.point_sym(q_sym)
+    fk = ca.Function("P", [q_sym], [point])
+    fk_jac = ca.Function("P_jac", [q_sym], [ca.densify(ca.jacobian(point, q_sym))])
+    fk_hess = ca.Function("P_hess", [q_sym, nu_sym],
+                          [ca.densify(ca.hessian(ca.dot(nu_sym, point), q_sym)[0])])
+
+    # ---- one interval (dense small matrices)
+    sel = ca.DM(np.hstack([np.zeros((n, n)), np.eye(n), np.zeros((n, n))]))
+    E = ca.DM(np.hstack([np.eye(2 * n), np.zeros((2 * n, n))]))
+    Aj, Ak, Am = (ca.MX.sym(s, n, 3 * n) for s in ("Aj", "Ak", "Am"))
+    fj, fk_, fm = (ca.MX.sym(s, 2 * n) for s in ("fj", "fk", "fm"))
+    T_ = ca.MX.sym("T")
+    lam_ = ca.MX.sym("lam", 2 * n)
+    g_ = ca.MX.sym("g", 3 * n)
+    Hm_ = ca.MX.sym("Hm", 3 * n, 3 * n)
+    Fj, Fk, Fm = (ca.vertcat(sel, A) for A in (Aj, Ak, Am))
+    s_ = T_ / N / 6
+    sig = T_ / N / 8
+    Fmx, Fmu = Fm[:, :2 * n], Fm[:, 2 * n:]
+    jac_int = ca.Function("jac_int", [Aj, Ak, Am, fj, fk_, fm, T_], [ca.horzcat(
+        -E - s_ * (Fj + 4 * ca.mtimes(Fmx, 0.5 * E + sig * Fj)),
+        E - s_ * (Fk + 4 * ca.mtimes(Fmx, 0.5 * E - sig * Fk)),
+        -4 * s_ * Fmu,
+        -(fj + fk_ + 4 * fm) / (6 * N) - 4 * s_ * ca.mtimes(Fmx, fj - fk_) / (8 * N))])
+    adj_int = ca.Function("adj_int", [Am, lam_], [ca.mtimes(sel.T, lam_[:n])
+                                                  + ca.mtimes(Am.T, lam_[n:])])
+    gx, gc = g_[:2 * n], g_[2 * n:]
+    d = 7 * n + 1
+    D = ca.vertcat(
+        ca.horzcat(0.5 * E + sig * Fj, 0.5 * E - sig * Fk, ca.DM.zeros(2 * n, n),
+                   (fj - fk_) / (8 * N)),
+        ca.horzcat(ca.DM.zeros(n, 6 * n), ca.DM.eye(n), ca.DM.zeros(n, 1)))
+    tcol = ca.vertcat(
+        -ca.mtimes(Fj.T, lam_) / (6 * N) - ca.mtimes(E.T, gx) / (3 * N)
+        - T_ * ca.mtimes(Fj.T, gx) / (6 * N ** 2),
+        -ca.mtimes(Fk.T, lam_) / (6 * N) - ca.mtimes(E.T, gx) / (3 * N)
+        + T_ * ca.mtimes(Fk.T, gx) / (6 * N ** 2),
+        -2 * gc / (3 * N),
+        -0.5 * ca.dot(gx, fj - fk_) / (6 * N ** 2))  # half: added as a row and a column
+    e_T = ca.DM.zeros(d)
+    e_T[d - 1] = 1.0
+    hess_int = ca.Function("hess_int", [Aj, Ak, fj, fk_, Hm_, g_, lam_, T_], [ca.densify(
+        ca.mtimes([D.T, Hm_, D]) + ca.mtimes(tcol, e_T.T) + ca.mtimes(e_T, tcol.T))])
+
+    # ---- the whole mesh
+    w = ca.MX.sym("w", lay.nw)
+    par = ca.MX.sym("p", lay.npar)
+    lam_g = ca.MX.sym("lam_g", lay.ng)
+    F = ca.MX.sym("F", 2 * n, N + 1)
+    FM = ca.MX.sym("FM", 2 * n, N)
+    An = ca.MX.sym("A", n, 3 * n * (N + 1))
+    AM = ca.MX.sym("AM", n, 3 * n * N)
+    HM = ca.MX.sym("HM", 3 * n, 3 * n * N)
+    Hn = ca.MX.sym("H", 3 * n, 3 * n * (N + 1))
+    G = ca.MX.sym("G", 3 * n, N)
+    X, U, UM, T = _unpack(lay, w)
+    k = par[-1]
+    h = T / N
+    allu = ca.horzcat(U, UM)
+    bounds = ((lay.kinds[0], 0, 0, lay.sizes[0]), (lay.kinds[1], N, lay.sizes[0], lay.sizes[1]))
+
+    # Constraints: the same expression as the plain transcription.
+    defects = X[:, 1:] - X[:, :-1] - h / 6 * (F[:, :-1] + 4 * FM + F[:, 1:])
+    g = [ca.vec(defects)]
+    if not lay.box:
+        g.append(ca.sum1(allu ** (2 * k)).T - 1)
+    for kind, col, offset, size in bounds:
+        xc = X[:, col]
+        target = par[offset:offset + size]
+        g += [fk(xc[:n]) - target, xc[n:]] if kind == "point" else [xc - target]
+    g = ca.vertcat(*g)
+    asm_g = ca.Function("direct_asm_g", [w, par, F, FM], [g])
+
+    # Constraint Jacobian.
+    sc = _Scatter(lay.ng, lay.nw)
+    values = [ca.vec(jac_int.map(N)(An[:, :3 * n * N], An[:, 3 * n:], AM, F[:, :-1], F[:, 1:],
+                                    FM, T))]
+    for j in range(N):
+        sc.block(2 * n * j + np.arange(2 * n), lay.interval(j))
+    if not lay.box:
+        values.append(ca.vec(2 * k * allu ** (2 * k - 1)))
+        for p in range(2 * N + 1):
+            sc.add(lay.r_ctrl + p, lay.u(p))
+    for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):
+        xi = lay.x(col)
+        if kind == "point":
+            values += [ca.vec(fk_jac(X[:n, col])), ca.DM.ones(n)]
+            sc.block(row + np.arange(m), xi[:n])
+            sc.add(row + m + np.arange(n), xi[n:])
+        else:
+            values.append(ca.DM.ones(2 * n))
+            sc.add(row + np.arange(2 * n), xi)
+    asm_jac = ca.Function("direct_asm_jac", [w, par, An, AM, F, FM],
+                          [g, sc.apply(ca.vertcat(*values))])
+
+    # Adjoint weights of the accelerations.
+    lam = ca.reshape(lam_g[:2 * n * N], 2 * n, N)
+    s = h / 6
+    sigma = h / 8
+    gm = adj_int.map(N)(AM, lam)
+    gv = gm[n:2 * n, :]
+    zero = ca.MX.zeros(n, 1)
+    wn = (ca.horzcat(-s * lam[n:, :] - 4 * s * sigma * gv, zero)
+          + ca.horzcat(zero, -s * lam[n:, :] + 4 * s * sigma * gv))
+    asm_adj = ca.Function("direct_asm_adj", [w, lam_g, AM], [-4 * s * lam[n:, :], gm, wn])
+
+    # Lagrangian Hessian (upper triangle).
+    sh = _Scatter(lay.nw, lay.nw, triu=True)
+    values = [ca.vec(hess_int.map(N)(An[:, :3 * n * N], An[:, 3 * n:], F[:, :-1], F[:, 1:],
+                                     HM, G, lam, T)),
+              ca.vec(Hn)]
+    for j in range(N):
+        sh.block(lay.interval(j), lay.interval(j))
+    for j in range(N + 1):
+        sh.block(lay.z(j), lay.z(j))
+    if not lay.box:
+        mu = lam_g[lay.r_ctrl:lay.r_ctrl + lay.n_ctrl].T
+        values.append(ca.vec(2 * k * (2 * k - 1) * allu ** (2 * k - 2) * ca.repmat(mu, n, 1)))
+        for p in range(2 * N + 1):
+            sh.add(lay.u(p), lay.u(p))
+    for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):
+        if kind == "point":
+            qi = lay.x(col)[:n]
+            values.append(ca.vec(fk_hess(X[:n, col], lam_g[row:row + m])))
+            sh.block(qi, qi)
+    asm_hess = ca.Function("direct_asm_hess", [w, par, lam_g, An, F, HM, G, Hn],
+                           [sh.apply(ca.vertcat(*values))])
+    return [asm_g, asm_jac, asm_adj, asm_hess]
+
+
+def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function]) -> dict:
+    """The NLP's functions from the per-point and assembly functions (possibly compiled).
+
+    Returns
+    -------
+    dict of casadi.Function
+        ``g``: (w, p) -> g; ``grad_f``: (w, p) -> (f, grad); ``jac_g``: (w, p) -> (g, jac)
+        and ``hess_l``: (w, p, lam_f, lam_g) -> upper triangle, the signatures ``nlpsol``
+        expects for its ``grad_f``, ``jac_g`` and ``hess_lag`` options.
+    """
+    n, N = lay.n, lay.N
+    f_pt, dyn, dyn_hess = point
+    asm_g, asm_jac, asm_adj, asm_hess = asm
+    w = ca.MX.sym("w", lay.nw)
+    par = ca.MX.sym("p", lay.npar)
+    lam_f = ca.MX.sym("lam_f")
+    lam_g = ca.MX.sym("lam_g", lay.ng)
+    X, U, UM, T = _unpack(lay, w)
+    h = T / N
+
+    F = f_pt.map(N + 1)(X, U)
+    XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
+    FM = f_pt.map(N)(XM, UM)
+    g_fun = ca.Function("g", [w, par], [asm_g(w, par, F, FM)], ["x", "p"], ["g"])
+    grad = ca.DM.zeros(lay.nw)  # dense: IPOPT's interface copies it as a dense vector
+    grad[lay.iT] = 1.0
+    grad_f = ca.Function("grad_f", [w, par], [T, grad], ["x", "p"], ["f", "grad"])
+
+    an, An = dyn.map(N + 1)(X, U)
+    F = ca.vertcat(X[n:, :], an)
+    XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
+    am, AM = dyn.map(N)(XM, UM)
+    FM = ca.vertcat(XM[n:, :], am)
+    g, jac = asm_jac(w, par, An, AM, F, FM)
+    jac_g = ca.Function("jac_g", [w, par], [g, jac], ["x", "p"], ["g", "jac"])
+
+    wm, G, wn = asm_adj(w, lam_g, AM)
+    HM = dyn_hess.map(N)(XM, UM, wm)
+    Hn = dyn_hess.map(N + 1)(X, U, wn)
+    hess = asm_hess(w, par, lam_g, An, F, HM, G, Hn)
+    hess_l = ca.Function("hess_l", [w, par, lam_f, lam_g], [hess],
+                         ["x", "p", "lam_f", "lam_g"], ["hess"])
+    return {"g": g_fun, "grad_f": grad_f, "jac_g": jac_g, "hess_l": hess_l}
+
+
 class DirectCollocation:
     """Hermite-Simpson transcription, built once per mesh and reused for many solves.
+
+    The NLP is the plain one (variables ``X, U, UM, T``; defects, control set and boundary
+    conditions as constraints), but its derivatives are assembled from per-point pieces
+    instead of being differentiated as one expression: the constraint Jacobian from the
+    dynamics' Jacobian at the nodes and midpoints, the Lagrangian's Hessian from one weighted
+    Hessian of the dynamics per point (its weight is the adjoint of that point's
+    acceleration) sandwiched between the midpoint's chain-rule matrices, see
+    :func:`_derivative_functions`. The values are those of the expression's own derivatives
+    (to rounding); the work and the generated code grow with the number of points instead
+    of with the size of the whole expression's Hessian (the 7-joint Panda: 6.9 million
+    operations at 12 intervals), so the functions are compiled to C (cached on disk,
+    :func:`~tocontrol_ros.core.compiled.compile_functions`), or run in CasADi's virtual
+    machine without a C compiler.
 
     Parameters
     ----------
@@ -105,6 +447,12 @@ class DirectCollocation:
         IPOPT tolerance.
     max_iter : int
         IPOPT iteration limit.
+
+    Attributes
+    ----------
+    compile_status : str
+        How the NLP's functions run: ``"cached"``, ``"compiled"`` or ``"virtual machine
+        (reason)"``.
     """
 
     def __init__(self, model: RobotModel, intervals: int, start_kind: str = "point",
@@ -115,58 +463,31 @@ class DirectCollocation:
         self.start_kind = start_kind
         self.target_kind = target_kind
         self.box = box
-        n, m = model.n, model.m
-        N = intervals
-        x_sym = ca.SX.sym("x", 2 * n)
-        u_sym = ca.SX.sym("u", n)
-        scale = ca.DM(model.tau_max * torque_scale)
-        qdd = model.forward_dynamics_sym(x_sym[:n], x_sym[n:], scale * u_sym)
-        f = ca.Function("f", [x_sym, u_sym], [ca.vertcat(x_sym[n:], qdd)])
-        fk = ca.Function("P", [x_sym[:n]], [model.point_sym(x_sym[:n])])
-
-        X = ca.SX.sym("X", 2 * n, N + 1)
-        U = ca.SX.sym("U", n, N + 1)
-        UM = ca.SX.sym("UM", n, N)
-        T = ca.SX.sym("T")
-        ns = m if start_kind == "point" else 2 * n
-        nt = m if target_kind == "point" else 2 * n
-        par = ca.SX.sym("p", ns + nt + 1)
-        k = par[-1]
-        h = T / N
-        F = f.map(N + 1)(X, U)
-        XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
-        FM = f.map(N)(XM, UM)
-        defects = X[:, 1:] - X[:, :-1] - h / 6 * (F[:, :-1] + 4 * FM + F[:, 1:])
-        g = [ca.vec(defects)]
-        lbg = [np.zeros(2 * n * N)]
-        ubg = [np.zeros(2 * n * N)]
-        if not box:
-            allu = ca.horzcat(U, UM)
-            g.append(ca.sum1(allu ** (2 * k)).T - 1)
-            lbg.append(-np.inf * np.ones(2 * N + 1))
-            ubg.append(np.zeros(2 * N + 1))
-        for kind, col, offset, size in ((start_kind, 0, 0, ns), (target_kind, N, ns, nt)):
-            xc = X[:, col]
-            target = par[offset:offset + size]
-            if kind == "point":
-                g += [fk(xc[:n]) - target, xc[n:]]
-                lbg.append(np.zeros(m + n))
-                ubg.append(np.zeros(m + n))
-            else:
-                g.append(xc - target)
-                lbg.append(np.zeros(2 * n))
-                ubg.append(np.zeros(2 * n))
-        w = ca.vertcat(ca.vec(X), ca.vec(U), ca.vec(UM), T)
-        self._nx = 2 * n * (N + 1)
-        self._nu = n * (N + 1)
-        self._num = n * N
-        nlp = {"x": w, "f": T, "g": ca.vertcat(*g), "p": par}
+        n, N = model.n, intervals
+        lay = _Layout(model.n, model.m, intervals, start_kind, target_kind, box)
+        # The dynamics' derivatives (the costly part to compile) do not depend on the mesh.
+        point, how_point = compile_functions(f"direct_point{n}",
+                                             _point_functions(model, torque_scale))
+        asm, how_asm = compile_functions(f"direct_asm{n}x{N}", _assembly_functions(model, lay))
+        self.compile_status = how_point if how_point == how_asm else \
+            f"dynamics {how_point}, assembly {how_asm}"
+        funs = _nlp_functions(lay, point, asm)
+        w = ca.MX.sym("w", lay.nw)
+        par = ca.MX.sym("p", lay.npar)
+        nlp = {"x": w, "f": w[lay.iT], "g": funs["g"](w, par), "p": par}
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                 "ipopt.tol": tol, "ipopt.max_iter": max_iter,
-                "ipopt.acceptable_tol": tol, "ipopt.mu_strategy": "adaptive", "calc_lam_p": False}
+                "ipopt.acceptable_tol": tol, "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
+                "grad_f": funs["grad_f"], "jac_g": funs["jac_g"], "hess_lag": funs["hess_l"],
+                # The solution, f, g and the multipliers come from IPOPT: no Lagrangian
+                # gradient (it would differentiate the compiled constraints).
+                "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         self.solver = ca.nlpsol("direct", "ipopt", nlp, opts)
-        self.lbg = np.concatenate(lbg)
-        self.ubg = np.concatenate(ubg)
+        self._nx = lay.nx
+        self._nu = lay.nu
+        self._num = lay.num
+        self.lbg = lay.lbg
+        self.ubg = lay.ubg
         big = 1e20
         # Joint position limits are checked on the result, not enforced (as in the shooting
         # solver, where the maximum principle has no state constraints): no state bounds.
