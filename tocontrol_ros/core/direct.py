@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 
 from .compiled import compile_functions
-from .model import RobotModel
+from .model import RobotModel, spd_solve
 
 __all__ = ["DirectResult", "DirectCollocation", "initial_path"]
 
@@ -178,28 +178,51 @@ class _Scatter:
         return ca.sparsity_cast(ca.mtimes(gather, values), sp)
 
 
-def _point_functions(model: RobotModel, torque_scale: float) -> list[ca.Function]:
+def _point_functions(model: RobotModel) -> list[ca.Function]:
     """The dynamics at one point ``z = (q, qd, u)`` and its derivatives (SX).
+
+    ``a(z) = M(q)^-1 (scale u - b(q, qd))`` is the forward dynamics; its derivatives are
+    taken through the inverse dynamics ``R(q, qd, a) = M(q) a + b(q, qd)`` (linear in ``a``),
+    which is much smaller than differentiating the factorised mass matrix: with
+    ``y = (q, qd)``, ``da/dz = M^-1 (-dR/dy, diag(scale))`` and, for ``mu = M^-1 v``,
+    ``Hess_z(v^T a) = -(Hess_yy(mu^T R) (+) 0 + C^T A + A^T C)`` with
+    ``C = (d(M mu)/dy, 0)`` and ``A = da/dz`` (``mu``, ``a`` held fixed inside ``R``).
 
     Returns
     -------
     list of casadi.Function
-        ``direct_f``: (x, u) -> ``f = (qd, a)``; ``direct_dyn``: (x, u) -> (``a``,
-        ``da/dz`` (n, 3n)); ``direct_dyn_hess``: (x, u, v) -> ``Hess_z(v^T a)`` (3n, 3n).
+        ``direct_f``: (x, u, scale) -> ``f = (qd, a)``; ``direct_dyn``: (x, u, scale) ->
+        (``a``, ``A = da/dz`` (n, 3n)); ``direct_dyn_hess``: (x, a, A, v) -> ``Hess_z(v^T a)``
+        (3n, 3n), from the point's ``a`` and ``A``.
     """
     n = model.n
-    x_sym = ca.SX.sym("x", 2 * n)
-    u_sym = ca.SX.sym("u", n)
-    v_sym = ca.SX.sym("v", n)
-    scale = ca.DM(model.tau_max * torque_scale)
-    qdd = model.forward_dynamics_sym(x_sym[:n], x_sym[n:], scale * u_sym)
-    z_sym = ca.vertcat(x_sym, u_sym)
+    x = ca.SX.sym("x", 2 * n)
+    u = ca.SX.sym("u", n)
+    scale = ca.SX.sym("scale", n)
+    v = ca.SX.sym("v", n)
+    acc = ca.SX.sym("a", n)
+    jac = ca.SX.sym("A", n, 3 * n)
+    mu = ca.SX.sym("mu", n)
+    q, qd = x[:n], x[n:]
+    qdd = model.forward_dynamics_sym(q, qd, scale * u)
+    mass = model.mass_matrix_sym(q)
+    rnea = model.rnea_sym(q, qd, acc)
+    rhs = ca.horzcat(-ca.jacobian(rnea, x), ca.diag(scale))
+    da = ca.Function("da", [x, acc, scale], [ca.horzcat(
+        *[spd_solve(mass, rhs[:, i]) for i in range(3 * n)])])(x, qdd, scale)
+    out = ca.cse(ca.vertcat(qdd, ca.vec(da)))
+    lag = ca.dot(mu, rnea)
+    curv = ca.Function("curv", [x, acc, mu], [
+        ca.hessian(lag, x)[0], ca.jacobian(ca.jacobian(lag, acc).T, x)])
+    hyy, c_y = curv(x, acc, spd_solve(mass, v))
+    c_z = ca.horzcat(c_y, ca.SX.zeros(n, n))
+    hess = -(ca.diagcat(hyy, ca.SX.zeros(n, n)) + ca.mtimes(c_z.T, jac)
+             + ca.mtimes(jac.T, c_z))
     return [
-        ca.Function("direct_f", [x_sym, u_sym], [ca.vertcat(x_sym[n:], qdd)]),
-        ca.Function("direct_dyn", [x_sym, u_sym],
-                    [qdd, ca.densify(ca.jacobian(qdd, z_sym))]),
-        ca.Function("direct_dyn_hess", [x_sym, u_sym, v_sym],
-                    [ca.densify(ca.hessian(ca.dot(v_sym, qdd), z_sym)[0])])]
+        ca.Function("direct_f", [x, u, scale], [ca.vertcat(qd, qdd)]),
+        ca.Function("direct_dyn", [x, u, scale],
+                    [out[:n], ca.densify(ca.reshape(out[n:], n, 3 * n))]),
+        ca.Function("direct_dyn_hess", [x, acc, jac, v], [ca.densify(ca.cse(hess))])]
 
 
 def _unpack(lay: _Layout, w: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
@@ -372,7 +395,8 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
     return [asm_g, asm_jac, asm_adj, asm_hess]
 
 
-def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function]) -> dict:
+def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function],
+                   scale: np.ndarray) -> dict:
     """The NLP's functions from the per-point and assembly functions (possibly compiled).
 
     Returns
@@ -392,25 +416,26 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
     X, U, UM, T = _unpack(lay, w)
     h = T / N
 
-    F = f_pt.map(N + 1)(X, U)
+    S = ca.DM(scale)
+    F = f_pt.map(N + 1)(X, U, S)
     XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
-    FM = f_pt.map(N)(XM, UM)
+    FM = f_pt.map(N)(XM, UM, S)
     g_fun = ca.Function("g", [w, par], [asm_g(w, par, F, FM)], ["x", "p"], ["g"])
     grad = ca.DM.zeros(lay.nw)  # dense: IPOPT's interface copies it as a dense vector
     grad[lay.iT] = 1.0
     grad_f = ca.Function("grad_f", [w, par], [T, grad], ["x", "p"], ["f", "grad"])
 
-    an, An = dyn.map(N + 1)(X, U)
+    an, An = dyn.map(N + 1)(X, U, S)
     F = ca.vertcat(X[n:, :], an)
     XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
-    am, AM = dyn.map(N)(XM, UM)
+    am, AM = dyn.map(N)(XM, UM, S)
     FM = ca.vertcat(XM[n:, :], am)
     g, jac = asm_jac(w, par, An, AM, F, FM)
     jac_g = ca.Function("jac_g", [w, par], [g, jac], ["x", "p"], ["g", "jac"])
 
     wm, G, wn = asm_adj(w, lam_g, AM)
-    HM = dyn_hess.map(N)(XM, UM, wm)
-    Hn = dyn_hess.map(N + 1)(X, U, wn)
+    HM = dyn_hess.map(N)(XM, am, AM, wm)
+    Hn = dyn_hess.map(N + 1)(X, an, An, wn)
     hess = asm_hess(w, par, lam_g, An, F, HM, G, Hn)
     hess_l = ca.Function("hess_l", [w, par, lam_f, lam_g], [hess],
                          ["x", "p", "lam_f", "lam_g"], ["hess"])
@@ -465,13 +490,12 @@ class DirectCollocation:
         self.box = box
         n, N = model.n, intervals
         lay = _Layout(model.n, model.m, intervals, start_kind, target_kind, box)
-        # The dynamics' derivatives (the costly part to compile) do not depend on the mesh.
-        point, how_point = compile_functions(f"direct_point{n}",
-                                             _point_functions(model, torque_scale))
+        # The dynamics' derivatives (the costly part to compile) depend on the model only.
+        point, how_point = compile_functions(f"direct_point{n}", _point_functions(model))
         asm, how_asm = compile_functions(f"direct_asm{n}x{N}", _assembly_functions(model, lay))
         self.compile_status = how_point if how_point == how_asm else \
             f"dynamics {how_point}, assembly {how_asm}"
-        funs = _nlp_functions(lay, point, asm)
+        funs = _nlp_functions(lay, point, asm, model.tau_max * torque_scale)
         w = ca.MX.sym("w", lay.nw)
         par = ca.MX.sym("p", lay.npar)
         nlp = {"x": w, "f": w[lay.iT], "g": funs["g"](w, par), "p": par}
