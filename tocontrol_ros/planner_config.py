@@ -111,7 +111,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s); a solve that runs "
                   "out fails with status 'time limit reached'.", 0.1, 600.0),
     ParameterSpec("verify", False, "Re-integrate the nominal torques of every solution through "
-                  "the model (adds about 1.5 s per solve on the paper's arm)."),
+                  "the model (adds about 1 s per solve on the paper's arm)."),
     ParameterSpec("warm_start", True, "Start a solve from the previous solution when start and "
                   "target are of the same kinds and k and reserve are unchanged (falls back "
                   "to a cold solve when it does not converge)."),
