@@ -136,8 +136,9 @@ class _Layout:
         return np.concatenate([self.x(j), self.u(j)])
 
     def interval(self, j: int) -> np.ndarray:
-        """Indices of ``(z_j, z_j+1, um_j, T)``, the variables of interval ``j``."""
-        return np.concatenate([self.z(j), self.z(j + 1), self.u(self.N + 1 + j), [self.iT]])
+        """Indices of the variables of interval ``j``: ``(x_j, x_j+1, u_j, u_j+1, um_j, T)``."""
+        return np.concatenate([self.x(j), self.x(j + 1), self.u(j), self.u(j + 1),
+                               self.u(self.N + 1 + j), [self.iT]])
 
 
 class _Scatter:
@@ -232,8 +233,8 @@ def _unpack(lay: _Layout, w: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX, ca.MX]:
             ca.reshape(w[lay.nx + lay.nu:lay.iT], n, N), w[lay.iT])
 
 
-def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
-    """The constraints and the derivatives' assembly from per-point values (MX).
+def _interval_functions(n: int) -> list[ca.Function]:
+    """Derivative blocks of one interval's defect from its points' values (SX).
 
     Per point ``z = (q, qd, u)`` the dynamics ``f(z) = (qd, a(z))``; ``A = da/dz``,
     ``F = df/dz``. Interval ``j`` (``s = h/6``, ``sigma = h/8``, ``h = T/N``) has the midpoint
@@ -246,21 +247,90 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
 
     Hessian of ``lambda^T c_j``: the curvature of ``a`` enters only as ``Hess(w^T a)`` at a
     point, ``w`` being the adjoint of that point's ``a``: ``-4 s lambda_v`` at the midpoint
-    (seen through ``D = d(zm)/d(z_j, z_j+1, um_j, T)``: ``D^T H D``), and
-    ``-s lambda_v -+ 4 s sigma gx_v`` at the left/right node (``g = Fm^T lambda``, ``gx`` its
-    state part, ``_v`` the velocity rows), summed over the two intervals of a node. The rest
-    is bilinear in ``T``: ``T``-``z_j``: ``-F_j^T lambda/(6N) - E^T gx/(3N) - T F_j^T gx/(6N^2)``,
-    ``T``-``z_j+1``: ``-F_j+1^T lambda/(6N) - E^T gx/(3N) + T F_j+1^T gx/(6N^2)``, ``T``-``um_j``:
+    (seen through ``D = d(zm)/d(z_j, z_j+1, um_j, T) = [[Pj, Pk, 0, t], [0, 0, I, 0]]``:
+    ``D^T H D``), and ``-s lambda_v -+ 4 s sigma gx_v`` at the left/right node
+    (``g = Fm^T lambda``, ``gx`` its state part, ``_v`` the velocity rows), summed over the
+    two intervals of a node (:func:`_assembly_functions`). The rest is bilinear in ``T``:
+    ``T``-``z_j``: ``-F_j^T lambda/(6N) - E^T gx/(3N) - T F_j^T gx/(6N^2)``, ``T``-``z_j+1``:
+    ``-F_j+1^T lambda/(6N) - E^T gx/(3N) + T F_j+1^T gx/(6N^2)``, ``T``-``um_j``:
     ``-2 gc/(3N)``, ``T``-``T``: ``-gx^T (f_j - f_j+1)/(6N^2)``.
+
+    Straight-line code (the mesh size ``N`` is an input), so it compiles with the model's
+    per-point functions and a mesh only adds the gathering of the blocks.
 
     Returns
     -------
     list of casadi.Function
-        ``direct_asm_g``: (w, p, F, FM) -> g; ``direct_asm_jac``: (w, p, A, AM, F, FM) ->
-        (g, jac); ``direct_asm_adj``: (w, lam_g, AM) -> (midpoint weights, ``g`` per
-        interval, node weights); ``direct_asm_hess``: (w, p, lam_g, A, F, HM, G, H) -> upper
-        triangle of the Lagrangian's Hessian. ``F``, ``A``, ``H`` are the nodes' ``f``,
-        ``da/dz`` and weighted Hessians side by side, ``FM``, ``AM``, ``HM`` the midpoints'.
+        ``direct_jac_int``: (Aj, Ak, Am, fj, fk, fm, T, N) -> Jacobian of ``c_j`` (2n, 7n + 1)
+        in the variables ``(x_j, x_j+1, u_j, u_j+1, um_j, T)`` (their order in ``w``);
+        ``direct_hess_int``: (Aj, Ak, fj, fk, Hm, g, lambda, T, N) -> upper triangle of the
+        interval's Hessian block in the same variables, column by column.
+    """
+    sel = ca.DM(np.hstack([np.zeros((n, n)), np.eye(n), np.zeros((n, n))]))
+    E = ca.DM(np.hstack([np.eye(2 * n), np.zeros((2 * n, n))]))
+    Aj, Ak, Am = (ca.SX.sym(s, n, 3 * n) for s in ("Aj", "Ak", "Am"))
+    fj, fk, fm = (ca.SX.sym(s, 2 * n) for s in ("fj", "fk", "fm"))
+    T = ca.SX.sym("T")
+    N = ca.SX.sym("N")
+    lam = ca.SX.sym("lam", 2 * n)
+    g = ca.SX.sym("g", 3 * n)
+    Hm = ca.SX.sym("Hm", 3 * n, 3 * n)
+    Fj, Fk, Fm = (ca.vertcat(sel, A) for A in (Aj, Ak, Am))
+    s = T / N / 6
+    sig = T / N / 8
+    # (z_j, z_j+1, um_j, T) -> (x_j, x_j+1, u_j, u_j+1, um_j, T)
+    order = np.concatenate([np.arange(2 * n), 3 * n + np.arange(2 * n), 2 * n + np.arange(n),
+                            5 * n + np.arange(n), 6 * n + np.arange(n), [7 * n]]).tolist()
+    d = 7 * n + 1
+    Fmx, Fmu = Fm[:, :2 * n], Fm[:, 2 * n:]
+    jac = ca.horzcat(
+        -E - s * (Fj + 4 * ca.mtimes(Fmx, 0.5 * E + sig * Fj)),
+        E - s * (Fk + 4 * ca.mtimes(Fmx, 0.5 * E - sig * Fk)),
+        -4 * s * Fmu,
+        -(fj + fk + 4 * fm) / (6 * N) - 4 * s * ca.mtimes(Fmx, fj - fk) / (8 * N))
+    jac_int = ca.Function("direct_jac_int", [Aj, Ak, Am, fj, fk, fm, T, N],
+                          [ca.densify(jac[:, order])])
+    gx, gc = g[:2 * n], g[2 * n:]
+    Pj = 0.5 * E + sig * Fj
+    Pk = 0.5 * E - sig * Fk
+    t = (fj - fk) / (8 * N)
+    Hxx, Hxu, Huu = Hm[:2 * n, :2 * n], Hm[:2 * n, 2 * n:], Hm[2 * n:, 2 * n:]
+    HPj, HPk, Ht = ca.mtimes(Hxx, Pj), ca.mtimes(Hxx, Pk), ca.mtimes(Hxx, t)
+    Bjk = ca.mtimes(Pj.T, HPk)
+    Bjc, Bkc = ca.mtimes(Pj.T, Hxu), ca.mtimes(Pk.T, Hxu)
+    col_j = ca.mtimes(Pj.T, Ht) - ca.mtimes(Fj.T, lam) / (6 * N) \
+        - ca.mtimes(E.T, gx) / (3 * N) - T * ca.mtimes(Fj.T, gx) / (6 * N ** 2)
+    col_k = ca.mtimes(Pk.T, Ht) - ca.mtimes(Fk.T, lam) / (6 * N) \
+        - ca.mtimes(E.T, gx) / (3 * N) + T * ca.mtimes(Fk.T, gx) / (6 * N ** 2)
+    col_c = ca.mtimes(Hxu.T, t) - 2 * gc / (3 * N)
+    col_t = ca.dot(t, Ht) - ca.dot(gx, fj - fk) / (6 * N ** 2)
+    B = ca.blockcat([[ca.mtimes(Pj.T, HPj), Bjk, Bjc, col_j],
+                     [Bjk.T, ca.mtimes(Pk.T, HPk), Bkc, col_k],
+                     [Bjc.T, Bkc.T, Huu, col_c],
+                     [col_j.T, col_k.T, col_c.T, col_t]])
+    B = ca.densify(B[order, order])
+    upper = ca.vertcat(*[B[r, c] for c in range(d) for r in range(c + 1)])
+    hess_int = ca.Function("direct_hess_int", [Aj, Ak, fj, fk, Hm, g, lam, T, N],
+                           [ca.cse(ca.densify(upper))])
+    return [jac_int, hess_int]
+
+
+def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
+    """The constraints, and the gathering of the derivative blocks into sparse matrices (MX).
+
+    Adds the control set's and the boundary conditions' terms, and the nodes' weighted
+    Hessians, whose weight is the adjoint of the node's acceleration summed over its two
+    intervals (see :func:`_interval_functions`).
+
+    Returns
+    -------
+    list of casadi.Function
+        ``direct_asm_g``: (w, p, F, FM) -> g; ``direct_asm_jac``: (w, p, F, FM, J) -> (g,
+        jac); ``direct_asm_adj``: (w, lam_g, AM) -> (midpoint weights, ``g = Fm^T lambda``
+        per interval, node weights); ``direct_asm_hess``: (w, p, lam_g, B, H) -> upper
+        triangle of the Lagrangian's Hessian. ``F``, ``H`` are the nodes' ``f`` and weighted
+        Hessians side by side, ``FM``, ``AM`` the midpoints' ``f`` and ``da/dz``, ``J``, ``B``
+        the intervals' blocks (:func:`_interval_functions`).
     """
     n, m, N = lay.n, lay.m, lay.N
     q_sym = ca.SX.sym("q", n)
@@ -270,56 +340,19 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
     fk_jac = ca.Function("P_jac", [q_sym], [ca.densify(ca.jacobian(point, q_sym))])
     fk_hess = ca.Function("P_hess", [q_sym, nu_sym],
                           [ca.densify(ca.hessian(ca.dot(nu_sym, point), q_sym)[0])])
-
-    # ---- one interval (dense small matrices)
-    sel = ca.DM(np.hstack([np.zeros((n, n)), np.eye(n), np.zeros((n, n))]))
-    E = ca.DM(np.hstack([np.eye(2 * n), np.zeros((2 * n, n))]))
-    Aj, Ak, Am = (ca.MX.sym(s, n, 3 * n) for s in ("Aj", "Ak", "Am"))
-    fj, fk_, fm = (ca.MX.sym(s, 2 * n) for s in ("fj", "fk", "fm"))
-    T_ = ca.MX.sym("T")
-    lam_ = ca.MX.sym("lam", 2 * n)
-    g_ = ca.MX.sym("g", 3 * n)
-    Hm_ = ca.MX.sym("Hm", 3 * n, 3 * n)
-    Fj, Fk, Fm = (ca.vertcat(sel, A) for A in (Aj, Ak, Am))
-    s_ = T_ / N / 6
-    sig = T_ / N / 8
-    Fmx, Fmu = Fm[:, :2 * n], Fm[:, 2 * n:]
-    jac_int = ca.Function("jac_int", [Aj, Ak, Am, fj, fk_, fm, T_], [ca.horzcat(
-        -E - s_ * (Fj + 4 * ca.mtimes(Fmx, 0.5 * E + sig * Fj)),
-        E - s_ * (Fk + 4 * ca.mtimes(Fmx, 0.5 * E - sig * Fk)),
-        -4 * s_ * Fmu,
-        -(fj + fk_ + 4 * fm) / (6 * N) - 4 * s_ * ca.mtimes(Fmx, fj - fk_) / (8 * N))])
-    adj_int = ca.Function("adj_int", [Am, lam_], [ca.mtimes(sel.T, lam_[:n])
-                                                  + ca.mtimes(Am.T, lam_[n:])])
-    gx, gc = g_[:2 * n], g_[2 * n:]
     d = 7 * n + 1
-    D = ca.vertcat(
-        ca.horzcat(0.5 * E + sig * Fj, 0.5 * E - sig * Fk, ca.DM.zeros(2 * n, n),
-                   (fj - fk_) / (8 * N)),
-        ca.horzcat(ca.DM.zeros(n, 6 * n), ca.DM.eye(n), ca.DM.zeros(n, 1)))
-    tcol = ca.vertcat(
-        -ca.mtimes(Fj.T, lam_) / (6 * N) - ca.mtimes(E.T, gx) / (3 * N)
-        - T_ * ca.mtimes(Fj.T, gx) / (6 * N ** 2),
-        -ca.mtimes(Fk.T, lam_) / (6 * N) - ca.mtimes(E.T, gx) / (3 * N)
-        + T_ * ca.mtimes(Fk.T, gx) / (6 * N ** 2),
-        -2 * gc / (3 * N),
-        -0.5 * ca.dot(gx, fj - fk_) / (6 * N ** 2))  # half: added as a row and a column
-    e_T = ca.DM.zeros(d)
-    e_T[d - 1] = 1.0
-    hess_int = ca.Function("hess_int", [Aj, Ak, fj, fk_, Hm_, g_, lam_, T_], [ca.densify(
-        ca.mtimes([D.T, Hm_, D]) + ca.mtimes(tcol, e_T.T) + ca.mtimes(e_T, tcol.T))])
+    upper_r, upper_c = (np.array(v) for v in zip(*[(r, c) for c in range(d)
+                                                   for r in range(c + 1)], strict=True))
 
-    # ---- the whole mesh
     w = ca.MX.sym("w", lay.nw)
     par = ca.MX.sym("p", lay.npar)
     lam_g = ca.MX.sym("lam_g", lay.ng)
     F = ca.MX.sym("F", 2 * n, N + 1)
     FM = ca.MX.sym("FM", 2 * n, N)
-    An = ca.MX.sym("A", n, 3 * n * (N + 1))
     AM = ca.MX.sym("AM", n, 3 * n * N)
-    HM = ca.MX.sym("HM", 3 * n, 3 * n * N)
+    J = ca.MX.sym("J", 2 * n, d * N)
+    B = ca.MX.sym("B", upper_r.size, N)
     Hn = ca.MX.sym("H", 3 * n, 3 * n * (N + 1))
-    G = ca.MX.sym("G", 3 * n, N)
     X, U, UM, T = _unpack(lay, w)
     k = par[-1]
     h = T / N
@@ -340,8 +373,7 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
 
     # Constraint Jacobian.
     sc = _Scatter(lay.ng, lay.nw)
-    values = [ca.vec(jac_int.map(N)(An[:, :3 * n * N], An[:, 3 * n:], AM, F[:, :-1], F[:, 1:],
-                                    FM, T))]
+    values = [ca.vec(J)]
     for j in range(N):
         sc.block(2 * n * j + np.arange(2 * n), lay.interval(j))
     if not lay.box:
@@ -357,27 +389,32 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
         else:
             values.append(ca.DM.ones(2 * n))
             sc.add(row + np.arange(2 * n), xi)
-    asm_jac = ca.Function("direct_asm_jac", [w, par, An, AM, F, FM],
+    asm_jac = ca.Function("direct_asm_jac", [w, par, F, FM, J],
                           [g, sc.apply(ca.vertcat(*values))])
 
     # Adjoint weights of the accelerations.
     lam = ca.reshape(lam_g[:2 * n * N], 2 * n, N)
     s = h / 6
     sigma = h / 8
-    gm = adj_int.map(N)(AM, lam)
+    a_sym = ca.SX.sym("A", n, 3 * n)
+    l_sym = ca.SX.sym("lam", 2 * n)
+    adj = ca.Function("adj", [a_sym, l_sym], [  # Fm^T lambda with Fm = ((0, I, 0), A)
+        ca.vertcat(ca.SX.zeros(n), l_sym[:n], ca.SX.zeros(n))
+        + ca.mtimes(a_sym.T, l_sym[n:])])
+    gm = adj.map(N)(AM, lam)
+    lam_v = lam[n:, :]
     gv = gm[n:2 * n, :]
     zero = ca.MX.zeros(n, 1)
-    wn = (ca.horzcat(-s * lam[n:, :] - 4 * s * sigma * gv, zero)
-          + ca.horzcat(zero, -s * lam[n:, :] + 4 * s * sigma * gv))
-    asm_adj = ca.Function("direct_asm_adj", [w, lam_g, AM], [-4 * s * lam[n:, :], gm, wn])
+    wn = (ca.horzcat(-s * lam_v - 4 * s * sigma * gv, zero)
+          + ca.horzcat(zero, -s * lam_v + 4 * s * sigma * gv))
+    asm_adj = ca.Function("direct_asm_adj", [w, lam_g, AM], [-4 * s * lam_v, gm, wn])
 
     # Lagrangian Hessian (upper triangle).
     sh = _Scatter(lay.nw, lay.nw, triu=True)
-    values = [ca.vec(hess_int.map(N)(An[:, :3 * n * N], An[:, 3 * n:], F[:, :-1], F[:, 1:],
-                                     HM, G, lam, T)),
-              ca.vec(Hn)]
+    values = [ca.vec(B), ca.vec(Hn)]
     for j in range(N):
-        sh.block(lay.interval(j), lay.interval(j))
+        v = lay.interval(j)
+        sh.add(v[upper_r], v[upper_c])
     for j in range(N + 1):
         sh.block(lay.z(j), lay.z(j))
     if not lay.box:
@@ -390,14 +427,14 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
             qi = lay.x(col)[:n]
             values.append(ca.vec(fk_hess(X[:n, col], lam_g[row:row + m])))
             sh.block(qi, qi)
-    asm_hess = ca.Function("direct_asm_hess", [w, par, lam_g, An, F, HM, G, Hn],
+    asm_hess = ca.Function("direct_asm_hess", [w, par, lam_g, B, Hn],
                            [sh.apply(ca.vertcat(*values))])
     return [asm_g, asm_jac, asm_adj, asm_hess]
 
 
 def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function],
                    scale: np.ndarray) -> dict:
-    """The NLP's functions from the per-point and assembly functions (possibly compiled).
+    """The NLP's functions from the per-point, interval and assembly functions.
 
     Returns
     -------
@@ -407,7 +444,7 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
         expects for its ``grad_f``, ``jac_g`` and ``hess_lag`` options.
     """
     n, N = lay.n, lay.N
-    f_pt, dyn, dyn_hess = point
+    f_pt, dyn, dyn_hess, jac_int, hess_int = point
     asm_g, asm_jac, asm_adj, asm_hess = asm
     w = ca.MX.sym("w", lay.nw)
     par = ca.MX.sym("p", lay.npar)
@@ -415,8 +452,8 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
     lam_g = ca.MX.sym("lam_g", lay.ng)
     X, U, UM, T = _unpack(lay, w)
     h = T / N
-
     S = ca.DM(scale)
+
     F = f_pt.map(N + 1)(X, U, S)
     XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
     FM = f_pt.map(N)(XM, UM, S)
@@ -430,13 +467,17 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
     XM = 0.5 * (X[:, :-1] + X[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
     am, AM = dyn.map(N)(XM, UM, S)
     FM = ca.vertcat(XM[n:, :], am)
-    g, jac = asm_jac(w, par, An, AM, F, FM)
+    Aj, Ak = An[:, :3 * n * N], An[:, 3 * n:]
+    J = jac_int.map(N)(Aj, Ak, AM, F[:, :-1], F[:, 1:], FM, T, N)
+    g, jac = asm_jac(w, par, F, FM, J)
     jac_g = ca.Function("jac_g", [w, par], [g, jac], ["x", "p"], ["g", "jac"])
 
     wm, G, wn = asm_adj(w, lam_g, AM)
     HM = dyn_hess.map(N)(XM, am, AM, wm)
     Hn = dyn_hess.map(N + 1)(X, an, An, wn)
-    hess = asm_hess(w, par, lam_g, An, F, HM, G, Hn)
+    lam = ca.reshape(lam_g[:2 * n * N], 2 * n, N)
+    B = hess_int.map(N)(Aj, Ak, F[:, :-1], F[:, 1:], HM, G, lam, T, N)
+    hess = asm_hess(w, par, lam_g, B, Hn)
     hess_l = ca.Function("hess_l", [w, par, lam_f, lam_g], [hess],
                          ["x", "p", "lam_f", "lam_g"], ["hess"])
     return {"g": g_fun, "grad_f": grad_f, "jac_g": jac_g, "hess_l": hess_l}
@@ -491,7 +532,8 @@ class DirectCollocation:
         n, N = model.n, intervals
         lay = _Layout(model.n, model.m, intervals, start_kind, target_kind, box)
         # The dynamics' derivatives (the costly part to compile) depend on the model only.
-        point, how_point = compile_functions(f"direct_point{n}", _point_functions(model))
+        point, how_point = compile_functions(
+            f"direct_point{n}", _point_functions(model) + _interval_functions(n))
         asm, how_asm = compile_functions(f"direct_asm{n}x{N}", _assembly_functions(model, lay))
         self.compile_status = how_point if how_point == how_asm else \
             f"dynamics {how_point}, assembly {how_asm}"
