@@ -566,6 +566,12 @@ def main(args=None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # rclpy's signal handler shuts the context down from its own thread; an executor
+        # building its wait set at that moment raises RCLError "the given context is not
+        # valid" (a known race: ros2/rclpy#402, ros2/ros2cli#854). That is a shutdown.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
