@@ -81,7 +81,7 @@ class SolverOptions:
         Mesh intervals of the direct method that makes the initial guess.
     integration_tol : float
         Mesh refinement: max RK4 error estimate per interval (max-norm of ``z``). The
-        default keeps ``|H| <= 2e-7`` along the paper's example for k = 1 ... 16 (the issue
+        default keeps ``|H| <= 3e-7`` along the paper's example for k = 1 ... 16 (the issue
         asks for 1e-6) and the re-integrated end point within 1e-6 m.
     max_intervals : int
         Mesh refinement stops here.
