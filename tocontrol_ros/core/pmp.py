@@ -156,31 +156,40 @@ class CanonicalSystem:
         H : ndarray, shape (K,)
         """
         if len(z) != POINT_CHUNK:  # one buffer size serves every call
-            pad = -len(z) % POINT_CHUNK
-            full = np.concatenate([z, np.repeat(z[-1:], pad, axis=0)]) if pad else z
-            parts = [self.pointwise_batch(full[i:i + POINT_CHUNK], par)
-                     for i in range(0, len(full), POINT_CHUNK)]
-            return tuple(np.concatenate(p)[:len(z)] for p in zip(*parts, strict=True))
+            return _chunked(lambda zc: self.pointwise_batch(zc, par), z)
         count, n = POINT_CHUNK, self.n
         key = ("pointwise_buffer", count)
         with self._buffer_lock:
             if key in self._sized:
                 self._sized.move_to_end(key)
             else:
-                buf, evaluate = self.pointwise_map(count).buffer()
-                ins = (np.zeros((count, 4 * n)), np.zeros((count, 3)))
-                outs = (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
-                        np.zeros((count, 1)))
-                for i, arr in enumerate(ins):
-                    buf.set_arg(i, memoryview(arr))
-                for i, arr in enumerate(outs):
-                    buf.set_res(i, memoryview(arr))
-                self._remember(key, (buf, evaluate, ins, outs))
+                self._remember(key, _bind(
+                    self.pointwise_map(count),
+                    (np.zeros((count, 4 * n)), np.zeros((count, 3))),
+                    (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
+                     np.zeros((count, 1)))))
             _, evaluate, (zin, pin), outs = self._sized[key]
             zin[:] = z
             pin[:] = par
             evaluate()
             return outs[0].copy(), outs[1].copy(), outs[2].copy(), outs[3][:, 0].copy()
+
+    def step_rows(self, z: np.ndarray, h: np.ndarray, par: np.ndarray) -> np.ndarray:
+        """One RK4 step (no Jacobians) from every row of ``z``, in chunks of POINT_CHUNK.
+
+        Parameters
+        ----------
+        z : ndarray, shape (K, 4n)
+        h : ndarray, shape (K,)
+            Physical steps (s).
+        par : ndarray, shape (3,)
+
+        Returns
+        -------
+        ndarray, shape (K, 4n)
+        """
+        return _chunked(lambda zc, hc: (self.step_batch(zc.T, hc[None, :], par, False)[0].T,),
+                        z, h)[0]
 
     def rhs_function(self) -> ca.Function:
         """``(z, par) -> F(z)``, physical time."""
@@ -253,16 +262,11 @@ class CanonicalSystem:
             self._sized.move_to_end(key)
         else:
             nz = 4 * self.n
-            buf, evaluate = self.step_map(count, sensitivities).buffer()
             ins = (np.zeros((count, nz)), np.zeros((count, 1)), np.zeros((count, 3)))
             outs = [np.zeros((count, nz))]
             if sensitivities:
                 outs += [np.zeros((count, nz, nz)), np.zeros((count, nz))]
-            for i, arr in enumerate(ins):
-                buf.set_arg(i, memoryview(arr))
-            for i, arr in enumerate(outs):
-                buf.set_res(i, memoryview(arr))
-            self._remember(key, (buf, evaluate, ins, outs))
+            self._remember(key, _bind(self.step_map(count, sensitivities), ins, outs))
         return self._sized[key]
 
     @property
@@ -358,8 +362,33 @@ class CanonicalSystem:
         return z1, a, b
 
 
-#: Rows per evaluation of :meth:`CanonicalSystem.pointwise_batch`.
+#: Rows per evaluation of :meth:`CanonicalSystem.pointwise_batch` and
+#: :meth:`CanonicalSystem.step_rows`: one size, so that their buffers stay cached.
 POINT_CHUNK = 256
+
+
+def _chunked(fn, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``fn`` on POINT_CHUNK rows of ``arrays`` at a time; its outputs concatenated.
+
+    The last chunk is padded by repeating its last row, and the padding cut off again.
+    """
+    count = len(arrays[0])
+    pad = -count % POINT_CHUNK
+    if pad:
+        arrays = tuple(np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in arrays)
+    parts = [fn(*(a[i:i + POINT_CHUNK] for a in arrays))
+             for i in range(0, count + pad, POINT_CHUNK)]
+    return tuple(np.concatenate(p)[:count] for p in zip(*parts, strict=True))
+
+
+def _bind(fun: ca.Function, ins, outs) -> tuple:
+    """An evaluation buffer of ``fun`` reading ``ins`` and writing ``outs`` (numpy arrays)."""
+    buf, evaluate = fun.buffer()
+    for i, arr in enumerate(ins):
+        buf.set_arg(i, memoryview(arr))
+    for i, arr in enumerate(outs):
+        buf.set_res(i, memoryview(arr))
+    return buf, evaluate, ins, outs
 #: Per-size mapped functions and buffers kept (least recently used evicted first).
 SIZED_CACHE = 24
 #: Operations of the whole-step Jacobian above which it is chained stage by stage.

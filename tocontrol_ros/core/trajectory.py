@@ -51,22 +51,6 @@ class TrajectorySample:
     H: np.ndarray
 
 
-#: Many times are evaluated in chunks of this size (the last one padded), so that the mapped
-#: functions and buffers of one size serve every call.
-CHUNK = 256
-
-
-def _chunks(*arrays: np.ndarray) -> tuple[list[np.ndarray], ...]:
-    """Split arrays along axis 0 into CHUNK rows each, padding the last by repetition."""
-    count = len(arrays[0])
-    pad = -count % CHUNK
-    out = []
-    for a in arrays:
-        full = np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) if pad else a
-        out.append([full[i:i + CHUNK] for i in range(0, len(full), CHUNK)])
-    return tuple(out)
-
-
 class Trajectory:
     """A time-optimal trajectory: evaluate it at any time, or sample it.
 
@@ -105,9 +89,7 @@ class Trajectory:
         if len(t) == 1:  # the integrator's hot path: skip building a mapped function
             out = np.array(self._rk4(z0[0], h[0], self.par)).T
         else:
-            out = np.concatenate([
-                self.system.step_batch(zc.T, hc[None, :], self.par, sensitivities=False)[0].T
-                for zc, hc in zip(*_chunks(z0, h), strict=True)])[:len(t)]
+            out = self.system.step_rows(z0, h, self.par)
         exact = h == 0
         out[exact] = z0[exact]
         return out
