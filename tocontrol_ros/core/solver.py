@@ -577,16 +577,13 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
     return f"no convergence of the mesh in {rounds} rounds"
 
 
-def _switches(planner, run: _Run, problem: Problem) -> list[tuple[float, int]]:
-    """Sign changes of the switching functions along the solution: (tau, i), in order.
+def _switches(planner, traj: Trajectory) -> list[tuple[float, int]]:
+    """Sign changes of the switching functions along a solution: (tau, i), in order.
 
-    Located by linear interpolation between the RK4 step points; a component whose sign
-    changes more than once within one step is skipped (its zeros are too close to
-    separate at this resolution; mesh refinement takes care of them).
+    Located by linear interpolation between the RK4 step points (the trajectory's grid).
     """
-    t_grid, z_grid = _dense(planner, run, problem)
-    par = np.array([run.k, run.delta, 1.0 - problem.reserve])
-    s = planner.system.pointwise_batch(z_grid, par)[2]
+    t_grid = traj.t_grid
+    s = planner.system.pointwise_batch(traj.z_grid, traj.par)[2]
     t_final = t_grid[-1]
     out = []
     for i in range(s.shape[1]):
@@ -607,7 +604,8 @@ def _switch_mesh(planner, run: _Run, problem, options, deadline, should_stop) ->
     switches as Newton (or a warm start) moves them. Returns False, leaving ``run``
     unchanged, when there is no switch or Newton does not converge on the new mesh.
     """
-    found = _switches(planner, run, problem)
+    traj = _trajectory(planner, run, problem)
+    found = _switches(planner, traj)
     gap = 0.2 / options.intervals  # switches closer than this to each other or to an end
     chosen: list[tuple[float, int]] = []  # are left to the ordinary refinement
     for tau, i in found:
@@ -632,7 +630,7 @@ def _switch_mesh(planner, run: _Run, problem, options, deadline, should_stop) ->
                         run.grid.start_kind, run.grid.target_kind, kinds=np.array(kinds),
                         breaks=breaks)
     _, t_final, nu0, nuT = run.grid.unpack(run.w)
-    nodes = _trajectory(planner, run, problem).state(grid.tau * t_final)
+    nodes = traj.state(grid.tau * t_final)
     saved = _snapshot(run)
     run.grid, run.w = grid, grid.pack(nodes, t_final, nu0, nuT)
     rep = _newton(planner, run, problem, run.k, run.delta, options, deadline, should_stop)
