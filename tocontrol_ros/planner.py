@@ -30,15 +30,13 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
@@ -48,6 +46,7 @@ from visualization_msgs.msg import MarkerArray
 from tocontrol_ros import conversions as conv
 from tocontrol_ros import qos
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.node_main import run_node
 from tocontrol_ros.planner_config import (
     PARAMETERS,
     ConfigError,
@@ -553,33 +552,8 @@ def main(args=None) -> int:
     """
     argv = list(sys.argv if args is None else args)
     build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
-    node = executor = None
-    try:
-        try:
-            node = PlannerNode()
-        except (TocontrolError, ParameterException) as exc:
-            print(f"planner: cannot start: {exc}", file=sys.stderr)
-            return 1
-        executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # rclpy's signal handler shuts the context down from its own thread; an executor
-        # building its wait set at that moment raises RCLError "the given context is not
-        # valid" (a known race: ros2/rclpy#402, ros2/ros2cli#854). That is a shutdown.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            # Joins the executor's thread pool, so that interpreter exit does not wait on it.
-            executor.shutdown(timeout_sec=1.0)
-        rclpy.try_shutdown()
-    return 0
+    return run_node("planner", argv, PlannerNode,
+                    lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS))
 
 
 if __name__ == "__main__":

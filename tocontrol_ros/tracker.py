@@ -36,12 +36,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import ParameterException, ParameterUninitializedException
-from rclpy.executors import ExternalShutdownException
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
@@ -51,7 +49,7 @@ from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros import qos
-from tocontrol_ros.core.errors import ProblemError, TocontrolError
+from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.model import RobotModel, default_urdf_path, load_robot
 from tocontrol_ros.core.tracking import (
     NominalTrajectory,
@@ -60,6 +58,7 @@ from tocontrol_ros.core.tracking import (
     TrackingGains,
     TrackingSummary,
 )
+from tocontrol_ros.node_main import run_node
 
 __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
            "nominal_from_msg", "summary_status", "build_parser", "main"]
@@ -461,28 +460,7 @@ def main(args=None) -> int:
     """
     argv = list(sys.argv if args is None else args)
     build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
-    node = None
-    try:
-        try:
-            node = TrackerNode()
-        except (TocontrolError, ParameterException) as exc:
-            print(f"tracker: cannot start: {exc}", file=sys.stderr)
-            return 1
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # rclpy's signal handler shuts the context down from its own thread; an executor
-        # building its wait set at that moment raises RCLError "the given context is not
-        # valid" (a known race: ros2/rclpy#402, ros2/ros2cli#854). That is a shutdown.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node("tracker", argv, TrackerNode)
 
 
 if __name__ == "__main__":
