@@ -11,6 +11,7 @@ used: slower, same results.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
@@ -55,6 +56,7 @@ def _compiler() -> str | None:
     return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
 
 
+@functools.cache
 def _cpu_tag() -> bytes:
     """The machine and CPU (model and feature flags) that -march=native compiles for."""
     tag = platform.machine()
