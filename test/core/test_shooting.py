@@ -139,3 +139,28 @@ def test_integrate_sensitivities_with_graded_steps(galicki, solved):
     up = integrate(system, z0 + d, lengths, grid.steps, t_final, par, False, fr)[0]
     dn = integrate(system, z0 - d, lengths, grid.steps, t_final, par, False, fr)[0]
     np.testing.assert_allclose(a[:, :, 5], (up - dn) / (2 * eps), rtol=1e-5, atol=1e-6)
+
+
+def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
+    """One compiled call per interval (Jacobians chained in C) against per-step numpy."""
+    st = solved["nodes"]._state
+    system = Planner(galicki).system
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    nodes, t_final, _, _ = grid.unpack(st["w"])
+    lengths = grid.lengths_of(st["w"])
+    par = np.array([4.0, 1e-4, 1.0])
+    assert not system.stagewise
+    fast = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
+                     grid.fractions)
+    plain = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, False,
+                      grid.fractions)[0]
+    system._cache["stagewise"] = True  # the step-by-step path (large models)
+    try:
+        slow = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
+                         grid.fractions)
+    finally:
+        system._cache["stagewise"] = False
+    np.testing.assert_allclose(plain, slow[0], rtol=0, atol=1e-12)
+    for got, want in zip(fast, slow, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))

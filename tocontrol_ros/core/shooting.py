@@ -109,6 +109,11 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
     lengths = np.asarray(lengths, dtype=float)
     if fractions is None:
         fractions = np.full((len(lengths), steps), 1.0 / steps)
+    if not system.stagewise:  # one compiled call for all intervals and steps
+        c = lengths[:, None] * fractions
+        with np.errstate(over="ignore", invalid="ignore"):
+            return system.interval_batch(np.asarray(starts, dtype=float), t_final * c, c, par,
+                                         sensitivities)
     z = np.ascontiguousarray(starts.T)
     a_tot = b_tot = None
     with np.errstate(over="ignore", invalid="ignore"):  # non-finite results are checked
