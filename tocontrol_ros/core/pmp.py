@@ -33,7 +33,7 @@ import numpy as np
 
 from .model import RobotModel, spd_solve
 
-__all__ = ["CanonicalSystem", "control_law"]
+__all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
 
 
 def control_law(s, k, delta=0.0):
@@ -265,8 +265,9 @@ class CanonicalSystem:
         ``(z0, h, c, par) -> (z1, dz1/dz0, dz1/dT)`` with ``h`` (steps,) the physical step
         lengths (s) and ``c`` (steps,) their derivatives ``dh/dT`` (the steps of an
         interval are ``T`` times its normalised step lengths, so ``c = h / T``); without
-        sensitivities ``(z0, h, par) -> z1``. One call per interval instead of one per step
-        (with numpy chaining the step Jacobians) removes most of the per-step overhead of
+        sensitivities ``(z0, h, par) -> Z``, the state after every step (4n, steps). One
+        call per interval instead of one per step (with numpy chaining the step Jacobians)
+        removes most of the per-step overhead of
         :func:`~tocontrol_ros.core.shooting.integrate`. Compiled and cached like
         :meth:`step_function` (one library per step count).
         """
@@ -281,9 +282,11 @@ class CanonicalSystem:
             c = ca.MX.sym("c", steps)
             par = ca.MX.sym("par", 3)
             a_tot = b_tot = None
+            states = []
             for s in range(steps):
                 if not sensitivities:
                     z = step(z, h[s], par)
+                    states.append(z)
                     continue
                 z, a_s, b_s = step(z, h[s], par)
                 if s == 0:
@@ -298,14 +301,14 @@ class CanonicalSystem:
                                   ["z0", "h", "c", "par"], ["z1", "dz1_dz0", "dz1_dT"])
             else:
                 fun = ca.Function(f"tocontrol_rk4i_{name}_{self.n}_{steps}", [z0, h, par],
-                                  [z], ["z0", "h", "par"], ["z1"])
+                                  [ca.horzcat(*states)], ["z0", "h", "par"], ["z"])
             self._cache[key], status = compile_function(fun)
             if sensitivities:
                 self.compile_status = status
         return self._cache[key]
 
     def interval_batch(self, z: np.ndarray, h: np.ndarray, c: np.ndarray | None,
-                       par: np.ndarray, sensitivities: bool = True):
+                       par: np.ndarray, sensitivities: bool = True, dense: bool = False):
         """:meth:`interval_function` on every row: ``steps`` RK4 steps from each state.
 
         Parameters
@@ -318,6 +321,9 @@ class CanonicalSystem:
             ``dh/dT`` (needed with sensitivities).
         par : ndarray, shape (3,)
         sensitivities : bool
+        dense : bool
+            Without sensitivities: return the states after every step, (N, steps, 4n),
+            in place of ``z1``.
 
         Returns
         -------
@@ -340,6 +346,8 @@ class CanonicalSystem:
                 if sensitivities:
                     ins.append(np.zeros((count, steps)))
                     outs += [np.zeros((count, nz, nz)), np.zeros((count, nz))]
+                else:
+                    outs = [np.zeros((count, steps, nz))]
                 ins.append(np.zeros((count, 3)))
                 self._remember(key, _bind(fun, ins, outs))
             _, evaluate, ins, outs = self._sized[key]
@@ -350,7 +358,7 @@ class CanonicalSystem:
             ins[-1][:] = par
             evaluate()
             if not sensitivities:
-                return outs[0].copy(), None, None
+                return (outs[0].copy() if dense else outs[0][:, -1].copy()), None, None
             # Column-major (CasADi) blocks: outs[1][j] holds dz1/dz0 of row j transposed.
             return outs[0].copy(), outs[1].transpose(0, 2, 1).copy(), outs[2].copy()
 
@@ -361,6 +369,18 @@ class CanonicalSystem:
         if fun is None:
             fun = self._remember(key, self.step_function(sensitivities).map(count, "serial"))
         return fun
+
+    def sized(self, key, make):
+        """The per-size object under ``key``, made by ``make()`` when it is not kept.
+
+        Kept like the mapped functions (least recently used evicted beyond
+        :data:`SIZED_CACHE`): e.g. a shooting grid's sparsity pattern.
+        """
+        value = self._sized.get(key)
+        if value is None:
+            return self._remember(key, make())
+        self._sized.move_to_end(key)
+        return value
 
     def _remember(self, key, value):
         """Keep a per-size object, evicting the least recently used beyond a bound.
@@ -513,6 +533,45 @@ def _bind(fun: ca.Function, ins, outs) -> tuple:
         buf.set_res(i, memoryview(arr))
     return buf, evaluate, ins, outs
 #: Per-size mapped functions and buffers kept (least recently used evicted first).
-SIZED_CACHE = 24
+SIZED_CACHE = 64
 #: Operations of the whole-step Jacobian above which it is chained stage by stage.
 WHOLE_STEP_LIMIT = 200_000
+
+
+class BufferedFunction:
+    """Call a CasADi function with dense inputs and outputs through numpy buffers.
+
+    A plain call converts every argument to and from CasADi's ``DM`` (tens of microseconds
+    a call); this binds fixed numpy arrays once and only copies values in and out.
+
+    Parameters
+    ----------
+    fun : casadi.Function
+        Every input and output dense.
+
+    Notes
+    -----
+    Calls are serialised by a lock (the buffers are shared).
+    """
+
+    def __init__(self, fun: ca.Function) -> None:
+        def layout(sparsity):
+            if not sparsity.is_dense():
+                raise ValueError(f"{fun.name()}: sparse input or output")
+            return sparsity.size2(), sparsity.size1()  # column-major: (cols, rows) in C order
+
+        ins = [np.zeros(layout(fun.sparsity_in(i))) for i in range(fun.n_in())]
+        outs = [np.zeros(layout(fun.sparsity_out(i))) for i in range(fun.n_out())]
+        self._shapes = [fun.size_out(i) for i in range(fun.n_out())]
+        self._buf, self._evaluate, self._ins, self._outs = _bind(fun, ins, outs)
+        self._lock = threading.Lock()
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        """Outputs as arrays of the function's shapes, (rows, cols); column vectors 1-D."""
+        with self._lock:
+            for buf, arg in zip(self._ins, args, strict=True):
+                arr = np.asarray(arg, dtype=float)
+                buf[:] = arr.T if arr.ndim == 2 else arr.reshape(buf.shape)
+            self._evaluate()
+            return [out[0].copy() if cols == 1 else out.T.copy()
+                    for out, (_, cols) in zip(self._outs, self._shapes, strict=True)]

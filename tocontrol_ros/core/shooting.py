@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from .compiled import compile_function
-from .pmp import CanonicalSystem
+from .pmp import BufferedFunction, CanonicalSystem
 
 __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
 
@@ -263,26 +263,36 @@ class ShootingGrid:
                           f"{_c_name(model.name)}_{n}",
                           [z0, zT, nu0, nuT, values, self.system.par],
                           [r] + [ca.densify(ca.jacobian(r, a)) for a in args])
-        cache[key] = compile_function(fun)[0]  # evaluated with every residual
+        cache[key] = BufferedFunction(compile_function(fun)[0])  # with every residual
         return cache[key]
 
-    def _switch_function(self) -> ca.Function:
-        """``(z, par) -> (S, dS/dz)``."""
+    def _switch_function(self) -> BufferedFunction:
+        """``(z (4n, B), par (3, B)) -> (S (n, B), dS/dz (n, 4n B))`` at the break nodes."""
         cache = self.system._cache
         if "switch" not in cache:
             sy = self.system
             fun = ca.Function(f"tocontrol_switch_{_c_name(sy.model.name)}_{sy.n}",
                               [sy.z, sy.par], [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
             cache["switch"] = compile_function(fun)[0]
-        return cache["switch"]
+        return self.system.sized(("switch_buffer", self.B), lambda: BufferedFunction(
+            cache["switch"].map(self.B, "serial")))
 
     # ------------------------------------------------------- sparse pattern
     def _pattern(self) -> None:
         """Row/column indices of the Jacobian's non-zeros, in the order values are filled.
 
         The values are filled in this order on every evaluation; the permutation to
-        compressed-column order is computed here, once.
+        compressed-column order is computed once per structure (interval count, break
+        nodes, boundary kinds) and kept with the system's other per-size objects.
         """
+        self._break_nodes = np.array([j for j, _ in self.breaks], dtype=int)
+        self._break_comp = np.array([i for _, i in self.breaks], dtype=int)
+        key = ("pattern", self.N, tuple(self._break_nodes), self.start_kind, self.target_kind)
+        (self._order, self._indices, self._indptr, self._break_j,
+         self._break_sign) = self.system.sized(key, self._make_pattern)
+        self._eye = np.ones(self.nz)
+
+    def _make_pattern(self) -> tuple:
         nz, N = self.nz, self.N
         rows, cols = [], []
         it = np.arange(nz)
@@ -297,14 +307,14 @@ class ShootingGrid:
             rows.append(r0 + it)             # -b_j at column T
             cols.append(np.full(nz, col_T))
         # Break times: interval j of segment s ends at break s and starts at break s - 1.
-        self._break_cols = []
+        break_cols = []
         for j in range(N):
             s = self._segment[j]
             for b in (s, s - 1):
                 if 0 <= b < self.B:
                     rows.append(j * nz + it)
                     cols.append(np.full(nz, self._col_b + b))
-                    self._break_cols.append((j, 1.0 if b == s else -1.0))
+                    break_cols.append((j, 1.0 if b == s else -1.0))
         nbc = nz + 1 + self.n_nu0 + self.n_nuT
         r_bc = nz * N + np.arange(nbc)
         blocks = [np.arange(nz), N * nz + np.arange(nz),
@@ -322,10 +332,10 @@ class ShootingGrid:
         order = np.lexsort((rows, cols))
         if np.any((np.diff(cols[order]) == 0) & (np.diff(rows[order]) == 0)):
             raise AssertionError("duplicate entries in the Jacobian pattern")
-        self._order = order
-        self._indices = rows[order].astype(np.int32)
-        self._indptr = np.searchsorted(cols[order], np.arange(self.size + 1)).astype(np.int32)
-        self._eye = np.ones(nz)
+        indptr = np.searchsorted(cols[order], np.arange(self.size + 1)).astype(np.int32)
+        break_j = np.array([j for j, _ in break_cols], dtype=int)
+        break_sign = np.array([sign for _, sign in break_cols])
+        return order, rows[order].astype(np.int32), indptr, break_j, break_sign
 
     # ------------------------------------------------------------ pack/unpack
     def unpack(self, w: np.ndarray):
@@ -361,10 +371,11 @@ class ShootingGrid:
         z1, a, b = self.flow(nodes, t_final, par, sensitivities=jacobian, lengths=lengths)
         cont = (nodes[1:] - z1).ravel()
         bc_out = self.bc(nodes[0], nodes[-1], nu0, nuT, values, par)
-        parts = [cont, np.array(bc_out[0]).ravel()]
-        switch = [self._switch(nodes[j], par) for j, _ in self.breaks]
-        parts += [np.array([float(out[0][i])]) for out, (_, i) in zip(switch, self.breaks,
-                                                                     strict=True)]
+        parts = [cont, bc_out[0]]
+        if self.B:
+            s_val, s_jac = self._switch(nodes[self._break_nodes].T,
+                                        np.broadcast_to(par[:, None], (3, self.B)))
+            parts.append(s_val[self._break_comp, np.arange(self.B)])
         g = np.concatenate(parts)
         if not jacobian:
             return g, None
@@ -373,12 +384,13 @@ class ShootingGrid:
                                 -b], axis=1).ravel()]
         if self.B:
             dlen = b * (t_final / lengths)[:, None]  # dz1/dlength
-            for j, sign in self._break_cols:
-                vals.append(-dlen[j] * sign * self._rel[j])
+            vals.append((-dlen[self._break_j]
+                         * (self._break_sign * self._rel[self._break_j])[:, None]).ravel())
         for blk in bc_out[1:]:
-            vals.append(np.array(blk).ravel())
-        for out, (_, i) in zip(switch, self.breaks, strict=True):
-            vals.append(np.array(out[1])[i])
+            vals.append(blk.ravel())
+        if self.B:  # row i of dS/dz at each break node
+            vals.append(s_jac.reshape(self.n, self.B, self.nz)[self._break_comp,
+                                                                np.arange(self.B)].ravel())
         data = np.concatenate(vals)[self._order]
         jac = sp.csc_matrix((data, self._indices, self._indptr), shape=(self.size, self.size))
         return g, jac

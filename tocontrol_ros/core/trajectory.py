@@ -85,13 +85,12 @@ class Trajectory:
         idx = np.clip(np.searchsorted(self.t_grid, t, side="right") - 1, 0,
                       len(self.t_grid) - 1)
         h = t - self.t_grid[idx]
-        z0 = self.z_grid[idx]
-        if len(t) == 1:  # the integrator's hot path: skip building a mapped function
-            out = np.array(self._rk4(z0[0], h[0], self.par)).T
-        else:
-            out = self.system.step_rows(z0, h, self.par)
-        exact = h == 0
-        out[exact] = z0[exact]
+        out = self.z_grid[idx]  # exact at the grid points; one RK4 step elsewhere
+        move = np.flatnonzero(h != 0)
+        if len(move) == 1:  # the integrator's hot path: skip building a mapped function
+            out[move[0]] = np.array(self._rk4(out[move[0]], h[move[0]], self.par)).ravel()
+        elif len(move):
+            out[move] = self.system.step_rows(out[move], h[move], self.par)
         return out
 
     def evaluate(self, t) -> TrajectorySample:
