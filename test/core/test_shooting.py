@@ -164,3 +164,50 @@ def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
     np.testing.assert_allclose(plain, slow[0], rtol=0, atol=1e-12)
     for got, want in zip(fast, slow, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))
+
+
+def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, solved):
+    """Every interval of the returned mesh passes the RK4 estimate; merging keeps switch
+    nodes and graded intervals and only merges what stays under tol / MERGE_MARGIN."""
+    from tocontrol_ros.core.solver import MERGE_MARGIN, _interval_errors, _merge_pairs
+
+    res = solved["nodes"]
+    st = res._state
+    planner = Planner(galicki)
+    grid = ShootingGrid(planner.system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    nodes, t_final, _, _ = grid.unpack(st["w"])
+    lengths = grid.lengths_of(st["w"])
+    par = np.array([res.k, res.delta, 1.0])
+    tol = SolverOptions().integration_tol
+    err = _interval_errors(planner, nodes[:-1], lengths, grid.steps, t_final, par, grid.kinds)
+    assert np.all(err <= tol), err.max()
+    # Halve every uniform interval: merging must give pairs back, never across a switch.
+    starts, halves, kinds = [], [], []
+    for j in range(grid.N):
+        if grid.kinds[j] == 0:
+            mid = integrate(planner.system, nodes[j:j + 1], lengths[j:j + 1] / 2, grid.steps,
+                            t_final, par, False)[0][0]
+            starts += [nodes[j], mid]
+            halves += [lengths[j] / 2] * 2
+            kinds += [0, 0]
+        else:
+            starts.append(nodes[j])
+            halves.append(lengths[j])
+            kinds.append(grid.kinds[j])
+    starts, halves, kinds = np.array(starts), np.array(halves), np.array(kinds)
+    old_node = np.concatenate([[0], np.cumsum(np.where(grid.kinds == 0, 2, 1))])
+    break_nodes = old_node[[j for j, _ in grid.breaks]]
+    out = _merge_pairs(planner, starts, halves, kinds, np.zeros(len(halves), dtype=bool),
+                       break_nodes, grid.steps, t_final, par, tol)
+    assert out is not None
+    m_starts, m_lengths, m_kinds, keep = out
+    assert keep[break_nodes].all() and keep[0] and keep[-1]
+    assert len(m_lengths) < len(halves)
+    np.testing.assert_allclose(m_lengths.sum(), 1.0, atol=1e-12)
+    assert sorted(m_kinds[m_kinds != 0]) == sorted(grid.kinds[grid.kinds != 0])
+    merged = np.flatnonzero(~keep[1:-1])  # removed node j + 1: intervals j, j + 1 merged
+    assert len(merged) == len(halves) - len(m_lengths)
+    m_err = _interval_errors(planner, m_starts, m_lengths, grid.steps, t_final, par, m_kinds)
+    grown = ~np.isin(m_lengths, halves)  # the merged intervals
+    assert grown.any() and np.all(m_err[grown] <= tol / MERGE_MARGIN * 1.001)

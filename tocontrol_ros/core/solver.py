@@ -477,6 +477,60 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
     return ""
 
 
+#: Two neighbouring intervals are merged when the estimate for the merged one is below
+#: the tolerance divided by this (so that the next check does not split them again).
+MERGE_MARGIN = 8.0
+
+
+def _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps, t_final, par,
+                 tol):
+    """Merge neighbouring uniform intervals that together still meet ``tol``.
+
+    Splitting graded intervals at a switch leaves neighbours far finer than they need to
+    be (their error estimates 1e-4 of the tolerance: the error of a graded interval falls
+    only like its length to the power ``1 + 1/(2k - 1)``, so it is split several times).
+    Pairs of intervals with uniform steps, not separated by a switch node and not made by a
+    split in the same refinement call (so that a split is never undone), are merged when
+    the merged interval's estimate is below ``tol / MERGE_MARGIN``; greedy, left to right,
+    two passes. The paper's example at k = 4: 40 intervals become 24.
+
+    Returns
+    -------
+    (starts, lengths, kinds, keep) or None
+        The new mesh, and which of the old nodes (N + 1,) it keeps; None when nothing
+        merges.
+    """
+    count = len(lengths)
+    keep = np.ones(count + 1, dtype=bool)
+    starts, lengths, kinds, born = starts.copy(), lengths.copy(), kinds.copy(), born.copy()
+    alive = np.arange(count + 1)  # old node index of each current node
+    for _ in range(2):
+        at_break = np.isin(alive, break_nodes)
+        cand = np.flatnonzero((kinds[:-1] == 0) & (kinds[1:] == 0) & ~born[:-1] & ~born[1:]
+                              & ~at_break[1:-1])
+        if not len(cand):
+            break
+        err = _interval_errors(planner, starts[cand], lengths[cand] + lengths[cand + 1], steps,
+                               t_final, par, np.zeros(len(cand), dtype=int))
+        chosen, last = [], -2
+        for j in cand[err <= tol / MERGE_MARGIN]:
+            if j > last + 1:
+                chosen.append(j)
+                last = j
+        if not chosen:
+            break
+        chosen = np.array(chosen)
+        lengths[chosen] += lengths[chosen + 1]
+        drop = np.zeros(len(lengths), dtype=bool)
+        drop[chosen + 1] = True
+        keep[alive[chosen + 1]] = False
+        alive = np.delete(alive, chosen + 1)
+        starts, lengths, kinds, born = (a[~drop] for a in (starts, lengths, kinds, born))
+    if keep.all():
+        return None
+    return starts, lengths, kinds, keep
+
+
 def _part_kinds(kind: int, parts: int) -> list[int]:
     """Step grading of the parts of a split interval: the part at a switch keeps it."""
     out = [0] * parts
@@ -508,6 +562,7 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
         # residual: no need to integrate them again for the estimate.
         ends = nodes[1:] if run.residual <= 1e-2 * tol else None
         err = _interval_errors(planner, starts, lengths, steps, t_final, par, kinds, ends)
+        born = np.zeros(len(lengths), dtype=bool)  # made by a split in this call
         changed = False
         for _inner in range(8):
             bad = err > tol
@@ -544,7 +599,8 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                                         step_fractions(sub_kinds[active, p - 1], steps))[0]
                 subs.append(np.where(active[:, None], cur, np.nan))
             subs = np.stack(subs, axis=1)  # (bad, max parts, nz), NaN past each one's parts
-            new_starts, new_lengths, new_err, new_kinds, fresh = [], [], [], [], []
+            new_starts, new_lengths, new_err, new_kinds, new_born = [], [], [], [], []
+            fresh = []
             row = {j: r for r, j in enumerate(idx)}
             new_node = np.zeros(len(lengths) + 1, dtype=int)
             for j in range(len(lengths)):
@@ -556,21 +612,32 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                         new_lengths.append(sub_len[r])
                         new_err.append(np.nan)
                         new_kinds.append(kind)
+                        new_born.append(True)
                         fresh.append(len(new_starts) - 1)
                 else:
                     new_starts.append(starts[j])
                     new_lengths.append(lengths[j])
                     new_err.append(err[j])
                     new_kinds.append(kinds[j])
+                    new_born.append(born[j])
             new_node[-1] = len(new_starts)
             node_of = new_node[node_of]
             starts, lengths = np.array(new_starts), np.array(new_lengths)
             kinds = np.array(new_kinds, dtype=int)
+            born = np.array(new_born, dtype=bool)
             err = np.array(new_err)
             fresh = np.array(fresh)
             err[fresh] = _interval_errors(planner, starts[fresh], lengths[fresh], steps,
                                           t_final, par, kinds[fresh])
             changed = True
+        if not np.any(err > tol):
+            break_nodes = node_of[[j for j, _ in run.grid.breaks]]
+            merged = _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps,
+                                  t_final, par, tol)
+            if merged is not None:
+                starts, lengths, kinds, keep = merged
+                node_of = (np.cumsum(keep) - 1)[node_of]
+                changed = True
         if not changed:
             return ""
         saved = (run.grid, run.w)
