@@ -155,23 +155,15 @@ def ik_family(model: RobotModel, p, count: int = 12,
     """
     p = np.asarray(p, dtype=float)
     rng = np.random.default_rng(0) if rng is None else rng
-    found: list[np.ndarray] = []
-
-    def add(q):
-        if q is None:
-            return
-        q = wrap_angles(q, model)
-        if np.linalg.norm(model.point(q) - p) > IK_TOL:
-            return
-        if all(np.linalg.norm(np.angle(np.exp(1j * (q - f)))) > 1e-6 for f in found):
-            found.append(q)
-
+    cands: list[np.ndarray] = []
     phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
     if _planar3r_lengths(model) is not None:
         for phi in phis:
             for elbow in (1, -1):
-                add(_planar3r(model, p, phi, elbow))
-        return found
+                q = _planar3r(model, p, phi, elbow)
+                if q is not None:
+                    cands.append(q)
+        return _distinct_solutions(model, p, cands)
     planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
         model.n >= 3 and _axes_parallel(model)
     if planar:
@@ -180,14 +172,31 @@ def ik_family(model: RobotModel, p, count: int = 12,
                 seed = np.full(model.n, 0.3 * elbow)
                 q, err = _lm(model, p, seed, phi=phi)
                 if err < IK_TOL:
-                    add(q)
-        return found
+                    cands.append(q)
+        return _distinct_solutions(model, p, cands)
     lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
     for _ in range(count):
         q, err = _lm(model, p, rng.uniform(lo, hi))
         if err < IK_TOL:
-            add(q)
+            cands.append(q)
+    return _distinct_solutions(model, p, cands)
+
+
+def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[np.ndarray]:
+    """The candidates (wrapped) that reach ``p``, without repeats, in their order.
+
+    One mapped call of the forward kinematics checks them all.
+    """
+    if not cands:
+        return []
+    qs = np.array([wrap_angles(q, model) for q in cands])
+    points = np.array(model.function("P").map(len(qs))(qs.T)).T  # (K, m)
+    found: list[np.ndarray] = []
+    for q in qs[np.linalg.norm(points - p, axis=1) <= IK_TOL]:
+        if not found or np.all(np.linalg.norm(np.angle(np.exp(1j * (q - np.array(found)))),
+                                              axis=1) > 1e-6):
+            found.append(q)
     return found
 
 

@@ -310,7 +310,7 @@ def _seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarr
     Each start configuration of the family is paired with each target configuration, the
     target unwrapped to the nearest equivalent angles (the short way) and, for continuous
     distal joints, also one full turn the other way; pairs are ranked by a bang-bang time
-    estimate with diagonal inertia.
+    estimate with diagonal inertia. The first ``options.starts`` are returned.
     """
     model = problem.model
     n = model.n
@@ -327,7 +327,8 @@ def _seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarr
     cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
     acc = model.tau_max * (1 - problem.reserve)
     qa = np.array(starts)                                   # (S, n)
-    inertia = np.array([np.diag(model.mass_matrix(q)) for q in starts])
+    mass = np.array(model.function("M").map(len(qa))(qa.T))  # (n, S n), blocks per start
+    inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(len(qa))])
     d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
     if problem.target.kind == "point":
         d = np.where(cont, np.angle(np.exp(1j * d)), d)
@@ -340,7 +341,7 @@ def _seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarr
     # (S, G, V, n), in the order start, target, variant; ranked by a stable sort.
     dv = np.stack(variants, axis=2)
     est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
-    order = np.argsort(est.ravel(), kind="stable")
+    order = np.argsort(est.ravel(), kind="stable")[:options.starts]
     s_idx, _, _ = np.unravel_index(order, est.shape)
     flat = dv.reshape(-1, n)
     return [(qa[i], qa[i] + flat[j]) for i, j in zip(s_idx, order, strict=True)]
@@ -482,17 +483,17 @@ def _refine(planner, run: _Run, problem, options, deadline, should_stop,
 MERGE_MARGIN = 8.0
 
 
-def _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps, t_final, par,
-                 tol):
+def _merge_pairs(planner, starts, lengths, kinds, err, break_nodes, steps, t_final, par, tol):
     """Merge neighbouring uniform intervals that together still meet ``tol``.
 
     Splitting graded intervals at a switch leaves neighbours far finer than they need to
     be (their error estimates 1e-4 of the tolerance: the error of a graded interval falls
     only like its length to the power ``1 + 1/(2k - 1)``, so it is split several times).
-    Pairs of intervals with uniform steps, not separated by a switch node and not made by a
-    split in the same refinement call (so that a split is never undone), are merged when
+    Pairs of intervals with uniform steps, not separated by a switch node, are merged when
     the merged interval's estimate is below ``tol / MERGE_MARGIN``; greedy, left to right,
-    two passes. The paper's example at k = 4: 40 intervals become 24.
+    two passes. (A split is never undone on the same solution: it was made because the
+    estimate was above ``tol``.) Only pairs whose two estimates ``err`` (N,) sum to less
+    than that are tried. The paper's example at k = 4: 40 intervals become 24.
 
     Returns
     -------
@@ -502,18 +503,19 @@ def _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps, t_fi
     """
     count = len(lengths)
     keep = np.ones(count + 1, dtype=bool)
-    starts, lengths, kinds, born = starts.copy(), lengths.copy(), kinds.copy(), born.copy()
+    starts, lengths, kinds, err = starts.copy(), lengths.copy(), kinds.copy(), err.copy()
+    limit = tol / MERGE_MARGIN
     alive = np.arange(count + 1)  # old node index of each current node
     for _ in range(2):
         at_break = np.isin(alive, break_nodes)
-        cand = np.flatnonzero((kinds[:-1] == 0) & (kinds[1:] == 0) & ~born[:-1] & ~born[1:]
-                              & ~at_break[1:-1])
+        cand = np.flatnonzero((kinds[:-1] == 0) & (kinds[1:] == 0) & ~at_break[1:-1]
+                              & (err[:-1] + err[1:] <= limit))
         if not len(cand):
             break
-        err = _interval_errors(planner, starts[cand], lengths[cand] + lengths[cand + 1], steps,
-                               t_final, par, np.zeros(len(cand), dtype=int))
+        err_pair = _interval_errors(planner, starts[cand], lengths[cand] + lengths[cand + 1],
+                                    steps, t_final, par, np.zeros(len(cand), dtype=int))
         chosen, last = [], -2
-        for j in cand[err <= tol / MERGE_MARGIN]:
+        for j in cand[err_pair <= limit]:
             if j > last + 1:
                 chosen.append(j)
                 last = j
@@ -521,11 +523,12 @@ def _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps, t_fi
             break
         chosen = np.array(chosen)
         lengths[chosen] += lengths[chosen + 1]
+        err[chosen] = err_pair[np.searchsorted(cand, chosen)]
         drop = np.zeros(len(lengths), dtype=bool)
         drop[chosen + 1] = True
         keep[alive[chosen + 1]] = False
         alive = np.delete(alive, chosen + 1)
-        starts, lengths, kinds, born = (a[~drop] for a in (starts, lengths, kinds, born))
+        starts, lengths, kinds, err = (a[~drop] for a in (starts, lengths, kinds, err))
     if keep.all():
         return None
     return starts, lengths, kinds, keep
@@ -562,7 +565,6 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
         # residual: no need to integrate them again for the estimate.
         ends = nodes[1:] if run.residual <= 1e-2 * tol else None
         err = _interval_errors(planner, starts, lengths, steps, t_final, par, kinds, ends)
-        born = np.zeros(len(lengths), dtype=bool)  # made by a split in this call
         changed = False
         for _inner in range(8):
             bad = err > tol
@@ -599,8 +601,7 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                                         step_fractions(sub_kinds[active, p - 1], steps))[0]
                 subs.append(np.where(active[:, None], cur, np.nan))
             subs = np.stack(subs, axis=1)  # (bad, max parts, nz), NaN past each one's parts
-            new_starts, new_lengths, new_err, new_kinds, new_born = [], [], [], [], []
-            fresh = []
+            new_starts, new_lengths, new_err, new_kinds, fresh = [], [], [], [], []
             row = {j: r for r, j in enumerate(idx)}
             new_node = np.zeros(len(lengths) + 1, dtype=int)
             for j in range(len(lengths)):
@@ -612,19 +613,16 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                         new_lengths.append(sub_len[r])
                         new_err.append(np.nan)
                         new_kinds.append(kind)
-                        new_born.append(True)
                         fresh.append(len(new_starts) - 1)
                 else:
                     new_starts.append(starts[j])
                     new_lengths.append(lengths[j])
                     new_err.append(err[j])
                     new_kinds.append(kinds[j])
-                    new_born.append(born[j])
             new_node[-1] = len(new_starts)
             node_of = new_node[node_of]
             starts, lengths = np.array(new_starts), np.array(new_lengths)
             kinds = np.array(new_kinds, dtype=int)
-            born = np.array(new_born, dtype=bool)
             err = np.array(new_err)
             fresh = np.array(fresh)
             err[fresh] = _interval_errors(planner, starts[fresh], lengths[fresh], steps,
@@ -632,7 +630,7 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
             changed = True
         if not np.any(err > tol):
             break_nodes = node_of[[j for j, _ in run.grid.breaks]]
-            merged = _merge_pairs(planner, starts, lengths, kinds, born, break_nodes, steps,
+            merged = _merge_pairs(planner, starts, lengths, kinds, err, break_nodes, steps,
                                   t_final, par, tol)
             if merged is not None:
                 starts, lengths, kinds, keep = merged
@@ -1067,7 +1065,7 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
 def _cold(planner, problem, options, deadline, should_stop, timings):
     """Multistart: direct guesses from seed pairs, the best distinct ones continued."""
     t0 = time.perf_counter()
-    pairs = _seed_pairs(problem, options)[:options.starts]
+    pairs = _seed_pairs(problem, options)
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals)
