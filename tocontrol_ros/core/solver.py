@@ -408,16 +408,23 @@ def _newton(planner: Planner, run: _Run, problem: Problem, k: float, delta: floa
     return rep
 
 
+#: Newton tolerance of the solves along the continuation in k (from the direct guess up to
+#: the requested k at the intermediate smoothing): each only starts the next, and the last
+#: is solved again to ``options.tol`` (on the switch mesh, or by the mesh refinement).
+CONTINUATION_TOL = 1e-6
+
+
 def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
     """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
     targets = _k_schedule(problem.k)[1:]
+    loose = replace(options, tol=max(options.tol, CONTINUATION_TOL))
     refined_at = None
     for k_goal in targets:
         while run.k < k_goal:
             k_try = k_goal
             while True:
                 rep = _newton(planner, run, problem, k_try, options.smoothing_intermediate,
-                              options, deadline, should_stop)
+                              loose, deadline, should_stop)
                 if rep.converged:
                     break
                 k_try = run.k + 0.5 * (k_try - run.k)
@@ -966,7 +973,9 @@ def _solve_from_guess(planner, problem, options, direct: DirectResult, deadline,
                         problem.target.kind)
     nodes = _nodes_from_direct(direct, grid.tau)
     run = _Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
-    rep = _newton(planner, run, problem, 1.0, 0.0, options, deadline, should_stop)
+    rep = _newton(planner, run, problem, 1.0, 0.0,
+                  replace(options, tol=max(options.tol, CONTINUATION_TOL)), deadline,
+                  should_stop)
     if not rep.converged:
         return run, Status.NEWTON_FAILED, rep.message
     if not _continue_k(planner, run, problem, options, deadline, should_stop):
