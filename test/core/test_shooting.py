@@ -198,8 +198,9 @@ def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, s
     starts, halves, kinds = np.array(starts), np.array(halves), np.array(kinds)
     old_node = np.concatenate([[0], np.cumsum(np.where(grid.kinds == 0, 2, 1))])
     break_nodes = old_node[[j for j, _ in grid.breaks]]
-    out = _merge_pairs(planner, starts, halves, kinds, np.zeros(len(halves), dtype=bool),
-                       break_nodes, grid.steps, t_final, par, tol)
+    h_err = _interval_errors(planner, starts, halves, grid.steps, t_final, par, kinds)
+    out = _merge_pairs(planner, starts, halves, kinds, h_err, break_nodes, grid.steps, t_final,
+                       par, tol)
     assert out is not None
     m_starts, m_lengths, m_kinds, keep = out
     assert keep[break_nodes].all() and keep[0] and keep[-1]
@@ -211,3 +212,20 @@ def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, s
     m_err = _interval_errors(planner, m_starts, m_lengths, grid.steps, t_final, par, m_kinds)
     grown = ~np.isin(m_lengths, halves)  # the merged intervals
     assert grown.any() and np.all(m_err[grown] <= tol / MERGE_MARGIN * 1.001)
+
+
+@pytest.mark.parametrize("kind", [1, -1])
+def test_graded_split_puts_a_short_graded_part_at_the_switch(kind):
+    from tocontrol_ros.core.solver import CASCADE_RATIO, _graded_split
+
+    parts = _graded_split(0.08, kind, err=5e-6, tol=1e-6, k=4.0)
+    np.testing.assert_allclose(parts.sum(), 0.08, rtol=1e-14)
+    outward = parts if kind == -1 else parts[::-1]  # from the switch away
+    # err ~ length^(8/7): 1/10 of the error needs (1/10)^(7/8) of the length.
+    assert outward[0] == pytest.approx(0.08 * (0.5e-6 / 5e-6) ** (7 / 8))
+    reach = np.cumsum(outward)
+    assert np.all(reach[1:-1] / reach[:-2] == pytest.approx(CASCADE_RATIO))
+    assert reach[-2] * CASCADE_RATIO >= 0.08 - 1e-15
+    # A small excess still halves the interval at most; a huge one takes 1/16.
+    assert _graded_split(0.08, kind, 1.1e-6, 1e-6, 4.0).max() == pytest.approx(0.04)
+    assert min(_graded_split(0.08, kind, 1.0, 1e-6, 4.0)) == pytest.approx(0.005)
