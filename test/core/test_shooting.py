@@ -23,6 +23,15 @@ def solved(galicki):
                                                    switch_nodes=False))}
 
 
+def _solved_grid(system, result):
+    """The final grid of ``result`` and its nodes, T and interval lengths."""
+    st = result._state
+    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    nodes, t_final, _, _ = grid.unpack(st["w"])
+    return grid, nodes, t_final, grid.lengths_of(st["w"])
+
+
 def test_step_fractions_sum_to_one_and_grade_towards_the_switch():
     fr = step_fractions(np.array([0, 1, -1]), 6)
     np.testing.assert_allclose(fr.sum(axis=1), 1.0, rtol=0, atol=1e-15)
@@ -143,12 +152,8 @@ def test_integrate_sensitivities_with_graded_steps(galicki, solved):
 
 def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
     """One compiled call per interval (Jacobians chained in C) against per-step numpy."""
-    st = solved["nodes"]._state
     system = Planner(galicki).system
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    nodes, t_final, _, _ = grid.unpack(st["w"])
-    lengths = grid.lengths_of(st["w"])
+    grid, nodes, t_final, lengths = _solved_grid(system, solved["nodes"])
     par = np.array([4.0, 1e-4, 1.0])
     assert not system.stagewise
     fast = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
@@ -172,12 +177,8 @@ def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, s
     from tocontrol_ros.core.solver import MERGE_MARGIN, _interval_errors, _merge_pairs
 
     res = solved["nodes"]
-    st = res._state
     planner = Planner(galicki)
-    grid = ShootingGrid(planner.system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    nodes, t_final, _, _ = grid.unpack(st["w"])
-    lengths = grid.lengths_of(st["w"])
+    grid, nodes, t_final, lengths = _solved_grid(planner.system, res)
     par = np.array([res.k, res.delta, 1.0])
     tol = SolverOptions().integration_tol
     err = _interval_errors(planner, nodes[:-1], lengths, grid.steps, t_final, par, grid.kinds)
