@@ -231,14 +231,21 @@ def test_newest_service_call_supersedes_older(planner, client):
     def call(name, goal):
         results[name] = client.call_plan(PAPER_START, goal)
 
-    first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
-    first.start()
-    client.wait_for(lambda: any(s.event == "accepted" and "2.3" in s.values.get("target", "")
-                                for s in client.status_list()), 30.0, "first accepted")
-    second = threading.Thread(target=call, args=("second", (2.25, 1.3)))
-    second.start()
-    first.join(60.0)
-    second.join(60.0)
+    # The re-integration check (~1 s) keeps the first solve running when the second call
+    # comes (a cold solve alone takes well under 0.1 s).
+    assert all(r.successful for r in client.set_parameters(verify=True))
+    try:
+        first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
+        first.start()
+        client.wait_for(lambda: any(s.event == "accepted"
+                                    and "2.3" in s.values.get("target", "")
+                                    for s in client.status_list()), 30.0, "first accepted")
+        second = threading.Thread(target=call, args=("second", (2.25, 1.3)))
+        second.start()
+        first.join(60.0)
+        second.join(60.0)
+    finally:
+        client.set_parameters(verify=False)
     path1, _, _ = results["first"]
     path2, status2, _ = results["second"]
     assert len(path1.poses) == 0
@@ -297,10 +304,11 @@ def test_bad_robot_is_refused_at_start():
 
 
 def test_shutdown_during_solve_is_prompt():
-    # A slow multistart so that the solve is surely running when the node goes.
+    # A slow solve (multistart and the ~1 s re-integration check) so that it is surely
+    # running when the node goes.
     ns = f"{NAMESPACE}_shutdown"
-    running = Running([Parameter("starts", value=24), Parameter("candidates", value=4)],
-                      namespace=ns)
+    running = Running([Parameter("starts", value=24), Parameter("candidates", value=4),
+                       Parameter("verify", value=True)], namespace=ns)
     client = PlannerClient(f"{ns}/planner")
     try:
         client.wait_ready(30.0)
