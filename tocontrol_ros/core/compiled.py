@@ -15,6 +15,7 @@ import functools
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -24,7 +25,7 @@ from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["compile_function", "compile_functions", "cache_dir"]
+__all__ = ["compile_function", "compile_functions", "cache_dir", "c_name"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
 #: about 1.5 times faster than portable -O1 on this project's machine (14 -> 9.4 us per step
@@ -39,6 +40,11 @@ LARGE_CFLAGS = ("-O1", "-march=native", "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.
 PORTABLE_CFLAGS = ("-O1", "-shared", "-fPIC")
 _lock = threading.Lock()
+
+
+def c_name(name: str) -> str:
+    """``name`` as part of a C identifier (generated function names)."""
+    return re.sub(r"\W", "_", name)
 
 
 def cache_dir() -> Path:

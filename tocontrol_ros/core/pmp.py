@@ -24,13 +24,13 @@ parameter: ``dz/dtau = T F(z)`` with ``z = (x, psi)``.
 
 from __future__ import annotations
 
-import re
 import threading
 from collections import OrderedDict
 
 import casadi as ca
 import numpy as np
 
+from .compiled import c_name, compile_function
 from .model import RobotModel, spd_solve
 
 __all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
@@ -123,9 +123,7 @@ class CanonicalSystem:
         the verification's re-integration.
         """
         if "pointwise" not in self._cache:
-            from .compiled import compile_function
-
-            name = re.sub(r"\W", "_", self.model.name)
+            name = c_name(self.model.name)
             fun = ca.Function(
                 f"tocontrol_pointwise_{name}_{self.n}", [self.z, self.par],
                 [self.rhs, self.u, self.s, self.ham], ["z", "par"], ["F", "u", "S", "H"])
@@ -134,13 +132,8 @@ class CanonicalSystem:
 
     def pointwise_map(self, count: int) -> ca.Function:
         """:meth:`pointwise` mapped over ``count`` columns (kept per size, like the steps)."""
-        key = ("pointwise_map", count)
-        fun = self._sized.get(key)
-        if fun is None:
-            fun = self._remember(key, self.pointwise().map(count, "serial"))
-        else:
-            self._sized.move_to_end(key)
-        return fun
+        return self.sized(("pointwise_map", count),
+                          lambda: self.pointwise().map(count, "serial"))
 
     def pointwise_batch(self, z: np.ndarray, par: np.ndarray) -> tuple[np.ndarray, ...]:
         """:meth:`pointwise` at every row of ``z``, through a numpy evaluation buffer.
@@ -161,17 +154,12 @@ class CanonicalSystem:
         if len(z) != POINT_CHUNK:  # one buffer size serves every call
             return _chunked(lambda zc: self.pointwise_batch(zc, par), z)
         count, n = POINT_CHUNK, self.n
-        key = ("pointwise_buffer", count)
         with self._buffer_lock:
-            if key in self._sized:
-                self._sized.move_to_end(key)
-            else:
-                self._remember(key, _bind(
-                    self.pointwise_map(count),
-                    (np.zeros((count, 4 * n)), np.zeros((count, 3))),
-                    (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
-                     np.zeros((count, 1)))))
-            _, evaluate, (zin, pin), outs = self._sized[key]
+            _, evaluate, (zin, pin), outs = self.sized(("pointwise_buffer", count), lambda: _bind(
+                self.pointwise_map(count),
+                (np.zeros((count, 4 * n)), np.zeros((count, 3))),
+                (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
+                 np.zeros((count, 1)))))
             zin[:] = z
             pin[:] = par
             evaluate()
@@ -206,7 +194,7 @@ class CanonicalSystem:
         if key not in self._cache:
             z0 = ca.SX.sym("z0", 4 * self.n)
             h = ca.SX.sym("h")
-            name = re.sub(r"\W", "_", self.model.name)
+            name = c_name(self.model.name)
             if not sensitivities:
                 f = self.rhs_function()
                 k1 = f(z0, self.par)
@@ -252,8 +240,6 @@ class CanonicalSystem:
         """
         key = ("step", sensitivities)
         if key not in self._cache:
-            from .compiled import compile_function
-
             self._cache[key], status = compile_function(self._step_sx(sensitivities))
             if sensitivities:
                 self.compile_status = status
@@ -273,8 +259,6 @@ class CanonicalSystem:
         """
         key = ("interval", steps, sensitivities)
         if key not in self._cache:
-            from .compiled import compile_function
-
             step = self._step_sx(sensitivities)
             nz = 4 * self.n
             z = z0 = ca.MX.sym("z0", nz)
@@ -294,7 +278,7 @@ class CanonicalSystem:
                 else:
                     a_tot = ca.mtimes(a_s, a_tot)
                     b_tot = ca.mtimes(a_s, b_tot) + b_s * c[s]
-            name = re.sub(r"\W", "_", self.model.name)
+            name = c_name(self.model.name)
             if sensitivities:
                 fun = ca.Function(f"tocontrol_rk4ij_{name}_{self.n}_{steps}",
                                   [z0, h, c, par], [z, a_tot, b_tot],
@@ -335,22 +319,21 @@ class CanonicalSystem:
         """
         count, steps = h.shape
         nz = 4 * self.n
-        key = ("interval_buffer", count, steps, sensitivities)
+
+        def bind():
+            fun = self.interval_function(steps, sensitivities).map(count, "serial")
+            if sensitivities:  # (z0, h, c, par) -> (z1, dz1/dz0, dz1/dT)
+                ins = [np.zeros((count, nz)), np.zeros((count, steps)),
+                       np.zeros((count, steps)), np.zeros((count, 3))]
+                outs = [np.zeros((count, nz)), np.zeros((count, nz, nz)), np.zeros((count, nz))]
+            else:  # (z0, h, par) -> states after every step
+                ins = [np.zeros((count, nz)), np.zeros((count, steps)), np.zeros((count, 3))]
+                outs = [np.zeros((count, steps, nz))]
+            return _bind(fun, ins, outs)
+
         with self._buffer_lock:
-            if key in self._sized:
-                self._sized.move_to_end(key)
-            else:
-                fun = self.interval_function(steps, sensitivities).map(count, "serial")
-                ins = [np.zeros((count, nz)), np.zeros((count, steps))]
-                outs = [np.zeros((count, nz))]
-                if sensitivities:
-                    ins.append(np.zeros((count, steps)))
-                    outs += [np.zeros((count, nz, nz)), np.zeros((count, nz))]
-                else:
-                    outs = [np.zeros((count, steps, nz))]
-                ins.append(np.zeros((count, 3)))
-                self._remember(key, _bind(fun, ins, outs))
-            _, evaluate, ins, outs = self._sized[key]
+            _, evaluate, ins, outs = self.sized(("interval_buffer", count, steps, sensitivities),
+                                                bind)
             ins[0][:] = z
             ins[1][:] = h
             if sensitivities:
@@ -364,34 +347,23 @@ class CanonicalSystem:
 
     def step_map(self, count: int, sensitivities: bool = True) -> ca.Function:
         """:meth:`step_function` mapped over ``count`` columns (one step per interval)."""
-        key = ("step_map", count, sensitivities)
-        fun = self._sized.get(key)
-        if fun is None:
-            fun = self._remember(key, self.step_function(sensitivities).map(count, "serial"))
-        return fun
+        return self.sized(("step_map", count, sensitivities),
+                          lambda: self.step_function(sensitivities).map(count, "serial"))
 
     def sized(self, key, make):
         """The per-size object under ``key``, made by ``make()`` when it is not kept.
 
-        Kept like the mapped functions (least recently used evicted beyond
-        :data:`SIZED_CACHE`): e.g. a shooting grid's sparsity pattern.
+        Mapped functions, their evaluation buffers, a shooting grid's sparsity pattern:
+        mesh refinement meets many interval counts, and a long-running planner would
+        otherwise keep one of each for every count it ever saw, so the least recently used
+        are evicted beyond :data:`SIZED_CACHE`.
         """
         value = self._sized.get(key)
         if value is None:
-            return self._remember(key, make())
+            value = self._sized[key] = make()
+            while len(self._sized) > SIZED_CACHE:
+                self._sized.popitem(last=False)
         self._sized.move_to_end(key)
-        return value
-
-    def _remember(self, key, value):
-        """Keep a per-size object, evicting the least recently used beyond a bound.
-
-        Mesh refinement meets many interval counts; a long-running planner would otherwise
-        keep a mapped function and its buffers for every count it ever saw.
-        """
-        self._sized[key] = value
-        self._sized.move_to_end(key)
-        while len(self._sized) > SIZED_CACHE:
-            self._sized.popitem(last=False)
         return value
 
     def _buffer(self, count: int, sensitivities: bool):
@@ -400,17 +372,16 @@ class CanonicalSystem:
         Skips the conversions through CasADi's ``DM`` (about half the time of a call).
         Inputs and outputs are the column-major layouts, i.e. C-ordered ``(count, ...)``.
         """
-        key = ("buffer", count, sensitivities)
-        if key in self._sized:
-            self._sized.move_to_end(key)
-        else:
-            nz = 4 * self.n
+        nz = 4 * self.n
+
+        def bind():
             ins = (np.zeros((count, nz)), np.zeros((count, 1)), np.zeros((count, 3)))
             outs = [np.zeros((count, nz))]
             if sensitivities:
                 outs += [np.zeros((count, nz, nz)), np.zeros((count, nz))]
-            self._remember(key, _bind(self.step_map(count, sensitivities), ins, outs))
-        return self._sized[key]
+            return _bind(self.step_map(count, sensitivities), ins, outs)
+
+        return self.sized(("buffer", count, sensitivities), bind)
 
     @property
     def stagewise(self) -> bool:
@@ -430,9 +401,7 @@ class CanonicalSystem:
     def rhs_jacobian_function(self) -> ca.Function:
         """``(z, par) -> (F(z), dF/dz)``, compiled and cached like the step function."""
         if "fj" not in self._cache:
-            from .compiled import compile_function
-
-            name = re.sub(r"\W", "_", self.model.name)
+            name = c_name(self.model.name)
             fun = ca.Function(f"tocontrol_fj_{name}_{self.n}", [self.z, self.par],
                               [self.rhs, ca.jacobian(self.rhs, self.z)],
                               ["z", "par"], ["F", "dF_dz"])
@@ -475,10 +444,8 @@ class CanonicalSystem:
                 # Column-major (CasADi) blocks: outs[1][j] holds dz1/dz0 of column j
                 # transposed.
                 return outs[0].T.copy(), outs[1].transpose(0, 2, 1).copy(), outs[2].copy()
-        key = ("fj_map", count)
-        fj = self._sized.get(key)
-        if fj is None:
-            fj = self._remember(key, self.rhs_jacobian_function().map(count, "serial"))
+        fj = self.sized(("fj_map", count),
+                        lambda: self.rhs_jacobian_function().map(count, "serial"))
         hv = np.asarray(h, dtype=float).ravel()
         eye = np.eye(nz)
 

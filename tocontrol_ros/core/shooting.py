@@ -19,7 +19,6 @@ void, as it should be). The system is square: ``4n(N+1) + 1 + 2m`` unknowns and 
 
 from __future__ import annotations
 
-import re
 import time
 from dataclasses import dataclass
 
@@ -28,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from .compiled import compile_function
+from .compiled import c_name, compile_function
 from .pmp import BufferedFunction, CanonicalSystem
 
 __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
@@ -42,10 +41,6 @@ CHORD_MAX = 3
 #: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
 STALL_STEP = 0.05
 STALL_COUNT = 4
-
-
-def _c_name(name: str) -> str:
-    return re.sub(r"\W", "_", name)
 
 
 def step_fractions(kinds: np.ndarray, steps: int, grading: float = GRADING) -> np.ndarray:
@@ -194,6 +189,8 @@ class ShootingGrid:
         if any(not 0 < j < self.N for j in nodes_b) or np.any(np.diff(nodes_b) <= 0):
             raise ValueError(f"break nodes must increase within (0, {self.N}): {nodes_b}")
         self.B = len(self.breaks)
+        self._break_nodes = np.array(nodes_b, dtype=int)
+        self._break_comp = np.array([i for _, i in self.breaks], dtype=int)
         bounds = np.concatenate([[0], nodes_b, [self.N]]).astype(int)
         self._segment = np.searchsorted(bounds, np.arange(self.N), side="right") - 1
         seg_len = np.add.reduceat(self.lengths, bounds[:-1])
@@ -260,7 +257,7 @@ class ShootingGrid:
         r = ca.vertcat(*res)
         args = [z0, zT, nu0, nuT]
         fun = ca.Function(f"tocontrol_bc_{self.start_kind}_{self.target_kind}_"
-                          f"{_c_name(model.name)}_{n}",
+                          f"{c_name(model.name)}_{n}",
                           [z0, zT, nu0, nuT, values, self.system.par],
                           [r] + [ca.densify(ca.jacobian(r, a)) for a in args])
         cache[key] = BufferedFunction(compile_function(fun)[0])  # with every residual
@@ -271,7 +268,7 @@ class ShootingGrid:
         cache = self.system._cache
         if "switch" not in cache:
             sy = self.system
-            fun = ca.Function(f"tocontrol_switch_{_c_name(sy.model.name)}_{sy.n}",
+            fun = ca.Function(f"tocontrol_switch_{c_name(sy.model.name)}_{sy.n}",
                               [sy.z, sy.par], [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
             cache["switch"] = compile_function(fun)[0]
         return self.system.sized(("switch_buffer", self.B), lambda: BufferedFunction(
@@ -285,8 +282,6 @@ class ShootingGrid:
         compressed-column order is computed once per structure (interval count, break
         nodes, boundary kinds) and kept with the system's other per-size objects.
         """
-        self._break_nodes = np.array([j for j, _ in self.breaks], dtype=int)
-        self._break_comp = np.array([i for _, i in self.breaks], dtype=int)
         key = ("pattern", self.N, tuple(self._break_nodes), self.start_kind, self.target_kind)
         (self._order, self._indices, self._indptr, self._break_j,
          self._break_sign) = self.system.sized(key, self._make_pattern)
@@ -358,7 +353,7 @@ class ShootingGrid:
         """
         nu0 = np.zeros(self.n_nu0) if nu0 is None else np.asarray(nu0, dtype=float)
         nuT = np.zeros(self.n_nuT) if nuT is None else np.asarray(nuT, dtype=float)
-        t_breaks = self.tau[[j for j, _ in self.breaks]]
+        t_breaks = self.tau[self._break_nodes]
         return np.concatenate([np.asarray(nodes, dtype=float).ravel(), [t_final], nu0, nuT,
                                t_breaks])
 

@@ -414,10 +414,14 @@ def _newton(planner: Planner, run: _Run, problem: Problem, k: float, delta: floa
 CONTINUATION_TOL = 1e-6
 
 
+def _continuation_options(options: SolverOptions) -> SolverOptions:
+    return replace(options, tol=max(options.tol, CONTINUATION_TOL))
+
+
 def _continue_k(planner, run: _Run, problem, options, deadline, should_stop) -> bool:
     """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
     targets = _k_schedule(problem.k)[1:]
-    loose = replace(options, tol=max(options.tol, CONTINUATION_TOL))
+    loose = _continuation_options(options)
     refined_at = None
     for k_goal in targets:
         while run.k < k_goal:
@@ -628,10 +632,9 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                 parts = capped
             idx = np.flatnonzero(parts > 1)
             sub_lens = np.zeros((len(idx), int(parts.max())))
-            for r, j in enumerate(idx):
-                sub_lens[r, :parts[j]] = splits.get(j, lengths[j] / parts[j])
             sub_kinds = np.zeros((len(idx), int(parts.max())), dtype=int)
             for r, j in enumerate(idx):
+                sub_lens[r, :parts[j]] = splits.get(j, lengths[j] / parts[j])
                 sub_kinds[r, :parts[j]] = _part_kinds(kinds[j], parts[j])
             cur = starts[idx].copy()
             subs = [cur.copy()]
@@ -649,11 +652,11 @@ def _refine_to(planner, run: _Run, problem, tol, options, deadline, should_stop,
                 new_node[j] = len(new_starts)
                 if j in row:
                     r = row[j]
-                    for p, kind in enumerate(_part_kinds(kinds[j], parts[j])):
+                    for p in range(parts[j]):
                         new_starts.append(subs[r, p])
                         new_lengths.append(sub_lens[r, p])
                         new_err.append(np.nan)
-                        new_kinds.append(kind)
+                        new_kinds.append(sub_kinds[r, p])
                         fresh.append(len(new_starts) - 1)
                 else:
                     new_starts.append(starts[j])
@@ -1012,8 +1015,7 @@ def _solve_from_guess(planner, problem, options, direct: DirectResult, deadline,
                         problem.target.kind)
     nodes = _nodes_from_direct(direct, grid.tau)
     run = _Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
-    rep = _newton(planner, run, problem, 1.0, 0.0,
-                  replace(options, tol=max(options.tol, CONTINUATION_TOL)), deadline,
+    rep = _newton(planner, run, problem, 1.0, 0.0, _continuation_options(options), deadline,
                   should_stop)
     if not rep.converged:
         return run, Status.NEWTON_FAILED, rep.message
