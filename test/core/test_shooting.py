@@ -230,3 +230,19 @@ def test_graded_split_puts_a_short_graded_part_at_the_switch(kind):
     # A small excess still halves the interval at most; a huge one takes 1/16.
     assert _graded_split(0.08, kind, 1.1e-6, 1e-6, 4.0).max() == pytest.approx(0.04)
     assert min(_graded_split(0.08, kind, 1.0, 1e-6, 4.0)) == pytest.approx(0.005)
+
+
+def test_check_sampling_finds_the_extremes_of_a_fine_sampling(solved):
+    """The result checks sample at the RK4 step points (filled in to T / SAMPLE_GAPS):
+    max |u| and the joint extremes agree with a 100001-point sampling."""
+    from tocontrol_ros.core.solver import SAMPLE_GAPS, _fine_sample
+
+    traj = solved["nodes"].trajectory
+    sample = _fine_sample(traj)
+    assert np.all(np.diff(sample.t) <= traj.T / SAMPLE_GAPS * (1 + 1e-12))
+    fine = traj.evaluate(np.linspace(0.0, traj.T, 100001))
+    assert np.max(np.abs(sample.u)) == pytest.approx(np.max(np.abs(fine.u)), abs=1e-6)
+    for a, b in ((sample.q, fine.q), (sample.qd, fine.qd)):
+        np.testing.assert_allclose(a.max(axis=0), b.max(axis=0), atol=1e-4)
+        np.testing.assert_allclose(a.min(axis=0), b.min(axis=0), atol=1e-4)
+    assert np.max(np.abs(sample.H)) == pytest.approx(np.max(np.abs(fine.H)), abs=1e-7)
