@@ -14,6 +14,10 @@ from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["run_node"]
 
+#: The main loop waits at most this long (s) for a callback before it looks at the context
+#: again (see run_node).
+SHUTDOWN_POLL = 0.25
+
 
 def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
              make_executor: Callable[[], Executor] = SingleThreadedExecutor) -> int:
@@ -45,7 +49,13 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
             return 1
         executor = make_executor()
         executor.add_node(node)
-        executor.spin()
+        # executor.spin() waits without a timeout and relies on the wake-up that rclpy's
+        # signal handler sends when it shuts the context down. The planner has, rarely,
+        # not exited after a SIGTERM during a solve (never after SIGINT, which also raises
+        # KeyboardInterrupt in this thread); a lost wake-up is the likely cause. Waiting in
+        # bounded slices notices a shut-down context within SHUTDOWN_POLL either way.
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=SHUTDOWN_POLL)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:

@@ -56,8 +56,10 @@ class PlannerProcess:
         args = ["--ros-args", "-r", f"__ns:={namespace}"]
         for name, value in (params or {}).items():
             args += ["-p", f"{name}:={value}"]
+        # PYTHONFAULTHANDLER: a planner that hangs is sent SIGABRT (see stop()), and the
+        # tracebacks of all its threads land in the log.
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                   OPENBLAS_NUM_THREADS="1", **extra_env)
+                   OPENBLAS_NUM_THREADS="1", PYTHONFAULTHANDLER="1", **extra_env)
         env.setdefault("ROS_DOMAIN_ID", "0")
         self.log_path = tmp_path / f"planner{namespace.replace('/', '_')}.log"
         self._log = open(self.log_path, "w")  # noqa: SIM115  (closed in stop())
@@ -69,15 +71,26 @@ class PlannerProcess:
         return self.log_path.read_text()
 
     def stop(self, sig=signal.SIGINT, timeout: float = 10.0) -> tuple[int, float]:
-        """Send ``sig``; return the exit code and the time to exit (s)."""
+        """Send ``sig``; return the exit code and the time to exit (s).
+
+        A planner still running after ``timeout`` gets SIGABRT (its thread tracebacks go to
+        the log, for the failure message), then SIGKILL.
+        """
         t0 = time.monotonic()
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
             try:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5.0)
+                elapsed = time.monotonic() - t0
+                self.proc.send_signal(signal.SIGABRT)
+                try:
+                    self.proc.wait(5.0)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait(5.0)
+                self._log.close()
+                return self.proc.returncode, elapsed
         elapsed = time.monotonic() - t0
         self._log.close()
         return self.proc.returncode, elapsed
