@@ -17,10 +17,10 @@
    unchanged;
 5. verifies the result (residual, ``H``, re-integration of the nominal torques).
 
-Newton keeps its LU factors while they work (chord steps, also across the solves of one
-mesh and into a warm start). Because the switch nodes move with the switches, a warm start
-after a small move usually keeps the previous mesh: a few Newton iterations and one error
-estimate.
+Newton keeps its LU factors while they work (chord steps with Broyden's rank-one updates,
+also across the solves of one mesh and into a warm start). Because the switch nodes move
+with the switches, a warm start after a small move usually keeps the previous mesh: a few
+Newton iterations and one error estimate.
 
 Multistart runs step 1 from several seed pairs spread over the self-motion manifolds,
 groups the direct solutions by basin and continues the most promising ones; the best is
