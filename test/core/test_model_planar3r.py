@@ -193,3 +193,29 @@ def test_point_and_jacobian(galicki, states):
 def test_stretched_arm_reaches_sum_of_lengths(galicki):
     assert_allclose(galicki.point(np.zeros(3)), [LENGTHS.sum(), 0.0], atol=1e-15)
     assert_allclose(galicki.reach(), LENGTHS.sum(), rtol=1e-15)
+
+
+def test_ik_family_spans_both_elbows_and_reaches_the_point(galicki):
+    """The closed-form family of the planar 3R: every configuration reaches the point, they
+    are distinct modulo full turns, and each end angle that can reach it gives both elbows."""
+    from tocontrol_ros.core.ik import ik_family
+
+    p = np.array([2.0, 1.5])
+    family = ik_family(galicki, p, 8)
+    qs = np.array(family)
+    assert qs.shape == (16, 3)  # well inside the workspace: every angle, both elbows
+    points = np.array([galicki.point(q) for q in qs])
+    assert np.max(np.linalg.norm(points - p, axis=1)) < 1e-9
+    ends = qs.sum(axis=1)  # absolute angle of the last link
+    for phi in np.linspace(-np.pi, np.pi, 8, endpoint=False):
+        assert np.sum(np.abs(np.angle(np.exp(1j * (ends - phi)))) < 1e-9) == 2
+    assert np.all(np.abs(qs) <= np.pi + 1e-12)  # continuous joints wrapped into (-pi, pi]
+    gaps = np.angle(np.exp(1j * (qs[:, None] - qs[None, :])))
+    dist = np.linalg.norm(gaps, axis=2) + np.eye(len(qs))
+    assert dist.min() > 1e-6
+    # Near the boundary of the workspace only some end angles reach: fewer, still exact.
+    edge = np.array([5.3, 0.0])
+    near = np.array(ik_family(galicki, edge, 8))
+    assert 0 < len(near) < 16
+    assert np.max(np.linalg.norm([galicki.point(q) - edge for q in near], axis=1)) < 1e-9
+    assert ik_family(galicki, np.array([6.0, 0.0]), 8) == []  # out of reach

@@ -93,3 +93,24 @@ def test_stagewise_step_jacobian_equals_the_whole_step_one(galicki):
         minus = cs.step_batch(z[:, [col]] - dz, h[:, [col]], par, False)[0]
         np.testing.assert_allclose((plus - minus).ravel() / (2 * eps), a1[col][:, j],
                                    rtol=1e-5, atol=1e-6)
+
+
+def test_chunked_evaluations_do_not_depend_on_the_chunk(galicki):
+    """pointwise_batch and step_rows give each row the same values whatever the row count
+    (chunks of 16, 64 and 256 rows, the last one padded)."""
+    system = CanonicalSystem(galicki)
+    rng = np.random.default_rng(5)
+    z = rng.normal(scale=0.5, size=(300, 12))
+    h = rng.uniform(1e-3, 1e-2, size=300)
+    par = np.array([4.0, 1e-3, 1.0])
+    f_all, u_all, s_all, h_all = system.pointwise_batch(z, par)
+    step_all = system.step_rows(z, h, par)
+    for count in (1, 16, 17, 64, 65, 257):
+        f, u, s, ham = system.pointwise_batch(z[:count], par)
+        assert f.shape == (count, 12) and u.shape == (count, 3) and ham.shape == (count,)
+        np.testing.assert_array_equal(f, f_all[:count])
+        np.testing.assert_array_equal(ham, h_all[:count])
+        np.testing.assert_array_equal(system.step_rows(z[:count], h[:count], par),
+                                      step_all[:count])
+    one = np.array(system.pointwise()(z[7], par)[0]).ravel()  # the plain function
+    np.testing.assert_allclose(f_all[7], one, rtol=1e-14, atol=1e-14)

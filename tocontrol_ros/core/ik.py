@@ -23,10 +23,13 @@ IK_TOL = 1e-9
 
 
 def wrap_angles(q: np.ndarray, model: RobotModel) -> np.ndarray:
-    """Wrap continuous (unlimited revolute) joints into (-pi, pi]; other joints unchanged."""
+    """Wrap continuous (unlimited revolute) joints into (-pi, pi]; other joints unchanged.
+
+    ``q`` is one configuration (n,) or one per row (K, n).
+    """
     q = np.array(q, dtype=float)
     cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
-    q[cont] = np.pi - np.mod(np.pi - q[cont], 2 * np.pi)
+    q[..., cont] = np.pi - np.mod(np.pi - q[..., cont], 2 * np.pi)
     return q
 
 
@@ -88,16 +91,25 @@ def _planar3r_lengths_of(model: RobotModel) -> tuple[np.ndarray, float, float, f
     return model.bodies[0].translation[:2], offsets[0][0], offsets[1][0], offsets[2][0]
 
 
-def _planar3r(model: RobotModel, p: np.ndarray, phi: float, elbow: int) -> np.ndarray | None:
+def _planar3r(model: RobotModel, p: np.ndarray, phis: np.ndarray) -> np.ndarray:
+    """Closed-form IK of a planar 3R for absolute end angles ``phis`` (K,), both elbows.
+
+    Returns
+    -------
+    ndarray, shape (J, 3)
+        Per angle, the elbow-up then the elbow-down configuration where ``p`` is reachable
+        with that angle (J <= 2K, in that order).
+    """
     base, l1, l2, l3 = _planar3r_lengths(model)
-    w = p - base - l3 * np.array([np.cos(phi), np.sin(phi)])
-    c2 = (w @ w - l1**2 - l2**2) / (2 * l1 * l2)
-    if abs(c2) > 1:
-        return None
+    phi = np.repeat(np.asarray(phis, dtype=float), 2)
+    elbow = np.tile([1.0, -1.0], len(phis))
+    w = (p - base)[None, :] - l3 * np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    c2 = (np.sum(w * w, axis=1) - l1**2 - l2**2) / (2 * l1 * l2)
+    ok = np.abs(c2) <= 1
+    phi, elbow, w, c2 = phi[ok], elbow[ok], w[ok], c2[ok]
     q2 = elbow * np.arccos(np.clip(c2, -1, 1))
-    q1 = np.arctan2(w[1], w[0]) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
-    q = np.array([q1, q2, phi - q1 - q2])
-    return q
+    q1 = np.arctan2(w[:, 1], w[:, 0]) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
+    return np.stack([q1, q2, phi - q1 - q2], axis=1)
 
 
 def solve_ik(model: RobotModel, p, q_seed=None, tries: int = 8,
@@ -158,12 +170,7 @@ def ik_family(model: RobotModel, p, count: int = 12,
     cands: list[np.ndarray] = []
     phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
     if _planar3r_lengths(model) is not None:
-        for phi in phis:
-            for elbow in (1, -1):
-                q = _planar3r(model, p, phi, elbow)
-                if q is not None:
-                    cands.append(q)
-        return _distinct_solutions(model, p, cands)
+        return _distinct_solutions(model, p, list(_planar3r(model, p, phis)))
     planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
         model.n >= 3 and _axes_parallel(model)
     if planar:
@@ -190,14 +197,18 @@ def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[n
     """
     if not cands:
         return []
-    qs = np.array([wrap_angles(q, model) for q in cands])
+    qs = wrap_angles(np.array(cands), model)  # (K, n)
     points = np.array(model.function("P").map(len(qs))(qs.T)).T  # (K, m)
-    found: list[np.ndarray] = []
-    for q in qs[np.linalg.norm(points - p, axis=1) <= IK_TOL]:
-        if not found or np.all(np.linalg.norm(np.angle(np.exp(1j * (q - np.array(found)))),
-                                              axis=1) > 1e-6):
-            found.append(q)
-    return found
+    qs = qs[np.linalg.norm(points - p, axis=1) <= IK_TOL]
+    # Pairwise distances modulo full turns; keep each candidate not within 1e-6 of an
+    # earlier kept one (earlier duplicates of a kept one are dropped with it).
+    diff = np.angle(np.exp(1j * (qs[:, None, :] - qs[None, :, :])))
+    near = np.linalg.norm(diff, axis=2) <= 1e-6
+    keep: list[int] = []
+    for i in range(len(qs)):
+        if not any(near[i, j] for j in keep):
+            keep.append(i)
+    return [qs[i] for i in keep]
 
 
 def _axes_parallel(model: RobotModel) -> bool:

@@ -138,7 +138,7 @@ class CanonicalSystem:
     def pointwise_batch(self, z: np.ndarray, par: np.ndarray) -> tuple[np.ndarray, ...]:
         """:meth:`pointwise` at every row of ``z``, through a numpy evaluation buffer.
 
-        Rows are evaluated in chunks of :data:`POINT_CHUNK` (the last one padded).
+        Rows are evaluated in chunks of the sizes :data:`POINT_CHUNKS` (the last one padded).
 
         Parameters
         ----------
@@ -151,9 +151,9 @@ class CanonicalSystem:
         u, S : ndarray, shape (K, n)
         H : ndarray, shape (K,)
         """
-        if len(z) != POINT_CHUNK:  # one buffer size serves every call
+        if len(z) not in POINT_CHUNKS:  # a few buffer sizes serve every call
             return _chunked(lambda zc: self.pointwise_batch(zc, par), z)
-        count, n = POINT_CHUNK, self.n
+        count, n = len(z), self.n
         with self._buffer_lock:
             _, evaluate, (zin, pin), outs = self.sized(("pointwise_buffer", count), lambda: _bind(
                 self.pointwise_map(count),
@@ -166,7 +166,7 @@ class CanonicalSystem:
             return outs[0].copy(), outs[1].copy(), outs[2].copy(), outs[3][:, 0].copy()
 
     def step_rows(self, z: np.ndarray, h: np.ndarray, par: np.ndarray) -> np.ndarray:
-        """One RK4 step (no Jacobians) from every row of ``z``, in chunks of POINT_CHUNK.
+        """One RK4 step (no Jacobians) from every row of ``z``, in chunks (:data:`POINT_CHUNKS`).
 
         Parameters
         ----------
@@ -473,22 +473,30 @@ class CanonicalSystem:
 
 
 #: Rows per evaluation of :meth:`CanonicalSystem.pointwise_batch` and
-#: :meth:`CanonicalSystem.step_rows`: one size, so that their buffers stay cached.
-POINT_CHUNK = 256
+#: :meth:`CanonicalSystem.step_rows`: a few sizes, so that their buffers stay cached and a
+#: short call (the ~20 nodes of a new mesh) does not pay for 256 rows.
+POINT_CHUNKS = (16, 64, 256)
 
 
 def _chunked(fn, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``fn`` on POINT_CHUNK rows of ``arrays`` at a time; its outputs concatenated.
+    """``fn`` on chunks of ``arrays``' rows (sizes from POINT_CHUNKS); outputs concatenated.
 
-    The last chunk is padded by repeating its last row, and the padding cut off again.
+    Full chunks of the largest size, then the smallest size that holds the rest, padded by
+    repeating its last row (the padding is cut off again).
     """
     count = len(arrays[0])
-    pad = -count % POINT_CHUNK
-    if pad:
-        arrays = tuple(np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in arrays)
-    parts = [fn(*(a[i:i + POINT_CHUNK] for a in arrays))
-             for i in range(0, count + pad, POINT_CHUNK)]
-    return tuple(np.concatenate(p)[:count] for p in zip(*parts, strict=True))
+    parts = []
+    start = 0
+    while start < count:
+        rest = count - start
+        size = next((c for c in POINT_CHUNKS if c >= rest), POINT_CHUNKS[-1])
+        take = min(size, rest)
+        chunk = [a[start:start + take] for a in arrays]
+        if take < size:
+            chunk = [np.concatenate([c, np.repeat(c[-1:], size - take, axis=0)]) for c in chunk]
+        parts.append([out[:take] for out in fn(*chunk)])
+        start += take
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
 def _bind(fun: ca.Function, ins, outs) -> tuple:
