@@ -133,7 +133,8 @@ def test_broyden_chord_steps_match_the_explicit_update():
     x = np.zeros(n)
     mat = b0.copy()
     step = -lu.solve(g_of(x))
-    chain = _Broyden(lu, step)
+    chain = _Broyden(lu)
+    chain.taken(step)
     for _ in range(6):
         x_new = x + step
         g_new = g_of(x_new)
@@ -146,7 +147,8 @@ def test_broyden_chord_steps_match_the_explicit_update():
     # Convergence: Broyden (at most 2n steps on a linear system, Gay 1979) against chords.
     x_b, x_c = np.zeros(n), np.zeros(n)
     step = -lu.solve(g_of(x_b))
-    chain = _Broyden(lu, step)
+    chain = _Broyden(lu)
+    chain.taken(step)
     for _ in range(2 * n):
         x_b = x_b + step
         if np.max(np.abs(g_of(x_b))) < 1e-12:

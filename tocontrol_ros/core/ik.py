@@ -206,7 +206,7 @@ def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[n
     near = np.linalg.norm(diff, axis=2) <= 1e-6
     keep: list[int] = []
     for i in range(len(qs)):
-        if not any(near[i, j] for j in keep):
+        if not near[i, keep].any():
             keep.append(i)
     return [qs[i] for i in keep]
 

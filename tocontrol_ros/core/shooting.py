@@ -40,12 +40,9 @@ GRADING = 4.0
 #: cold solves, and on the paper's example 40 % fewer in warm re-solves at k = 8 and 16, to
 #: the same results.)
 CHORD_CONTRACTION = 0.8
-#: ...and for at most this many chord steps per Jacobian.
+#: ...and for at most this many chord steps per Jacobian (with Broyden's updates of the
+#: factors, :class:`_Broyden`).
 CHORD_MAX = 10
-#: Chord steps take Broyden's ("good") rank-one updates of the kept factors, which makes them
-#: converge faster than plain chord steps (superlinearly near a root; :class:`_Broyden`).
-#: False gives plain chord steps (for comparisons).
-BROYDEN = True
 #: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
 STALL_STEP = 0.05
 STALL_COUNT = 4
@@ -425,15 +422,15 @@ class _Broyden:
     |s_n|^2)``. Near a root the steps converge superlinearly, plain chord steps linearly.
     """
 
-    def __init__(self, lu, first_step: np.ndarray) -> None:
+    def __init__(self, lu) -> None:
         self.lu = lu
-        self.steps = [first_step]
-        self.norms2 = [float(first_step @ first_step)]
+        self.steps: list[np.ndarray] = []
+        self.norms2: list[float] = []
 
     def step(self, g: np.ndarray) -> np.ndarray:
         """The next step at the residual ``g`` (the previous steps all taken in full)."""
         z = -self.lu.solve(g)
-        if not BROYDEN:
+        if not self.steps:  # the plain chord step
             return z
         for j in range(len(self.steps) - 1):
             z += self.steps[j + 1] * ((self.steps[j] @ z) / self.norms2[j])
@@ -441,6 +438,7 @@ class _Broyden:
         return z / denom if abs(denom) > 1e-8 else z
 
     def taken(self, step: np.ndarray) -> None:
+        """Record a step taken in full from the point of the last :meth:`step`."""
         nrm2 = float(step @ step)
         if nrm2 > 0:
             self.steps.append(step)
@@ -499,7 +497,8 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
         lu = None
     small = 0  # consecutive damped Newton steps shorter than STALL_STEP
     chords = 0  # chord steps since the last Jacobian
-    inverse = None  # the factors with Broyden updates along the chord steps
+    # The factors with Broyden updates along the chord steps (None without factors).
+    inverse = _Broyden(lu) if lu is not None else None
     for it in range(1, max_iter + 1):
         if not np.all(np.isfinite(g)):
             return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
@@ -511,27 +510,23 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
         if deadline is not None and time.perf_counter() > deadline:
             return NewtonReport(False, w, res, it - 1, "time limit reached")
         if jac is None and chords < CHORD_MAX:  # chord step with the kept factors
-            # Factors from a previous solve: their first step starts the Broyden chain.
-            step = inverse.step(g) if inverse is not None else -lu.solve(g)
+            step = inverse.step(g)
             lam = grid.admissible_step(w, step)
             if lam == 1.0 and np.all(np.isfinite(step)):
                 g_new, _ = grid.residual(w + step, values, par, jacobian=False)
                 res_new = float(np.max(np.abs(g_new)))
                 if np.isfinite(res_new) and res_new <= contraction * res:
-                    if inverse is None:
-                        inverse = _Broyden(lu, step)
-                    else:
-                        inverse.taken(step)
+                    inverse.taken(step)
                     w, g = w + step, g_new
                     chords += 1
                     continue
         if jac is None:  # the factors went stale or served long enough: a Newton step
             g, jac = grid.residual(w, values, par)
         chords = 0
-        inverse = None
         try:
             lu = splu(jac)
-            step = -lu.solve(g)
+            inverse = _Broyden(lu)
+            step = inverse.step(g)
         except RuntimeError:
             return NewtonReport(False, w, res, it - 1, "singular Newton matrix")
         if not np.all(np.isfinite(step)):
@@ -556,7 +551,7 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
                                 f"in a row)", lu)
         w = w_new
         if lam == 1.0 and float(np.max(np.abs(g_new))) <= contraction * res:
-            inverse = _Broyden(lu, step)
+            inverse.taken(step)
             g, jac = g_new, None  # try the same factors next
         else:
             g, jac = grid.residual(w, values, par)
