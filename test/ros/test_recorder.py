@@ -167,6 +167,27 @@ def _write_stream(path, intervals_ms, topic="/joint_states"):
     return np.diff(times[1:]) * 1e-9
 
 
+#: Timed passes of the replay test: each pass checks every bound, and one that meets them all
+#: passes the test. A player that drifts or mis-times fails every pass; a pass can also fail
+#: when the (shared, two-core) machine stalls the player's thread for several milliseconds.
+REPLAY_PASSES = 3
+
+
+def _timing_errors(got, recorded, rate):
+    """Reasons (empty if none) why receive times ``got`` (ns) miss the recorded intervals."""
+    replayed = np.diff(got) * 1e-9
+    err = np.abs(replayed - recorded / rate)
+    total = (got[-1] - got[0]) * 1e-9
+    # Receive times (DDS) of a local reliable topic: typically 0.1 ms off. Single late
+    # wake-ups of the player are tolerated; the schedule is absolute, so they do not add up.
+    checks = {"median error < 1 ms": np.median(err) < 1e-3,
+              "90th percentile < 5 ms": np.quantile(err, 0.9) < 5e-3,
+              "max error < 30 ms": np.max(err) < 30e-3,
+              "total within 10 ms (no drift)": abs(total - recorded.sum() / rate) < 10e-3}
+    return [f"{name} (errors in ms: {np.round(err * 1e3, 2).tolist()}, total {total:.4f} s)"
+            for name, ok in checks.items() if not ok]
+
+
 @pytest.mark.parametrize("rate", [1.0, 10.0])
 def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
     rng = np.random.default_rng(0)
@@ -186,23 +207,31 @@ def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
     assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
+    failures = []
     try:
         assert spin_until(executor, lambda: player.publishers[topic]
                           .get_subscription_count() == 1)
-        assert player.play_once() == n + 1
-        assert spin_until(executor, lambda: len(got) == n + 1)
+        for _ in range(REPLAY_PASSES):
+            got.clear()
+            assert player.play_once() == n + 1
+            assert spin_until(executor, lambda: len(got) == n + 1)
+            failures.append(_timing_errors(list(got), recorded, rate))
+            if not failures[-1]:
+                break
     finally:
         executor.shutdown()
         node.destroy_node()
-    replayed = np.diff(got) * 1e-9
-    err = np.abs(replayed - recorded / rate)
-    # Receive times (DDS) of a local reliable topic: typically 0.1 ms off. The machine may be
-    # busy (two cores, parallel test runs), so single late wake-ups are tolerated.
-    assert np.median(err) < 1e-3, err
-    assert np.quantile(err, 0.9) < 5e-3, err
-    assert np.max(err) < 30e-3, err
-    total = (got[-1] - got[0]) * 1e-9
-    assert total == pytest.approx(recorded.sum() / rate, abs=10e-3)  # absolute schedule: no drift
+    assert not failures[-1], failures
+
+
+def test_timing_check_rejects_a_drifting_or_mistimed_replay():
+    """The replay test's check fails a player that drifts, or ignores the rate."""
+    recorded = np.full(50, 0.01)
+    exact = np.concatenate([[0], np.cumsum(recorded)]) * 1e9
+    assert _timing_errors(exact, recorded, 1.0) == []
+    drift = np.concatenate([[0], np.cumsum(recorded * 1.03)]) * 1e9  # 3 % slow: 15 ms
+    assert any("total" in r for r in _timing_errors(drift, recorded, 1.0))
+    assert any("median" in r for r in _timing_errors(exact, recorded, 10.0))
 
 
 def test_replay_rejects_unknown_topics(context, tmp_path):
