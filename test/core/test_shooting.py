@@ -297,3 +297,27 @@ def test_check_sampling_finds_the_extremes_of_a_fine_sampling(solved):
         np.testing.assert_allclose(a.max(axis=0), b.max(axis=0), atol=1e-4)
         np.testing.assert_allclose(a.min(axis=0), b.min(axis=0), atol=1e-4)
     assert np.max(np.abs(sample.H)) == pytest.approx(np.max(np.abs(fine.H)), abs=1e-7)
+
+
+def test_settled_stops_only_on_a_geometric_tail_below_tol():
+    from tocontrol_ros.core.solver import _settled
+
+    # T changes of the paper's example at k = 4 for delta = 1e-3 -> 1e-4 -> 1e-5: a ratio of
+    # about 1/87, so the rest of the series is ~2e-10, below 1e-8 * T.
+    assert _settled([1.33e-6, 1.52e-8], 5.4e-9)
+    assert not _settled([1.52e-8], 5.4e-9)               # one change says nothing
+    assert not _settled([1e-6, 6e-7], 1e-6)              # shrinking, but not by half
+    assert not _settled([1e-3, 1e-5], 5.4e-9)            # geometric, but the tail 1e-7
+    assert not _settled([0.0, 1e-9], 5.4e-9)
+
+
+def test_final_smoothing_is_confirmed_on_the_refined_mesh(galicki):
+    """Stopping the coarse schedule early still ends with a solve at the next smaller
+    delta on the final mesh that changes T by less than smoothing_tol."""
+    opts = SolverOptions(starts=1, candidates=1, verify=False)
+    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4.0), opts)
+    assert res.success
+    (k_a, d_a, t_a, *_), (k_b, d_b, t_b, *_) = res.continuation[-2:]
+    assert k_a == k_b == 4.0 and d_b < d_a
+    assert abs(t_b - t_a) <= opts.smoothing_tol * t_b
+    assert res.delta == d_b
