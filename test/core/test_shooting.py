@@ -77,6 +77,36 @@ def test_jacobian_with_switch_nodes_matches_finite_differences(galicki, solved):
     assert np.abs(jac.toarray()[:, grid.size - grid.B:]).max() > 1e-3
 
 
+def test_one_switch_node_residual_and_jacobian(galicki, solved):
+    """A mesh with a single switch node (the switching function's outputs are then one
+    column) gives the same equations as the full mesh's, and a Jacobian that matches finite
+    differences."""
+    res, problem = solved["nodes"], solved["problem"]
+    st = res._state
+    system = Planner(galicki).system
+    full = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                        kinds=st["kinds"], breaks=st["breaks"])
+    node, comp = st["breaks"][0]
+    one = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
+                       kinds=st["kinds"], breaks=[(node, comp)])
+    assert one.B == 1
+    # Unknowns of the one-break grid at the full solution: every break time but the first
+    # is dropped, and the intervals between the kept nodes keep their lengths.
+    w_full = st["w"]
+    w = np.concatenate([w_full[:one.size - 1], [w_full[full.size - full.B]]])
+    par = np.array([4.0, res.delta, 1.0])
+    values = _values(problem)
+    g_one, _ = one.residual(w, values, par)
+    g_full = full.residual(w_full, values, par, jacobian=False)[0]
+    assert np.allclose(g_one, g_full[:one.size], atol=1e-9)
+    # Away from the solution, with a smooth law, so that differences are meaningful.
+    w = w * (1 + 1e-3 * np.random.default_rng(3).standard_normal(len(w)))
+    par = np.array([4.0, 1e-2, 1.0])
+    _, jac = one.residual(w, values, par)
+    fd = _fd_jacobian(one, w, values, par)
+    assert np.max(np.abs(jac.toarray() - fd) / np.maximum(1.0, np.abs(fd))) < 1e-5
+
+
 def test_switch_nodes_sit_on_sign_changes_of_s(galicki, solved):
     res = solved["nodes"]
     assert res.success, res.message

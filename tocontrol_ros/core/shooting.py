@@ -375,6 +375,7 @@ class ShootingGrid:
         if self.B:
             s_val, s_jac = self._switch(nodes[self._break_nodes].T,
                                         np.broadcast_to(par[:, None], (3, self.B)))
+            s_val = s_val.reshape(self.n, self.B)  # 1-D when there is one break
             parts.append(s_val[self._break_comp, np.arange(self.B)])
         g = np.concatenate(parts)
         if not jacobian:
