@@ -61,33 +61,48 @@ class DirectResult:
     solve_time: float
 
 
+#: :func:`initial_path` times the path so that the largest Euclidean norm of its normalised
+#: torques is this: inside the k = 1 control set (the unit ball) with some room.
+GUESS_LOAD = 0.8
+
+
 def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: int,
                  torque_scale: float = 1.0) -> tuple[float, np.ndarray, np.ndarray]:
-    """A rest-to-rest smoothstep path from ``q0`` to ``qT`` and a time estimate.
+    """A rest-to-rest smoothstep path from ``q0`` to ``qT``, timed to fit the control set.
+
+    The first time is the slowest joint's bang-bang time with its diagonal inertia, times
+    1.5; then, twice, the time is scaled by ``sqrt(peak / GUESS_LOAD)`` (by at most a factor
+    4 either way), ``peak`` being the largest ``|u|`` (Euclidean) of the path's normalised
+    torques: exact when the largest is inertial (at the path's ends, at rest, without
+    gravity), approximate otherwise. The guess then starts inside the k = 1 control set: on
+    the 84 guesses of ``bench/ipopt_options.py`` IPOPT takes 19.5 iterations on average
+    instead of 22.3, and one-start solves of 30 random pairs of the paper's arm succeed in
+    29 cases instead of 24 (``bench/work_counts.py``).
 
     Returns
     -------
     T : float
-        Time estimate (s): the slowest joint's bang-bang time with its diagonal inertia.
+        Time of the path (s).
     x : ndarray, shape (intervals + 1, 2n)
     u : ndarray, shape (intervals + 1, n)
-        Normalised torques of the path by inverse dynamics, clipped to the unit box.
+        Normalised torques of the path by inverse dynamics, clipped to [-0.9, 0.9].
     """
     dq = qT - q0
     inertia = np.diag(model.mass_matrix(q0))
     acc = model.tau_max * torque_scale / inertia
     t_final = max(1.5 * float(np.max(2 * np.sqrt(np.abs(dq) / acc))), 1e-2)
     tau = np.linspace(0, 1, intervals + 1)
-    s = 3 * tau**2 - 2 * tau**3
-    ds = (6 * tau - 6 * tau**2) / t_final
-    dds = (6 - 12 * tau) / t_final**2
-    q = q0 + np.outer(s, dq)
-    qd = np.outer(ds, dq)
-    qdd = np.outer(dds, dq)
-    # One call for all nodes (CasADi maps a function over extra columns).
-    u = np.array(model.function("id")(q.T, qd.T, qdd.T)).T
-    u = np.clip(u / (model.tau_max * torque_scale), -0.9, 0.9)
-    return t_final, np.hstack([q, qd]), u
+    q = q0 + np.outer(3 * tau**2 - 2 * tau**3, dq)
+    for rescale in (True, True, False):
+        qd = np.outer((6 * tau - 6 * tau**2) / t_final, dq)
+        qdd = np.outer((6 - 12 * tau) / t_final**2, dq)
+        # One call for all nodes (CasADi maps a function over extra columns).
+        u = np.array(model.function("id")(q.T, qd.T, qdd.T)).T / (model.tau_max * torque_scale)
+        peak = float(np.max(np.linalg.norm(u, axis=1)))
+        if not rescale or not np.isfinite(peak) or peak <= 0:
+            break
+        t_final = max(t_final * float(np.clip(np.sqrt(peak / GUESS_LOAD), 0.25, 4.0)), 1e-2)
+    return t_final, np.hstack([q, qd]), np.clip(u, -0.9, 0.9)
 
 
 class _Layout:
