@@ -63,6 +63,12 @@ __all__ = ["PlannerNode", "PlanRequest", "LatestSlot", "main", "QOS_LATCHED", "Q
 SAME_POINT_TOL = 1e-6
 #: Threads of the executor: service calls each hold one while they wait for their outcome.
 EXECUTOR_THREADS = 8
+#: A request that starts from the robot's current state waits up to this long (s) for a
+#: joint state that arrived after it (a goal: received after the goal; a service request:
+#: processed after the request), so that a state still queued when the request came is not
+#: used while the arm moves. Without joint states newer than that, the newest one within
+#: ``joint_state_timeout`` is used after the wait.
+FRESH_STATE_WAIT = 0.1
 #: How often a waiting service callback looks at the shutdown flag (s).
 WAIT_POLL = 0.05
 #: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
@@ -208,7 +214,9 @@ class PlannerNode(Node):
         self._status_lock = threading.Lock()
         self._stopping = threading.Event()
         self._slot = LatestSlot()
-        self._joint_state: tuple[JointState, float] | None = None
+        # (message, time.monotonic() when processed, DDS receive time in ns or 0)
+        self._joint_state: tuple[JointState, float, int] | None = None
+        self._state_changed = threading.Condition()
         self._last_result = None
         self.ready = threading.Event()
 
@@ -222,8 +230,10 @@ class PlannerNode(Node):
         self.create_service(GetPlan, "~/plan", self._on_plan, callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
+        # Joint states in a group of their own: served while a goal callback waits for them.
         self.create_subscription(JointState, "joint_states", self._on_joint_state,
-                                 QOS_JOINT_STATES, callback_group=inputs)
+                                 QOS_JOINT_STATES,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -258,36 +268,55 @@ class PlannerNode(Node):
             return self._config
 
     # -------------------------------------------------------------- callbacks
-    def _on_joint_state(self, msg: JointState) -> None:
-        with self._lock:
-            self._joint_state = (msg, time.monotonic())
+    def _on_joint_state(self, msg: JointState, info) -> None:
+        with self._state_changed:
+            self._joint_state = (msg, time.monotonic(), int(info.get("received_timestamp", 0)))
+            self._state_changed.notify_all()
 
-    def _current_start(self, config: PlannerConfig) -> tuple:
-        """The robot's current state if a recent joint state is there, else default_start."""
-        with self._lock:
+    def _current_start(self, config: PlannerConfig, since: float,
+                       received_after: int = 0) -> tuple:
+        """The robot's current state if a recent joint state is there, else default_start.
+
+        Parameters
+        ----------
+        config : PlannerConfig
+        since : float
+            ``time.monotonic()`` when the request came: with a recent joint state, wait up
+            to :data:`FRESH_STATE_WAIT` for one processed after this...
+        received_after : int
+            ...and received (DDS receive time, ns) after this, when not 0.
+        """
+        with self._state_changed:
             latest = self._joint_state
+            if latest is not None and since - latest[1] <= config.joint_state_timeout:
+                self._state_changed.wait_for(
+                    lambda: self._joint_state[1] >= since
+                    and self._joint_state[2] >= received_after, FRESH_STATE_WAIT)
+                latest = self._joint_state
         if latest is not None and time.monotonic() - latest[1] <= config.joint_state_timeout:
             q, qd = conv.joint_state_from_msg(latest[0], self.model.joint_names)
             return ("state", q, qd)
         return ("point", np.array(config.default_start))
 
-    def _on_goal(self, msg: PointStamped) -> None:
+    def _on_goal(self, msg: PointStamped, info) -> None:
+        since = time.monotonic()
         rid = next(self._ids)
         config = self.config
         try:
             target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
-            start = self._current_start(config)
+            start = self._current_start(config, since, int(info.get("received_timestamp", 0)))
         except conv.ConversionError as exc:
             self._reject(rid, "goal", str(exc))
             return
         self._submit(PlanRequest(rid, "goal", start, target, config))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
+        since = time.monotonic()
         rid = next(self._ids)
         config = self.config
         try:
             if request.start.header.frame_id == "":
-                start = self._current_start(config)
+                start = self._current_start(config, since)
             else:
                 start = ("point", conv.point_from_msg(
                     request.start.pose.position, request.start.header.frame_id, self.frame,

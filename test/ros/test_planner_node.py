@@ -148,6 +148,28 @@ def test_goal_topic_from_joint_state(planner, client):
     np.testing.assert_allclose(msg.points[-1].velocities, 0.0, atol=1e-6)
 
 
+def test_goal_plans_from_a_joint_state_received_after_it(planner, client):
+    """A joint state that arrives just after the goal (within FRESH_STATE_WAIT) is the start:
+    a goal is not planned from a state still queued, or older, while the arm moves."""
+    from tocontrol_ros.planner import FRESH_STATE_WAIT
+
+    names = ["joint1", "joint2", "joint3"]
+    old_q, new_q = np.array([0.2, 1.1, -0.4]), np.array([0.25, 1.05, -0.35])
+    qd = np.array([0.5, -0.5, 0.5])
+    client.wait_subscribed(client.joint_pub)
+    client.wait_subscribed(client.goal_pub)
+    for _ in range(5):
+        client.send_joint_state(names, old_q, qd)
+        time.sleep(0.02)
+    since = len(client.status_list())
+    client.send_goal((2.0, 2.0))
+    time.sleep(FRESH_STATE_WAIT / 4)
+    client.send_joint_state(names, new_q, qd)
+    status = client.final_status(since, 60.0)
+    assert status.event == "solved", status.message
+    np.testing.assert_allclose(status.vector("start_q"), new_q, atol=1e-9)
+
+
 def test_goal_without_recent_joint_state_starts_from_default(planner, client):
     assert all(r.successful for r in client.set_parameters(joint_state_timeout=0.0))
     try:
