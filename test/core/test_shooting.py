@@ -351,3 +351,32 @@ def test_final_smoothing_is_confirmed_on_the_refined_mesh(galicki):
     assert k_a == k_b == 4.0 and d_b < d_a
     assert abs(t_b - t_a) <= opts.smoothing_tol * t_b
     assert res.delta == d_b
+
+
+def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
+    """A k = 1 Newton failure on `intervals` intervals is retried once on twice as many
+    (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
+    on 24); a failure on both is reported as NEWTON_FAILED."""
+    from tocontrol_ros.core import solver
+
+    sizes = []
+    real = solver.newton_solve
+
+    def fail_on(bad):
+        def newton(grid, *args, **kwargs):
+            sizes.append(grid.N)
+            if grid.N in bad:
+                return solver.NewtonReport(False, args[0], 1.0, 1, "stalled (forced)")
+            return real(grid, *args, **kwargs)
+        return newton
+
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=1.0)
+    opts = SolverOptions(starts=1, candidates=1, verify=False, intervals=6)
+    monkeypatch.setattr(solver, "newton_solve", fail_on({6}))
+    res = plan(problem, opts)
+    assert res.success and sizes[:2] == [6, 12]
+    sizes.clear()
+    monkeypatch.setattr(solver, "newton_solve", fail_on({6, 12}))
+    res = plan(problem, opts)
+    assert res.status is solver.Status.NEWTON_FAILED and sizes == [6, 12]
+    assert "forced" in res.message

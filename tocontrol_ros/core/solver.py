@@ -1039,15 +1039,23 @@ def _failure(problem, status: Status, message: str, timings: dict, starts=(),
 
 def _solve_from_guess(planner, problem, options, direct: DirectResult, deadline,
                       should_stop) -> tuple[_Run, Status, str]:
-    """Shooting at k = 1 from a direct solution, then continuation and smoothing."""
-    lengths = np.full(options.intervals, 1.0 / options.intervals)
-    grid = ShootingGrid(planner.system, lengths, options.steps, problem.start.kind,
-                        problem.target.kind)
-    nodes = _nodes_from_direct(direct, grid.tau)
-    run = _Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
-    rep = _newton(planner, run, problem, 1.0, 0.0, _continuation_options(options), deadline,
-                  should_stop)
-    if not rep.converged:
+    """Shooting at k = 1 from a direct solution, then continuation and smoothing.
+
+    When Newton does not converge on ``options.intervals`` intervals, it is tried once more
+    on twice as many (the direct solution interpolated anew): where the guess's costates are
+    rough, shorter intervals keep the initial residual small enough for Newton.
+    """
+    for count in (options.intervals, 2 * options.intervals):
+        lengths = np.full(count, 1.0 / count)
+        grid = ShootingGrid(planner.system, lengths, options.steps, problem.start.kind,
+                            problem.target.kind)
+        nodes = _nodes_from_direct(direct, grid.tau)
+        run = _Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
+        rep = _newton(planner, run, problem, 1.0, 0.0, _continuation_options(options),
+                      deadline, should_stop)
+        if rep.converged:
+            break
+    else:
         return run, Status.NEWTON_FAILED, rep.message
     if not _continue_k(planner, run, problem, options, deadline, should_stop):
         return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
