@@ -537,7 +537,9 @@ def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np
         while True:
             w_new = w + lam * step
             g_new, _ = grid.residual(w_new, values, par, jacobian=False)
-            merit_new = 0.5 * float(g_new @ g_new) if np.all(np.isfinite(g_new)) else np.inf
+            with np.errstate(over="ignore"):  # a huge residual: merit inf, step rejected
+                merit_new = 0.5 * float(g_new @ g_new) if np.all(np.isfinite(g_new)) \
+                    else np.inf
             if merit_new <= (1 - 1e-4 * lam) * merit or lam < 1e-4:
                 break
             lam *= 0.5
