@@ -141,6 +141,27 @@ def load_text():
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def cpu_ticks():
+    """``(steal, total)`` CPU ticks of the machine since boot (Linux ``/proc/stat``), or None.
+
+    Steal is the time the hypervisor ran something else while this virtual machine wanted
+    the CPU: on this project's VM it drifts between a few and tens of percent, and the
+    timings with it.
+    """
+    try:
+        fields = [int(v) for v in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+    except (OSError, ValueError):
+        return None
+    return (fields[7] if len(fields) > 7 else 0), sum(fields[:8])
+
+
+def steal_text(before, after):
+    """Steal between two :func:`cpu_ticks` readings, in percent of all CPU time."""
+    if before is None or after is None or after[1] <= before[1]:
+        return "unknown"
+    return f"{100 * (after[0] - before[0]) / (after[1] - before[1]):.0f} %"
+
+
 def machine_info():
     cpu = "unknown"
     try:
@@ -300,3 +321,4 @@ class Section:
     lines: list
     targets: list = field(default_factory=list)  # (target, verdict) pairs
     seconds: float = float("nan")
+    steal: str = "unknown"  # CPU steal during the section (see cpu_ticks)

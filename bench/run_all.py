@@ -82,35 +82,42 @@ def _run(args):
     t0 = time.perf_counter()
     info = common.machine_info()
     load_start = common.load_text()
+    ticks_start = common.cpu_ticks()
     common.log(f"run_all: {info['CPU']}, {info['cores (usable)']} cores, load {load_start}, "
                f"{'quick' if args.quick else 'full'}")
     model = common.paper_model()
     sections = []
     paper_out = None
     if "paper" in args.only:
-        ts = time.perf_counter()
+        ts, ticks = time.perf_counter(), common.cpu_ticks()
         sec, paper_out = paper.run(model, args.runs, args.budget, first_run=True)
         sec.seconds = time.perf_counter() - ts
+        sec.steal = common.steal_text(ticks, common.cpu_ticks())
         sections.append(sec)
     if "peers" in args.only:
-        ts = time.perf_counter()
+        ts, ticks = time.perf_counter(), common.cpu_ticks()
         sec = peers.run(model, paper_out, args.runs, args.budget)
         sec.seconds = time.perf_counter() - ts
+        sec.steal = common.steal_text(ticks, common.cpu_ticks())
         sections.append(sec)
     if "random" in args.only:
-        ts = time.perf_counter()
+        ts, ticks = time.perf_counter(), common.cpu_ticks()
         sec = random_pairs.run(model, args.pairs, args.pair_starts, args.pair_candidates)
         sec.seconds = time.perf_counter() - ts
+        sec.steal = common.steal_text(ticks, common.cpu_ticks())
         sections.append(sec)
     if "scaling" in args.only:
-        ts = time.perf_counter()
+        ts, ticks = time.perf_counter(), common.cpu_ticks()
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)
         sec = scaling.run(runs=3 if args.quick else 5, panda_runs=1 if args.quick else 2)
         sec.seconds = time.perf_counter() - ts
+        sec.steal = common.steal_text(ticks, common.cpu_ticks())
         sections.append(sec)
     total = time.perf_counter() - t0
     load_end = common.load_text()
+    info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
+        ticks_start, common.cpu_ticks())
     text = _report(args, info, load_start, load_end, sections, total)
     args.out.write_text(text)
     common.log(f"wrote {args.out} ({total:.0f} s)")
@@ -144,7 +151,8 @@ def _report(args, info, load_start, load_end, sections, total):
         lines += ["", "## Targets", ""]
         lines += common.table(["target", "met?"], targets)
     for s in sections:
-        lines += ["", f"## {s.title}", "", f"({s.seconds:.0f} s of the run.)", ""] + s.lines
+        lines += ["", f"## {s.title}", "",
+                  f"({s.seconds:.0f} s of the run; CPU steal {s.steal}.)", ""] + s.lines
     return "\n".join(lines) + "\n"
 
 
