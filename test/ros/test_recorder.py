@@ -167,9 +167,9 @@ def _write_stream(path, intervals_ms, topic="/joint_states"):
     return np.diff(times[1:]) * 1e-9
 
 
-#: Timed passes of the replay test: each pass checks every bound, and one that meets them all
-#: passes the test. A player that drifts or mis-times fails every pass; a pass can also fail
-#: when the (shared, two-core) machine stalls the player's thread for several milliseconds.
+#: Timed passes of the wall-clock replay test: each pass checks every bound, and one that
+#: meets them all passes the test. A player that drifts or mis-times fails every pass; a pass
+#: can also fail when the (shared, two-core) machine stalls the player's thread.
 REPLAY_PASSES = 3
 
 
@@ -188,8 +188,94 @@ def _timing_errors(got, recorded, rate):
             for name, ok in checks.items() if not ok]
 
 
+class _VirtualTime:
+    """A clock that only ``sleep`` advances, optionally late by ``late`` s on given calls."""
+
+    def __init__(self, late=None):
+        self.now = 100.0
+        self.calls = 0
+        self.late = late or {}
+
+    def clock(self):
+        return self.now
+
+    def sleep(self, dt):
+        assert dt > 0
+        self.calls += 1
+        self.now += dt + self.late.get(self.calls, 0.0)
+
+
+class _RecordingPublisher:
+    def __init__(self, vt):
+        self.vt, self.times = vt, []
+
+    def publish(self, data):
+        self.times.append(self.vt.clock())
+
+
 @pytest.mark.parametrize("rate", [1.0, 10.0])
-def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
+def test_replay_schedule_is_absolute_and_scaled(context, tmp_path, rate):
+    """The player publishes each message at origin + (log time - first log time) / rate on
+    its clock, and a late wake-up delays only the messages it holds up (no drift)."""
+    rng = np.random.default_rng(0)
+    intervals = rng.uniform(4.0, 16.0, 60)  # ms
+    path = tmp_path / "stream.mcap"
+    recorded = _write_stream(path, intervals)
+    schedule = np.concatenate([[0.0], np.cumsum(recorded)]) / rate
+    node = rclpy.create_node("replay_schedule", context=context)
+    try:
+        for late in ({}, {7: 0.030}):  # one wake-up 30 ms late (a stalled thread)
+            vt = _VirtualTime(late)
+            player = Player(node, path, rate=rate, clock=vt.clock, sleep=vt.sleep)
+            pub = _RecordingPublisher(vt)
+            player.publishers = {topic: pub for topic in player.publishers}
+            assert player.play_once() == len(schedule)
+            offsets = np.array(pub.times) - pub.times[0]
+            if not late:
+                np.testing.assert_allclose(offsets, schedule, atol=1e-9)
+            else:
+                lag = offsets - schedule
+                assert np.all(lag >= -1e-9) and lag.max() <= 0.030 + 1e-9
+                # Back on schedule once the stall is over: the last messages are on time.
+                np.testing.assert_allclose(lag[-10:], 0.0, atol=1e-9)
+    finally:
+        node.destroy_node()
+
+
+def test_replay_delivers_every_message_with_the_recorded_qos(context, tmp_path):
+    path = tmp_path / "stream.mcap"
+    topic = unique("/joint_states")
+    _write_stream(path, np.full(20, 2.0), topic)
+    node = rclpy.create_node("replay_qos", context=context)
+    got = []
+    node.create_subscription(JointState, topic, lambda m: got.append(m.position[0]),
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    player = Player(node, path, rate=1.0)
+    qos = player.publishers[topic].qos_profile
+    assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        assert spin_until(executor, lambda: player.publishers[topic]
+                          .get_subscription_count() == 1)
+        assert player.play_once() == 21
+        assert spin_until(executor, lambda: len(got) == 21)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    assert got == [float(i) for i in range(21)]  # all, in order
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rate", [1.0, 10.0])
+def test_replay_keeps_wall_clock_timing(context, tmp_path, rate):
+    """Receive times over DDS against the recording, on the wall clock.
+
+    Slow-marked (``scripts/dev test-slow``): on this two-core VM the hypervisor sometimes
+    stalls a thread for tens of milliseconds (a fresh-clone CI run saw 67 ms in all three
+    passes), which no player can hide; the schedule itself is checked exactly, on a
+    virtual clock, by test_replay_schedule_is_absolute_and_scaled in the default run.
+    """
     rng = np.random.default_rng(0)
     n = 60 if rate == 1.0 else 200
     intervals = rng.uniform(4.0, 16.0, n)  # ms: 100 Hz with jitter
@@ -203,8 +289,6 @@ def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
                              QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
                              raw=True)
     player = Player(node, path, rate=rate)
-    qos = player.publishers[topic].qos_profile
-    assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     failures = []
@@ -225,7 +309,7 @@ def test_replay_keeps_timing_and_qos(context, tmp_path, rate):
 
 
 def test_timing_check_rejects_a_drifting_or_mistimed_replay():
-    """The replay test's check fails a player that drifts, or ignores the rate."""
+    """The wall-clock test's check fails a player that drifts, or ignores the rate."""
     recorded = np.full(50, 0.01)
     exact = np.concatenate([[0], np.cumsum(recorded)]) * 1e9
     assert _timing_errors(exact, recorded, 1.0) == []
