@@ -87,33 +87,32 @@ def _run(args):
                f"{'quick' if args.quick else 'full'}")
     model = common.paper_model()
     sections = []
+
+    def section(run):
+        """``run()`` -> Section, timed, with the CPU steal while it ran; kept in order."""
+        ts, ticks = time.perf_counter(), common.cpu_ticks()
+        sec = run()
+        sec.seconds = time.perf_counter() - ts
+        sec.steal = common.steal_text(ticks, common.cpu_ticks())
+        sections.append(sec)
+
     paper_out = None
     if "paper" in args.only:
-        ts, ticks = time.perf_counter(), common.cpu_ticks()
-        sec, paper_out = paper.run(model, args.runs, args.budget, first_run=True)
-        sec.seconds = time.perf_counter() - ts
-        sec.steal = common.steal_text(ticks, common.cpu_ticks())
-        sections.append(sec)
+        def run_paper():
+            nonlocal paper_out
+            sec, paper_out = paper.run(model, args.runs, args.budget, first_run=True)
+            return sec
+        section(run_paper)
     if "peers" in args.only:
-        ts, ticks = time.perf_counter(), common.cpu_ticks()
-        sec = peers.run(model, paper_out, args.runs, args.budget)
-        sec.seconds = time.perf_counter() - ts
-        sec.steal = common.steal_text(ticks, common.cpu_ticks())
-        sections.append(sec)
+        section(lambda: peers.run(model, paper_out, args.runs, args.budget))
     if "random" in args.only:
-        ts, ticks = time.perf_counter(), common.cpu_ticks()
-        sec = random_pairs.run(model, args.pairs, args.pair_starts, args.pair_candidates)
-        sec.seconds = time.perf_counter() - ts
-        sec.steal = common.steal_text(ticks, common.cpu_ticks())
-        sections.append(sec)
+        section(lambda: random_pairs.run(model, args.pairs, args.pair_starts,
+                                         args.pair_candidates))
     if "scaling" in args.only:
-        ts, ticks = time.perf_counter(), common.cpu_ticks()
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)
-        sec = scaling.run(runs=3 if args.quick else 5, panda_runs=1 if args.quick else 2)
-        sec.seconds = time.perf_counter() - ts
-        sec.steal = common.steal_text(ticks, common.cpu_ticks())
-        sections.append(sec)
+        section(lambda: scaling.run(runs=3 if args.quick else 5,
+                                    panda_runs=1 if args.quick else 2))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
