@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -33,7 +34,7 @@ import numpy as np
 from .compiled import c_name, compile_function
 from .model import RobotModel, spd_solve
 
-__all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
+__all__ = ["BufferedFunction", "CanonicalSystem", "LawParams", "control_law"]
 
 
 def control_law(s, k, delta=0.0):
@@ -71,6 +72,35 @@ def control_law(s, k, delta=0.0):
     return num / den
 
 
+@dataclass(frozen=True)
+class LawParams:
+    """Parameters of the control law, the ``par`` input of every compiled function.
+
+    Attributes
+    ----------
+    k : float
+        Convexification exponent of the torque set ``sum u_i^(2k) <= 1``.
+    delta : float
+        Smoothing of the law (0 = the paper's law).
+    torque_scale : float
+        Fraction of ``tau_max`` planned against: ``1 - reserve``.
+    """
+
+    k: float
+    delta: float = 0.0
+    torque_scale: float = 1.0
+
+    def array(self) -> np.ndarray:
+        """``(k, delta, torque_scale)``, shape (3,): the compiled functions' ``par``."""
+        return np.array([self.k, self.delta, self.torque_scale])
+
+    @classmethod
+    def from_array(cls, par) -> LawParams:
+        """The inverse of :meth:`array`."""
+        k, delta, scale = (float(v) for v in np.asarray(par, dtype=float).ravel())
+        return cls(k, delta, scale)
+
+
 class CanonicalSystem:
     """Symbolic canonical system of one model, and the compiled functions built on it.
 
@@ -83,7 +113,8 @@ class CanonicalSystem:
     z : casadi.SX, shape (4n, 1)
         ``(q, qd, psi_q, psi_qd)``.
     par : casadi.SX, shape (3, 1)
-        ``(k, delta, torque_scale)``; ``torque_scale = 1 - reserve`` multiplies ``tau_max``.
+        ``(k, delta, torque_scale)`` (:meth:`LawParams.array`); ``torque_scale = 1 - reserve``
+        multiplies ``tau_max``.
     rhs : casadi.SX, shape (4n, 1)
         ``F(z)`` in physical time (per second).
     u, s, ham : casadi.SX

@@ -140,6 +140,16 @@ class Problem:
             return self.target.value
         return self.model.point(self.target.value[:self.model.n])
 
+    @property
+    def boundary_values(self) -> np.ndarray:
+        """``(start.value, target.value)``: the values the BVP's boundary conditions take."""
+        return np.concatenate([self.start.value, self.target.value])
+
+    @property
+    def torque_scale(self) -> float:
+        """Fraction of ``tau_max`` planned against: ``1 - reserve``."""
+        return 1.0 - self.reserve
+
     def is_trivial(self, tol: float = 1e-9) -> bool:
         """True when the start already satisfies the target at rest (nothing to move)."""
         n = self.model.n

@@ -1,0 +1,153 @@
+"""Independent checks of a solution: re-integration, ``H``, the control set, URDF limits.
+
+The checks sample the solution once (:func:`fine_sample`); :func:`verify` re-integrates the
+model under the nominal torques with an adaptive integrator, independent of the solver's RK4;
+:func:`verdict` turns the checks into the result's status.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .options import SolverOptions
+from .problem import Problem
+from .result import Status
+from .trajectory import Trajectory, TrajectorySample
+
+__all__ = ["SAMPLE_GAPS", "fine_sample", "limit_warnings", "verdict", "verify"]
+
+
+def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
+           sample: TrajectorySample | None = None) -> dict:
+    """Independent checks of a solution.
+
+    Re-integrates the model under the nominal torques ``tau(t)`` of the trajectory with an
+    adaptive integrator (scipy's DOP853) from the trajectory's initial state, and evaluates
+    ``H`` and the control-set equation on a fine sampling.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : Trajectory
+    rtol : float
+        Relative tolerance of the integrator (absolute: ``rtol / 10``).
+    sample : TrajectorySample, optional
+        The sampling on which ``H`` and the control set are checked; default: the one
+        :func:`~tocontrol_ros.core.solver.plan` uses (the RK4 step points, filled in where
+        they are more than ``T / SAMPLE_GAPS`` apart).
+
+    Returns
+    -------
+    dict
+        ``point_error`` (m): distance of the re-integrated end point to the target point;
+        ``state_error``: max-norm of the re-integrated final state minus the trajectory's;
+        ``velocity_error``: max |qd(T)| of the re-integration (rad/s); ``max_abs_H``;
+        ``max_set_error``: max |sum u^2k - 1|; ``nfev``.
+    """
+    from scipy.integrate import solve_ivp
+
+    model = problem.model
+    n = model.n
+    f = model.function("f")
+    scale = problem.torque_scale
+
+    def rhs(t, x):
+        u = trajectory.control(t)
+        return np.array(f(x, u * scale)).ravel()
+
+    x0 = trajectory.state(0.0)[0, :2 * n]
+    sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=rtol,
+                    atol=rtol / 10)
+    x_end = sol.y[:, -1]
+    planned_end = trajectory.state(trajectory.T)[0, :2 * n]
+    if sample is None:
+        sample = fine_sample(trajectory)
+    k = trajectory.law.k
+    set_err = np.abs(np.sum(sample.u ** (2 * k), axis=1) - 1)
+    return {
+        "point_error": float(np.linalg.norm(model.point(x_end[:n]) - problem.target_point)),
+        "state_error": float(np.max(np.abs(x_end - planned_end))),
+        "velocity_error": float(np.max(np.abs(x_end[n:]))),
+        "max_abs_H": float(np.max(np.abs(sample.H))),
+        "max_set_error": float(np.max(set_err)),
+        "max_abs_u": float(np.max(np.abs(sample.u))),
+        "nfev": int(sol.nfev),
+        "integrator_success": bool(sol.success),
+    }
+
+
+#: The checks of a result (max |u|, URDF limits, H) sample the solution at its RK4 step
+#: points, which crowd at the switches, plus equally spaced times wherever two step points
+#: are more than T / SAMPLE_GAPS apart.
+SAMPLE_GAPS = 250
+
+
+def fine_sample(trajectory: Trajectory) -> TrajectorySample:
+    """One sampling for every check of a result (see :data:`SAMPLE_GAPS`).
+
+    It finds the extremes of a much finer equally spaced sampling at a fraction of its cost,
+    since most step points need no integration.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+
+    Returns
+    -------
+    TrajectorySample
+        At the RK4 step points and the filled-in times, in increasing order.
+    """
+    t_grid = trajectory.t_grid
+    widths = np.diff(t_grid)
+    parts = np.ceil(widths / (trajectory.T / SAMPLE_GAPS)).astype(int)  # per step, >= 1
+    wide = np.flatnonzero(parts > 1)
+    extra = np.repeat(wide, parts[wide] - 1)  # the step each extra time falls in
+    rank = np.arange(len(extra)) - np.repeat(np.cumsum(parts[wide] - 1) - (parts[wide] - 1),
+                                             parts[wide] - 1) + 1
+    fill = t_grid[extra] + widths[extra] * rank / parts[extra]
+    return trajectory.evaluate(np.sort(np.concatenate([t_grid, fill])))
+
+
+def limit_warnings(problem: Problem, sample: TrajectorySample) -> tuple[str, ...]:
+    """One warning per joint and limit (position, velocity) that ``sample`` violates.
+
+    Each names the first time it does; the limits are checked, not enforced.
+    """
+    model = problem.model
+    out = []
+    for i, name in enumerate(model.joint_names):
+        for label, values, lo, hi in (
+                ("position", sample.q[:, i], model.q_lower[i], model.q_upper[i]),
+                ("velocity", sample.qd[:, i], -model.qd_max[i], model.qd_max[i])):
+            bad = np.flatnonzero((values < lo) | (values > hi))
+            if bad.size:
+                j = int(bad[0])
+                out.append(f"joint {name!r} violates its URDF {label} limit [{lo:.4g}, "
+                           f"{hi:.4g}] at t = {sample.t[j]:.4f} s (value {values[j]:.4g}; "
+                           f"limits are checked, not enforced)")
+    return tuple(out)
+
+
+def verdict(options: SolverOptions, checks: dict, residual: float) -> tuple[Status, str]:
+    """Status and message of a converged solve.
+
+    From its checks (:func:`verify`'s dict, empty when ``options.verify`` is off) and its
+    residual (max-norm of the BVP equations).
+    """
+    status, message = Status.SUCCESS, Status.SUCCESS.value
+    if not options.verify:
+        message = "solved (converged; re-integration check off: SolverOptions(verify=False))"
+    else:
+        bad = []
+        if checks["point_error"] > options.verify_point_tol:
+            bad.append(f"re-integrated end point misses the target by "
+                       f"{checks['point_error']:.3g} m")
+        if checks["velocity_error"] > options.verify_velocity_tol:
+            bad.append(f"re-integrated end velocity {checks['velocity_error']:.3g}")
+        if bad:
+            status = Status.VERIFICATION_FAILED
+            message = f"{status.value}: " + "; ".join(bad)
+    if status is Status.SUCCESS and residual > options.tol:
+        status = Status.VERIFICATION_FAILED
+        message = f"{status.value}: residual {residual:.3g} above tol"
+    return status, message
