@@ -29,9 +29,9 @@ import threading
 import time
 from pathlib import Path
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+
 DEFAULT_URDF = "galicki_3r.urdf"
-PAPER_START = (1.0, 1.0)
-PAPER_TARGET = (2.2, 1.5)
 #: Longest waits (s). The first planner start on a fresh machine compiles C (10-20 s).
 READY_TIMEOUT = 240.0
 PLAN_TIMEOUT = 120.0

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.mesh import Mesh, interval_errors, merge_pairs
 from tocontrol_ros.core.pmp import LawParams
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.shooting import ShootingGrid, integrate, newton_solve, step_fractions
 from tocontrol_ros.core.solver import Planner, SolverOptions, plan
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 SINGLE = SolverOptions(starts=1, candidates=1)
 
 

@@ -22,14 +22,14 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.direct import DirectCollocation
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 KS = (1, 2, 4, 8, 16)
 #: Mesh of the default cross-check: one IPOPT build (k is a parameter) serves every k.
 N_DIRECT = 200

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import plan
 from tocontrol_ros.core.tracking import (
@@ -24,7 +25,7 @@ from tocontrol_ros.core.tracking import (
     simulate,
 )
 
-START, TARGET = (1.0, 1.0), (2.2, 1.5)
+START, TARGET = PAPER_START, PAPER_TARGET
 #: The gains of config/tracker.yaml (normalised units: 1/rad, s/rad).
 GAINS = TrackingGains(kp=(100.0, 100.0, 30.0), kd=(10.0, 10.0, 3.0))
 #: Lighter and less damped than the model: within reach of the planned torques.
