@@ -1,5 +1,6 @@
 """The report from a recorded file: PNGs and a summary with T, k, errors and saturation."""
 
+import cdr_exact
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
@@ -40,7 +41,7 @@ def write_run(path, model):
                            ("/planner/status", status)]:
             writer.add_topic(topic, f"{type(msg).__module__.split('.')[0]}/msg/"
                              f"{type(msg).__name__}", [QoSProfile(depth=1)])
-            writer.write(topic, mcap_io.serialize_exact(msg), log_time=int(T0 * 1e9) - 1000)
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=int(T0 * 1e9) - 1000)
         writer.add_topic("/joint_states", "sensor_msgs/msg/JointState", [QoSProfile(depth=10)])
         writer.add_topic("/tracker/tracking_error", "sensor_msgs/msg/JointState",
                          [QoSProfile(depth=10)])
@@ -52,10 +53,10 @@ def write_run(path, model):
             stamp = int((T0 + t) * 1e9)
             js = JointState(header=Header(stamp=_time(T0 + t)), name=names,
                             position=(qi + err).tolist(), effort=(u * tau_max).tolist())
-            writer.write("/joint_states", mcap_io.serialize_exact(js), log_time=stamp)
+            writer.write("/joint_states", cdr_exact.serialize_exact(js), log_time=stamp)
             e = JointState(header=Header(stamp=_time(T0 + t)), name=names,
                            position=err.tolist(), velocity=[0.0] * 3)
-            writer.write("/tracker/tracking_error", mcap_io.serialize_exact(e), log_time=stamp)
+            writer.write("/tracker/tracking_error", cdr_exact.serialize_exact(e), log_time=stamp)
 
 
 def model_point(model, q):
