@@ -74,10 +74,8 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
     1.5; then, twice, the time is scaled by ``sqrt(peak / GUESS_LOAD)`` (by at most a factor
     4 either way), ``peak`` being the largest ``|u|`` (Euclidean) of the path's normalised
     torques: exact when the largest is inertial (at the path's ends, at rest, without
-    gravity), approximate otherwise. The guess then starts inside the k = 1 control set: on
-    the 84 guesses of ``bench/ipopt_options.py`` IPOPT takes 19.5 iterations on average
-    instead of 22.3, and one-start solves of 30 random pairs of the paper's arm succeed in
-    29 cases instead of 24 (``bench/work_counts.py``).
+    gravity), approximate otherwise. The guess then starts inside the k = 1 control set,
+    which saves IPOPT iterations and makes one-start solves succeed more often.
 
     Returns
     -------
@@ -563,13 +561,12 @@ class DirectCollocation:
                 "ipopt.acceptable_tol": tol, "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
                 # MUMPS without its scaling and permutation (the NLP is well scaled: joint
                 # units and a normalised torque) and no iterative refinement unless a solve
-                # needs it: on 84 guesses of the paper's arm, 0.81 of the time (paired
-                # median), the same iterations and the same T but one, which found a better
-                # local optimum (IPOPT's own overhead, not MUMPS, dominates at this size).
+                # needs it: less time for the same iterations and T (IPOPT's own overhead,
+                # not MUMPS, dominates at this size).
                 "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
                 "ipopt.min_refinement_steps": 0,
-                # No residual check of each solve of the step's linear system (0.95 of the
-                # time on the same 84 guesses, the same T in all: bench/ipopt_options.py).
+                # No residual check of each solve of the step's linear system: the same T,
+                # a little faster.
                 "ipopt.fast_step_computation": "yes",
                 "grad_f": funs["grad_f"], "jac_g": funs["jac_g"], "hess_lag": funs["hess_l"],
                 # The solution, f, g and the multipliers come from IPOPT: no Lagrangian

@@ -59,7 +59,7 @@ def control_law(s, k, delta=0.0):
         norm2 = ca.sumsqr(s)
         a = ca.sqrt(s * s + delta**2 * norm2)
         # One power per component: a^(p - 1) = a^p / a and a^(2kp) = a^(1 + p) = a a^p
-        # (pow dominates the right-hand side; 30 % off an RK4 step of the paper's arm).
+        # (pow dominates the right-hand side).
         ap = a ** p
         den = ca.sum1(a * ap) ** (1.0 / (2 * k))
         return s * ap / a / den
@@ -143,8 +143,7 @@ class CanonicalSystem:
         # R(q, qd, a) = M(q) a + b(q, qd): from M qdd = tau - b, d(qdd) = -M^-1 dR|a, so
         # -dH/dq = lam^T dR/dq and -dH/dqd = -psi_q + lam^T dR/dqd, with a = qdd and
         # lam = M^-1 psi_qd held fixed. The same numbers as differentiating H through
-        # M^-1 (to rounding), in fewer operations: the RK4 step with its Jacobian of the
-        # paper's arm 5.9 -> 4.6 us.
+        # M^-1 (to rounding), in fewer operations.
         acc, adj = ca.SX.sym("a", n), ca.SX.sym("lam", n)
         grad = ca.Function("dR", [q, qd, acc, adj], [ca.gradient(
             ca.dot(adj, model.rnea_sym(q, qd, acc)), x)])(q, qd, qdd, lam)
@@ -244,8 +243,7 @@ class CanonicalSystem:
                                   ["z0", "h", "par"], ["z1"])
             else:
                 # The Jacobian chained through the four stages (as in step_batch's stagewise
-                # branch): 17 thousand operations for the paper's arm against 29 thousand
-                # for AD through the whole step, 5.6 against 8.7 us per step.
+                # branch): far fewer operations than AD through the whole step.
                 fj = ca.Function("FJ", [self.z, self.par],
                                  [self.rhs, ca.jacobian(self.rhs, self.z)])
                 f1, j1 = fj(z0, self.par)

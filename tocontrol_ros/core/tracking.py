@@ -338,9 +338,8 @@ class Tracker:
         Initial velocity (default zero).
     compile : bool
         Compile the control period (law and RK4 substeps) to C on first use (about 0.3 s,
-        then cached on disk; see :mod:`tocontrol_ros.core.compiled`): about 4 us per period
-        instead of 12 for the paper's arm. Without a C compiler CasADi's virtual machine runs
-        it.
+        then cached on disk; see :mod:`tocontrol_ros.core.compiled`), several times faster
+        per period than CasADi's virtual machine, which runs it without a C compiler.
 
     Notes
     -----
