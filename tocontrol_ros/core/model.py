@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import casadi as ca
 import numpy as np
 
 from .errors import ModelError
-from .urdf import Body, chain_from_urdf, default_urdf_path, read_urdf
+from .urdf import Body, Chain, chain_from_urdf, default_urdf_path, read_urdf
 
 __all__ = ["Body", "RobotModel", "load_robot", "default_urdf_path"]
 
@@ -69,7 +69,7 @@ def spd_solve(a, b):
 
 
 @dataclass(frozen=True, eq=False)
-class RobotModel:
+class RobotModel(Chain):
     """A serial manipulator with bounded joint torques, with symbolic and numeric dynamics.
 
     Build it with :func:`load_robot`. Dynamics: ``M(q) qdd + b(q, qd) = tau`` with
@@ -79,44 +79,20 @@ class RobotModel:
 
     Attributes
     ----------
-    name : str
-        URDF robot name.
-    joint_names : tuple of str, length n
-    bodies : tuple of Body, length n
-    tip_rotation, tip_translation : ndarray, shape (3, 3) and (3,)
-        Tip frame in the last body's frame.
-    base_link, tip_link : str
+    name, joint_names, bodies, tip_rotation, tip_translation, base_link, tip_link
+        The chain read from the URDF (:class:`~tocontrol_ros.core.urdf.Chain`).
+    tau_max, damping, q_lower, q_upper, qd_max, coulomb : ndarray, shape (n,)
+        Its joint limits and friction (:class:`~tocontrol_ros.core.urdf.Chain`); the
+        position and velocity limits are kept for checks, Coulomb friction is reported,
+        not modelled (it is discontinuous).
     gravity : ndarray, shape (3,)
         Gravity acceleration in the base frame (m/s^2).
     task_axes : tuple of int
         Which base-frame coordinates (0 = x, 1 = y, 2 = z) form the task space; ``m`` of them.
-    tau_max : ndarray, shape (n,)
-        Torque (N m) or force (N) limits, from URDF ``<limit effort>``.
-    damping : ndarray, shape (n,)
-        Viscous friction (N m s/rad or N s/m), from URDF ``<dynamics damping>``.
-    q_lower, q_upper : ndarray, shape (n,)
-        Position limits (rad or m); infinite for continuous joints. Kept for checks.
-    qd_max : ndarray, shape (n,)
-        Velocity limits (rad/s or m/s); infinite when absent. Kept for checks.
-    coulomb : ndarray, shape (n,)
-        URDF ``<dynamics friction>``; reported, not modelled (it is discontinuous).
     """
 
-    name: str
-    joint_names: tuple[str, ...]
-    bodies: tuple[Body, ...]
-    tip_rotation: np.ndarray
-    tip_translation: np.ndarray
-    base_link: str
-    tip_link: str
     gravity: np.ndarray
     task_axes: tuple[int, ...]
-    tau_max: np.ndarray
-    damping: np.ndarray
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    qd_max: np.ndarray
-    coulomb: np.ndarray
     _functions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ sizes
@@ -477,17 +453,8 @@ def load_robot(
     if gravity_arr.shape != (3,) or not np.all(np.isfinite(gravity_arr)):
         raise ModelError(f"`gravity` must be 3 finite numbers, got {gravity!r}")
     chain = chain_from_urdf(robot, label, base_link, tip_link, locked_joints)
-    model = RobotModel(
-        name=chain.name,
-        joint_names=tuple(b.joint for b in chain.bodies),
-        bodies=chain.bodies,
-        tip_rotation=chain.tip_rotation, tip_translation=chain.tip_translation,
-        base_link=chain.base_link, tip_link=chain.tip_link,
-        gravity=gravity_arr, task_axes=_task_axes(task_axes, list(chain.bodies)),
-        tau_max=chain.tau_max, damping=chain.damping,
-        q_lower=chain.q_lower, q_upper=chain.q_upper, qd_max=chain.qd_max,
-        coulomb=chain.coulomb,
-    )
+    model = RobotModel(**{f.name: getattr(chain, f.name) for f in fields(Chain)},
+                       gravity=gravity_arr, task_axes=_task_axes(task_axes, list(chain.bodies)))
     _check_positive_definite(model)
     return model
 

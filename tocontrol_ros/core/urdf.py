@@ -134,24 +134,30 @@ class Chain:
     ----------
     name : str
         URDF robot name.
-    base_link, tip_link : str
+    joint_names : tuple of str, length n
     bodies : tuple of Body, length n
     tip_rotation, tip_translation : ndarray, shape (3, 3) and (3,)
         Tip frame in the last body's frame.
+    base_link, tip_link : str
     tau_max : ndarray, shape (n,)
-        ``<limit effort>`` (N m or N).
-    damping, coulomb : ndarray, shape (n,)
-        ``<dynamics damping>`` and ``<dynamics friction>``.
-    q_lower, q_upper, qd_max : ndarray, shape (n,)
-        Position limits (infinite for continuous joints) and velocity limits.
+        Torque (N m) or force (N) limits, from ``<limit effort>``.
+    damping : ndarray, shape (n,)
+        Viscous friction (N m s/rad or N s/m), from ``<dynamics damping>``.
+    coulomb : ndarray, shape (n,)
+        ``<dynamics friction>``.
+    q_lower, q_upper : ndarray, shape (n,)
+        Position limits (rad or m); infinite for continuous joints.
+    qd_max : ndarray, shape (n,)
+        Velocity limits (rad/s or m/s); infinite when absent.
     """
 
     name: str
-    base_link: str
-    tip_link: str
+    joint_names: tuple[str, ...]
     bodies: tuple[Body, ...]
     tip_rotation: np.ndarray
     tip_translation: np.ndarray
+    base_link: str
+    tip_link: str
     tau_max: np.ndarray
     damping: np.ndarray
     q_lower: np.ndarray
@@ -222,26 +228,26 @@ class _Tree:
 
     def ends(self, base_link: str | None, tip_link: str | None) -> tuple[str, str]:
         """The base and tip links: the given ones, checked, or the root and the only leaf."""
-        links, label = self.links, self.label
-        roots = [name for name in links if name not in self.parent_joint]
         if base_link is None:
+            roots = [name for name in self.links if name not in self.parent_joint]
             if len(roots) != 1:
                 raise ModelError(f"closed chain or several trees: root links {roots}; "
                                  f"pass `base_link`")
             base_link = roots[0]
-        if base_link not in links:
-            raise ModelError(f"base link {base_link!r} is not a link of {label} "
-                             f"(links: {sorted(links)})")
+        self._check_link("base", base_link)
         if tip_link is None:
             leaves = _leaves_below(base_link, self.children)
             if len(leaves) != 1:
                 raise ModelError(f"several leaf links below {base_link!r}: {leaves}; pass "
                                  f"`tip_link`")
             tip_link = leaves[0]
-        if tip_link not in links:
-            raise ModelError(f"tip link {tip_link!r} is not a link of {label} "
-                             f"(links: {sorted(links)})")
+        self._check_link("tip", tip_link)
         return base_link, tip_link
+
+    def _check_link(self, role: str, name: str) -> None:
+        if name not in self.links:
+            raise ModelError(f"{role} link {name!r} is not a link of {self.label} "
+                             f"(links: {sorted(self.links)})")
 
     def path(self, base_link: str, tip_link: str) -> list:
         """The joints from the base to the tip, of supported types."""
@@ -379,8 +385,9 @@ def chain_from_urdf(robot, label: str, base_link: str | None = None,
         raise ModelError(f"tip link {tip_link!r} not reached")
     tau_max, lower, upper, vmax = (np.array(col) for col in zip(*limits, strict=True))
     damping, coulomb = (np.array(col) for col in zip(*frictions, strict=True))
-    return Chain(name=robot.name or "robot", base_link=base_link, tip_link=tip_link,
+    return Chain(name=robot.name or "robot", joint_names=tuple(b.joint for b in bodies),
                  bodies=tuple(bodies), tip_rotation=tip_pose[0], tip_translation=tip_pose[1],
+                 base_link=base_link, tip_link=tip_link,
                  tau_max=tau_max, damping=damping, q_lower=lower, q_upper=upper,
                  qd_max=vmax, coulomb=coulomb)
 
