@@ -29,6 +29,25 @@ def moved(galicki, base):
     return {"cold": plan(problem, SINGLE), "warm": plan(problem, SINGLE, warm_start=base)}
 
 
+@pytest.mark.parametrize("change, fits", [
+    ({}, True),
+    ({"target": point(P_TARGET + MOVE)}, True),   # a moved target: what warm starts are for
+    ({"k": 8.0}, True),                           # another exponent: the solve steps k
+    ({"reserve": RESERVE}, False),                # another torque bound: another problem
+    ({"target": "state"}, False),                 # another target kind: other equations
+], ids=["same", "moved", "other-k", "other-reserve", "other-kind"])
+def test_the_warm_start_rule(galicki, base, change, fits):
+    """``PlanResult.can_warm_start`` is the solver's one rule for continuing a result."""
+    args = {"start": point(P_START), "target": point(P_TARGET), "k": 4.0, **change}
+    if args["target"] == "state":
+        args["target"] = joint_state(base.trajectory.state(base.T)[0, :galicki.n])
+    assert base.can_warm_start(Problem(galicki, **args)) is fits
+    # A result without a solution (here: nothing to move) continues nothing.
+    q = base.trajectory.state(0.0)[0, :galicki.n]
+    trivial = plan(Problem(galicki, joint_state(q), point(galicki.point(q))))
+    assert trivial.success and not trivial.can_warm_start(Problem(galicki, **args))
+
+
 @pytest.fixture(scope="module")
 def reserved(galicki):
     return plan(Problem(galicki, point(P_START), point(P_TARGET), k=4, reserve=RESERVE), SINGLE)

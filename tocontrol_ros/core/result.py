@@ -144,3 +144,16 @@ class PlanResult:
     starts: tuple[StartRecord, ...] = ()
     problem: Problem | None = field(default=None, repr=False)
     warm_state: WarmState | None = field(default=None, repr=False)
+
+    def can_warm_start(self, problem: Problem) -> bool:
+        """Whether :func:`~tocontrol_ros.core.solver.plan` can continue this to ``problem``.
+
+        It can from a warm state with the same model, start and target kinds and reserve.
+        The exponent may differ (the solve then steps ``k``); the one rule for callers that
+        decide whether to pass a ``warm_start``.
+        """
+        prev = self.problem
+        return (self.warm_state is not None and prev is not None
+                and prev.model is problem.model and prev.start.kind == problem.start.kind
+                and prev.target.kind == problem.target.kind
+                and prev.reserve == problem.reserve)

@@ -370,12 +370,9 @@ def _warm(ctx: SolveContext, warm: PlanResult) -> tuple[Run | None, bool]:
         check remains; None when it does not converge.
     """
     problem, options = ctx.problem, ctx.options
-    st = warm.warm_state
-    prev = warm.problem
-    if st is None or prev is None or prev.model is not problem.model or \
-            prev.start.kind != problem.start.kind or prev.target.kind != problem.target.kind \
-            or prev.reserve != problem.reserve:
+    if not warm.can_warm_start(problem):
         return None, False
+    st = warm.warm_state
     grid = st.grid(ctx.system, problem.start.kind, problem.target.kind)
     run = Run(grid=grid, w=st.w.copy(), k=warm.k, delta=warm.delta, factors=(grid, st.factors))
     if warm.k == problem.k:
