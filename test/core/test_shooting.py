@@ -6,31 +6,12 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.mesh import Mesh, interval_errors, merge_pairs
 from tocontrol_ros.core.pmp import LawParams
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.shooting import ShootingGrid, integrate, newton_solve, step_fractions
-from tocontrol_ros.core.solver import Planner, SolverOptions, plan
+from tocontrol_ros.core.solver import Planner
 
 P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
-SINGLE = SolverOptions(starts=1, candidates=1)
-
-
-@pytest.fixture(scope="module")
-def solved(galicki):
-    """The paper's example at k = 4 (one start) with switch nodes, and without."""
-    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4)
-    return {"problem": problem, "nodes": plan(problem, SINGLE),
-            "uniform": plan(problem, SolverOptions(starts=1, candidates=1,
-                                                   switch_nodes=False))}
-
-
-def _solved_grid(system, result):
-    """The final grid of ``result`` and its nodes, T and interval lengths."""
-    st = result.warm_state
-    grid = st.grid(system, "point", "point")
-    nodes, t_final, _, _ = grid.unpack(st.w)
-    return grid, nodes, t_final, grid.lengths_of(st.w)
 
 
 def test_step_fractions_sum_to_one_and_grade_towards_the_switch():
@@ -106,37 +87,6 @@ def test_one_switch_node_residual_and_jacobian(galicki, solved):
     assert np.max(np.abs(jac.toarray() - fd) / np.maximum(1.0, np.abs(fd))) < 1e-5
 
 
-def test_switch_nodes_sit_on_sign_changes_of_s(galicki, solved):
-    res = solved["nodes"]
-    assert res.success, res.message
-    system = Planner(galicki).system
-    grid, nodes, t_final, _ = _solved_grid(system, res)
-    tau = grid.tau_of(res.warm_state.w)
-    for node, i in grid.breaks:
-        t = tau[node] * t_final
-        s_node = res.trajectory.evaluate(t).S[0, i]
-        before = res.trajectory.evaluate(t - 1e-4).S[0, i]
-        after = res.trajectory.evaluate(t + 1e-4).S[0, i]
-        print(f"switch of S_{i} at t = {t:.6f} s: S = {s_node:.1e}, "
-              f"S(t -/+ 0.1 ms) = {before:.2e} / {after:.2e}")
-        assert abs(s_node) < 1e-9
-        assert before * after < 0
-    assert grid.kinds[[j for j, _ in grid.breaks]].tolist() == [-1] * grid.B
-    assert grid.kinds[[j - 1 for j, _ in grid.breaks]].tolist() == [1] * grid.B
-
-
-def test_switch_nodes_give_the_same_answer_as_a_uniform_refinement(galicki, solved):
-    a, b = solved["nodes"], solved["uniform"]
-    assert a.success and b.success, (a.message, b.message)
-    assert not b.warm_state.breaks
-    print(f"T with switch nodes {a.T:.12f} ({a.intervals} intervals, {a.iterations} "
-          f"iterations), uniform refinement {b.T:.12f} ({b.intervals}, {b.iterations})")
-    assert a.T == pytest.approx(b.T, rel=1e-8)
-    for r in (a, b):
-        assert r.verification["max_abs_H"] < 1e-6
-        assert r.verification["point_error"] < 1e-5
-
-
 def test_broyden_chord_steps_match_the_explicit_update():
     """The product form of the chord steps (Kelley's brsol) equals Broyden's good update of
     an explicit matrix, and on a linear system it converges where plain chord steps on the
@@ -202,10 +152,10 @@ def test_chord_newton_converges_to_the_newton_solution(galicki, solved):
     np.testing.assert_allclose(chord.w, plain.w, rtol=0, atol=1e-8)
 
 
-def test_integrate_sensitivities_with_graded_steps(galicki, solved):
+def test_integrate_sensitivities_with_graded_steps(galicki, solved_grid):
     """dz1/dz0 and dz1/dT of graded intervals against central differences."""
     system = Planner(galicki).system
-    grid, nodes, t_final, all_lengths = _solved_grid(system, solved["nodes"])
+    grid, nodes, t_final, all_lengths = solved_grid
     sel = np.flatnonzero(grid.kinds != 0)[:4]
     lengths = all_lengths[sel]
     par = LawParams(4.0, 1e-2, 1.0).array()
@@ -223,10 +173,10 @@ def test_integrate_sensitivities_with_graded_steps(galicki, solved):
     np.testing.assert_allclose(a[:, :, 5], (up - dn) / (2 * eps), rtol=1e-5, atol=1e-6)
 
 
-def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
+def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved_grid):
     """One compiled call per interval (Jacobians chained in C) against per-step numpy."""
     system = Planner(galicki).system
-    grid, nodes, t_final, lengths = _solved_grid(system, solved["nodes"])
+    grid, nodes, t_final, lengths = solved_grid
     par = LawParams(4.0, 1e-4, 1.0).array()
     assert not system.stagewise
     fast = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
@@ -244,132 +194,3 @@ def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))
 
 
-def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, solved):
-    """Every interval of the returned mesh passes the RK4 estimate; merging keeps switch
-    nodes and graded intervals and only merges what stays under tol / MERGE_MARGIN."""
-    from tocontrol_ros.core.mesh import MERGE_MARGIN
-
-    res = solved["nodes"]
-    system = Planner(galicki).system
-    grid, nodes, t_final, lengths = _solved_grid(system, res)
-    par = res.trajectory.law.array()
-    tol = SolverOptions().integration_tol
-    err = interval_errors(system, nodes[:-1], lengths, grid.steps, t_final, par, grid.kinds)
-    assert np.all(err <= tol), err.max()
-    # Halve every uniform interval: merging must give pairs back, never across a switch.
-    starts, halves, kinds = [], [], []
-    for j in range(grid.N):
-        if grid.kinds[j] == 0:
-            mid = integrate(system, nodes[j:j + 1], lengths[j:j + 1] / 2, grid.steps,
-                            t_final, par, False)[0][0]
-            starts += [nodes[j], mid]
-            halves += [lengths[j] / 2] * 2
-            kinds += [0, 0]
-        else:
-            starts.append(nodes[j])
-            halves.append(lengths[j])
-            kinds.append(grid.kinds[j])
-    starts, halves, kinds = np.array(starts), np.array(halves), np.array(kinds)
-    old_node = np.concatenate([[0], np.cumsum(np.where(grid.kinds == 0, 2, 1))])
-    break_nodes = old_node[[j for j, _ in grid.breaks]]
-    h_err = interval_errors(system, starts, halves, grid.steps, t_final, par, kinds)
-    out = merge_pairs(system, Mesh(starts, halves, kinds, h_err), break_nodes, grid.steps,
-                      t_final, par, tol)
-    assert out is not None
-    merged_mesh, keep = out
-    m_starts, m_lengths, m_kinds = merged_mesh.starts, merged_mesh.lengths, merged_mesh.kinds
-    assert keep[break_nodes].all() and keep[0] and keep[-1]
-    assert len(m_lengths) < len(halves)
-    np.testing.assert_allclose(m_lengths.sum(), 1.0, atol=1e-12)
-    assert sorted(m_kinds[m_kinds != 0]) == sorted(grid.kinds[grid.kinds != 0])
-    merged = np.flatnonzero(~keep[1:-1])  # removed node j + 1: intervals j, j + 1 merged
-    assert len(merged) == len(halves) - len(m_lengths)
-    m_err = interval_errors(system, m_starts, m_lengths, grid.steps, t_final, par, m_kinds)
-    grown = ~np.isin(m_lengths, halves)  # the merged intervals
-    assert grown.any() and np.all(m_err[grown] <= tol / MERGE_MARGIN * 1.001)
-
-
-@pytest.mark.parametrize("kind", [1, -1])
-def test_graded_split_puts_a_short_graded_part_at_the_switch(kind):
-    from tocontrol_ros.core.mesh import CASCADE_RATIO, graded_split
-
-    parts = graded_split(0.08, kind, err=5e-6, tol=1e-6, k=4.0)
-    np.testing.assert_allclose(parts.sum(), 0.08, rtol=1e-14)
-    outward = parts if kind == -1 else parts[::-1]  # from the switch away
-    # err ~ length^(8/7): 1/10 of the error needs (1/10)^(7/8) of the length.
-    assert outward[0] == pytest.approx(0.08 * (0.5e-6 / 5e-6) ** (7 / 8))
-    reach = np.cumsum(outward)
-    assert np.all(reach[1:-1] / reach[:-2] == pytest.approx(CASCADE_RATIO))
-    assert reach[-2] * CASCADE_RATIO >= 0.08 - 1e-15
-    # A small excess still halves the interval at most; a huge one takes 1/16.
-    assert graded_split(0.08, kind, 1.1e-6, 1e-6, 4.0).max() == pytest.approx(0.04)
-    assert min(graded_split(0.08, kind, 1.0, 1e-6, 4.0)) == pytest.approx(0.005)
-
-
-def test_check_sampling_finds_the_extremes_of_a_fine_sampling(solved):
-    """The result checks sample at the RK4 step points (filled in to T / SAMPLE_GAPS):
-    max |u| and the joint extremes agree with a 100001-point sampling."""
-    from tocontrol_ros.core.verification import SAMPLE_GAPS, fine_sample
-
-    traj = solved["nodes"].trajectory
-    sample = fine_sample(traj)
-    assert np.all(np.diff(sample.t) <= traj.T / SAMPLE_GAPS * (1 + 1e-12))
-    fine = traj.evaluate(np.linspace(0.0, traj.T, 100001))
-    assert np.max(np.abs(sample.u)) == pytest.approx(np.max(np.abs(fine.u)), abs=1e-6)
-    for a, b in ((sample.q, fine.q), (sample.qd, fine.qd)):
-        np.testing.assert_allclose(a.max(axis=0), b.max(axis=0), atol=1e-4)
-        np.testing.assert_allclose(a.min(axis=0), b.min(axis=0), atol=1e-4)
-    assert np.max(np.abs(sample.H)) == pytest.approx(np.max(np.abs(fine.H)), abs=1e-7)
-
-
-def test_settled_stops_only_on_a_geometric_tail_below_tol():
-    from tocontrol_ros.core.solver import _settled
-
-    # T changes of the paper's example at k = 4 for delta = 1e-3 -> 1e-4 -> 1e-5: a ratio of
-    # about 1/87, so the rest of the series is ~2e-10, below 1e-8 * T.
-    assert _settled([1.33e-6, 1.52e-8], 5.4e-9)
-    assert not _settled([1.52e-8], 5.4e-9)               # one change says nothing
-    assert not _settled([1e-6, 6e-7], 1e-6)              # shrinking, but not by half
-    assert not _settled([1e-3, 1e-5], 5.4e-9)            # geometric, but the tail 1e-7
-    assert not _settled([0.0, 1e-9], 5.4e-9)
-
-
-def test_final_smoothing_is_confirmed_on_the_refined_mesh(galicki):
-    """Stopping the coarse schedule early still ends with a solve at the next smaller
-    delta on the final mesh that changes T by less than smoothing_tol."""
-    opts = SolverOptions(starts=1, candidates=1, verify=False)
-    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4.0), opts)
-    assert res.success
-    (k_a, d_a, t_a, *_), (k_b, d_b, t_b, *_) = res.continuation[-2:]
-    assert k_a == k_b == 4.0 and d_b < d_a
-    assert abs(t_b - t_a) <= opts.smoothing_tol * t_b
-    assert res.delta == d_b
-
-
-def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
-    """A k = 1 Newton failure on `intervals` intervals is retried once on twice as many
-    (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
-    on 24); a failure on both is reported as NEWTON_FAILED."""
-    from tocontrol_ros.core import context, solver
-
-    sizes = []
-    real = context.newton_solve
-
-    def fail_on(bad):
-        def newton(grid, *args, **kwargs):
-            sizes.append(grid.N)
-            if grid.N in bad:
-                return solver.NewtonReport(False, args[0], 1.0, 1, "stalled (forced)")
-            return real(grid, *args, **kwargs)
-        return newton
-
-    problem = Problem(galicki, point(P_START), point(P_TARGET), k=1.0)
-    opts = SolverOptions(starts=1, candidates=1, verify=False, intervals=6)
-    monkeypatch.setattr(context, "newton_solve", fail_on({6}))
-    res = plan(problem, opts)
-    assert res.success and sizes[:2] == [6, 12]
-    sizes.clear()
-    monkeypatch.setattr(context, "newton_solve", fail_on({6, 12}))
-    res = plan(problem, opts)
-    assert res.status is solver.Status.NEWTON_FAILED and sizes == [6, 12]
-    assert "forced" in res.message
