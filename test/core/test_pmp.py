@@ -76,9 +76,9 @@ def test_stagewise_step_jacobian_equals_the_whole_step_one(galicki):
     z = rng.normal(size=(12, 5)) * 0.3
     h = np.full((1, 5), 0.01)
     par = np.array([4.0, 1e-3, 1.0])
-    cs._cache["stagewise"] = False
+    cs.stagewise = False
     z1, a1, b1 = cs.step_batch(z, h, par)
-    cs._cache["stagewise"] = True
+    cs.stagewise = True
     z2, a2, b2 = cs.step_batch(z, h, par)
     np.testing.assert_allclose(z2, z1, rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(a2, a1, rtol=1e-11, atol=1e-12)

@@ -183,12 +183,12 @@ def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved_grid):
                      grid.fractions)
     plain = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, False,
                       grid.fractions)[0]
-    system._cache["stagewise"] = True  # the step-by-step path (large models)
+    system.stagewise = True  # the step-by-step path (large models)
     try:
         slow = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
                          grid.fractions)
     finally:
-        system._cache["stagewise"] = False
+        system.stagewise = False
     np.testing.assert_allclose(plain, slow[0], rtol=0, atol=1e-12)
     for got, want in zip(fast, slow, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))

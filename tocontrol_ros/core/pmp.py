@@ -434,6 +434,11 @@ class CanonicalSystem:
             self._cache["stagewise"] = estimate > WHOLE_STEP_LIMIT
         return self._cache["stagewise"]
 
+    @stagewise.setter
+    def stagewise(self, value: bool) -> None:
+        # Forces one path (the tests compare the two on a small model).
+        self._cache["stagewise"] = bool(value)
+
     def rhs_jacobian_function(self) -> ca.Function:
         """``(z, par) -> (F(z), dF/dz)``, compiled and cached like the step function."""
         if "fj" not in self._cache:
