@@ -107,11 +107,15 @@ def test_reintegration_reaches_the_target_at_rest(solutions, k):
           f"{checks['velocity_error']:.2e} rad/s")
 
 
-def test_verify_repeats_the_result_figures(solutions):
+def test_certificate_agrees_with_scipys_dop853(solutions):
+    """Two different adaptive integrators (the certificate's compiled Dormand-Prince 5(4) and
+    scipy's DOP853 through the trajectory's dense evaluation) land on the same end state."""
     res = solutions[4]
     checks = verify(res.problem, res.trajectory)
-    for key in ("point_error", "velocity_error", "max_abs_H", "max_set_error"):
-        assert checks[key] == pytest.approx(res.verification[key], rel=1e-6, abs=1e-12), key
+    for key in ("point_error", "velocity_error"):
+        assert checks[key] == pytest.approx(res.verification[key], abs=2e-8), key
+    for key in ("max_abs_H", "max_set_error"):  # the same sampling
+        assert checks[key] == pytest.approx(res.verification[key], rel=1e-9, abs=1e-15), key
 
 
 def test_time_decreases_strictly_with_k(solutions):

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .certificate import CertificateOptions
 from .errors import ProblemError
 
 __all__ = ["SolverOptions"]
@@ -59,11 +60,18 @@ class SolverOptions:
         Angles of the self-motion family per end point (see
         :func:`~tocontrol_ros.core.ik.ik_family`).
     verify : bool
-        Re-integrate the nominal torques through the model (adaptive integrator).
+        Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
+        nominal torques re-integrated through the model by an adaptive integrator, the
+        canonical system re-integrated per shooting interval, the torques inside the set,
+        ``H``, the boundary conditions); a solution that fails is not a success.
     verify_point_tol : float
-        Re-integration must reach the target within this (m).
+        The re-integrated nominal torques must reach the target within this (m).
     verify_velocity_tol : float
         ...and end at rest within this (rad/s or m/s).
+    certificate : CertificateOptions or None
+        The certificate's other tolerances (default: :class:`CertificateOptions`'s);
+        ``verify_point_tol`` and ``verify_velocity_tol`` override its point and velocity
+        tolerances, ``tol`` its residual tolerance.
     time_limit : float
         Wall-time budget (s); the best result so far is reported when it runs out.
     """
@@ -87,6 +95,7 @@ class SolverOptions:
     verify_point_tol: float = 1e-4
     verify_velocity_tol: float = 1e-3
     time_limit: float = 60.0
+    certificate: CertificateOptions | None = None
 
     def __post_init__(self) -> None:
         positive = ("tol", "integration_tol", "smoothing_tol", "min_k_step",
@@ -107,3 +116,20 @@ class SolverOptions:
             raise ProblemError(f"`smoothing` must be a non-empty strictly decreasing sequence "
                              f"of numbers >= 0, got {self.smoothing!r}")
         object.__setattr__(self, "smoothing", sm)
+        if self.certificate is not None and not isinstance(self.certificate,
+                                                           CertificateOptions):
+            raise ProblemError(f"`certificate` must be a CertificateOptions or None, got "
+                               f"{type(self.certificate).__name__}")
+        self.certificate_options(1)  # the tolerances together must be valid
+
+    def certificate_options(self, steps: int) -> CertificateOptions:
+        """The certificate's tolerances; its segments are the shooting intervals.
+
+        Parameters
+        ----------
+        steps : int
+            RK4 steps per shooting interval of the solution.
+        """
+        return replace(self.certificate or CertificateOptions(),
+                       point_tol=self.verify_point_tol, velocity_tol=self.verify_velocity_tol,
+                       residual_tol=self.tol, segment_steps=steps)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .certificate import Certificate
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .shooting import ShootingGrid
@@ -115,8 +116,9 @@ class PlanResult:
     intervals : int
         Shooting intervals of the final mesh.
     verification : dict
-        ``point_error`` (m), ``velocity_error``, ``max_abs_H``, ``max_set_error``
-        (``max |sum u^2k - 1|``) and ``reintegration`` details.
+        The certificate's figures (:attr:`Certificate.figures`): ``point_error`` (m),
+        ``velocity_error``, ``max_abs_H``, ``max_set_error`` (``max |sum u^2k - 1|``),
+        ``max_defect``, ... (empty with ``verify=False``).
     warnings : tuple of str
         E.g. URDF position or velocity limits violated (joint and time).
     starts : tuple of StartRecord
@@ -124,6 +126,9 @@ class PlanResult:
         The problem solved.
     warm_state : WarmState or None
         The final mesh and unknowns, from which a warm start continues (None on failure).
+    certificate : Certificate or None
+        Every check with its value, tolerance and verdict (None with ``verify=False`` or
+        without a solution).
     """
 
     success: bool
@@ -144,6 +149,7 @@ class PlanResult:
     starts: tuple[StartRecord, ...] = ()
     problem: Problem | None = field(default=None, repr=False)
     warm_state: WarmState | None = field(default=None, repr=False)
+    certificate: Certificate | None = None
 
     def can_warm_start(self, problem: Problem) -> bool:
         """Whether :func:`~tocontrol_ros.core.solver.plan` can continue this to ``problem``.

@@ -15,7 +15,8 @@
    longer changes, refines the mesh until every interval's RK4 error estimate is below
    tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
    unchanged;
-5. verifies the result (residual, ``H``, re-integration of the nominal torques).
+5. certifies the result (:mod:`~tocontrol_ros.core.certificate`: residual, ``H``, the
+   torques inside the set, re-integration of the nominal torques and of the canonical system).
 
 Newton keeps its LU factors while they work (chord steps with Broyden's rank-one updates,
 also across the solves of one mesh and into a warm start). Because the switch nodes move
@@ -35,7 +36,8 @@ This module is the orchestration; the pieces live next to it:
   the iterate of one start and its Newton solve;
 - :mod:`~tocontrol_ros.core.seeding`: seed pairs of the multistart (step 1);
 - :mod:`~tocontrol_ros.core.mesh`: error estimates, refinement and the switch mesh (step 4);
-- :mod:`~tocontrol_ros.core.verification`: the checks of step 5.
+- :mod:`~tocontrol_ros.core.certificate`, :mod:`~tocontrol_ros.core.verification`: the
+  checks of step 5 and the status they give.
 
 ``from tocontrol_ros.core.solver import plan, SolverOptions, PlanResult, Status, verify,
 Planner`` keeps working.
@@ -50,6 +52,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .certificate import certify
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
 from .mesh import refine, switch_mesh
@@ -195,9 +198,10 @@ def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list
     traj = trajectory(ctx, run)
     sample = fine_sample(traj)
     t0 = time.perf_counter()
-    checks = verify(problem, traj, sample=sample) if options.verify else {}
+    cert = certify(problem, traj, options.certificate_options(run.grid.steps), sample=sample,
+                   solver_residual=run.residual) if options.verify else None
     timings["verify"] = time.perf_counter() - t0
-    status, message = verdict(options, checks, run.residual)
+    status, message = verdict(options, cert, run.residual)
     timings["total"] = time.perf_counter() - t_start
     t_final = run.t_final
     records = [replace(r, T=t_final) if r.status == "returned" else r for r in records]
@@ -206,7 +210,8 @@ def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list
         success=status is Status.SUCCESS, status=status, message=message, T=t_final,
         k=run.k, trajectory=traj, residual=run.residual, iterations=run.iterations,
         timings=timings, continuation=tuple(run.log), max_abs_u=float(np.max(np.abs(sample.u))),
-        delta=run.delta, intervals=grid.N, verification=checks,
+        delta=run.delta, intervals=grid.N,
+        verification=dict(cert.figures) if cert else {}, certificate=cert,
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
         problem=problem,
         warm_state=WarmState(lengths=grid.lengths_of(run.w).copy(), w=run.w.copy(),

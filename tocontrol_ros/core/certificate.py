@@ -1,0 +1,512 @@
+"""The certificate of a plan: independent checks of a solution, each with its tolerance.
+
+A solution of the boundary-value problem is the solver's RK4 grid of the canonical state
+``z = (q, qd, psi)`` (:class:`~tocontrol_ros.core.trajectory.Trajectory`). The certificate
+checks it with a method that shares nothing with the solver but the model: an embedded
+Runge-Kutta pair of order 5(4) (Dormand and Prince) with step-size control, compiled to C
+(one call integrates many segments, the adaptive loop included), at a tolerance far below
+the certificate's. From each segment start ``z_j`` of the grid it integrates, together,
+
+- the canonical system (16) with the control law (15): where it lands is compared with the
+  next segment start (the *defect*: how far the grid is from an exact solution of (16));
+- the model's state under the nominal torques ``u*(z(t))`` (open loop): this state is not
+  reset at the segment starts but carried from ``x(0)`` to ``T``, so at ``T`` it is where
+  the nominal torques take the arm; it must land on the target at rest.
+
+It also checks, on a fine sampling of the trajectory (the values that are published), every
+torque inside the convexified set (``sum u_i^(2k) <= 1``, ``|u_i| < 1``) and ``max |H|``;
+the boundary and transversality conditions at both ends, recomputed from the end states
+(no multiplier of the solver's); the solver's own residual when given; and, when asked
+(:attr:`CertificateOptions.check_limits`), the joint position and velocity limits.
+
+:func:`certify` is a pure function of the problem and the trajectory; it returns a frozen
+:class:`Certificate` with every figure and one :class:`CertificateItem` (value, tolerance,
+pass/fail) per check.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .compiled import c_name, compile_function
+from .errors import ProblemError
+from .pmp import BufferedFunction, CanonicalSystem
+from .problem import Problem
+from .trajectory import Trajectory, TrajectorySample
+
+__all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify",
+           "AdaptiveIntegrator"]
+
+# Dormand-Prince 5(4) (Hairer, Norsett, Wanner, *Solving ODEs I*, Table 5.2): 5th-order
+# solution, FSAL (the last stage is the next step's first), error from the embedded 4th.
+_C = (0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0)
+_A = ((),
+      (1 / 5,),
+      (3 / 40, 9 / 40),
+      (44 / 45, -56 / 15, 32 / 9),
+      (19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729),
+      (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
+      (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
+_E = (71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40)
+#: Step-size controller: safety factor and bounds of the change per step.
+_SAFETY, _SHRINK, _GROW = 0.9, 0.2, 5.0
+#: Segments per compiled call (the last call padded with empty segments).
+CHUNK = 16
+#: Trial steps per segment in one call; a segment that has not reached its end after them
+#: is integrated again with the next budget (the whole chain: the open-loop state is
+#: carried through).
+BUDGETS = (256, 4096)
+
+
+@dataclass(frozen=True)
+class CertificateOptions:
+    """Tolerances of the certificate (validated on construction).
+
+    Attributes
+    ----------
+    point_tol : float
+        The open-loop end point must be within this of the target (m).
+    velocity_tol : float
+        ...and the open-loop end joint velocities within this of 0 (rad/s or m/s).
+    position_tol : float
+        For a joint-state target, the open-loop end joint positions within this (rad, m).
+    defect_tol : float
+        Max-norm of (re-integrated segment end minus next grid state), relative to
+        ``max(1, |z|)`` of that state.
+    boundary_tol : float
+        Boundary and transversality conditions at both ends (m, rad/s, and the costate
+        component along the self-motion manifold, relative to ``max(1, |psi_q|)``).
+    hamiltonian_tol : float
+        ``max |H|`` over the sampling (``H = 0`` along an exact solution).
+    control_set_tol : float
+        ``max sum u_i^(2k) - 1`` over the sampling (rounding only).
+    residual_tol : float
+        The solver's residual (max-norm of its BVP equations), when given.
+    rtol, atol : float
+        The integrator's tolerances (relative and absolute, per component of the state).
+    segment_steps : int
+        Grid steps per segment (the solver's RK4 steps per shooting interval gives the
+        shooting intervals).
+    check_limits : bool
+        Also check the joint position and velocity limits of the model (along the sampling
+        and the open-loop state), for plans that enforce them.
+    limit_tol : float
+        Tolerated excess over a joint limit (rad, m, rad/s).
+    """
+
+    point_tol: float = 1e-4
+    velocity_tol: float = 1e-3
+    position_tol: float = 1e-4
+    defect_tol: float = 1e-5
+    boundary_tol: float = 1e-6
+    hamiltonian_tol: float = 1e-5
+    control_set_tol: float = 1e-9
+    residual_tol: float = 1e-6
+    rtol: float = 1e-10
+    atol: float = 1e-11
+    segment_steps: int = 12
+    check_limits: bool = False
+    limit_tol: float = 1e-6
+
+    def __post_init__(self) -> None:
+        for name in ("point_tol", "velocity_tol", "position_tol", "defect_tol",
+                     "boundary_tol", "hamiltonian_tol", "control_set_tol", "residual_tol",
+                     "rtol", "atol", "limit_tol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ProblemError(f"`{name}` must be a positive number, got {value!r}")
+        if not (isinstance(self.segment_steps, (int, np.integer)) and self.segment_steps >= 1):
+            raise ProblemError(f"`segment_steps` must be an integer >= 1, got "
+                               f"{self.segment_steps!r}")
+        if self.rtol > 1e-3 * min(self.point_tol, self.defect_tol):
+            raise ProblemError(f"`rtol` ({self.rtol:g}) must be at least 1000 times below "
+                               f"`point_tol` and `defect_tol`: the integrator's error must "
+                               f"not count in the certificate")
+
+
+@dataclass(frozen=True)
+class CertificateItem:
+    """One check: ``value`` against ``tol`` (passes when ``value <= tol``, or ``< tol``).
+
+    Attributes
+    ----------
+    name : str
+    value : float
+    tol : float
+    passed : bool
+    unit : str
+    meaning : str
+    """
+
+    name: str
+    value: float
+    tol: float
+    passed: bool
+    unit: str
+    meaning: str
+
+    def __str__(self) -> str:
+        verdict = "ok" if self.passed else "FAILED"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{self.name} = {self.value:.3g}{unit} (tol {self.tol:.3g}): {verdict}"
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Outcome of :func:`certify`.
+
+    Attributes
+    ----------
+    passed : bool
+        Every item passed.
+    items : tuple of CertificateItem
+    figures : dict
+        Everything measured, the items' values by their names included: ``point_error``
+        (m) and ``velocity_error`` (rad/s) of the open loop at ``T``; ``state_error``, its
+        final state minus the trajectory's; ``open_loop_deviation``, the same max-norm over
+        every segment end; ``max_set_error`` (``max |sum u^2k - 1|``, not only the excess);
+        ``integrator_success``; ``steps`` and ``rejected`` (the integrator's), ``nfev``
+        (right-hand sides), ``segments``, ``rtol``.
+    options : CertificateOptions
+    open_loop_end : ndarray, shape (2n,)
+        ``(q, qd)`` reached at ``T`` by the nominal torques from ``x(0)``.
+    """
+
+    passed: bool
+    items: tuple[CertificateItem, ...]
+    figures: dict
+    options: CertificateOptions
+    open_loop_end: np.ndarray = field(repr=False)
+
+    @property
+    def failures(self) -> tuple[CertificateItem, ...]:
+        """The items that failed."""
+        return tuple(i for i in self.items if not i.passed)
+
+    def item(self, name: str) -> CertificateItem:
+        """The item called ``name``."""
+        for i in self.items:
+            if i.name == name:
+                return i
+        raise KeyError(f"`name` {name!r} is not an item of this certificate; items: "
+                       f"{[i.name for i in self.items]}")
+
+    def summary(self) -> str:
+        """One line: passed, or the failed items with their values and tolerances."""
+        if self.passed:
+            return "certified"
+        return "certificate failed: " + "; ".join(str(i) for i in self.failures)
+
+
+# --------------------------------------------------------------------- integrator
+class AdaptiveIntegrator:
+    """Dormand-Prince 5(4) with step-size control, compiled, over chains of segments.
+
+    The integrated state is ``y = (z, x)``: the canonical state ``z`` (4n) under (16) and
+    the model's state ``x`` (2n) under the torques of the control law at ``z``. Each
+    segment starts ``z`` anew from the grid; ``x`` runs on from the previous segment.
+
+    Parameters
+    ----------
+    system : CanonicalSystem
+    rtol, atol : float
+        Per step: max over components of ``|err_i| / (atol + rtol max(|y_i|, |y_new_i|))``
+        must be at most 1.
+    """
+
+    def __init__(self, system: CanonicalSystem, rtol: float, atol: float) -> None:
+        self.system = system
+        self.n = system.n
+        self.ny = 6 * system.n
+        self.rtol, self.atol = float(rtol), float(atol)
+        self._chunks: dict[int, BufferedFunction] = {}
+
+    def _rhs(self) -> ca.Function:
+        """``(y, par) -> dy/dt``; ``par = (k, delta, torque_scale, open-loop torque_scale)``."""
+        sy, n = self.system, self.n
+        x = ca.SX.sym("x", 2 * n)
+        par = ca.SX.sym("par", 4)
+        # The open loop applies the torques u tau_max (1 - reserve) of the problem, whatever
+        # scale the trajectory was solved with.
+        xd = sy.model.state_derivative_sym(x, sy.u * par[3])
+        fun = ca.Function("cert_rhs_sx", [sy.z, x, sy.par, par[3]], [ca.vertcat(sy.rhs, xd)])
+        y = ca.SX.sym("y", 6 * n)
+        return ca.Function("cert_rhs", [y, par], [fun(y[:4 * n], y[4 * n:], par[:3], par[3])])
+
+    def _trial(self, rhs: ca.Function) -> ca.Function:
+        """One trial step: ``(t, h, y, k1, accepted, rejected), L, par -> the same``."""
+        ny = self.ny
+        acc = ca.MX.sym("acc", 4 + 2 * ny)
+        length, par = ca.MX.sym("L"), ca.MX.sym("par", 4)
+        t, h = acc[0], acc[1]
+        y, k1 = acc[2:2 + ny], acc[2 + ny:2 + 2 * ny]
+        n_acc, n_rej = acc[2 + 2 * ny], acc[3 + 2 * ny]
+        rest = length - t
+        hs = ca.fmin(h, rest)
+        active = rest > 0
+        ks = [k1]
+        for i in range(1, 7):
+            yi = y + hs * sum(a * kj for a, kj in zip(_A[i], ks, strict=False) if a != 0.0)
+            ks.append(rhs(yi, par))
+        y_new = y + hs * sum(a * kj for a, kj in zip(_A[6], ks, strict=False) if a != 0.0)
+        err = hs * sum(e * kj for e, kj in zip(_E, ks, strict=True) if e != 0.0)
+        scale = self.atol + self.rtol * ca.fmax(ca.fabs(y), ca.fabs(y_new))
+        norm = ca.mmax(ca.fabs(err) / scale)
+        ok = ca.logic_and(norm <= 1.0, active)
+        factor = ca.fmin(_GROW, ca.fmax(_SHRINK, _SAFETY * norm ** (-0.2)))
+        last = hs >= rest  # this step reaches the segment's end
+        t_new = ca.if_else(ok, ca.if_else(last, length, t + hs), t)
+        # After the last step of a segment keep the step length the controller allows.
+        h_new = ca.if_else(active, ca.if_else(ca.logic_and(ok, last), ca.fmax(h, hs * factor),
+                                              hs * factor), h)
+        out = ca.vertcat(t_new, h_new, ca.if_else(ok, y_new, y), ca.if_else(ok, ks[6], k1),
+                         n_acc + ok, n_rej + ca.logic_and(active, ca.logic_not(ok)))
+        step = ca.Function("cert_step", [acc, length, par], [out])
+        # A real branch in C: the trials left after a segment's end cost a copy, not a step.
+        idle = ca.Function("cert_idle", [acc, length, par], [acc])
+        branch = ca.Function.conditional("cert_branch", [idle], step)
+        acc2, length2, par2 = ca.MX.sym("acc", 4 + 2 * ny), ca.MX.sym("L"), ca.MX.sym("par", 4)
+        return ca.Function("cert_trial", [acc2, length2, par2],
+                           [branch(length2 - acc2[0] > 0, acc2, length2, par2)])
+
+    def _chunk(self, budget: int) -> BufferedFunction:
+        """``CHUNK`` segments with ``budget`` trial steps each, in one compiled call.
+
+        ``(x0 (2n), h0, Z (CHUNK, 4n), L (CHUNK), par) -> (X (CHUNK, 2n), H (CHUNK),
+        Zend (CHUNK, 4n), stats (CHUNK, 3: time left, accepted, rejected))``.
+        """
+        if budget in self._chunks:
+            return self._chunks[budget]
+        n, ny = self.n, self.ny
+        rhs = self._rhs()
+        trials = self._trial(rhs).fold(budget)
+        x0, h0 = ca.MX.sym("x0", 2 * n), ca.MX.sym("h0")
+        z0, length, par = ca.MX.sym("z0", 4 * n), ca.MX.sym("L"), ca.MX.sym("par", 4)
+        y0 = ca.vertcat(z0, x0)
+        acc = trials(ca.vertcat(0.0, h0, y0, rhs(y0, par), 0.0, 0.0), length, par)
+        y1 = acc[2:2 + ny]
+        seg = ca.Function("cert_segment", [x0, h0, z0, length, par],
+                          [y1[4 * n:], acc[1], y1[:4 * n],
+                           ca.vertcat(length - acc[0], acc[2 + 2 * ny], acc[3 + 2 * ny])])
+        sy = self.system
+        chunk = seg.mapaccum("cert_chunk", CHUNK, 2)
+        # One broadcast par: wrap so that the buffer's inputs are dense and of fixed size.
+        xs, hs_, zs = ca.MX.sym("x0", 2 * n), ca.MX.sym("h0"), ca.MX.sym("Z", 4 * n, CHUNK)
+        ls, ps = ca.MX.sym("L", 1, CHUNK), ca.MX.sym("par", 4)
+        outs = chunk(xs, hs_, zs, ls, ca.repmat(ps, 1, CHUNK))
+        fun = ca.Function(f"tocontrol_cert_{c_name(sy.model.name)}_{n}_{budget}_{CHUNK}_"
+                          f"{self.rtol:.0e}_{self.atol:.0e}".replace("-", "m").replace(
+                              "+", "p").replace(".", "_"),
+                          [xs, hs_, zs, ls, ps], outs)
+        self._chunks[budget] = BufferedFunction(compile_function(fun)[0])
+        return self._chunks[budget]
+
+    def run(self, starts: np.ndarray, lengths: np.ndarray, x0: np.ndarray, par: np.ndarray,
+            h0: float) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Integrate a chain of segments.
+
+        Parameters
+        ----------
+        starts : ndarray, shape (S, 4n)
+            Canonical state at each segment start.
+        lengths : ndarray, shape (S,)
+            Segment durations (s), >= 0.
+        x0 : ndarray, shape (2n,)
+            Open-loop state at the start of the first segment.
+        par : ndarray, shape (4,)
+            ``(k, delta, torque_scale)`` of the canonical system, then the torque scale of
+            the open loop.
+        h0 : float
+            First trial step (s).
+
+        Returns
+        -------
+        z_end : ndarray, shape (S, 4n)
+            Canonical state at each segment end (re-integrated from its start).
+        x_end : ndarray, shape (S, 2n)
+            Open-loop state at each segment end (carried from ``x0``).
+        stats : dict
+            ``steps`` and ``rejected`` (all tries), ``finished`` (bool), ``budget``.
+        """
+        count = len(lengths)
+        pad = -count % CHUNK
+        z_all = np.concatenate([starts, np.repeat(starts[-1:], pad, axis=0)])
+        l_all = np.concatenate([lengths, np.zeros(pad)])
+        steps = rejected = 0
+        for budget in BUDGETS:
+            fun = self._chunk(budget)
+            x, h = np.asarray(x0, dtype=float), float(h0)
+            z_out, x_out, left = [], [], []
+            for c in range(0, count + pad, CHUNK):
+                xs, hs, zend, st = fun(x, h, z_all[c:c + CHUNK].T, l_all[c:c + CHUNK], par)
+                x, h = xs[:, -1], float(np.ravel(hs)[-1])
+                z_out.append(zend.T)
+                x_out.append(xs.T)
+                left.append(st[0])
+                steps += int(st[1].sum())
+                rejected += int(st[2].sum())
+            left = np.concatenate(left)[:count]
+            finished = bool(np.all(left <= 1e-12 * np.maximum(l_all[:count], 1e-300)))
+            if finished:
+                break
+        return (np.concatenate(z_out)[:count], np.concatenate(x_out)[:count],
+                {"steps": steps, "rejected": rejected, "finished": finished, "budget": budget})
+
+
+_LOCK = threading.Lock()
+
+
+def _integrator(system: CanonicalSystem, options: CertificateOptions) -> AdaptiveIntegrator:
+    """The system's integrator for these tolerances (kept with its other functions)."""
+    key = ("certificate", options.rtol, options.atol)
+    with _LOCK:
+        if key not in system._cache:
+            system._cache[key] = AdaptiveIntegrator(system, options.rtol, options.atol)
+        return system._cache[key]
+
+
+# --------------------------------------------------------------------- the checks
+def _item(name, value, tol, unit, meaning, strict=False) -> CertificateItem:
+    value = float(value)
+    passed = bool(np.isfinite(value) and (value < tol if strict else value <= tol))
+    return CertificateItem(name, value, float(tol), passed, unit, meaning)
+
+
+def _boundary(problem: Problem, z: np.ndarray, end: str) -> tuple[float, float]:
+    """(position/velocity error, transversality error) of one end of the solution."""
+    model, n = problem.model, problem.model.n
+    endpoint = problem.start if end == "start" else problem.target
+    q, qd, psi_q = z[:n], z[n:2 * n], z[2 * n:3 * n]
+    if endpoint.kind == "state":
+        return float(np.max(np.abs(z[:2 * n] - endpoint.value))), 0.0
+    err = max(float(np.linalg.norm(model.point(q) - endpoint.value)),
+              float(np.max(np.abs(qd))))
+    if model.n == model.m:
+        return err, 0.0
+    # psi_q = J^T nu for some nu: psi_q has no component along null(J), the tangent space of
+    # the self-motion manifold (checked without the solver's multiplier).
+    jac = np.array(model.function("J")(q)).reshape(model.m, n)
+    _, sv, vt = np.linalg.svd(jac)
+    null = vt[np.sum(sv > 1e-10 * sv[0]):]
+    trans = float(np.max(np.abs(null @ psi_q))) / max(1.0, float(np.max(np.abs(psi_q))))
+    return err, trans
+
+
+def certify(problem: Problem, trajectory: Trajectory, options: CertificateOptions | None = None,
+            sample: TrajectorySample | None = None,
+            solver_residual: float | None = None) -> Certificate:
+    """Check a solution independently; every check with its tolerance.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : Trajectory
+        The solution (its grid of canonical states is what is checked).
+    options : CertificateOptions, optional
+    sample : TrajectorySample, optional
+        The sampling on which the torques, ``H`` and the limits are checked; default: the
+        trajectory's grid points.
+    solver_residual : float, optional
+        The solver's own residual, checked against ``options.residual_tol`` when given.
+
+    Returns
+    -------
+    Certificate
+    """
+    options = options or CertificateOptions()
+    if problem.model is not trajectory.system.model:
+        raise ProblemError("`trajectory` was not computed for `problem.model`")
+    model, n = problem.model, problem.model.n
+    t_grid, z_grid, par = trajectory.t_grid, trajectory.z_grid, trajectory.par
+    if sample is None:
+        sample = trajectory.evaluate(t_grid)
+    items: list[CertificateItem] = []
+
+    # Re-integration: canonical system per segment, open-loop state through the whole chain.
+    idx = np.unique(np.append(np.arange(0, len(t_grid) - 1, options.segment_steps),
+                              len(t_grid) - 1))
+    lengths = np.diff(t_grid[idx])
+    integ = _integrator(trajectory.system, options)
+    x0 = z_grid[0, :2 * n]
+    z_end, x_end, stats = integ.run(z_grid[idx[:-1]], lengths, x0,
+                                    np.append(par, 1.0 - problem.reserve),
+                                    h0=float(np.min(lengths[lengths > 0])))
+    z_next = z_grid[idx[1:]]
+    scale = np.maximum(1.0, np.max(np.abs(z_next), axis=1))
+    defects = np.max(np.abs(z_end - z_next), axis=1) / scale
+    x_T = x_end[-1]
+    point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+    vel_err = float(np.max(np.abs(x_T[n:] - (problem.target.value[n:]
+                                             if problem.target.kind == "state" else 0.0))))
+    items.append(_item("integrator_finished", 0.0 if stats["finished"] else 1.0, 0.5, "",
+                       "the adaptive integrator reached every segment's end"))
+    items.append(_item("end_point", point_err, options.point_tol, "m",
+                       "nominal torques integrated from x(0): end point to target"))
+    items.append(_item("end_velocity", vel_err, options.velocity_tol, "rad/s",
+                       "nominal torques integrated from x(0): max |qd(T)|"))
+    if problem.target.kind == "state":
+        items.append(_item("end_position", float(np.max(np.abs(
+            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
+            "nominal torques integrated from x(0): max |q(T) - q_target|"))
+    items.append(_item("max_defect", float(np.max(defects)), options.defect_tol, "",
+                       "canonical system (16) re-integrated per segment: max |z_end - z_next| "
+                       "/ max(1, |z_next|)"))
+
+    # Boundary and transversality conditions, recomputed from the end states.
+    e0, t0 = _boundary(problem, z_grid[0], "start")
+    e1, t1 = _boundary(problem, z_grid[-1], "target")
+    items.append(_item("boundary", max(e0, e1), options.boundary_tol, "",
+                       "start and target conditions (point or joint state, at rest)"))
+    items.append(_item("transversality", max(t0, t1), options.boundary_tol, "",
+                       "costate psi_q orthogonal to the self-motion manifold at point ends"))
+
+    # Along the sampling: torques inside the convexified set, H = 0.
+    u = sample.u
+    with np.errstate(over="ignore", invalid="ignore"):
+        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
+    set_excess = float(np.max(set_sum) - 1.0)
+    max_u = float(np.max(np.abs(u)))
+    max_h = float(np.max(np.abs(sample.H)))
+    items.append(_item("control_set", set_excess, options.control_set_tol, "",
+                       "max sum u_i^(2k) - 1 over the samples"))
+    items.append(_item("max_abs_u", max_u, 1.0, "", "max |u_i| over the samples (< 1)",
+                       strict=True))
+    items.append(_item("max_abs_H", max_h, options.hamiltonian_tol, "",
+                       "max |H| over the samples"))
+    if solver_residual is not None:
+        items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
+                           "the solver's max-norm of its BVP equations"))
+    if options.check_limits:
+        items += _limit_items(model, sample, x_end, options)
+
+    figures = {i.name: i.value for i in items}
+    figures.update({
+        "point_error": point_err, "velocity_error": vel_err,
+        "state_error": float(np.max(np.abs(x_T - z_grid[-1, :2 * n]))),
+        "open_loop_deviation": float(np.max(np.abs(x_end - z_next[:, :2 * n]))),
+        "max_set_error": float(np.max(np.abs(set_sum - 1.0))), "max_abs_u": max_u,
+        "max_abs_H": max_h, "integrator_success": stats["finished"],
+        "steps": stats["steps"], "rejected": stats["rejected"],
+        "nfev": 6 * (stats["steps"] + stats["rejected"]) + len(lengths),
+        "segments": len(lengths), "rtol": options.rtol})
+    return Certificate(passed=all(i.passed for i in items), items=tuple(items),
+                       figures=figures, options=options, open_loop_end=x_T.copy())
+
+
+def _limit_items(model, sample: TrajectorySample, x_end: np.ndarray,
+                 options: CertificateOptions) -> list[CertificateItem]:
+    """Joint position and velocity limits, along the sampling and the open-loop state."""
+    n = model.n
+    q = np.concatenate([sample.q, x_end[:, :n]])
+    qd = np.concatenate([sample.qd, x_end[:, n:]])
+    with np.errstate(invalid="ignore"):  # infinite limits of continuous joints
+        pos = np.max(np.maximum(model.q_lower - q, q - model.q_upper))
+        vel = np.max(np.abs(qd) - model.qd_max)
+    return [_item("position_limits", max(float(pos), 0.0), options.limit_tol, "rad",
+                  "max excess over the joint position limits"),
+            _item("velocity_limits", max(float(vel), 0.0), options.limit_tol, "rad/s",
+                  "max excess over the joint velocity limits")]
