@@ -35,7 +35,8 @@ from tocontrol_ros.core.kinematics import link_positions, tip_pose
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
-           "empty_path", "markers_msg", "status_msg", "status_values", "LEVELS"]
+           "empty_path", "markers_msg", "status_msg", "status_values", "certificate_values",
+           "LEVELS"]
 
 #: Non-task coordinates of a request must match the arm's constant value within this (m):
 #: loose enough for hand-typed numbers, tight enough to catch a point from another plane.
@@ -391,6 +392,29 @@ def status_values(values: Mapping[str, object]) -> list[KeyValue]:
     """``KeyValue`` pairs; floats with 9 significant digits, arrays as ``[a, b]``."""
     return [KeyValue(key=str(k), value=_format(v)) for k, v in values.items()
             if v is not None]
+
+
+def certificate_values(certificate) -> dict[str, object]:
+    """The ``~/status`` values of a plan's certificate (empty when there is none).
+
+    Parameters
+    ----------
+    certificate : tocontrol_ros.core.certificate.Certificate or None
+
+    Returns
+    -------
+    dict
+        ``certified`` (bool), ``cert_<item>`` (each item's value), ``cert_failed`` (the
+        failed items' names, comma-separated, empty when none) and ``cert_tolerances``
+        (``item=tol`` pairs, comma-separated).
+    """
+    if certificate is None:
+        return {"certified": False}
+    out: dict[str, object] = {"certified": certificate.passed}
+    out.update({f"cert_{i.name}": i.value for i in certificate.items})
+    out["cert_failed"] = ",".join(i.name for i in certificate.failures)
+    out["cert_tolerances"] = ",".join(f"{i.name}={i.tol:.3g}" for i in certificate.items)
+    return out
 
 
 def status_msg(level: str, name: str, message: str, hardware_id: str,

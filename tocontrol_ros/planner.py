@@ -22,7 +22,6 @@ outcome; everything else stays served meanwhile.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import sys
 import threading
@@ -435,7 +434,7 @@ class PlannerNode(Node):
             qa = np.clip(np.full(model.n, 0.3), model.q_lower, model.q_upper)
             # A generic move (alternating signs: not along a singular direction).
             qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
-            options = dataclasses.replace(solver_options(config), verify=False)
+            options = solver_options(config)  # verify as configured: compiles the certificate
             for start in (point(model.point(qa)), joint_state(qa)):
                 problem = Problem(model, start, point(model.point(qb)), k=config.k,
                                   reserve=config.reserve)
@@ -487,7 +486,9 @@ class PlannerNode(Node):
         extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
                  "solve_time": result.timings.get("total"), "residual": result.residual,
                  "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
-                 "solver_status": result.status.name}
+                 "solver_status": result.status.name,
+                 "verify_time": result.timings.get("verify") if result.certificate else None,
+                 **conv.certificate_values(result.certificate)}
         if req.cancelled.is_set() or self._stopping.is_set():
             event, reason = req.cancel_reason if req.cancelled.is_set() else \
                 ("cancelled", "node shutting down")
@@ -516,7 +517,7 @@ class PlannerNode(Node):
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             req.done.set()
             return
-        verified = "verified" if config.verify else "not re-integrated (verify = false)"
+        verified = "certified" if result.certificate else "not certified (verify = false)"
         message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} "
                    f"Newton iterations, {result.timings['total']:.3f} s, residual "
                    f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
