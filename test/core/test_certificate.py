@@ -102,6 +102,18 @@ def test_all_costates_off_by_one_percent_fail_on_the_hamiltonian(solved):
     assert cert.item("max_abs_H").value == pytest.approx(0.01, rel=1e-3)
 
 
+def test_a_costate_along_the_self_motion_manifold_fails_transversality(solved, galicki):
+    """At a point end, psi_q must have no component along null(J) (eq. 21)."""
+    res = solved[4]
+    z = res.trajectory.z_grid.copy()
+    n = galicki.n
+    _, _, vt = np.linalg.svd(galicki.jacobian(z[0, :n]))
+    z[0, 2 * n:3 * n] += 1e-3 * vt[-1] * np.max(np.abs(z[0, 2 * n:3 * n]))
+    cert = _recheck(res, z_grid=z)
+    assert "transversality" in {i.name for i in cert.failures}
+    assert cert.item("transversality").value > 1e-4  # tolerance 1e-6
+
+
 def test_a_state_off_at_one_node_fails(solved):
     res = solved[4]
     z = res.trajectory.z_grid.copy()

@@ -52,8 +52,11 @@ _A = ((),
       (9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656),
       (35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84))
 _E = (71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40)
-#: Step-size controller: safety factor and bounds of the change per step.
-_SAFETY, _SHRINK, _GROW = 0.9, 0.2, 5.0
+#: Step-size controller: safety factor, bounds of the change per step, PI exponent (Hairer's
+#: DOPRI5 code).
+_SAFETY, _SHRINK, _GROW, _BETA = 0.9, 0.2, 5.0, 0.04
+#: Scalars in front of (y, k1) in the trial step's accumulator.
+_ACC = 6
 #: Segments per compiled call (the last call padded with empty segments).
 CHUNK = 16
 #: Trial steps per segment in one call; a segment that has not reached its end after them
@@ -238,13 +241,14 @@ class AdaptiveIntegrator:
         return ca.Function("cert_rhs", [y, par], [fun(y[:4 * n], y[4 * n:], par[:3], par[3])])
 
     def _trial(self, rhs: ca.Function) -> ca.Function:
-        """One trial step: ``(t, h, y, k1, accepted, rejected), L, par -> the same``."""
+        """One trial step: ``(t, h, prev, rejected_last, y, k1, accepted, rejected), L, par``
+        to the same (``prev``: the error norm of the last accepted step)."""
         ny = self.ny
-        acc = ca.MX.sym("acc", 4 + 2 * ny)
+        acc = ca.MX.sym("acc", _ACC + 2 * ny)
         length, par = ca.MX.sym("L"), ca.MX.sym("par", 4)
-        t, h = acc[0], acc[1]
-        y, k1 = acc[2:2 + ny], acc[2 + ny:2 + 2 * ny]
-        n_acc, n_rej = acc[2 + 2 * ny], acc[3 + 2 * ny]
+        t, h, prev, rej_last = acc[0], acc[1], acc[2], acc[3]
+        y, k1 = acc[4:4 + ny], acc[4 + ny:4 + 2 * ny]
+        n_acc, n_rej = acc[4 + 2 * ny], acc[5 + 2 * ny]
         rest = length - t
         hs = ca.fmin(h, rest)
         active = rest > 0
@@ -257,19 +261,27 @@ class AdaptiveIntegrator:
         scale = self.atol + self.rtol * ca.fmax(ca.fabs(y), ca.fabs(y_new))
         norm = ca.mmax(ca.fabs(err) / scale)
         ok = ca.logic_and(norm <= 1.0, active)
-        factor = ca.fmin(_GROW, ca.fmax(_SHRINK, _SAFETY * norm ** (-0.2)))
+        # PI step-size control (Hairer's DOPRI5): fewer rejections where the solution's
+        # smoothness changes (the switches of the control law), no growth right after one.
+        base = _SAFETY * norm ** (-(0.2 - 0.75 * _BETA))
+        grow = ca.fmin(_GROW, ca.fmax(_SHRINK, base * prev ** _BETA))
+        grow = ca.if_else(rej_last, ca.fmin(grow, 1.0), grow)
+        shrink = ca.fmax(_SHRINK, ca.fmin(1.0, base))
         last = hs >= rest  # this step reaches the segment's end
         t_new = ca.if_else(ok, ca.if_else(last, length, t + hs), t)
         # After the last step of a segment keep the step length the controller allows.
-        h_new = ca.if_else(active, ca.if_else(ca.logic_and(ok, last), ca.fmax(h, hs * factor),
-                                              hs * factor), h)
-        out = ca.vertcat(t_new, h_new, ca.if_else(ok, y_new, y), ca.if_else(ok, ks[6], k1),
+        h_ok = ca.if_else(last, ca.fmax(h, hs * grow), hs * grow)
+        h_new = ca.if_else(active, ca.if_else(ok, h_ok, hs * shrink), h)
+        out = ca.vertcat(t_new, h_new, ca.if_else(ok, ca.fmax(norm, 1e-4), prev),
+                         ca.logic_and(active, ca.logic_not(ok)),
+                         ca.if_else(ok, y_new, y), ca.if_else(ok, ks[6], k1),
                          n_acc + ok, n_rej + ca.logic_and(active, ca.logic_not(ok)))
         step = ca.Function("cert_step", [acc, length, par], [out])
         # A real branch in C: the trials left after a segment's end cost a copy, not a step.
         idle = ca.Function("cert_idle", [acc, length, par], [acc])
         branch = ca.Function.conditional("cert_branch", [idle], step)
-        acc2, length2, par2 = ca.MX.sym("acc", 4 + 2 * ny), ca.MX.sym("L"), ca.MX.sym("par", 4)
+        acc2, length2, par2 = ca.MX.sym("acc", _ACC + 2 * ny), ca.MX.sym("L"), \
+            ca.MX.sym("par", 4)
         return ca.Function("cert_trial", [acc2, length2, par2],
                            [branch(length2 - acc2[0] > 0, acc2, length2, par2)])
 
@@ -287,11 +299,11 @@ class AdaptiveIntegrator:
         x0, h0 = ca.MX.sym("x0", 2 * n), ca.MX.sym("h0")
         z0, length, par = ca.MX.sym("z0", 4 * n), ca.MX.sym("L"), ca.MX.sym("par", 4)
         y0 = ca.vertcat(z0, x0)
-        acc = trials(ca.vertcat(0.0, h0, y0, rhs(y0, par), 0.0, 0.0), length, par)
-        y1 = acc[2:2 + ny]
+        acc = trials(ca.vertcat(0.0, h0, 1e-4, 0.0, y0, rhs(y0, par), 0.0, 0.0), length, par)
+        y1 = acc[4:4 + ny]
         seg = ca.Function("cert_segment", [x0, h0, z0, length, par],
                           [y1[4 * n:], acc[1], y1[:4 * n],
-                           ca.vertcat(length - acc[0], acc[2 + 2 * ny], acc[3 + 2 * ny])])
+                           ca.vertcat(length - acc[0], acc[4 + 2 * ny], acc[5 + 2 * ny])])
         sy = self.system
         chunk = seg.mapaccum("cert_chunk", CHUNK, 2)
         # One broadcast par: wrap so that the buffer's inputs are dense and of fixed size.
@@ -376,20 +388,36 @@ def _item(name, value, tol, unit, meaning, strict=False) -> CertificateItem:
     return CertificateItem(name, value, float(tol), passed, unit, meaning)
 
 
-def _boundary(problem: Problem, z: np.ndarray, end: str) -> tuple[float, float]:
-    """(position/velocity error, transversality error) of one end of the solution."""
+def _kinematics(system: CanonicalSystem) -> BufferedFunction:
+    """``q (n, 3) -> (P (m, 3), J (m, n 3))``, compiled: the three end configurations."""
+    key = "certificate_kinematics"
+    with _LOCK:
+        if key not in system._cache:
+            model = system.model
+            q = ca.SX.sym("q", model.n)
+            point = model.point_sym(q)
+            fun = ca.Function(f"tocontrol_certkin_{c_name(model.name)}_{model.n}", [q],
+                              [point, ca.densify(ca.jacobian(point, q))])
+            system._cache[key] = BufferedFunction(compile_function(fun)[0].map(3, "serial"))
+        return system._cache[key]
+
+
+def _boundary(problem: Problem, z: np.ndarray, point: np.ndarray, jac: np.ndarray,
+              end: str) -> tuple[float, float]:
+    """(position/velocity error, transversality error) of one end of the solution.
+
+    ``point`` (m,) and ``jac`` (m, n) are ``P`` and its Jacobian at the end's ``q``.
+    """
     model, n = problem.model, problem.model.n
     endpoint = problem.start if end == "start" else problem.target
-    q, qd, psi_q = z[:n], z[n:2 * n], z[2 * n:3 * n]
+    qd, psi_q = z[n:2 * n], z[2 * n:3 * n]
     if endpoint.kind == "state":
         return float(np.max(np.abs(z[:2 * n] - endpoint.value))), 0.0
-    err = max(float(np.linalg.norm(model.point(q) - endpoint.value)),
-              float(np.max(np.abs(qd))))
+    err = max(float(np.linalg.norm(point - endpoint.value)), float(np.max(np.abs(qd))))
     if model.n == model.m:
         return err, 0.0
     # psi_q = J^T nu for some nu: psi_q has no component along null(J), the tangent space of
     # the self-motion manifold (checked without the solver's multiplier).
-    jac = np.array(model.function("J")(q)).reshape(model.m, n)
     _, sv, vt = np.linalg.svd(jac)
     null = vt[np.sum(sv > 1e-10 * sv[0]):]
     trans = float(np.max(np.abs(null @ psi_q))) / max(1.0, float(np.max(np.abs(psi_q))))
@@ -439,7 +467,11 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
     scale = np.maximum(1.0, np.max(np.abs(z_next), axis=1))
     defects = np.max(np.abs(z_end - z_next), axis=1) / scale
     x_T = x_end[-1]
-    point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+    points, jacs = _kinematics(trajectory.system)(
+        np.stack([z_grid[0, :n], z_grid[-1, :n], x_T[:n]], axis=1))
+    points = points.reshape(model.m, 3)
+    jacs = jacs.reshape(model.m, 3, n)  # (m, n) blocks side by side
+    point_err = float(np.linalg.norm(points[:, 2] - problem.target_point))
     vel_err = float(np.max(np.abs(x_T[n:] - (problem.target.value[n:]
                                              if problem.target.kind == "state" else 0.0))))
     items.append(_item("integrator_finished", 0.0 if stats["finished"] else 1.0, 0.5, "",
@@ -457,8 +489,8 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
                        "/ max(1, |z_next|)"))
 
     # Boundary and transversality conditions, recomputed from the end states.
-    e0, t0 = _boundary(problem, z_grid[0], "start")
-    e1, t1 = _boundary(problem, z_grid[-1], "target")
+    e0, t0 = _boundary(problem, z_grid[0], points[:, 0], jacs[:, 0], "start")
+    e1, t1 = _boundary(problem, z_grid[-1], points[:, 1], jacs[:, 1], "target")
     items.append(_item("boundary", max(e0, e1), options.boundary_tol, "",
                        "start and target conditions (point or joint state, at rest)"))
     items.append(_item("transversality", max(t0, t1), options.boundary_tol, "",
