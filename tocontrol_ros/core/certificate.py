@@ -241,8 +241,11 @@ class AdaptiveIntegrator:
         return ca.Function("cert_rhs", [y, par], [fun(y[:4 * n], y[4 * n:], par[:3], par[3])])
 
     def _trial(self, rhs: ca.Function) -> ca.Function:
-        """One trial step: ``(t, h, prev, rejected_last, y, k1, accepted, rejected), L, par``
-        to the same (``prev``: the error norm of the last accepted step)."""
+        """One trial step of a segment of length ``L``, from the accumulator to the next.
+
+        The accumulator is ``(t, h, prev, rejected_last, y, k1, accepted, rejected)``, with
+        ``prev`` the error norm of the last accepted step.
+        """
         ny = self.ny
         acc = ca.MX.sym("acc", _ACC + 2 * ny)
         length, par = ca.MX.sym("L"), ca.MX.sym("par", 4)
