@@ -134,7 +134,7 @@ def test_a_torque_sample_over_the_limit_fails(solved):
 
 
 def test_a_torque_inside_the_box_but_outside_the_set_fails(solved):
-    """|u_i| < 1 is not enough: sum u^2k <= 1 is the planned limit."""
+    """|u_i| <= 1 is not enough: sum u^2k <= 1 is the planned limit."""
     res = solved[4]
     sample = fine_sample(res.trajectory)
     u = sample.u.copy()
@@ -151,6 +151,16 @@ def test_torques_one_percent_short_miss_the_target(solved, galicki):
     failed = {i.name for i in cert.failures}
     assert "end_point" in failed
     assert cert.figures["point_error"] > 1e-3
+
+
+def test_a_blown_up_state_fails_fast(solved):
+    """A non-finite state: the integrator gives up on it and says so (no endless halving)."""
+    res = solved[1]
+    z = res.trajectory.z_grid.copy()
+    z[5 * res.warm_state.steps, 3] = np.inf
+    cert = _recheck(res, z_grid=z)
+    failed = {i.name for i in cert.failures}
+    assert {"integrator_finished", "max_defect", "end_point"} <= failed
 
 
 def test_a_residual_above_tolerance_fails(solved):
