@@ -5,7 +5,8 @@ A solution of the boundary-value problem is the solver's RK4 grid of the canonic
 checks it with a method that shares only the model and the canonical system's equations
 with the solver, not its integrator: an embedded Runge-Kutta pair of order 5(4) (Dormand and
 Prince) with step-size control, compiled to C (one call integrates many segments, the
-adaptive loop included), at a tolerance far below the certificate's. From each segment start ``z_j`` of the grid it integrates, together,
+adaptive loop included), at a tolerance far below the certificate's. From each segment
+start ``z_j`` of the grid it integrates, together,
 
 - the canonical system (16) with the control law (15): where it lands is compared with the
   next segment start (the *defect*: how far the grid is from an exact solution of (16));
