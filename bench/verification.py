@@ -62,7 +62,7 @@ def _cvodes(problem, res, rtol, atol):
     """CVODES on the same chain as the certificate: (wall time, end point error)."""
     import casadi as ca
 
-    from tocontrol_ros.core.certificate import AdaptiveIntegrator
+    from tocontrol_ros.core.adaptive import AdaptiveIntegrator
 
     traj = res.trajectory
     n = problem.model.n
