@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 
 from .compiled import c_name, compile_function
-from .pmp import BufferedFunction, CanonicalSystem
+from .pmp import BufferedFunction, CanonicalSystem, LawParams
 
 __all__ = ["AdaptiveIntegrator", "integrator", "CHUNK", "BUDGETS", "MIN_STEP"]
 
@@ -74,7 +74,7 @@ class AdaptiveIntegrator:
         sy, n = self.system, self.n
         x = ca.SX.sym("x", 2 * n)
         par = ca.SX.sym("par", 4)
-        # The open loop applies the torques u tau_max (1 - reserve) of the problem, whatever
+        # The open loop applies the torques u tau_max torque_scale of the problem, whatever
         # scale the trajectory was solved with.
         xd = sy.model.state_derivative_sym(x, sy.u * par[3])
         fun = ca.Function("cert_rhs_sx", [sy.z, x, sy.par, par[3]], [ca.vertcat(sy.rhs, xd)])
@@ -171,8 +171,8 @@ class AdaptiveIntegrator:
                           [xs, hs_, zs, ls, ps], outs)
         return BufferedFunction(compile_function(fun)[0])
 
-    def run(self, starts: np.ndarray, lengths: np.ndarray, x0: np.ndarray, par: np.ndarray,
-            h0: float) -> tuple[np.ndarray, np.ndarray, dict]:
+    def run(self, starts: np.ndarray, lengths: np.ndarray, x0: np.ndarray, law: LawParams,
+            torque_scale: float, h0: float) -> tuple[np.ndarray, np.ndarray, dict]:
         """Integrate a chain of segments.
 
         Parameters
@@ -183,9 +183,11 @@ class AdaptiveIntegrator:
             Segment durations (s), >= 0.
         x0 : ndarray, shape (2n,)
             Open-loop state at the start of the first segment.
-        par : ndarray, shape (4,)
-            ``(k, delta, torque_scale)`` of the canonical system, then the torque scale of
-            the open loop.
+        law : LawParams
+            The control law of the canonical system (the trajectory's).
+        torque_scale : float
+            Fraction of ``tau_max`` the open loop applies (the problem's
+            :attr:`~tocontrol_ros.core.problem.Problem.torque_scale`).
         h0 : float
             First trial step (s).
 
@@ -198,6 +200,7 @@ class AdaptiveIntegrator:
         stats : dict
             ``steps`` and ``rejected`` (all tries), ``finished`` (bool), ``budget``.
         """
+        par = np.append(law.array(), torque_scale)
         count = len(lengths)
         pad = -count % CHUNK
         z_all = np.concatenate([starts, np.repeat(starts[-1:], pad, axis=0)])

@@ -256,7 +256,7 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
     if problem.model is not trajectory.system.model:
         raise ProblemError("`trajectory` was not computed for `problem.model`")
     model, n = problem.model, problem.model.n
-    t_grid, z_grid, par = trajectory.t_grid, trajectory.z_grid, trajectory.par
+    t_grid, z_grid = trajectory.t_grid, trajectory.z_grid
     if sample is None:
         sample = trajectory.evaluate(t_grid)
     items: list[CertificateItem] = []
@@ -267,8 +267,8 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
     lengths = np.diff(t_grid[idx])
     integ = integrator(trajectory.system, options.rtol, options.atol)
     x0 = z_grid[0, :2 * n]
-    z_end, x_end, stats = integ.run(z_grid[idx[:-1]], lengths, x0,
-                                    np.append(par, 1.0 - problem.reserve),
+    z_end, x_end, stats = integ.run(z_grid[idx[:-1]], lengths, x0, trajectory.law,
+                                    problem.torque_scale,
                                     h0=float(np.min(lengths[lengths > 0])))
     z_next = z_grid[idx[1:]]
     with np.errstate(invalid="ignore"):  # a non-finite state fails as NaN
