@@ -17,9 +17,10 @@ spaced by their log times divided by ``--rate``.
   to the recording's end: a tracker with ``use_sim_time`` then runs on the recording's time,
   at ``--rate``.
 - ``--reexecute`` re-executes a recorded run on a running tracker: it puts the tracker at the
-  recorded initial state (``<tracker>/reset``, from the recording's joint states, see
-  :func:`recorded_initial_state`), waits for the tracker to confirm, then replays the
-  planner's trajectories (only ``/planner/trajectory`` unless ``--topics`` says otherwise).
+  recorded initial state (``<tracker>/reset``, from the tracker's recorded start event or
+  the recording's joint states, see :func:`recorded_initial_state`), waits for the tracker
+  to confirm, then replays the planner's trajectories (only ``/planner/trajectory`` unless
+  ``--topics`` says otherwise).
 - In a terminal, the space bar pauses and resumes, ``s`` publishes the next message while
   paused.
 
@@ -270,6 +271,12 @@ class Player:
         count = 0
         origin_log, origin_wall = record.log_time, self._clock()
         next_tick = origin_wall
+        if self.clock_publisher is not None:
+            # The clock one period ahead of the first message, so that subscribers have a
+            # time when it arrives.
+            self._publish_clock(origin_log)
+            origin_wall += self.clock_period
+            next_tick = origin_wall
         paused_at = None
 
         def log_now(wall):
@@ -341,31 +348,42 @@ class InitialState:
 def recorded_initial_state(path, joint_states=JOINT_STATES_TOPIC, tracker="/tracker"):
     """The joint state a recorded run started from.
 
-    The last ``joint_states`` message stamped at or before the first trajectory's start on
-    the tracker (``start_time`` of its first "executing trajectory" status, in the same
-    simulated time as the stamps), or the first one in the file when the recording has no
-    such status or no state before it (the recorder subscribed late: the source says so).
+    In order of preference: the state the tracker reported when it started the first
+    trajectory (``start_position.<joint>`` and ``start_velocity.<joint>`` of its first
+    "executing trajectory" status, which is latched, so a recorder that subscribed late
+    has it); the last ``joint_states`` message stamped at or before that start
+    (``start_time``, the same simulated time as the stamps); the first ``joint_states`` in
+    the file (the source then says that it may not be the initial state).
 
     Raises
     ------
     ValueError
-        If the recording has no joint states.
+        If the recording has neither.
     """
     from rclpy.serialization import deserialize_message
 
     status_topic = f"{tracker.rstrip('/')}/status"
     channels = mcap_io.read_channels(path)
-    if joint_states not in channels:
-        raise ValueError(f"{path} has no {joint_states}: no initial state to re-execute from "
-                         f"(recorded: {sorted(channels)})")
     start_time = None
     if status_topic in channels:
         for record in mcap_io.iter_records(path, topics=[status_topic]):
             status = deserialize_message(record.data, DiagnosticStatus)
             values = {kv.key: kv.value for kv in status.values}
-            if status.message.startswith("executing trajectory") and "start_time" in values:
-                start_time = float(values["start_time"])
-                break
+            if not (status.message.startswith("executing trajectory")
+                    and "start_time" in values):
+                continue
+            start_time = float(values["start_time"])
+            names = [k.split(".", 1)[1] for k in values if k.startswith("start_position.")]
+            if names and all(f"start_velocity.{n}" in values for n in names):
+                msg = JointState(
+                    name=names, position=[float(values[f"start_position.{n}"]) for n in names],
+                    velocity=[float(values[f"start_velocity.{n}"]) for n in names])
+                return InitialState(msg, f"the tracker's state at the first trajectory's "
+                                    f"start ({start_time:.3f} s, {status_topic})")
+            break
+    if joint_states not in channels:
+        raise ValueError(f"{path} has no {joint_states} and no tracker start state: no "
+                         f"initial state to re-execute from (recorded: {sorted(channels)})")
     first = before = None
     for record in mcap_io.iter_records(path, topics=[joint_states]):
         msg = deserialize_message(record.data, JointState)
@@ -378,6 +396,8 @@ def recorded_initial_state(path, joint_states=JOINT_STATES_TOPIC, tracker="/trac
     if before is not None:
         return InitialState(before, f"{joint_states} at the first trajectory's start "
                             f"({start_time:.3f} s, tracker status)")
+    if first is None:
+        raise ValueError(f"{path}: {joint_states} has no messages")
     if start_time is None:
         return InitialState(first, f"the first {joint_states} (no tracker start recorded)")
     return InitialState(first, f"the first {joint_states}, recorded after the first "

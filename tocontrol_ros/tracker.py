@@ -14,7 +14,9 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
   position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
   ``(u - u_nom) tau_max``), ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``: accepted,
-  rejected, completed and preempted trajectories, with the run summary), and ``/clock``
+  rejected, completed and preempted trajectories, with the run summary; a start event carries
+  the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
+  and ``/clock``
   (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
 - subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
   velocities): puts the plant at that state now and holds it, stopping a running trajectory
@@ -419,7 +421,15 @@ class TrackerNode(Node):
             self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {exc}; {running}")
             self.get_logger().warning(f"trajectory rejected: {exc}")
             return
+        if self._sim_time:
+            self._follow_clock()  # a trajectory right after the first /clock: stamp with it
         offset = float(np.max(np.abs(nominal.q[0] - self.tracker.q)))
+        # The state it starts from, for re-execution (the status is latched: a recorder
+        # that subscribes late still gets it).
+        state = {f"start_{field}.{name}": f"{value:.17g}"
+                 for field, values in (("position", self.tracker.q),
+                                       ("velocity", self.tracker.qd))
+                 for name, value in zip(self.joint_names, values, strict=True)}
         preempted = self.tracker.start(nominal)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
@@ -429,7 +439,7 @@ class TrackerNode(Node):
                      f"position",
                      {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
                       "start_offset": f"{offset:.9g}",
-                      "start_time": f"{self._epoch + self.tracker.t:.9f}"})
+                      "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
 
     def _on_reset(self, msg: JointState) -> None:
         try:
@@ -458,6 +468,11 @@ class TrackerNode(Node):
         if not self._sim_time:
             return ((time.monotonic() - self._wall_start) * self.config.time_scale
                     - self._sim_offset)
+        now = self._follow_clock()
+        return None if now is None else now - self._epoch - self._sim_offset
+
+    def _follow_clock(self) -> float | None:
+        """With use_sim_time: the ROS time (s), the epoch set from it; None before /clock."""
         now = self.get_clock().now().nanoseconds * 1e-9
         if now <= 0.0:
             return None
@@ -468,7 +483,7 @@ class TrackerNode(Node):
             if not self._clock_seen:
                 self._clock_seen = True
                 self._publish_state(self._initial_row())
-        return now - self._epoch - self._sim_offset
+        return now
 
     def _on_timer(self) -> None:
         target = self._target_time()

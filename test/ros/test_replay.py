@@ -100,12 +100,14 @@ def test_clock_follows_the_recorded_time_to_the_end(context, tmp_path):
             player.publishers = {"/joint_states": pub}
             player.clock_publisher = clock
             assert player.play_once() == 3
-            sent = np.array(pub.times) - 100.0
+            # The clock first shows the first message's time, one clock period before it.
+            sent = np.array(pub.times) - 100.02
             np.testing.assert_allclose(sent, np.array([0.0, 0.1, 0.25]) / rate, atol=1e-9)
-            wall = np.array(clock.times) - 100.0
+            wall = np.array(clock.times) - 100.02
             value = np.array([c.clock.sec + 1e-9 * c.clock.nanosec for c in clock.data]) - 1000
-            # The clock shows the recorded time: log time = first + rate * wall time.
-            np.testing.assert_allclose(value[:-1], wall[:-1] * rate, atol=1e-6)
+            assert wall[0] == pytest.approx(-0.02) and value[0] == 0.0
+            # Then the recorded time: log time = first + rate * wall time.
+            np.testing.assert_allclose(value[1:-1], wall[1:-1] * rate, atol=1e-6)
             assert np.all(np.diff(value) >= 0)
             assert np.max(np.diff(wall)) <= 0.02 + 1e-9  # 50 Hz of wall time, at least
             assert value[-1] == pytest.approx(1.0)  # up to the recording's end
@@ -254,8 +256,9 @@ def _stamp(t):
     return Time(sec=ns // 10**9, nanosec=ns % 10**9)
 
 
-def write_run(path, state_stamps, start_time):
-    """Joint states (position = stamp) and, if `start_time`, the tracker's start event."""
+def write_run(path, state_stamps, start_time, start_state=False):
+    """Joint states (position = stamp) and, if `start_time`, the tracker's start event (with
+    the state it started from if `start_state`: positions 7, -7)."""
     with mcap_io.RecordingWriter(path) as writer:
         writer.add_topic("/joint_states", "sensor_msgs/msg/JointState", [RELIABLE])
         writer.add_topic("/tracker/status", "diagnostic_msgs/msg/DiagnosticStatus",
@@ -264,7 +267,11 @@ def write_run(path, state_stamps, start_time):
         if start_time is not None:
             events.append((start_time, DiagnosticStatus(
                 message="executing trajectory: 3 points", values=[
-                    KeyValue(key="start_time", value=f"{start_time:.9f}")])))
+                    KeyValue(key="start_time", value=f"{start_time:.9f}")] + ([
+                        KeyValue(key=f"start_{f}.{n}", value=v) for f, n, v in [
+                            ("position", "a", "7.0"), ("position", "b", "-7.0"),
+                            ("velocity", "a", "0.5"), ("velocity", "b", "0")]]
+                        if start_state else []))))
         items = [(t, JointState(header=Header(stamp=_stamp(t)), name=["a", "b"],
                                 position=[t, -t], velocity=[0.5, 0.0]))
                  for t in state_stamps] + events
@@ -273,14 +280,15 @@ def write_run(path, state_stamps, start_time):
             writer.write(topic, cdr_exact.serialize_exact(msg), log_time=int(t * 1e9) + 1000)
 
 
-@pytest.mark.parametrize("stamps, start, want, source", [
-    ([10.0, 10.01, 10.02, 10.03], 10.025, 10.02, "at the first trajectory's start"),
-    ([10.0, 10.01], None, 10.0, "no tracker start recorded"),
-    ([10.05, 10.06], 10.025, 10.05, "not in the file"),
+@pytest.mark.parametrize("stamps, start, start_state, want, source", [
+    ([10.05, 10.06], 10.025, True, 7.0, "the tracker's state at the first trajectory's start"),
+    ([10.0, 10.01, 10.02, 10.03], 10.025, False, 10.02, "/joint_states at the first"),
+    ([10.0, 10.01], None, False, 10.0, "no tracker start recorded"),
+    ([10.05, 10.06], 10.025, False, 10.05, "not in the file"),
 ])
-def test_recorded_initial_state(tmp_path, stamps, start, want, source):
+def test_recorded_initial_state(tmp_path, stamps, start, start_state, want, source):
     path = tmp_path / "run.mcap"
-    write_run(path, stamps, start)
+    write_run(path, stamps, start, start_state)
     state = recorded_initial_state(path)
     assert list(state.msg.position) == [want, -want]
     assert list(state.msg.name) == ["a", "b"] and list(state.msg.velocity) == [0.5, 0.0]
@@ -290,5 +298,5 @@ def test_recorded_initial_state(tmp_path, stamps, start, want, source):
 def test_recorded_initial_state_needs_joint_states(tmp_path):
     path = tmp_path / "run.mcap"
     write_stream(path, [0.0], topic="/other")
-    with pytest.raises(ValueError, match="has no /joint_states"):
+    with pytest.raises(ValueError, match="has no /joint_states and no tracker start"):
         recorded_initial_state(path)
