@@ -68,10 +68,17 @@ def test_demo_runs_the_whole_pipeline(demo):
     assert counts.get("/planner/trajectory", 0) >= 2
     assert counts.get("/joint_states", 0) > 100
     assert counts.get("/tracker/status", 0) >= 2
+    # The report shows both legs: a figure each, a row each, all on one page.
     report = next(tmp_path.glob("demo-*_report"))
-    for name in ("controls_nominal.png", "controls_applied.png", "motion.png",
-                 "tracking_error.png", "summary.txt"):
-        assert (report / name).stat().st_size > 0, name
+    page = (report / "index.html").read_text()
+    for i in (1, 2):
+        assert (report / f"motion_{i}.png").stat().st_size > 20000
+        assert f'src="motion_{i}.png"' in page
+    summary = (report / "summary.txt").read_text()
+    rows = [s.split() for s in summary.splitlines() if re.match(r"\s+[12]\s+0\.\d{4}\s", s)]
+    assert [r[0] for r in rows] == ["1", "2"] and all(r[-1] == "completed" for r in rows)
+    assert float(rows[0][1]) == pytest.approx(0.50704, abs=2e-4)
+    assert float(rows[0][4]) < 1e-3
 
 
 def tracker_events(path, prefix):
