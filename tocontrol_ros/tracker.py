@@ -16,8 +16,7 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   ``(u - u_nom) tau_max``), ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``: accepted,
   rejected, completed and preempted trajectories, with the run summary; a start event carries
   the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
-  and ``/clock``
-  (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
+  and ``/clock`` (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
 - subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
   velocities): puts the plant at that state now and holds it, stopping a running trajectory
   (``replay --reexecute`` re-executes a recorded run from its recorded initial state); the
