@@ -20,6 +20,7 @@ import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticStatus
 from mcap.reader import make_reader
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 
 from tocontrol_ros import mcap_io, qos
 
@@ -115,8 +116,9 @@ class _Process:
         return self.proc.returncode
 
 
-def _completed_runs(context, count, timeout):
-    """Wait until the tracker has reported `count` completed runs (after its last reset)."""
+def _completed_runs(context, count, timeout, prefix="trajectory completed"):
+    """Wait until the tracker has reported `count` events starting with `prefix` (after its
+    last reset, if any)."""
     node = rclpy.create_node("reexecution_probe", context=context)
     seen = []
     node.create_subscription(DiagnosticStatus, "/tracker/status", seen.append,
@@ -127,8 +129,8 @@ def _completed_runs(context, count, timeout):
 
     def done():
         resets = [i for i, s in enumerate(seen) if s.message.startswith("reset to")]
-        after = seen[resets[-1]:] if resets else []
-        return sum(s.message.startswith("trajectory completed") for s in after) >= count
+        after = seen[resets[-1]:] if resets else seen
+        return sum(s.message.startswith(prefix) for s in after) >= count
 
     while not done() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
@@ -187,3 +189,45 @@ def test_reexecution_reproduces_the_demo(demo, tmp_path, sim_time):
             float(before["final_point_error"]), abs=1e-7)
         assert float(after["saturated_fraction"]) == pytest.approx(
             float(before["saturated_fraction"]), abs=0.01)
+
+
+def test_readme_replay_command_reaches_a_running_tracker(demo, tmp_path):
+    """The README's command, `replay FILE --topics /planner/trajectory` with the default
+    options, against a running tracker: both plans are delivered and executed, no warning.
+
+    Not a regression test of the issue's first try: the plans' recorded QoS is transient
+    local, so on this machine's quick discovery the previous replay got through too. That
+    failure (published before any subscriber matched) is reproduced, and fails with the
+    previous replay, by test/ros/test_replay.py::test_replay_waits_for_a_subscriber_that_
+    comes_late."""
+    demo_dir, returncode, out = demo
+    assert returncode == 0, out[-3000:]
+    recording = next(demo_dir.glob("demo-*.mcap"))
+    tracker = _Process("tracker", ["--ros-args", "-r", "__node:=tracker"], tmp_path)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        # Running: it has published its state.
+        node = rclpy.create_node("running_probe", context=context)
+        states = []
+        node.create_subscription(JointState, "/joint_states", states.append, 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        deadline = time.monotonic() + 60.0
+        while not states and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        executor.shutdown()
+        node.destroy_node()
+        assert states, tracker.log.read_text()
+        cmd, env = command("replay")
+        replay = subprocess.run(cmd + [str(recording), "--topics", "/planner/trajectory"],
+                                env=env, capture_output=True, text=True, timeout=120,
+                                stdin=subprocess.DEVNULL)
+        log = replay.stdout + replay.stderr
+        assert replay.returncode == 0 and "published 2 messages" in log, log
+        assert "no subscriber" not in log, log
+        assert _completed_runs(context, 2, 30.0, "executing trajectory"), \
+            tracker.log.read_text()
+    finally:
+        rclpy.try_shutdown(context=context)
+        assert tracker.stop() == 0, tracker.log.read_text()
