@@ -405,44 +405,60 @@ def recorded_initial_state(path, joint_states=JOINT_STATES_TOPIC, tracker="/trac
                         "file")
 
 
-def reset_tracker(node, executor, state, tracker, timeout, stop):
-    """Send `state` to ``<tracker>/reset`` and wait for the tracker's confirmation.
+class TrackerReset:
+    """Puts a tracker at a state over its ``~/reset`` topic and waits for its confirmation.
 
-    Returns
-    -------
-    str or None
-        None on success, else why it failed.
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    executor : rclpy.executors.Executor
+        Spins `node` while waiting.
+    tracker : str
+        The tracker's node name (``/tracker``).
     """
-    name = tracker.rstrip("/")
-    confirmed = []
-    msg = JointState(name=list(state.name), position=list(state.position),
-                     velocity=list(state.velocity))
-    msg.header.stamp = node.get_clock().now().to_msg()
-    want = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
 
-    def on_status(status):
-        values = {kv.key: kv.value for kv in status.values}
-        if values.get("request_stamp") == want:
-            confirmed.append(status)
+    def __init__(self, node, executor, tracker):
+        self.name = tracker.rstrip("/")
+        self._node, self._executor = node, executor
+        self._statuses = []
+        node.create_subscription(DiagnosticStatus, f"{self.name}/status",
+                                 self._statuses.append, qos.status_profile(20, latched=True))
+        self._pub = node.create_publisher(JointState, f"{self.name}/reset", qos.RELIABLE)
 
-    node.create_subscription(DiagnosticStatus, f"{name}/status", on_status,
-                             qos.status_profile(20, latched=True))
-    pub = node.create_publisher(JointState, f"{name}/reset", qos.RELIABLE)
-    deadline = time.monotonic() + timeout
-    while pub.get_subscription_count() == 0 and time.monotonic() < deadline and not stop():
-        executor.spin_once(timeout_sec=SLEEP_SLICE)
-    if pub.get_subscription_count() == 0:
-        return f"no tracker subscribes to {name}/reset (waited {timeout:g} s)"
-    time.sleep(SETTLE)
-    pub.publish(msg)
-    deadline = time.monotonic() + RESET_TIMEOUT
-    while not confirmed and time.monotonic() < deadline and not stop():
-        executor.spin_once(timeout_sec=SLEEP_SLICE)
-    if not confirmed:
-        return f"the tracker did not confirm the reset on {name}/status in {RESET_TIMEOUT:g} s"
-    if confirmed[0].level != DiagnosticStatus.OK:
-        return f"the tracker refused the reset: {confirmed[0].message}"
-    return None
+    def _spin_until(self, condition, timeout, stop):
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline and not stop():
+            self._executor.spin_once(timeout_sec=SLEEP_SLICE)
+        return condition()
+
+    def send(self, state, timeout, stop=lambda: False):
+        """Send `state` (a ``JointState``); wait up to `timeout` s for a subscriber.
+
+        Returns
+        -------
+        str or None
+            None once the tracker confirmed, else why it did not.
+        """
+        msg = JointState(name=list(state.name), position=list(state.position),
+                         velocity=list(state.velocity))
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        want = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+        if not self._spin_until(lambda: self._pub.get_subscription_count() > 0, timeout,
+                                stop):
+            return f"no tracker subscribes to {self.name}/reset (waited {timeout:g} s)"
+        time.sleep(SETTLE)
+        self._pub.publish(msg)
+
+        def answer():
+            return next((s for s in self._statuses if any(
+                kv.key == "request_stamp" and kv.value == want for kv in s.values)), None)
+
+        if not self._spin_until(lambda: answer() is not None, RESET_TIMEOUT, stop):
+            return (f"the tracker did not confirm the reset on {self.name}/status in "
+                    f"{RESET_TIMEOUT:g} s")
+        if answer().level != DiagnosticStatus.OK:
+            return f"the tracker refused the reset: {answer().message}"
+        return None
 
 
 # ------------------------------------------------------------------ keyboard
@@ -516,17 +532,14 @@ def main(argv=None):
         player = Player(node, args.file, topics=topics, rate=args.rate,
                         start_offset=args.start_offset, remap=parse_remaps(args.remap),
                         clock_rate=args.clock)
+        reset = None
         if args.reexecute:
             state = recorded_initial_state(args.file, tracker=args.tracker)
             log.info(f"re-executing: the tracker {args.tracker} goes to "
                      f"{[round(v, 6) for v in state.msg.position]} ({state.source})")
             if "not in the file" in state.source:
                 log.warning(f"initial state: {state.source}")
-            why = reset_tracker(node, executor, state.msg, args.tracker,
-                                max(args.wait_for_subscribers, 1.0), stop)
-            if why is not None:
-                log.error(f"cannot re-execute: {why}")
-                return 1
+            reset = TrackerReset(node, executor, args.tracker)
         if args.wait_for_subscribers > 0:
             missing = player.wait_for_subscribers(args.wait_for_subscribers, stop)
             if missing:
@@ -538,6 +551,11 @@ def main(argv=None):
                 end = time.monotonic() + args.delay
                 while time.monotonic() < end and not stopping:
                     time.sleep(SLEEP_SLICE)
+                if reset is not None:  # each pass from the recorded initial state
+                    why = reset.send(state.msg, max(args.wait_for_subscribers, 1.0), stop)
+                    if why is not None:
+                        log.error(f"cannot re-execute: {why}")
+                        return 1
                 n = player.play_once(stop=stop)
                 counts = {player.remap.get(t, t): p.get_subscription_count()
                           for t, p in player.publishers.items()}
