@@ -47,6 +47,8 @@ SATURATION = 0.999
 SNAPSHOTS = 12
 #: Joint states drawn after an execution's end (s), unless the next one starts earlier.
 HOLD_SHOWN = 0.3
+#: Size (inches) and resolution of a motion's figure: 990 x 720 pixels.
+FIGSIZE, DPI = (11, 8), 90
 
 
 @dataclass
@@ -365,7 +367,7 @@ def _plot_motion(ax, model, q, q_nom):
 
 def plot_motion(plt, run, motion, row, model, tau_max, names, path):
     """The four panels of one motion, saved to `path`."""
-    fig, axs = plt.subplots(2, 2, figsize=(11, 8))
+    fig, axs = plt.subplots(2, 2, figsize=FIGSIZE)
     have_plan = motion.trajectory is not None and bool(motion.trajectory.points)
     t_nom = q_nom = u_nom = None
     if have_plan:
@@ -408,7 +410,7 @@ def plot_motion(plt, run, motion, row, model, tau_max, names, path):
                  f"{cells['final EE error (m)']} m, saturated {cells['saturated (%)']} %, "
                  f"{row.outcome}")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
 
@@ -421,7 +423,8 @@ def write_html(path, recording, figures, rows, summary_lines):
     images = "".join(
         f'<figure id="motion-{r.index}"><img src="{html.escape(f.name)}" '
         f'alt="Motion {r.index}: planned and applied controls, arm, tracking error" '
-        f'width="990" height="720"><figcaption>Motion {r.index}</figcaption></figure>\n'
+        f'width="{FIGSIZE[0] * DPI}" height="{FIGSIZE[1] * DPI}">'
+        f'<figcaption>Motion {r.index}</figcaption></figure>\n'
         for f, r in zip(figures, rows, strict=True))
     details = html.escape("\n".join(summary_lines[:summary_lines.index("")]
                                     if "" in summary_lines else summary_lines))
