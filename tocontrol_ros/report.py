@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from tocontrol_ros import mcap_io
+from tocontrol_ros.core.kinematics import link_positions
 
 TRAJECTORY = "/planner/trajectory"
 PLANNER_STATUS = "/planner/status"
@@ -221,25 +222,6 @@ def nominal(traj, tau_max):
     return t, q, u
 
 
-def _joint_points(model, q):
-    """Base, joint origins and tip (m) at `q`, shape (n + 2, 3)."""
-    rot, pos, out = np.eye(3), np.zeros(3), [np.zeros(3)]
-    for body, qi in zip(model.bodies, q, strict=True):
-        if body.kind == "prismatic":
-            r, p = body.rotation, body.translation + body.rotation @ body.axis * qi
-        else:
-            k = np.array([[0.0, -body.axis[2], body.axis[1]],
-                          [body.axis[2], 0.0, -body.axis[0]],
-                          [-body.axis[1], body.axis[0], 0.0]])
-            r = body.rotation @ (np.eye(3) + math.sin(qi) * k + (1 - math.cos(qi)) * k @ k)
-            p = body.translation
-        pos = pos + rot @ p
-        rot = rot @ r
-        out.append(pos)
-    out.append(pos + rot @ model.tip_translation)
-    return np.array(out)
-
-
 @dataclass(frozen=True)
 class MotionRow:
     """One row of the summary table (NaN where the recording does not say)."""
@@ -274,8 +256,8 @@ def motion_row(run, motion, model, tau_max):
             final = float(s["final_point_error"])
         elif rows.size and not math.isnan(T):
             axes = list(model.task_axes)
-            p_end = _joint_points(model, np.array(run.js_q[rows[-1]], dtype=float))[-1]
-            p_plan = _joint_points(model, q_nom[-1])[-1]
+            p_end = link_positions(model, np.array(run.js_q[rows[-1]], dtype=float))[-1]
+            p_plan = link_positions(model, q_nom[-1])[-1]
             final = float(np.linalg.norm((p_end - p_plan)[axes]))
     return MotionRow(motion.index, T, planned, applied, final, saturated,
                      motion.outcome or "not executed")
@@ -321,7 +303,7 @@ def summarise(run, model, tau_max, rows):
                      + np.array2string(np.sqrt(np.mean(err**2, axis=0)), precision=6)
                      + " rad")
     if run.js_q and run.goal is not None:
-        p_end = _joint_points(model, np.array(run.js_q[-1], dtype=float))[-1]
+        p_end = link_positions(model, np.array(run.js_q[-1], dtype=float))[-1]
         goal = np.array([run.goal.point.x, run.goal.point.y, run.goal.point.z])
         axes = list(model.task_axes)
         lines.append(f"final end-effector error v. last goal = "
@@ -349,13 +331,13 @@ def _plot_motion(ax, model, q, q_nom):
     if len(q):
         picks = np.unique(np.linspace(0, len(q) - 1, SNAPSHOTS).round().astype(int))
         for j, k in enumerate(picks):
-            pts = _joint_points(model, q[k])[:, axes]
+            pts = link_positions(model, q[k])[:, axes]
             shade = 0.8 - 0.7 * j / max(len(picks) - 1, 1)
             ax.plot(pts[:, 0], pts[:, 1], "-o", color=str(shade), ms=3, lw=1.5)
-        tip = np.array([_joint_points(model, qk)[-1] for qk in q])[:, axes]
+        tip = np.array([link_positions(model, qk)[-1] for qk in q])[:, axes]
         ax.plot(tip[:, 0], tip[:, 1], color="C3", lw=1.5, label="executed")
     if q_nom is not None:
-        tip_nom = np.array([_joint_points(model, qk)[-1] for qk in q_nom])[:, axes]
+        tip_nom = np.array([link_positions(model, qk)[-1] for qk in q_nom])[:, axes]
         ax.plot(tip_nom[:, 0], tip_nom[:, 1], "--", color="C0", lw=1.2, label="planned")
         ax.plot(tip_nom[-1, 0], tip_nom[-1, 1], "x", color="C2", ms=9, label="target")
     ax.set_aspect("equal", adjustable="datalim")
