@@ -311,6 +311,45 @@ class Tracker:
         self._stats = RunStats(self.model.n, nominal.duration, self.t)
         return preempted
 
+    def reset(self, q, qd=None) -> TrackingSummary | None:
+        """Put the plant at ``(q, qd)`` now and hold ``q``, as after start-up.
+
+        For re-executing a recorded run from its recorded initial state. The time goes on
+        (stamps stay monotonic); the noise generator restarts from ``noise_seed``; no
+        ``initial_offset`` is added (``q`` is the plant's state).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Plant positions (rad, m).
+        qd : array_like, shape (n,), optional
+            Plant velocities (rad/s, m/s); default zero.
+
+        Returns
+        -------
+        TrackingSummary or None
+            The summary of the trajectory it stops (outcome ``"preempted"``), if one was
+            running.
+
+        Raises
+        ------
+        ProblemError
+            A shape that is not (n,), or a value that is not finite.
+        """
+        n = self.model.n
+        q = finite_array("q", q, shape=(n,))
+        qd = np.zeros(n) if qd is None else finite_array("qd", qd, shape=(n,))
+        preempted = None
+        if self._stats is not None:
+            preempted = self._stats.summary("preempted", self.model)
+        self.x = np.concatenate([q, qd])
+        self.nominal = None
+        self._stats = None
+        self._hold_q = q.copy()
+        self._hold_u = self._static_control(q)
+        self._rng = np.random.default_rng(self.plant.noise_seed)
+        return preempted
+
     def advance(self, until: float) -> StepReport:
         """Simulate every control period that starts before ``until`` (s).
 
