@@ -18,12 +18,14 @@ It also checks, on a fine sampling of the trajectory (the one :func:`plan` sampl
 torque inside the convexified set (``sum u_i^(2k) <= 1``, hence ``|u_i| <= 1``) and
 ``max |H|``;
 the boundary and transversality conditions at both ends, recomputed from the end states
-(no multiplier of the solver's); the solver's own residual when given; and, when asked
-(:attr:`CertificateOptions.check_limits`), the joint position and velocity limits.
+(no multiplier of the solver's); the solver's own residual when given; and the problem's
+joint position and velocity limits (:attr:`CertificateOptions.check_limits`, on by
+default) along the sampling and the open-loop states.
 
 :func:`certify` is a pure function of the problem and the trajectory; it returns a frozen
 :class:`Certificate` with every figure and one :class:`CertificateItem` (value, tolerance,
-pass/fail) per check.
+pass/fail) per check. :func:`certify_open_loop` certifies a motion without costates (the
+direct method's, where the joint limits bind): its torques, end state and limits.
 """
 
 from __future__ import annotations
@@ -41,7 +43,8 @@ from .pmp import BufferedFunction, CanonicalSystem
 from .problem import Problem
 from .trajectory import Trajectory, TrajectorySample
 
-__all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify"]
+__all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify",
+           "certify_open_loop"]
 
 
 
@@ -75,10 +78,11 @@ class CertificateOptions:
         Grid steps per segment (the solver's RK4 steps per shooting interval gives the
         shooting intervals).
     check_limits : bool
-        Also check the joint position and velocity limits of the model (along the sampling
-        and the open-loop state), for plans that enforce them.
+        Check the problem's joint position and velocity limits (along the sampling and the
+        open-loop state); the solver enforces them.
     limit_tol : float
-        Tolerated excess over a joint limit (rad, m, rad/s).
+        Tolerated excess over a joint limit, as a fraction of the position range or of the
+        velocity limit.
     """
 
     point_tol: float = 1e-4
@@ -92,7 +96,7 @@ class CertificateOptions:
     rtol: float = 1e-10
     atol: float = 1e-11
     segment_steps: int = 12
-    check_limits: bool = False
+    check_limits: bool = True
     limit_tol: float = 1e-6
 
     def __post_init__(self) -> None:
@@ -322,7 +326,7 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
         items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
                            "the solver's max-norm of its BVP equations"))
     if options.check_limits:
-        items += _limit_items(model, sample, x_end, options)
+        items += _limit_items(problem, sample, x_end, options)
 
     figures = {i.name: i.value for i in items}
     figures.update({
@@ -338,16 +342,95 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
                        figures=figures, options=options, open_loop_end=x_T.copy())
 
 
-def _limit_items(model, sample: TrajectorySample, x_end: np.ndarray,
+def _limit_items(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
                  options: CertificateOptions) -> list[CertificateItem]:
-    """Joint position and velocity limits, along the sampling and the open-loop state."""
-    n = model.n
+    """The problem's joint limits, along the sampling and the open-loop states."""
+    n = problem.model.n
     q = np.concatenate([sample.q, x_end[:, :n]])
     qd = np.concatenate([sample.qd, x_end[:, n:]])
-    with np.errstate(invalid="ignore"):  # infinite limits of continuous joints
-        pos = np.max(np.maximum(model.q_lower - q, q - model.q_upper))
-        vel = np.max(np.abs(qd) - model.qd_max)
-    return [_item("position_limits", max(float(pos), 0.0), options.limit_tol, "rad",
-                  "max excess over the joint position limits"),
-            _item("velocity_limits", max(float(vel), 0.0), options.limit_tol, "rad/s",
-                  "max excess over the joint velocity limits")]
+    pos, vel = problem.limits.violations(q, qd)
+    return [_item("position_limits", pos, options.limit_tol, "",
+                  "max excess over the joint position limits, fraction of the range"),
+            _item("velocity_limits", vel, options.limit_tol, "",
+                  "max excess over the joint velocity limits, fraction of the limit")]
+
+
+def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions | None = None,
+                      sample: TrajectorySample | None = None,
+                      solver_residual: float | None = None) -> Certificate:
+    """Check a motion that has no costates (a direct method's): its torques and states.
+
+    The nominal torques are integrated from ``x(0)`` by scipy's DOP853 (adaptive, error
+    control at ``options.rtol``; a different method from the motion's own RK4), through the
+    sampling's times; the items are the end point, velocity (and position for a joint-state
+    target), the torques inside the set, the joint limits along the sampling and the
+    integration, and the solver's residual. There is no ``H``, boundary-of-costate or
+    defect item: the motion carries no costates.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : object
+        With ``T``, ``t_grid``, ``evaluate``, ``state`` and ``control`` (e.g.
+        :class:`~tocontrol_ros.core.bounded.ShootingTrajectory`).
+    options : CertificateOptions, optional
+    sample : TrajectorySample, optional
+        Default: 2001 equally spaced times.
+    solver_residual : float, optional
+
+    Returns
+    -------
+    Certificate
+    """
+    from scipy.integrate import solve_ivp
+
+    options = options or CertificateOptions()
+    model, n = problem.model, problem.model.n
+    if sample is None:
+        sample = trajectory.evaluate(np.linspace(0.0, trajectory.T, 2001))
+    f = model.function("f")
+    scale = problem.torque_scale
+
+    def rhs(t, x):
+        return np.array(f(x, trajectory.control(t) * scale)).ravel()
+
+    x0 = trajectory.state(0.0)[0, :2 * n]
+    sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=options.rtol,
+                    atol=options.atol, t_eval=sample.t)
+    x_path = sol.y.T
+    x_T = x_path[-1]
+    point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+    target_qd = problem.target.value[n:] if problem.target.kind == "state" else 0.0
+    vel_err = float(np.max(np.abs(x_T[n:] - target_qd)))
+    items = [
+        _item("integrator_finished", 0.0 if sol.success else 1.0, 0.5, "",
+              "the adaptive integrator reached T"),
+        _item("end_point", point_err, options.point_tol, "m",
+              "nominal torques integrated from x(0): end point to target"),
+        _item("end_velocity", vel_err, options.velocity_tol, "rad/s",
+              "nominal torques integrated from x(0): max |qd(T)|")]
+    if problem.target.kind == "state":
+        items.append(_item("end_position", float(np.max(np.abs(
+            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
+            "nominal torques integrated from x(0): max |q(T) - q_target|"))
+    u = sample.u
+    with np.errstate(over="ignore", invalid="ignore"):
+        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
+    max_u = float(np.max(np.abs(u)))
+    items.append(_item("control_set", float(np.max(set_sum) - 1.0), options.control_set_tol,
+                       "", "max sum u_i^(2k) - 1 over the samples"))
+    items.append(_item("max_abs_u", max_u, 1.0 + options.control_set_tol, "",
+                       "max |u_i| over the samples (the torque limits, to rounding)"))
+    if solver_residual is not None:
+        items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
+                           "the solver's max-norm of its NLP's constraint violation"))
+    if options.check_limits:
+        items += _limit_items(problem, sample, x_path, options)
+    figures = {i.name: i.value for i in items}
+    figures.update({
+        "point_error": point_err, "velocity_error": vel_err,
+        "state_error": float(np.max(np.abs(x_T - trajectory.state(trajectory.T)[0, :2 * n]))),
+        "max_abs_u": max_u, "integrator_success": bool(sol.success), "nfev": int(sol.nfev),
+        "rtol": options.rtol})
+    return Certificate(passed=all(i.passed for i in items), items=tuple(items),
+                       figures=figures, options=options, open_loop_end=x_T.copy())

@@ -27,6 +27,7 @@ class Status(enum.Enum):
     VERIFICATION_FAILED = "converged, but the verification failed"
     CANCELLED = "cancelled by the caller (a newer request or a shutdown)"
     TIME_LIMIT = "the time limit ran out before the solve finished"
+    LIMITS_INFEASIBLE = "no motion within the joint limits was found"
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,12 @@ class PlanResult:
     problem : Problem or None
         The problem solved.
     warm_state : WarmState or None
-        The final mesh and unknowns, from which a warm start continues (None on failure).
+        The final mesh and unknowns, from which a warm start continues (None on failure,
+        and for a ``"direct"`` result).
+    method : str
+        ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
+        ``"direct"``: the joint limits bind, and the bounded direct multiple shooting solved
+        the problem (:mod:`~tocontrol_ros.core.limited`, ``docs/limits.md``).
     certificate : Certificate or None
         Every check with its value, tolerance and verdict (None with ``verify=False`` or
         without a solution).
@@ -150,6 +156,7 @@ class PlanResult:
     problem: Problem | None = field(default=None, repr=False)
     warm_state: WarmState | None = field(default=None, repr=False)
     certificate: Certificate | None = None
+    method: str = "indirect"
 
     def can_warm_start(self, problem: Problem) -> bool:
         """Whether :func:`~tocontrol_ros.core.solver.plan` can continue this to ``problem``.

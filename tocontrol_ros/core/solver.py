@@ -52,9 +52,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from .bounded import BoundedShooting
 from .certificate import certify
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
+from .limited import MESH, plan_limited, touches
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
@@ -112,6 +114,22 @@ class Planner:
                 self._direct[key] = DirectCollocation(
                     self.model, intervals, problem.start.kind, problem.target.kind, box=box,
                     torque_scale=scale, tol=tol)
+            return self._direct[key]
+
+    def bounded(self, problem: Problem, level: int = 0) -> BoundedShooting:
+        """The bounded multiple shooting for this problem's kinds (built once, cached).
+
+        ``level`` doubles the mesh of :data:`~tocontrol_ros.core.limited.MESH` that many
+        times.
+        """
+        key = ("bounded", problem.start.kind, problem.target.kind, problem.torque_scale,
+               level)
+        with self._lock:
+            if key not in self._direct:
+                intervals, steps = MESH["small" if self.model.n <= 4 else "large"]
+                self._direct[key] = BoundedShooting(
+                    self.model, intervals * 2 ** level, steps, problem.start.kind,
+                    problem.target.kind, torque_scale=problem.torque_scale)
             return self._direct[key]
 
     def plan(self, problem: Problem, options: SolverOptions | None = None,
@@ -179,24 +197,29 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
                 notes.append("warm start did not converge; solved cold")
         if run is None:
             run, records, status, message = _cold(planner, ctx, timings)
+            if status is _LIMITS_BIND:
+                return plan_limited(planner, ctx, timings, t_start, notes)
             if status is not Status.SUCCESS:
                 timings["total"] = time.perf_counter() - t_start
                 return _failure(problem, status, message, timings, records, run)
         t0 = time.perf_counter()
         notes += _finish_warm(ctx, run) if finished else _final_smoothing(ctx, run)
         timings["refine"] += time.perf_counter() - t0
+        traj = trajectory(ctx, run)
+        sample = fine_sample(traj)
+        if problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0:
+            notes.append("the solution of the maximum principle leaves the joint limits")
+            return plan_limited(planner, ctx, timings, t_start, notes)
     except StopError as stop:
         timings["total"] = time.perf_counter() - t_start
         return _failure(problem, stop.status, "solve interrupted", timings, records, run)
-    return _result(ctx, run, records, notes, timings, t_start)
+    return _result(ctx, run, records, notes, timings, t_start, traj, sample)
 
 
 def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list[str],
-            timings: dict, t_start: float) -> PlanResult:
-    """The checked result of a converged run."""
+            timings: dict, t_start: float, traj, sample) -> PlanResult:
+    """The checked result of a converged run (its trajectory and fine sampling)."""
     problem, options = ctx.problem, ctx.options
-    traj = trajectory(ctx, run)
-    sample = fine_sample(traj)
     t0 = time.perf_counter()
     cert = certify(problem, traj, options.certificate_options(run.grid.steps), sample=sample,
                    solver_residual=run.residual) if options.verify else None
@@ -232,6 +255,10 @@ def _failure(problem: Problem, status: Status, message: str, timings: dict, star
 
 
 # -------------------------------------------------------------------- cold start
+#: Internal status of :func:`_cold`: the best guess reaches the joint limits.
+_LIMITS_BIND = object()
+
+
 def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     """Multistart: direct guesses from seed pairs, the best distinct ones continued.
 
@@ -252,7 +279,8 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         ctx.check()
         t_guess, x_guess, u_guess = initial_path(problem.model, qa, qb,
                                                  options.guess_intervals,
-                                                 problem.torque_scale)
+                                                 problem.torque_scale,
+                                                 problem.limits.plan_velocity)
         res = direct.solve(problem.start.value, problem.target.value, 1.0, t_guess,
                            x_guess, u_guess)
         guesses.append((idx, qa, qb, res))
@@ -265,6 +293,8 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         return None, list(records.values()), Status.NO_GUESS, guesses[0][3].message
     # Distinct basins: direct solutions whose end configurations differ.
     ok.sort(key=lambda g: g[3].T)
+    if touches(problem, ok[0][3].x):
+        return None, list(records.values()), _LIMITS_BIND, ""
     distinct = []
     n = problem.model.n
     for g in ok:

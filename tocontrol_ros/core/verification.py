@@ -45,7 +45,10 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
         ``point_error`` (m): distance of the re-integrated end point to the target point;
         ``state_error``: max-norm of the re-integrated final state minus the trajectory's;
         ``velocity_error``: max |qd(T)| of the re-integration (rad/s); ``max_abs_H``;
-        ``max_set_error``: max |sum u^2k - 1|; ``nfev``.
+        ``max_set_error``: max |sum u^2k - 1|; ``nfev``; ``position_limit_violation`` and
+        ``velocity_limit_violation``: the largest excess of the re-integrated motion (at the
+        sampling's times) over the problem's joint limits, as a fraction of the position
+        range or of the velocity limit (0 within them).
     """
     from scipy.integrate import solve_ivp
 
@@ -59,12 +62,13 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
         return np.array(f(x, u * scale)).ravel()
 
     x0 = trajectory.state(0.0)[0, :2 * n]
-    sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=rtol,
-                    atol=rtol / 10)
-    x_end = sol.y[:, -1]
-    planned_end = trajectory.state(trajectory.T)[0, :2 * n]
     if sample is None:
         sample = fine_sample(trajectory)
+    sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=rtol,
+                    atol=rtol / 10, t_eval=sample.t)
+    x_end = sol.y[:, -1]
+    planned_end = trajectory.state(trajectory.T)[0, :2 * n]
+    pos_viol, vel_viol = problem.limits.violations(sol.y[:n].T, sol.y[n:2 * n].T)
     k = trajectory.law.k
     set_err = np.abs(np.sum(sample.u ** (2 * k), axis=1) - 1)
     return {
@@ -76,6 +80,8 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
         "max_abs_u": float(np.max(np.abs(sample.u))),
         "nfev": int(sol.nfev),
         "integrator_success": bool(sol.success),
+        "position_limit_violation": pos_viol,
+        "velocity_limit_violation": vel_viol,
     }
 
 
@@ -114,29 +120,28 @@ def fine_sample(trajectory: Trajectory) -> TrajectorySample:
 def limit_warnings(problem: Problem, sample: TrajectorySample) -> tuple[str, ...]:
     """One warning per joint and limit (position, velocity) that ``sample`` violates.
 
-    Each names the first time it does; the limits are checked, not enforced.
+    Each names the first time it does (the problem's limits, margin not applied).
     """
-    model = problem.model
+    lim = problem.limits
     out = []
-    for i, name in enumerate(model.joint_names):
+    for i, name in enumerate(lim.names):
         for label, values, lo, hi in (
-                ("position", sample.q[:, i], model.q_lower[i], model.q_upper[i]),
-                ("velocity", sample.qd[:, i], -model.qd_max[i], model.qd_max[i])):
+                ("position", sample.q[:, i], lim.lower[i], lim.upper[i]),
+                ("velocity", sample.qd[:, i], -lim.velocity[i], lim.velocity[i])):
             bad = np.flatnonzero((values < lo) | (values > hi))
             if bad.size:
                 j = int(bad[0])
-                out.append(f"joint {name!r} violates its URDF {label} limit [{lo:.4g}, "
-                           f"{hi:.4g}] at t = {sample.t[j]:.4f} s (value {values[j]:.4g}; "
-                           f"limits are checked, not enforced)")
+                out.append(f"joint {name!r} violates its {label} limit [{lo:.4g}, "
+                           f"{hi:.4g}] at t = {sample.t[j]:.4f} s (value {values[j]:.4g})")
     return tuple(out)
 
 
 def verdict(options: SolverOptions, certificate: Certificate | None,
-            residual: float) -> tuple[Status, str]:
+            residual: float, tol: float | None = None) -> tuple[Status, str]:
     """Status and message of a converged solve.
 
     From its certificate (None when ``options.verify`` is off) and its residual (max-norm
-    of the BVP equations).
+    of the solve's equations), which must be below ``tol`` (default ``options.tol``).
     """
     status, message = Status.SUCCESS, Status.SUCCESS.value
     if certificate is None:
@@ -144,7 +149,7 @@ def verdict(options: SolverOptions, certificate: Certificate | None,
     elif not certificate.passed:
         status = Status.VERIFICATION_FAILED
         message = f"{status.value}: {certificate.summary()}"
-    if status is Status.SUCCESS and residual > options.tol:
+    if status is Status.SUCCESS and residual > (options.tol if tol is None else tol):
         status = Status.VERIFICATION_FAILED
         message = f"{status.value}: residual {residual:.3g} above tol"
     return status, message
