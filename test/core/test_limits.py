@@ -209,3 +209,21 @@ def test_direct_guess_respects_bounds(galicki):
     assert np.all(np.abs(res.x[:, 3:]) <= TIGHT + 1e-7)
     free = dc.solve(P_START, P_TARGET, 1.0, *initial_path(galicki, qa, qb, 12))
     assert np.max(np.abs(free.x[:, 3:]) - TIGHT) > 0.1
+
+
+def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
+    """The Panda as it comes: its fingers (below panda_hand) are locked at 0 (closed)."""
+    from tocontrol_ros.core.model import load_robot
+
+    if "panda" not in robot_specs:
+        pytest.skip("example-robot-data is not installed")
+    source = robot_specs["panda"]["source"]
+    model = load_robot(source, tip_link="panda_hand")
+    assert model.n == 7
+    assert dict(model.locked) == {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
+    opened = load_robot(source, tip_link="panda_hand",
+                        locked_joints={"panda_finger_joint1": 0.04})
+    assert dict(opened.locked)["panda_finger_joint1"] == 0.04
+    # Fingers opened: the hand's lumped inertia moves, so the dynamics differ.
+    q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    assert not np.allclose(opened.mass_matrix(q), model.mass_matrix(q))

@@ -435,8 +435,11 @@ def load_robot(
         Default: the plane of motion for a planar chain (all revolute axes parallel), else
         ``"xyz"``.
     locked_joints : mapping of str to float, optional
-        Moving joints to treat as fixed at the given position (rad or m), e.g. gripper
-        fingers that branch off the base-tip path.
+        Moving joints to treat as fixed at the given position (rad or m). Moving joints at
+        or below the tip link (a gripper's fingers) are locked without being named: at 0,
+        or at the nearer position limit when 0 is outside the limits; name them here to
+        lock them elsewhere. A moving joint that branches off the base-tip path above the
+        tip must be named (or another tip chosen).
 
     Returns
     -------

@@ -149,6 +149,9 @@ class Chain:
         Position limits (rad or m); infinite for continuous joints.
     qd_max : ndarray, shape (n,)
         Velocity limits (rad/s or m/s); infinite when absent.
+    locked : tuple of (str, float)
+        Moving joints held fixed and their positions (rad or m): those of ``locked_joints``
+        and those at or below the tip link, locked at 0 moved into their limits.
     """
 
     name: str
@@ -164,6 +167,7 @@ class Chain:
     q_upper: np.ndarray
     qd_max: np.ndarray
     coulomb: np.ndarray
+    locked: tuple[tuple[str, float], ...]
 
 
 def read_urdf(source) -> tuple[object, str]:
@@ -353,6 +357,7 @@ def chain_from_urdf(robot, label: str, base_link: str | None = None,
     tree = _Tree(robot, label)
     base_link, tip_link = tree.ends(base_link, tip_link)
     path = tree.path(base_link, tip_link)
+    locked = _lock_beyond_tip(tree, tip_link, locked)
     on_path = {j.name for j in path}
     moving = [j for j in path if j.type in MOVING_TYPES and j.name not in locked]
     if not moving:
@@ -389,7 +394,28 @@ def chain_from_urdf(robot, label: str, base_link: str | None = None,
                  bodies=tuple(bodies), tip_rotation=tip_pose[0], tip_translation=tip_pose[1],
                  base_link=base_link, tip_link=tip_link,
                  tau_max=tau_max, damping=damping, q_lower=lower, q_upper=upper,
-                 qd_max=vmax, coulomb=coulomb)
+                 qd_max=vmax, coulomb=coulomb,
+                 locked=tuple(sorted((k, float(v)) for k, v in locked.items())))
+
+
+def _lock_beyond_tip(tree, tip_link: str, locked: dict) -> dict:
+    """``locked`` plus every moving joint at or below the tip link (a gripper's fingers).
+
+    Such a joint that ``locked`` does not name is locked at 0, moved into its position
+    limits if 0 is outside them (its lower limit, or its upper one if that is below 0).
+    """
+    out = dict(locked)
+    stack = [tip_link]
+    while stack:
+        lk = stack.pop()
+        for j in tree.children[lk]:
+            if j.type in MOVING_TYPES and j.name not in out:
+                lim = j.limit
+                lo = -math.inf if lim is None or lim.lower is None else float(lim.lower)
+                hi = math.inf if lim is None or lim.upper is None else float(lim.upper)
+                out[j.name] = float(min(max(0.0, lo), hi))
+            stack.append(j.child)
+    return out
 
 
 def _leaves_below(base: str, children: dict) -> list[str]:
