@@ -16,6 +16,7 @@ import pytest
 from tocontrol_ros.core.certificate import Certificate, CertificateOptions, certify
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.limits import JointLimits
 from tocontrol_ros.core.model import default_urdf_path, load_robot
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, Status, plan
@@ -191,25 +192,24 @@ def test_verify_false_leaves_the_solution_uncertified(galicki):
     assert "not certified" in res.message
 
 
-def test_limits_plug_in(solved):
-    """With check_limits, the model's joint limits are items; the 3R arm's never bind."""
+def test_limits_are_items(solved):
+    """The problem's joint limits are items (on by default); the 3R arm's never bind."""
     res = solved[4]
-    cert = _recheck(res, check_limits=True)
+    cert = _recheck(res)
     assert cert.passed
     assert cert.item("position_limits").value == 0.0
     assert cert.item("velocity_limits").value == 0.0
 
 
-def test_a_velocity_limit_crossed_fails_when_limits_are_checked():
-    """The same arm with a 2 rad/s velocity limit (same dynamics: the compiled code is shared)."""
-    urdf = default_urdf_path().read_text().replace('velocity="100.0"', 'velocity="2.0"')
-    model = load_robot(urdf)
-    assert np.all(model.qd_max == 2.0)
-    res = plan(Problem(model, point(PAPER_START), point(PAPER_TARGET), k=1), SINGLE)
-    assert res.success  # limits are not enforced by the solver yet: no item without asking
-    cert = _recheck(res, check_limits=True)
+def test_a_velocity_limit_crossed_fails_the_certificate(galicki, solved):
+    """The unconstrained optimum, certified against a 2 rad/s velocity limit, fails it."""
+    res = solved[4]
+    base = JointLimits.from_model(galicki)
+    tight = JointLimits(base.names, base.lower, base.upper, np.full(3, 2.0))
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4, limits=tight)
+    cert = _recheck(res, problem=problem)
     assert {i.name for i in cert.failures} == {"velocity_limits"}
-    assert cert.item("velocity_limits").value > 1.0
+    assert cert.item("velocity_limits").value > 1.0  # 6.3 rad/s: more than twice the limit
 
 
 @pytest.mark.parametrize("kwargs, match", [

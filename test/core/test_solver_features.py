@@ -190,5 +190,5 @@ def test_a_position_limit_the_optimum_overshoots_is_enforced():
     assert any("joint limits bind" in w for w in res.warnings), res.warnings
     q_max = np.max(res.trajectory.sample(1e-4).q[:, 0])
     assert 0.26 < q_max <= model.q_upper[0]
-    assert res.verification["position_limit_violation"] <= 1e-6
+    assert res.verification["position_limits"] <= 1e-6
     assert res.T > free.T
