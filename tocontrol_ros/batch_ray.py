@@ -8,12 +8,19 @@ first task and keeps it (once per worker). The robot goes to the cluster once, w
 ``ray.put``. Ray does not retry a task whose worker died (``max_retries=0``): the runner
 does, so that attempts are counted (and journaled) the same way for every backend.
 
-``local`` starts a private cluster in this process, on loopback (``127.0.0.1``), without
-the dashboard; ``auto`` joins the cluster that ``ray start`` started on this machine;
-anything else is an address (``HOST:PORT`` or ``ray://HOST:PORT``).
+``local`` starts a private cluster from this process, without the dashboard, with every
+Ray process listening on and talking to loopback (``127.0.0.1``) only: Ray binds its gRPC
+servers to all interfaces and advertises the machine's outward address unless it runs as a
+single-machine Ray (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, read when ``ray`` is first
+imported, and inherited by the processes it starts); ``auto`` joins the cluster that
+``ray start`` started on this machine; anything else is an address (``HOST:PORT`` or
+``ray://HOST:PORT``).
 """
 
 from __future__ import annotations
+
+import os
+import sys
 
 from tocontrol_ros.batch_tasks import RobotSpec, Task
 from tocontrol_ros.batch_worker import run_task
@@ -23,6 +30,8 @@ __all__ = ["RayBackend", "RayUnavailableError"]
 #: Tasks queued per CPU of the cluster: one running, one waiting, so that a worker that
 #: finishes starts its next task without a round trip to this process.
 QUEUE_PER_CPU = 2
+#: Environment under which Ray keeps a local cluster on loopback (see the module docstring).
+LOCAL_ONLY_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
 #: Memory of the private cluster's object store (bytes): results are a few kB each.
 LOCAL_OBJECT_STORE = 100 * 1024 * 1024
 
@@ -45,6 +54,13 @@ class RayBackend:
     """
 
     def __init__(self, robot: RobotSpec, address: str, workers: int | None = None) -> None:
+        if address == "local":
+            if "ray" in sys.modules and any(os.environ.get(k) != v
+                                            for k, v in LOCAL_ONLY_ENV.items()):
+                raise RayUnavailableError(
+                    "--ray local: ray was imported before the loopback-only settings "
+                    f"{LOCAL_ONLY_ENV} were made; set them in the environment")
+            os.environ.update(LOCAL_ONLY_ENV)
         try:
             import ray
         except ImportError:
@@ -53,14 +69,20 @@ class RayBackend:
             ) from None
         self._ray = ray
         if address == "local":
-            ray.init(num_cpus=workers, include_dashboard=False, _node_ip_address="127.0.0.1",
+            ray.init(num_cpus=workers, include_dashboard=False,
                      object_store_memory=LOCAL_OBJECT_STORE, log_to_driver=False,
                      configure_logging=False)
+            self.node_ip = ray.util.get_node_ip_address()
+            if self.node_ip != "127.0.0.1":  # checked, not assumed: the setting is Ray's
+                ray.shutdown()
+                raise RayUnavailableError(f"--ray local: Ray chose node address "
+                                          f"{self.node_ip}, not 127.0.0.1")
         else:
             try:
                 ray.init(address=address, log_to_driver=False, configure_logging=False)
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise RayUnavailableError(f"--ray {address}: {exc}") from None
+            self.node_ip = ray.util.get_node_ip_address()
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.cpus = min(cpus, workers) if workers and address != "local" else cpus
         self.capacity = QUEUE_PER_CPU * self.cpus

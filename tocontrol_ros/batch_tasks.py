@@ -377,7 +377,8 @@ def _pairs(where: str, entry: dict, model, stations: dict) -> list:
 
 
 def _check_problem(model, task: Task) -> None:
-    names = f" ({task.start_name} -> {task.target_name})" if task.start_name else ""
+    names = (f" ({task.start_name or 'inline'} -> {task.target_name or 'inline'})"
+             if task.start_name or task.target_name else "")
     try:
         build_problem(model, task)
     except TocontrolError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -27,6 +28,8 @@ LOST = "WORKER_LOST"
 TIMEOUT = "TIMEOUT"
 
 _MODELS: dict[str, object] = {}
+#: How often (s) a pool worker checks that the process that started it is still there.
+PARENT_CHECK_PERIOD = 1.0
 #: Models built by this process (a test and the benchmark read it: once per worker).
 builds = 0
 
@@ -42,9 +45,19 @@ def worker_model(robot: RobotSpec):
     return model
 
 
+def _exit_with_parent(parent: int) -> None:
+    # A pool worker whose parent was killed outright would wait on its task queue forever
+    # (its siblings keep the pipe open), so it leaves by itself.
+    while os.getppid() == parent:
+        time.sleep(PARENT_CHECK_PERIOD)
+    os._exit(1)
+
+
 def init_worker(robot: RobotSpec) -> None:
-    """Pool initializer: Ctrl-C belongs to the main process; build the model now."""
+    """Pool initializer: Ctrl-C goes to the main process, the worker dies with it; model now."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True,
+                     name="exit-with-parent").start()
     worker_model(robot)
 
 
