@@ -153,6 +153,12 @@ def test_failing_task_is_recorded_with_its_status_and_others_go_on(small_run):
     assert sorted(library) == [TOPIC_PREFIX + "motion_00000", TOPIC_PREFIX + "motion_00001"]
 
 
+def test_the_worker_builds_the_model_once_for_all_its_tasks(small_run):
+    entries = journal_entries(small_run[2]["journal"])
+    assert len(entries) == 3 and len({e["worker"] for e in entries}) == 1
+    assert [e["builds"] for e in entries] == [1, 1, 1]
+
+
 def test_library_holds_one_trajectory_per_solved_motion(small_run):
     _, _, paths = small_run
     rows = read_summary(paths["csv"])

@@ -78,6 +78,7 @@ def test_ray_plans_20_motions_exactly_once_with_a_worker_killed(tmp_path, capsys
     entries = _entries(paths["journal"])
     assert sorted(e["index"] for e in entries) == list(range(20)), err  # each once, none lost
     assert all(e["status"] == "SUCCESS" for e in entries), [e["message"] for e in entries]
+    assert all(e["builds"] == 1 for e in entries)  # one model per worker process
     workers = {int(e["worker"]) for e in entries}
     assert killer.killed in workers and len(workers) >= 3  # a worker replaced the killed one
     retried = [e for e in entries if e["attempts"] > 1]

@@ -128,6 +128,7 @@ class Journal:
         entry = {"key": task.key, "index": task.index, "finished": time.time_ns(),
                  **{f: _clean(result.get(f)) for f in _OUTCOME_FIELDS if f != "attempts"},
                  "attempts": attempts, "worker": str(result.get("pid", "")),
+                 "builds": result.get("builds"),  # models its worker built: 1 = once
                  "cdr": base64.b64encode(cdr).decode("ascii") if cdr else None}
         self._append(entry)
         self.entries[task.key] = entry

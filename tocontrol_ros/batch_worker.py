@@ -68,10 +68,11 @@ def run_task(robot: RobotSpec, task: Task) -> dict:
     -------
     dict
         ``index``, ``key``, ``status`` (a :class:`~tocontrol_ros.core.solver.Status` name,
-        or :data:`ERROR`), ``success``, ``message``, ``T`` (s), ``k``, ``solve_time`` (s),
-        ``iterations``, ``residual``, ``max_abs_u``, ``pid``, ``builds`` (models this
-        process built so far) and ``sample``: ``None`` or a dict of arrays ``t`` shape (K,)
-        (s), ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s^2), ``tau`` (N m), each (K, n).
+        or :data:`ERROR` for a rejected problem or an unexpected exception), ``success``,
+        ``message``, ``T`` (s), ``k``, ``solve_time`` (s), ``iterations``, ``residual``,
+        ``max_abs_u``, ``pid``, ``builds`` (models this process built so far) and
+        ``sample``: ``None`` or a dict of arrays ``t`` shape (K,) (s), ``q``, ``qd``, ``qdd``
+        (rad, rad/s, rad/s^2), ``tau`` (N m), each (K, n).
     """
     from tocontrol_ros.core.solver import SolverOptions, plan
 
@@ -84,6 +85,11 @@ def run_task(robot: RobotSpec, task: Task) -> dict:
         result = plan(build_problem(model, task), SolverOptions(**dict(task.solver)))
     except TocontrolError as exc:
         out.update(status=ERROR, success=False, message=str(exc),
+                   solve_time=time.perf_counter() - t0, builds=builds)
+        return out
+    except Exception as exc:  # noqa: BLE001  (a bug hit by one task must not stop the cell)
+        out.update(status=ERROR, success=False,
+                   message=f"unexpected {type(exc).__name__} in the solver: {exc}",
                    solve_time=time.perf_counter() - t0, builds=builds)
         return out
     out.update(status=result.status.name, success=bool(result.success),
