@@ -320,3 +320,64 @@ def test_replay_plays_one_motion_of_the_library(small_run):
     assert "published 1 messages" in out
     assert len(got) == 1 and len(stored) == 1, (out, topic)
     assert mcap_io.serialize_exact(got[0]) == stored[0]
+
+
+# ------------------------------------------------------------------ journal and progress
+def _three_tasks(tmp_path):
+    path = write_tasks(tmp_path / "cell.yaml", motions=[{"all_pairs": ["feeder", "press"]},
+                                                        {"start": "home", "target": "press"}])
+    task_set, _ = load_task_file(path)
+    return task_set
+
+
+def _outcome(task):
+    return {"status": "TIME_LIMIT", "success": False, "message": "m", "T": float("nan"),
+            "pid": 7, "builds": 1, "index": task.index}
+
+
+def test_journal_drops_a_torn_last_line_and_plans_that_task_again(tmp_path):
+    from tocontrol_ros.batch_library import Journal
+
+    task_set = _three_tasks(tmp_path)
+    path = tmp_path / "cell.journal.jsonl"
+    journal = Journal(path, task_set.fingerprint)
+    for task in task_set.tasks[:2]:
+        assert journal.record(task, _outcome(task), 1, None)
+    journal.close()
+    with open(path, "a") as f:  # a run killed in the middle of writing the third line
+        f.write('{"key":"' + task_set.tasks[2].key + '","index":2,"sta')
+    journal = Journal(path, task_set.fingerprint)
+    assert journal.torn == 1
+    assert sorted(journal.entries) == sorted(t.key for t in task_set.tasks[:2])
+    assert journal.record(task_set.tasks[2], _outcome(task_set.tasks[2]), 1, None)
+    journal.close()
+    lines = path.read_text().splitlines()
+    assert [json.loads(line)["index"] for line in lines[1:]] == [0, 1, 2]
+    assert all(e["T"] is None for e in journal_entries(path))  # NaN is not JSON
+
+
+def test_journal_records_a_task_once(tmp_path):
+    from tocontrol_ros.batch_library import Journal
+
+    task_set = _three_tasks(tmp_path)
+    journal = Journal(tmp_path / "j.jsonl", task_set.fingerprint)
+    task = task_set.tasks[0]
+    assert journal.record(task, _outcome(task), 1, None)
+    assert not journal.record(task, _outcome(task), 2, None)
+    journal.close()
+    assert len(journal_entries(tmp_path / "j.jsonl")) == 1
+
+
+def test_progress_line_counts_rate_and_eta():
+    import io
+
+    from tocontrol_ros.batch_runner import Progress
+
+    out = io.StringIO()
+    progress = Progress(total=10, done=4, stream=out, period=0.0)
+    assert "ETA ?" in progress.line()
+    progress.t0 -= 200.0  # started 200 s ago
+    progress.update(True)
+    progress.update(False)
+    line = out.getvalue().splitlines()[-1]
+    assert "6/10 (1 failed)" in line and "0.01 motions/s" in line and "ETA 0:06:40" in line
