@@ -17,7 +17,7 @@ fails or runs out of time is recorded with its status; the others go on.
 Usage::
 
     ros2 run tocontrol_ros batch cell.yaml --workers 2
-    ros2 run tocontrol_ros batch cell.yaml --ray auto
+    ros2 run tocontrol_ros batch cell.yaml --ray auto -o runs/cell.mcap
     ros2 run tocontrol_ros replay cell.mcap --topics /library/motion_00003 \
         --ros-args -r /library/motion_00003:=/planner/trajectory
 
@@ -124,7 +124,11 @@ def run(args, stream=None) -> int:
 
 def main(argv=None) -> int:
     """Plan a task file; returns the exit status."""
-    return run(build_parser().parse_args(sys.argv[1:] if argv is None else argv))
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv[1:] if argv is None else argv
+    # Not a node, but `ros2 launch` appends --ros-args to every executable it starts.
+    return run(build_parser().parse_args(remove_ros_args(["batch", *argv])[1:]))
 
 
 if __name__ == "__main__":
