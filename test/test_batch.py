@@ -86,6 +86,7 @@ BAD_FILES = [
     ({"robot": {"tip_link": "nope"}}, r"robot \(.*galicki_3r\.urdf\): .*nope"),
     ({"motions": [{"all_pairs": ["feeder"]}]}, r"motions\[0\]\.all_pairs: must be"),
     ({"motions": []}, r"motions: must be a non-empty list"),
+    ({"hard_timeout": -1}, r"motions\[0\]\.hard_timeout: must be positive"),
 ]
 
 
@@ -157,6 +158,22 @@ def test_the_worker_builds_the_model_once_for_all_its_tasks(small_run):
     entries = journal_entries(small_run[2]["journal"])
     assert len(entries) == 3 and len({e["worker"] for e in entries}) == 1
     assert [e["builds"] for e in entries] == [1, 1, 1]
+
+
+def test_a_task_past_its_hard_timeout_is_stopped_and_recorded(tmp_path):
+    # The multistart with re-integration takes seconds; 0.5 s of hard timeout stops it.
+    path = write_tasks(tmp_path / "cell.yaml", motions=[
+        {"start": "feeder", "target": "press", "hard_timeout": 0.5,
+         "solver": {"starts": 16, "candidates": 3, "verify": True}},
+        {"start": "home", "target": "conveyor"}])
+    paths = library_paths(tmp_path / "cell.mcap")
+    assert batch.main([str(path), "-j", "1", "--quiet"]) == 0
+    rows = read_summary(paths["csv"])
+    assert [r["status"] for r in rows] == ["TIMEOUT", "SUCCESS"]
+    assert "hard_timeout 0.5 s" in rows[0]["message"]
+    entries = journal_entries(paths["journal"])
+    assert [e["index"] for e in entries] == [0, 1] and entries[1]["attempts"] == 1
+    assert sorted(read_library(paths["mcap"])) == [TOPIC_PREFIX + "motion_00001"]
 
 
 def test_library_holds_one_trajectory_per_solved_motion(small_run):

@@ -113,6 +113,14 @@ class RayBackend:
                 out.append((task, None, f"{type(exc).__name__}: {str(exc).splitlines()[0]}"))
         return out
 
+    def stop(self, tasks) -> None:
+        """Cancel `tasks`, killing the workers that run them (they do not come back)."""
+        keys = {t.key for t in tasks}
+        for ref, task in list(self._refs.items()):
+            if task.key in keys:
+                self._ray.cancel(ref, force=True)
+                del self._refs[ref]
+
     def close(self, abandon: bool = False) -> None:
         """Cancel what is left when abandoning; disconnect (a private cluster stops)."""
         if abandon:

@@ -4,11 +4,13 @@ A *backend* runs tasks somewhere: :class:`LocalPool` (this machine's cores, a
 ``ProcessPoolExecutor`` whose initializer builds the model once per worker) or
 :class:`tocontrol_ros.batch_ray.RayBackend`. Both offer ``capacity``, ``submit(task)``,
 ``poll(timeout)`` (finished tasks as ``(task, result, None)``, tasks whose worker died as
-``(task, None, reason)``) and ``close(abandon)``.
+``(task, None, reason)``), ``stop(tasks)`` (stop the workers running these tasks) and
+``close(abandon)``.
 
 :func:`run_tasks` keeps ``capacity`` tasks in flight, journals each result as it arrives
 (no task is journaled twice), submits a task again when its worker died (up to
-:data:`MAX_ATTEMPTS`, then records it as lost) and stops submitting when ``stop()`` turns
+:data:`MAX_ATTEMPTS`, then records it as lost), records a task still out after its
+``hard_timeout`` as ``TIMEOUT`` (its worker stopped) and stops submitting when ``stop()`` turns
 true, letting the tasks in flight finish unless ``abandon()`` turns true too.
 """
 
@@ -16,13 +18,15 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import os
+import signal
 import sys
 import time
 from collections import deque
 
 from tocontrol_ros.batch_library import Journal, trajectory_cdr
 from tocontrol_ros.batch_tasks import RobotSpec, Task
-from tocontrol_ros.batch_worker import LOST, init_worker, run_task
+from tocontrol_ros.batch_worker import LOST, TIMEOUT, init_worker, run_task
 
 __all__ = ["LocalPool", "Progress", "run_tasks", "MAX_ATTEMPTS"]
 
@@ -48,18 +52,40 @@ class LocalPool:
         self.robot = robot
         self.capacity = workers
         self._pool = None
-        self._futures: dict[cf.Future, Task] = {}
+        self._futures: dict[cf.Future, tuple[Task, cf.ProcessPoolExecutor]] = {}
+        self._context = multiprocessing.get_context("spawn")
+        self._pids = None  # the workers report their pid here (to be stopped on a timeout)
 
     def _executor(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
+            self._pids = self._context.SimpleQueue()
             self._pool = cf.ProcessPoolExecutor(
-                self.capacity, mp_context=multiprocessing.get_context("spawn"),
-                initializer=init_worker, initargs=(self.robot,))
+                self.capacity, mp_context=self._context, initializer=init_worker,
+                initargs=(self.robot, self._pids))
         return self._pool
+
+    def stop(self, tasks) -> None:
+        """Kill the pool's workers, since one cannot be stopped alone.
+
+        `tasks` and the others in flight come back from :meth:`poll` as lost; the next
+        submit starts a fresh pool.
+        """
+        if self._pool is None:
+            return
+        while not self._pids.empty():
+            pid = self._pids.get()
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        # Returns once the pool has seen its workers die and failed their futures.
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
 
     def submit(self, task: Task) -> None:
         """Start `task` on a free worker."""
-        self._futures[self._executor().submit(run_task, self.robot, task)] = task
+        pool = self._executor()
+        self._futures[pool.submit(run_task, self.robot, task)] = (task, pool)
 
     def poll(self, timeout: float) -> list:
         """Finished tasks (waits up to `timeout` s for the first)."""
@@ -67,17 +93,16 @@ class LocalPool:
             time.sleep(timeout)
             return []
         done, _ = cf.wait(list(self._futures), timeout, return_when=cf.FIRST_COMPLETED)
-        out, broken = [], False
+        out = []
         for future in done:
-            task = self._futures.pop(future)
+            task, pool = self._futures.pop(future)
             try:
                 out.append((task, future.result(), None))
             except cf.process.BrokenProcessPool as exc:
-                broken = True
                 out.append((task, None, f"worker process died ({exc})"))
-        if broken:  # every task of a broken pool fails with it; start a fresh pool
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+                if pool is self._pool:  # every task of a broken pool fails; start a new one
+                    self._pool.shutdown(wait=False, cancel_futures=True)
+                    self._pool = None
         return out
 
     def close(self, abandon: bool = False) -> None:
@@ -175,7 +200,20 @@ def run_tasks(tasks, backend, journal: Journal, joint_names, frame_id: str,
     queue = deque(tasks)
     attempts: dict[str, int] = {}
     in_flight: dict[str, Task] = {}
+    started: dict[str, float] = {}
     recorded = lost = 0
+
+    def record(task, result):
+        nonlocal recorded
+        cdr = trajectory_cdr(result["sample"], joint_names, frame_id) \
+            if result.get("sample") is not None else None
+        if journal.record(task, result, attempts[task.key], cdr):
+            recorded += 1
+            if progress is not None:
+                progress.update(bool(result.get("success")))
+            if on_result is not None:
+                on_result(task, result)
+
     try:
         while queue or in_flight:
             if abandon():
@@ -184,11 +222,13 @@ def run_tasks(tasks, backend, journal: Journal, joint_names, frame_id: str,
                 task = queue.popleft()
                 attempts[task.key] = attempts.get(task.key, 0) + 1
                 in_flight[task.key] = task
+                started[task.key] = time.monotonic()
                 backend.submit(task)
             if stop() and not in_flight:
                 break
             for task, result, error in backend.poll(POLL_PERIOD):
-                in_flight.pop(task.key, None)
+                if in_flight.pop(task.key, None) is None:
+                    continue  # recorded already (timed out)
                 if result is None:
                     lost += 1
                     if attempts[task.key] < MAX_ATTEMPTS and not stop():
@@ -198,14 +238,16 @@ def run_tasks(tasks, backend, journal: Journal, joint_names, frame_id: str,
                         continue  # stopping: left for the resumed run
                     result = {"status": LOST, "success": False, "message": error,
                               "pid": ""}
-                cdr = trajectory_cdr(result["sample"], joint_names, frame_id) \
-                    if result.get("sample") is not None else None
-                if journal.record(task, result, attempts[task.key], cdr):
-                    recorded += 1
-                    if progress is not None:
-                        progress.update(bool(result.get("success")))
-                    if on_result is not None:
-                        on_result(task, result)
+                record(task, result)
+            now = time.monotonic()
+            late = [t for t in in_flight.values() if now - started[t.key] > t.hard_timeout]
+            if late:
+                backend.stop(late)
+                for task in late:
+                    del in_flight[task.key]
+                    record(task, {"status": TIMEOUT, "success": False, "pid": "",
+                                  "message": f"no result after {now - started[task.key]:.1f} "
+                                  f"s (hard_timeout {task.hard_timeout:g} s): worker stopped"})
             if progress is not None:
                 progress.update()
     finally:

@@ -13,6 +13,7 @@ A task file names the robot, the planning settings and the motions::
     reserve: 0.0                  # torque reserve in [0, 1), a number or a list
     sample_period: 0.005          # s between the stored trajectory points
     solver: {starts: 16, candidates: 3, time_limit: 60}   # SolverOptions fields
+    hard_timeout: 150             # s; default 2 time_limit + 30: the worker is stopped
     stations:                     # optional named ends
       feeder: {point: [1.0, 1.0]}
       press: {point: [2.2, 1.5]}
@@ -22,11 +23,13 @@ A task file names the robot, the planning settings and the motions::
       - {start: {q: [0.1, 0.2, 0.3]}, target: {point: [2.2, 1.5]}, k: 8}
       - all_pairs: [feeder, press, home]   # every ordered pair; `all_pairs: all` = all stations
 
-A motion may override ``k``, ``reserve`` and ``solver`` fields. Each (motion, k, reserve)
-is one :class:`Task`. Every error is a :class:`TaskFileError` that names the field
-(``motions[2].start.q``) and what was wrong; every task is checked by building its
-:class:`~tocontrol_ros.core.problem.Problem` (reachable points, joint limits) before any
-planning starts. No ROS import here: workers use this module too.
+A motion may override ``k``, ``reserve``, ``hard_timeout`` and ``solver`` fields. The
+solver stops itself at ``time_limit`` (status ``TIME_LIMIT``); ``hard_timeout`` is the
+runner's backstop for a task that does not come back at all (status ``TIMEOUT``).
+Each (motion, k, reserve) is one :class:`Task`. Every error is a :class:`TaskFileError`
+that names the field (``motions[2].start.q``) and what was wrong; every task is checked by
+building its :class:`~tocontrol_ros.core.problem.Problem` (reachable points, joint limits)
+before any planning starts. No ROS import here: workers use this module too.
 """
 
 from __future__ import annotations
@@ -45,11 +48,16 @@ from tocontrol_ros.core.errors import TocontrolError
 __all__ = ["TaskFileError", "RobotSpec", "Task", "TaskSet", "load_task_file", "parse_tasks",
            "build_problem", "load_model"]
 
-TOP_KEYS = ("robot", "k", "reserve", "sample_period", "solver", "stations", "motions")
+TOP_KEYS = ("robot", "k", "reserve", "sample_period", "hard_timeout", "solver", "stations",
+            "motions")
 ROBOT_KEYS = ("urdf", "base_link", "tip_link", "locked_joints", "task_axes", "gravity")
-MOTION_KEYS = ("start", "target", "all_pairs", "k", "reserve", "solver", "name")
+MOTION_KEYS = ("start", "target", "all_pairs", "k", "reserve", "hard_timeout", "solver")
 #: Default spacing of the stored trajectory points (s): the planner's default sample period.
 DEFAULT_SAMPLE_PERIOD = 0.005
+#: Default hard timeout: HARD_TIMEOUT_FACTOR * time_limit + HARD_TIMEOUT_GRACE (s), far past
+#: the solver's own stop, so that only a task that hangs or whose worker stalls reaches it.
+HARD_TIMEOUT_FACTOR = 2.0
+HARD_TIMEOUT_GRACE = 30.0
 
 
 class TaskFileError(TocontrolError, ValueError):
@@ -92,6 +100,8 @@ class Task:
         :class:`~tocontrol_ros.core.solver.SolverOptions` fields, sorted.
     sample_period : float
         Spacing of the stored trajectory points (s).
+    hard_timeout : float
+        Wall time (s) after which the runner stops the task's worker and records it.
     where : str
         The entry of the task file it came from (``motions[3]``), for messages.
     """
@@ -105,6 +115,7 @@ class Task:
     reserve: float
     solver: tuple
     sample_period: float
+    hard_timeout: float
     where: str
 
     @property
@@ -341,14 +352,20 @@ def parse_tasks(data, base: Path, label: str = "task file") -> tuple[TaskSet, ob
         m_reserves = _numbers(f"{where}.reserve", entry["reserve"]) if "reserve" in entry \
             else reserves
         m_solver = {**solver, **_solver(f"{where}.solver", entry.get("solver") or {})}
-        _solver_options(f"{where}.solver", m_solver)
+        options = _solver_options(f"{where}.solver", m_solver)
+        hard = entry.get("hard_timeout", data.get("hard_timeout"))
+        if hard is None:
+            hard = HARD_TIMEOUT_FACTOR * options.time_limit + HARD_TIMEOUT_GRACE
+        hard = _number(f"{where}.hard_timeout", hard)
+        if hard <= 0:
+            raise TaskFileError(f"{where}.hard_timeout: must be positive (s), got {hard!r}")
         for start, target in pairs:
             for k in m_ks:
                 for reserve in m_reserves:
                     task = Task(index=len(tasks), start=start[:2], target=target[:2],
                                 start_name=start[2], target_name=target[2], k=k,
                                 reserve=reserve, solver=tuple(sorted(m_solver.items())),
-                                sample_period=period, where=where)
+                                sample_period=period, hard_timeout=hard, where=where)
                     _check_problem(model, task)
                     tasks.append(task)
     fingerprint = hashlib.sha256(json.dumps(

@@ -53,9 +53,18 @@ def _exit_with_parent(parent: int) -> None:
     os._exit(1)
 
 
-def init_worker(robot: RobotSpec) -> None:
-    """Pool initializer: Ctrl-C goes to the main process, the worker dies with it; model now."""
+def init_worker(robot: RobotSpec, pids=None) -> None:
+    """Pool initializer: Ctrl-C goes to the main process, the worker dies with it; model now.
+
+    Parameters
+    ----------
+    robot : RobotSpec
+    pids : multiprocessing.SimpleQueue, optional
+        Where the worker puts its process id (so that the runner can stop it).
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if pids is not None:
+        pids.put(os.getpid())
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True,
                      name="exit-with-parent").start()
     worker_model(robot)
