@@ -25,6 +25,7 @@ PACKAGE_NAME = "tocontrol_ros"
 # ``scripts/ros2run/demo`` under the new name with its module edited
 # (test/packaging/test_executables.py checks that the two agree).
 EXECUTABLES = {
+    "batch": "tocontrol_ros.batch",
     "demo": "tocontrol_ros.demo",
     "figures": "tocontrol_ros.figures",
     "planner": "tocontrol_ros.planner",
@@ -91,9 +92,15 @@ setup(
             "example-robot-data>=4",
             "mcap-ros2-support>=0.5",
             "rosbags>=0.10",
+            "ray>=2.9",
         ],
         "bench": [
             "toppra>=0.6",
+            "ray>=2.9",
+        ],
+        # `batch --ray`: only tocontrol_ros/batch_ray.py imports it, inside RayBackend.
+        "ray": [
+            "ray>=2.9",
         ],
     },
     entry_points={

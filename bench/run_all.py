@@ -5,14 +5,16 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,scaling,verification]
+        [--only paper,peers,random,scaling,verification,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
 ``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
 example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
 links, the Panda), ``verification`` (the certificate's cost against the solve, the 3R and
-the Panda). Every timing is taken in this one process, side by side; compiled
-functions go to a fresh temporary cache so that first-run costs are measured, not inherited.
+the Panda), ``batch`` (batch planning throughput: loop, process pool, Ray), ``limits``
+(random cases with joint limits enforced). Every timing is taken in this one process, side
+by side; compiled functions go to a fresh temporary cache so that first-run costs are
+measured, not inherited.
 """
 
 import argparse
@@ -30,6 +32,10 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 
+#: The parts, in the order they run (``--only`` picks some).
+PARTS = ("paper", "peers", "random", "scaling", "verification", "batch", "limits")
+
+
 def _parse(argv):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
@@ -45,8 +51,14 @@ def _parse(argv):
                         help="multistart candidates for the random pairs (3)")
     parser.add_argument("--budget", type=float, default=None,
                         help="seconds per case before its runs are reduced (45; 15 quick)")
-    parser.add_argument("--only", default="paper,peers,random,scaling,verification",
+    parser.add_argument("--only", default=",".join(PARTS),
                         help="comma-separated parts (peers needs paper)")
+    parser.add_argument("--limit-cases", type=int, default=10,
+                        help="random cases per robot of the joint-limits part (10)")
+    parser.add_argument("--limit-robots", default="3R-limited",
+                        help="robots of the joint-limits part, comma-separated, of "
+                             "3R-limited, UR5, Panda (3R-limited: the 6-7-joint arms take "
+                             "minutes per case with the bounded solve)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--keep-cache", action="store_true",
                         help="use the usual compile cache instead of a fresh one")
@@ -55,7 +67,7 @@ def _parse(argv):
     args.pairs = args.pairs or (8 if args.quick else 50)
     args.budget = args.budget or (15.0 if args.quick else 45.0)
     args.only = [p.strip() for p in args.only.split(",") if p.strip()]
-    bad = set(args.only) - {"paper", "peers", "random", "scaling", "verification"}
+    bad = set(args.only) - set(PARTS)
     if bad:
         parser.error(f"--only: unknown parts {sorted(bad)}")
     if "peers" in args.only and "paper" not in args.only:
@@ -79,7 +91,7 @@ def main(argv=None):
 
 
 def _run(args):
-    from bench import paper, peers, random_pairs, scaling, verification
+    from bench import batch, limits, paper, peers, random_pairs, scaling, verification
 
     t0 = time.perf_counter()
     info = common.machine_info()
@@ -117,6 +129,12 @@ def _run(args):
                                     panda_runs=1 if args.quick else 2))
     if "verification" in args.only:
         section(lambda: verification.run(model, args.runs, args.budget))
+    if "batch" in args.only:
+        section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
+                else batch.run(count=20))
+    if "limits" in args.only:
+        section(lambda: limits.run(3 if args.quick else args.limit_cases,
+                                   args.limit_robots.split(",")))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

@@ -43,6 +43,13 @@ MODULE_DEPENDENCIES = {
     "mcap_ros2": ("mcap-ros2-support", "mcap-ros2-support"),
 }
 
+# Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of
+# setup.py's extras_require, not in install_requires nor package.xml (rosdistro has no key),
+# and imported only inside functions, so that the package works without them.
+OPTIONAL_DEPENDENCIES = {
+    "ray": ("ray", "ray"),  # `batch --ray`
+}
+
 
 @pytest.fixture(scope="module")
 def package_xml(repo):
@@ -103,6 +110,8 @@ def test_every_import_is_declared(repo, package_xml, setup_keywords):
     pip_names = {_requirement_name(r) for r in setup_keywords["install_requires"]}
     unknown, undeclared = [], []
     for module, places in sorted(_third_party_imports(repo).items()):
+        if module in OPTIONAL_DEPENDENCIES:
+            continue
         if module not in MODULE_DEPENDENCIES:
             unknown.append(f"{module} ({', '.join(places)})")
             continue
@@ -121,3 +130,35 @@ def test_every_import_is_declared(repo, package_xml, setup_keywords):
 def test_scanner_sees_the_demo_imports(repo):
     # Guards the scan itself: the demo imports ament_index_python inside a function.
     assert "ament_index_python" in _third_party_imports(repo)
+
+
+def _top_level_imports(repo):
+    """Top-level modules imported at module level (not inside a function) -> files."""
+    found = {}
+    for path in sorted((repo / PACKAGE).rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in tree.body:
+            if isinstance(node, ast.Import):
+                modules = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                modules = [node.module]
+            else:
+                continue
+            for module in modules:
+                found.setdefault(module.split(".")[0], []).append(str(path.relative_to(repo)))
+    return found
+
+
+def test_optional_imports_are_extras_imported_lazily(repo, setup_keywords):
+    extras = setup_keywords["extras_require"]
+    required = {_requirement_name(r) for r in setup_keywords["install_requires"]}
+    eager = _top_level_imports(repo)
+    for module, (extra, pip_name) in OPTIONAL_DEPENDENCIES.items():
+        assert _requirement_name(pip_name) in {_requirement_name(r)
+                                               for r in extras.get(extra, [])}, \
+            f"setup.py extras_require[{extra!r}] lacks {pip_name}"
+        assert _requirement_name(pip_name) not in required, \
+            f"{pip_name} is optional: keep it out of install_requires"
+        assert module not in eager, \
+            f"{module} is optional: import it inside functions, not at the top of {eager[module]}"
+    assert "ray" in _third_party_imports(repo), "the scan no longer sees batch_ray's import"
