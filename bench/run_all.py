@@ -31,7 +31,6 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
-
 #: The parts, in the order they run (``--only`` picks some).
 PARTS = ("paper", "peers", "random", "scaling", "verification", "batch", "limits")
 
