@@ -217,7 +217,7 @@ def test_bad_trajectories_are_rejected_and_the_arm_holds(harness, model, corrupt
     assert not harness.node.tracker.running
     np.testing.assert_allclose(harness.joint_states[-1].position, q0, atol=1e-9)
     # A good one afterwards still runs, in any joint order.
-    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, -0.1], 0.5,
+    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, -0.1], 1.0,
                                    names=["joint3", "joint1", "joint2"]))
     done = harness.status_with("trajectory completed")
     assert float(_values(done)["final_point_error"]) < 1e-3
@@ -271,3 +271,66 @@ def test_clock_is_published_with_simulated_time():
 def test_bad_parameters_are_refused_at_start(overrides, error):
     with pytest.raises(error):
         Harness(overrides)
+
+
+# ----------------------------------------------- what the tracker checks (issue 14, item 5)
+def _far_start(msg):
+    for p in msg.points:
+        p.positions[0] += 1e300
+    return msg
+
+
+def _over_effort(msg):
+    msg.points[7].effort[2] = 9.0  # joint3's limit is 8 N m
+    return msg
+
+
+@pytest.mark.parametrize("corrupt, fragment", [
+    (_far_start, "from the current position (joint1), more than start_tolerance"),
+    (_over_effort, "point 7: effort 9 of joint3 exceeds its torque limit 8"),
+])
+def test_unsafe_trajectories_are_rejected(harness, model, corrupt, fragment):
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(corrupt(motion_msg(model, q0, [0.3, 0.3, 0.3], 1.5)))
+    status = harness.status_with("trajectory rejected")
+    assert fragment in status.message, status.message
+    count = len(harness.joint_states)
+    harness.wait(lambda: len(harness.joint_states) > count + 5, "joint_states after")
+    assert not harness.node.tracker.running
+    np.testing.assert_allclose(harness.joint_states[-1].position, q0, atol=1e-9)
+
+
+def test_size_and_duration_are_bounded(model):
+    h = Harness([Parameter("max_points", value=100), Parameter("max_duration", value=2.0)])
+    try:
+        q0 = np.array(PAPER_START_Q)
+        h.pub.publish(motion_msg(model, q0, [0.3, 0.3, 0.3], 1.5))  # 151 points
+        assert "151 points, more than max_points = 100" in h.status_with("rejected").message
+        h.pub.publish(motion_msg(model, q0, [0.3, 0.3, 0.3], 2.5, dt=0.05))  # 51 points
+        status = h.status_with("more than max_duration")
+        assert "lasts 2.5 s" in status.message
+        assert not h.node.tracker.running
+    finally:
+        h.stop()
+
+
+def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
+    import tocontrol_ros.tracker as tracker_module
+
+    parse = tracker_module.nominal_from_msg
+    during = []
+
+    def slow_parse(msg, joint_names):
+        # Stands for the parse of a very large trajectory.
+        with harness.lock:
+            before = len(harness.joint_states)
+        time.sleep(1.0)
+        with harness.lock:
+            during.append(len(harness.joint_states) - before)
+        return parse(msg, joint_names)
+
+    monkeypatch.setattr(tracker_module, "nominal_from_msg", slow_parse)
+    harness.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.1, 0.1, 0.1], 1.0))
+    harness.status_with("executing trajectory")
+    # 1 s of wall time at time_scale 20 and publish_rate 50: about 1000 joint states.
+    assert during and during[0] > 100, during
