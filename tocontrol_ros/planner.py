@@ -69,6 +69,9 @@ EXECUTOR_THREADS = 8
 #: used while the arm moves. Without joint states newer than that, the newest one within
 #: ``joint_state_timeout`` is used after the wait.
 FRESH_STATE_WAIT = 0.1
+#: A solver note that is routine, not a warning: the warm start was tried and the solve
+#: went on cold (the status stays OK and keeps the note).
+ROUTINE_NOTE = "warm start did not converge"
 #: How often a waiting service callback looks at the shutdown flag (s).
 WAIT_POLL = 0.05
 #: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
@@ -316,7 +319,8 @@ class PlannerNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         values = self._parameter_values()
-        values.update({p.name: p.value for p in params})
+        # Only the planner's own: rclpy's (use_sim_time) are rclpy's to check.
+        values.update({p.name: p.value for p in params if p.name in values})
         try:
             config = config_from_values(values, task_dim=self.model.m)
         except ConfigError as exc:
@@ -476,10 +480,12 @@ class PlannerNode(Node):
                 self._slot.finished(req)
 
     def _warm_up(self) -> None:
-        """Solve a throw-away problem so that compilation does not delay the first request.
+        """Build what requests need, so that no request pays for a build.
 
-        Stops early (cancelled) when a request arrives or the node shuts down; a request
-        then pays what is left.
+        First the direct transcription of every problem kind the node serves (point to
+        point for ``~/plan``, joint state to point for ``~/goal`` and ``~/plan`` without a
+        start frame), always; then one throw-away solve of each kind (compiles the
+        shooting functions), stopped early when a request arrives or the node shuts down.
         """
         from tocontrol_ros.core.problem import Problem, joint_state, point
         self._publish_status("OK", "warming up (the first start on a machine compiles the "
@@ -493,15 +499,17 @@ class PlannerNode(Node):
             # A generic move (alternating signs: not along a singular direction).
             qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
             options = dataclasses.replace(solver_options(config), verify=False)
-            for start in (point(model.point(qa)), joint_state(qa)):
-                problem = Problem(model, start, point(model.point(qb)), k=config.k,
-                                  reserve=config.reserve)
+            problems = [Problem(model, start, point(model.point(qb)), k=config.k,
+                                reserve=config.reserve)
+                        for start in (point(model.point(qa)), joint_state(qa))]
+            for problem in problems:
+                self.planner.direct(problem, options.guess_intervals)
+            for problem in problems:
                 result = self.planner.plan(
                     problem, options,
                     should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
-                if not result.success:
+                if not result.success and not note:
                     note = f" (warm-up solve: {result.message})"
-                    break
         except TocontrolError as exc:
             note = f" (warm-up skipped: {exc})"
         if self._stopping.is_set():
@@ -580,9 +588,13 @@ class PlannerNode(Node):
                    f"Newton iterations, {result.timings['total']:.3f} s, residual "
                    f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
         level = "OK"
-        if result.warnings:
+        routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
+        warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
+        if routine:
+            message += "; " + "; ".join(routine)
+        if warnings:
             level = "WARN"
-            message += "; warnings: " + "; ".join(result.warnings)
+            message += "; warnings: " + "; ".join(warnings)
         self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
                      path=path)
 

@@ -263,3 +263,59 @@ def test_bad_robot_exits_with_reason(tmp_path):
         proc.stop(signal.SIGKILL)
     assert code == 1
     assert "tip link 'nowhere' is not a link" in proc.log()
+
+
+def test_double_sigint_to_the_process_group_exits_cleanly(tmp_path):
+    # Issue 14: Ctrl-C under `ros2 launch` (SIGINT to the whole group, then launch's own
+    # SIGINT to each node) left KeyboardInterrupt tracebacks and exit code -2.
+    ns = f"/sigint_{os.getpid()}"
+    planner_cmd, planner_env = planner_command()
+    tracker_cmd = [str(Path(sys.prefix) / "lib" / "tocontrol_ros" / "tracker")]
+    if not Path(tracker_cmd[0]).is_file():
+        tracker_cmd = [sys.executable, "-m", "tocontrol_ros.tracker"]
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", **planner_env)
+    logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
+    args = ["--ros-args", "-r", f"__ns:={ns}"]
+    first = subprocess.Popen(planner_cmd + args, env=env, stdout=logs[0],
+                             stderr=subprocess.STDOUT, process_group=0)
+    second = subprocess.Popen(
+        tracker_cmd + args + ["-p", f"trajectory_topic:={ns}/planner/trajectory"], env=env,
+        stdout=logs[1], stderr=subprocess.STDOUT, process_group=first.pid)
+    procs = (first, second)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(120.0)
+        client.wait_for(lambda: any(s.event == "ready" for s in client.status_list()), 120.0,
+                        "the planner's warm-up")
+        # A request in flight when the signals come.
+        client.plan_client.call_async(GetPlanRequest(PAPER_START, PAPER_TARGET))
+        time.sleep(0.2)
+        os.killpg(first.pid, signal.SIGINT)
+        time.sleep(0.05)
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        codes = [proc.wait(30.0) for proc in procs]
+    finally:
+        client.close()
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    texts = []
+    for log in logs:
+        log.seek(0)
+        texts.append(log.read())
+        log.close()
+    assert codes == [0, 0], texts
+    for text in texts:
+        assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+
+
+def GetPlanRequest(start, goal):  # noqa: N802  (reads like the message constructor)
+    from nav_msgs.srv import GetPlan
+
+    req = GetPlan.Request()
+    req.start.header.frame_id = req.goal.header.frame_id = "base_link"
+    req.start.pose.position.x, req.start.pose.position.y = start
+    req.goal.pose.position.x, req.goal.pose.position.y = goal
+    return req

@@ -449,3 +449,31 @@ def test_shutdown_during_solve_is_prompt():
         assert not running.node._worker.is_alive()
     finally:
         client.close()
+
+
+def test_use_sim_time_can_be_set(client):
+    # Issue 14: `ros2 param set /planner use_sim_time true` was refused as unknown.
+    try:
+        results = client.set_parameters(use_sim_time=True)
+        assert results[0].successful, results[0].reason
+        assert client.get_parameters("use_sim_time") == [True]
+    finally:
+        client.set_parameters(use_sim_time=False)
+
+
+def test_warm_up_builds_every_kind_even_when_a_request_comes_first():
+    # Issue 14: the first request from a joint state waited seconds for its direct
+    # transcription (a request during the warm-up stopped it before that kind was built).
+    ns = f"{NAMESPACE}_warm"
+    running = Running(namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert not running.node.ready.is_set(), "warm-up finished before the request"
+        client.call_plan(PAPER_START, PAPER_TARGET, timeout=120.0)
+        assert running.node.ready.wait(120.0)
+        kinds = {(key[1], key[2]) for key in running.node.planner._direct}
+        assert {("point", "point"), ("state", "point")} <= kinds, kinds
+    finally:
+        client.close()
+        running.stop()
