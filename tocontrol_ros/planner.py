@@ -568,18 +568,10 @@ class PlannerNode(Node):
         stamp = self._now()
         frame_id = self.frame.frame_id
         path = conv.path_msg(self.model, sample, frame_id, stamp)
-        snaps = result.trajectory.evaluate(
-            np.linspace(0.0, result.T, config.marker_snapshots)).q
-        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
-                       for p in path.poses])
-        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
-                                   start_point), conv.embed_point(self.frame, req.target),
-                                   frame_id, stamp)
         try:
             self._pub_trajectory.publish(conv.trajectory_msg(sample, self.model.joint_names,
                                                              frame_id, stamp))
             self._pub_path.publish(path)
-            self._pub_markers.publish(markers)
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             req.done.set()
             return
@@ -597,6 +589,18 @@ class PlannerNode(Node):
             message += "; warnings: " + "; ".join(warnings)
         self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
                      path=path)
+        # The viewer's markers after the answer: the caller does not wait for them.
+        snaps = result.trajectory.evaluate(
+            np.linspace(0.0, result.T, config.marker_snapshots)).q
+        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                       for p in path.poses])
+        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
+                                   start_point), conv.embed_point(self.frame, req.target),
+                                   frame_id, stamp)
+        try:
+            self._pub_markers.publish(markers)
+        except Exception:  # noqa: BLE001  (publisher gone during shutdown)
+            return
 
     # --------------------------------------------------------------- shutdown
     def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:

@@ -477,3 +477,32 @@ def test_warm_up_builds_every_kind_even_when_a_request_comes_first():
     finally:
         client.close()
         running.stop()
+
+
+def test_joint_states_do_not_wake_the_executor(planner, client):
+    # Issue 14, defect 1: every joint state cost an executor iteration (96 % of a core at
+    # 500 Hz). Now the planner takes the newest one when a request needs it.
+    taken = []
+    original = planner.executor._take_subscription
+
+    def counting(sub):
+        if sub.topic_name.endswith("/joint_states"):
+            taken.append(sub.topic_name)
+        return original(sub)
+
+    planner.executor._take_subscription = counting
+    try:
+        q = np.array([-0.5487769600, 2.2111963800, 1.1613502200])
+        client.wait_subscribed(client.joint_pub)
+        for _ in range(200):
+            client.send_joint_state(JOINTS, q, [0.0, 0.0, 0.0])
+            time.sleep(0.002)
+        # ...and the newest one is still what a goal starts from.
+        since = len(client.status_list())
+        client.send_goal(PAPER_TARGET)
+        status = client.final_status(since, 60.0)
+        assert status.event == "solved", status.message
+        assert close(status.vector("start_q"), q, 1e-9), status.values
+    finally:
+        planner.executor._take_subscription = original
+    assert taken == [], f"{len(taken)} joint states went through the executor"
