@@ -196,8 +196,8 @@ class LatestMessage:
     Parameters
     ----------
     node : rclpy.node.Node
-        The owner: its context and namespace are used (remappings from the command line
-        apply to the helper node too).
+        The owner: its context and namespace are used, and it resolves the topic name (with
+        its remappings).
     msg_type : type
     topic : str
     qos_profile : QoSProfile
@@ -205,10 +205,15 @@ class LatestMessage:
 
     def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile) -> None:
         self._msg_type = msg_type
+        # The owner resolves the name (its namespace and remappings); the helper takes no
+        # command-line arguments, so that a global `-r __node:=...` (as `ros2 launch` passes)
+        # does not give it the owner's name.
+        resolved = node.resolve_topic_name(topic)
         self._helper = Node(f"_{node.get_name()}_{topic.strip('/').replace('/', '_')}",
                             namespace=node.get_namespace(), context=node.context,
-                            start_parameter_services=False, enable_rosout=False)
-        self._sub = self._helper.create_subscription(msg_type, topic, lambda _msg: None,
+                            use_global_arguments=False, start_parameter_services=False,
+                            enable_rosout=False)
+        self._sub = self._helper.create_subscription(msg_type, resolved, lambda _msg: None,
                                                      qos_profile)
         self._lock = threading.Lock()
         self._latest = None  # (message, DDS receive time in ns)
@@ -553,7 +558,7 @@ class PlannerNode(Node):
         if not result.success:
             self._finish(req, "ERROR", "failed", result.message, extra)
             return
-        if result.trajectory is None:
+        if result.status.name == "TRIVIAL":
             # The core's rule (Problem.is_trivial): the start is at rest on the target.
             gap = float(np.linalg.norm(start_point - req.target))
             path = conv.point_path(self.frame, start_point, self.frame.frame_id, self._now())

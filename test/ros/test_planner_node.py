@@ -506,3 +506,27 @@ def test_joint_states_do_not_wake_the_executor(planner, client):
     finally:
         planner.executor._take_subscription = original
     assert taken == [], f"{len(taken)} joint states went through the executor"
+
+
+def test_joint_state_helper_follows_the_planners_name_and_remapping():
+    # `ros2 launch` passes `-r __node:=planner` as a global argument: the hidden helper node
+    # that holds the joint-state subscription must not take that name too.
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["--ros-args", "-r", "__node:=renamed", "-r",
+                                      "joint_states:=/elsewhere/joint_states"])
+    node = None
+    try:
+        node = PlannerNode(context=context, namespace=f"{NAMESPACE}_remap")
+        names = node.get_node_names_and_namespaces()
+        deadline = time.monotonic() + 10.0
+        while ("_renamed_joint_states" not in [n for n, _ in names]
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+            names = node.get_node_names_and_namespaces()
+        ours = [n for n, ns in names if ns == f"{NAMESPACE}_remap"]
+        assert sorted(ours) == ["_renamed_joint_states", "renamed"], names
+        assert node._joint_states._sub.topic_name == "/elsewhere/joint_states"
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

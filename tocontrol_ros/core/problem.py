@@ -188,7 +188,7 @@ def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
             f"`{name}` point {p.tolist()} is on the boundary of the workspace of "
             f"{model.name!r}: only a singular configuration reaches it (e.g. the arm fully "
             f"stretched, reach about {model.reach():.4g} m), from which the arm cannot move "
-            f"in every direction; give a point slightly inside (1e-6 m is enough)")
+            f"in every direction; give a point slightly inside")
 
 
 #: A configuration is singular for :func:`_check_reachable` when the smallest singular value
