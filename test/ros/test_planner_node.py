@@ -28,6 +28,7 @@ from rclpy.parameter import Parameter
 from tocontrol_ros.conversions import seconds
 from tocontrol_ros.core.errors import ModelError
 from tocontrol_ros.core.problem import MIN_MOVE
+from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
 
 pytestmark = pytest.mark.ros
@@ -420,6 +421,12 @@ def test_bad_robot_is_refused_at_start():
             PlannerNode(context=context, namespace=f"{NAMESPACE}_bad2",
                         parameter_overrides=[Parameter("robot_description",
                                                        value="<robot name='x'/>")])
+        # Issue 14: a long non-XML string gave an uncaught OSError echoing all of it.
+        with pytest.raises(RobotDescriptionError, match=r"must be URDF XML") as info:
+            PlannerNode(context=context, namespace=f"{NAMESPACE}_bad3",
+                        parameter_overrides=[Parameter("robot_description",
+                                                       value="arm " * 20000)])
+        assert len(str(info.value)) < 300
     finally:
         rclpy.try_shutdown(context=context)
 

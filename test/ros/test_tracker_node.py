@@ -28,6 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.tracker import (
     PAPER_START_Q,
     QOS_STATUS,
@@ -267,6 +268,7 @@ def test_clock_is_published_with_simulated_time():
     ([Parameter("initial_positions", value=[0.0, 0.0])], ProblemError),
     ([Parameter("time_scale", value=0.0)], InvalidParameterValueException),
     ([Parameter("payload_mass", value=-1.0)], InvalidParameterValueException),
+    ([Parameter("robot_description", value="arm " * 20000)], RobotDescriptionError),
 ])
 def test_bad_parameters_are_refused_at_start(overrides, error):
     with pytest.raises(error):
