@@ -28,6 +28,7 @@ same time (other nodes follow it with ``use_sim_time``). ``joint_states`` and
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import sys
 import threading
@@ -136,9 +137,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
           "from zero)"),
     _spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
           "trajectory_msgs/JointTrajectory"),
-    _spec("start_tolerance", 0.5, "Largest distance (rad, m; any joint) between a "
-          "trajectory's first point and the arm's position when it starts; farther: "
-          "rejected", 0.0, 1.0e3),
+    _spec("start_tolerance", 0.1, "Largest distance (rad, m; any joint) between a "
+          "trajectory's first point and the arm's position, now or as published in the last "
+          "2 s of wall time (a plan made from the state of a moving arm); farther: rejected",
+          0.0, 1.0e3),
     _spec("max_points", 20000, "Largest number of points of a trajectory; more: rejected "
           "before it is parsed", 1, 10_000_000),
     _spec("max_duration", 600.0, "Longest trajectory (s); longer: rejected", 0.001, 1.0e6),
@@ -258,6 +260,10 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> Nomina
         raise TrajectoryRejectedError(text) from exc
 
 
+#: A trajectory may start from any position the arm had (as published on joint_states) in
+#: this many wall-clock seconds: a plan made from a state of a moving arm arrives after the
+#: arm has moved on (the planner uses joint states up to joint_state_timeout = 1 s old).
+START_HISTORY = 2.0
 #: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
 EFFORT_MARGIN = 1e-6
 
@@ -343,6 +349,7 @@ class TrackerNode(Node):
         self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
         self._parsed_lock = threading.Lock()
         self._parsed: list = []  # NominalTrajectory or TrajectoryRejectedError, in order
+        self._history: collections.deque = collections.deque()  # (wall time, q) published
         self._publish_state(self._initial_row())
         self.create_timer(1.0 / self.config.update_rate, self._on_timer)
         self.get_logger().info(
@@ -414,11 +421,17 @@ class TrackerNode(Node):
             nominal = item
             gaps = np.abs(nominal.q[0] - self.tracker.q)
             offset = float(np.max(gaps))
-            if offset > self.config.start_tolerance:
+            # Planned from a state the arm had: a plan from the published joint states of the
+            # last START_HISTORY seconds is accepted although the arm has moved on since.
+            recent = np.array([q for _, q in self._history]) if self._history else \
+                self.tracker.q[None, :]
+            nearest = float(np.min(np.max(np.abs(recent - nominal.q[0]), axis=1)))
+            if min(offset, nearest) > self.config.start_tolerance:
                 j = int(np.argmax(gaps))
                 self._reject(f"its first point is {offset:.3g} rad from the current position "
-                             f"({self.joint_names[j]}), more than start_tolerance = "
-                             f"{self.config.start_tolerance:g}")
+                             f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
+                             f"position of the last {START_HISTORY:g} s, more than "
+                             f"start_tolerance = {self.config.start_tolerance:g}")
                 continue
             preempted = self.tracker.start(nominal)
             if preempted is not None:
@@ -475,6 +488,10 @@ class TrackerNode(Node):
             self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
 
     def _publish_state(self, row: Mapping[str, Any]) -> None:
+        now = time.monotonic()
+        self._history.append((now, np.array(row["q"], dtype=float)))
+        while self._history and self._history[0][0] < now - START_HISTORY:
+            self._history.popleft()
         header = Header(stamp=conv.time_from_seconds(self._epoch + float(row["t"])), frame_id="")
         self._pub_joints.publish(JointState(
             header=header, name=self.joint_names, position=np.asarray(row["q"]).tolist(),

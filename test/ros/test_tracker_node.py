@@ -34,6 +34,7 @@ from tocontrol_ros.tracker import (
     QOS_STATUS,
     QOS_STREAM,
     QOS_TRAJECTORY,
+    START_HISTORY,
     TrackerNode,
 )
 
@@ -288,7 +289,7 @@ def _over_effort(msg):
 
 
 @pytest.mark.parametrize("corrupt, fragment", [
-    (_far_start, "from the current position (joint1), more than start_tolerance"),
+    (_far_start, "from the current position (joint1) and 1e+300 rad from every position"),
     (_over_effort, "point 7: effort 9 of joint3 exceeds its torque limit 8"),
 ])
 def test_unsafe_trajectories_are_rejected(harness, model, corrupt, fragment):
@@ -336,3 +337,19 @@ def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
     harness.status_with("executing trajectory")
     # 1 s of wall time at time_scale 20 and publish_rate 50: about 1000 joint states.
     assert during and during[0] > 100, during
+
+
+def test_a_plan_from_a_recent_state_is_accepted_an_old_one_is_not(harness, model):
+    # A plan made from the state of a moving arm arrives after the arm has moved on: its
+    # first point is a position the arm had (published on joint_states) a moment ago.
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.3, 0.3], 1.5))
+    harness.status_with("trajectory completed")
+    assert np.max(np.abs(harness.node.tracker.q - q0)) > 0.25  # > start_tolerance (0.1)
+    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, 0.0], 1.0))
+    harness.status_with("executing trajectory: 101 points")
+    harness.status_with("trajectory completed", timeout=15.0)
+    time.sleep(START_HISTORY + 0.5)  # q0 is now older than the history
+    harness.pub.publish(motion_msg(model, q0 + [0.3, -0.3, 0.3], [0.0, 0.0, 0.1], 1.0))
+    status = harness.status_with("trajectory rejected")
+    assert "more than start_tolerance" in status.message, status.message
