@@ -11,7 +11,8 @@ tree imports that tree's ``tocontrol_ros`` and ``bench`` (the compile cache is s
 each case once to warm up, then waits for orders: the driver alternates the trees run by run
 (A then B, then B then A, ...), so that both see the same phases of a machine whose speed
 drifts by tens of percent within minutes. Printed per case: each tree's median and minimum
-wall time, and the median over runs of the paired ratio B / A (the figure to trust).
+wall time, the median over runs of the paired ratio B / A (the figure to trust), and the
+largest difference between the two trees' final ``T`` over all runs.
 ``bench/run_all.py`` (``scripts/dev bench``) is the full, recorded benchmark.
 """
 
@@ -69,15 +70,17 @@ def main() -> None:
             if proc.stdout.readline().strip() != "ready":
                 raise SystemExit(f"worker for {tree} did not start")
         times = {(t, c): [] for t in range(2) for c in cases}
+        finals = {(t, c): set() for t in range(2) for c in cases}
         for r in range(rounds):
             for case in cases:
                 for t in ((0, 1) if r % 2 == 0 else (1, 0)):
                     procs[t].stdin.write(case + "\n")
                     procs[t].stdin.flush()
-                    wall, ok, _ = procs[t].stdout.readline().split()
+                    wall, ok, t_final = procs[t].stdout.readline().split()
                     if ok != "True":
                         raise SystemExit(f"{trees[t]}: {case} failed")
                     times[(t, case)].append(1e3 * float(wall))
+                    finals[(t, case)].add(float(t_final))
     finally:
         for proc in procs:
             proc.stdin.close()
@@ -85,9 +88,11 @@ def main() -> None:
     print(f"A = {trees[0]}, B = {trees[1]}, {rounds} interleaved runs per case")
     for case in cases:
         a, b = np.array(times[(0, case)]), np.array(times[(1, case)])
+        t_a, t_b = np.array(sorted(finals[(0, case)])), np.array(sorted(finals[(1, case)]))
         print(f"{case}: A median {np.median(a):.1f} ms (min {a.min():.1f}), B median "
               f"{np.median(b):.1f} ms (min {b.min():.1f}); paired B / A median "
-              f"{np.median(b / a):.3f}")
+              f"{np.median(b / a):.3f}; T A {t_a[0]:.15f} s, max |T_B - T_A| "
+              f"{np.max(np.abs(t_b[:, None] - t_a[None, :])):.1e} s")
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ except ImportError:  # not installed: use the source tree
 
 import numpy as np  # noqa: E402
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET  # noqa: E402
 from tocontrol_ros.core.model import default_urdf_path, load_robot  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
 from tocontrol_ros.core.solver import plan  # noqa: E402
@@ -51,7 +52,7 @@ from tocontrol_ros.core.tracking import (  # noqa: E402
     simulate,
 )
 
-START, TARGET = (1.0, 1.0), (2.2, 1.5)
+START, TARGET = PAPER_START, PAPER_TARGET
 GAINS = TrackingGains(kp=(100.0, 100.0, 30.0), kd=(10.0, 10.0, 3.0))
 PLANS = ((4.0, 0.0), (16.0, 0.0), (4.0, 0.2), (16.0, 0.2))
 MISMATCHES = {

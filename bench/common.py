@@ -33,9 +33,10 @@ except ImportError:  # not installed: use the source tree
 
 import numpy as np  # noqa: E402
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET  # noqa: E402
+
 #: The paper's task (Section 5): end-effector start and target (m).
-START = (1.0, 1.0)
-TARGET = (2.2, 1.5)
+START, TARGET = PAPER_START, PAPER_TARGET
 #: Warm re-solves move the target by 5 cm along x.
 MOVED_TARGET = (2.25, 1.5)
 #: The multistart that finds the best basin of the paper's example (the solver's default).

@@ -31,7 +31,8 @@ from bench.random_pairs import draw_pairs  # noqa: E402
 from tocontrol_ros.core import direct as direct_module  # noqa: E402
 from tocontrol_ros.core.direct import DirectCollocation, initial_path  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, _seed_pairs  # noqa: E402
+from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
+from tocontrol_ros.core.solver import SolverOptions  # noqa: E402
 
 
 def build(model, extra: dict) -> DirectCollocation:
@@ -55,7 +56,7 @@ def main() -> None:
     cases = []
     for a, b in [(np.array(START), np.array(TARGET))] + list(draw_pairs(model, 20)):
         problem = Problem(model, point(a), point(b), k=4.0)
-        for qa, qb in _seed_pairs(problem, SolverOptions(starts=4)):
+        for qa, qb in seed_pairs(problem, SolverOptions(starts=4)):
             cases.append((problem, initial_path(model, qa, qb, 12, 1.0)))
     shape = (len(sets), len(cases))
     times, iters, t_final = np.full(shape, np.inf), np.zeros(shape), np.full(shape, np.nan)

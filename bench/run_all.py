@@ -4,15 +4,17 @@ Run from the repository root::
 
     scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
-    python bench/run_all.py [--quick] [--out FILE] [--only paper,peers,random,scaling,deployed]
+    python bench/run_all.py [--quick] [--out FILE]
+        [--only paper,peers,random,scaling,verification,deployed]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
 ``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
 example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
-links, the Panda), ``deployed`` (planner and tracker as processes: idle CPU and ~/plan
-round trip against the same request in-process). Every timing is taken in this one process,
-side by side; compiled functions go to a fresh temporary cache so that first-run costs are
-measured, not inherited.
+links, the Panda), ``verification`` (the certificate's cost against the solve, the 3R and
+the Panda), ``deployed`` (planner and tracker as processes: idle CPU and ~/plan round trip
+against the same request in-process). Every timing is taken in this one process, side by
+side; compiled functions go to a fresh temporary cache so that first-run costs are measured,
+not inherited.
 """
 
 import argparse
@@ -45,7 +47,7 @@ def _parse(argv):
                         help="multistart candidates for the random pairs (3)")
     parser.add_argument("--budget", type=float, default=None,
                         help="seconds per case before its runs are reduced (45; 15 quick)")
-    parser.add_argument("--only", default="paper,peers,random,scaling,deployed",
+    parser.add_argument("--only", default="paper,peers,random,scaling,verification,deployed",
                         help="comma-separated parts (peers needs paper)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--keep-cache", action="store_true",
@@ -55,7 +57,7 @@ def _parse(argv):
     args.pairs = args.pairs or (8 if args.quick else 50)
     args.budget = args.budget or (15.0 if args.quick else 45.0)
     args.only = [p.strip() for p in args.only.split(",") if p.strip()]
-    bad = set(args.only) - {"paper", "peers", "random", "scaling", "deployed"}
+    bad = set(args.only) - {"paper", "peers", "random", "scaling", "verification", "deployed"}
     if bad:
         parser.error(f"--only: unknown parts {sorted(bad)}")
     if "peers" in args.only and "paper" not in args.only:
@@ -79,7 +81,7 @@ def main(argv=None):
 
 
 def _run(args):
-    from bench import deployed, paper, peers, random_pairs, scaling
+    from bench import deployed, paper, peers, random_pairs, scaling, verification
 
     t0 = time.perf_counter()
     info = common.machine_info()
@@ -115,6 +117,8 @@ def _run(args):
             scaling.PLANAR_NS = (2, 3, 5)
         section(lambda: scaling.run(runs=3 if args.quick else 5,
                                     panda_runs=1 if args.quick else 2))
+    if "verification" in args.only:
+        section(lambda: verification.run(model, args.runs, args.budget))
     if "deployed" in args.only:
         section(lambda: deployed.run(runs=5 if args.quick else 10,
                                      window=4.0 if args.quick else deployed.WINDOW))

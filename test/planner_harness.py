@@ -27,9 +27,8 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-#: The paper's example (Section 5).
-PAPER_START = (1.0, 1.0)
-PAPER_TARGET = (2.2, 1.5)
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+
 #: Bad ~/plan calls: id, start, goal, start frame, goal frame, fragment of the message.
 SERVICE_BAD = [
     ("nan", PAPER_START, (float("nan"), 1.5), "base_link", "base_link",

@@ -171,13 +171,29 @@ def test_status_msg():
         conv.status_msg("FATAL", "", "", "", {})
 
 
+def test_certificate_values(model):
+    """The certificate's figures as ~/status values: one per item, failures and tolerances."""
+    from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.solver import SolverOptions, plan
+
+    res = plan(Problem(model, point([1.0, 1.0]), point([2.2, 1.5]), k=1),
+               SolverOptions(starts=1, candidates=1))
+    values = conv.certificate_values(res.certificate)
+    assert values["certified"] is True and values["cert_failed"] == ""
+    assert values["cert_end_point"] == res.certificate.item("end_point").value
+    assert "end_point=0.0001" in values["cert_tolerances"]
+    kv = {k.key: k.value for k in conv.status_values(values)}
+    assert kv["certified"] == "true" and float(kv["cert_max_abs_H"]) < 1e-5
+    assert conv.certificate_values(None) == {"certified": False}
+
+
 # ------------------------------------------------------------------ parameters
 def test_parameter_table_defaults_are_valid():
     config = config_from_values(default_values(), task_dim=2)
     assert config.k == 4.0 and config.default_start == (1.0, 1.0)
-    assert config.sample_period == 0.01 and config.verify is False
+    assert config.sample_period == 0.01 and config.verify is True
     options = solver_options(config)
-    assert (options.starts, options.candidates, options.verify) == (1, 1, False)
+    assert (options.starts, options.candidates, options.verify) == (1, 1, True)
 
 
 def test_descriptors_carry_ranges_and_read_only():

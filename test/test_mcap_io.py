@@ -5,6 +5,7 @@ Independent readers (rosbags, mcap-ros2-support) check what the helpers produce.
 
 import shutil
 
+import cdr_exact
 import pytest
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -177,17 +178,17 @@ def test_exact_cdr_matches_an_independent_serializer(type_name):
 
     msg = sample_messages()[type_name]
     padded = serialize_message(msg)
-    exact = mcap_io.serialize_exact(msg)
-    assert len(exact) == mcap_io.cdr_size(padded, type(msg)) <= len(padded)
+    exact = cdr_exact.serialize_exact(msg)
+    assert len(exact) == cdr_exact.cdr_size(padded, type(msg)) <= len(padded)
     store = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)
     decoded = store.deserialize_cdr(exact, type_name)  # strict: rejects a wrong size
     assert bytes(store.serialize_cdr(decoded, type_name)) == exact
 
 
 def test_cdr_size_rejects_a_short_buffer():
-    exact = mcap_io.serialize_exact(sample_messages()["sensor_msgs/msg/JointState"])
+    exact = cdr_exact.serialize_exact(sample_messages()["sensor_msgs/msg/JointState"])
     with pytest.raises(mcap_io.McapIOError, match="shorter than its contents"):
-        mcap_io.cdr_size(exact[:-3], JointState)
+        cdr_exact.cdr_size(exact[:-3], JointState)
 
 
 # ---------------------------------------------------------------- writer
@@ -196,7 +197,7 @@ def _write(path, messages, **kwargs):
         for i, (type_name, msg) in enumerate(messages.items()):
             topic = "/t/" + type_name.split("/")[-1]
             writer.add_topic(topic, type_name, [QoSProfile(depth=7)], "RIHS01_x")
-            writer.write(topic, mcap_io.serialize_exact(msg), log_time=1000 + i,
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=1000 + i,
                          publish_time=900 + i, sequence=i)
     return writer
 
@@ -214,7 +215,7 @@ def test_writer_round_trip(tmp_path, compression):
         assert info.offered_qos_profiles[0]["depth"] == 7
         assert info.message_count == 1
     records = list(mcap_io.iter_records(path))
-    assert [r.data for r in records] == [mcap_io.serialize_exact(m) for m in messages.values()]
+    assert [r.data for r in records] == [cdr_exact.serialize_exact(m) for m in messages.values()]
     assert [(r.log_time, r.publish_time) for r in records][0] == (1000, 900)
     from mcap.reader import make_reader
 
@@ -261,7 +262,7 @@ def test_flush_period_leaves_a_readable_file_while_open(tmp_path):
     path = tmp_path / "live.mcap"
     writer = mcap_io.RecordingWriter(path, flush_period=1.0, clock=lambda: now[0])
     writer.add_topic("/js", "sensor_msgs/msg/JointState")
-    data = mcap_io.serialize_exact(sample_messages()["sensor_msgs/msg/JointState"])
+    data = cdr_exact.serialize_exact(sample_messages()["sensor_msgs/msg/JointState"])
     for i in range(5):
         writer.write("/js", data, log_time=i)
     copy = tmp_path / "copy.mcap"

@@ -1,5 +1,7 @@
-"""The report from a recorded file: PNGs and a summary with T, k, errors and saturation."""
+"""The report from a recorded file: a figure per motion, a summary with a table (T, max |u|,
+final error, saturation per motion) and an HTML page that shows them all."""
 
+import cdr_exact
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
@@ -40,7 +42,7 @@ def write_run(path, model):
                            ("/planner/status", status)]:
             writer.add_topic(topic, f"{type(msg).__module__.split('.')[0]}/msg/"
                              f"{type(msg).__name__}", [QoSProfile(depth=1)])
-            writer.write(topic, mcap_io.serialize_exact(msg), log_time=int(T0 * 1e9) - 1000)
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=int(T0 * 1e9) - 1000)
         writer.add_topic("/joint_states", "sensor_msgs/msg/JointState", [QoSProfile(depth=10)])
         writer.add_topic("/tracker/tracking_error", "sensor_msgs/msg/JointState",
                          [QoSProfile(depth=10)])
@@ -52,10 +54,10 @@ def write_run(path, model):
             stamp = int((T0 + t) * 1e9)
             js = JointState(header=Header(stamp=_time(T0 + t)), name=names,
                             position=(qi + err).tolist(), effort=(u * tau_max).tolist())
-            writer.write("/joint_states", mcap_io.serialize_exact(js), log_time=stamp)
+            writer.write("/joint_states", cdr_exact.serialize_exact(js), log_time=stamp)
             e = JointState(header=Header(stamp=_time(T0 + t)), name=names,
                            position=err.tolist(), velocity=[0.0] * 3)
-            writer.write("/tracker/tracking_error", mcap_io.serialize_exact(e), log_time=stamp)
+            writer.write("/tracker/tracking_error", cdr_exact.serialize_exact(e), log_time=stamp)
 
 
 def model_point(model, q):
@@ -71,23 +73,108 @@ def model():
 
 
 def test_report_from_recording(tmp_path, model):
+    """A recording without tracker status (another tracker): one motion, all joint states."""
     path = tmp_path / "run.mcap"
     write_run(path, model)
     out = tmp_path / "report"
     assert report.main([str(path), "--out", str(out)]) == 0
-    for name in ("controls_nominal.png", "controls_applied.png", "motion.png",
-                 "tracking_error.png"):
-        png = out / name
-        assert png.stat().st_size > 5000, name
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    png = out / "motion_1.png"
+    assert png.stat().st_size > 20000
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "motion_1.png",
+                                                     "summary.txt"]
     summary = (out / "summary.txt").read_text()
-    assert f"T = {T:.4f} s" in summary
     assert "k = 4" in summary
-    assert "nominal max |u_i| = 0.7000" in summary
-    assert "saturated fraction per joint" in summary and "1." in summary
     line = next(s for s in summary.splitlines() if s.startswith("max |tracking error|"))
     assert "0.00" in line
-    assert "final end-effector error v. goal" in summary
+    assert "final end-effector error v. last goal" in summary
+    (row,) = _table(summary)
+    # T, planned max |u| (0.7 tau_max), applied (joint 3 saturated throughout), final error
+    # against the plan's end (the synthetic error at T: 1e-3 sin(t, 2t, 3t) rad), time
+    # saturated (all of it).
+    assert row[:3] == ["1", f"{T:.4f}", "0.7000"] and row[3] == "1.0000"
+    q_end = np.array([0.8, -0.5, 0.3]) + 1e-3 * np.sin([T, 2 * T, 3 * T])
+    want = np.linalg.norm((model.point(q_end) - model.point([0.8, -0.5, 0.3]))[:2])
+    assert float(row[4]) == pytest.approx(want, rel=1e-2)
+    assert row[5] == "100.0" and row[6] == "no tracker status recorded"
+
+
+def _table(summary):
+    lines = summary.splitlines()
+    start = next(i for i, s in enumerate(lines) if s.startswith("motion "))
+    return [s.split(None, 6) for s in lines[start + 1:] if s.strip()]
+
+
+def write_two_motions(path, model):
+    """Three plans, the first two executed (the tracker's events, 100 Hz joint states for
+    0.5 s past each end), the third never."""
+    names = list(model.joint_names)
+    tau_max = np.asarray(model.tau_max)
+    plans, q0 = [], np.zeros(3)
+    for i, (dq, T_i) in enumerate([([0.5, -0.3, 0.2], 0.5), ([-0.2, 0.4, 0.1], 0.8),
+                                   ([0.1, 0.1, 0.1], 0.3)]):
+        ts = np.linspace(0.0, T_i, 11)
+        q = q0 + np.outer(ts / T_i, dq)
+        tau = np.outer(np.cos(np.pi * ts / T_i), (0.5 + 0.2 * i) * tau_max)
+        plans.append((T_i, q, JointTrajectory(joint_names=names, points=[
+            JointTrajectoryPoint(positions=q[j].tolist(), effort=tau[j].tolist(),
+                                 time_from_start=Duration(sec=int(t),
+                                                          nanosec=int(round((t % 1) * 1e9))))
+            for j, t in enumerate(ts)])))
+        q0 = q[-1]
+    events = []  # (time s, topic, message)
+    for i, start in enumerate([T0, T0 + 2.0]):
+        T_i, q, traj = plans[i]
+        events.append((start - 0.5, "/planner/trajectory", traj))
+        events.append((start + 0.001, "/tracker/status", DiagnosticStatus(
+            message="executing trajectory: 11 points", values=[
+                KeyValue(key="points", value="11"), KeyValue(key="duration", value=f"{T_i}"),
+                KeyValue(key="start_time", value=f"{start:.9f}")])))
+        events.append((start + T_i + 0.001, "/tracker/status", DiagnosticStatus(
+            message="trajectory completed", values=[
+                KeyValue(key="outcome", value="completed"),
+                KeyValue(key="elapsed", value=f"{T_i}"),
+                KeyValue(key="final_point_error", value=f"{(i + 1) * 1e-4}"),
+                KeyValue(key="saturated_fraction", value=f"{0.25 * i}"),
+                KeyValue(key="max_abs_u", value=f"{0.9 + 0.1 * i}")])))
+        for t in np.arange(0.0, T_i + 0.5, 0.01):
+            qi = np.array([np.interp(t, np.linspace(0, T_i, 11), q[:, j]) for j in range(3)])
+            events.append((start + t, "/joint_states", JointState(
+                header=Header(stamp=_time(start + t)), name=names, position=qi.tolist(),
+                effort=(0.5 * tau_max).tolist())))
+    events.append((T0 + 4.0, "/planner/trajectory", plans[2][2]))
+    with mcap_io.RecordingWriter(path) as writer:
+        for topic, kind in [("/planner/trajectory", "trajectory_msgs/msg/JointTrajectory"),
+                            ("/tracker/status", "diagnostic_msgs/msg/DiagnosticStatus"),
+                            ("/joint_states", "sensor_msgs/msg/JointState")]:
+            writer.add_topic(topic, kind, [QoSProfile(depth=10)])
+        for t, topic, msg in sorted(events, key=lambda e: e[0]):
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=int(round(t * 1e9)))
+
+
+def test_report_draws_every_motion_and_writes_the_page(tmp_path, model):
+    path = tmp_path / "run.mcap"
+    write_two_motions(path, model)
+    out = tmp_path / "report"
+    assert report.main([str(path), "--out", str(out)]) == 0
+    summary = (out / "summary.txt").read_text()
+    rows = _table(summary)
+    assert [r[0] for r in rows] == ["1", "2", "3"]
+    # The tracker's own figures for executed motions; none for the one never executed.
+    assert rows[0][1:] == ["0.5000", "0.5000", "0.9000", "0.0001", "0.0", "completed"]
+    assert rows[1][1:] == ["0.8000", "0.7000", "1.0000", "0.0002", "25.0", "completed"]
+    assert rows[2][1:4] == ["0.3000", "0.9000", "-"] and rows[2][6] == "not executed"
+    assert "motions = 3 planned, 2 executed" in summary
+    motions = report.motions(report.load_run(path))
+    # Each execution sees only its own joint states: up to 0.3 s after its end.
+    assert [m.start for m in motions] == [T0, T0 + 2.0, None]
+    assert motions[0].end == pytest.approx(T0 + 0.8) and motions[1].end == pytest.approx(
+        T0 + 3.1)
+    page = (out / "index.html").read_text()
+    for i in (1, 2, 3):
+        assert (out / f"motion_{i}.png").stat().st_size > 20000
+        assert f'src="motion_{i}.png"' in page
+    assert page.count("<tr>") == 4 and "not executed" in page
 
 
 def test_report_default_out_next_to_file(tmp_path, model):

@@ -9,8 +9,9 @@ joint order (:func:`joint_state_from_msg`). Results out: a sampled trajectory be
 ``diagnostic_msgs/DiagnosticStatus`` (:func:`status_msg`).
 
 Bad input raises :class:`ConversionError` with a message that names the offending field.
-Forward kinematics here (:func:`link_positions`, :func:`tip_pose`) is plain numpy on the
-model's body data, so these functions may run on any thread.
+Forward kinematics (:func:`link_positions`, :func:`tip_pose`, from
+:mod:`tocontrol_ros.core.kinematics`) is plain numpy on the model's body data, so these
+functions may run on any thread.
 """
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.kinematics import link_positions, tip_pose
 
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
-           "empty_path", "point_path", "markers_msg", "status_msg", "status_values", "LEVELS"]
+           "empty_path", "point_path", "markers_msg", "status_msg", "status_values",
+           "certificate_values", "LEVELS"]
 
 #: Non-task coordinates of a request must match the arm's constant value within this (m):
 #: loose enough for hand-typed numbers, tight enough to catch a point from another plane.
@@ -49,56 +52,6 @@ _AXES = "xyz"
 
 class ConversionError(TocontrolError, ValueError):
     """A message that cannot become a planning request; the message names the field."""
-
-
-# -------------------------------------------------------------- kinematics
-def _joint_transform(body, q: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation (3, 3) and translation (3,) of a body in its parent's frame at ``q``."""
-    if body.kind == "prismatic":
-        return body.rotation, body.translation + body.rotation @ body.axis * q
-    a = body.axis
-    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    rj = np.eye(3) + math.sin(q) * k + (1.0 - math.cos(q)) * (k @ k)
-    return body.rotation @ rj, body.translation
-
-
-def link_positions(model, q) -> np.ndarray:
-    """Base origin, each joint's origin and the tip, in the base frame.
-
-    Parameters
-    ----------
-    model : RobotModel
-    q : array_like, shape (n,)
-        Joint positions (rad, m).
-
-    Returns
-    -------
-    ndarray, shape (n + 2, 3)
-        Positions (m): row 0 the base origin, rows 1..n the joint origins, row n+1 the tip.
-    """
-    q = np.asarray(q, dtype=float)
-    rot = np.eye(3)
-    pos = np.zeros(3)
-    out = [pos.copy()]
-    for i, body in enumerate(model.bodies):
-        r, p = _joint_transform(body, q[i])
-        pos = pos + rot @ p
-        rot = rot @ r
-        out.append(pos.copy())
-    out.append(pos + rot @ model.tip_translation)
-    return np.array(out)
-
-
-def tip_pose(model, q) -> tuple[np.ndarray, np.ndarray]:
-    """Tip frame in the base frame: rotation, shape (3, 3), and position, shape (3,) (m)."""
-    q = np.asarray(q, dtype=float)
-    rot = np.eye(3)
-    pos = np.zeros(3)
-    for i, body in enumerate(model.bodies):
-        r, p = _joint_transform(body, q[i])
-        pos = pos + rot @ p
-        rot = rot @ r
-    return rot @ model.tip_rotation, pos + rot @ model.tip_translation
 
 
 def _quaternion(rot: np.ndarray) -> Quaternion:
@@ -450,6 +403,29 @@ def status_values(values: Mapping[str, object]) -> list[KeyValue]:
     """``KeyValue`` pairs; floats with 9 significant digits, arrays as ``[a, b]``."""
     return [KeyValue(key=str(k), value=_format(v)) for k, v in values.items()
             if v is not None]
+
+
+def certificate_values(certificate) -> dict[str, object]:
+    """The ``~/status`` values of a plan's certificate (empty when there is none).
+
+    Parameters
+    ----------
+    certificate : tocontrol_ros.core.certificate.Certificate or None
+
+    Returns
+    -------
+    dict
+        ``certified`` (bool), ``cert_<item>`` (each item's value), ``cert_failed`` (the
+        failed items' names, comma-separated, empty when none) and ``cert_tolerances``
+        (``item=tol`` pairs, comma-separated).
+    """
+    if certificate is None:
+        return {"certified": False}
+    out: dict[str, object] = {"certified": certificate.passed}
+    out.update({f"cert_{i.name}": i.value for i in certificate.items})
+    out["cert_failed"] = ",".join(i.name for i in certificate.failures)
+    out["cert_tolerances"] = ",".join(f"{i.name}={i.tol:.3g}" for i in certificate.items)
+    return out
 
 
 def status_msg(level: str, name: str, message: str, hardware_id: str,

@@ -11,7 +11,7 @@
    the plan (nominal torques plus PD feedback), then sends a goal back to the start on the
    planner's ``~/goal`` topic, which plans from the arm's measured state;
 5. stops the recorder (SIGINT: the file is finished), writes the report from the recording
-   alone and prints a summary table.
+   alone (a figure per leg, a table, ``index.html``) and prints a summary table.
 
 ``--core-only`` skips ROS: model check plus one in-process plan, verified by
 re-integration. ROS settings come from the environment (``ROS_DOMAIN_ID``,
@@ -29,9 +29,9 @@ import threading
 import time
 from pathlib import Path
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+
 DEFAULT_URDF = "galicki_3r.urdf"
-PAPER_START = (1.0, 1.0)
-PAPER_TARGET = (2.2, 1.5)
 #: Longest waits (s). The first planner start on a fresh machine compiles C (10-20 s).
 READY_TIMEOUT = 240.0
 PLAN_TIMEOUT = 120.0
@@ -357,8 +357,10 @@ def _pipeline(start, target, k, starts, out_dir: Path) -> int:
     from tocontrol_ros import report
 
     print(f"\nreport from the recording {recording}:")
-    status = report.main([str(recording), "--out", str(out_dir / f"demo-{stamp}_report")])
+    report_dir = out_dir / f"demo-{stamp}_report"
+    status = report.main([str(recording), "--out", str(report_dir)])
     _print_table(legs, recording, js_count)
+    print(f"report page: {report_dir / 'index.html'}")
     return 0 if status == 0 and all(c == 0 for c in codes.values()) else 1
 
 

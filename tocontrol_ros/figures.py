@@ -22,9 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.kinematics import link_positions
+
 #: The paper's task (Section 5): start and target of the end effector (m).
-START = (1.0, 1.0)
-TARGET = (2.2, 1.5)
+START, TARGET = PAPER_START, PAPER_TARGET
 #: Mesh of the direct method for the box optimum: on the paper's example T_box moves by
 #: 4e-6 (relative) from N = 200 to N = 400 (bang-bang switches fall between mesh points).
 BOX_INTERVALS = 200
@@ -205,38 +207,6 @@ def table_markdown(results, box):
     return "\n".join(lines) + "\n"
 
 
-def joint_positions(model, q):
-    """Base, joint and tip positions of a serial chain, numerically.
-
-    Parameters
-    ----------
-    model : RobotModel
-    q : ndarray, shape (n,)
-        Joint positions (rad, m).
-
-    Returns
-    -------
-    ndarray, shape (n + 2, 3)
-        The base origin, each joint's origin, then the tip (m), in the base frame.
-    """
-    rot = np.eye(3)
-    pos = np.zeros(3)
-    points = [pos.copy()]
-    for body, qi in zip(model.bodies, q, strict=True):
-        pos = pos + rot @ body.translation
-        rot = rot @ body.rotation
-        points.append(pos.copy())
-        axis = body.axis
-        if body.kind == "prismatic":
-            pos = pos + rot @ axis * qi
-        else:
-            k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]],
-                          [-axis[1], axis[0], 0]])
-            rot = rot @ (np.eye(3) + np.sin(qi) * k + (1 - np.cos(qi)) * (k @ k))
-    points.append(pos + rot @ model.tip_translation)
-    return np.array(points)
-
-
 # -------------------------------------------------------------------------- plotting
 def plot_controls(res, path):
     """Normalised controls v. time, one panel per joint, dashed lines at +-1.
@@ -287,12 +257,12 @@ def plot_motion(model, res, path, snapshots=SNAPSHOTS):
 
     ax_x, ax_y = 0, 1  # the paper's plane: base-frame x and y
     fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 401))
-    tip = np.array([joint_positions(model, q)[-1] for q in fine.q])
+    tip = np.array([link_positions(model, q)[-1] for q in fine.q])
     snap = res.trajectory.evaluate(np.linspace(0.0, res.T, snapshots))
     colors = plt.cm.viridis(np.linspace(0.0, 0.9, snapshots))
     fig, ax = plt.subplots(figsize=(6.4, 6.0))
     for j, (t, q) in enumerate(zip(snap.t, snap.q, strict=True)):
-        pts = joint_positions(model, q)
+        pts = link_positions(model, q)
         ends = j in (0, snapshots - 1)
         ax.plot(pts[:, ax_x], pts[:, ax_y], "-o", color=colors[j], lw=2.2 if ends else 1.1,
                 ms=4 if ends else 2.5, alpha=1.0 if ends else 0.75,

@@ -22,7 +22,6 @@ outcome; everything else stays served meanwhile.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import sys
 import threading
@@ -503,7 +502,7 @@ class PlannerNode(Node):
             qa = np.clip(np.full(model.n, 0.3), model.q_lower, model.q_upper)
             # A generic move (alternating signs: not along a singular direction).
             qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
-            options = dataclasses.replace(solver_options(config), verify=False)
+            options = solver_options(config)  # verify as configured: compiles the certificate
             problems = [Problem(model, start, point(model.point(qb)), k=config.k,
                                 reserve=config.reserve)
                         for start in (point(model.point(qa)), joint_state(qa))]
@@ -542,14 +541,17 @@ class PlannerNode(Node):
             self._finish(req, "ERROR", "failed", str(exc))
             return
         start_point = problem.start_point
-        warm = self._last_result if config.warm_start and _warm_compatible(
-            self._last_result, problem) else None
+        last = self._last_result
+        warm = last if config.warm_start and last is not None and \
+            last.can_warm_start(problem) else None
         result = self.planner.plan(problem, solver_options(config), warm_start=warm,
                                    should_stop=self._should_stop(req))
         extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
                  "solve_time": result.timings.get("total"), "residual": result.residual,
                  "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
-                 "solver_status": result.status.name}
+                 "solver_status": result.status.name,
+                 "verify_time": result.timings.get("verify") if result.certificate else None,
+                 **conv.certificate_values(result.certificate)}
         if req.cancelled.is_set() or self._stopping.is_set():
             event, reason = req.cancel_reason if req.cancelled.is_set() else \
                 ("cancelled", "node shutting down")
@@ -580,7 +582,7 @@ class PlannerNode(Node):
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             req.done.set()
             return
-        verified = "verified" if config.verify else "not re-integrated (verify = false)"
+        verified = "certified" if result.certificate else "not certified (verify = false)"
         message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} "
                    f"Newton iterations, {result.timings['total']:.3f} s, residual "
                    f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
@@ -622,16 +624,6 @@ class PlannerNode(Node):
         self.stop_worker()
         self._joint_states.destroy()
         super().destroy_node()
-
-
-def _warm_compatible(previous, problem) -> bool:
-    """A previous result can warm-start ``problem``: same kinds, k and reserve."""
-    if previous is None or previous.problem is None:
-        return False
-    prev = previous.problem
-    return (prev.model is problem.model and prev.start.kind == problem.start.kind
-            and prev.target.kind == problem.target.kind and prev.k == problem.k
-            and prev.reserve == problem.reserve)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.model import STANDARD_GRAVITY
 from tocontrol_ros.params import (
     ROBOT_DESCRIPTION,
@@ -26,10 +27,6 @@ from tocontrol_ros.params import (
 
 __all__ = ["ConfigError", "PARAMETERS", "PlannerConfig",
            "config_from_values", "solver_options", "default_values"]
-
-#: The paper's start point (Section 5), in the base frame's task coordinates (m).
-PAPER_START = (1.0, 1.0)
-
 
 class ConfigError(TocontrolError, ValueError):
     """A parameter value that the planner cannot use; the message names the parameter."""
@@ -65,8 +62,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "fastest motion is returned.", 1, 32, constraints="candidates <= starts"),
     ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s); a solve that runs "
                   "out fails with status 'time limit reached'.", 0.1, 600.0),
-    ParameterSpec("verify", False, "Re-integrate the nominal torques of every solution through "
-                  "the model (adds about 1 s per solve on the paper's arm)."),
+    ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "
+                  "torques re-integrated through the model by an independent adaptive "
+                  "integrator must land on the target at rest, the torques stay inside the "
+                  "set, H = 0 (a few ms on the paper's arm; see msg_docs/certificate.md). A "
+                  "plan that fails is reported as failed, never published."),
     ParameterSpec("warm_start", True, "Start a solve from the previous solution when start and "
                   "target are of the same kinds and k and reserve are unchanged (falls back "
                   "to a cold solve when it does not converge)."),

@@ -14,15 +14,23 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
   position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
   ``(u - u_nom) tau_max``), ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``: accepted,
-  rejected, completed and preempted trajectories, with the run summary), and ``/clock``
-  (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true.
+  rejected, completed and preempted trajectories, with the run summary; a start event carries
+  the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
+  and ``/clock`` (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
+- subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
+  velocities): puts the plant at that state now and holds it, stopping a running trajectory
+  (``replay --reexecute`` re-executes a recorded run from its recorded initial state); the
+  ``~/status`` event (key ``event`` = ``reset``) echoes the request's stamp.
 
 Time: a wall-clock timer (``update_rate``) advances the simulation by the wall time elapsed
 times ``time_scale``, in whole control periods. Messages are stamped with the simulated
 time: offset from the node's start time (so that with ``time_scale = 1`` stamps follow the
 node's clock), or from zero when ``publish_clock`` is true, and then ``/clock`` carries the
-same time (other nodes follow it with ``use_sim_time``). ``joint_states`` and
-``~/tracking_error`` are published every ``1 / publish_rate`` seconds of simulated time.
+same time (other nodes follow it with ``use_sim_time``). With ``use_sim_time`` true the
+simulation follows the ROS clock on ``/clock`` instead (``time_scale`` is then unused): it
+waits for the first ``/clock``, stamps with that time, and counts again from the clock if
+it jumps back (a looped replay). ``joint_states`` and ``~/tracking_error`` are published
+every ``1 / publish_rate`` seconds of simulated time.
 """
 
 from __future__ import annotations
@@ -36,10 +44,12 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
@@ -69,7 +79,8 @@ from tocontrol_ros.params import (
 )
 
 __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
-           "nominal_from_msg", "check_limits", "summary_status", "build_parser", "main"]
+           "nominal_from_msg", "check_limits", "reset_state_from_msg", "summary_status",
+           "build_parser", "main"]
 
 #: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
 #: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
@@ -89,6 +100,15 @@ MAX_TICK_PERIODS = 10_000
 
 class TrajectoryRejectedError(ProblemError):
     """A trajectory message the tracker cannot execute; the message says why."""
+
+
+class _Reset(NamedTuple):
+    """A parsed ``~/reset`` request, queued behind the trajectories received before it."""
+
+    q: np.ndarray | None
+    qd: np.ndarray | None
+    stamp: str
+    error: str | None
 
 
 # -------------------------------------------------------------------- parameters
@@ -297,6 +317,34 @@ def check_limits(nominal: NominalTrajectory, tau_max, max_duration: float) -> No
             f"limit {float(np.asarray(tau_max)[j]):.6g}")
 
 
+def reset_state_from_msg(msg: JointState,
+                         joint_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (zero if none given) of a ``~/reset`` request, model order.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, a position or velocity count that does not
+        match them, a value that is not finite.
+    """
+    names, want = list(msg.name), list(joint_names)
+    if len(set(names)) != len(names) or sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"name {names} does not match the robot's joints {want}")
+    order = [names.index(j) for j in want]
+    fields = {}
+    for field in ("position", "velocity"):
+        values = np.asarray(getattr(msg, field), dtype=float)
+        if field == "velocity" and values.size == 0:
+            values = np.zeros(len(want))
+        elif values.size != len(want):
+            raise TrajectoryRejectedError(f"{field} has {values.size} values for {len(want)} "
+                                          f"joints")
+        if not np.all(np.isfinite(values)):
+            raise TrajectoryRejectedError(f"{field} is not finite: {values.tolist()}")
+        fields[field] = values[order]
+    return fields["position"], fields["velocity"]
+
+
 def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
                    joint_names: Sequence[str]) -> DiagnosticStatus:
     """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
@@ -339,7 +387,13 @@ class TrackerNode(Node):
                            if self.config.publish_clock else None)
         self.create_subscription(JointTrajectory, self.config.trajectory_topic,
                                  self._on_trajectory, QOS_TRAJECTORY)
-        self._epoch = 0.0 if self.config.publish_clock else (
+        self.create_subscription(JointState, "~/reset", self._on_reset, QOS_STREAM)
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        if self._sim_time and self.config.publish_clock:
+            raise ProblemError("`use_sim_time` and `publish_clock` cannot both be true (the "
+                               "tracker would follow its own clock)")
+        self._clock_seen = False  # with use_sim_time: a /clock has arrived
+        self._epoch = 0.0 if self.config.publish_clock or self._sim_time else (
             self.get_clock().now().nanoseconds * 1e-9)
         self._publish_period = 1.0 / self.config.publish_rate
         self._next_publish = self._publish_period
@@ -348,10 +402,15 @@ class TrackerNode(Node):
         self.trajectories_received = 0
         self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
         self._parsed_lock = threading.Lock()
-        self._parsed: list = []  # NominalTrajectory or TrajectoryRejectedError, in order
+        # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
+        self._parsed: list = []
         self._history: collections.deque = collections.deque()  # (wall time, q) published
-        self._publish_state(self._initial_row())
-        self.create_timer(1.0 / self.config.update_rate, self._on_timer)
+        if not self._sim_time:
+            self._publish_state(self._initial_row())
+        # Wall time even with use_sim_time: the tick reads the ROS clock (a sim-time timer
+        # would not fire at all before the first /clock).
+        self.create_timer(1.0 / self.config.update_rate, self._on_timer,
+                          clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f"tracking on {self.model.name!r} ({self.model.n} joints) from "
             f"{self.config.trajectory_topic}; plant: {self._plant_text()}; "
@@ -418,7 +477,12 @@ class TrackerNode(Node):
             if isinstance(item, TrajectoryRejectedError):
                 self._reject(str(item))
                 continue
+            if isinstance(item, _Reset):
+                self._apply_reset(item)
+                continue
             nominal = item
+            if self._sim_time:
+                self._follow_clock()  # a trajectory right after the first /clock: stamp with it
             gaps = np.abs(nominal.q[0] - self.tracker.q)
             offset = float(np.max(gaps))
             # Planned from a state the arm had: a plan from the published joint states of the
@@ -433,6 +497,12 @@ class TrackerNode(Node):
                              f"position of the last {START_HISTORY:g} s, more than "
                              f"start_tolerance = {self.config.start_tolerance:g}")
                 continue
+            # The state it starts from, for re-execution (the status is latched: a recorder
+            # that subscribes late still gets it).
+            state = {f"start_{field}.{name}": f"{value:.17g}"
+                     for field, values in (("position", self.tracker.q),
+                                           ("velocity", self.tracker.qd))
+                     for name, value in zip(self.joint_names, values, strict=True)}
             preempted = self.tracker.start(nominal)
             if preempted is not None:
                 self._pub_status.publish(self._summary_status(preempted))
@@ -442,7 +512,43 @@ class TrackerNode(Node):
                          f"position",
                          {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
                           "start_offset": f"{offset:.9g}",
-                          "start_time": f"{self._epoch + self.tracker.t:.9f}"})
+                          "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
+
+    def _on_reset(self, msg: JointState) -> None:
+        # Through the parsing thread's queue: a reset takes effect after the trajectories
+        # received before it, never before (the timer applies both in arrival order).
+        try:
+            self._parser.submit(self._parse_reset, msg)
+        except RuntimeError:  # the node is shutting down
+            return
+
+    def _parse_reset(self, msg: JointState) -> None:
+        stamp = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+        try:
+            q, qd = reset_state_from_msg(msg, self.joint_names)
+            item = _Reset(q, qd, stamp, None)
+        except TrajectoryRejectedError as exc:
+            item = _Reset(None, None, stamp, str(exc))
+        with self._parsed_lock:
+            self._parsed.append(item)
+
+    def _apply_reset(self, item: _Reset) -> None:
+        if item.error is not None:
+            self._status(DiagnosticStatus.ERROR, f"reset rejected: {item.error}",
+                         {"event": "reset_rejected"})
+            self.get_logger().warning(f"reset rejected: {item.error}")
+            return
+        q, qd = item.q, item.qd
+        preempted = self.tracker.reset(q, qd)
+        if preempted is not None:
+            self._pub_status.publish(self._summary_status(preempted))
+        self._status(DiagnosticStatus.OK,
+                     f"reset to positions {np.round(q, 6).tolist()}, velocities "
+                     f"{np.round(qd, 6).tolist()}; holding",
+                     {"event": "reset", "request_stamp": item.stamp})
+        # The arm was put elsewhere: the positions it had before are no start for a plan.
+        self._history.clear()
+        self._publish_state(self._initial_row())
 
     def destroy_node(self) -> None:
         """Stop the parsing thread, then destroy the node."""
@@ -453,10 +559,33 @@ class TrackerNode(Node):
         return summary_status(summary, self.get_fully_qualified_name(), self.model.name,
                               self.joint_names)
 
+    def _target_time(self) -> float | None:
+        """Simulated time to advance to; None while waiting for the first /clock."""
+        if not self._sim_time:
+            return ((time.monotonic() - self._wall_start) * self.config.time_scale
+                    - self._sim_offset)
+        now = self._follow_clock()
+        return None if now is None else now - self._epoch - self._sim_offset
+
+    def _follow_clock(self) -> float | None:
+        """With use_sim_time: the ROS time (s), the epoch set from it; None before /clock."""
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if now <= 0.0:
+            return None
+        tracker = self.tracker
+        if not self._clock_seen or now < self._epoch + tracker.t - tracker.h:
+            # The first clock, or the clock went back (a looped replay): count from it.
+            self._epoch, self._sim_offset = now - tracker.t, 0.0
+            if not self._clock_seen:
+                self._clock_seen = True
+                self._publish_state(self._initial_row())
+        return now
+
     def _on_timer(self) -> None:
         self._start_parsed()
-        wall = time.monotonic()
-        target = (wall - self._wall_start) * self.config.time_scale - self._sim_offset
+        target = self._target_time()
+        if target is None:
+            return
         tracker = self.tracker
         behind = int(math.ceil((target - tracker.t) / tracker.h - 1e-9))
         if behind > MAX_TICK_PERIODS:

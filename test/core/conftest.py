@@ -1,4 +1,5 @@
-"""Shared fixtures of the model-layer tests: the paper's arm, example-robot-data robots.
+"""Shared fixtures of the core tests: the paper's arm and its solved example, robots of
+example-robot-data.
 
 Models are session-scoped: loading them and building their CasADi functions is the slow
 part, and every test only reads them. Test modules get the robots' load arguments from the
@@ -14,7 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.solver import SolverOptions, plan
 
 #: Pinocchio's default gravity; the cross-checks give our models the same one.
 PIN_GRAVITY = (0.0, 0.0, -9.81)
@@ -43,6 +47,26 @@ def _example_robot_data_dir() -> Path | None:
 def galicki():
     """The paper's planar 3R arm, from ``config/galicki_3r.urdf``."""
     return load_robot(default_urdf_path())
+
+
+@pytest.fixture(scope="session")
+def solved(galicki):
+    """The paper's example at k = 4 (one start) with switch nodes, and without."""
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4)
+    return {"problem": problem, "nodes": plan(problem, SolverOptions(starts=1, candidates=1)),
+            "uniform": plan(problem, SolverOptions(starts=1, candidates=1,
+                                                   switch_nodes=False))}
+
+
+@pytest.fixture(scope="session")
+def solved_grid(galicki, solved):
+    """The final grid of the switch-node solve, its nodes, T and interval lengths."""
+    from tocontrol_ros.core.solver import Planner
+
+    st = solved["nodes"].warm_state
+    grid = st.grid(Planner(galicki).system, "point", "point")
+    nodes, t_final, _, _ = grid.unpack(st.w)
+    return grid, nodes, t_final, grid.lengths_of(st.w)
 
 
 #: A spatial chain that exercises what the planar arm does not: a prismatic joint on an

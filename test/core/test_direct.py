@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.direct import GUESS_LOAD, DirectCollocation, initial_path
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 
 
 def _plain_nlp(model, N, start_kind, target_kind, box, torque_scale):

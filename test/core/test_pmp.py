@@ -4,7 +4,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.pmp import CanonicalSystem, control_law
+from tocontrol_ros.core.pmp import CanonicalSystem, LawParams, control_law
 
 
 @pytest.mark.parametrize("k", [1, 2, 4, 16])
@@ -56,7 +56,7 @@ def test_symbolic_and_numeric_laws_agree():
 def test_canonical_system_is_hamiltonian(galicki):
     """xd = dH/dpsi and psid = -dH/dx, with H evaluated at u*(x, psi) (envelope theorem)."""
     cs = CanonicalSystem(galicki)
-    par = np.array([4.0, 0.0, 1.0])
+    par = LawParams(4.0, 0.0, 1.0).array()
     rng = np.random.default_rng(2)
     z = rng.normal(size=12) * 0.5
     f, _, _, _ = cs.pointwise()(z, par)
@@ -75,10 +75,10 @@ def test_stagewise_step_jacobian_equals_the_whole_step_one(galicki):
     rng = np.random.default_rng(0)
     z = rng.normal(size=(12, 5)) * 0.3
     h = np.full((1, 5), 0.01)
-    par = np.array([4.0, 1e-3, 1.0])
-    cs._cache["stagewise"] = False
+    par = LawParams(4.0, 1e-3, 1.0).array()
+    cs.stagewise = False
     z1, a1, b1 = cs.step_batch(z, h, par)
-    cs._cache["stagewise"] = True
+    cs.stagewise = True
     z2, a2, b2 = cs.step_batch(z, h, par)
     np.testing.assert_allclose(z2, z1, rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(a2, a1, rtol=1e-11, atol=1e-12)
@@ -102,7 +102,7 @@ def test_chunked_evaluations_do_not_depend_on_the_chunk(galicki):
     rng = np.random.default_rng(5)
     z = rng.normal(scale=0.5, size=(300, 12))
     h = rng.uniform(1e-3, 1e-2, size=300)
-    par = np.array([4.0, 1e-3, 1.0])
+    par = LawParams(4.0, 1e-3, 1.0).array()
     f_all, u_all, s_all, h_all = system.pointwise_batch(z, par)
     step_all = system.step_rows(z, h, par)
     for count in (1, 16, 17, 64, 65, 257):

@@ -5,31 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.pmp import LawParams
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.shooting import ShootingGrid, integrate, newton_solve, step_fractions
-from tocontrol_ros.core.solver import Planner, SolverOptions, _values, plan
+from tocontrol_ros.core.solver import Planner
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
-SINGLE = SolverOptions(starts=1, candidates=1)
-
-
-@pytest.fixture(scope="module")
-def solved(galicki):
-    """The paper's example at k = 4 (one start) with switch nodes, and without."""
-    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4)
-    return {"problem": problem, "nodes": plan(problem, SINGLE),
-            "uniform": plan(problem, SolverOptions(starts=1, candidates=1,
-                                                   switch_nodes=False))}
-
-
-def _solved_grid(system, result):
-    """The final grid of ``result`` and its nodes, T and interval lengths."""
-    st = result._state
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    nodes, t_final, _, _ = grid.unpack(st["w"])
-    return grid, nodes, t_final, grid.lengths_of(st["w"])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 
 
 def test_step_fractions_sum_to_one_and_grade_towards_the_switch():
@@ -57,16 +39,15 @@ def _fd_jacobian(grid, w, values, par, eps=1e-7):
 
 def test_jacobian_with_switch_nodes_matches_finite_differences(galicki, solved):
     res, problem = solved["nodes"], solved["problem"]
-    st = res._state
-    assert st["breaks"], "the k = 4 solution should have switch nodes"
+    st = res.warm_state
+    assert st.breaks, "the k = 4 solution should have switch nodes"
     system = Planner(galicki).system
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
+    grid = st.grid(system, "point", "point")
     # Away from the solution, and with a smooth law, so that differences are meaningful.
     rng = np.random.default_rng(3)
-    w = st["w"] * (1 + 1e-3 * rng.standard_normal(len(st["w"])))
-    par = np.array([4.0, 1e-2, 1.0])
-    values = _values(problem)
+    w = st.w * (1 + 1e-3 * rng.standard_normal(len(st.w)))
+    par = LawParams(4.0, 1e-2, 1.0).array()
+    values = problem.boundary_values
     _, jac = grid.residual(w, values, par)
     fd = _fd_jacobian(grid, w, values, par)
     scale = np.maximum(1.0, np.abs(fd))
@@ -82,63 +63,28 @@ def test_one_switch_node_residual_and_jacobian(galicki, solved):
     column) gives the same equations as the full mesh's, and a Jacobian that matches finite
     differences."""
     res, problem = solved["nodes"], solved["problem"]
-    st = res._state
+    st = res.warm_state
     system = Planner(galicki).system
-    full = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    node, comp = st["breaks"][0]
-    one = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                       kinds=st["kinds"], breaks=[(node, comp)])
+    full = st.grid(system, "point", "point")
+    node, comp = st.breaks[0]
+    one = ShootingGrid(system, st.lengths, st.steps, "point", "point",
+                       kinds=st.kinds, breaks=[(node, comp)])
     assert one.B == 1
     # Unknowns of the one-break grid at the full solution: every break time but the first
     # is dropped, and the intervals between the kept nodes keep their lengths.
-    w_full = st["w"]
+    w_full = st.w
     w = np.concatenate([w_full[:one.size - 1], [w_full[full.size - full.B]]])
-    par = np.array([4.0, res.delta, 1.0])
-    values = _values(problem)
+    par = LawParams(4.0, res.delta, 1.0).array()
+    values = problem.boundary_values
     g_one, _ = one.residual(w, values, par)
     g_full = full.residual(w_full, values, par, jacobian=False)[0]
     assert np.allclose(g_one, g_full[:one.size], atol=1e-9)
     # Away from the solution, with a smooth law, so that differences are meaningful.
     w = w * (1 + 1e-3 * np.random.default_rng(3).standard_normal(len(w)))
-    par = np.array([4.0, 1e-2, 1.0])
+    par = LawParams(4.0, 1e-2, 1.0).array()
     _, jac = one.residual(w, values, par)
     fd = _fd_jacobian(one, w, values, par)
     assert np.max(np.abs(jac.toarray() - fd) / np.maximum(1.0, np.abs(fd))) < 1e-5
-
-
-def test_switch_nodes_sit_on_sign_changes_of_s(galicki, solved):
-    res = solved["nodes"]
-    assert res.success, res.message
-    st = res._state
-    system = Planner(galicki).system
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    nodes, t_final, _, _ = grid.unpack(st["w"])
-    tau = grid.tau_of(st["w"])
-    for node, i in grid.breaks:
-        t = tau[node] * t_final
-        s_node = res.trajectory.evaluate(t).S[0, i]
-        before = res.trajectory.evaluate(t - 1e-4).S[0, i]
-        after = res.trajectory.evaluate(t + 1e-4).S[0, i]
-        print(f"switch of S_{i} at t = {t:.6f} s: S = {s_node:.1e}, "
-              f"S(t -/+ 0.1 ms) = {before:.2e} / {after:.2e}")
-        assert abs(s_node) < 1e-9
-        assert before * after < 0
-    assert grid.kinds[[j for j, _ in grid.breaks]].tolist() == [-1] * grid.B
-    assert grid.kinds[[j - 1 for j, _ in grid.breaks]].tolist() == [1] * grid.B
-
-
-def test_switch_nodes_give_the_same_answer_as_a_uniform_refinement(galicki, solved):
-    a, b = solved["nodes"], solved["uniform"]
-    assert a.success and b.success, (a.message, b.message)
-    assert not b._state["breaks"]
-    print(f"T with switch nodes {a.T:.12f} ({a.intervals} intervals, {a.iterations} "
-          f"iterations), uniform refinement {b.T:.12f} ({b.intervals}, {b.iterations})")
-    assert a.T == pytest.approx(b.T, rel=1e-8)
-    for r in (a, b):
-        assert r.verification["max_abs_H"] < 1e-6
-        assert r.verification["point_error"] < 1e-5
 
 
 def test_broyden_chord_steps_match_the_explicit_update():
@@ -194,29 +140,25 @@ def test_broyden_chord_steps_match_the_explicit_update():
 
 def test_chord_newton_converges_to_the_newton_solution(galicki, solved):
     res = solved["nodes"]
-    st = res._state
+    st = res.warm_state
     system = Planner(galicki).system
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
+    grid = st.grid(system, "point", "point")
     moved = Problem(galicki, point(P_START), point(P_TARGET + [0.003, 0.004]), k=4)
-    par = np.array([res.k, res.delta, 1.0])
-    plain = newton_solve(grid, st["w"], _values(moved), par, contraction=0.0)
-    chord = newton_solve(grid, st["w"], _values(moved), par)
+    par = LawParams(res.k, res.delta, 1.0).array()
+    plain = newton_solve(grid, st.w, moved.boundary_values, par, contraction=0.0)
+    chord = newton_solve(grid, st.w, moved.boundary_values, par)
     print(f"plain Newton {plain.iterations} iterations, with chord steps {chord.iterations}")
     assert plain.converged and chord.converged
     np.testing.assert_allclose(chord.w, plain.w, rtol=0, atol=1e-8)
 
 
-def test_integrate_sensitivities_with_graded_steps(galicki, solved):
+def test_integrate_sensitivities_with_graded_steps(galicki, solved_grid):
     """dz1/dz0 and dz1/dT of graded intervals against central differences."""
-    st = solved["nodes"]._state
     system = Planner(galicki).system
-    grid = ShootingGrid(system, st["lengths"], st["steps"], "point", "point",
-                        kinds=st["kinds"], breaks=st["breaks"])
-    nodes, t_final, _, _ = grid.unpack(st["w"])
+    grid, nodes, t_final, all_lengths = solved_grid
     sel = np.flatnonzero(grid.kinds != 0)[:4]
-    lengths = grid.lengths_of(st["w"])[sel]
-    par = np.array([4.0, 1e-2, 1.0])
+    lengths = all_lengths[sel]
+    par = LawParams(4.0, 1e-2, 1.0).array()
     fr = grid.fractions[sel]
     z0 = nodes[sel]
     _, a, b = integrate(system, z0, lengths, grid.steps, t_final, par, True, fr)
@@ -231,152 +173,24 @@ def test_integrate_sensitivities_with_graded_steps(galicki, solved):
     np.testing.assert_allclose(a[:, :, 5], (up - dn) / (2 * eps), rtol=1e-5, atol=1e-6)
 
 
-def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved):
+def test_compiled_intervals_equal_the_step_by_step_chain(galicki, solved_grid):
     """One compiled call per interval (Jacobians chained in C) against per-step numpy."""
     system = Planner(galicki).system
-    grid, nodes, t_final, lengths = _solved_grid(system, solved["nodes"])
-    par = np.array([4.0, 1e-4, 1.0])
+    grid, nodes, t_final, lengths = solved_grid
+    par = LawParams(4.0, 1e-4, 1.0).array()
     assert not system.stagewise
     fast = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
                      grid.fractions)
     plain = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, False,
                       grid.fractions)[0]
-    system._cache["stagewise"] = True  # the step-by-step path (large models)
+    system.stagewise = True  # the step-by-step path (large models)
     try:
         slow = integrate(system, nodes[:-1], lengths, grid.steps, t_final, par, True,
                          grid.fractions)
     finally:
-        system._cache["stagewise"] = False
+        system.stagewise = False
     np.testing.assert_allclose(plain, slow[0], rtol=0, atol=1e-12)
     for got, want in zip(fast, slow, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))
 
 
-def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(galicki, solved):
-    """Every interval of the returned mesh passes the RK4 estimate; merging keeps switch
-    nodes and graded intervals and only merges what stays under tol / MERGE_MARGIN."""
-    from tocontrol_ros.core.solver import MERGE_MARGIN, _interval_errors, _merge_pairs
-
-    res = solved["nodes"]
-    planner = Planner(galicki)
-    grid, nodes, t_final, lengths = _solved_grid(planner.system, res)
-    par = np.array([res.k, res.delta, 1.0])
-    tol = SolverOptions().integration_tol
-    err = _interval_errors(planner, nodes[:-1], lengths, grid.steps, t_final, par, grid.kinds)
-    assert np.all(err <= tol), err.max()
-    # Halve every uniform interval: merging must give pairs back, never across a switch.
-    starts, halves, kinds = [], [], []
-    for j in range(grid.N):
-        if grid.kinds[j] == 0:
-            mid = integrate(planner.system, nodes[j:j + 1], lengths[j:j + 1] / 2, grid.steps,
-                            t_final, par, False)[0][0]
-            starts += [nodes[j], mid]
-            halves += [lengths[j] / 2] * 2
-            kinds += [0, 0]
-        else:
-            starts.append(nodes[j])
-            halves.append(lengths[j])
-            kinds.append(grid.kinds[j])
-    starts, halves, kinds = np.array(starts), np.array(halves), np.array(kinds)
-    old_node = np.concatenate([[0], np.cumsum(np.where(grid.kinds == 0, 2, 1))])
-    break_nodes = old_node[[j for j, _ in grid.breaks]]
-    h_err = _interval_errors(planner, starts, halves, grid.steps, t_final, par, kinds)
-    out = _merge_pairs(planner, starts, halves, kinds, h_err, break_nodes, grid.steps, t_final,
-                       par, tol)
-    assert out is not None
-    m_starts, m_lengths, m_kinds, keep = out
-    assert keep[break_nodes].all() and keep[0] and keep[-1]
-    assert len(m_lengths) < len(halves)
-    np.testing.assert_allclose(m_lengths.sum(), 1.0, atol=1e-12)
-    assert sorted(m_kinds[m_kinds != 0]) == sorted(grid.kinds[grid.kinds != 0])
-    merged = np.flatnonzero(~keep[1:-1])  # removed node j + 1: intervals j, j + 1 merged
-    assert len(merged) == len(halves) - len(m_lengths)
-    m_err = _interval_errors(planner, m_starts, m_lengths, grid.steps, t_final, par, m_kinds)
-    grown = ~np.isin(m_lengths, halves)  # the merged intervals
-    assert grown.any() and np.all(m_err[grown] <= tol / MERGE_MARGIN * 1.001)
-
-
-@pytest.mark.parametrize("kind", [1, -1])
-def test_graded_split_puts_a_short_graded_part_at_the_switch(kind):
-    from tocontrol_ros.core.solver import CASCADE_RATIO, _graded_split
-
-    parts = _graded_split(0.08, kind, err=5e-6, tol=1e-6, k=4.0)
-    np.testing.assert_allclose(parts.sum(), 0.08, rtol=1e-14)
-    outward = parts if kind == -1 else parts[::-1]  # from the switch away
-    # err ~ length^(8/7): 1/10 of the error needs (1/10)^(7/8) of the length.
-    assert outward[0] == pytest.approx(0.08 * (0.5e-6 / 5e-6) ** (7 / 8))
-    reach = np.cumsum(outward)
-    assert np.all(reach[1:-1] / reach[:-2] == pytest.approx(CASCADE_RATIO))
-    assert reach[-2] * CASCADE_RATIO >= 0.08 - 1e-15
-    # A small excess still halves the interval at most; a huge one takes 1/16.
-    assert _graded_split(0.08, kind, 1.1e-6, 1e-6, 4.0).max() == pytest.approx(0.04)
-    assert min(_graded_split(0.08, kind, 1.0, 1e-6, 4.0)) == pytest.approx(0.005)
-
-
-def test_check_sampling_finds_the_extremes_of_a_fine_sampling(solved):
-    """The result checks sample at the RK4 step points (filled in to T / SAMPLE_GAPS):
-    max |u| and the joint extremes agree with a 100001-point sampling."""
-    from tocontrol_ros.core.solver import SAMPLE_GAPS, _fine_sample
-
-    traj = solved["nodes"].trajectory
-    sample = _fine_sample(traj)
-    assert np.all(np.diff(sample.t) <= traj.T / SAMPLE_GAPS * (1 + 1e-12))
-    fine = traj.evaluate(np.linspace(0.0, traj.T, 100001))
-    assert np.max(np.abs(sample.u)) == pytest.approx(np.max(np.abs(fine.u)), abs=1e-6)
-    for a, b in ((sample.q, fine.q), (sample.qd, fine.qd)):
-        np.testing.assert_allclose(a.max(axis=0), b.max(axis=0), atol=1e-4)
-        np.testing.assert_allclose(a.min(axis=0), b.min(axis=0), atol=1e-4)
-    assert np.max(np.abs(sample.H)) == pytest.approx(np.max(np.abs(fine.H)), abs=1e-7)
-
-
-def test_settled_stops_only_on_a_geometric_tail_below_tol():
-    from tocontrol_ros.core.solver import _settled
-
-    # T changes of the paper's example at k = 4 for delta = 1e-3 -> 1e-4 -> 1e-5: a ratio of
-    # about 1/87, so the rest of the series is ~2e-10, below 1e-8 * T.
-    assert _settled([1.33e-6, 1.52e-8], 5.4e-9)
-    assert not _settled([1.52e-8], 5.4e-9)               # one change says nothing
-    assert not _settled([1e-6, 6e-7], 1e-6)              # shrinking, but not by half
-    assert not _settled([1e-3, 1e-5], 5.4e-9)            # geometric, but the tail 1e-7
-    assert not _settled([0.0, 1e-9], 5.4e-9)
-
-
-def test_final_smoothing_is_confirmed_on_the_refined_mesh(galicki):
-    """Stopping the coarse schedule early still ends with a solve at the next smaller
-    delta on the final mesh that changes T by less than smoothing_tol."""
-    opts = SolverOptions(starts=1, candidates=1, verify=False)
-    res = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4.0), opts)
-    assert res.success
-    (k_a, d_a, t_a, *_), (k_b, d_b, t_b, *_) = res.continuation[-2:]
-    assert k_a == k_b == 4.0 and d_b < d_a
-    assert abs(t_b - t_a) <= opts.smoothing_tol * t_b
-    assert res.delta == d_b
-
-
-def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
-    """A k = 1 Newton failure on `intervals` intervals is retried once on twice as many
-    (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
-    on 24); a failure on both is reported as NEWTON_FAILED."""
-    from tocontrol_ros.core import solver
-
-    sizes = []
-    real = solver.newton_solve
-
-    def fail_on(bad):
-        def newton(grid, *args, **kwargs):
-            sizes.append(grid.N)
-            if grid.N in bad:
-                return solver.NewtonReport(False, args[0], 1.0, 1, "stalled (forced)")
-            return real(grid, *args, **kwargs)
-        return newton
-
-    problem = Problem(galicki, point(P_START), point(P_TARGET), k=1.0)
-    opts = SolverOptions(starts=1, candidates=1, verify=False, intervals=6)
-    monkeypatch.setattr(solver, "newton_solve", fail_on({6}))
-    res = plan(problem, opts)
-    assert res.success and sizes[:2] == [6, 12]
-    sizes.clear()
-    monkeypatch.setattr(solver, "newton_solve", fail_on({6, 12}))
-    res = plan(problem, opts)
-    assert res.status is solver.Status.NEWTON_FAILED and sizes == [6, 12]
-    assert "forced" in res.message

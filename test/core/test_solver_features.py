@@ -1,19 +1,20 @@
-"""Warm start, moving start, torque reserve, the trajectory object and limit warnings."""
+"""Warm start, moving start, torque reserve, the trajectory object and an enforced limit."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.limits import JointLimits
 from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.solver import SolverOptions, Status, plan
+from tocontrol_ros.core.solver import SolverOptions, plan
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 MOVE = np.array([0.03, 0.04])  # 5 cm
 RESERVE = 0.2
 
@@ -27,6 +28,25 @@ def base(galicki):
 def moved(galicki, base):
     problem = Problem(galicki, point(P_START), point(P_TARGET + MOVE), k=4)
     return {"cold": plan(problem, SINGLE), "warm": plan(problem, SINGLE, warm_start=base)}
+
+
+@pytest.mark.parametrize("change, fits", [
+    ({}, True),
+    ({"target": point(P_TARGET + MOVE)}, True),   # a moved target: what warm starts are for
+    ({"k": 8.0}, True),                           # another exponent: the solve steps k
+    ({"reserve": RESERVE}, False),                # another torque bound: another problem
+    ({"target": "state"}, False),                 # another target kind: other equations
+], ids=["same", "moved", "other-k", "other-reserve", "other-kind"])
+def test_the_warm_start_rule(galicki, base, change, fits):
+    """``PlanResult.can_warm_start`` is the solver's one rule for continuing a result."""
+    args = {"start": point(P_START), "target": point(P_TARGET), "k": 4.0, **change}
+    if args["target"] == "state":
+        args["target"] = joint_state(base.trajectory.state(base.T)[0, :galicki.n])
+    assert base.can_warm_start(Problem(galicki, **args)) is fits
+    # A result without a solution (here: nothing to move) continues nothing.
+    q = base.trajectory.state(0.0)[0, :galicki.n]
+    trivial = plan(Problem(galicki, joint_state(q), point(galicki.point(q))))
+    assert trivial.success and not trivial.can_warm_start(Problem(galicki, **args))
 
 
 @pytest.fixture(scope="module")
@@ -149,21 +169,26 @@ TIGHT_URDF = """<?xml version="1.0"?>
 """
 
 
-def test_position_limit_violation_is_warned_with_the_joint_name():
-    """Moving at 1 m/s towards x's upper limit, the optimal motion overshoots it.
+def test_a_position_limit_the_optimum_overshoots_is_enforced():
+    """Moving at 1 m/s towards x's upper limit, the unconstrained optimum overshoots it.
 
     Braking with all of x's force (a = 2 m/s^2) would stop the carriage at 0.25 m, inside
-    the limit 0.265 m (so the direct guess, which keeps the limits, is feasible); the optimum
-    at k = 1 shares the control with y and reaches 0.2756 m (measured with wide limits).
+    the limit 0.265 m; the optimum at k = 1 shares the control with y and reaches 0.2756 m
+    (measured with wide limits). With the limit, the best direct guess comes within 2 % of
+    it and the solver solves the problem with the limits as hard bounds.
     """
     model = load_robot(TIGHT_URDF, task_axes="xy")
-    res = plan(Problem(model, joint_state([0.0, 0.0], [1.0, 0.0]),
-                       joint_state([-0.5, 0.6]), k=1))
+    start, target = joint_state([0.0, 0.0], [1.0, 0.0]), joint_state([-0.5, 0.6])
+    wide = JointLimits(model.joint_names, np.full(2, -np.inf), np.full(2, np.inf),
+                       model.qd_max)
+    free = plan(Problem(model, start, target, k=1, limits=wide))
+    assert free.success and free.method == "indirect"
+    assert np.max(free.trajectory.sample(1e-3).q[:, 0]) == pytest.approx(0.2756, abs=1e-3)
+    res = plan(Problem(model, start, target, k=1))
     assert res.success, res.message
-    assert res.status is Status.SUCCESS  # limits are checked, not enforced
-    q_max = np.max(res.trajectory.sample(1e-3).q[:, 0])
-    assert q_max == pytest.approx(0.2756, abs=1e-3)
-    position = [w for w in res.warnings if "position limit" in w]
-    assert len(position) == 1, res.warnings
-    assert "'x'" in position[0]
-    assert not any("'y'" in w for w in res.warnings)
+    assert res.method == "direct"
+    assert any("joint limits bind" in w for w in res.warnings), res.warnings
+    q_max = np.max(res.trajectory.sample(1e-4).q[:, 0])
+    assert 0.26 < q_max <= model.q_upper[0]
+    assert res.verification["position_limits"] <= 1e-6
+    assert res.T > free.T

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.errors import ProblemError, TocontrolError
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import PlanResult, SolverOptions, Status, plan
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)
 
-P_START = (1.0, 1.0)
-P_TARGET = (2.2, 1.5)
+P_START, P_TARGET = PAPER_START, PAPER_TARGET
 Q_OK = (0.1, 0.2, 0.3)
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, plan
 
 pytestmark = pytest.mark.slow
 
-P_START = np.array([1.0, 1.0])
-P_TARGET = np.array([2.2, 1.5])
+P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 K = 4
 MULTI = SolverOptions(starts=16, candidates=4)
 EXHAUSTIVE = SolverOptions(starts=64, candidates=16, ik_count=16, time_limit=600.0)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import plan
 from tocontrol_ros.core.tracking import (
@@ -24,7 +25,7 @@ from tocontrol_ros.core.tracking import (
     simulate,
 )
 
-START, TARGET = (1.0, 1.0), (2.2, 1.5)
+START, TARGET = PAPER_START, PAPER_TARGET
 #: The gains of config/tracker.yaml (normalised units: 1/rad, s/rad).
 GAINS = TrackingGains(kp=(100.0, 100.0, 30.0), kd=(10.0, 10.0, 3.0))
 #: Lighter and less damped than the model: within reach of the planned torques.
@@ -312,6 +313,40 @@ def test_holds_the_initial_configuration_until_a_trajectory(galicki):
     assert not report.summaries and not report.log.active.any()
     np.testing.assert_allclose(tracker.q, Q0, atol=1e-5)
     np.testing.assert_allclose(report.log.q[0], Q0 + [0.01, -0.02, 0.03])
+
+
+def test_reset_puts_the_plant_at_a_state_and_reproduces_a_run(galicki):
+    """After reset(q, qd) a trajectory runs as on a fresh tracker started at (q, qd): the
+    same states, errors and (seeded) noise; a running trajectory is stopped and summarised."""
+    plant = PlantConfig(torque_noise=0.02, noise_seed=3)
+    q1 = Q0 + [0.05, -0.04, 0.1]
+    motion = smooth_motion(galicki, q1, q1 + [0.2, -0.2, 0.3], 0.5)
+    fresh = Tracker(galicki, plant, GAINS, q0=q1)
+    fresh.start(motion)
+    want = fresh.advance(0.6)
+    used = Tracker(galicki, plant, GAINS, q0=Q0)
+    used.start(smooth_motion(galicki, Q0, Q0 + [0.1, 0.1, 0.1], 1.0))
+    used.advance(0.3)
+    stopped = used.reset(q1)
+    assert stopped.outcome == "preempted" and stopped.elapsed == pytest.approx(0.299, abs=1e-9)
+    assert not used.running and used.t == pytest.approx(0.3)  # time goes on
+    np.testing.assert_array_equal(used.q, q1)
+    np.testing.assert_array_equal(used.qd, np.zeros(3))
+    used.start(motion)
+    got = used.advance(0.9)
+    np.testing.assert_allclose(got.log.q, want.log.q, atol=1e-12)
+    np.testing.assert_allclose(got.log.tau, want.log.tau, atol=1e-9)
+    assert got.summaries[0].final_point_error == pytest.approx(
+        want.summaries[0].final_point_error, rel=1e-9)
+    # Without a trajectory it holds the reset configuration.
+    assert used.reset(q1, qd=[0.1, 0.0, 0.0]) is None
+    np.testing.assert_array_equal(used.qd, [0.1, 0.0, 0.0])
+    hold = used.advance(used.t + 1.0)
+    np.testing.assert_allclose(hold.log.q_des, np.tile(q1, (len(hold.log), 1)))
+    with pytest.raises(ProblemError, match="`q` must have shape"):
+        used.reset([0.0, 0.0])
+    with pytest.raises(ProblemError, match="`qd` must be finite"):
+        used.reset(q1, qd=[0.0, np.nan, 0.0])
 
 
 def test_continuous_joints_take_the_short_way(galicki):

@@ -229,9 +229,9 @@ def test_goal_storm(client, process):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_shutdown_during_solve(tmp_path, sig):
     ns = f"/e2e_{os.getpid()}_{sig.name}"
-    # A slow solve (multistart and the ~1 s re-integration check), surely running when the
-    # signal comes: the multistart alone takes under 0.5 s since the solver got faster.
-    proc = PlannerProcess(tmp_path, ns, {"starts": 24, "candidates": 4, "verify": True})
+    # A slow solve (a multistart of 128 direct guesses, well over a second), surely running
+    # when the signal comes (24 starts take under 0.5 s since the solver got faster).
+    proc = PlannerProcess(tmp_path, ns, {"starts": 128, "candidates": 8})
     client = PlannerClient(proc.name)
     try:
         _wait_warm(client, proc)

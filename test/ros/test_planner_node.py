@@ -81,6 +81,9 @@ def test_service_round_trip_paper_example(planner, client):
     assert len(path.poses) > 10
     assert path.header.frame_id == "base_link"
     assert close(path_end(path), PAPER_TARGET + (0.0,), 1e-6)
+    # Certified by default, the certificate's figures in the status.
+    assert status.values["certified"] == "true" and status.values["cert_failed"] == ""
+    assert float(status.values["cert_end_point"]) < 1e-4
     first = path.poses[0].pose.position
     assert close((first.x, first.y, first.z), PAPER_START + (0.0,), 1e-6)
     T = float(status.values["T"])
@@ -352,9 +355,10 @@ def test_newest_service_call_supersedes_older(planner, client):
     def call(name, goal):
         results[name] = client.call_plan(PAPER_START, goal)
 
-    # The re-integration check (~1 s) keeps the first solve running when the second call
-    # comes (a cold solve alone takes well under 0.1 s).
-    assert all(r.successful for r in client.set_parameters(verify=True))
+    # A large cold multistart (64 direct guesses, about 1 s) keeps the first solve running
+    # when the second call comes (a one-start solve alone takes well under 0.1 s).
+    assert all(r.successful for r in client.set_parameters(starts=64, candidates=8,
+                                                            warm_start=False))
     try:
         first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
         first.start()
@@ -366,7 +370,7 @@ def test_newest_service_call_supersedes_older(planner, client):
         first.join(60.0)
         second.join(60.0)
     finally:
-        client.set_parameters(verify=False)
+        client.set_parameters(candidates=1, starts=1, warm_start=True)
     path1, _, _ = results["first"]
     path2, status2, _ = results["second"]
     assert len(path1.poses) == 0
@@ -431,12 +435,43 @@ def test_bad_robot_is_refused_at_start():
         rclpy.try_shutdown(context=context)
 
 
+def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
+    """A solution whose certificate fails (here: an impossible |H| tolerance) is a failure."""
+    import dataclasses
+
+    from tocontrol_ros import planner as planner_module
+    from tocontrol_ros.core.certificate import CertificateOptions
+
+    strict = CertificateOptions(hamiltonian_tol=1e-15)
+    real = planner_module.solver_options
+    monkeypatch.setattr(planner_module, "solver_options", lambda config: dataclasses.replace(
+        real(config), certificate=strict))
+    ns = f"{NAMESPACE}_strict"
+    running = Running(namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(120.0)
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "failed" and status.level == 2, status.message
+        assert "max_abs_H" in status.message
+        assert status.values["solver_status"] == "VERIFICATION_FAILED"
+        assert status.values["certified"] == "false" and "max_abs_H" in status.values[
+            "cert_failed"]
+        assert len(path.poses) == 0
+        time.sleep(0.2)
+        assert not client.trajectories
+    finally:
+        client.close()
+        running.stop()
+
+
 def test_shutdown_during_solve_is_prompt():
-    # A slow solve (multistart and the ~1 s re-integration check) so that it is surely
-    # running when the node goes.
+    # A slow solve (a multistart of 128 direct guesses, well over a second) so that it is
+    # surely running when the node goes.
     ns = f"{NAMESPACE}_shutdown"
-    running = Running([Parameter("starts", value=24), Parameter("candidates", value=4),
-                       Parameter("verify", value=True)], namespace=ns)
+    running = Running([Parameter("starts", value=128), Parameter("candidates", value=8)],
+                      namespace=ns)
     client = PlannerClient(f"{ns}/planner")
     try:
         client.wait_ready(30.0)

@@ -11,6 +11,7 @@ import time
 import uuid
 from pathlib import Path
 
+import cdr_exact
 import numpy as np
 import pytest
 import rclpy
@@ -133,7 +134,7 @@ def test_round_trip_byte_for_byte_and_field_by_field(context, tmp_path):
     for t in topics:
         assert len(records[t]) == len(sent[t]) == len(witness[t]), t
         for rec, msg, (raw, info) in zip(records[t], sent[t], witness[t], strict=True):
-            assert rec.data == raw == mcap_io.serialize_exact(msg), t
+            assert rec.data == raw == cdr_exact.serialize_exact(msg), t
             assert rec.publish_time == info["source_timestamp"]
             assert rec.log_time >= rec.publish_time
 
@@ -163,7 +164,7 @@ def _write_stream(path, intervals_ms, topic="/joint_states"):
             log += int(dt * 1e6)
             times.append(log)
             msg = JointState(name=["a"], position=[float(i)])
-            writer.write(topic, mcap_io.serialize_exact(msg), log_time=log)
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=log)
     return np.diff(times[1:]) * 1e-9
 
 

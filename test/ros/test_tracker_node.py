@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
@@ -263,7 +263,109 @@ def test_clock_is_published_with_simulated_time():
         h.stop()
 
 
+def _reset_msg(q, qd=(), names=JOINTS, stamp=(7, 5)):
+    msg = JointState(name=list(names), position=[float(v) for v in q],
+                     velocity=[float(v) for v in qd])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
+    return msg
+
+
+def test_reset_puts_the_arm_at_a_state(harness, model):
+    reset = harness.probe.create_publisher(JointState, f"{harness.ns}/tracker/reset",
+                                           QOS_STREAM)
+    harness.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 3.0))
+    harness.status_with("executing trajectory")
+    q1 = q0 + [0.1, -0.05, 0.2]
+    # Any joint order; velocities optional.
+    reset.publish(_reset_msg(q1[[2, 0, 1]], names=["joint3", "joint1", "joint2"]))
+    done = harness.status_with("reset to")
+    assert _values(done) == {"event": "reset", "request_stamp": "7.000000005"}
+    assert _values(harness.status_with("preempted"))["outcome"] == "preempted"
+    assert not harness.node.tracker.running
+    count = len(harness.joint_states)
+    harness.wait(lambda: len(harness.joint_states) > count + 5, "joint_states after")
+    with harness.lock:
+        last = harness.joint_states[-1]
+    np.testing.assert_allclose(last.position, q1, atol=1e-6)  # held there
+    # A trajectory from there runs as on a tracker started there.
+    harness.pub.publish(motion_msg(model, q1, [-0.1, 0.1, -0.1], 0.5))
+    completed = harness.status_with("trajectory completed")
+    assert float(_values(completed)["final_point_error"]) < 1e-3
+    np.testing.assert_allclose(harness.node.tracker.q, q1 + [-0.1, 0.1, -0.1], atol=1e-3)
+    # Bad requests are refused, naming what is wrong; the arm keeps holding.
+    for bad, fragment in [(_reset_msg(q1, names=["a", "b", "c"]), "does not match"),
+                          (_reset_msg(q1[:2], names=JOINTS), "position has 2 values"),
+                          (_reset_msg(q1, qd=[0.0, float("nan"), 0.0]), "velocity is not")]:
+        reset.publish(bad)
+        status = harness.status_with(fragment)
+        assert status.level == DiagnosticStatus.ERROR and "reset rejected" in status.message
+    np.testing.assert_allclose(harness.node.tracker.q, q1 + [-0.1, 0.1, -0.1], atol=1e-3)
+
+
+def test_use_sim_time_follows_the_clock(model):
+    """With use_sim_time the simulation waits for /clock, follows it (not time_scale) and
+    stamps with it; a clock that jumps back (a looped replay) is followed from there."""
+    h = Harness([Parameter("use_sim_time", value=True)])
+    try:
+        clock = h.probe.create_publisher(Clock, "/clock", QOS_STREAM)
+        h.wait(lambda: clock.get_subscription_count() > 1, "tracker's /clock subscription")
+        time.sleep(0.3)  # at time_scale 20 this would be 6 simulated seconds
+        assert h.node.tracker.t == 0.0 and not h.joint_states
+
+        def run_clock(start, duration):
+            for i in range(int(round(duration / 0.01)) + 1):
+                ns = int(round((start + 0.01 * i) * 1e9))
+                clock.publish(Clock(clock=Time(sec=ns // 10**9, nanosec=ns % 10**9)))
+                time.sleep(0.004)
+            time.sleep(0.1)
+
+        def stamps():
+            with h.lock:
+                return [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                        for m in h.joint_states]
+
+        run_clock(1000.0, 1.0)
+        # From the first /clock the tracker saw (its 100 Hz tick reads the latest one).
+        assert h.node.tracker.t == pytest.approx(1.0, abs=0.05)
+        got = stamps()
+        assert got[0] == pytest.approx(1000.0, abs=0.05)
+        assert got[-1] == pytest.approx(1001.0, abs=0.03)
+        assert np.median(np.diff(got)) == pytest.approx(0.02, abs=1e-6)
+        # A trajectory runs on the clock: not done until the clock has passed its end (a move
+        # within the torque limits: the tracker rejects one beyond them).
+        h.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.05, 0.0, -0.05], 0.5))
+        h.status_with("executing trajectory")
+        run_clock(1001.0, 0.3)
+        assert h.node.tracker.running
+        run_clock(1001.3, 0.3)
+        assert float(_values(h.status_with("trajectory completed"))["duration"]) == 0.5
+        count = len(stamps())
+        run_clock(500.0, 0.2)  # back in time
+        later = stamps()[count:]
+        assert later and all(500.0 <= s <= 500.25 for s in later), later
+    finally:
+        h.stop()
+
+
+def test_after_a_reset_the_positions_before_it_are_no_start(harness):
+    # The start tolerance accepts positions of the last START_HISTORY seconds; a reset moves
+    # the arm elsewhere at once, so a plan from where it stood before is refused.
+    reset = harness.probe.create_publisher(JointState, f"{harness.ns}/tracker/reset",
+                                           QOS_STREAM)
+    harness.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
+    q0 = np.array(PAPER_START_Q)
+    reset.publish(_reset_msg(q0 + [0.4, -0.4, 0.4]))
+    harness.status_with("reset to")
+    harness.pub.publish(motion_msg(harness.node.model, q0, [0.05, 0.0, -0.05], 0.5))
+    status = harness.status_with("trajectory rejected")
+    assert "more than start_tolerance" in status.message, status.message
+
+
 @pytest.mark.parametrize("overrides, error", [
+    ([Parameter("use_sim_time", value=True), Parameter("publish_clock", value=True)],
+     ProblemError),
     ([Parameter("sim_rate", value=1500.0)], ProblemError),
     ([Parameter("kp", value=[1.0, 2.0])], ProblemError),
     ([Parameter("initial_positions", value=[0.0, 0.0])], ProblemError),

@@ -28,13 +28,12 @@ import casadi as ca
 __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
-#: about 1.5 times faster than portable -O1 on this project's machine (14 -> 9.4 us per step
-#: of the paper's arm, with -O2). Such a library only runs on the CPU it was built for, so
-#: the cache key includes the CPU's identity.
+#: markedly faster than portable -O1. Such a library only runs on the CPU it was built for,
+#: so the cache key includes the CPU's identity.
 CFLAGS = ("-O2", "-march=native", "-shared", "-fPIC")
 #: gcc's -O2 time grows much faster than linearly with the size of these straight-line
-#: functions (the paper arm's 0.6 MB step: 7.7 s; a planar 6R's 5.9 MB: 350 s against 25 s
-#: at -O1), so sources above this many bytes get :data:`LARGE_CFLAGS`.
+#: functions (minutes for a planar 6R), so sources above this many bytes get
+#: :data:`LARGE_CFLAGS`.
 LARGE_SOURCE = 1_000_000
 LARGE_CFLAGS = ("-O1", "-march=native", "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.

@@ -67,17 +67,19 @@ GUESS_LOAD = 0.8
 
 
 def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: int,
-                 torque_scale: float = 1.0) -> tuple[float, np.ndarray, np.ndarray]:
+                 torque_scale: float = 1.0, velocity: np.ndarray | None = None
+                 ) -> tuple[float, np.ndarray, np.ndarray]:
     """A rest-to-rest smoothstep path from ``q0`` to ``qT``, timed to fit the control set.
 
     The first time is the slowest joint's bang-bang time with its diagonal inertia, times
     1.5; then, twice, the time is scaled by ``sqrt(peak / GUESS_LOAD)`` (by at most a factor
     4 either way), ``peak`` being the largest ``|u|`` (Euclidean) of the path's normalised
     torques: exact when the largest is inertial (at the path's ends, at rest, without
-    gravity), approximate otherwise. The guess then starts inside the k = 1 control set: on
-    the 84 guesses of ``bench/ipopt_options.py`` IPOPT takes 19.5 iterations on average
-    instead of 22.3, and one-start solves of 30 random pairs of the paper's arm succeed in
-    29 cases instead of 24 (``bench/work_counts.py``).
+    gravity), approximate otherwise. The guess then starts inside the k = 1 control set,
+    which saves IPOPT iterations and makes one-start solves succeed more often.
+
+    With ``velocity`` (n,) (rad/s, m/s), the time is at least what keeps the path's peak
+    speed (``1.5 |dq| / T``) at ``GUESS_LOAD`` of each joint's velocity limit.
 
     Returns
     -------
@@ -91,6 +93,8 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
     inertia = np.diag(model.mass_matrix(q0))
     acc = model.tau_max * torque_scale / inertia
     t_final = max(1.5 * float(np.max(2 * np.sqrt(np.abs(dq) / acc))), 1e-2)
+    t_vel = 0.0 if velocity is None else float(np.max(1.5 * np.abs(dq) / (GUESS_LOAD * velocity)))
+    t_final = max(t_final, t_vel)
     tau = np.linspace(0, 1, intervals + 1)
     q = q0 + np.outer(3 * tau**2 - 2 * tau**3, dq)
     for rescale in (True, True, False):
@@ -101,7 +105,8 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
         peak = float(np.max(np.linalg.norm(u, axis=1)))
         if not rescale or not np.isfinite(peak) or peak <= 0:
             break
-        t_final = max(t_final * float(np.clip(np.sqrt(peak / GUESS_LOAD), 0.25, 4.0)), 1e-2)
+        t_final = max(t_final * float(np.clip(np.sqrt(peak / GUESS_LOAD), 0.25, 4.0)), 1e-2,
+                      t_vel)
     return t_final, np.hstack([q, qd]), np.clip(u, -0.9, 0.9)
 
 
@@ -563,13 +568,12 @@ class DirectCollocation:
                 "ipopt.acceptable_tol": tol, "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
                 # MUMPS without its scaling and permutation (the NLP is well scaled: joint
                 # units and a normalised torque) and no iterative refinement unless a solve
-                # needs it: on 84 guesses of the paper's arm, 0.81 of the time (paired
-                # median), the same iterations and the same T but one, which found a better
-                # local optimum (IPOPT's own overhead, not MUMPS, dominates at this size).
+                # needs it: less time for the same iterations and T (IPOPT's own overhead,
+                # not MUMPS, dominates at this size).
                 "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
                 "ipopt.min_refinement_steps": 0,
-                # No residual check of each solve of the step's linear system (0.95 of the
-                # time on the same 84 guesses, the same T in all: bench/ipopt_options.py).
+                # No residual check of each solve of the step's linear system: the same T,
+                # a little faster.
                 "ipopt.fast_step_computation": "yes",
                 "grad_f": funs["grad_f"], "jac_g": funs["jac_g"], "hess_lag": funs["hess_l"],
                 # The solution, f, g and the multipliers come from IPOPT: no Lagrangian
@@ -582,8 +586,7 @@ class DirectCollocation:
         self.lbg = lay.lbg
         self.ubg = lay.ubg
         big = 1e20
-        # Joint position limits are checked on the result, not enforced (as in the shooting
-        # solver, where the maximum principle has no state constraints): no state bounds.
+        # No state bounds by default: `solve` takes the joint limits where they bind.
         lbx_x = -big * np.ones(2 * n * (N + 1))
         ubx_x = big * np.ones(2 * n * (N + 1))
         ulim = 1.0 if box else 1.0 + 1e-9
@@ -591,7 +594,8 @@ class DirectCollocation:
         self.ubx = np.concatenate([ubx_x, ulim * np.ones(self._nu + self._num), [big]])
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
-              t_guess: float, x_guess: np.ndarray, u_guess: np.ndarray) -> DirectResult:
+              t_guess: float, x_guess: np.ndarray, u_guess: np.ndarray,
+              x_bounds: tuple[np.ndarray, np.ndarray] | None = None) -> DirectResult:
         """Solve from a guess.
 
         Parameters
@@ -604,6 +608,9 @@ class DirectCollocation:
             Final time guess (s).
         x_guess : ndarray, shape (N + 1, 2n)
         u_guess : ndarray, shape (N + 1, n)
+        x_bounds : (ndarray, ndarray), each shape (2n,), optional
+            Lower and upper bounds of the state ``(q, qd)`` at every mesh point (hard
+            bounds; infinite entries for none). Default: none.
 
         Returns
         -------
@@ -614,8 +621,14 @@ class DirectCollocation:
         w0 = np.concatenate([x_guess.ravel(), u_guess.ravel(), um_guess.ravel(), [t_guess]])
         par = np.concatenate([start_value, target_value, [k]])
         t0 = time.perf_counter()
-        sol = self.solver(x0=w0, p=par, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg,
-                          ubg=self.ubg)
+        lbx, ubx = self.lbx, self.ubx
+        if x_bounds is not None:
+            big = 1e20
+            lbx, ubx = lbx.copy(), ubx.copy()
+            lbx[:self._nx] = np.tile(np.maximum(x_bounds[0], -big), N + 1)
+            ubx[:self._nx] = np.tile(np.minimum(x_bounds[1], big), N + 1)
+            w0[:self._nx] = np.clip(w0[:self._nx], lbx[:self._nx], ubx[:self._nx])
+        sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
         elapsed = time.perf_counter() - t0
         stats = self.solver.stats()
         w = np.array(sol["x"]).ravel()

@@ -1,8 +1,7 @@
 """Rigid-body dynamics of a serial manipulator read from a URDF, as CasADi expressions.
 
-The URDF is parsed with ``urdf_parser_py`` (the ROS parser). The chain between a base link
-and a tip link is reduced to one rigid body per moving joint: links attached by fixed joints
-(or by joints the caller locks) are lumped into the body they ride on. The dynamics are a
+The URDF becomes a chain of bodies in :mod:`~tocontrol_ros.core.urdf` (one rigid body per
+moving joint); :func:`load_robot` adds gravity and the task space. The dynamics are a
 recursive Newton-Euler algorithm written over CasADi ``SX`` symbols, so that every quantity
 (mass matrix, bias forces, forward dynamics, task-space point and its Jacobian) comes with
 exact derivatives of any order, and the solver can compile them.
@@ -19,23 +18,18 @@ Conventions: joint torques (N m) or forces (N) ``tau``; normalised controls
 
 from __future__ import annotations
 
-import math
 import os
-import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field, fields
 
 import casadi as ca
 import numpy as np
 
 from .errors import ModelError
+from .urdf import Body, Chain, chain_from_urdf, default_urdf_path, read_urdf
 
 __all__ = ["Body", "RobotModel", "load_robot", "default_urdf_path"]
 
-MOVING_TYPES = ("revolute", "continuous", "prismatic")
-#: Lumped bodies lighter than this (kg) count as "no inertia".
-MIN_MASS = 1e-12
 #: Relative tolerance for calling joint axes parallel when detecting a planar chain.
 PLANAR_TOL = 1e-9
 STANDARD_GRAVITY = (0.0, 0.0, -9.80665)
@@ -74,109 +68,8 @@ def spd_solve(a, b):
     return ca.vertcat(*x)
 
 
-def default_urdf_path() -> Path:
-    """Path of the paper's arm, ``config/galicki_3r.urdf``, installed or in the source tree.
-
-    Looks in the package's share directory found through the ament index (a colcon install,
-    or a pip install with ``AMENT_PREFIX_PATH`` naming its prefix), then in
-    ``sys.prefix/share/tocontrol_ros/config`` (a pip install without the ament
-    environment), then in the source tree's ``config/``.
-
-    Returns
-    -------
-    pathlib.Path
-
-    Raises
-    ------
-    FileNotFoundError
-        When none of those holds the file; the message lists where it looked.
-    """
-    import sys
-
-    dirs = []
-    try:
-        from ament_index_python.packages import (
-            PackageNotFoundError,
-            get_package_share_directory,
-        )
-
-        dirs.append(Path(get_package_share_directory("tocontrol_ros")) / "config")
-    except (ImportError, PackageNotFoundError, OSError):
-        pass  # not in an ament index (OSError: AMENT_PREFIX_PATH unset)
-    dirs.append(Path(sys.prefix) / "share" / "tocontrol_ros" / "config")
-    dirs.append(Path(__file__).resolve().parents[2] / "config")
-    candidates = [d / "galicki_3r.urdf" for d in dirs]
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError("bundled URDF 'galicki_3r.urdf' not found; looked in: "
-                            + ", ".join(str(p) for p in candidates))
-
-
-def _rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
-    """Rotation matrix of URDF roll-pitch-yaw angles, ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p),
-                              math.cos(y), math.sin(y))
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
-
-
-def _origin(elem) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation (3, 3) and translation (3,) of a URDF ``<origin>`` (identity when absent)."""
-    if elem is None:
-        return np.eye(3), np.zeros(3)
-    xyz = np.zeros(3) if elem.xyz is None else np.asarray(elem.xyz, dtype=float)
-    rpy = np.zeros(3) if elem.rpy is None else np.asarray(elem.rpy, dtype=float)
-    return _rpy_matrix(rpy), xyz
-
-
-def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    """Numeric rotation by ``angle`` (rad) about the unit vector ``axis``."""
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
-
-
-@dataclass(frozen=True)
-class Body:
-    """One moving joint and the rigid body it moves (numeric constants of the chain).
-
-    Attributes
-    ----------
-    joint : str
-        Name of the URDF joint.
-    kind : str
-        ``"revolute"`` (also for URDF ``continuous``) or ``"prismatic"``.
-    rotation, translation : ndarray, shape (3, 3) and (3,)
-        Placement of the joint frame in the previous body's frame (m).
-    axis : ndarray, shape (3,)
-        Unit joint axis in the joint (= body) frame.
-    mass : float
-        Lumped mass of the body (kg).
-    com : ndarray, shape (3,)
-        Centre of mass in the body frame (m).
-    inertia : ndarray, shape (3, 3)
-        Inertia about the centre of mass, body axes (kg m^2).
-    links : tuple of str
-        URDF links lumped into this body.
-    """
-
-    joint: str
-    kind: str
-    rotation: np.ndarray
-    translation: np.ndarray
-    axis: np.ndarray
-    mass: float
-    com: np.ndarray
-    inertia: np.ndarray
-    links: tuple[str, ...]
-
-
 @dataclass(frozen=True, eq=False)
-class RobotModel:
+class RobotModel(Chain):
     """A serial manipulator with bounded joint torques, with symbolic and numeric dynamics.
 
     Build it with :func:`load_robot`. Dynamics: ``M(q) qdd + b(q, qd) = tau`` with
@@ -186,44 +79,20 @@ class RobotModel:
 
     Attributes
     ----------
-    name : str
-        URDF robot name.
-    joint_names : tuple of str, length n
-    bodies : tuple of Body, length n
-    tip_rotation, tip_translation : ndarray, shape (3, 3) and (3,)
-        Tip frame in the last body's frame.
-    base_link, tip_link : str
+    name, joint_names, bodies, tip_rotation, tip_translation, base_link, tip_link
+        The chain read from the URDF (:class:`~tocontrol_ros.core.urdf.Chain`).
+    tau_max, damping, q_lower, q_upper, qd_max, coulomb : ndarray, shape (n,)
+        Its joint limits and friction (:class:`~tocontrol_ros.core.urdf.Chain`); the
+        position and velocity limits are kept for checks, Coulomb friction is reported,
+        not modelled (it is discontinuous).
     gravity : ndarray, shape (3,)
         Gravity acceleration in the base frame (m/s^2).
     task_axes : tuple of int
         Which base-frame coordinates (0 = x, 1 = y, 2 = z) form the task space; ``m`` of them.
-    tau_max : ndarray, shape (n,)
-        Torque (N m) or force (N) limits, from URDF ``<limit effort>``.
-    damping : ndarray, shape (n,)
-        Viscous friction (N m s/rad or N s/m), from URDF ``<dynamics damping>``.
-    q_lower, q_upper : ndarray, shape (n,)
-        Position limits (rad or m); infinite for continuous joints. Kept for checks.
-    qd_max : ndarray, shape (n,)
-        Velocity limits (rad/s or m/s); infinite when absent. Kept for checks.
-    coulomb : ndarray, shape (n,)
-        URDF ``<dynamics friction>``; reported, not modelled (it is discontinuous).
     """
 
-    name: str
-    joint_names: tuple[str, ...]
-    bodies: tuple[Body, ...]
-    tip_rotation: np.ndarray
-    tip_translation: np.ndarray
-    base_link: str
-    tip_link: str
     gravity: np.ndarray
     task_axes: tuple[int, ...]
-    tau_max: np.ndarray
-    damping: np.ndarray
-    q_lower: np.ndarray
-    q_upper: np.ndarray
-    qd_max: np.ndarray
-    coulomb: np.ndarray
     _functions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # ------------------------------------------------------------------ sizes
@@ -541,39 +410,6 @@ class RobotModel:
 
 
 # ---------------------------------------------------------------------- loading
-def _read_urdf(source):
-    from urdf_parser_py.urdf import URDF
-
-    text = None
-    label = "URDF string"
-    if isinstance(source, os.PathLike) or (
-            isinstance(source, str) and not source.lstrip().startswith("<")):
-        path = Path(source)
-        label = str(path)
-        if not path.is_file():
-            raise ModelError(f"URDF file not found: {path}")
-        # Bytes, so that lxml honours an `<?xml ... encoding="..."?>` declaration (it
-        # rejects a str that carries one, and xacro output always does).
-        text = path.read_bytes()
-    elif isinstance(source, str):
-        # A str is already decoded: its encoding declaration is stale, and lxml refuses it.
-        text = re.sub(r"^\s*<\?xml[^>]*\?>", "", source, count=1)
-    else:
-        raise ModelError(f"`source` must be a URDF path or XML string, got "
-                         f"{type(source).__name__}")
-    # urdf_parser_py reports unknown tags on stderr and raises on structural errors.
-    import contextlib
-    import io
-
-    sink = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(sink):
-            robot = URDF.from_xml_string(text)
-    except Exception as exc:  # noqa: BLE001 - parser raises lxml, ParseError, ValueError...
-        raise ModelError(f"malformed URDF ({label}): {exc}") from exc
-    return robot, label
-
-
 def load_robot(
     source: str | os.PathLike,
     base_link: str | None = None,
@@ -599,8 +435,11 @@ def load_robot(
         Default: the plane of motion for a planar chain (all revolute axes parallel), else
         ``"xyz"``.
     locked_joints : mapping of str to float, optional
-        Moving joints to treat as fixed at the given position (rad or m), e.g. gripper
-        fingers that branch off the base-tip path.
+        Moving joints to treat as fixed at the given position (rad or m). Moving joints at
+        or below the tip link (a gripper's fingers) are locked without being named: at 0,
+        or at the nearer position limit when 0 is outside the limits; name them here to
+        lock them elsewhere. A moving joint that branches off the base-tip path above the
+        tip must be named (or another tip chosen).
 
     Returns
     -------
@@ -612,223 +451,15 @@ def load_robot(
         Malformed URDF, missing links, a chain that branches or closes, an unsupported
         joint type, a body without inertia, a missing or non-positive limit.
     """
-    robot, label = _read_urdf(source)
-    locked = dict(locked_joints or {})
+    robot, label = read_urdf(source)
     gravity_arr = np.asarray(gravity, dtype=float)
     if gravity_arr.shape != (3,) or not np.all(np.isfinite(gravity_arr)):
         raise ModelError(f"`gravity` must be 3 finite numbers, got {gravity!r}")
-
-    links = {link.name: link for link in robot.links}
-    joints = {j.name: j for j in robot.joints}
-    for name in locked:
-        if name not in joints:
-            raise ModelError(f"`locked_joints` names joint {name!r}, which is not in {label}")
-    parent_joint: dict[str, object] = {}
-    children: dict[str, list] = {name: [] for name in links}
-    for j in robot.joints:
-        for role, link_name in (("parent", j.parent), ("child", j.child)):
-            if link_name not in links:
-                raise ModelError(f"joint {j.name!r}: {role} link {link_name!r} is not defined")
-        if j.child in parent_joint:
-            raise ModelError(
-                f"closed chain: link {j.child!r} is the child of both joint "
-                f"{parent_joint[j.child].name!r} and joint {j.name!r}")
-        parent_joint[j.child] = j
-        children[j.parent].append(j)
-
-    roots = [name for name in links if name not in parent_joint]
-    if base_link is None:
-        if len(roots) != 1:
-            raise ModelError(f"closed chain or several trees: root links {roots}; "
-                             f"pass `base_link`")
-        base_link = roots[0]
-    if base_link not in links:
-        raise ModelError(f"base link {base_link!r} is not a link of {label} "
-                         f"(links: {sorted(links)})")
-    if tip_link is None:
-        leaves = _leaves_below(base_link, children)
-        if len(leaves) != 1:
-            raise ModelError(f"several leaf links below {base_link!r}: {leaves}; pass "
-                             f"`tip_link`")
-        tip_link = leaves[0]
-    if tip_link not in links:
-        raise ModelError(f"tip link {tip_link!r} is not a link of {label} "
-                         f"(links: {sorted(links)})")
-
-    # Path of joints from the base to the tip.
-    path = []
-    link = tip_link
-    while link != base_link:
-        if link not in parent_joint:
-            raise ModelError(f"tip link {tip_link!r} is not below base link {base_link!r}")
-        j = parent_joint[link]
-        path.append(j)
-        link = j.parent
-    path.reverse()
-    on_path = {j.name for j in path}
-    for j in path:
-        if j.type not in MOVING_TYPES + ("fixed",):
-            raise ModelError(f"joint {j.name!r}: unsupported type {j.type!r} (supported: "
-                             f"revolute, continuous, prismatic, fixed)")
-    moving = [j for j in path if j.type in MOVING_TYPES and j.name not in locked]
-    if not moving:
-        raise ModelError(f"no moving joint between {base_link!r} and {tip_link!r}")
-
-    def joint_motion(j, value):
-        rot, pos = _origin(j.origin)
-        axis = _joint_axis(j)
-        if j.type == "prismatic":
-            return rot, pos + rot @ axis * value
-        return rot @ _axis_rotation(axis, value), pos
-
-    def collect(root_link: str, next_joint):
-        """Links rigidly attached to ``root_link``, with their pose in its frame."""
-        poses = {root_link: (np.eye(3), np.zeros(3))}
-        stack = [root_link]
-        while stack:
-            lk = stack.pop()
-            rot_l, pos_l = poses[lk]
-            for j in children[lk]:
-                if next_joint is not None and j is next_joint:
-                    continue
-                if j.type in MOVING_TYPES and j.name not in locked:
-                    where = "on" if j.name in on_path else "off"
-                    raise ModelError(
-                        f"branching chain: moving joint {j.name!r} ({where} the "
-                        f"{base_link!r} -> {tip_link!r} path) branches off link {lk!r}; "
-                        f"choose another tip link or lock it with `locked_joints`")
-                if j.type not in MOVING_TYPES + ("fixed",):
-                    raise ModelError(f"joint {j.name!r}: unsupported type {j.type!r}")
-                value = float(locked.get(j.name, 0.0))
-                r, p = joint_motion(j, value) if j.type != "fixed" else _origin(j.origin)
-                poses[j.child] = (rot_l @ r, pos_l + rot_l @ p)
-                stack.append(j.child)
-        return poses
-
-    bodies = []
-    tau_max, damping, lower, upper, vmax, coulomb = [], [], [], [], [], []
-    frame_poses = collect(base_link, moving[0])
-    tip_pose = None
-    for idx, j in enumerate(moving):
-        rot_parent, pos_parent = frame_poses[j.parent]
-        rot_o, pos_o = _origin(j.origin)
-        nxt = moving[idx + 1] if idx + 1 < len(moving) else None
-        poses = collect(j.child, nxt)
-        mass, com, inertia = _lump_inertia(poses, links)
-        if mass < MIN_MASS:
-            raise ModelError(
-                f"link {j.child!r} (moved by joint {j.name!r}) has no <inertial> mass, nor "
-                f"does anything rigidly attached to it; the dynamics need mass and inertia")
-        bodies.append(Body(
-            joint=j.name, kind="prismatic" if j.type == "prismatic" else "revolute",
-            rotation=rot_parent @ rot_o, translation=pos_parent + rot_parent @ pos_o,
-            axis=_joint_axis(j), mass=mass, com=com, inertia=inertia,
-            links=tuple(poses)))
-        t_max, lo, hi, v_max = _joint_limits(j)
-        tau_max.append(t_max)
-        lower.append(lo)
-        upper.append(hi)
-        vmax.append(v_max)
-        dyn = j.dynamics
-        damping.append(float(dyn.damping or 0.0) if dyn is not None else 0.0)
-        coulomb.append(float(dyn.friction or 0.0) if dyn is not None else 0.0)
-        if damping[-1] < 0:
-            raise ModelError(f"joint {j.name!r}: <dynamics damping> must be >= 0, got "
-                             f"{damping[-1]}")
-        if tip_link in poses:
-            tip_pose = poses[tip_link]
-        frame_poses = poses
-    if tip_pose is None:  # pragma: no cover - the tip is on the path by construction
-        raise ModelError(f"tip link {tip_link!r} not reached")
-
-    model_axes = _task_axes(task_axes, bodies)
-    model = RobotModel(
-        name=robot.name or "robot",
-        joint_names=tuple(b.joint for b in bodies),
-        bodies=tuple(bodies),
-        tip_rotation=tip_pose[0], tip_translation=tip_pose[1],
-        base_link=base_link, tip_link=tip_link,
-        gravity=gravity_arr, task_axes=model_axes,
-        tau_max=np.array(tau_max), damping=np.array(damping),
-        q_lower=np.array(lower), q_upper=np.array(upper), qd_max=np.array(vmax),
-        coulomb=np.array(coulomb),
-    )
+    chain = chain_from_urdf(robot, label, base_link, tip_link, locked_joints)
+    model = RobotModel(**{f.name: getattr(chain, f.name) for f in fields(Chain)},
+                       gravity=gravity_arr, task_axes=_task_axes(task_axes, list(chain.bodies)))
     _check_positive_definite(model)
     return model
-
-
-def _leaves_below(base: str, children: dict) -> list[str]:
-    leaves, stack = [], [base]
-    while stack:
-        lk = stack.pop()
-        if not children[lk]:
-            leaves.append(lk)
-        stack.extend(j.child for j in children[lk])
-    return sorted(leaves)
-
-
-def _joint_axis(j) -> np.ndarray:
-    axis = np.array([1.0, 0.0, 0.0]) if j.axis is None else np.asarray(j.axis, dtype=float)
-    norm = np.linalg.norm(axis)
-    if axis.shape != (3,) or not np.isfinite(norm) or norm < 1e-12:
-        raise ModelError(f"joint {j.name!r}: <axis xyz> must be a non-zero 3-vector, got "
-                         f"{j.axis!r}")
-    return axis / norm
-
-
-def _joint_limits(j) -> tuple[float, float, float, float]:
-    lim = j.limit
-    if lim is None or lim.effort is None:
-        raise ModelError(f"joint {j.name!r}: <limit effort> is missing; the torque limit is "
-                         f"the control bound")
-    effort = float(lim.effort)
-    if not effort > 0 or not math.isfinite(effort):
-        raise ModelError(f"joint {j.name!r}: <limit effort> must be positive and finite, "
-                         f"got {lim.effort}")
-    velocity = math.inf if lim.velocity is None else float(lim.velocity)
-    if not velocity > 0:
-        raise ModelError(f"joint {j.name!r}: <limit velocity> must be positive, got "
-                         f"{lim.velocity}")
-    if j.type == "continuous":
-        return effort, -math.inf, math.inf, velocity
-    lo = -math.inf if lim.lower is None else float(lim.lower)
-    hi = math.inf if lim.upper is None else float(lim.upper)
-    if not lo < hi:
-        raise ModelError(f"joint {j.name!r}: position limits must satisfy lower < upper, got "
-                         f"lower={lim.lower} upper={lim.upper}")
-    return effort, lo, hi, velocity
-
-
-def _lump_inertia(poses: dict, links: dict) -> tuple[float, np.ndarray, np.ndarray]:
-    """Total mass (kg), centre of mass (3,) and inertia about it (3, 3) of rigid links."""
-    masses, coms, inertias = [], [], []
-    for name, (rot_l, pos_l) in poses.items():
-        inertial = links[name].inertial
-        if inertial is None or inertial.mass is None:
-            continue
-        mass = float(inertial.mass)
-        if mass < 0:
-            raise ModelError(f"link {name!r}: <mass> must be >= 0, got {mass}")
-        rot_i, pos_i = _origin(inertial.origin)
-        ine = inertial.inertia
-        tensor = np.zeros((3, 3)) if ine is None else np.array([
-            [ine.ixx, ine.ixy, ine.ixz], [ine.ixy, ine.iyy, ine.iyz],
-            [ine.ixz, ine.iyz, ine.izz]], dtype=float)
-        if np.any(np.linalg.eigvalsh(tensor) < -1e-12 * max(1.0, np.abs(tensor).max())):
-            raise ModelError(f"link {name!r}: <inertia> is not positive semi-definite")
-        rot = rot_l @ rot_i
-        masses.append(mass)
-        coms.append(pos_l + rot_l @ pos_i)
-        inertias.append(rot @ tensor @ rot.T)
-    total = float(sum(masses))
-    if total < MIN_MASS:
-        return 0.0, np.zeros(3), np.zeros((3, 3))
-    com = sum(mi * ci for mi, ci in zip(masses, coms, strict=True)) / total
-    inertia = np.zeros((3, 3))
-    for mi, ci, ii in zip(masses, coms, inertias, strict=True):
-        d = ci - com
-        inertia += ii + mi * (np.dot(d, d) * np.eye(3) - np.outer(d, d))
-    return total, com, inertia
 
 
 def _task_axes(task_axes, bodies: list[Body]) -> tuple[int, ...]:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -33,7 +34,7 @@ import numpy as np
 from .compiled import c_name, compile_function
 from .model import RobotModel, spd_solve
 
-__all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
+__all__ = ["BufferedFunction", "CanonicalSystem", "LawParams", "control_law"]
 
 
 def control_law(s, k, delta=0.0):
@@ -58,7 +59,7 @@ def control_law(s, k, delta=0.0):
         norm2 = ca.sumsqr(s)
         a = ca.sqrt(s * s + delta**2 * norm2)
         # One power per component: a^(p - 1) = a^p / a and a^(2kp) = a^(1 + p) = a a^p
-        # (pow dominates the right-hand side; 30 % off an RK4 step of the paper's arm).
+        # (pow dominates the right-hand side).
         ap = a ** p
         den = ca.sum1(a * ap) ** (1.0 / (2 * k))
         return s * ap / a / den
@@ -69,6 +70,35 @@ def control_law(s, k, delta=0.0):
         num = np.where(a > 0, s * a ** (p - 1), 0.0)
     den = np.sum(a ** (2 * k * p), axis=0) ** (1.0 / (2 * k))
     return num / den
+
+
+@dataclass(frozen=True)
+class LawParams:
+    """Parameters of the control law, the ``par`` input of every compiled function.
+
+    Attributes
+    ----------
+    k : float
+        Convexification exponent of the torque set ``sum u_i^(2k) <= 1``.
+    delta : float
+        Smoothing of the law (0 = the paper's law).
+    torque_scale : float
+        Fraction of ``tau_max`` planned against: ``1 - reserve``.
+    """
+
+    k: float
+    delta: float = 0.0
+    torque_scale: float = 1.0
+
+    def array(self) -> np.ndarray:
+        """``(k, delta, torque_scale)``, shape (3,): the compiled functions' ``par``."""
+        return np.array([self.k, self.delta, self.torque_scale])
+
+    @classmethod
+    def from_array(cls, par) -> LawParams:
+        """The inverse of :meth:`array`."""
+        k, delta, scale = (float(v) for v in np.asarray(par, dtype=float).ravel())
+        return cls(k, delta, scale)
 
 
 class CanonicalSystem:
@@ -83,7 +113,8 @@ class CanonicalSystem:
     z : casadi.SX, shape (4n, 1)
         ``(q, qd, psi_q, psi_qd)``.
     par : casadi.SX, shape (3, 1)
-        ``(k, delta, torque_scale)``; ``torque_scale = 1 - reserve`` multiplies ``tau_max``.
+        ``(k, delta, torque_scale)`` (:meth:`LawParams.array`); ``torque_scale = 1 - reserve``
+        multiplies ``tau_max``.
     rhs : casadi.SX, shape (4n, 1)
         ``F(z)`` in physical time (per second).
     u, s, ham : casadi.SX
@@ -112,8 +143,7 @@ class CanonicalSystem:
         # R(q, qd, a) = M(q) a + b(q, qd): from M qdd = tau - b, d(qdd) = -M^-1 dR|a, so
         # -dH/dq = lam^T dR/dq and -dH/dqd = -psi_q + lam^T dR/dqd, with a = qdd and
         # lam = M^-1 psi_qd held fixed. The same numbers as differentiating H through
-        # M^-1 (to rounding), in fewer operations: the RK4 step with its Jacobian of the
-        # paper's arm 5.9 -> 4.6 us.
+        # M^-1 (to rounding), in fewer operations.
         acc, adj = ca.SX.sym("a", n), ca.SX.sym("lam", n)
         grad = ca.Function("dR", [q, qd, acc, adj], [ca.gradient(
             ca.dot(adj, model.rnea_sym(q, qd, acc)), x)])(q, qd, qdd, lam)
@@ -213,8 +243,7 @@ class CanonicalSystem:
                                   ["z0", "h", "par"], ["z1"])
             else:
                 # The Jacobian chained through the four stages (as in step_batch's stagewise
-                # branch): 17 thousand operations for the paper's arm against 29 thousand
-                # for AD through the whole step, 5.6 against 8.7 us per step.
+                # branch): far fewer operations than AD through the whole step.
                 fj = ca.Function("FJ", [self.z, self.par],
                                  [self.rhs, ca.jacobian(self.rhs, self.z)])
                 f1, j1 = fj(z0, self.par)
@@ -404,6 +433,11 @@ class CanonicalSystem:
             estimate = self.rhs_function().n_instructions() * 4 * (4 * self.n + 1)
             self._cache["stagewise"] = estimate > WHOLE_STEP_LIMIT
         return self._cache["stagewise"]
+
+    @stagewise.setter
+    def stagewise(self, value: bool) -> None:
+        # Forces one path (the tests compare the two on a small model).
+        self._cache["stagewise"] = bool(value)
 
     def rhs_jacobian_function(self) -> ca.Function:
         """``(z, par) -> (F(z), dF/dz)``, compiled and cached like the step function."""

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ProblemError
+from .limits import JointLimits
 from .model import RobotModel
 
 __all__ = ["Endpoint", "Problem", "point", "joint_state", "MIN_MOVE", "REST_SPEED"]
@@ -83,6 +84,9 @@ class Problem:
         Integers reproduce the paper; the solver continues from 1 up to ``k``.
     reserve : float
         Torque reserve ``r`` in [0, 1): plan against ``(1 - r) tau_max``.
+    limits : JointLimits, optional
+        Joint position and velocity limits the plan keeps to; default: the URDF's, no
+        margin (:meth:`JointLimits.from_model`).
 
     Raises
     ------
@@ -96,9 +100,16 @@ class Problem:
     target: Endpoint
     k: float = 1.0
     reserve: float = 0.0
+    limits: JointLimits | None = None
 
     def __post_init__(self) -> None:
         model = self.model
+        if self.limits is None:
+            object.__setattr__(self, "limits", JointLimits.from_model(model))
+        elif not isinstance(self.limits, JointLimits) or \
+                tuple(self.limits.names) != tuple(model.joint_names):
+            raise ProblemError("`limits` must be a JointLimits of the model's joints "
+                               f"{list(model.joint_names)}, got {self.limits!r}")
         try:
             k = float(self.k)
         except (TypeError, ValueError) as exc:
@@ -119,13 +130,7 @@ class Problem:
                 _check_reachable(model, name, p)
             elif end.kind == "state":
                 x = _finite(f"{name} joint state", end.value, (2 * model.n,))
-                q = x[:model.n]
-                bad = np.flatnonzero((q < model.q_lower) | (q > model.q_upper))
-                if bad.size:
-                    i = int(bad[0])
-                    raise ProblemError(
-                        f"`{name}` joint {model.joint_names[i]!r} at {q[i]:.6g} is outside its "
-                        f"limits [{model.q_lower[i]:.6g}, {model.q_upper[i]:.6g}]")
+                self.limits.check_state(name, x[:model.n], x[model.n:])
                 if name == "target" and np.any(x[model.n:] != 0):
                     raise ProblemError("`target` joint state must be at rest (qd = 0), got "
                                        f"qd = {x[model.n:].tolist()}")
@@ -146,6 +151,16 @@ class Problem:
         if self.target.kind == "point":
             return self.target.value
         return self.model.point(self.target.value[:self.model.n])
+
+    @property
+    def boundary_values(self) -> np.ndarray:
+        """``(start.value, target.value)``: the values the BVP's boundary conditions take."""
+        return np.concatenate([self.start.value, self.target.value])
+
+    @property
+    def torque_scale(self) -> float:
+        """Fraction of ``tau_max`` planned against: ``1 - reserve``."""
+        return 1.0 - self.reserve
 
     def is_trivial(self, tol: float = MIN_MOVE, rest: float = REST_SPEED) -> bool:
         """True when the start already satisfies the target at rest: nothing to move.

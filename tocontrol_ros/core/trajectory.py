@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pmp import CanonicalSystem
+from .pmp import CanonicalSystem, LawParams
 
 __all__ = ["Trajectory", "TrajectorySample"]
 
@@ -61,20 +61,27 @@ class Trajectory:
         Increasing times of the RK4 grid (s), from 0 to ``T``.
     z_grid : ndarray, shape (K, 4n)
         Canonical state at the grid times.
+    law : LawParams
+        The control law's parameters of the solution.
+
+    Attributes
+    ----------
+    law : LawParams
     par : ndarray, shape (3,)
-        ``(k, delta, torque_scale)`` of the solution.
+        ``law.array()``, as the compiled functions take it.
     """
 
     def __init__(self, system: CanonicalSystem, t_grid: np.ndarray, z_grid: np.ndarray,
-                 par: np.ndarray) -> None:
+                 law: LawParams) -> None:
         self.system = system
         self.n = system.n
         self.t_grid = np.asarray(t_grid, dtype=float)
         self.z_grid = np.asarray(z_grid, dtype=float)
-        self.par = np.asarray(par, dtype=float)
+        self.law = law
+        self.par = law.array()
         self.T = float(self.t_grid[-1])
         self.joint_names = system.model.joint_names
-        self._tau_scale = system.model.tau_max * self.par[2]
+        self._tau_scale = system.model.tau_max * law.torque_scale
         # The solver's own compiled RK4 step (no Jacobians): exact at the grid points.
         self._rk4 = system.step_function(sensitivities=False)
         self._point = system.pointwise()

@@ -1,0 +1,229 @@
+"""Joint limits: the limits object, the problem's checks, and plans that keep to them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.direct import DirectCollocation, initial_path
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.limits import (
+    JointLimits,
+    load_joint_limits_yaml,
+    parse_joint_limits_yaml,
+)
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
+
+P_START = np.array([1.0, 1.0])
+P_TARGET = np.array([2.2, 1.5])
+#: Velocity limits (rad/s) that bind on the paper's example (its optimum reaches 1.1 and
+#: 6.3 rad/s at joints 2 and 3).
+TIGHT = np.array([0.4, 1.0, 1.0])
+#: The first bounded solve of a kind compiles its NLP (tens of seconds on a loaded machine):
+#: not a time the solver's budget should be judged on here.
+SLOW_OK = 600.0
+
+YAML = """
+joint_limits:
+  joint1:
+    has_position_limits: true
+    min_position: -1.0
+    max_position: 2.0
+    has_velocity_limits: true
+    max_velocity: 0.5
+    has_acceleration_limits: false
+    max_acceleration: 0.0
+  joint3:
+    has_velocity_limits: true
+    max_velocity: 500.0
+"""
+
+
+def _tight(model, velocity=TIGHT, margin=0.0):
+    base = JointLimits.from_model(model)
+    return JointLimits(base.names, base.lower, base.upper, np.asarray(velocity), margin)
+
+
+# ----------------------------------------------------------------- the limits object
+def test_urdf_limits_narrowed_by_moveit_yaml(galicki):
+    base = JointLimits.from_model(galicki)
+    assert np.all(np.isinf(base.lower)) and np.allclose(base.velocity, 100.0)
+    lim = base.narrowed(parse_joint_limits_yaml(YAML))
+    assert (lim.lower[0], lim.upper[0], lim.velocity[0]) == (-1.0, 2.0, 0.5)
+    # A YAML limit wider than the URDF's leaves the URDF's (the tighter of the two).
+    assert lim.velocity[2] == 100.0
+    assert np.isinf(lim.lower[1]) and lim.velocity[1] == 100.0
+
+
+def test_margin_shrinks_ranges_and_speeds(galicki):
+    lim = JointLimits.from_model(galicki).narrowed(parse_joint_limits_yaml(YAML)).with_margin(0.1)
+    assert lim.plan_lower[0] == pytest.approx(-1.0 + 0.15)
+    assert lim.plan_upper[0] == pytest.approx(2.0 - 0.15)
+    assert lim.plan_velocity[0] == pytest.approx(0.45)
+    assert np.isinf(lim.plan_lower[1])  # a continuous joint stays unlimited
+
+
+@pytest.mark.parametrize("text, match", [
+    ("joint_limits:\n  elbow: {has_velocity_limits: true, max_velocity: 1.0}",
+     "'elbow' is not a moving joint"),
+    ("joint_limits:\n  joint1: {has_velocity_limits: yes please}", "must be true or false"),
+    ("joint_limits:\n  joint1: {has_velocity_limits: true}", "has no `max_velocity`"),
+    ("joint_limits:\n  joint1: {has_velocity_limits: true, max_velocity: -2}", "must be > 0"),
+    ("joint_limits:\n  joint1: {has_position_limits: true, min_position: 1, max_position: 0}",
+     "not below max_position"),
+    ("joint_limits:\n  joint1: {has_velocity_limits: true, max_velocity: .nan}",
+     "finite number"),
+    ("limits: {}", "top-level mapping `joint_limits:`"),
+    ("joint_limits: [", "not valid YAML"),
+])
+def test_bad_joint_limits_yaml_is_named(galicki, text, match):
+    with pytest.raises(ProblemError, match=match):
+        JointLimits.from_model(galicki).narrowed(parse_joint_limits_yaml(text))
+
+
+def test_joint_limits_file(tmp_path, galicki):
+    with pytest.raises(ProblemError, match="does not exist"):
+        load_joint_limits_yaml(str(tmp_path / "nope.yaml"))
+    path = tmp_path / "joint_limits.yaml"
+    path.write_text(YAML)
+    lim = JointLimits.from_model(galicki).narrowed(load_joint_limits_yaml(path))
+    assert lim.velocity[0] == 0.5
+
+
+def test_violations_are_fractions_of_range_and_limit(galicki):
+    lim = JointLimits.from_model(galicki).narrowed(parse_joint_limits_yaml(YAML))
+    q = np.array([[2.3, 0.0, 0.0], [0.0, 50.0, 0.0]])
+    qd = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
+    pos, vel = lim.violations(q, qd)
+    assert pos == pytest.approx(0.3 / 3.0) and vel == pytest.approx(0.1 / 0.5)
+    assert lim.violations(np.zeros((2, 3)), np.zeros((2, 3))) == (0.0, 0.0)
+
+
+# ----------------------------------------------------------------- the problem
+def test_start_outside_limits_is_rejected_naming_the_joint(panda):
+    q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    target = point(panda.point(q + 0.1))
+    Problem(panda, joint_state(q), target)  # inside: fine
+    bad = q.copy()
+    bad[3] = 0.1  # panda_joint4 is limited to [-3.07, -0.07]
+    with pytest.raises(ProblemError, match="panda_joint4"):
+        Problem(panda, joint_state(bad), target)
+    # Inside the URDF's limits but within a margin of 20 % of the range from them.
+    lim = JointLimits.from_model(panda, margin=0.2)
+    near = q.copy()
+    near[3] = -0.2
+    with pytest.raises(ProblemError, match="shrunk by the margin 0.2"):
+        Problem(panda, joint_state(near), target, limits=lim)
+    with pytest.raises(ProblemError, match="velocity .* not below its limit"):
+        Problem(panda, joint_state(q, np.full(7, 3.0)), target)
+
+
+def test_limits_of_another_model_are_rejected(galicki, panda):
+    with pytest.raises(ProblemError, match="`limits` must be a JointLimits"):
+        Problem(galicki, point(P_START), point(P_TARGET), limits=JointLimits.from_model(panda))
+
+
+# ----------------------------------------------------------------- plans within limits
+@pytest.fixture(scope="module")
+def limited(galicki):
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0,
+                      limits=_tight(galicki))
+    return plan(problem, SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
+
+
+def test_binding_velocity_limits_are_kept_on_reintegration(limited):
+    res = limited
+    assert res.success, res.message
+    assert res.method == "direct"
+    checks = res.verification
+    assert checks["velocity_limits"] <= 1e-6
+    assert checks["position_limits"] <= 1e-6
+    assert checks["point_error"] < 1e-6
+    fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 4001))
+    assert np.all(np.abs(fine.qd) <= TIGHT * (1 + 1e-9))
+    # Every control inside the convexified set (torque limits).
+    assert np.max(np.sum(fine.u ** 8, axis=1)) <= 1 + 1e-9
+    # A limit binds: some joint runs at (nearly) its limit.
+    assert np.max(np.abs(fine.qd) / TIGHT) > 0.99
+
+
+def test_bounded_time_agrees_with_an_independent_fine_collocation(galicki, limited):
+    """T agrees with Hermite-Simpson on 192 intervals, bounds at its mesh points.
+
+    Started from the returned motion: another transcription of the same problem.
+    """
+    res = limited
+    problem = res.problem
+    N = 192
+    dc = DirectCollocation(galicki, N)
+    tau = np.linspace(0.0, res.T, N + 1)
+    sample = res.trajectory.evaluate(tau)
+    x = np.hstack([sample.q, sample.qd])
+    bounds = (np.concatenate([-np.full(3, np.inf), -TIGHT]),
+              np.concatenate([np.full(3, np.inf), TIGHT]))
+    ref = dc.solve(problem.start.value, problem.target.value, 4.0, res.T, x, sample.u,
+                   x_bounds=bounds)
+    assert ref.success, ref.message
+    assert abs(res.T - ref.T) <= 1e-3 * ref.T
+
+
+def test_limits_cost_time(galicki, limited):
+    free = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4.0),
+                SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
+    assert free.method == "indirect" and free.success
+    assert limited.T > free.T
+
+
+def test_verification_fails_a_motion_that_leaves_the_limits(galicki):
+    free_problem = Problem(galicki, point(P_START), point(P_TARGET), k=1.0)
+    free = plan(free_problem, SolverOptions(starts=1, candidates=1, time_limit=SLOW_OK))
+    assert free.success and free.verification["velocity_limits"] == 0.0
+    tight = Problem(galicki, point(P_START), point(P_TARGET), k=1.0, limits=_tight(galicki))
+    checks = verify(tight, free.trajectory)
+    assert checks["velocity_limit_violation"] > 1.0  # joint 3 runs at 6.3 rad/s against 1
+
+
+def test_unreachable_within_limits_is_a_named_failure(galicki):
+    """Joint 1 confined to a sliver: the target is out of reach within the limits."""
+    base = JointLimits.from_model(galicki)
+    lim = JointLimits(base.names, np.array([-0.75, -np.inf, -np.inf]),
+                      np.array([-0.74, np.inf, np.inf]), TIGHT)
+    q0 = np.array([-0.745, 2.38, 0.72])
+    res = plan(Problem(galicki, joint_state(q0), point(P_TARGET), k=1.0, limits=lim),
+               SolverOptions(starts=2, candidates=1, time_limit=SLOW_OK))
+    assert not res.success
+    assert res.status in (Status.LIMITS_INFEASIBLE, Status.NO_GUESS), res.message
+    assert res.trajectory is None
+
+
+def test_direct_guess_respects_bounds(galicki):
+    dc = DirectCollocation(galicki, 12)
+    qa = np.array([-0.74958167, 2.38183072, 0.72394544])
+    qb = np.array([-0.63884071, 2.11297099, 0.09666605])
+    bounds = (np.concatenate([-np.full(3, np.inf), -TIGHT]),
+              np.concatenate([np.full(3, np.inf), TIGHT]))
+    res = dc.solve(P_START, P_TARGET, 1.0, *initial_path(galicki, qa, qb, 12, 1.0, TIGHT),
+                   x_bounds=bounds)
+    assert res.success
+    assert np.all(np.abs(res.x[:, 3:]) <= TIGHT + 1e-7)
+    free = dc.solve(P_START, P_TARGET, 1.0, *initial_path(galicki, qa, qb, 12))
+    assert np.max(np.abs(free.x[:, 3:]) - TIGHT) > 0.1
+
+
+def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
+    """The Panda as it comes: its fingers (below panda_hand) are locked at 0 (closed)."""
+    from tocontrol_ros.core.model import load_robot
+
+    if "panda" not in robot_specs:
+        pytest.skip("example-robot-data is not installed")
+    source = robot_specs["panda"]["source"]
+    model = load_robot(source, tip_link="panda_hand")
+    assert model.n == 7
+    assert dict(model.locked) == {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
+    opened = load_robot(source, tip_link="panda_hand",
+                        locked_joints={"panda_finger_joint1": 0.04})
+    assert dict(opened.locked)["panda_finger_joint1"] == 0.04
+    # Fingers opened: the hand's lumped inertia moves, so the dynamics differ.
+    q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    assert not np.allclose(opened.mass_matrix(q), model.mass_matrix(q))

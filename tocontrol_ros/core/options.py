@@ -1,0 +1,135 @@
+"""Tolerances and limits of the solver, validated on construction."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .certificate import CertificateOptions
+from .errors import ProblemError
+
+__all__ = ["SolverOptions"]
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Tolerances and limits of :func:`~tocontrol_ros.core.solver.plan` (validated).
+
+    Attributes
+    ----------
+    tol : float
+        Newton converges when the max-norm of the BVP equations is below this.
+    max_newton : int
+        Newton iterations per solve (each continuation step is one solve).
+    intervals : int
+        Initial number of shooting intervals.
+    steps : int
+        RK4 steps per shooting interval. With switch nodes, more steps per interval resolve
+        the graded intervals at a switch better (fewer intervals at the same accuracy, and
+        cheaper warm re-solves). With switch nodes the k = 1 solve and the continuation in
+        k, whose solutions only lead to the switch mesh, take at most
+        :data:`~tocontrol_ros.core.solver.CONTINUATION_STEPS`.
+    guess_intervals : int
+        Mesh intervals of the direct method that makes the initial guess.
+    integration_tol : float
+        Mesh refinement: max RK4 error estimate per interval (max-norm of ``z``). The
+        default keeps ``|H|`` below 1e-6 along the paper's example for k = 1 ... 16 and the
+        re-integrated end point within 1e-6 m.
+    max_intervals : int
+        Mesh refinement stops here.
+    smoothing : tuple of float
+        Decreasing ``delta`` schedule tried at the requested ``k`` (for k > 1).
+    smoothing_intermediate : float
+        ``delta`` used at intermediate continuation values of ``k``.
+    smoothing_tol : float
+        Decreasing ``delta`` stops once ``T`` changes by less than this, relatively.
+    min_k_step : float
+        Continuation gives up when a failed step in ``k`` would be bisected below this.
+    switch_nodes : bool
+        For k > 1, put a mesh node at every sign change of a switching function, with its
+        time an unknown and the RK4 steps graded towards it (far fewer intervals for the
+        same accuracy, and the mesh follows the switches in warm starts).
+    starts : int
+        Seed pairs tried by the direct method (1 = single start). The paper's arm has many
+        local optima and the first seed pair is seldom in the best basin, hence 16.
+    candidates : int
+        Distinct direct solutions (best ``T`` at k = 1 first) continued to the requested
+        ``k`` by shooting; the best final ``T`` is returned.
+    ik_count : int
+        Angles of the self-motion family per end point (see
+        :func:`~tocontrol_ros.core.ik.ik_family`).
+    verify : bool
+        Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
+        nominal torques re-integrated through the model by an adaptive integrator, the
+        canonical system re-integrated per shooting interval, the torques inside the set,
+        ``H``, the boundary conditions); a solution that fails is not a success.
+    verify_point_tol : float
+        The re-integrated nominal torques must reach the target within this (m).
+    verify_velocity_tol : float
+        ...and end at rest within this (rad/s or m/s).
+    certificate : CertificateOptions or None
+        The certificate's other tolerances (default: :class:`CertificateOptions`'s);
+        ``verify_point_tol`` and ``verify_velocity_tol`` override its point and velocity
+        tolerances, ``tol`` its residual tolerance.
+    time_limit : float
+        Wall-time budget (s); the best result so far is reported when it runs out.
+    """
+
+    tol: float = 1e-10
+    max_newton: int = 30
+    intervals: int = 12
+    steps: int = 12
+    guess_intervals: int = 12
+    integration_tol: float = 1e-6
+    max_intervals: int = 1000
+    smoothing: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 0.0)
+    smoothing_intermediate: float = 1e-3
+    smoothing_tol: float = 1e-8
+    min_k_step: float = 0.05
+    switch_nodes: bool = True
+    starts: int = 16
+    candidates: int = 3
+    ik_count: int = 8
+    verify: bool = True
+    verify_point_tol: float = 1e-4
+    verify_velocity_tol: float = 1e-3
+    time_limit: float = 60.0
+    certificate: CertificateOptions | None = None
+
+    def __post_init__(self) -> None:
+        positive = ("tol", "integration_tol", "smoothing_tol", "min_k_step",
+                    "verify_point_tol", "verify_velocity_tol", "time_limit",
+                    "smoothing_intermediate")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ProblemError(f"`{name}` must be a positive number, got {value!r}")
+        for name in ("max_newton", "intervals", "steps", "guess_intervals", "max_intervals",
+                     "starts", "candidates", "ik_count"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, np.integer)) and value >= 1):
+                raise ProblemError(f"`{name}` must be an integer >= 1, got {value!r}")
+        sm = tuple(float(d) for d in self.smoothing)
+        if not sm or any(d < 0 or not np.isfinite(d) for d in sm) or \
+                any(b >= a for a, b in zip(sm, sm[1:], strict=False)):
+            raise ProblemError(f"`smoothing` must be a non-empty strictly decreasing sequence "
+                             f"of numbers >= 0, got {self.smoothing!r}")
+        object.__setattr__(self, "smoothing", sm)
+        if self.certificate is not None and not isinstance(self.certificate,
+                                                           CertificateOptions):
+            raise ProblemError(f"`certificate` must be a CertificateOptions or None, got "
+                               f"{type(self.certificate).__name__}")
+        self.certificate_options(1)  # the tolerances together must be valid
+
+    def certificate_options(self, steps: int) -> CertificateOptions:
+        """The certificate's tolerances; its segments are the shooting intervals.
+
+        Parameters
+        ----------
+        steps : int
+            RK4 steps per shooting interval of the solution.
+        """
+        return replace(self.certificate or CertificateOptions(),
+                       point_tol=self.verify_point_tol, velocity_tol=self.verify_velocity_tol,
+                       residual_tol=self.tol, segment_steps=steps)

@@ -1,0 +1,172 @@
+"""What a solve returns: the status, one record per start, the result and its warm state."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .certificate import Certificate
+from .pmp import CanonicalSystem
+from .problem import Problem
+from .shooting import ShootingGrid
+from .trajectory import Trajectory
+
+__all__ = ["Status", "StartRecord", "WarmState", "PlanResult"]
+
+
+class Status(enum.Enum):
+    """Outcome of :func:`~tocontrol_ros.core.solver.plan`; the value is a readable sentence."""
+
+    SUCCESS = "solved and verified"
+    TRIVIAL = "start at rest within MIN_MOVE of the target: nothing to move"
+    NO_GUESS = "the direct method found no feasible initial guess"
+    NEWTON_FAILED = "Newton's method did not converge at k = 1"
+    CONTINUATION_FAILED = "continuation in k stalled before the requested k"
+    VERIFICATION_FAILED = "converged, but the verification failed"
+    CANCELLED = "cancelled by the caller (a newer request or a shutdown)"
+    TIME_LIMIT = "the time limit ran out before the solve finished"
+    LIMITS_INFEASIBLE = "no motion within the joint limits was found"
+
+
+@dataclass(frozen=True)
+class StartRecord:
+    """One start of a multistart: its seeds and what became of it.
+
+    Attributes
+    ----------
+    index : int
+        Rank of the seed pair (0 = the first start).
+    q_start, q_target : ndarray, shape (n,)
+        Seed configurations (rad, m).
+    guess_T : float
+        ``T`` of the direct method at k = 1 (s), NaN when it failed.
+    T : float
+        Final ``T`` at the requested k (s), NaN when not continued or failed.
+    status : str
+    """
+
+    index: int
+    q_start: np.ndarray
+    q_target: np.ndarray
+    guess_T: float
+    T: float
+    status: str
+
+
+@dataclass(frozen=True, eq=False)
+class WarmState:
+    """The final shooting mesh and unknowns of a solve: what a warm start continues from.
+
+    Attributes
+    ----------
+    lengths : ndarray, shape (N,)
+        Interval lengths in normalised time (sum 1).
+    w : ndarray, shape (size,)
+        Unknowns of the shooting grid (:meth:`ShootingGrid.pack`).
+    steps : int
+        RK4 steps per interval.
+    kinds : ndarray of int, shape (N,)
+        Step grading of each interval (0 uniform, 1 towards its end, -1 towards its start).
+    breaks : list of (int, int)
+        Switch nodes: (node index, index of the switching function).
+    factors : object or None
+        LU factors of a Jacobian on this mesh (reused by chord Newton steps).
+    """
+
+    lengths: np.ndarray
+    w: np.ndarray
+    steps: int
+    kinds: np.ndarray
+    breaks: list
+    factors: object = None
+
+    def grid(self, system: CanonicalSystem, start_kind: str, target_kind: str
+             ) -> ShootingGrid:
+        """The shooting grid of this state for the given end kinds ("point" or "state")."""
+        return ShootingGrid(system, self.lengths, self.steps, start_kind, target_kind,
+                            kinds=self.kinds, breaks=self.breaks)
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of :func:`~tocontrol_ros.core.solver.plan` (like ``solve_bvp``'s result).
+
+    Attributes
+    ----------
+    success : bool
+    status : Status
+    message : str
+    T : float
+        Minimum time (s); NaN when there is no solution.
+    k : float
+        Exponent reached (the requested one on success).
+    trajectory : Trajectory or None
+    residual : float
+        Max-norm of the BVP equations (continuity, boundary, transversality, ``H(T)``).
+    iterations : int
+        Newton iterations, all continuation steps of the returned start included.
+    timings : dict of str to float
+        Wall time per phase (s): ``guess``, ``shooting``, ``refine``, ``verify``, ``total``.
+    continuation : tuple of (k, delta, T, iterations, residual)
+    max_abs_u : float
+        ``max_i,t |u_i|``: the headroom left is ``1 - max_abs_u``.
+    delta : float
+        Smoothing of the control law in the returned solution (0 = the paper's law).
+    intervals : int
+        Shooting intervals of the final mesh.
+    verification : dict
+        The certificate's figures (:attr:`Certificate.figures`): ``point_error`` (m),
+        ``velocity_error``, ``max_abs_H``, ``max_set_error`` (``max |sum u^2k - 1|``),
+        ``max_defect``, ... (empty with ``verify=False``).
+    warnings : tuple of str
+        E.g. URDF position or velocity limits violated (joint and time).
+    starts : tuple of StartRecord
+    problem : Problem or None
+        The problem solved.
+    warm_state : WarmState or None
+        The final mesh and unknowns, from which a warm start continues (None on failure,
+        and for a ``"direct"`` result).
+    method : str
+        ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
+        ``"direct"``: the joint limits bind, and the bounded direct multiple shooting solved
+        the problem (:mod:`~tocontrol_ros.core.limited`, ``docs/limits.md``).
+    certificate : Certificate or None
+        Every check with its value, tolerance and verdict (None with ``verify=False`` or
+        without a solution).
+    """
+
+    success: bool
+    status: Status
+    message: str
+    T: float
+    k: float
+    trajectory: Trajectory | None
+    residual: float
+    iterations: int
+    timings: dict
+    continuation: tuple
+    max_abs_u: float
+    delta: float
+    intervals: int
+    verification: dict = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    starts: tuple[StartRecord, ...] = ()
+    problem: Problem | None = field(default=None, repr=False)
+    warm_state: WarmState | None = field(default=None, repr=False)
+    certificate: Certificate | None = None
+    method: str = "indirect"
+
+    def can_warm_start(self, problem: Problem) -> bool:
+        """Whether :func:`~tocontrol_ros.core.solver.plan` can continue this to ``problem``.
+
+        It can from a warm state with the same model, start and target kinds and reserve.
+        The exponent may differ (the solve then steps ``k``); the one rule for callers that
+        decide whether to pass a ``warm_start``.
+        """
+        prev = self.problem
+        return (self.warm_state is not None and prev is not None
+                and prev.model is problem.model and prev.start.kind == problem.start.kind
+                and prev.target.kind == problem.target.kind
+                and prev.reserve == problem.reserve)
