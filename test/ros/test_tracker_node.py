@@ -275,7 +275,8 @@ def test_reset_puts_the_arm_at_a_state(harness, model):
                                            QOS_STREAM)
     harness.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
     q0 = np.array(PAPER_START_Q)
-    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 3.0))
+    # 10 s (0.5 s of wall time): still running when the reset is applied at the next tick.
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 10.0))
     harness.status_with("executing trajectory")
     q1 = q0 + [0.1, -0.05, 0.2]
     # Any joint order; velocities optional.
