@@ -29,7 +29,7 @@ import numpy as np
 from .compiled import c_name, compile_functions
 from .model import RobotModel
 from .pmp import LawParams
-from .trajectory import TrajectorySample
+from .trajectory import TrajectorySample, sample_times
 
 __all__ = ["BoundedResult", "BoundedShooting", "ShootingTrajectory"]
 
@@ -350,14 +350,7 @@ class ShootingTrajectory:
 
     def sample(self, dt: float) -> TrajectorySample:
         """Samples every ``dt`` seconds from 0, always including ``T``."""
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"`dt` must be positive and finite, got {dt!r}")
-        t = np.arange(0.0, self.T, dt)
-        if len(t) == 0 or self.T - t[-1] > 1e-12:
-            t = np.append(t, self.T)
-        else:
-            t[-1] = self.T
-        return self.evaluate(t)
+        return self.evaluate(sample_times(self.T, dt))
 
     def control(self, t: float) -> np.ndarray:
         """Normalised control at one time, shape (n,)."""

@@ -286,16 +286,7 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
     point_err = float(np.linalg.norm(points[:, 2] - problem.target_point))
     vel_err = float(np.max(np.abs(x_T[n:] - (problem.target.value[n:]
                                              if problem.target.kind == "state" else 0.0))))
-    items.append(_item("integrator_finished", 0.0 if stats["finished"] else 1.0, 0.5, "",
-                       "the adaptive integrator reached every segment's end"))
-    items.append(_item("end_point", point_err, options.point_tol, "m",
-                       "nominal torques integrated from x(0): end point to target"))
-    items.append(_item("end_velocity", vel_err, options.velocity_tol, "rad/s",
-                       "nominal torques integrated from x(0): max |qd(T)|"))
-    if problem.target.kind == "state":
-        items.append(_item("end_position", float(np.max(np.abs(
-            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
-            "nominal torques integrated from x(0): max |q(T) - q_target|"))
+    items += _end_items(problem, x_T, point_err, vel_err, stats["finished"], options)
     items.append(_item("max_defect", float(np.max(defects)), options.defect_tol, "",
                        "canonical system (16) re-integrated per segment: max |z_end - z_next| "
                        "/ max(1, |z_next|)"))
@@ -309,17 +300,10 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
                        "costate psi_q orthogonal to the self-motion manifold at point ends"))
 
     # Along the sampling: torques inside the convexified set, H = 0.
-    u = sample.u
-    with np.errstate(over="ignore", invalid="ignore"):
-        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
-    set_excess = float(np.max(set_sum) - 1.0)
-    max_u = float(np.max(np.abs(u)))
+    set_sum, torque_items = _torque_items(problem, sample.u, options)
+    items += torque_items
+    max_u = float(np.max(np.abs(sample.u)))
     max_h = float(np.max(np.abs(sample.H)))
-    items.append(_item("control_set", set_excess, options.control_set_tol, "",
-                       "max sum u_i^(2k) - 1 over the samples"))
-    # |u_i| = 1 is in the set: where every other S_j = 0 (one joint's switch, n = 2).
-    items.append(_item("max_abs_u", max_u, 1.0 + options.control_set_tol, "",
-                       "max |u_i| over the samples (the torque limits, to rounding)"))
     items.append(_item("max_abs_H", max_h, options.hamiltonian_tol, "",
                        "max |H| over the samples"))
     if solver_residual is not None:
@@ -340,6 +324,37 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
         "segments": len(lengths), "rtol": options.rtol})
     return Certificate(passed=all(i.passed for i in items), items=tuple(items),
                        figures=figures, options=options, open_loop_end=x_T.copy())
+
+
+def _end_items(problem: Problem, x_T: np.ndarray, point_err: float, vel_err: float,
+               finished: bool, options: CertificateOptions) -> list[CertificateItem]:
+    """Where the nominal torques take the arm: the open-loop state at T (2n,)."""
+    n = problem.model.n
+    items = [
+        _item("integrator_finished", 0.0 if finished else 1.0, 0.5, "",
+              "the adaptive integrator reached the end of every segment"),
+        _item("end_point", point_err, options.point_tol, "m",
+              "nominal torques integrated from x(0): end point to target"),
+        _item("end_velocity", vel_err, options.velocity_tol, "rad/s",
+              "nominal torques integrated from x(0): max |qd(T)|")]
+    if problem.target.kind == "state":
+        items.append(_item("end_position", float(np.max(np.abs(
+            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
+            "nominal torques integrated from x(0): max |q(T) - q_target|"))
+    return items
+
+
+def _torque_items(problem: Problem, u: np.ndarray, options: CertificateOptions
+                  ) -> tuple[np.ndarray, list[CertificateItem]]:
+    """Torques (K, n) inside the convexified set; also ``sum u_i^(2k)`` per sample."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
+    # |u_i| = 1 is in the set: where every other S_j = 0 (one joint's switch, n = 2).
+    return set_sum, [
+        _item("control_set", float(np.max(set_sum) - 1.0), options.control_set_tol, "",
+              "max sum u_i^(2k) - 1 over the samples"),
+        _item("max_abs_u", float(np.max(np.abs(u))), 1.0 + options.control_set_tol, "",
+              "max |u_i| over the samples (the torque limits, to rounding)")]
 
 
 def _limit_items(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
@@ -402,25 +417,9 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
     target_qd = problem.target.value[n:] if problem.target.kind == "state" else 0.0
     vel_err = float(np.max(np.abs(x_T[n:] - target_qd)))
-    items = [
-        _item("integrator_finished", 0.0 if sol.success else 1.0, 0.5, "",
-              "the adaptive integrator reached T"),
-        _item("end_point", point_err, options.point_tol, "m",
-              "nominal torques integrated from x(0): end point to target"),
-        _item("end_velocity", vel_err, options.velocity_tol, "rad/s",
-              "nominal torques integrated from x(0): max |qd(T)|")]
-    if problem.target.kind == "state":
-        items.append(_item("end_position", float(np.max(np.abs(
-            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
-            "nominal torques integrated from x(0): max |q(T) - q_target|"))
-    u = sample.u
-    with np.errstate(over="ignore", invalid="ignore"):
-        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
-    max_u = float(np.max(np.abs(u)))
-    items.append(_item("control_set", float(np.max(set_sum) - 1.0), options.control_set_tol,
-                       "", "max sum u_i^(2k) - 1 over the samples"))
-    items.append(_item("max_abs_u", max_u, 1.0 + options.control_set_tol, "",
-                       "max |u_i| over the samples (the torque limits, to rounding)"))
+    items = _end_items(problem, x_T, point_err, vel_err, bool(sol.success), options)
+    items += _torque_items(problem, sample.u, options)[1]
+    max_u = float(np.max(np.abs(sample.u)))
     if solver_residual is not None:
         items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
                            "the solver's max-norm of its NLP's constraint violation"))

@@ -15,7 +15,25 @@ import numpy as np
 
 from .pmp import CanonicalSystem, LawParams
 
-__all__ = ["Trajectory", "TrajectorySample"]
+__all__ = ["Trajectory", "TrajectorySample", "sample_times"]
+
+
+def sample_times(duration: float, dt: float) -> np.ndarray:
+    """Times every ``dt`` seconds from 0 to ``duration`` (s), always ending at ``duration``.
+
+    Raises
+    ------
+    ValueError
+        ``dt`` not positive and finite.
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"`dt` must be positive and finite, got {dt!r}")
+    t = np.arange(0.0, duration, dt)
+    if len(t) == 0 or duration - t[-1] > 1e-12:
+        t = np.append(t, duration)
+    else:
+        t[-1] = duration
+    return t
 
 
 @dataclass(frozen=True)
@@ -126,14 +144,7 @@ class Trajectory:
         dt : float
             Sample period (s), positive.
         """
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"`dt` must be positive and finite, got {dt!r}")
-        t = np.arange(0.0, self.T, dt)
-        if len(t) == 0 or self.T - t[-1] > 1e-12:
-            t = np.append(t, self.T)
-        else:
-            t[-1] = self.T
-        return self.evaluate(t)
+        return self.evaluate(sample_times(self.T, dt))
 
     def control(self, t: float) -> np.ndarray:
         """Normalised control at one time, shape (n,)."""
