@@ -30,6 +30,7 @@ EXECUTABLES = {
     "figures": "tocontrol_ros.figures",
     "planner": "tocontrol_ros.planner",
     "recorder": "tocontrol_ros.recorder",
+    "reindex": "tocontrol_ros.reindex",
     "replay": "tocontrol_ros.replay",
     "report": "tocontrol_ros.report",
     "tracker": "tocontrol_ros.tracker",

@@ -5,16 +5,17 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,scaling,verification,batch,limits]
+        [--only paper,peers,random,scaling,verification,deployed,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
 ``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
 example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
 links, the Panda), ``verification`` (the certificate's cost against the solve, the 3R and
-the Panda), ``batch`` (batch planning throughput: loop, process pool, Ray), ``limits``
-(random cases with joint limits enforced). Every timing is taken in this one process, side
-by side; compiled functions go to a fresh temporary cache so that first-run costs are
-measured, not inherited.
+the Panda), ``deployed`` (planner and tracker as processes: idle CPU and ~/plan round trip
+against the same request in-process), ``batch`` (batch planning throughput: loop, process
+pool, Ray), ``limits`` (random cases with joint limits enforced). Every timing is taken in
+this one process, side by side; compiled functions go to a fresh temporary cache so that
+first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -32,7 +33,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "scaling", "verification", "batch", "limits")
+PARTS = ("paper", "peers", "random", "scaling", "verification", "deployed", "batch",
+         "limits")
 
 
 def _parse(argv):
@@ -90,7 +92,16 @@ def main(argv=None):
 
 
 def _run(args):
-    from bench import batch, limits, paper, peers, random_pairs, scaling, verification
+    from bench import (
+        batch,
+        deployed,
+        limits,
+        paper,
+        peers,
+        random_pairs,
+        scaling,
+        verification,
+    )
 
     t0 = time.perf_counter()
     info = common.machine_info()
@@ -128,6 +139,9 @@ def _run(args):
                                     panda_runs=1 if args.quick else 2))
     if "verification" in args.only:
         section(lambda: verification.run(model, args.runs, args.budget))
+    if "deployed" in args.only:
+        section(lambda: deployed.run(runs=5 if args.quick else 10,
+                                     window=4.0 if args.quick else deployed.WINDOW))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))

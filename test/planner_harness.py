@@ -37,7 +37,8 @@ SERVICE_BAD = [
      "`start.pose.position.y` must be finite"),
     ("unreachable", PAPER_START, (9.0, 0.0), "base_link", "base_link", "not reachable"),
     ("frame", PAPER_START, PAPER_TARGET, "base_link", "map", "frame_id 'map'"),
-    ("same", PAPER_START, PAPER_START, "base_link", "base_link", "equals the start"),
+    ("boundary", PAPER_START, (5.5, 0.0), "base_link", "base_link",
+     "is on the boundary of the workspace"),
     ("off-plane", PAPER_START, (2.2, 1.5, 0.3), "base_link", "base_link",
      "`goal.pose.position.z` = 0.3 m is off"),
 ]
@@ -54,7 +55,7 @@ PARAM_BAD = [
     ({"starts": 0}, "out of range"),
     ({"candidates": 5}, "must not exceed `starts`"),
     ({"default_start": [1.0, 1.0, 0.0]}, "`default_start` must have 2 entries"),
-    ({"robot": "other.urdf"}, "read-only"),
+    ({"robot_description": "<robot/>"}, "read-only"),
     ({"frame_id": "map"}, "read-only"),
     ({"k": "four"}, "type"),
 ]

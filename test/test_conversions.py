@@ -10,12 +10,12 @@ from sensor_msgs.msg import JointState
 
 from tocontrol_ros import conversions as conv
 from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.params import descriptor
 from tocontrol_ros.planner_config import (
     PARAMETERS,
     ConfigError,
     config_from_values,
     default_values,
-    descriptor,
     solver_options,
 )
 
@@ -200,7 +200,7 @@ def test_descriptors_carry_ranges_and_read_only():
     by_name = {spec.name: descriptor(spec) for spec in PARAMETERS}
     assert by_name["k"].floating_point_range[0].from_value == 1.0
     assert by_name["starts"].integer_range[0].from_value == 1
-    assert by_name["robot"].read_only and not by_name["k"].read_only
+    assert by_name["robot_description"].read_only and not by_name["k"].read_only
     for d in by_name.values():
         assert d.description
 

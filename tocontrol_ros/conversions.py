@@ -35,8 +35,8 @@ from tocontrol_ros.core.kinematics import link_positions, tip_pose
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
-           "empty_path", "markers_msg", "status_msg", "status_values", "certificate_values",
-           "LEVELS"]
+           "empty_path", "point_path", "markers_msg", "status_msg", "status_values",
+           "certificate_values", "LEVELS"]
 
 #: Non-task coordinates of a request must match the arm's constant value within this (m):
 #: loose enough for hand-typed numbers, tight enough to catch a point from another plane.
@@ -308,6 +308,17 @@ def path_msg(model, sample, frame_id: str, stamp: Time) -> Path:
         poses.append(PoseStamped(header=Header(stamp=add_seconds(stamp, float(t)),
                                                frame_id=frame_id), pose=pose))
     return Path(header=header, poses=poses)
+
+
+def point_path(frame: TaskFrame, p, frame_id: str, stamp: Time) -> Path:
+    """A one-pose ``nav_msgs/Path`` at the task-space point ``p`` (shape (m,), m), at ``stamp``.
+
+    The answer of ``~/plan`` when there is nothing to plan (T = 0).
+    """
+    x, y, z = (float(v) for v in embed_point(frame, p))
+    header = Header(stamp=stamp, frame_id=frame_id)
+    pose = Pose(position=Point(x=x, y=y, z=z), orientation=Quaternion(w=1.0))
+    return Path(header=header, poses=[PoseStamped(header=header, pose=pose)])
 
 
 def empty_path(frame_id: str, stamp: Time) -> Path:

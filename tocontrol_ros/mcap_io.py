@@ -39,7 +39,7 @@ ROSBAG2_METADATA_VERSION = 9
 #: pipeline's rates (a few hundred small messages per second) that is a few seconds of data.
 DEFAULT_CHUNK_SIZE = 256 * 1024
 #: ... and at least this often (s), so a killed recorder loses at most about this much.
-DEFAULT_FLUSH_PERIOD = 1.0
+DEFAULT_FLUSH_PERIOD = 0.1
 COMPRESSIONS = {"none": CompressionType.NONE, "zstd": CompressionType.ZSTD,
                 "lz4": CompressionType.LZ4}
 
@@ -338,7 +338,8 @@ class RecordingWriter:
         """Messages written so far."""
         return sum(t.count for t in self._topics.values())
 
-    def add_topic(self, name, type_name, offered_qos_profiles="", type_hash=""):
+    def add_topic(self, name, type_name, offered_qos_profiles="", type_hash="",
+                  definition=None):
         """Register a topic (channel) and its type (schema, once per type).
 
         Parameters
@@ -352,6 +353,9 @@ class RecordingWriter:
         type_hash : str
             ``RIHS01_...`` type hash (channel metadata ``topic_type_hash``), if known; an
             ``rclpy`` ``TypeHash`` is converted with ``str``.
+        definition : str, optional
+            The ``ros2msg`` schema text; default: built from the installed ``.msg`` files
+            (:func:`message_definition`).
         """
         if name in self._topics:
             raise McapIOError(f"topic {name!r} was added already")
@@ -359,7 +363,7 @@ class RecordingWriter:
             offered_qos_profiles = qos_profiles_to_yaml(offered_qos_profiles)
         type_hash = str(type_hash) if type_hash else ""  # rclpy gives a TypeHash object
         if type_name not in self._schemas:
-            text = message_definition(type_name)
+            text = message_definition(type_name) if definition is None else definition
             self._schemas[type_name] = self._writer.register_schema(
                 type_name, SCHEMA_ENCODING, text.encode("utf-8"))
         metadata = {"offered_qos_profiles": offered_qos_profiles,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable
 
@@ -9,19 +10,26 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["run_node"]
 
-#: The main loop waits at most this long (s) for a callback before it looks at the context
-#: again (see run_node).
+#: The main loop waits at most this long (s) for a callback before it looks at the stop
+#: flag again (see run_node).
 SHUTDOWN_POLL = 0.25
 
 
 def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
              make_executor: Callable[[], Executor] = SingleThreadedExecutor) -> int:
-    """Initialise rclpy, build the node and spin it until Ctrl-C, SIGTERM or a shutdown.
+    """Initialise rclpy, build the node and spin it until SIGINT, SIGTERM or a shutdown.
+
+    SIGINT and SIGTERM only set a stop flag (rclpy's own handlers are not installed): the
+    loop then ends, the node is destroyed (the planner stops its worker) and rclpy shut
+    down. Further signals during that are ignored (and after it: the caller is expected to
+    exit), so that Ctrl-C under ``ros2 launch`` (SIGINT to the process group, then launch's
+    own SIGINT to each node) ends with exit status 0 and no traceback.
 
     Parameters
     ----------
@@ -39,7 +47,14 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
     int
         0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
     """
-    rclpy.init(args=argv)
+    stop: list[int] = []
+
+    def on_signal(signum, _frame):
+        stop.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = executor = None
     try:
         try:
@@ -49,19 +64,15 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
             return 1
         executor = make_executor()
         executor.add_node(node)
-        # executor.spin() waits without a timeout and relies on the wake-up that rclpy's
-        # signal handler sends when it shuts the context down. The planner has, rarely,
-        # not exited after a SIGTERM during a solve (never after SIGINT, which also raises
-        # KeyboardInterrupt in this thread); a lost wake-up is the likely cause. Waiting in
-        # bounded slices notices a shut-down context within SHUTDOWN_POLL either way.
-        while rclpy.ok():
+        # Bounded slices: a Python signal handler runs only between them (the executor
+        # waits in C), so a stop is noticed within SHUTDOWN_POLL.
+        while not stop and rclpy.ok():
             executor.spin_once(timeout_sec=SHUTDOWN_POLL)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
-        # rclpy's signal handler shuts the context down from its own thread; an executor
-        # building its wait set at that moment raises RCLError "the given context is not
-        # valid" (a known race: ros2/rclpy#402, ros2/ros2cli#854). That is a shutdown.
+        # An external rclpy.shutdown while the executor builds its wait set raises RCLError
+        # "the given context is not valid" (ros2/rclpy#402). That is a shutdown.
         if rclpy.ok():
             raise
     finally:
@@ -71,4 +82,9 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
             # Joins an executor's thread pool, so that interpreter exit does not wait on it.
             executor.shutdown(timeout_sec=1.0)
         rclpy.try_shutdown()
+        # The process is ending: a signal now (launch's second SIGINT) must not kill it.
+        # Ignored, not handled: Python's finalisation puts handled signals back to their
+        # default action (death, status -2), but leaves ignored ones alone.
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
     return 0

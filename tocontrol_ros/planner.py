@@ -37,6 +37,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -45,21 +46,20 @@ from visualization_msgs.msg import MarkerArray
 from tocontrol_ros import conversions as conv
 from tocontrol_ros import qos
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.node_main import run_node
+from tocontrol_ros.params import declare_all, load_model
 from tocontrol_ros.planner_config import (
     PARAMETERS,
     ConfigError,
     PlannerConfig,
     config_from_values,
-    descriptor,
     solver_options,
 )
 
 __all__ = ["PlannerNode", "PlanRequest", "LatestSlot", "main", "QOS_LATCHED", "QOS_STATUS",
            "QOS_GOAL", "QOS_JOINT_STATES"]
 
-#: Start and target closer than this (m), with the start at rest, is "nothing to plan".
-SAME_POINT_TOL = 1e-6
 #: Threads of the executor: service calls each hold one while they wait for their outcome.
 EXECUTOR_THREADS = 8
 #: A request that starts from the robot's current state waits up to this long (s) for a
@@ -68,6 +68,9 @@ EXECUTOR_THREADS = 8
 #: used while the arm moves. Without joint states newer than that, the newest one within
 #: ``joint_state_timeout`` is used after the wait.
 FRESH_STATE_WAIT = 0.1
+#: A solver note that is routine, not a warning: the warm start was tried and the solve
+#: went on cold (the status stays OK and keeps the note).
+ROUTINE_NOTE = "warm start did not converge"
 #: How often a waiting service callback looks at the shutdown flag (s).
 WAIT_POLL = 0.05
 #: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
@@ -80,8 +83,18 @@ QOS_LATCHED = qos.LATCHED
 QOS_STATUS = qos.status_profile(100, latched=False)
 #: Goals: reliable; newest wins anyway, so a short queue is enough.
 QOS_GOAL = qos.RELIABLE
-#: Joint states: best effort matches both reliable and best-effort publishers.
-QOS_JOINT_STATES = qos.BEST_EFFORT
+#: Joint states: best effort matches both reliable and best-effort publishers; the newest
+#: one is all the planner needs, so the middleware keeps one.
+QOS_JOINT_STATES = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.VOLATILE)
+#: Service requests: a burst of calls must not overflow the request queue before the
+#: executor takes them (each call gets exactly one response).
+QOS_SERVICE = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+#: Poll period (s) of a request waiting for a joint state newer than itself.
+STATE_POLL = 0.005
 
 
 @dataclass(eq=False)
@@ -170,12 +183,82 @@ class LatestSlot:
             return leftover
 
 
-def _load_model(config: PlannerConfig):
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
+class LatestMessage:
+    """The newest message of a topic, taken from the middleware only when asked for.
 
-    return load_robot(config.robot or default_urdf_path(), base_link=config.base_link or None,
-                      tip_link=config.tip_link or None, gravity=config.gravity,
-                      task_axes=config.task_axes or None)
+    The subscription belongs to a hidden helper node (name starting with ``_``) that no
+    executor spins: incoming messages never wake the planner's executor, the middleware keeps
+    only the newest (depth 1), and :meth:`newest` takes it when a request needs it. A
+    subscription with a callback would cost an executor iteration per message (most of a
+    core at 500 Hz with rclpy's executors).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The owner: its context and namespace are used, and it resolves the topic name (with
+        its remappings).
+    msg_type : type
+    topic : str
+    qos_profile : QoSProfile
+    """
+
+    def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile) -> None:
+        self._msg_type = msg_type
+        # The owner resolves the name (its namespace and remappings); the helper takes no
+        # command-line arguments, so that a global `-r __node:=...` (as `ros2 launch` passes)
+        # does not give it the owner's name.
+        resolved = node.resolve_topic_name(topic)
+        self._helper = Node(f"_{node.get_name()}_{topic.strip('/').replace('/', '_')}",
+                            namespace=node.get_namespace(), context=node.context,
+                            use_global_arguments=False, start_parameter_services=False,
+                            enable_rosout=False)
+        self._sub = self._helper.create_subscription(msg_type, resolved, lambda _msg: None,
+                                                     qos_profile)
+        self._lock = threading.Lock()
+        self._latest = None  # (message, DDS receive time in ns)
+
+    def _take(self) -> None:
+        """Take everything queued; keep the newest. Holds ``self._lock``."""
+        while True:
+            try:
+                with self._sub.handle:
+                    taken = self._sub.handle.take_message(self._msg_type, False)
+            except Exception:  # noqa: BLE001  (subscription gone during shutdown)
+                return
+            if taken is None or taken[0] is None:
+                return
+            msg, info = taken
+            self._latest = (msg, int(info.get("received_timestamp", 0)) or time.time_ns())
+
+    def newest(self, since_ns: int, max_age: float, wait: float):
+        """The newest message not older than ``max_age`` s, or None.
+
+        When the newest one is recent but received before ``since_ns`` (``time.time_ns()``
+        scale), wait up to ``wait`` s for a newer one.
+        """
+        deadline = time.monotonic() + wait
+        with self._lock:
+            self._take()
+            while (self._latest is not None and self._latest[1] < since_ns
+                   and time.time_ns() - self._latest[1] <= max_age * 1e9
+                   and time.monotonic() < deadline):
+                time.sleep(STATE_POLL)
+                self._take()
+            latest = self._latest
+        if latest is None or time.time_ns() - latest[1] > max_age * 1e9:
+            return None
+        return latest[0]
+
+    def destroy(self) -> None:
+        """Destroy the helper node."""
+        with self._lock:
+            self._helper.destroy_node()
+
+
+def _load_model(config: PlannerConfig):
+    return load_model(config.robot_description, config.robot_description_file,
+                      base_link=config.base_link or None, tip_link=config.tip_link or None,
+                      gravity=config.gravity, task_axes=config.task_axes or None)[0]
 
 
 class PlannerNode(Node):
@@ -197,9 +280,7 @@ class PlannerNode(Node):
 
     def __init__(self, node_name: str = "planner", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        for spec in PARAMETERS:
-            self.declare_parameter(spec.name, spec.default, descriptor(spec))
-        config = config_from_values(self._parameter_values())
+        config = config_from_values(declare_all(self, PARAMETERS))
         self.model = _load_model(config)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
@@ -213,9 +294,8 @@ class PlannerNode(Node):
         self._status_lock = threading.Lock()
         self._stopping = threading.Event()
         self._slot = LatestSlot()
-        # (message, time.monotonic() when processed, DDS receive time in ns or 0)
-        self._joint_state: tuple[JointState, float, int] | None = None
-        self._state_changed = threading.Condition()
+        self._joint_states = LatestMessage(self, JointState, "joint_states",
+                                           QOS_JOINT_STATES)
         self._last_result = None
         self.ready = threading.Event()
 
@@ -226,13 +306,10 @@ class PlannerNode(Node):
         self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
         waiting = ReentrantCallbackGroup()
         inputs = MutuallyExclusiveCallbackGroup()
-        self.create_service(GetPlan, "~/plan", self._on_plan, callback_group=waiting)
+        self.create_service(GetPlan, "~/plan", self._on_plan, qos_profile=QOS_SERVICE,
+                            callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
-        # Joint states in a group of their own: served while a goal callback waits for them.
-        self.create_subscription(JointState, "joint_states", self._on_joint_state,
-                                 QOS_JOINT_STATES,
-                                 callback_group=MutuallyExclusiveCallbackGroup())
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -246,7 +323,8 @@ class PlannerNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         values = self._parameter_values()
-        values.update({p.name: p.value for p in params})
+        # Only the planner's own: rclpy's (use_sim_time) are rclpy's to check.
+        values.update({p.name: p.value for p in params if p.name in values})
         try:
             config = config_from_values(values, task_dim=self.model.m)
         except ConfigError as exc:
@@ -267,50 +345,38 @@ class PlannerNode(Node):
             return self._config
 
     # -------------------------------------------------------------- callbacks
-    def _on_joint_state(self, msg: JointState, info) -> None:
-        with self._state_changed:
-            self._joint_state = (msg, time.monotonic(), int(info.get("received_timestamp", 0)))
-            self._state_changed.notify_all()
-
-    def _current_start(self, config: PlannerConfig, since: float,
-                       received_after: int = 0) -> tuple:
+    def _current_start(self, config: PlannerConfig, since_ns: int) -> tuple:
         """The robot's current state if a recent joint state is there, else default_start.
 
         Parameters
         ----------
         config : PlannerConfig
-        since : float
-            ``time.monotonic()`` when the request came: with a recent joint state, wait up
-            to :data:`FRESH_STATE_WAIT` for one processed after this...
-        received_after : int
-            ...and received (DDS receive time, ns) after this, when not 0.
+        since_ns : int
+            When the request came (``time.time_ns()``, or a goal's DDS receive time): with a
+            recent joint state, wait up to :data:`FRESH_STATE_WAIT` for one received after
+            this, so that a state still queued when the request came is not used.
         """
-        with self._state_changed:
-            latest = self._joint_state
-            if latest is not None and since - latest[1] <= config.joint_state_timeout:
-                self._state_changed.wait_for(
-                    lambda: self._joint_state[1] >= since
-                    and self._joint_state[2] >= received_after, FRESH_STATE_WAIT)
-                latest = self._joint_state
-        if latest is not None and time.monotonic() - latest[1] <= config.joint_state_timeout:
-            q, qd = conv.joint_state_from_msg(latest[0], self.model.joint_names)
+        latest = self._joint_states.newest(since_ns, config.joint_state_timeout,
+                                           FRESH_STATE_WAIT)
+        if latest is not None:
+            q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
             return ("state", q, qd)
         return ("point", np.array(config.default_start))
 
     def _on_goal(self, msg: PointStamped, info) -> None:
-        since = time.monotonic()
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
         rid = next(self._ids)
         config = self.config
         try:
             target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
-            start = self._current_start(config, since, int(info.get("received_timestamp", 0)))
+            start = self._current_start(config, since)
         except conv.ConversionError as exc:
             self._reject(rid, "goal", str(exc))
             return
         self._submit(PlanRequest(rid, "goal", start, target, config))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
-        since = time.monotonic()
+        since = time.time_ns()
         rid = next(self._ids)
         config = self.config
         try:
@@ -418,10 +484,12 @@ class PlannerNode(Node):
                 self._slot.finished(req)
 
     def _warm_up(self) -> None:
-        """Solve a throw-away problem so that compilation does not delay the first request.
+        """Build what requests need, so that no request pays for a build.
 
-        Stops early (cancelled) when a request arrives or the node shuts down; a request
-        then pays what is left.
+        First the direct transcription of every problem kind the node serves (point to
+        point for ``~/plan``, joint state to point for ``~/goal`` and ``~/plan`` without a
+        start frame), always; then one throw-away solve of each kind (compiles the
+        shooting functions), stopped early when a request arrives or the node shuts down.
         """
         from tocontrol_ros.core.problem import Problem, joint_state, point
         self._publish_status("OK", "warming up (the first start on a machine compiles the "
@@ -435,15 +503,17 @@ class PlannerNode(Node):
             # A generic move (alternating signs: not along a singular direction).
             qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
             options = solver_options(config)  # verify as configured: compiles the certificate
-            for start in (point(model.point(qa)), joint_state(qa)):
-                problem = Problem(model, start, point(model.point(qb)), k=config.k,
-                                  reserve=config.reserve)
+            problems = [Problem(model, start, point(model.point(qb)), k=config.k,
+                                reserve=config.reserve)
+                        for start in (point(model.point(qa)), joint_state(qa))]
+            for problem in problems:
+                self.planner.direct(problem, options.guess_intervals)
+            for problem in problems:
                 result = self.planner.plan(
                     problem, options,
                     should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
-                if not result.success:
+                if not result.success and not note:
                     note = f" (warm-up solve: {result.message})"
-                    break
         except TocontrolError as exc:
             note = f" (warm-up skipped: {exc})"
         if self._stopping.is_set():
@@ -470,17 +540,10 @@ class PlannerNode(Node):
         except TocontrolError as exc:
             self._finish(req, "ERROR", "failed", str(exc))
             return
-        at_rest = req.start[0] == "point" or not np.any(req.start[2])
         start_point = problem.start_point
-        gap = float(np.linalg.norm(start_point - req.target))
-        if at_rest and gap < SAME_POINT_TOL:
-            self._finish(req, "ERROR", "failed",
-                         f"the target {req.target.tolist()} equals the start "
-                         f"{start_point.tolist()} (within {SAME_POINT_TOL:g} m): nothing to plan",
-                         {"start": start_point})
-            return
-        warm = self._last_result if config.warm_start and _warm_compatible(
-            self._last_result, problem) else None
+        last = self._last_result
+        warm = last if config.warm_start and last is not None and \
+            last.can_warm_start(problem) else None
         result = self.planner.plan(problem, solver_options(config), warm_start=warm,
                                    should_stop=self._should_stop(req))
         extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
@@ -497,23 +560,25 @@ class PlannerNode(Node):
         if not result.success:
             self._finish(req, "ERROR", "failed", result.message, extra)
             return
+        if result.status.name == "TRIVIAL":
+            # The core's rule (Problem.is_trivial): the start is at rest on the target.
+            gap = float(np.linalg.norm(start_point - req.target))
+            path = conv.point_path(self.frame, start_point, self.frame.frame_id, self._now())
+            self._finish(req, "OK", "solved",
+                         f"nothing to plan: the target {req.target.tolist()} is "
+                         f"{gap:.3g} m from the start at rest (within MIN_MOVE = "
+                         f"{MIN_MOVE:g} m); T = 0, no trajectory published",
+                         {**extra, "samples": 1}, path=path)
+            return
         self._last_result = result
         sample = result.trajectory.sample(config.sample_period)
         stamp = self._now()
         frame_id = self.frame.frame_id
         path = conv.path_msg(self.model, sample, frame_id, stamp)
-        snaps = result.trajectory.evaluate(
-            np.linspace(0.0, result.T, config.marker_snapshots)).q
-        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
-                       for p in path.poses])
-        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
-                                   start_point), conv.embed_point(self.frame, req.target),
-                                   frame_id, stamp)
         try:
             self._pub_trajectory.publish(conv.trajectory_msg(sample, self.model.joint_names,
                                                              frame_id, stamp))
             self._pub_path.publish(path)
-            self._pub_markers.publish(markers)
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             req.done.set()
             return
@@ -522,11 +587,27 @@ class PlannerNode(Node):
                    f"Newton iterations, {result.timings['total']:.3f} s, residual "
                    f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
         level = "OK"
-        if result.warnings:
+        routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
+        warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
+        if routine:
+            message += "; " + "; ".join(routine)
+        if warnings:
             level = "WARN"
-            message += "; warnings: " + "; ".join(result.warnings)
+            message += "; warnings: " + "; ".join(warnings)
         self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
                      path=path)
+        # The viewer's markers after the answer: the caller does not wait for them.
+        snaps = result.trajectory.evaluate(
+            np.linspace(0.0, result.T, config.marker_snapshots)).q
+        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                       for p in path.poses])
+        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
+                                   start_point), conv.embed_point(self.frame, req.target),
+                                   frame_id, stamp)
+        try:
+            self._pub_markers.publish(markers)
+        except Exception:  # noqa: BLE001  (publisher gone during shutdown)
+            return
 
     # --------------------------------------------------------------- shutdown
     def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:
@@ -541,17 +622,8 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
+        self._joint_states.destroy()
         super().destroy_node()
-
-
-def _warm_compatible(previous, problem) -> bool:
-    """A previous result can warm-start ``problem``: same kinds, k and reserve."""
-    if previous is None or previous.problem is None:
-        return False
-    prev = previous.problem
-    return (prev.model is problem.model and prev.start.kind == problem.start.kind
-            and prev.target.kind == problem.target.kind and prev.k == problem.k
-            and prev.reserve == problem.reserve)
 
 
 def build_parser() -> argparse.ArgumentParser:

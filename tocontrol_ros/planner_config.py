@@ -2,10 +2,11 @@
 
 :data:`PARAMETERS` is the only place a parameter is defined (name, default, range,
 description, whether a change needs a restart). The node declares each one with the
-:class:`rcl_interfaces.msg.ParameterDescriptor` built here, so that rclpy itself rejects
-values out of range or of the wrong type and any change of a read-only one; its
-on-set-parameters callback runs :func:`config_from_values` on the would-be values for the
-checks that involve more than one parameter or the model. Nothing here needs a running node.
+:class:`rcl_interfaces.msg.ParameterDescriptor` built by :mod:`tocontrol_ros.params`, so
+that rclpy itself rejects values out of range or of the wrong type and any change of a
+read-only one; its on-set-parameters callback runs :func:`config_from_values` on the
+would-be values for the checks that involve more than one parameter or the model. Nothing
+here needs a running node.
 """
 
 from __future__ import annotations
@@ -15,87 +16,38 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.examples import PAPER_START
+from tocontrol_ros.core.model import STANDARD_GRAVITY
+from tocontrol_ros.params import (
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    ParameterSpec,
 )
 
-from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.model import STANDARD_GRAVITY
-
-__all__ = ["ConfigError", "ParameterSpec", "PARAMETERS", "PlannerConfig", "descriptor",
+__all__ = ["ConfigError", "PARAMETERS", "PlannerConfig",
            "config_from_values", "solver_options", "default_values"]
-
-#: The paper's start point (Section 5), in the base frame's task coordinates (m).
-PAPER_START = (1.0, 1.0)
-
 
 class ConfigError(TocontrolError, ValueError):
     """A parameter value that the planner cannot use; the message names the parameter."""
 
 
-@dataclass(frozen=True)
-class ParameterSpec:
-    """One parameter: its default (which fixes its type), range and meaning.
-
-    Attributes
-    ----------
-    name : str
-    default : bool, int, float, str or list of float
-    description : str
-        Shown by ``ros2 param describe``; includes the unit.
-    low, high : float or int, optional
-        Inclusive range of a scalar number (rclpy enforces it).
-    read_only : bool
-        A change needs a restart (the model is built once, at start-up).
-    constraints : str
-        Conditions that rclpy cannot express (checked by the on-set callback).
-    """
-
-    name: str
-    default: Any
-    description: str
-    low: float | int | None = None
-    high: float | int | None = None
-    read_only: bool = False
-    constraints: str = ""
-
-    @property
-    def type(self) -> int:
-        """The ``rcl_interfaces/ParameterType`` of the default."""
-        d = self.default
-        if isinstance(d, bool):
-            return ParameterType.PARAMETER_BOOL
-        if isinstance(d, int):
-            return ParameterType.PARAMETER_INTEGER
-        if isinstance(d, float):
-            return ParameterType.PARAMETER_DOUBLE
-        if isinstance(d, str):
-            return ParameterType.PARAMETER_STRING
-        return ParameterType.PARAMETER_DOUBLE_ARRAY
-
-
-_RESTART = " Read-only: a change needs a restart."
-
 PARAMETERS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("robot", "", "URDF of the arm: a file path or the URDF XML itself (e.g. the "
-                  "robot_description string). Empty: the bundled config/galicki_3r.urdf "
-                  "(the paper's planar 3R arm)." + _RESTART, read_only=True),
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
     ParameterSpec("base_link", "", "Link fixed to the world; start, target and outputs are "
-                  "in its frame. Empty: the URDF's root link." + _RESTART, read_only=True),
+                  "in its frame. Empty: the URDF's root link.", read_only=True),
     ParameterSpec("tip_link", "", "Link whose origin is the end-effector point. Empty: the "
-                  "only leaf link." + _RESTART, read_only=True),
+                  "only leaf link.", read_only=True),
     ParameterSpec("task_axes", "", "Base-frame coordinates that form the task space, e.g. "
-                  "'xy'. Empty: the plane of motion of a planar arm, else 'xyz'." + _RESTART,
+                  "'xy'. Empty: the plane of motion of a planar arm, else 'xyz'.",
                   read_only=True),
     ParameterSpec("gravity", list(STANDARD_GRAVITY), "Gravity acceleration in the base frame "
-                  "(m/s^2), 3 numbers." + _RESTART, read_only=True,
+                  "(m/s^2), 3 numbers.", read_only=True,
                   constraints="3 finite numbers"),
     ParameterSpec("frame_id", "", "Frame of every point the planner receives and publishes. "
                   "Empty: the base link's name. Requests in another frame are rejected "
-                  "(no tf lookup)." + _RESTART, read_only=True),
+                  "(no tf lookup).", read_only=True),
     ParameterSpec("k", 4.0, "Convexification exponent of the torque set sum u_i^(2k) <= 1 "
                   "(dimensionless); larger is closer to bang-bang.", 1.0, 64.0),
     ParameterSpec("reserve", 0.0, "Torque reserve r (fraction): plan against (1 - r) "
@@ -134,21 +86,6 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
 _SPECS = {spec.name: spec for spec in PARAMETERS}
 
 
-def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
-    """The ROS descriptor of one parameter (type, description, range, read_only)."""
-    d = ParameterDescriptor(name=spec.name, type=spec.type, description=spec.description,
-                            additional_constraints=spec.constraints,
-                            read_only=spec.read_only)
-    if spec.low is not None:
-        if spec.type == ParameterType.PARAMETER_INTEGER:
-            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
-                                            step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(
-                from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    return d
-
-
 def default_values() -> dict[str, Any]:
     """Parameter name -> default value."""
     return {spec.name: spec.default for spec in PARAMETERS}
@@ -158,7 +95,8 @@ def default_values() -> dict[str, Any]:
 class PlannerConfig:
     """The planner's parameters, checked (see :data:`PARAMETERS` for meanings and units)."""
 
-    robot: str
+    robot_description: str
+    robot_description_file: str
     base_link: str
     tip_link: str
     task_axes: str

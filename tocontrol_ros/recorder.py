@@ -8,9 +8,12 @@ taken from the ROS graph when a publisher first appears; the subscription asks f
 publishers offer (reliable, transient local), so a latched plan is captured too.
 
 SIGINT and SIGTERM finish the file (last chunk, summary, indexes) after taking what is
-already queued; a process killed outright leaves a file readable up to its last complete
-chunk (chunks are written at least every ``flush_period`` seconds). The output never
-overwrites an existing file.
+already queued. A process killed outright (``kill -9``) leaves a file without summary and
+indexes that holds every message received up to about ``flush_period`` (0.1 s) before the
+kill (chunks are handed to the OS at least that often): a streaming reader reads it as is,
+and ``ros2 run tocontrol_ros reindex FILE`` rewrites it as a complete file for indexed
+readers and rosbags. The output never overwrites an existing file; an output that cannot be
+written ends the recorder with a one-line error and exit status 2.
 
 Parameters (all read-only; see ``config/recorder.yaml``): ``topics``, ``output``,
 ``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``.
@@ -23,12 +26,6 @@ import time
 from dataclasses import dataclass
 
 import rclpy
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
@@ -41,6 +38,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros import mcap_io
+from tocontrol_ros.params import ParameterSpec, declare_all, parameters_help
 
 #: Everything the planner and the tracker publish, and their inputs.
 DEFAULT_TOPICS = (
@@ -88,33 +86,23 @@ class RecorderConfig:
     queue_depth: int
 
 
-def _descriptor(description, type_, **ranges):
-    return ParameterDescriptor(description=description, type=type_, read_only=True, **ranges)
-
-
-PARAMETERS = {
-    "topics": (list(DEFAULT_TOPICS), _descriptor(
-        "Topics to record (absolute names).", ParameterType.PARAMETER_STRING_ARRAY)),
-    "output": ("", _descriptor(
-        "Output .mcap file; empty: runs/<YYYYmmdd-HHMMSS>.mcap. Never overwritten.",
-        ParameterType.PARAMETER_STRING)),
-    "compression": ("none", _descriptor(
-        "Chunk compression: none, zstd or lz4.", ParameterType.PARAMETER_STRING)),
-    "discovery_period": (0.2, _descriptor(
-        "Period (s) of the search for publishers of topics not yet subscribed.",
-        ParameterType.PARAMETER_DOUBLE,
-        floating_point_range=[FloatingPointRange(from_value=0.01, to_value=10.0)])),
-    "chunk_size": (mcap_io.DEFAULT_CHUNK_SIZE, _descriptor(
-        "MCAP chunk size (bytes, uncompressed).", ParameterType.PARAMETER_INTEGER,
-        integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024)])),
-    "flush_period": (mcap_io.DEFAULT_FLUSH_PERIOD, _descriptor(
-        "Longest time (s) a received message is held in memory before it is written.",
-        ParameterType.PARAMETER_DOUBLE,
-        floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)])),
-    "queue_depth": (1000, _descriptor(
-        "Subscription history depth (messages).", ParameterType.PARAMETER_INTEGER,
-        integer_range=[IntegerRange(from_value=1, to_value=100000)])),
-}
+PARAMETERS: tuple[ParameterSpec, ...] = (
+    ParameterSpec("topics", list(DEFAULT_TOPICS), "Topics to record (absolute names).",
+                  read_only=True),
+    ParameterSpec("output", "", "Output .mcap file; empty: runs/<YYYYmmdd-HHMMSS>.mcap. "
+                  "Never overwritten.", read_only=True),
+    ParameterSpec("compression", "none", "Chunk compression: none, zstd or lz4.",
+                  read_only=True),
+    ParameterSpec("discovery_period", 0.2, "Period (s) of the search for publishers of "
+                  "topics not yet subscribed.", 0.01, 10.0, read_only=True),
+    ParameterSpec("chunk_size", mcap_io.DEFAULT_CHUNK_SIZE, "MCAP chunk size (bytes, "
+                  "uncompressed).", 1024, 64 * 1024 * 1024, read_only=True),
+    ParameterSpec("flush_period", mcap_io.DEFAULT_FLUSH_PERIOD, "Longest time (s) a received "
+                  "message is held in memory before it is written (what a killed recorder "
+                  "loses).", 0.01, 60.0, read_only=True),
+    ParameterSpec("queue_depth", 1000, "Subscription history depth (messages).", 1, 100000,
+                  read_only=True),
+)
 
 
 def read_config(node):
@@ -125,9 +113,7 @@ def read_config(node):
     ValueError
         For a compression name outside none/zstd/lz4 or a relative topic name.
     """
-    values = {}
-    for name, (default, descriptor) in PARAMETERS.items():
-        values[name] = node.declare_parameter(name, default, descriptor).value
+    values = declare_all(node, PARAMETERS)
     if values["compression"] not in mcap_io.COMPRESSIONS:
         raise ValueError(f"parameter `compression` must be one of "
                          f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
@@ -179,7 +165,8 @@ class Recorder(Node):
         self.get_logger().info(f"recording {len(self.config.topics)} topics to "
                                f"{self.writer.path}")
         self.create_timer(self.config.discovery_period, self.discover)
-        self.create_timer(min(self.config.flush_period, 0.5), self.writer.flush_if_due)
+        # Checked twice per period: a message waits at most about one period.
+        self.create_timer(self.config.flush_period / 2, self.writer.flush_if_due)
         self.discover()
 
     @property
@@ -243,8 +230,7 @@ def spin_until_stopped(executor, stop, drain_time=DRAIN_TIME):
 
 def build_parser() -> argparse.ArgumentParser:
     """Command line of ``ros2 run tocontrol_ros recorder``: only ``--help`` (ROS parameters)."""
-    parameters = "\n".join(f"  {name}: {desc.description}"
-                           for name, (_, desc) in PARAMETERS.items())
+    parameters = parameters_help(PARAMETERS)
     return argparse.ArgumentParser(
         prog="recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Record topics to a rosbag2-compatible MCAP file until SIGINT or "
@@ -287,9 +273,18 @@ def main(args=None):
     except (ValueError, mcap_io.McapIOError) as err:
         print(f"recorder: {err}", file=sys.stderr)
         status = 2
+    except OSError as err:
+        # e.g. an unwritable output: one line, not a traceback.
+        print(f"recorder: cannot write the recording: {err.strerror or err}: "
+              f"{err.filename or ''}".rstrip(": "), file=sys.stderr)
+        status = 2
     finally:
         if node is not None:
-            node.close()
+            try:
+                node.close()
+            except OSError as err:
+                print(f"recorder: cannot finish the recording: {err}", file=sys.stderr)
+                status = 2
             node.destroy_node()
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -36,31 +36,31 @@ every ``1 / publish_rate`` seconds of simulated time.
 from __future__ import annotations
 
 import argparse
+import collections
 import math
 import sys
+import threading
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
+from tocontrol_ros import conversions as conv
 from tocontrol_ros import qos
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.model import RobotModel, default_urdf_path, load_robot
+from tocontrol_ros.core.model import RobotModel
 from tocontrol_ros.core.tracking import (
     NominalTrajectory,
     PlantConfig,
@@ -69,9 +69,18 @@ from tocontrol_ros.core.tracking import (
     TrackingSummary,
 )
 from tocontrol_ros.node_main import run_node
+from tocontrol_ros.params import (
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    ParameterSpec,
+    declare_all,
+    load_model,
+    parameters_help,
+)
 
 __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
-           "nominal_from_msg", "reset_state_from_msg", "summary_status", "build_parser", "main"]
+           "nominal_from_msg", "check_limits", "reset_state_from_msg", "summary_status",
+           "build_parser", "main"]
 
 #: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
 #: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
@@ -93,71 +102,69 @@ class TrajectoryRejectedError(ProblemError):
     """A trajectory message the tracker cannot execute; the message says why."""
 
 
+class _Reset(NamedTuple):
+    """A parsed ``~/reset`` request, queued behind the trajectories received before it."""
+
+    q: np.ndarray | None
+    qd: np.ndarray | None
+    stamp: str
+    error: str | None
+
+
 # -------------------------------------------------------------------- parameters
-@dataclass(frozen=True)
-class _Spec:
-    name: str
-    default: Any
-    description: str
-    low: float | None = None
-    high: float | None = None
+def _spec(name, default, description, low=None, high=None) -> ParameterSpec:
+    return ParameterSpec(name, default, description, low, high, read_only=True)
 
 
 #: Every parameter: name, default (fixing the type; ``None`` = an optional double array),
 #: description with units, inclusive range. All are read-only: the model, the plant and
 #: the compiled control law are built at start-up.
-PARAMETERS: tuple[_Spec, ...] = (
-    _Spec("robot_description", "", "URDF XML of the robot; empty: read `urdf_path`"),
-    _Spec("urdf_path", "", "URDF file; empty (and no robot_description): the bundled arm of "
-          "the paper, config/galicki_3r.urdf"),
-    _Spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
-    _Spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
-    _Spec("kp", [100.0, 100.0, 30.0], "Proportional gains per joint (or one for all), "
+PARAMETERS: tuple[ParameterSpec, ...] = (
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    _spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
+    _spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
+    _spec("kp", [100.0, 100.0, 30.0], "Proportional gains per joint (or one for all), "
           "normalised: fraction of tau_max per rad (per m)"),
-    _Spec("kd", [10.0, 10.0, 3.0], "Derivative gains per joint (or one for all), "
+    _spec("kd", [10.0, 10.0, 3.0], "Derivative gains per joint (or one for all), "
           "normalised: fraction of tau_max per rad/s (per m/s)"),
-    _Spec("mass_scale", 1.0, "Plant: factor on every link mass", 0.01, 100.0),
-    _Spec("inertia_scale", 1.0, "Plant: factor on every link inertia about its centre of "
+    _spec("mass_scale", 1.0, "Plant: factor on every link mass", 0.01, 100.0),
+    _spec("inertia_scale", 1.0, "Plant: factor on every link inertia about its centre of "
           "mass", 0.01, 100.0),
-    _Spec("friction_scale", 1.0, "Plant: factor on the viscous friction of every joint",
+    _spec("friction_scale", 1.0, "Plant: factor on the viscous friction of every joint",
           0.0, 100.0),
-    _Spec("payload_mass", 0.0, "Plant: point mass at the tip frame origin (kg)", 0.0, 1000.0),
-    _Spec("torque_noise", 0.0, "Plant: torque noise standard deviation, fraction of tau_max, "
+    _spec("payload_mass", 0.0, "Plant: point mass at the tip frame origin (kg)", 0.0, 1000.0),
+    _spec("torque_noise", 0.0, "Plant: torque noise standard deviation, fraction of tau_max, "
           "drawn per joint and control period", 0.0, 1.0),
-    _Spec("noise_seed", 0, "Plant: seed of the torque noise", 0, 2**31 - 1),
-    _Spec("initial_offset", None, "Plant: offset of the initial state from "
+    _spec("noise_seed", 0, "Plant: seed of the torque noise", 0, 2**31 - 1),
+    _spec("initial_offset", None, "Plant: offset of the initial state from "
           "initial_positions: n positions (rad, m) or 2n (positions, velocities); unset: "
           "none"),
-    _Spec("initial_positions", None, "Initial configuration (rad, m), held until the first "
+    _spec("initial_positions", None, "Initial configuration (rad, m), held until the first "
           "trajectory; unset: the paper example's start on the bundled arm, else zero "
           "(clipped to the joint limits)"),
-    _Spec("sim_rate", 2000.0, "Plant integration rate (Hz, fixed-step RK4); an integer "
+    _spec("sim_rate", 2000.0, "Plant integration rate (Hz, fixed-step RK4); an integer "
           "multiple of control_rate", 1.0, 1.0e6),
-    _Spec("control_rate", 1000.0, "Control-law rate (Hz); the control is held over each "
+    _spec("control_rate", 1000.0, "Control-law rate (Hz); the control is held over each "
           "period", 1.0, 1.0e5),
-    _Spec("publish_rate", 100.0, "Rate of joint_states and ~/tracking_error (Hz of "
+    _spec("publish_rate", 100.0, "Rate of joint_states and ~/tracking_error (Hz of "
           "simulated time)", 0.1, 1.0e4),
-    _Spec("update_rate", 100.0, "Rate of the simulation timer (Hz of wall time)", 1.0,
+    _spec("update_rate", 100.0, "Rate of the simulation timer (Hz of wall time)", 1.0,
           1000.0),
-    _Spec("time_scale", 1.0, "Simulated seconds per wall second (1: real time; larger: "
+    _spec("time_scale", 1.0, "Simulated seconds per wall second (1: real time; larger: "
           "faster than real time, for tests and batch runs)", 0.001, 1000.0),
-    _Spec("publish_clock", False, "Publish the simulated time on /clock (stamps then count "
+    _spec("publish_clock", False, "Publish the simulated time on /clock (stamps then count "
           "from zero)"),
-    _Spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
+    _spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
           "trajectory_msgs/JointTrajectory"),
+    _spec("start_tolerance", 0.1, "Largest distance (rad, m; any joint) between a "
+          "trajectory's first point and the arm's position, now or as published in the last "
+          "2 s of wall time (a plan made from the state of a moving arm); farther: rejected",
+          0.0, 1.0e3),
+    _spec("max_points", 20000, "Largest number of points of a trajectory; more: rejected "
+          "before it is parsed", 1, 10_000_000),
+    _spec("max_duration", 600.0, "Longest trajectory (s); longer: rejected", 0.001, 1.0e6),
 )
-
-
-def _descriptor(spec: _Spec) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=spec.description, read_only=True)
-    if spec.low is not None:
-        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
-            d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high),
-                                            step=0)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
-                                                         to_value=float(spec.high), step=0.0)]
-    return d
 
 
 @dataclass(frozen=True)
@@ -165,7 +172,7 @@ class TrackerConfig:
     """The node's parameters, checked and converted (see :data:`PARAMETERS`)."""
 
     robot_description: str
-    urdf_path: str
+    robot_description_file: str
     base_link: str
     tip_link: str
     gains: TrackingGains
@@ -176,6 +183,9 @@ class TrackerConfig:
     time_scale: float
     publish_clock: bool
     trajectory_topic: str
+    start_tolerance: float
+    max_points: int
+    max_duration: float
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any]) -> TrackerConfig:
@@ -193,23 +203,22 @@ class TrackerConfig:
             initial_offset=tuple(values["initial_offset"] or ()),
             sim_rate=values["sim_rate"], control_rate=values["control_rate"])
         return cls(
-            robot_description=values["robot_description"], urdf_path=values["urdf_path"],
+            robot_description=values["robot_description"],
+            robot_description_file=values["robot_description_file"],
             base_link=values["base_link"], tip_link=values["tip_link"],
             gains=TrackingGains(kp=tuple(values["kp"]), kd=tuple(values["kd"])),
             plant=plant, initial_positions=tuple(values["initial_positions"] or ()),
             publish_rate=float(values["publish_rate"]),
             update_rate=float(values["update_rate"]), time_scale=float(values["time_scale"]),
             publish_clock=bool(values["publish_clock"]),
-            trajectory_topic=values["trajectory_topic"])
+            trajectory_topic=values["trajectory_topic"],
+            start_tolerance=float(values["start_tolerance"]),
+            max_points=int(values["max_points"]), max_duration=float(values["max_duration"]))
 
     def load_model(self) -> tuple[RobotModel, bool]:
         """The robot model, and whether it is the bundled arm."""
-        kwargs = {"base_link": self.base_link or None, "tip_link": self.tip_link or None}
-        if self.robot_description.strip():
-            return load_robot(self.robot_description, **kwargs), False
-        if self.urdf_path:
-            return load_robot(self.urdf_path, **kwargs), False
-        return load_robot(default_urdf_path(), **kwargs), True
+        return load_model(self.robot_description, self.robot_description_file,
+                          base_link=self.base_link or None, tip_link=self.tip_link or None)
 
     def start_configuration(self, model: RobotModel, bundled: bool) -> np.ndarray:
         """``initial_positions``, or the default described in :data:`PARAMETERS`."""
@@ -225,10 +234,6 @@ class TrackerConfig:
 
 
 # ------------------------------------------------------------------- conversions
-def _seconds(duration) -> float:
-    return duration.sec + duration.nanosec * 1e-9
-
-
 def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> NominalTrajectory:
     """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
 
@@ -252,19 +257,18 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> Nomina
     if not msg.points:
         raise TrajectoryRejectedError("the trajectory has no points")
     order = [names.index(j) for j in want]
-    n, k = len(want), len(msg.points)
-    arrays = {f: np.empty((k, n)) for f in ("positions", "velocities", "accelerations",
-                                            "effort")}
-    t = np.empty(k)
-    for i, p in enumerate(msg.points):
-        for field, arr in arrays.items():
-            values = getattr(p, field)
-            if len(values) != n:
-                raise TrajectoryRejectedError(
-                    f"point {i}: {field} has {len(values)} values for {n} joints (the tracker "
-                    f"needs positions, velocities, accelerations and effort)")
-            arr[i] = np.asarray(values, dtype=float)[order]
-        t[i] = _seconds(p.time_from_start)
+    n, points = len(want), msg.points
+    arrays = {}
+    for field in ("positions", "velocities", "accelerations", "effort"):
+        rows = [getattr(p, field) for p in points]
+        short = [i for i, row in enumerate(rows) if len(row) != n]
+        if short:
+            i = short[0]
+            raise TrajectoryRejectedError(
+                f"point {i}: {field} has {len(rows[i])} values for {n} joints (the tracker "
+                f"needs positions, velocities, accelerations and effort)")
+        arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
+    t = np.array([conv.seconds(p.time_from_start) for p in points])
     try:
         return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
                                  arrays["accelerations"], arrays["effort"],
@@ -274,6 +278,43 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> Nomina
             "`q`", "positions").replace("`qd`", "velocities").replace(
             "`qdd`", "accelerations").replace("`effort`", "effort")
         raise TrajectoryRejectedError(text) from exc
+
+
+#: A trajectory may start from any position the arm had (as published on joint_states) in
+#: this many wall-clock seconds: a plan made from a state of a moving arm arrives after the
+#: arm has moved on (the planner uses joint states up to joint_state_timeout = 1 s old).
+START_HISTORY = 2.0
+#: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
+EFFORT_MARGIN = 1e-6
+
+
+def check_limits(nominal: NominalTrajectory, tau_max, max_duration: float) -> None:
+    """Reject a trajectory whose effort exceeds the torque limits or that lasts too long.
+
+    Parameters
+    ----------
+    nominal : NominalTrajectory
+    tau_max : array_like, shape (n,)
+        Torque limits (N m, N).
+    max_duration : float
+        Longest duration (s).
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Naming the first point and joint over its limit, or the duration.
+    """
+    if nominal.duration > max_duration:
+        raise TrajectoryRejectedError(f"it lasts {nominal.duration:.6g} s, more than "
+                                      f"max_duration = {max_duration:g} s")
+    limit = np.asarray(tau_max, dtype=float) * (1.0 + EFFORT_MARGIN)
+    over = np.abs(nominal.effort) > limit
+    if np.any(over):
+        i, j = (int(v) for v in np.argwhere(over)[0])
+        name = nominal.joint_names[j] if nominal.joint_names else f"joint {j}"
+        raise TrajectoryRejectedError(
+            f"point {i}: effort {nominal.effort[i, j]:.6g} of {name} exceeds its torque "
+            f"limit {float(np.asarray(tau_max)[j]):.6g}")
 
 
 def reset_state_from_msg(msg: JointState,
@@ -320,11 +361,6 @@ def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
                             hardware_id=hardware_id, values=values)
 
 
-def _stamp(seconds: float) -> Time:
-    ns = int(round(seconds * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
 # -------------------------------------------------------------------------- node
 class TrackerNode(Node):
     """Simulated arm under the tracking law; see the module docstring for its interfaces.
@@ -337,19 +373,7 @@ class TrackerNode(Node):
 
     def __init__(self, node_name: str = "tracker", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        values = {}
-        for spec in PARAMETERS:
-            if spec.default is None:
-                self.declare_parameter(spec.name, Parameter.Type.DOUBLE_ARRAY,
-                                       _descriptor(spec))
-                try:
-                    values[spec.name] = list(self.get_parameter(spec.name).value)
-                except ParameterUninitializedException:
-                    values[spec.name] = None
-            else:
-                values[spec.name] = self.declare_parameter(
-                    spec.name, spec.default, _descriptor(spec)).value
-        self.config = TrackerConfig.from_values(values)
+        self.config = TrackerConfig.from_values(declare_all(self, PARAMETERS))
         self.model, bundled = self.config.load_model()
         self.joint_names = list(self.model.joint_names)
         q0 = self.config.start_configuration(self.model, bundled)
@@ -376,6 +400,11 @@ class TrackerNode(Node):
         self._wall_start = time.monotonic()
         self._sim_offset = 0.0  # simulated time dropped when the simulation fell behind
         self.trajectories_received = 0
+        self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
+        self._parsed_lock = threading.Lock()
+        # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
+        self._parsed: list = []
+        self._history: collections.deque = collections.deque()  # (wall time, q) published
         if not self._sim_time:
             self._publish_state(self._initial_row())
         # Wall time even with use_sim_time: the tick reads the ROS clock (a sim-time timer
@@ -411,52 +440,120 @@ class TrackerNode(Node):
 
     # -------------------------------------------------------------- callbacks
     def _on_trajectory(self, msg: JointTrajectory) -> None:
+        # Only a size check here; parsing runs off the executor, so that a large trajectory
+        # never holds up the control loop (the timer picks the result up).
         self.trajectories_received += 1
+        if len(msg.points) > self.config.max_points:
+            self._reject(f"{len(msg.points)} points, more than max_points = "
+                         f"{self.config.max_points}")
+            return
+        try:
+            self._parser.submit(self._parse, msg)
+        except RuntimeError:  # the node is shutting down
+            return
+
+    def _parse(self, msg: JointTrajectory) -> None:
         try:
             nominal = nominal_from_msg(msg, self.joint_names)
+            check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
+            item = nominal
         except TrajectoryRejectedError as exc:
-            running = "continuing the current trajectory" if self.tracker.running \
-                else "holding"
-            self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {exc}; {running}")
-            self.get_logger().warning(f"trajectory rejected: {exc}")
-            return
-        if self._sim_time:
-            self._follow_clock()  # a trajectory right after the first /clock: stamp with it
-        offset = float(np.max(np.abs(nominal.q[0] - self.tracker.q)))
-        # The state it starts from, for re-execution (the status is latched: a recorder
-        # that subscribes late still gets it).
-        state = {f"start_{field}.{name}": f"{value:.17g}"
-                 for field, values in (("position", self.tracker.q),
-                                       ("velocity", self.tracker.qd))
-                 for name, value in zip(self.joint_names, values, strict=True)}
-        preempted = self.tracker.start(nominal)
-        if preempted is not None:
-            self._pub_status.publish(self._summary_status(preempted))
-        self._status(DiagnosticStatus.OK,
-                     f"executing trajectory: {len(nominal)} points, T = "
-                     f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
-                     f"position",
-                     {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
-                      "start_offset": f"{offset:.9g}",
-                      "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
+            item = exc
+        except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)
+            item = TrajectoryRejectedError(f"cannot be parsed: {exc!r}")
+        with self._parsed_lock:
+            self._parsed.append(item)
+
+    def _reject(self, reason: str) -> None:
+        running = "continuing the current trajectory" if self.tracker.running else "holding"
+        self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
+        self.get_logger().warning(f"trajectory rejected: {reason}")
+
+    def _start_parsed(self) -> None:
+        """Start (or reject) the trajectories parsed since the last tick, in arrival order."""
+        with self._parsed_lock:
+            items, self._parsed = self._parsed, []
+        for item in items:
+            if isinstance(item, TrajectoryRejectedError):
+                self._reject(str(item))
+                continue
+            if isinstance(item, _Reset):
+                self._apply_reset(item)
+                continue
+            nominal = item
+            if self._sim_time:
+                self._follow_clock()  # a trajectory right after the first /clock: stamp with it
+            gaps = np.abs(nominal.q[0] - self.tracker.q)
+            offset = float(np.max(gaps))
+            # Planned from a state the arm had: a plan from the published joint states of the
+            # last START_HISTORY seconds is accepted although the arm has moved on since.
+            recent = np.array([q for _, q in self._history]) if self._history else \
+                self.tracker.q[None, :]
+            nearest = float(np.min(np.max(np.abs(recent - nominal.q[0]), axis=1)))
+            if min(offset, nearest) > self.config.start_tolerance:
+                j = int(np.argmax(gaps))
+                self._reject(f"its first point is {offset:.3g} rad from the current position "
+                             f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
+                             f"position of the last {START_HISTORY:g} s, more than "
+                             f"start_tolerance = {self.config.start_tolerance:g}")
+                continue
+            # The state it starts from, for re-execution (the status is latched: a recorder
+            # that subscribes late still gets it).
+            state = {f"start_{field}.{name}": f"{value:.17g}"
+                     for field, values in (("position", self.tracker.q),
+                                           ("velocity", self.tracker.qd))
+                     for name, value in zip(self.joint_names, values, strict=True)}
+            preempted = self.tracker.start(nominal)
+            if preempted is not None:
+                self._pub_status.publish(self._summary_status(preempted))
+            self._status(DiagnosticStatus.OK,
+                         f"executing trajectory: {len(nominal)} points, T = "
+                         f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
+                         f"position",
+                         {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
+                          "start_offset": f"{offset:.9g}",
+                          "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
 
     def _on_reset(self, msg: JointState) -> None:
+        # Through the parsing thread's queue: a reset takes effect after the trajectories
+        # received before it, never before (the timer applies both in arrival order).
+        try:
+            self._parser.submit(self._parse_reset, msg)
+        except RuntimeError:  # the node is shutting down
+            return
+
+    def _parse_reset(self, msg: JointState) -> None:
+        stamp = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
         try:
             q, qd = reset_state_from_msg(msg, self.joint_names)
+            item = _Reset(q, qd, stamp, None)
         except TrajectoryRejectedError as exc:
-            self._status(DiagnosticStatus.ERROR, f"reset rejected: {exc}",
+            item = _Reset(None, None, stamp, str(exc))
+        with self._parsed_lock:
+            self._parsed.append(item)
+
+    def _apply_reset(self, item: _Reset) -> None:
+        if item.error is not None:
+            self._status(DiagnosticStatus.ERROR, f"reset rejected: {item.error}",
                          {"event": "reset_rejected"})
-            self.get_logger().warning(f"reset rejected: {exc}")
+            self.get_logger().warning(f"reset rejected: {item.error}")
             return
+        q, qd = item.q, item.qd
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
         self._status(DiagnosticStatus.OK,
                      f"reset to positions {np.round(q, 6).tolist()}, velocities "
                      f"{np.round(qd, 6).tolist()}; holding",
-                     {"event": "reset", "request_stamp": f"{msg.header.stamp.sec}."
-                      f"{msg.header.stamp.nanosec:09d}"})
+                     {"event": "reset", "request_stamp": item.stamp})
+        # The arm was put elsewhere: the positions it had before are no start for a plan.
+        self._history.clear()
         self._publish_state(self._initial_row())
+
+    def destroy_node(self) -> None:
+        """Stop the parsing thread, then destroy the node."""
+        self._parser.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
 
     def _summary_status(self, summary: TrackingSummary) -> DiagnosticStatus:
         return summary_status(summary, self.get_fully_qualified_name(), self.model.name,
@@ -485,6 +582,7 @@ class TrackerNode(Node):
         return now
 
     def _on_timer(self) -> None:
+        self._start_parsed()
         target = self._target_time()
         if target is None:
             return
@@ -516,10 +614,14 @@ class TrackerNode(Node):
         for summary in report.summaries:
             self._pub_status.publish(self._summary_status(summary))
         if self._pub_clock is not None:
-            self._pub_clock.publish(Clock(clock=_stamp(self._epoch + tracker.t)))
+            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
 
     def _publish_state(self, row: Mapping[str, Any]) -> None:
-        header = Header(stamp=_stamp(self._epoch + float(row["t"])), frame_id="")
+        now = time.monotonic()
+        self._history.append((now, np.array(row["q"], dtype=float)))
+        while self._history and self._history[0][0] < now - START_HISTORY:
+            self._history.popleft()
+        header = Header(stamp=conv.time_from_seconds(self._epoch + float(row["t"])), frame_id="")
         self._pub_joints.publish(JointState(
             header=header, name=self.joint_names, position=np.asarray(row["q"]).tolist(),
             velocity=np.asarray(row["qd"]).tolist(), effort=np.asarray(row["tau"]).tolist()))
@@ -532,7 +634,7 @@ class TrackerNode(Node):
 
 def build_parser() -> argparse.ArgumentParser:
     """Command line of ``ros2 run tocontrol_ros tracker``: only ``--help`` (ROS parameters)."""
-    parameters = "\n".join(f"  {spec.name}: {spec.description}" for spec in PARAMETERS)
+    parameters = parameters_help(PARAMETERS)
     return argparse.ArgumentParser(
         prog="tracker", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Execute planned trajectories on a simulated arm: nominal torques plus "

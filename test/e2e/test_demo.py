@@ -23,6 +23,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 from tocontrol_ros import mcap_io, qos
+from tocontrol_ros.replay import recorded_initial_state
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
@@ -193,7 +194,8 @@ def test_reexecution_reproduces_the_demo(demo, tmp_path, sim_time):
 
 def test_readme_replay_command_reaches_a_running_tracker(demo, tmp_path):
     """The README's command, `replay FILE --topics /planner/trajectory` with the default
-    options, against a running tracker: both plans are delivered and executed, no warning.
+    options, against a running tracker standing at the recorded start: both plans are
+    delivered and executed, no warning.
 
     Not a regression test of the issue's first try: the plans' recorded QoS is transient
     local, so on this machine's quick discovery the previous replay got through too. That
@@ -203,7 +205,11 @@ def test_readme_replay_command_reaches_a_running_tracker(demo, tmp_path):
     demo_dir, returncode, out = demo
     assert returncode == 0, out[-3000:]
     recording = next(demo_dir.glob("demo-*.mcap"))
-    tracker = _Process("tracker", ["--ros-args", "-r", "__node:=tracker"], tmp_path)
+    # Standing where the recorded run started: a tracker elsewhere rejects the plans (their
+    # first point is beyond its start_tolerance), which --reexecute is for.
+    start = list(recorded_initial_state(recording).msg.position)
+    tracker = _Process("tracker", ["--ros-args", "-r", "__node:=tracker",
+                                   "-p", f"initial_positions:={start}"], tmp_path)
     context = rclpy.Context()
     rclpy.init(context=context)
     try:

@@ -263,3 +263,113 @@ def test_bad_robot_exits_with_reason(tmp_path):
         proc.stop(signal.SIGKILL)
     assert code == 1
     assert "tip link 'nowhere' is not a link" in proc.log()
+
+
+def test_double_sigint_to_the_process_group_exits_cleanly(tmp_path):
+    # Issue 14: Ctrl-C under `ros2 launch` (SIGINT to the whole group, then launch's own
+    # SIGINT to each node) left KeyboardInterrupt tracebacks and exit code -2.
+    ns = f"/sigint_{os.getpid()}"
+    planner_cmd, planner_env = planner_command()
+    tracker_cmd = [str(Path(sys.prefix) / "lib" / "tocontrol_ros" / "tracker")]
+    if not Path(tracker_cmd[0]).is_file():
+        tracker_cmd = [sys.executable, "-m", "tocontrol_ros.tracker"]
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", **planner_env)
+    logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
+    args = ["--ros-args", "-r", f"__ns:={ns}"]
+    first = subprocess.Popen(planner_cmd + args, env=env, stdout=logs[0],
+                             stderr=subprocess.STDOUT, process_group=0)
+    second = subprocess.Popen(
+        tracker_cmd + args + ["-p", f"trajectory_topic:={ns}/planner/trajectory"], env=env,
+        stdout=logs[1], stderr=subprocess.STDOUT, process_group=first.pid)
+    procs = (first, second)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(120.0)
+        client.call_plan(PAPER_START, PAPER_TARGET)  # after the warm-up's builds
+        # A request in flight when the signals come.
+        client.plan_client.call_async(GetPlanRequest(PAPER_START, PAPER_TARGET))
+        time.sleep(0.2)
+        os.killpg(first.pid, signal.SIGINT)
+        time.sleep(0.05)
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        codes = [proc.wait(30.0) for proc in procs]
+    finally:
+        client.close()
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    texts = []
+    for log in logs:
+        log.seek(0)
+        texts.append(log.read())
+        log.close()
+    assert codes == [0, 0], texts
+    for text in texts:
+        assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+
+
+def GetPlanRequest(start, goal):  # noqa: N802  (reads like the message constructor)
+    from nav_msgs.srv import GetPlan
+
+    req = GetPlan.Request()
+    req.start.header.frame_id = req.goal.header.frame_id = "base_link"
+    req.start.pose.position.x, req.start.pose.position.y = start
+    req.goal.pose.position.x, req.goal.pose.position.y = goal
+    return req
+
+
+def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
+    # Issue 14, defect 1 as a user saw it: with the tracker running, goals sent while the arm
+    # moved were each superseded mid-solve (1 of 13 solved in 14 s).
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    ns = f"/moving_{os.getpid()}"
+    planner_cmd, planner_env = planner_command()
+    tracker_cmd = [str(Path(sys.prefix) / "lib" / "tocontrol_ros" / "tracker")]
+    if not Path(tracker_cmd[0]).is_file():
+        tracker_cmd = [sys.executable, "-m", "tocontrol_ros.tracker"]
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", **planner_env)
+    args = ["--ros-args", "-r", f"__ns:={ns}"]
+    logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
+    procs = [subprocess.Popen(planner_cmd + args, env=env, stdout=logs[0],
+                              stderr=subprocess.STDOUT),
+             subprocess.Popen(tracker_cmd + args + [
+                 "-p", f"trajectory_topic:={ns}/planner/trajectory"], env=env, stdout=logs[1],
+                 stderr=subprocess.STDOUT)]
+    client = PlannerClient(f"{ns}/planner")
+    tracker_status = []
+    client.node.create_subscription(
+        DiagnosticStatus, f"{ns}/tracker/status", lambda m: tracker_status.append(m.message),
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    goals = [(2.2, 1.5), (1.0, 1.0)] * 3
+    try:
+        client.wait_ready(120.0)
+        client.call_plan(PAPER_START, PAPER_TARGET)  # after the warm-up's builds
+        client.wait_subscribed(client.goal_pub)
+        since = len(client.status_list())
+        for goal in goals:  # every 0.4 s: each arrives while the previous motion runs
+            client.send_goal(goal)
+            time.sleep(0.4)
+        last = client.final_status(since, 60.0, match=lambda s: s.request_id is not None
+                                   and s.request_id >= max(
+                                       (t.request_id or 0) for t in client.status_list()[since:]
+                                       if t.event == "accepted"))
+        time.sleep(1.0)
+    finally:
+        client.close()
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        codes = [proc.wait(30.0) for proc in procs]
+        for log in logs:
+            log.close()
+    events = storm_events(client, since)
+    print(f"planner events {events}; tracker: {tracker_status[-3:]}")
+    assert last.event == "solved", last.message
+    assert events.get("solved", 0) >= len(goals) - 1, events
+    assert not [m for m in tracker_status if "rejected" in m], tracker_status
+    assert sum("executing" in m for m in tracker_status) >= events["solved"]
+    assert codes == [0, 0]

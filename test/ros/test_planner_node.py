@@ -27,6 +27,8 @@ from rclpy.parameter import Parameter
 
 from tocontrol_ros.conversions import seconds
 from tocontrol_ros.core.errors import ModelError
+from tocontrol_ros.core.problem import MIN_MOVE
+from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
 
 pytestmark = pytest.mark.ros
@@ -85,7 +87,10 @@ def test_service_round_trip_paper_example(planner, client):
     first = path.poses[0].pose.position
     assert close((first.x, first.y, first.z), PAPER_START + (0.0,), 1e-6)
     T = float(status.values["T"])
-    stamps = [seconds(p.header.stamp) for p in path.poses]
+    # From the first stamp, in integer ns: seconds since the epoch as a double are only
+    # good to about 2e-7 s.
+    sec0 = path.poses[0].header.stamp.sec
+    stamps = [(p.header.stamp.sec - sec0) + 1e-9 * p.header.stamp.nanosec for p in path.poses]
     assert np.all(np.diff(stamps) > 0)
     assert stamps[-1] - stamps[0] == pytest.approx(T, abs=1e-8)
     # The paper's T at k = 4 is about half a second (0.54 from a single start).
@@ -196,6 +201,100 @@ def test_bad_service_input(client, case, start, goal, start_frame, goal_frame, f
     assert fragment in status.message, status.message
 
 
+
+
+class JointStateStream:
+    """Publishes one joint state at ``rate`` Hz from a thread while in a ``with`` block."""
+
+    def __init__(self, client, q, qd, rate=50.0):
+        self.client, self.q, self.qd, self.period = client, q, qd, 1.0 / rate
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.client.send_joint_state(JOINTS, self.q, self.qd)
+            time.sleep(self.period)
+
+    def __enter__(self):
+        self.client.wait_subscribed(self.client.joint_pub)
+        self._thread.start()
+        time.sleep(0.3)
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(2.0)
+
+
+def test_goal_at_the_arms_own_position_is_nothing_to_plan(planner, client):
+    # Issue 14, defect 2: a held arm reports tiny non-zero velocities; that once ended in
+    # "internal error: AttributeError('NoneType' object has no attribute 'sample')".
+    model = planner.node.model
+    q = np.array([-0.5487769600, 2.2111963800, 1.1613502200])
+    with JointStateStream(client, q, [5e-10, -5e-10, 5e-10]):
+        for _ in range(2):  # the same goal twice, as in the report
+            since = len(client.status_list())
+            client.send_goal(tuple(model.point(q)))
+            status = client.final_status(since, 30.0)
+            assert status.level == 0 and status.event == "solved", status.message
+            assert "nothing to plan" in status.message
+            assert float(status.values["T"]) == 0.0
+
+
+@pytest.mark.parametrize("distance", [1e-6, 1e-5, 1e-4, 5e-4, 2e-3, 3e-3])
+def test_small_moves_solve_or_are_nothing_to_plan(client, distance):
+    # Issue 14, defect 4: 1e-6 to 1e-4 m once failed with "Newton's method did not
+    # converge"; below MIN_MOVE they are nothing to plan, above they solve.
+    goal = (PAPER_START[0] + distance, PAPER_START[1])
+    path, status, _ = client.call_plan(PAPER_START, goal, timeout=60.0)
+    assert status.level == 0 and status.event == "solved", status.message
+    if distance < MIN_MOVE:
+        assert "nothing to plan" in status.message and len(path.poses) == 1
+    else:
+        assert float(status.values["T"]) > 0.0 and len(path.poses) > 1
+        assert close(path_end(path), goal + (0.0,), 1e-6)
+
+
+def test_same_point_is_nothing_to_plan(client):
+    path, status, _ = client.call_plan(PAPER_START, PAPER_START)
+    assert status.level == 0 and status.event == "solved", status.message
+    assert "nothing to plan" in status.message
+    assert len(path.poses) == 1 and close(path_end(path), PAPER_START + (0.0,), 1e-12)
+
+
+def test_a_burst_of_calls_gets_one_response_each(planner, client):
+    # Issue 14, defect 3: of 50 concurrent calls only 10 were answered. The client's own
+    # response queue must hold the burst too.
+    from nav_msgs.srv import GetPlan
+    from rclpy.qos import QoSProfile
+
+    calls = 50
+    plan = client.node.create_client(GetPlan, f"{PLANNER}/plan",
+                                     qos_profile=QoSProfile(depth=calls))
+    try:
+        assert plan.wait_for_service(timeout_sec=10.0)
+        since = len(client.status_list())
+        futures = []
+        for i in range(calls):
+            req = GetPlan.Request()
+            req.start.header.frame_id = req.goal.header.frame_id = "base_link"
+            req.start.pose.position.x, req.start.pose.position.y = PAPER_START
+            req.goal.pose.position.x = PAPER_TARGET[0] - 0.001 * i
+            req.goal.pose.position.y = PAPER_TARGET[1]
+            futures.append(plan.call_async(req))
+        client.wait_for(lambda: all(f.done() for f in futures), 120.0,
+                        f"{calls} responses (got {sum(f.done() for f in futures)})")
+        finals = client.wait_for(
+            lambda: (lambda f: f if len(f) >= calls else None)(
+                [s for s in client.status_list()[since:] if s.event in FINAL_EVENTS]),
+            30.0, "a final status per call")
+        assert len({s.request_id for s in finals}) == calls
+        solved = [f for f in futures if f.result().plan.poses]
+        assert solved, "the last call at least is solved"
+        assert {s.event for s in finals} <= {"solved", "superseded"}
+    finally:
+        client.node.destroy_client(plan)
 
 
 @pytest.mark.parametrize("case, goal, frame, fragment", GOAL_BAD, ids=[c[0] for c in GOAL_BAD])
@@ -324,7 +423,14 @@ def test_bad_robot_is_refused_at_start():
                         parameter_overrides=[Parameter("tip_link", value="nowhere")])
         with pytest.raises(ModelError):
             PlannerNode(context=context, namespace=f"{NAMESPACE}_bad2",
-                        parameter_overrides=[Parameter("robot", value="<robot name='x'/>")])
+                        parameter_overrides=[Parameter("robot_description",
+                                                       value="<robot name='x'/>")])
+        # Issue 14: a long non-XML string gave an uncaught OSError echoing all of it.
+        with pytest.raises(RobotDescriptionError, match=r"must be URDF XML") as info:
+            PlannerNode(context=context, namespace=f"{NAMESPACE}_bad3",
+                        parameter_overrides=[Parameter("robot_description",
+                                                       value="arm " * 20000)])
+        assert len(str(info.value)) < 300
     finally:
         rclpy.try_shutdown(context=context)
 
@@ -385,3 +491,84 @@ def test_shutdown_during_solve_is_prompt():
         assert not running.node._worker.is_alive()
     finally:
         client.close()
+
+
+def test_use_sim_time_can_be_set(client):
+    # Issue 14: `ros2 param set /planner use_sim_time true` was refused as unknown.
+    try:
+        results = client.set_parameters(use_sim_time=True)
+        assert results[0].successful, results[0].reason
+        assert client.get_parameters("use_sim_time") == [True]
+    finally:
+        client.set_parameters(use_sim_time=False)
+
+
+def test_warm_up_builds_every_kind_even_when_a_request_comes_first():
+    # Issue 14: the first request from a joint state waited seconds for its direct
+    # transcription (a request during the warm-up stopped it before that kind was built).
+    ns = f"{NAMESPACE}_warm"
+    running = Running(namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert not running.node.ready.is_set(), "warm-up finished before the request"
+        client.call_plan(PAPER_START, PAPER_TARGET, timeout=120.0)
+        assert running.node.ready.wait(120.0)
+        kinds = {(key[1], key[2]) for key in running.node.planner._direct}
+        assert {("point", "point"), ("state", "point")} <= kinds, kinds
+    finally:
+        client.close()
+        running.stop()
+
+
+def test_joint_states_do_not_wake_the_executor(planner, client):
+    # Issue 14, defect 1: every joint state cost an executor iteration (96 % of a core at
+    # 500 Hz). Now the planner takes the newest one when a request needs it.
+    taken = []
+    original = planner.executor._take_subscription
+
+    def counting(sub):
+        if sub.topic_name.endswith("/joint_states"):
+            taken.append(sub.topic_name)
+        return original(sub)
+
+    planner.executor._take_subscription = counting
+    try:
+        q = np.array([-0.5487769600, 2.2111963800, 1.1613502200])
+        client.wait_subscribed(client.joint_pub)
+        for _ in range(200):
+            client.send_joint_state(JOINTS, q, [0.0, 0.0, 0.0])
+            time.sleep(0.002)
+        # ...and the newest one is still what a goal starts from.
+        since = len(client.status_list())
+        client.send_goal(PAPER_TARGET)
+        status = client.final_status(since, 60.0)
+        assert status.event == "solved", status.message
+        assert close(status.vector("start_q"), q, 1e-9), status.values
+    finally:
+        planner.executor._take_subscription = original
+    assert taken == [], f"{len(taken)} joint states went through the executor"
+
+
+def test_joint_state_helper_follows_the_planners_name_and_remapping():
+    # `ros2 launch` passes `-r __node:=planner` as a global argument: the hidden helper node
+    # that holds the joint-state subscription must not take that name too.
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["--ros-args", "-r", "__node:=renamed", "-r",
+                                      "joint_states:=/elsewhere/joint_states"])
+    node = None
+    try:
+        node = PlannerNode(context=context, namespace=f"{NAMESPACE}_remap")
+        names = node.get_node_names_and_namespaces()
+        deadline = time.monotonic() + 10.0
+        while ("_renamed_joint_states" not in [n for n, _ in names]
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+            names = node.get_node_names_and_namespaces()
+        ours = [n for n, ns in names if ns == f"{NAMESPACE}_remap"]
+        assert sorted(ours) == ["_renamed_joint_states", "renamed"], names
+        assert node._joint_states._sub.topic_name == "/elsewhere/joint_states"
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -28,11 +28,13 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.tracker import (
     PAPER_START_Q,
     QOS_STATUS,
     QOS_STREAM,
     QOS_TRAJECTORY,
+    START_HISTORY,
     TrackerNode,
 )
 
@@ -217,7 +219,7 @@ def test_bad_trajectories_are_rejected_and_the_arm_holds(harness, model, corrupt
     assert not harness.node.tracker.running
     np.testing.assert_allclose(harness.joint_states[-1].position, q0, atol=1e-9)
     # A good one afterwards still runs, in any joint order.
-    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, -0.1], 0.5,
+    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, -0.1], 1.0,
                                    names=["joint3", "joint1", "joint2"]))
     done = harness.status_with("trajectory completed")
     assert float(_values(done)["final_point_error"]) < 1e-3
@@ -273,7 +275,8 @@ def test_reset_puts_the_arm_at_a_state(harness, model):
                                            QOS_STREAM)
     harness.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
     q0 = np.array(PAPER_START_Q)
-    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 3.0))
+    # 10 s (0.5 s of wall time): still running when the reset is applied at the next tick.
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 10.0))
     harness.status_with("executing trajectory")
     q1 = q0 + [0.1, -0.05, 0.2]
     # Any joint order; velocities optional.
@@ -331,8 +334,9 @@ def test_use_sim_time_follows_the_clock(model):
         assert got[0] == pytest.approx(1000.0, abs=0.05)
         assert got[-1] == pytest.approx(1001.0, abs=0.03)
         assert np.median(np.diff(got)) == pytest.approx(0.02, abs=1e-6)
-        # A trajectory runs on the clock: not done until the clock has passed its end.
-        h.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.1, 0.0, -0.1], 0.5))
+        # A trajectory runs on the clock: not done until the clock has passed its end (a move
+        # within the torque limits: the tracker rejects one beyond them).
+        h.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.05, 0.0, -0.05], 0.5))
         h.status_with("executing trajectory")
         run_clock(1001.0, 0.3)
         assert h.node.tracker.running
@@ -346,6 +350,20 @@ def test_use_sim_time_follows_the_clock(model):
         h.stop()
 
 
+def test_after_a_reset_the_positions_before_it_are_no_start(harness):
+    # The start tolerance accepts positions of the last START_HISTORY seconds; a reset moves
+    # the arm elsewhere at once, so a plan from where it stood before is refused.
+    reset = harness.probe.create_publisher(JointState, f"{harness.ns}/tracker/reset",
+                                           QOS_STREAM)
+    harness.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
+    q0 = np.array(PAPER_START_Q)
+    reset.publish(_reset_msg(q0 + [0.4, -0.4, 0.4]))
+    harness.status_with("reset to")
+    harness.pub.publish(motion_msg(harness.node.model, q0, [0.05, 0.0, -0.05], 0.5))
+    status = harness.status_with("trajectory rejected")
+    assert "more than start_tolerance" in status.message, status.message
+
+
 @pytest.mark.parametrize("overrides, error", [
     ([Parameter("use_sim_time", value=True), Parameter("publish_clock", value=True)],
      ProblemError),
@@ -354,7 +372,87 @@ def test_use_sim_time_follows_the_clock(model):
     ([Parameter("initial_positions", value=[0.0, 0.0])], ProblemError),
     ([Parameter("time_scale", value=0.0)], InvalidParameterValueException),
     ([Parameter("payload_mass", value=-1.0)], InvalidParameterValueException),
+    ([Parameter("robot_description", value="arm " * 20000)], RobotDescriptionError),
 ])
 def test_bad_parameters_are_refused_at_start(overrides, error):
     with pytest.raises(error):
         Harness(overrides)
+
+
+# ----------------------------------------------- what the tracker checks (issue 14, item 5)
+def _far_start(msg):
+    for p in msg.points:
+        p.positions[0] += 1e300
+    return msg
+
+
+def _over_effort(msg):
+    msg.points[7].effort[2] = 9.0  # joint3's limit is 8 N m
+    return msg
+
+
+@pytest.mark.parametrize("corrupt, fragment", [
+    (_far_start, "from the current position (joint1) and 1e+300 rad from every position"),
+    (_over_effort, "point 7: effort 9 of joint3 exceeds its torque limit 8"),
+])
+def test_unsafe_trajectories_are_rejected(harness, model, corrupt, fragment):
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(corrupt(motion_msg(model, q0, [0.3, 0.3, 0.3], 1.5)))
+    status = harness.status_with("trajectory rejected")
+    assert fragment in status.message, status.message
+    count = len(harness.joint_states)
+    harness.wait(lambda: len(harness.joint_states) > count + 5, "joint_states after")
+    assert not harness.node.tracker.running
+    np.testing.assert_allclose(harness.joint_states[-1].position, q0, atol=1e-9)
+
+
+def test_size_and_duration_are_bounded(model):
+    h = Harness([Parameter("max_points", value=100), Parameter("max_duration", value=2.0)])
+    try:
+        q0 = np.array(PAPER_START_Q)
+        h.pub.publish(motion_msg(model, q0, [0.3, 0.3, 0.3], 1.5))  # 151 points
+        assert "151 points, more than max_points = 100" in h.status_with("rejected").message
+        h.pub.publish(motion_msg(model, q0, [0.3, 0.3, 0.3], 2.5, dt=0.05))  # 51 points
+        status = h.status_with("more than max_duration")
+        assert "lasts 2.5 s" in status.message
+        assert not h.node.tracker.running
+    finally:
+        h.stop()
+
+
+def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
+    import tocontrol_ros.tracker as tracker_module
+
+    parse = tracker_module.nominal_from_msg
+    during = []
+
+    def slow_parse(msg, joint_names):
+        # Stands for the parse of a very large trajectory.
+        with harness.lock:
+            before = len(harness.joint_states)
+        time.sleep(1.0)
+        with harness.lock:
+            during.append(len(harness.joint_states) - before)
+        return parse(msg, joint_names)
+
+    monkeypatch.setattr(tracker_module, "nominal_from_msg", slow_parse)
+    harness.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.1, 0.1, 0.1], 1.0))
+    harness.status_with("executing trajectory")
+    # 1 s of wall time at time_scale 20 and publish_rate 50: about 1000 joint states.
+    assert during and during[0] > 100, during
+
+
+def test_a_plan_from_a_recent_state_is_accepted_an_old_one_is_not(harness, model):
+    # A plan made from the state of a moving arm arrives after the arm has moved on: its
+    # first point is a position the arm had (published on joint_states) a moment ago.
+    q0 = np.array(PAPER_START_Q)
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.3, 0.3], 1.5))
+    harness.status_with("trajectory completed")
+    assert np.max(np.abs(harness.node.tracker.q - q0)) > 0.25  # > start_tolerance (0.1)
+    harness.pub.publish(motion_msg(model, q0, [0.1, 0.0, 0.0], 1.0))
+    harness.status_with("executing trajectory: 101 points")
+    harness.status_with("trajectory completed", timeout=15.0)
+    time.sleep(START_HISTORY + 0.5)  # q0 is now older than the history
+    harness.pub.publish(motion_msg(model, q0 + [0.3, -0.3, 0.3], [0.0, 0.0, 0.1], 1.0))
+    status = harness.status_with("trajectory rejected")
+    assert "more than start_tolerance" in status.message, status.message

@@ -15,10 +15,17 @@ from .errors import ProblemError
 from .limits import JointLimits
 from .model import RobotModel
 
-__all__ = ["Endpoint", "Problem", "point", "joint_state"]
+__all__ = ["Endpoint", "Problem", "point", "joint_state", "MIN_MOVE", "REST_SPEED"]
 
 #: Convexification exponents above this make ``|S|^(1/(2k-1))`` numerically a sign function.
 MAX_K = 64.0
+#: Moves shorter than this (m, or rad between joint states) from rest are nothing to plan:
+#: the shooting Newton iteration stalls on some sub-millimetre moves (T ~ sqrt(distance)
+#: makes the boundary equations badly scaled), whatever the number of starts.
+MIN_MOVE = 1e-3
+#: A start whose joint speeds are all below this (rad/s, m/s) is at rest for
+#: :meth:`Problem.is_trivial` (a held arm reports tiny non-zero velocities).
+REST_SPEED = 1e-6
 
 
 @dataclass(frozen=True)
@@ -155,23 +162,56 @@ class Problem:
         """Fraction of ``tau_max`` planned against: ``1 - reserve``."""
         return 1.0 - self.reserve
 
-    def is_trivial(self, tol: float = 1e-9) -> bool:
-        """True when the start already satisfies the target at rest (nothing to move)."""
+    def is_trivial(self, tol: float = MIN_MOVE, rest: float = REST_SPEED) -> bool:
+        """True when the start already satisfies the target at rest: nothing to move.
+
+        The one rule for "start == target" (the solver and the planner node both use it).
+
+        Parameters
+        ----------
+        tol : float
+            Largest distance between start and target (m; rad between two joint states).
+        rest : float
+            Largest joint speed of a joint-state start (rad/s, m/s).
+        """
         n = self.model.n
-        if self.start.kind == "state" and np.any(np.abs(self.start.value[n:]) > tol):
+        if self.start.kind == "state" and np.any(np.abs(self.start.value[n:]) > rest):
             return False
         if self.start.kind == "state" and self.target.kind == "state":
-            return bool(np.all(np.abs(self.start.value - self.target.value) <= tol))
+            return bool(np.all(np.abs(self.start.value[:n] - self.target.value[:n]) <= tol))
         if self.target.kind == "state":
             return False
         return bool(np.linalg.norm(self.start_point - self.target_point) <= tol)
 
 
 def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
-    """Reject points that no configuration reaches (numerical IK, a few starts)."""
+    """Reject points that no configuration reaches, or only singular ones reach.
+
+    Unreachable: numerical IK from a few starts fails. On the workspace boundary: every
+    configuration found (three IK runs) is singular.
+    """
     from .ik import solve_ik
 
     q = solve_ik(model, p)
     if q is None:
         raise ProblemError(f"`{name}` point {p.tolist()} is not reachable by {model.name!r} "
                            f"(reach about {model.reach():.4g} m from the first joint)")
+    if _singular(model, q) and all(
+            other is None or _singular(model, other)
+            for other in (solve_ik(model, p, rng=np.random.default_rng(s)) for s in (1, 2))):
+        raise ProblemError(
+            f"`{name}` point {p.tolist()} is on the boundary of the workspace of "
+            f"{model.name!r}: only a singular configuration reaches it (e.g. the arm fully "
+            f"stretched, reach about {model.reach():.4g} m), from which the arm cannot move "
+            f"in every direction; give a point slightly inside")
+
+
+#: A configuration is singular for :func:`_check_reachable` when the smallest singular value
+#: of its task Jacobian is below this fraction of the reach (the IK's tolerance leaves a
+#: boundary point's configuration about this far from exactly singular).
+SINGULAR_TOL = 2e-5
+
+
+def _singular(model: RobotModel, q: np.ndarray) -> bool:
+    sigma = np.linalg.svd(model.jacobian(q), compute_uv=False)
+    return bool(sigma.size < model.m or sigma[-1] < SINGULAR_TOL * model.reach())

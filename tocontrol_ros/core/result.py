@@ -20,7 +20,7 @@ class Status(enum.Enum):
     """Outcome of :func:`~tocontrol_ros.core.solver.plan`; the value is a readable sentence."""
 
     SUCCESS = "solved and verified"
-    TRIVIAL = "start and target coincide: nothing to move"
+    TRIVIAL = "start at rest within MIN_MOVE of the target: nothing to move"
     NO_GUESS = "the direct method found no feasible initial guess"
     NEWTON_FAILED = "Newton's method did not converge at k = 1"
     CONTINUATION_FAILED = "continuation in k stalled before the requested k"

@@ -1,0 +1,74 @@
+"""The nodes' shared parameter helper: specs, descriptors and the robot parameters."""
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+
+from tocontrol_ros import params
+from tocontrol_ros.core.model import default_urdf_path
+from tocontrol_ros.params import ParameterSpec, RobotDescriptionError, descriptor, load_model
+from tocontrol_ros.planner_config import PARAMETERS as PLANNER
+from tocontrol_ros.recorder import PARAMETERS as RECORDER
+from tocontrol_ros.tracker import PARAMETERS as TRACKER
+
+
+def test_every_node_takes_the_robot_under_the_same_names():
+    for table in (PLANNER, TRACKER):
+        names = [spec.name for spec in table]
+        assert "robot_description" in names and "robot_description_file" in names
+        assert "robot" not in names and "urdf_path" not in names
+    assert all(isinstance(spec, ParameterSpec) for spec in (*PLANNER, *TRACKER, *RECORDER))
+
+
+@pytest.mark.parametrize("default, expected", [
+    (True, ParameterType.PARAMETER_BOOL), (3, ParameterType.PARAMETER_INTEGER),
+    (0.5, ParameterType.PARAMETER_DOUBLE), ("x", ParameterType.PARAMETER_STRING),
+    ([1.0], ParameterType.PARAMETER_DOUBLE_ARRAY), (["/a"], ParameterType.PARAMETER_STRING_ARRAY),
+    (None, ParameterType.PARAMETER_DOUBLE_ARRAY),
+])
+def test_descriptor_type_follows_the_default(default, expected):
+    d = descriptor(ParameterSpec("p", default, "doc", read_only=True))
+    assert d.type == expected and d.read_only and "restart" in d.description
+
+
+def test_empty_robot_is_the_bundled_arm():
+    model, bundled = load_model("", "")
+    assert bundled and model.name == "galicki_3r"
+
+
+def test_robot_description_xml_and_file_agree():
+    text = default_urdf_path().read_text()
+    a, bundled_a = load_model(text, "")
+    b, bundled_b = load_model("", str(default_urdf_path()))
+    assert not bundled_a and not bundled_b and a.joint_names == b.joint_names
+
+
+@pytest.mark.parametrize("description, file, match", [
+    ("x" * 100_000, "", r"`robot_description` must be URDF XML \(starting with '<'\), got "
+     r"'x{40}\.\.\.' \(100000 characters\); for a file use `robot_description_file`"),
+    ("<robot/>", "arm.urdf", "not both"),
+    ("", "/nonexistent/" + "y" * 5000, r"`robot_description_file` '/nonexistent/y{27}\.\.\.' "
+     r"cannot be read: File name too long"),
+])
+def test_bad_robot_parameters_give_one_line(description, file, match):
+    # Issue 14: a long non-XML `robot` gave an uncaught OSError echoing the whole string.
+    with pytest.raises(RobotDescriptionError, match=match) as info:
+        load_model(description, file)
+    assert "\n" not in str(info.value) and len(str(info.value)) < 300
+    assert isinstance(info.value, ValueError)
+
+
+def test_parameters_help_lists_each_name():
+    text = params.parameters_help(TRACKER)
+    assert all(f"  {spec.name}: " in text for spec in TRACKER)
+
+
+@pytest.mark.parametrize("name, table", [("tracker", TRACKER), ("recorder", RECORDER)])
+def test_yaml_matches_the_table(name, table):
+    import pathlib
+
+    import yaml
+
+    repo = pathlib.Path(__file__).resolve().parents[1]
+    values = yaml.safe_load((repo / "config" / f"{name}.yaml").read_text())
+    assert values["/**"]["ros__parameters"] == {
+        spec.name: spec.default for spec in table if spec.default is not None}
