@@ -5,7 +5,13 @@ from rcl_interfaces.msg import ParameterType
 
 from tocontrol_ros import params
 from tocontrol_ros.core.model import default_urdf_path
-from tocontrol_ros.params import ParameterSpec, RobotDescriptionError, descriptor, load_model
+from tocontrol_ros.params import (
+    ParameterSpec,
+    RobotDescriptionError,
+    descriptor,
+    load_model,
+    parse_locked_joints,
+)
 from tocontrol_ros.planner_config import PARAMETERS as PLANNER
 from tocontrol_ros.recorder import PARAMETERS as RECORDER
 from tocontrol_ros.tracker import PARAMETERS as TRACKER
@@ -72,3 +78,22 @@ def test_yaml_matches_the_table(name, table):
     values = yaml.safe_load((repo / "config" / f"{name}.yaml").read_text())
     assert values["/**"]["ros__parameters"] == {
         spec.name: spec.default for spec in table if spec.default is not None}
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("", {}),
+    ("panda_finger_joint1=0.04", {"panda_finger_joint1": 0.04}),
+    ("a=1, b=-0.5  c=2e-3", {"a": 1.0, "b": -0.5, "c": 0.002}),
+])
+def test_locked_joints_parse(text, expected):
+    assert parse_locked_joints(text) == expected
+
+
+@pytest.mark.parametrize("text, match", [
+    ("a", "must be name=position"), ("a=", "must be name=position"),
+    ("=1", "must be name=position"), ("a=nan", "must be name=position"),
+    ("a=1 a=2", "names joint 'a' twice"),
+])
+def test_bad_locked_joints_are_named(text, match):
+    with pytest.raises(RobotDescriptionError, match=match):
+        parse_locked_joints(text)

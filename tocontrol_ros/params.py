@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -25,8 +26,8 @@ from rclpy.parameter import Parameter
 from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["ParameterSpec", "descriptor", "declare_all", "ROBOT_DESCRIPTION",
-           "ROBOT_DESCRIPTION_FILE", "RobotDescriptionError", "load_model",
-           "parameters_help"]
+           "ROBOT_DESCRIPTION_FILE", "LOCKED_JOINTS", "RobotDescriptionError", "load_model",
+           "parse_locked_joints", "parameters_help"]
 
 _RESTART = " Read-only: a change needs a restart."
 
@@ -149,6 +150,39 @@ ROBOT_DESCRIPTION = ParameterSpec(
 ROBOT_DESCRIPTION_FILE = ParameterSpec(
     "robot_description_file", "", "Path of a URDF file, used when robot_description is "
     "empty. Empty: the bundled arm.", read_only=True)
+#: Joints held fixed, on every node that loads the robot (planner and tracker must agree).
+LOCKED_JOINTS = ParameterSpec(
+    "locked_joints", "", "Moving joints held fixed, as 'name=position' pairs separated by "
+    "spaces or commas (rad, m), e.g. 'panda_finger_joint1=0.04'. Joints at or below the tip "
+    "link (a gripper's fingers) are locked without being named: at 0, or at the nearer "
+    "position limit when 0 is outside the limits.", read_only=True,
+    constraints="name=number pairs")
+
+
+def parse_locked_joints(text: str) -> dict[str, float]:
+    """``locked_joints`` as a mapping, joint name -> position (rad, m).
+
+    Raises
+    ------
+    RobotDescriptionError
+        An entry that is not ``name=number`` with a finite number, or a name given twice.
+    """
+    out: dict[str, float] = {}
+    for entry in text.replace(",", " ").split():
+        name, sep, value = entry.partition("=")
+        try:
+            position = float(value)
+        except ValueError:
+            position = float("nan")
+        if not sep or not name or not np.isfinite(position):
+            raise RobotDescriptionError(f"`locked_joints` entry {_quote(entry)} must be "
+                                        f"name=position with a finite number")
+        if name in out:
+            raise RobotDescriptionError(f"`locked_joints` names joint {name!r} twice")
+        out[name] = position
+    return out
+
+
 #: How much of a bad value an error message quotes (characters).
 _QUOTE = 40
 

@@ -48,7 +48,7 @@ from tocontrol_ros import qos
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.node_main import run_node
-from tocontrol_ros.params import declare_all, load_model
+from tocontrol_ros.params import declare_all, load_model, parse_locked_joints
 from tocontrol_ros.planner_config import (
     PARAMETERS,
     ConfigError,
@@ -258,7 +258,19 @@ class LatestMessage:
 def _load_model(config: PlannerConfig):
     return load_model(config.robot_description, config.robot_description_file,
                       base_link=config.base_link or None, tip_link=config.tip_link or None,
-                      gravity=config.gravity, task_axes=config.task_axes or None)[0]
+                      gravity=config.gravity, task_axes=config.task_axes or None,
+                      locked_joints=parse_locked_joints(config.locked_joints))[0]
+
+
+def _joint_limits(config: PlannerConfig, model):
+    """The URDF's joint limits narrowed by the ``joint_limits`` file (no margin yet)."""
+    from tocontrol_ros.core.limits import JointLimits, load_joint_limits_yaml
+
+    limits = JointLimits.from_model(model)
+    if config.joint_limits:
+        limits = limits.narrowed(load_joint_limits_yaml(config.joint_limits),
+                                 f"`joint_limits` file {config.joint_limits!r}")
+    return limits
 
 
 class PlannerNode(Node):
@@ -282,6 +294,7 @@ class PlannerNode(Node):
         super().__init__(node_name, **kwargs)
         config = config_from_values(declare_all(self, PARAMETERS))
         self.model = _load_model(config)
+        self._limits = _joint_limits(config, self.model)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
         from tocontrol_ros.core.solver import Planner
@@ -499,12 +512,18 @@ class PlannerNode(Node):
         model = self.model
         note = ""
         try:
-            qa = np.clip(np.full(model.n, 0.3), model.q_lower, model.q_upper)
-            # A generic move (alternating signs: not along a singular direction).
-            qb = np.clip(qa + 0.5 * (-1.0) ** np.arange(model.n), model.q_lower, model.q_upper)
+            lo, hi = self._limits.plan_lower, self._limits.plan_upper
+            bounded = np.isfinite(lo) & np.isfinite(hi)
+            lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
+            # Inside the limits, and a generic move (alternating signs: not along a singular
+            # direction) that stays inside them.
+            qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
+            qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
+                          qa + 0.5 * (-1.0) ** np.arange(model.n))
             options = solver_options(config)  # verify as configured: compiles the certificate
+            limits = self._limits.with_margin(config.limit_margin)
             problems = [Problem(model, start, point(model.point(qb)), k=config.k,
-                                reserve=config.reserve)
+                                reserve=config.reserve, limits=limits)
                         for start in (point(model.point(qa)), joint_state(qa))]
             for problem in problems:
                 self.planner.direct(problem, options.guess_intervals)
@@ -536,7 +555,8 @@ class PlannerNode(Node):
             start = point(req.start[1]) if req.start[0] == "point" else \
                 joint_state(req.start[1], req.start[2])
             problem = Problem(self.model, start, point(req.target), k=config.k,
-                              reserve=config.reserve)
+                              reserve=config.reserve,
+                              limits=self._limits.with_margin(config.limit_margin))
         except TocontrolError as exc:
             self._finish(req, "ERROR", "failed", str(exc))
             return

@@ -20,6 +20,7 @@ from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.model import STANDARD_GRAVITY
 from tocontrol_ros.params import (
+    LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
     ParameterSpec,
@@ -35,6 +36,13 @@ class ConfigError(TocontrolError, ValueError):
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    LOCKED_JOINTS,
+    ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
+                  "position and velocity limits (has_position_limits, min_position, "
+                  "max_position, has_velocity_limits, max_velocity; the tighter of the two "
+                  "wins). Empty: the URDF's limits.", read_only=True),
+    ParameterSpec("limit_margin", 0.0, "Fraction of each joint's position range and velocity "
+                  "limit kept free by the plans (as reserve does for torque).", 0.0, 0.5),
     ParameterSpec("base_link", "", "Link fixed to the world; start, target and outputs are "
                   "in its frame. Empty: the URDF's root link.", read_only=True),
     ParameterSpec("tip_link", "", "Link whose origin is the end-effector point. Empty: the "
@@ -97,6 +105,9 @@ class PlannerConfig:
 
     robot_description: str
     robot_description_file: str
+    locked_joints: str
+    joint_limits: str
+    limit_margin: float
     base_link: str
     tip_link: str
     task_axes: str

@@ -70,12 +70,14 @@ from tocontrol_ros.core.tracking import (
 )
 from tocontrol_ros.node_main import run_node
 from tocontrol_ros.params import (
+    LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
     ParameterSpec,
     declare_all,
     load_model,
     parameters_help,
+    parse_locked_joints,
 )
 
 __all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
@@ -122,6 +124,7 @@ def _spec(name, default, description, low=None, high=None) -> ParameterSpec:
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    LOCKED_JOINTS,
     _spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
     _spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
     _spec("kp", [100.0, 100.0, 30.0], "Proportional gains per joint (or one for all), "
@@ -173,6 +176,7 @@ class TrackerConfig:
 
     robot_description: str
     robot_description_file: str
+    locked_joints: str
     base_link: str
     tip_link: str
     gains: TrackingGains
@@ -205,6 +209,7 @@ class TrackerConfig:
         return cls(
             robot_description=values["robot_description"],
             robot_description_file=values["robot_description_file"],
+            locked_joints=values["locked_joints"],
             base_link=values["base_link"], tip_link=values["tip_link"],
             gains=TrackingGains(kp=tuple(values["kp"]), kd=tuple(values["kd"])),
             plant=plant, initial_positions=tuple(values["initial_positions"] or ()),
@@ -218,7 +223,8 @@ class TrackerConfig:
     def load_model(self) -> tuple[RobotModel, bool]:
         """The robot model, and whether it is the bundled arm."""
         return load_model(self.robot_description, self.robot_description_file,
-                          base_link=self.base_link or None, tip_link=self.tip_link or None)
+                          base_link=self.base_link or None, tip_link=self.tip_link or None,
+                          locked_joints=parse_locked_joints(self.locked_joints))
 
     def start_configuration(self, model: RobotModel, bundled: bool) -> np.ndarray:
         """``initial_positions``, or the default described in :data:`PARAMETERS`."""

@@ -26,7 +26,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 
 from tocontrol_ros.conversions import seconds
-from tocontrol_ros.core.errors import ModelError
+from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
@@ -572,3 +572,48 @@ def test_joint_state_helper_follows_the_planners_name_and_remapping():
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+JOINT_LIMITS_YAML = """joint_limits:
+  joint2: {has_velocity_limits: true, max_velocity: 1.0}
+  joint3: {has_velocity_limits: true, max_velocity: 1.0}
+"""
+
+
+def test_plans_keep_to_a_moveit_joint_limits_file(tmp_path):
+    """`joint_limits` narrows the URDF's 100 rad/s to 1 rad/s on joints 2 and 3 (the paper's
+    optimum runs them at 1.1 and 6.3 rad/s): the published trajectory keeps to it, and
+    the certificate says so; `limit_margin` keeps 10 % free."""
+    path = tmp_path / "joint_limits.yaml"
+    path.write_text(JOINT_LIMITS_YAML)
+    namespace = f"/limits_{os.getpid()}"
+    running = Running([Parameter("joint_limits", value=str(path)),
+                       Parameter("limit_margin", value=0.1),
+                       Parameter("starts", value=4)], namespace=namespace)
+    c = PlannerClient(f"{namespace}/planner")
+    try:
+        c.wait_ready(30.0)
+        path_msg, status, _ = c.call_plan(PAPER_START, PAPER_TARGET, timeout=600.0)
+        assert status.event == "solved", status.message
+        assert status.values["certified"] == "true"
+        result = running.node.last_result
+        assert result.method == "direct"
+        msg = c.wait_for(lambda: c.trajectories and c.trajectories[-1], 30.0,
+                         "a trajectory")
+        qd = np.abs(np.array([p.velocities for p in msg.points]))
+        assert np.max(qd[:, 1:]) <= 0.9 * (1 + 1e-9)
+        assert np.max(qd[:, 1:]) > 0.85  # the limit binds
+        assert close(path_end(path_msg), PAPER_TARGET + (0.0,), 1e-6)
+    finally:
+        c.close()
+        running.stop()
+
+
+@pytest.mark.parametrize("overrides, match", [
+    ([Parameter("joint_limits", value="/nonexistent/joint_limits.yaml")], "does not exist"),
+    ([Parameter("locked_joints", value="joint1")], "must be name=position"),
+    ([Parameter("locked_joints", value="elbow=0.1")], "'elbow', which is not in"),
+])
+def test_bad_limits_or_locked_joints_name_the_parameter(overrides, match):
+    with pytest.raises(TocontrolError, match=match):
+        Running(overrides, namespace=f"/bad_limits_{os.getpid()}")
