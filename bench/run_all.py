@@ -61,6 +61,10 @@ def _parse(argv):
                              "3R-limited, UR5, Panda (3R-limited: the 6-7-joint arms take "
                              "minutes per case with the bounded solve)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
+    parser.add_argument("--update", action="store_true",
+                        help="replace only the sections of the parts run (and their target "
+                             "rows) in the existing --out file, each marked with this run's "
+                             "commit and date; the rest of the file stays as it was")
     parser.add_argument("--keep-cache", action="store_true",
                         help="use the usual compile cache instead of a fresh one")
     args = parser.parse_args(argv)
@@ -152,7 +156,10 @@ def _run(args):
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
         ticks_start, common.cpu_ticks())
-    text = _report(args, info, load_start, load_end, sections, total)
+    if args.update:
+        text = _update(args.out.read_text(), info, sections)
+    else:
+        text = _report(args, info, load_start, load_end, sections, total)
     args.out.write_text(text)
     common.log(f"wrote {args.out} ({total:.0f} s)")
     return 0
@@ -188,6 +195,29 @@ def _report(args, info, load_start, load_end, sections, total):
         lines += ["", f"## {s.title}", "",
                   f"({s.seconds:.0f} s of the run; CPU steal {s.steal}.)", ""] + s.lines
     return "\n".join(lines) + "\n"
+
+
+def _update(text: str, info: dict, sections) -> str:
+    """``text`` (a report) with these sections and their target rows replaced or added."""
+    head, *parts = text.rstrip("\n").split("\n## ")
+    blocks = {p.split("\n", 1)[0]: p for p in parts}
+    order = [p.split("\n", 1)[0] for p in parts]
+    stamp = f"regenerated alone by `run_all.py --update` on {info['commit']}, {info['date']}"
+    for s in sections:
+        body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}.)", ""] + s.lines + [""]
+        if s.title not in blocks:
+            order.append(s.title)
+        blocks[s.title] = "\n".join(body)
+    new_targets = [t for s in sections for t in s.targets]
+    if new_targets:
+        old = blocks.get("Targets", "Targets\n\n| target | met? |\n|---|---|").split("\n")
+        names = {str(t[0]) for t in new_targets}
+        rows = [r for r in old[4:] if r.startswith("| ") and r.split("|")[1].strip() not in names]
+        blocks["Targets"] = "\n".join(old[:4] + rows + common.table(["", ""], new_targets)[2:]
+                                      + [""])
+        if "Targets" not in order:
+            order.insert(0, "Targets")
+    return "\n## ".join([head] + [blocks[t] for t in order]) + "\n"
 
 
 if __name__ == "__main__":
