@@ -204,7 +204,8 @@ def _update(text: str, info: dict, sections) -> str:
     order = [p.split("\n", 1)[0] for p in parts]
     stamp = f"regenerated alone by `run_all.py --update` on {info['commit']}, {info['date']}"
     for s in sections:
-        body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}.)", ""] + s.lines + [""]
+        body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}.)", ""]
+        body += s.lines + [""]
         if s.title not in blocks:
             order.append(s.title)
         blocks[s.title] = "\n".join(body)
