@@ -30,7 +30,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.kinematics import link_positions, tip_pose
+from tocontrol_ros.core.kinematics import link_positions, tip_pose, tip_poses
 
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
@@ -300,11 +300,10 @@ def path_msg(model, sample, frame_id: str, stamp: Time) -> Path:
     stamped ``stamp + t``: the planned time at which the tip passes there.
     """
     header = Header(stamp=stamp, frame_id=frame_id)
+    rots, positions = tip_poses(model, sample.q)
     poses = []
-    for t, q in zip(sample.t, sample.q, strict=True):
-        rot, pos = tip_pose(model, q)
-        pose = Pose(position=Point(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
-                    orientation=_quaternion(rot))
+    for t, rot, pos in zip(sample.t, rots, positions.tolist(), strict=True):
+        pose = Pose(position=Point(x=pos[0], y=pos[1], z=pos[2]), orientation=_quaternion(rot))
         poses.append(PoseStamped(header=Header(stamp=add_seconds(stamp, float(t)),
                                                frame_id=frame_id), pose=pose))
     return Path(header=header, poses=poses)

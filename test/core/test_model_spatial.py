@@ -121,3 +121,23 @@ def test_self_check_passes(case):
     ours = case[0]
     report = ours.check_dynamics(seed=3, samples=3)
     assert report.splitlines()[0].endswith(": OK"), report
+
+
+@pytest.mark.parametrize("name", ["rpr", "panda"])
+def test_tip_poses_at_once_equal_one_by_one(name, request):
+    """The batched forward kinematics (messages) against the per-configuration one."""
+    from tocontrol_ros.core.kinematics import tip_pose, tip_poses
+
+    model = request.getfixturevalue(name)
+    rng = np.random.default_rng(7)
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    q = rng.uniform(lo, hi, (20, model.n))
+    rots, positions = tip_poses(model, q)
+    for k in range(len(q)):
+        rot, pos = tip_pose(model, q[k])
+        np.testing.assert_allclose(rots[k], rot, atol=1e-12)
+        np.testing.assert_allclose(positions[k], pos, atol=1e-12)
+    # ...and against the model's own (CasADi) kinematics, where the task space is xyz.
+    if model.m == 3:
+        np.testing.assert_allclose(positions, [model.point(qk) for qk in q], atol=1e-9)

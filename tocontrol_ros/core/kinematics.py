@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["axis_rotation", "joint_transform", "link_positions", "tip_pose"]
+__all__ = ["axis_rotation", "joint_transform", "link_positions", "tip_pose", "tip_poses"]
 
 
 def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -77,4 +77,38 @@ def tip_pose(model, q) -> tuple[np.ndarray, np.ndarray]:
         Joint positions (rad, m).
     """
     *_, (rot, pos) = _frames(model, q)
+    return rot @ model.tip_rotation, pos + rot @ model.tip_translation
+
+
+def tip_poses(model, q) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`tip_pose` at many configurations at once (one numpy pass per joint).
+
+    Parameters
+    ----------
+    model : RobotModel
+    q : array_like, shape (K, n)
+        Joint positions (rad, m).
+
+    Returns
+    -------
+    rotation : ndarray, shape (K, 3, 3)
+    position : ndarray, shape (K, 3)
+        Tip frames in the base frame (m).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    count = len(q)
+    rot = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()
+    pos = np.zeros((count, 3))
+    for i, body in enumerate(model.bodies):
+        if body.kind == "prismatic":
+            r = np.broadcast_to(body.rotation, (count, 3, 3))
+            p = body.translation + np.outer(q[:, i], body.rotation @ body.axis)
+        else:
+            a = body.axis
+            k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            s, c = np.sin(q[:, i])[:, None, None], np.cos(q[:, i])[:, None, None]
+            r = body.rotation @ (np.eye(3) + s * k + (1.0 - c) * (k @ k))
+            p = np.broadcast_to(body.translation, (count, 3))
+        pos = pos + np.einsum("kij,kj->ki", rot, p)
+        rot = rot @ r
     return rot @ model.tip_rotation, pos + rot @ model.tip_translation
