@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tocontrol_ros import batch
+from tocontrol_ros import batch, cdr
 from tocontrol_ros.batch_library import TOPIC_PREFIX, library_paths
 from tocontrol_ros.batch_tasks import TaskFileError, load_task_file
 from tocontrol_ros.core.model import default_urdf_path
@@ -336,7 +336,7 @@ def test_replay_plays_one_motion_of_the_library(small_run):
     assert proc.returncode == 0, out
     assert "published 1 messages" in out
     assert len(got) == 1 and len(stored) == 1, (out, topic)
-    assert mcap_io.serialize_exact(got[0]) == stored[0]
+    assert cdr.serialize_exact(got[0]) == stored[0]
 
 
 # ------------------------------------------------------------------ journal and progress

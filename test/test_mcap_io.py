@@ -5,7 +5,6 @@ Independent readers (rosbags, mcap-ros2-support) check what the helpers produce.
 
 import shutil
 
-import cdr_exact
 import pytest
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -23,6 +22,7 @@ from std_msgs.msg import Empty, Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
+from tocontrol_ros import cdr as cdr_exact
 from tocontrol_ros import mcap_io
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")

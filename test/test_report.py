@@ -1,7 +1,6 @@
 """The report from a recorded file: a figure per motion, a summary with a table (T, max |u|,
 final error, saturation per motion) and an HTML page that shows them all."""
 
-import cdr_exact
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
@@ -12,6 +11,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from tocontrol_ros import cdr as cdr_exact
 from tocontrol_ros import mcap_io, report
 from tocontrol_ros.core.model import default_urdf_path, load_robot
 

@@ -31,6 +31,7 @@ from builtin_interfaces.msg import Time
 
 from tocontrol_ros import conversions, mcap_io, qos
 from tocontrol_ros.batch_tasks import Task, TaskFileError
+from tocontrol_ros.cdr import serialize_exact
 
 __all__ = ["Journal", "library_paths", "trajectory_cdr", "write_library", "write_summary",
            "SUMMARY_COLUMNS", "TRAJECTORY_TYPE", "PENDING"]
@@ -58,7 +59,7 @@ def library_paths(output) -> dict[str, Path]:
 def trajectory_cdr(sample: dict, joint_names, frame_id: str) -> bytes:
     """Exact CDR of the ``JointTrajectory`` of a worker's sample (see :func:`run_task`)."""
     msg = conversions.trajectory_msg(SimpleNamespace(**sample), joint_names, frame_id, Time())
-    return mcap_io.serialize_exact(msg)
+    return serialize_exact(msg)
 
 
 def _clean(value):

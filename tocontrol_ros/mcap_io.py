@@ -13,8 +13,8 @@ Pure helpers (no node) shared by the recorder, replay and report:
   killed process loses at most the chunk in progress;
 - :func:`read_channels` and :func:`iter_records` read a recording back.
 
-Nothing here deserializes message payloads. (The tests' exact-CDR helper, which walks a
-buffer, is ``test/cdr_exact.py``.)
+Nothing here deserializes message payloads. (Exact CDR bytes of a message, by walking a
+buffer, are in ``tocontrol_ros/cdr.py``.)
 """
 
 import importlib

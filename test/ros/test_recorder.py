@@ -11,7 +11,6 @@ import time
 import uuid
 from pathlib import Path
 
-import cdr_exact
 import numpy as np
 import pytest
 import rclpy
@@ -22,6 +21,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
+from tocontrol_ros import cdr as cdr_exact
 from tocontrol_ros import mcap_io
 from tocontrol_ros.recorder import Recorder
 from tocontrol_ros.replay import Player

@@ -1,16 +1,18 @@
-"""Exact CDR bytes of a message, for the tests that compare recorded bytes with a message.
+"""Exact CDR bytes of a message, for files that other readers decode.
 
 ``rclpy.serialization.serialize_message`` returns a buffer padded past the end with the
 alignment gaps inside uninitialised; :func:`serialize_exact` trims the one and zeroes the
 other (what a raw subscription receives from Fast DDS), walking the buffer along the message
-class's ``SLOT_TYPES`` (:func:`cdr_size`). Importable as ``cdr_exact`` because pytest (prepend
-import mode) puts ``test/`` on ``sys.path``.
+class's ``SLOT_TYPES`` (:func:`cdr_size`). The batch library writes its trajectories with it
+(the recorder writes the bytes it receives); the tests compare recorded bytes with it.
 """
 
 import importlib
 import struct
 
 from tocontrol_ros.mcap_io import McapIOError
+
+__all__ = ["cdr_size", "serialize_exact"]
 
 _PRIMITIVE_SIZES = {
     "boolean": 1, "octet": 1, "char": 1, "uint8": 1, "int8": 1,
