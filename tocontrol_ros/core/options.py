@@ -59,6 +59,11 @@ class SolverOptions:
     ik_count : int
         Angles of the self-motion family per end point (see
         :func:`~tocontrol_ros.core.ik.ik_family`).
+    exhaustive : bool
+        Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
+        a dense self-motion grid, every full-turn branch, every seed pair solved by the
+        direct method and every distinct direct solution continued; ``starts`` and
+        ``candidates`` are ignored (see :func:`~tocontrol_ros.core.seeding.seed_pairs`).
     verify : bool
         Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
         nominal torques re-integrated through the model by an adaptive integrator, the
@@ -91,6 +96,7 @@ class SolverOptions:
     starts: int = 16
     candidates: int = 3
     ik_count: int = 8
+    exhaustive: bool = False
     verify: bool = True
     verify_point_tol: float = 1e-4
     verify_velocity_tol: float = 1e-3

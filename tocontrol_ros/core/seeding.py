@@ -2,10 +2,15 @@
 
 The configurations come from the inverse kinematics
 (:func:`~tocontrol_ros.core.ik.ik_family`, spread over each end point's self-motion
-manifold); this module pairs and ranks them.
+manifold); this module pairs them, adds the 2 pi-shifted branches of the joints that may
+turn the long way, and ranks every (start, target, branch) by a cheap time estimate, so that
+many seeds cost little and only the best few are solved by the direct method.
+See ``docs/seeding.md``.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
@@ -13,58 +18,169 @@ from .ik import ik_family
 from .options import SolverOptions
 from .problem import Problem
 
-__all__ = ["seed_pairs"]
+__all__ = ["seed_pairs", "seed_grid", "shiftable_joints", "branch_shifts",
+           "EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS"]
+
+#: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
+#: the ranked mode's); denser than any default, so the reference covers the manifold.
+EXHAUSTIVE_IK_COUNT = 24
+
+#: Seed pairs solved by the direct method in the exhaustive mode, spread evenly over the
+#: branches (the best-ranked of each branch in turn), so that the reference does not lean on
+#: the ranking's preference between branches.
+EXHAUSTIVE_STARTS = 216
+
+#: At most this many joints get branch variants at once (2^J or 3^J variants per pair).
+MAX_BRANCH_JOINTS = 7
 
 
-def seed_pairs(problem: Problem, options: SolverOptions) -> list[tuple[np.ndarray, np.ndarray]]:
+def shiftable_joints(problem: Problem) -> np.ndarray:
+    """Joints whose target may be taken a full turn further: revolute joints whose range
+    is at least 2 pi (continuous joints included), when the target is a point.
+
+    A joint-state target is one exact angle, so it has no branches.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    model = problem.model
+    revolute = np.array([b.kind == "revolute" for b in model.bodies])
+    if problem.target.kind != "point":
+        return np.zeros(model.n, dtype=bool)
+    lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
+    with np.errstate(invalid="ignore"):
+        wide = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi - lo >= 2 * np.pi)
+    return revolute & wide
+
+
+def branch_shifts(d: np.ndarray, shiftable: np.ndarray, exhaustive: bool = False
+                  ) -> np.ndarray:
+    """Full-turn multiples added to the short-way displacements ``d``.
+
+    Parameters
+    ----------
+    d : ndarray, shape (..., n)
+        Displacements, wrapped into (-pi, pi] on the shiftable joints (rad).
+    shiftable : ndarray of bool, shape (n,)
+    exhaustive : bool
+        False: per shiftable joint the short way (0) or the long way (one turn against the
+        sign of ``d``; 2^J variants). True: -1, 0 and +1 turns (3^J variants).
+
+    Returns
+    -------
+    ndarray, shape (..., V, n)
+        ``2 pi m`` per variant; variant 0 is the short way on every joint.
+    """
+    idx = np.flatnonzero(shiftable)[:MAX_BRANCH_JOINTS]
+    n = d.shape[-1]
+    if exhaustive:
+        combos = np.array(list(itertools.product((0, -1, 1), repeat=len(idx))), dtype=float)
+        out = np.zeros(d.shape[:-1] + (len(combos), n))
+        out[..., idx] = 2 * np.pi * combos
+        return out
+    combos = np.array(list(itertools.product((0, 1), repeat=len(idx))), dtype=float)
+    # The long way turns against the short way's sign (a zero displacement turns forwards).
+    away = np.where(d[..., idx] > 0, -1.0, 1.0)            # (..., J)
+    out = np.zeros(d.shape[:-1] + (len(combos), n))
+    out[..., idx] = 2 * np.pi * combos * away[..., None, :]
+    return out
+
+
+def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False):
+    """Every (start, target, branch) seed with its time estimate, unranked.
+
+    Returns
+    -------
+    qa : ndarray, shape (S, n)
+        Start configurations (rad, m).
+    dv : ndarray, shape (S, G, V, n)
+        Displacement to the target per start, target configuration and branch.
+    est : ndarray, shape (S, G, V)
+        Bang-bang time estimate with diagonal inertia at the start (s); ``inf`` where the
+        start or the branch's target is outside the position limits.
+    """
+    model = problem.model
+    n = model.n
+    count = max(options.ik_count, EXHAUSTIVE_IK_COUNT) if exhaustive else options.ik_count
+    if problem.start.kind == "state":
+        starts = [problem.start.value[:n]]
+    else:
+        starts = ik_family(model, problem.start.value, count)
+    if problem.target.kind == "state":
+        targets = [problem.target.value[:n]]
+    else:
+        targets = ik_family(model, problem.target.value, count)
+    if not starts or not targets:
+        return np.zeros((0, n)), np.zeros((0, 0, 0, n)), np.zeros((0, 0, 0))
+    shiftable = shiftable_joints(problem)
+    acc = model.tau_max * problem.torque_scale
+    qa = np.array(starts)                                   # (S, n)
+    mass = np.array(model.function("M").map(len(qa))(qa.T))  # (n, S n), blocks per start
+    inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(len(qa))])
+    d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
+    d = np.where(shiftable, np.angle(np.exp(1j * d)), d)
+    dv = d[:, :, None, :] + branch_shifts(d, shiftable, exhaustive)  # (S, G, V, n)
+    est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
+    q_end = qa[:, None, None, :] + dv
+    lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
+    inside = np.all((q_end >= lo - 1e-12) & (q_end <= hi + 1e-12), axis=-1)
+    inside &= np.all((qa >= lo - 1e-12) & (qa <= hi + 1e-12), axis=-1)[:, None, None]
+    est = np.where(inside, est, np.inf)
+    return qa, dv, est
+
+
+def seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool = False
+               ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Seed pairs (q_start, q_target), most promising first.
 
-    Each start configuration of the family is paired with each target configuration, the
-    target unwrapped to the nearest equivalent angles (the short way) and, for continuous
-    distal joints, also one full turn the other way; pairs are ranked by a bang-bang time
-    estimate with diagonal inertia. The first ``options.starts`` are returned.
+    Every start configuration of the family is paired with every target configuration and
+    every branch (:func:`branch_shifts`: the target unwrapped to the short way, and each
+    joint that may turn a full turn also the long way); the pairs are ranked by a bang-bang
+    time estimate with diagonal inertia (one vectorised expression over start x target x
+    branch), ties kept in that order. Ranking costs microseconds per pair; each returned
+    pair costs one direct solve.
 
     Parameters
     ----------
     problem : Problem
     options : SolverOptions
         ``starts`` (how many pairs) and ``ik_count`` (configurations per end point).
+    exhaustive : bool
+        The reference mode of the benchmark: at least :data:`EXHAUSTIVE_IK_COUNT` angles
+        per end point, -1, 0 and +1 turns per shiftable joint, and every pair returned
+        (``starts`` ignored): the :data:`EXHAUSTIVE_STARTS` pairs taken in turn from each
+        branch, best-ranked first within the branch.
 
     Returns
     -------
     list of (ndarray, ndarray), each shape (n,)
         ``(q_start, q_target)`` (rad, m); empty when an end point has no IK solution.
     """
-    model = problem.model
-    n = model.n
-    if problem.start.kind == "state":
-        starts = [problem.start.value[:n]]
-    else:
-        starts = ik_family(model, problem.start.value, options.ik_count)
-    if problem.target.kind == "state":
-        targets = [problem.target.value[:n]]
-    else:
-        targets = ik_family(model, problem.target.value, options.ik_count)
-    if not starts or not targets:
+    qa, dv, est = seed_grid(problem, options, exhaustive)
+    if est.size == 0:
         return []
-    cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
-    acc = model.tau_max * problem.torque_scale
-    qa = np.array(starts)                                   # (S, n)
-    mass = np.array(model.function("M").map(len(qa))(qa.T))  # (n, S n), blocks per start
-    inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(len(qa))])
-    d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
-    if problem.target.kind == "point":
-        d = np.where(cont, np.angle(np.exp(1j * d)), d)
-    variants = [d]
-    if problem.target.kind == "point" and cont[-1]:
-        last = d[..., -1]
-        turn = np.zeros_like(d)
-        turn[..., -1] = np.where(last != 0, -2 * np.pi * np.sign(last), 2 * np.pi)
-        variants.append(d + turn)
-    # (S, G, V, n), in the order start, target, variant; ranked by a stable sort.
-    dv = np.stack(variants, axis=2)
-    est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
-    order = np.argsort(est.ravel(), kind="stable")[:options.starts]
-    s_idx, _, _ = np.unravel_index(order, est.shape)
-    flat = dv.reshape(-1, n)
-    return [(qa[i], qa[i] + flat[j]) for i, j in zip(s_idx, order, strict=True)]
+    flat = est.ravel()
+    if exhaustive:
+        order = _round_robin(est)[:EXHAUSTIVE_STARTS]
+    else:
+        order = np.argsort(flat, kind="stable")
+        order = order[np.isfinite(flat[order])][:options.starts]
+    s_idx = np.unravel_index(order, est.shape)[0]
+    dflat = dv.reshape(-1, qa.shape[1])
+    return [(qa[i], qa[i] + dflat[j]) for i, j in zip(s_idx, order, strict=True)]
+
+
+def _round_robin(est: np.ndarray) -> np.ndarray:
+    """Flat indices of ``est`` (S, G, V): the best of each branch, then the second, ..."""
+    per_branch = []
+    for v in range(est.shape[2]):
+        flat = np.ravel_multi_index(np.indices(est.shape[:2]).reshape(2, -1).tolist()
+                                    + [[v] * est[:, :, v].size], est.shape)
+        vals = est[:, :, v].ravel()
+        order = np.argsort(vals, kind="stable")
+        per_branch.append(flat[order[np.isfinite(vals[order])]])
+    out = []
+    for rank in range(max((len(b) for b in per_branch), default=0)):
+        out += [b[rank] for b in per_branch if rank < len(b)]
+    return np.array(out, dtype=int)
