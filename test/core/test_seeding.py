@@ -8,8 +8,13 @@ import pytest
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.seeding import (EXHAUSTIVE_STARTS, branch_shifts, seed_grid,
-                                        seed_pairs, shiftable_joints)
+from tocontrol_ros.core.seeding import (
+    EXHAUSTIVE_STARTS,
+    branch_shifts,
+    seed_grid,
+    seed_pairs,
+    shiftable_joints,
+)
 
 
 def _problem(model, limits=None, **kw):

@@ -35,8 +35,9 @@ MAX_BRANCH_JOINTS = 7
 
 
 def shiftable_joints(problem: Problem) -> np.ndarray:
-    """Joints whose target may be taken a full turn further: revolute joints whose range
-    is at least 2 pi (continuous joints included), when the target is a point.
+    """Joints whose target may be taken a full turn further (when the target is a point).
+
+    Revolute joints whose range is at least 2 pi, continuous joints included.
 
     A joint-state target is one exact angle, so it has no branches.
 
