@@ -479,8 +479,9 @@ class PlannerNode(Node):
                          f"{start_point.tolist()} (within {SAME_POINT_TOL:g} m): nothing to plan",
                          {"start": start_point})
             return
-        warm = self._last_result if config.warm_start and _warm_compatible(
-            self._last_result, problem) else None
+        last = self._last_result
+        warm = last if config.warm_start and last is not None and \
+            last.can_warm_start(problem) else None
         result = self.planner.plan(problem, solver_options(config), warm_start=warm,
                                    should_stop=self._should_stop(req))
         extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
@@ -542,16 +543,6 @@ class PlannerNode(Node):
         """Stop the worker, then destroy the node."""
         self.stop_worker()
         super().destroy_node()
-
-
-def _warm_compatible(previous, problem) -> bool:
-    """A previous result can warm-start ``problem``: same kinds, k and reserve."""
-    if previous is None or previous.problem is None:
-        return False
-    prev = previous.problem
-    return (prev.model is problem.model and prev.start.kind == problem.start.kind
-            and prev.target.kind == problem.target.kind and prev.k == problem.k
-            and prev.reserve == problem.reserve)
 
 
 def build_parser() -> argparse.ArgumentParser:
