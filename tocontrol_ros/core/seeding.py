@@ -30,6 +30,10 @@ EXHAUSTIVE_IK_COUNT = 24
 #: the ranking's preference between branches.
 EXHAUSTIVE_STARTS = 216
 
+#: Ranked seeds closer than this to a better one at both ends (max-norm, rad) are tried only
+#: after every farther one.
+SEED_SPACING = 1.5
+
 #: At most this many joints get branch variants at once (2^J or 3^J variants per pair).
 MAX_BRANCH_JOINTS = 7
 
@@ -55,36 +59,27 @@ def shiftable_joints(problem: Problem) -> np.ndarray:
     return revolute & wide
 
 
-def branch_shifts(d: np.ndarray, shiftable: np.ndarray, exhaustive: bool = False
-                  ) -> np.ndarray:
-    """Full-turn multiples added to the short-way displacements ``d``.
+def branch_shifts(shiftable: np.ndarray) -> np.ndarray:
+    """Full-turn multiples added to the short-way displacements: -1, 0 or +1 turn per joint.
+
+    With the short way ``d`` in (-pi, pi], ``d - 2 pi sign(d)`` is the long way and
+    ``d + 2 pi sign(d)`` the short way plus a full turn (the best motions of the paper's arm
+    take each of the three).
 
     Parameters
     ----------
-    d : ndarray, shape (..., n)
-        Displacements, wrapped into (-pi, pi] on the shiftable joints (rad).
     shiftable : ndarray of bool, shape (n,)
-    exhaustive : bool
-        False: per shiftable joint the short way (0) or the long way (one turn against the
-        sign of ``d``; 2^J variants). True: -1, 0 and +1 turns (3^J variants).
 
     Returns
     -------
-    ndarray, shape (..., V, n)
-        ``2 pi m`` per variant; variant 0 is the short way on every joint.
+    ndarray, shape (V, n)
+        ``2 pi m`` per variant (rad), ``V = 3^J`` for J shiftable joints (at most
+        :data:`MAX_BRANCH_JOINTS` of them); variant 0 is the short way on every joint.
     """
     idx = np.flatnonzero(shiftable)[:MAX_BRANCH_JOINTS]
-    n = d.shape[-1]
-    if exhaustive:
-        combos = np.array(list(itertools.product((0, -1, 1), repeat=len(idx))), dtype=float)
-        out = np.zeros(d.shape[:-1] + (len(combos), n))
-        out[..., idx] = 2 * np.pi * combos
-        return out
-    combos = np.array(list(itertools.product((0, 1), repeat=len(idx))), dtype=float)
-    # The long way turns against the short way's sign (a zero displacement turns forwards).
-    away = np.where(d[..., idx] > 0, -1.0, 1.0)            # (..., J)
-    out = np.zeros(d.shape[:-1] + (len(combos), n))
-    out[..., idx] = 2 * np.pi * combos * away[..., None, :]
+    combos = np.array(list(itertools.product((0, -1, 1), repeat=len(idx))), dtype=float)
+    out = np.zeros((len(combos), len(shiftable)))
+    out[:, idx] = 2 * np.pi * combos
     return out
 
 
@@ -121,7 +116,7 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(len(qa))])
     d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
     d = np.where(shiftable, np.angle(np.exp(1j * d)), d)
-    dv = d[:, :, None, :] + branch_shifts(d, shiftable, exhaustive)  # (S, G, V, n)
+    dv = d[:, :, None, :] + branch_shifts(shiftable)        # (S, G, V, n)
     est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
     q_end = qa[:, None, None, :] + dv
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
@@ -137,10 +132,12 @@ def seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool = Fals
 
     Every start configuration of the family is paired with every target configuration and
     every branch (:func:`branch_shifts`: the target unwrapped to the short way, and each
-    joint that may turn a full turn also the long way); the pairs are ranked by a bang-bang
-    time estimate with diagonal inertia (one vectorised expression over start x target x
-    branch), ties kept in that order. Ranking costs microseconds per pair; each returned
-    pair costs one direct solve.
+    joint that may turn a full turn also the long way and the short way plus a turn); the
+    pairs are ranked by a bang-bang time estimate with diagonal inertia (one vectorised
+    expression over start x target x branch), ties kept in that order. The ``starts`` best
+    are returned, except that a seed within :data:`SEED_SPACING` of a better one at both ends
+    comes after every farther one. Ranking costs microseconds per pair; each returned pair
+    costs one direct solve.
 
     Parameters
     ----------
@@ -149,9 +146,8 @@ def seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool = Fals
         ``starts`` (how many pairs) and ``ik_count`` (configurations per end point).
     exhaustive : bool
         The reference mode of the benchmark: at least :data:`EXHAUSTIVE_IK_COUNT` angles
-        per end point, -1, 0 and +1 turns per shiftable joint, and every pair returned
-        (``starts`` ignored): the :data:`EXHAUSTIVE_STARTS` pairs taken in turn from each
-        branch, best-ranked first within the branch.
+        per end point and (``starts`` ignored) the :data:`EXHAUSTIVE_STARTS` pairs taken in
+        turn from each branch, best-ranked first within the branch.
 
     Returns
     -------
@@ -166,9 +162,12 @@ def seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool = Fals
         order = _round_robin(est)[:EXHAUSTIVE_STARTS]
     else:
         order = np.argsort(flat, kind="stable")
-        order = order[np.isfinite(flat[order])][:options.starts]
+        order = order[np.isfinite(flat[order])]
     s_idx = np.unravel_index(order, est.shape)[0]
     dflat = dv.reshape(-1, qa.shape[1])
+    if not exhaustive:
+        keep = _spread(qa[s_idx], qa[s_idx] + dflat[order], options.starts)
+        order, s_idx = order[keep], s_idx[keep]
     return [(qa[i], qa[i] + dflat[j]) for i, j in zip(s_idx, order, strict=True)]
 
 
@@ -185,3 +184,25 @@ def _round_robin(est: np.ndarray) -> np.ndarray:
     for rank in range(max((len(b) for b in per_branch), default=0)):
         out += [b[rank] for b in per_branch if rank < len(b)]
     return np.array(out, dtype=int)
+
+
+def _spread(q_a: np.ndarray, q_b: np.ndarray, count: int) -> np.ndarray:
+    """Indices of up to ``count`` seeds, those far from the ones kept before first.
+
+    Far: farther than :data:`SEED_SPACING` (max-norm) at one end or the other; the near ones
+    follow in their order. Seeds that close lead the direct method to the same solution: a
+    direct solve each would be spent on one basin.
+    """
+    keep: list[int] = []
+    skipped: list[int] = []
+    for i in range(len(q_a)):
+        if len(keep) >= count:
+            break
+        if keep:
+            near = np.maximum(np.max(np.abs(q_a[keep] - q_a[i]), axis=1),
+                              np.max(np.abs(q_b[keep] - q_b[i]), axis=1)) < SEED_SPACING
+            if near.any():
+                skipped.append(i)
+                continue
+        keep.append(i)
+    return np.array((keep + skipped)[:count], dtype=int)
