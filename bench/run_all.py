@@ -2,17 +2,19 @@
 
 Run from the repository root::
 
-    scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
+    scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,scaling,verification]
+        [--only paper,peers,random,optimum,scaling,verification]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
 ``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
-example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
-links, the Panda), ``verification`` (the certificate's cost against the solve, the 3R and
-the Panda). Every timing is taken in this one process, side by side; compiled
-functions go to a fresh temporary cache so that first-run costs are measured, not inherited.
+example), ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default
+multistart against the exhaustive reference on 100 seeded pairs, about half an hour),
+``scaling`` (planar arms of 2 to 8 links, the Panda), ``verification`` (the certificate's
+cost against the solve, the 3R and the Panda). Every timing is taken in this one process,
+side by side; compiled functions go to a fresh temporary cache so that first-run costs are
+measured, not inherited.
 """
 
 import argparse
@@ -45,7 +47,10 @@ def _parse(argv):
                         help="multistart candidates for the random pairs (3)")
     parser.add_argument("--budget", type=float, default=None,
                         help="seconds per case before its runs are reduced (45; 15 quick)")
-    parser.add_argument("--only", default="paper,peers,random,scaling,verification",
+    parser.add_argument("--optimum-pairs", type=int, default=None,
+                        help="pairs of the default-against-exhaustive section (default 100; "
+                             "4 with --quick); the exhaustive reference takes 10-40 s each")
+    parser.add_argument("--only", default="paper,peers,random,optimum,scaling,verification",
                         help="comma-separated parts (peers needs paper)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--keep-cache", action="store_true",
@@ -54,8 +59,9 @@ def _parse(argv):
     args.runs = args.runs or (3 if args.quick else 10)
     args.pairs = args.pairs or (8 if args.quick else 50)
     args.budget = args.budget or (15.0 if args.quick else 45.0)
+    args.optimum_pairs = args.optimum_pairs or (4 if args.quick else 100)
     args.only = [p.strip() for p in args.only.split(",") if p.strip()]
-    bad = set(args.only) - {"paper", "peers", "random", "scaling", "verification"}
+    bad = set(args.only) - {"paper", "peers", "random", "optimum", "scaling", "verification"}
     if bad:
         parser.error(f"--only: unknown parts {sorted(bad)}")
     if "peers" in args.only and "paper" not in args.only:
@@ -79,7 +85,7 @@ def main(argv=None):
 
 
 def _run(args):
-    from bench import paper, peers, random_pairs, scaling, verification
+    from bench import optimum, paper, peers, random_pairs, scaling, verification
 
     t0 = time.perf_counter()
     info = common.machine_info()
@@ -110,6 +116,8 @@ def _run(args):
     if "random" in args.only:
         section(lambda: random_pairs.run(model, args.pairs, args.pair_starts,
                                          args.pair_candidates))
+    if "optimum" in args.only:
+        section(lambda: optimum.run(model, args.optimum_pairs))
     if "scaling" in args.only:
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)
