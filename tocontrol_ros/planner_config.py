@@ -120,7 +120,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "set, H = 0 (a few ms on the paper's arm; see msg_docs/certificate.md). A "
                   "plan that fails is reported as failed, never published."),
     ParameterSpec("warm_start", True, "Also continue the previous solution when the new "
-                  "problem is near it (same kinds and reserve, each end point within 0.2 m): "
+                  "problem is near it (same kinds and reserve, each end point within 0.1 m): "
                   "one more candidate next to the multistart, never instead of it; returned "
                   "only when it is faster. Identical requests give the same T whatever came "
                   "before."),

@@ -35,7 +35,7 @@ def moved(galicki, base):
     ({}, True),
     ({"target": point(P_TARGET + MOVE)}, True),   # a moved target: what warm starts are for
     ({"target": point(P_TARGET + MOVE * 10)}, False),  # 0.5 m away: too far (WARM_RADIUS)
-    ({"start": point(P_START - MOVE * 4.1)}, False),   # the start 0.205 m away: too far
+    ({"start": point(P_START - MOVE * 2.1)}, False),   # the start 0.105 m away: too far
     ({"k": 8.0}, True),                           # another exponent: the solve steps k
     ({"reserve": RESERVE}, False),                # another torque bound: another problem
     ({"target": "state"}, False),                 # another target kind: other equations

@@ -61,9 +61,9 @@ class SolverOptions:
         :func:`~tocontrol_ros.core.ik.ik_family`).
     exhaustive : bool
         Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
-        a dense self-motion grid, every full-turn branch, every seed pair solved by the
-        direct method and every distinct direct solution continued; ``starts`` and
-        ``candidates`` are ignored (see :func:`~tocontrol_ros.core.seeding.seed_pairs`).
+        a dense self-motion grid, every full-turn branch, many seed pairs solved by the
+        direct method and many distinct direct solutions continued; ``starts`` and
+        ``candidates`` are ignored (see :mod:`~tocontrol_ros.core.seeding`).
     verify : bool
         Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
         nominal torques re-integrated through the model by an adaptive integrator, the

@@ -19,7 +19,7 @@ __all__ = ["Status", "StartRecord", "WarmState", "PlanResult", "WARM_RADIUS",
 #: A previous solution warm-starts a problem only when each end point moved by at most this
 #: (m): farther, the warm solution often lands in another (worse) basin than the multistart
 #: (measured on the paper's arm, bench/optimum.py and docs/seeding.md).
-WARM_RADIUS = 0.2
+WARM_RADIUS = 0.1
 
 #: ...and each joint-state end by at most this (max-norm of positions and velocities, rad
 #: and rad/s).

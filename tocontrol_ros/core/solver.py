@@ -62,7 +62,7 @@ from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status, WarmState
-from .seeding import seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
 
@@ -351,7 +351,8 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     best = None
     failures = []
     t0 = time.perf_counter()
-    for g, _ in distinct if options.exhaustive else distinct[:options.candidates]:
+    count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
+    for g, _ in distinct[:count]:
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
