@@ -193,7 +193,7 @@ def test_parameter_table_defaults_are_valid():
     assert config.k == 4.0 and config.default_start == (1.0, 1.0)
     assert config.sample_period == 0.01 and config.verify is True
     options = solver_options(config)
-    assert (options.starts, options.candidates, options.verify) == (16, 3, True)
+    assert (options.starts, options.candidates, options.verify) == (16, 6, True)
 
 
 def test_descriptors_carry_ranges_and_read_only():
@@ -211,7 +211,7 @@ def test_descriptors_carry_ranges_and_read_only():
     ({"starts": 2.0}, r"`starts` must be an integer"),
     ({"verify": 1}, r"`verify` must be true or false"),
     ({"sample_period": float("nan")}, r"`sample_period` must be finite"),
-    ({"starts": 2}, r"`candidates` \(3\) must not exceed `starts` \(2\)"),
+    ({"starts": 2}, r"`candidates` \(6\) must not exceed `starts` \(2\)"),
     ({"default_start": [1.0]}, r"`default_start` must have 2 entries"),
     ({"default_start": [1.0, float("nan")]}, r"`default_start` must be finite"),
     ({"gravity": [0.0, -9.8]}, r"`gravity` must have 3 entries"),

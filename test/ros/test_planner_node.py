@@ -272,7 +272,7 @@ def test_newest_service_call_supersedes_older(planner, client):
         first.join(60.0)
         second.join(60.0)
     finally:
-        client.set_parameters(candidates=3, starts=16, warm_start=True)
+        client.set_parameters(candidates=6, starts=16, warm_start=True)
     path1, _, _ = results["first"]
     path2, status2, _ = results["second"]
     assert len(path1.poses) == 0

@@ -51,11 +51,13 @@ class SolverOptions:
         time an unknown and the RK4 steps graded towards it (far fewer intervals for the
         same accuracy, and the mesh follows the switches in warm starts).
     starts : int
-        Seed pairs tried by the direct method (1 = single start). The paper's arm has many
-        local optima and the first seed pair is seldom in the best basin, hence 16.
+        Seed pairs tried by the direct method (1 = single start): the best-ranked of the
+        self-motion grids and their full-turn branches (``docs/seeding.md``). The paper's arm
+        has dozens of local optima and the first seed pair is seldom in the best basin.
     candidates : int
         Distinct direct solutions (best ``T`` at k = 1 first) continued to the requested
-        ``k`` by shooting; the best final ``T`` is returned.
+        ``k`` by shooting; the best final ``T`` is returned. The best motion's direct
+        solution is often the fourth to sixth by ``T`` at k = 1, hence 6.
     ik_count : int
         Angles of the self-motion family per end point (see
         :func:`~tocontrol_ros.core.ik.ik_family`).
@@ -94,7 +96,7 @@ class SolverOptions:
     min_k_step: float = 0.05
     switch_nodes: bool = True
     starts: int = 16
-    candidates: int = 3
+    candidates: int = 6
     ik_count: int = 8
     exhaustive: bool = False
     verify: bool = True
