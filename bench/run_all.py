@@ -2,20 +2,21 @@
 
 Run from the repository root::
 
-    scripts/dev bench                      # the full run (about 20 minutes on 2 cores)
+    scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,scaling,verification,deployed,batch,limits]
+        [--only paper,peers,random,optimum,scaling,verification,deployed,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
 ``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
-example), ``random_pairs`` (seeded start/target pairs), ``scaling`` (planar arms of 2 to 8
-links, the Panda), ``verification`` (the certificate's cost against the solve, the 3R and
-the Panda), ``deployed`` (planner and tracker as processes: idle CPU and ~/plan round trip
-against the same request in-process), ``batch`` (batch planning throughput: loop, process
-pool, Ray), ``limits`` (random cases with joint limits enforced). Every timing is taken in
-this one process, side by side; compiled functions go to a fresh temporary cache so that
-first-run costs are measured, not inherited.
+example), ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default
+multistart against the exhaustive reference on 100 seeded pairs, about half an hour),
+``scaling`` (planar arms of 2 to 8 links, the Panda), ``verification`` (the certificate's
+cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
+processes: idle CPU and ~/plan round trip against the same request in-process), ``batch``
+(batch planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint
+limits enforced). Every timing is taken in this one process, side by side; compiled
+functions go to a fresh temporary cache so that first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -33,8 +34,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "scaling", "verification", "deployed", "batch",
-         "limits")
+PARTS = ("paper", "peers", "random", "optimum", "scaling", "verification", "deployed",
+         "batch", "limits")
 
 
 def _parse(argv):
@@ -52,6 +53,9 @@ def _parse(argv):
                         help="multistart candidates for the random pairs (3)")
     parser.add_argument("--budget", type=float, default=None,
                         help="seconds per case before its runs are reduced (45; 15 quick)")
+    parser.add_argument("--optimum-pairs", type=int, default=None,
+                        help="pairs of the default-against-exhaustive section (default 100; "
+                             "4 with --quick); the exhaustive reference takes 10-40 s each")
     parser.add_argument("--only", default=",".join(PARTS),
                         help="comma-separated parts (peers needs paper)")
     parser.add_argument("--limit-cases", type=int, default=10,
@@ -71,6 +75,7 @@ def _parse(argv):
     args.runs = args.runs or (3 if args.quick else 10)
     args.pairs = args.pairs or (8 if args.quick else 50)
     args.budget = args.budget or (15.0 if args.quick else 45.0)
+    args.optimum_pairs = args.optimum_pairs or (4 if args.quick else 100)
     args.only = [p.strip() for p in args.only.split(",") if p.strip()]
     bad = set(args.only) - set(PARTS)
     if bad:
@@ -100,6 +105,7 @@ def _run(args):
         batch,
         deployed,
         limits,
+        optimum,
         paper,
         peers,
         random_pairs,
@@ -136,6 +142,8 @@ def _run(args):
     if "random" in args.only:
         section(lambda: random_pairs.run(model, args.pairs, args.pair_starts,
                                          args.pair_candidates))
+    if "optimum" in args.only:
+        section(lambda: optimum.run(model, args.optimum_pairs))
     if "scaling" in args.only:
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)

@@ -53,7 +53,7 @@ PARAM_BAD = [
     ({"k": 100.0}, "out of range"),
     ({"reserve": -0.1}, "out of range"),
     ({"starts": 0}, "out of range"),
-    ({"candidates": 5}, "must not exceed `starts`"),
+    ({"candidates": 20}, "must not exceed `starts`"),
     ({"default_start": [1.0, 1.0, 0.0]}, "`default_start` must have 2 entries"),
     ({"robot_description": "<robot/>"}, "read-only"),
     ({"frame_id": "map"}, "read-only"),

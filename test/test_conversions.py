@@ -193,7 +193,7 @@ def test_parameter_table_defaults_are_valid():
     assert config.k == 4.0 and config.default_start == (1.0, 1.0)
     assert config.sample_period == 0.01 and config.verify is True
     options = solver_options(config)
-    assert (options.starts, options.candidates, options.verify) == (1, 1, True)
+    assert (options.starts, options.candidates, options.verify) == (16, 6, True)
 
 
 def test_descriptors_carry_ranges_and_read_only():
@@ -211,7 +211,7 @@ def test_descriptors_carry_ranges_and_read_only():
     ({"starts": 2.0}, r"`starts` must be an integer"),
     ({"verify": 1}, r"`verify` must be true or false"),
     ({"sample_period": float("nan")}, r"`sample_period` must be finite"),
-    ({"candidates": 3}, r"`candidates` \(3\) must not exceed `starts` \(1\)"),
+    ({"starts": 2}, r"`candidates` \(6\) must not exceed `starts` \(2\)"),
     ({"default_start": [1.0]}, r"`default_start` must have 2 entries"),
     ({"default_start": [1.0, float("nan")]}, r"`default_start` must be finite"),
     ({"gravity": [0.0, -9.8]}, r"`gravity` must have 3 entries"),
@@ -220,6 +220,14 @@ def test_descriptors_carry_ranges_and_read_only():
 def test_config_rejects(values, match):
     with pytest.raises(ConfigError, match=match):
         config_from_values({**default_values(), **values}, task_dim=2)
+
+
+def test_the_node_multistart_defaults_are_the_solvers():
+    from tocontrol_ros.core.options import SolverOptions
+
+    values = default_values()
+    assert (values["starts"], values["candidates"]) == (SolverOptions.starts,
+                                                        SolverOptions.candidates)
 
 
 def test_yaml_and_docs_list_every_parameter():

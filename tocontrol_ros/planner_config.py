@@ -64,9 +64,13 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "equations.", 1e-14, 1e-4),
     ParameterSpec("max_newton", 30, "Newton iterations per solve (each continuation step "
                   "is one solve).", 1, 500),
-    ParameterSpec("starts", 1, "Seed pairs tried by the direct method that makes the initial "
-                  "guess (1 = single start; 16 finds the paper's best basin).", 1, 256),
-    ParameterSpec("candidates", 1, "Distinct direct solutions continued by shooting; the "
+    # starts and candidates: SolverOptions' defaults (checked by a test).
+    ParameterSpec("starts", 16, "Seed pairs tried by the direct method that makes the "
+                  "initial guess: the best-ranked of the self-motion grid and its full-turn "
+                  "branches (docs/seeding.md); with the default candidates it finds the best "
+                  "basin of nearly every problem of the paper's arm (1 = single start: "
+                  "faster, often a worse basin).", 1, 256),
+    ParameterSpec("candidates", 6, "Distinct direct solutions continued by shooting; the "
                   "fastest motion is returned.", 1, 32, constraints="candidates <= starts"),
     ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s); a solve that runs "
                   "out fails with status 'time limit reached'.", 0.1, 600.0),
@@ -75,9 +79,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "integrator must land on the target at rest, the torques stay inside the "
                   "set, H = 0 (a few ms on the paper's arm; see msg_docs/certificate.md). A "
                   "plan that fails is reported as failed, never published."),
-    ParameterSpec("warm_start", True, "Start a solve from the previous solution when start and "
-                  "target are of the same kinds and k and reserve are unchanged (falls back "
-                  "to a cold solve when it does not converge)."),
+    ParameterSpec("warm_start", True, "Also continue the previous solution when the new "
+                  "problem is near it (same kinds and reserve, each end point within 0.1 m): "
+                  "one more candidate next to the multistart, never instead of it; returned "
+                  "only when it is faster. Identical requests give the same T whatever came "
+                  "before."),
     ParameterSpec("sample_period", 0.01, "Sample period of ~/trajectory, ~/ee_path and the "
                   "~/plan response (s); the final time is always a sample.", 1e-4, 1.0),
     ParameterSpec("default_start", list(PAPER_START), "Start point (task coordinates in "

@@ -135,7 +135,9 @@ def test_service_round_trip_paper_example(client, model):
                           10.0, "trajectory")
     T = float(status.values["T"])
     assert seconds(msg.points[-1].time_from_start) == pytest.approx(T, abs=1e-9)
-    assert seconds(path.poses[-1].header.stamp) - seconds(path.header.stamp) == \
+    # Integer nanoseconds: a float of an absolute stamp resolves only about 2e-7 s.
+    end, begin = path.poses[-1].header.stamp, path.header.stamp
+    assert ((end.sec - begin.sec) * 10**9 + end.nanosec - begin.nanosec) * 1e-9 == \
         pytest.approx(T, abs=1e-8)
     assert len(msg.points) == len(path.poses) == int(status.values["samples"])
     for point, pose in zip(msg.points, path.poses, strict=True):

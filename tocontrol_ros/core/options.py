@@ -51,14 +51,21 @@ class SolverOptions:
         time an unknown and the RK4 steps graded towards it (far fewer intervals for the
         same accuracy, and the mesh follows the switches in warm starts).
     starts : int
-        Seed pairs tried by the direct method (1 = single start). The paper's arm has many
-        local optima and the first seed pair is seldom in the best basin, hence 16.
+        Seed pairs tried by the direct method (1 = single start): the best-ranked of the
+        self-motion grids and their full-turn branches (``docs/seeding.md``). The paper's arm
+        has dozens of local optima and the first seed pair is seldom in the best basin.
     candidates : int
         Distinct direct solutions (best ``T`` at k = 1 first) continued to the requested
-        ``k`` by shooting; the best final ``T`` is returned.
+        ``k`` by shooting; the best final ``T`` is returned. The best motion's direct
+        solution is often the fourth to sixth by ``T`` at k = 1, hence 6.
     ik_count : int
         Angles of the self-motion family per end point (see
         :func:`~tocontrol_ros.core.ik.ik_family`).
+    exhaustive : bool
+        Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
+        a dense self-motion grid, every full-turn branch, many seed pairs solved by the
+        direct method and many distinct direct solutions continued; ``starts`` and
+        ``candidates`` are ignored (see :mod:`~tocontrol_ros.core.seeding`).
     verify : bool
         Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
         nominal torques re-integrated through the model by an adaptive integrator, the
@@ -89,8 +96,9 @@ class SolverOptions:
     min_k_step: float = 0.05
     switch_nodes: bool = True
     starts: int = 16
-    candidates: int = 3
+    candidates: int = 6
     ik_count: int = 8
+    exhaustive: bool = False
     verify: bool = True
     verify_point_tol: float = 1e-4
     verify_velocity_tol: float = 1e-3

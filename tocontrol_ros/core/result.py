@@ -13,7 +13,17 @@ from .problem import Problem
 from .shooting import ShootingGrid
 from .trajectory import Trajectory
 
-__all__ = ["Status", "StartRecord", "WarmState", "PlanResult"]
+__all__ = ["Status", "StartRecord", "WarmState", "PlanResult", "WARM_RADIUS",
+           "WARM_JOINT_RADIUS"]
+
+#: A previous solution warm-starts a problem only when each end point moved by at most this
+#: (m): farther, the warm solution often lands in another (worse) basin than the multistart
+#: (measured on the paper's arm, bench/optimum.py and docs/seeding.md).
+WARM_RADIUS = 0.1
+
+#: ...and each joint-state end by at most this (max-norm of positions and velocities, rad
+#: and rad/s).
+WARM_JOINT_RADIUS = 0.05
 
 
 class Status(enum.Enum):
@@ -159,14 +169,41 @@ class PlanResult:
     method: str = "indirect"
 
     def can_warm_start(self, problem: Problem) -> bool:
-        """Whether :func:`~tocontrol_ros.core.solver.plan` can continue this to ``problem``.
+        """Whether :func:`~tocontrol_ros.core.solver.plan` continues this to ``problem``.
 
-        It can from a warm state with the same model, start and target kinds and reserve.
-        The exponent may differ (the solve then steps ``k``); the one rule for callers that
-        decide whether to pass a ``warm_start``.
+        It does from a warm state with the same model, start and target kinds and reserve,
+        when ``problem`` is near this one: each end point within :data:`WARM_RADIUS` of
+        the previous one, and each joint-state end within :data:`WARM_JOINT_RADIUS`. The
+        exponent may differ (the solve then steps ``k``). The one rule: ``plan`` applies it
+        to any ``warm_start`` it is given (and then solves the warm start as one more
+        candidate next to the multistart, never instead of it), so callers may pass their
+        last result unconditionally.
         """
         prev = self.problem
-        return (self.warm_state is not None and prev is not None
+        if not (self.warm_state is not None and prev is not None
                 and prev.model is problem.model and prev.start.kind == problem.start.kind
                 and prev.target.kind == problem.target.kind
-                and prev.reserve == problem.reserve)
+                and prev.reserve == problem.reserve):
+            return False
+        return self.warm_distance(problem) <= 1.0
+
+    def warm_distance(self, problem: Problem) -> float:
+        """How near ``problem`` is to the one solved, in units of the warm-start radii.
+
+        The largest of ``|p - p_prev| / WARM_RADIUS`` over both end points and, for
+        joint-state ends, ``max |x - x_prev| / WARM_JOINT_RADIUS``; ``inf`` without a
+        previous problem or when the kinds differ. At most 1 means near.
+        """
+        prev = self.problem
+        if prev is None or prev.model is not problem.model or \
+                prev.start.kind != problem.start.kind or \
+                prev.target.kind != problem.target.kind:
+            return float("inf")
+        dist = max(float(np.linalg.norm(problem.start_point - prev.start_point)),
+                   float(np.linalg.norm(problem.target_point - prev.target_point))) \
+            / WARM_RADIUS
+        for new, old in ((problem.start, prev.start), (problem.target, prev.target)):
+            if new.kind == "state":
+                dist = max(dist, float(np.max(np.abs(new.value - old.value)))
+                           / WARM_JOINT_RADIUS)
+        return dist

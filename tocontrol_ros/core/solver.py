@@ -62,7 +62,7 @@ from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status, WarmState
-from .seeding import seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
 
@@ -83,6 +83,11 @@ PLACEMENT_TOL = 1e-5
 #: follow (at most ``options.steps``): those solutions only lead to the switch mesh, which
 #: is solved with ``options.steps`` and refined, so fewer steps do the same job for less work.
 CONTINUATION_STEPS = 6
+
+#: A warm solution replaces the cold multistart's only when its ``T`` is lower by more than
+#: this (relative): within it both are the same basin, and the cold answer, which does not
+#: depend on earlier requests, is kept.
+WARM_GAIN = 1e-6
 
 #: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
 #: may not resolve the steeper law); it only places the nodes.
@@ -173,12 +178,48 @@ def plan(problem: Problem, options: SolverOptions | None = None,
 # ------------------------------------------------------------------------ driver
 def _plan(planner: Planner, problem: Problem, options: SolverOptions,
           warm_start: PlanResult | None, should_stop) -> PlanResult:
+    """The multistart, and a near previous solution as one more candidate.
+
+    The cold multistart always runs as asked; a warm start (only when
+    :meth:`PlanResult.can_warm_start` allows it: same kinds and reserve, ends near the
+    previous ones) is solved too, and returned only when its ``T`` is lower by more than
+    :data:`WARM_GAIN` (relative). So the cold answer, which does not depend on what was
+    solved before, is returned unless a near previous solution leads to a better basin.
+    """
     t_start = time.perf_counter()
-    ctx = SolveContext(planner.system, problem, options, t_start + options.time_limit,
-                       should_stop)
-    timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.model is not planner.model:
         raise ValueError("`problem.model` is not the planner's model")
+    deadline = t_start + options.time_limit
+    warm = None
+    if warm_start is not None and warm_start.can_warm_start(problem) \
+            and not problem.is_trivial():
+        warm = _plan_from(planner, problem, options, warm_start, should_stop, deadline)
+    cold = _plan_from(planner, problem, options, None, should_stop, deadline)
+    best = cold
+    if warm is not None:
+        n = problem.model.n
+        ends = warm.trajectory.state([0.0, warm.T])[:, :n] if warm.success \
+            else np.full((2, n), np.nan)
+        record = StartRecord(-1, ends[0], ends[1], np.nan, warm.T, "warm start" if
+                             warm.success else f"warm start failed: {warm.message}")
+        better = warm.success and (not cold.success or warm.T < cold.T * (1 - WARM_GAIN))
+        best = warm if better else cold
+        starts = tuple(replace(r, status="continued") if better and r.status == "returned"
+                       else r for r in cold.starts)
+        record = replace(record, status="returned") if better else record
+        timings = {key: cold.timings.get(key, 0.0) + warm.timings.get(key, 0.0)
+                   for key in cold.timings}
+        best = replace(best, starts=(record,) + starts, timings=timings)
+    best.timings["total"] = time.perf_counter() - t_start
+    return best
+
+
+def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
+               warm_start: PlanResult | None, should_stop, deadline: float) -> PlanResult:
+    """One solve: warm from ``warm_start`` only (a failure is reported), else cold."""
+    t_start = time.perf_counter()
+    ctx = SolveContext(planner.system, problem, options, deadline, should_stop)
+    timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
         return PlanResult(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value,
@@ -194,8 +235,10 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
             run, finished = _warm(ctx, warm_start)
             timings["shooting"] += time.perf_counter() - t_start
             if run is None:
-                notes.append("warm start did not converge; solved cold")
-        if run is None:
+                timings["total"] = time.perf_counter() - t_start
+                return _failure(problem, Status.NEWTON_FAILED,
+                                "the warm start did not converge", timings)
+        else:
             run, records, status, message = _cold(planner, ctx, timings)
             if status is _LIMITS_BIND:
                 return plan_limited(planner, ctx, timings, t_start, notes)
@@ -208,6 +251,10 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         traj = trajectory(ctx, run)
         sample = fine_sample(traj)
         if problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0:
+            if warm_start is not None:
+                timings["total"] = time.perf_counter() - t_start
+                return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
+                                "leaves the joint limits", timings, run=run)
             notes.append("the solution of the maximum principle leaves the joint limits")
             return plan_limited(planner, ctx, timings, t_start, notes)
     except StopError as stop:
@@ -270,7 +317,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     """
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
-    pairs = seed_pairs(problem, options)
+    pairs = seed_pairs(problem, options, options.exhaustive)
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals)
@@ -304,7 +351,8 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     best = None
     failures = []
     t0 = time.perf_counter()
-    for g, _ in distinct[:options.candidates]:
+    count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
+    for g, _ in distinct[:count]:
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")

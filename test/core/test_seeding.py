@@ -1,0 +1,130 @@
+"""Seeding of the multistart: full-turn branches, ranking order, the exhaustive mode."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.seeding import (
+    EXHAUSTIVE_STARTS,
+    SEED_SPACING,
+    branch_shifts,
+    seed_grid,
+    seed_pairs,
+    shiftable_joints,
+)
+
+
+def _problem(model, limits=None, **kw):
+    if limits is not None:
+        kw["limits"] = limits
+    return Problem(model, point(PAPER_START), point(PAPER_TARGET), k=4, **kw)
+
+
+def _estimate(model, problem, qa, qb):
+    mass = np.diag(np.array(model.function("M")(qa)))
+    return np.max(2 * np.sqrt(np.abs(qb - qa) * mass / (model.tau_max * problem.torque_scale)))
+
+
+def test_continuous_joints_get_long_way_branches(galicki):
+    problem = _problem(galicki)
+    assert shiftable_joints(problem).all()  # the paper's joints are continuous
+    pairs = seed_pairs(problem, SolverOptions(starts=10_000))
+    d = np.array([qb - qa for qa, qb in pairs])
+    # Every joint is taken the long way (|d| > pi) by some seed, and every pattern of
+    # short/long ways over the three joints occurs.
+    assert (np.abs(d) > np.pi).any(axis=0).all()
+    patterns = {tuple(row) for row in (np.abs(d) > np.pi + 1e-12)}
+    assert len(patterns) == 2 ** galicki.n
+    # At most one turn more than the short way: |d| < 3 pi; and both extra turns occur.
+    assert np.abs(d).max() < 3 * np.pi
+    assert (np.abs(d) > 2 * np.pi).any()
+
+
+def test_no_branch_where_the_range_forbids_it(galicki):
+    names = galicki.joint_names
+    # Joint 2 limited to 6 rad (< 2 pi): no branch; joint 3 to 7 rad: branches inside only.
+    limits = _problem(galicki).limits.narrowed({
+        names[1]: {"has_position_limits": True, "min_position": -3.0, "max_position": 3.0},
+        names[2]: {"has_position_limits": True, "min_position": -3.5, "max_position": 3.5}})
+    problem = _problem(galicki, limits)
+    assert shiftable_joints(problem).tolist() == [True, False, True]
+    pairs = seed_pairs(problem, SolverOptions(starts=10_000))
+    assert pairs
+    q = np.array([qa for qa, _ in pairs] + [qb for _, qb in pairs])
+    d = np.array([b - a for a, b in pairs])
+    # Both ends inside the limits, so joint 2 never turns a full turn (its range is 6 rad).
+    assert np.all((q[:, 1] >= -3.0) & (q[:, 1] <= 3.0))
+    assert np.all((q[:, 2] >= -3.5) & (q[:, 2] <= 3.5))
+    assert np.abs(d[:, 1]).max() <= 6.0
+    assert (np.abs(d[:, 2]) > np.pi).any()  # joint 3 still turns the long way when it fits
+
+
+def test_joint_state_target_has_no_branches(galicki):
+    q_t = np.array([0.3, -0.4, 2.5])
+    problem = Problem(galicki, point(PAPER_START), joint_state(q_t), k=4)
+    assert not shiftable_joints(problem).any()
+    pairs = seed_pairs(problem, SolverOptions(starts=10_000))
+    assert pairs and all(np.allclose(qb, q_t, rtol=0, atol=1e-12) for _, qb in pairs)
+
+
+def test_branch_shifts_are_minus_one_to_one_turn():
+    shifts = branch_shifts(np.array([True, True, False]))
+    assert shifts.shape == (9, 3)
+    assert np.allclose(shifts[0], 0)  # the short way first
+    assert {tuple(r) for r in np.round(shifts / (2 * np.pi)).astype(int)} == \
+        {(a, b, 0) for a in (-1, 0, 1) for b in (-1, 0, 1)}
+    assert branch_shifts(np.zeros(3, dtype=bool)).shape == (1, 3)
+
+
+def _far(qa, qb, kept_a, kept_b):
+    return all(max(np.max(np.abs(qa - a)), np.max(np.abs(qb - b))) >= SEED_SPACING
+               for a, b in zip(kept_a, kept_b, strict=True))
+
+
+def test_ranking_is_by_the_estimate_spread_over_the_manifold(galicki):
+    problem = _problem(galicki)
+    options = SolverOptions(starts=16)
+    pairs = seed_pairs(problem, options)
+    assert len(pairs) == 16
+    est = np.array([_estimate(galicki, problem, qa, qb) for qa, qb in pairs])
+    qa_all, dv, grid = seed_grid(problem, options)
+    assert est[0] == pytest.approx(grid.min(), rel=1e-12)  # the best seed first
+    # The leading pairs are far from each other and in the order of the estimate...
+    lead = 1
+    while lead < len(pairs) and _far(*pairs[lead], [p[0] for p in pairs[:lead]],
+                                     [p[1] for p in pairs[:lead]]):
+        lead += 1
+    assert lead >= 8
+    assert np.all(np.diff(est[:lead]) >= -1e-12)
+    assert np.all(np.diff(est[lead:]) >= -1e-12)
+    # ...and every seed of the grid ranked better than the last of them is one of them or
+    # near one of them.
+    s_idx, g_idx, v_idx = np.nonzero(grid < est[lead - 1] * (1 - 1e-12))
+    for s, g, v in zip(s_idx, g_idx, v_idx, strict=True):
+        qa, qb = qa_all[s], qa_all[s] + dv[s, g, v]
+        assert not _far(qa, qb, [p[0] for p in pairs[:lead]], [p[1] for p in pairs[:lead]])
+    # The seeds reach the end points.
+    for qa, qb in pairs[:5]:
+        assert np.allclose(galicki.point(qa), PAPER_START, atol=1e-8)
+        assert np.allclose(galicki.point(qb), PAPER_TARGET, atol=1e-8)
+
+
+def test_exhaustive_mode_covers_every_branch(galicki):
+    problem = _problem(galicki)
+    pairs = seed_pairs(problem, SolverOptions(starts=1), exhaustive=True)
+    assert len(pairs) == EXHAUSTIVE_STARTS  # starts ignored
+    ranked = seed_pairs(problem, SolverOptions(starts=10_000))
+    _, dv, _ = seed_grid(problem, SolverOptions(), exhaustive=True)
+    branches = dv.shape[2]
+    assert branches == 3 ** galicki.n
+    # The first 27 pairs are one per branch: their turns (relative to the short way) differ.
+    d = np.array([b - a for a, b in pairs[:branches]])
+    turns = {tuple(np.round((row - np.angle(np.exp(1j * row))) / (2 * np.pi)).astype(int))
+             for row in d}
+    assert len(turns) == branches
+    # The grid is denser than the default's.
+    assert dv.shape[0] > len({tuple(np.round(a, 9)) for a, _ in ranked})
