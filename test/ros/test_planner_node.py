@@ -596,7 +596,7 @@ def test_plans_keep_to_a_moveit_joint_limits_file(tmp_path):
         assert status.event == "solved", status.message
         assert status.values["certified"] == "true"
         result = running.node.last_result
-        assert result.method == "direct"
+        assert result.method == "direct" and status.values["method"] == "direct"
         msg = c.wait_for(lambda: c.trajectories and c.trajectories[-1], 30.0,
                          "a trajectory")
         qd = np.abs(np.array([p.velocities for p in msg.points]))
