@@ -171,7 +171,8 @@ def run(model, runs, budget):
                          fmt_ms(dop_t), f"{dop_t / paper4['solve'].median:.3f}",
                          f"{dop['point_error']:.3e}"], cv])
     targets = []
-    for label, c in (("the paper's arm, k = 4", paper4), ("the Panda without joint limits, k = 4", panda)):
+    for label, c in (("the paper's arm, k = 4", paper4),
+                     ("the Panda without joint limits, k = 4", panda)):
         if c is None:
             continue
         if c["cert"] is None:
