@@ -3,8 +3,10 @@
 Per k, side by side in one process (each case after one warm-up run):
 
 - cold: one start (``starts=1, candidates=1``), guess + shooting + continuation + refinement;
-- multistart: the solver's default (``starts=16, candidates=3``);
-- warm: the target moved by 5 cm, warm-started from the multistart result.
+- multistart: the solver's default (``SolverOptions().starts`` x ``.candidates``);
+- warm: the target moved by 5 cm, warm-started from the multistart result (since issue 17
+  the warm solution is one more candidate next to the default multistart, which always
+  runs: this is the multistart's time plus the warm continuation's).
 
 All with ``verify=False`` (the re-integration is timed once on its own). The box optimum is
 the project's Hermite-Simpson ``DirectCollocation`` (N = 200, ``box=True``, IPOPT tol 1e-9)
@@ -30,6 +32,9 @@ from bench.common import (
 from tocontrol_ros.core.direct import DirectCollocation
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, plan, verify
+
+#: The default multistart, as its label.
+_MULTI = f"{SolverOptions().starts}x{SolverOptions().candidates}"
 
 KS = (1.0, 2.0, 4.0, 8.0, 16.0)
 BOX_INTERVALS = 200
@@ -125,7 +130,7 @@ def run(model, runs, budget, first_run=True):
         "",
     ]
     lines += table(["k", "T (s)", "T, 1 start (s)", "cold (ms)", "warm (ms)",
-                    "multistart 16x3 (ms)", "Newton iterations", "BVP residual",
+                    f"multistart {_MULTI} (ms)", "Newton iterations", "BVP residual",
                     "intervals (cold / multi)", "re-int. error", "failed runs"], rows)
     lines += ["", "T / T_box: " + ", ".join(
         f"k = {k:g}: {out['k'][k]['multi_res'].T / t_box:.4f}" for k in KS) + ".", ""]
@@ -154,9 +159,10 @@ def run(model, runs, budget, first_run=True):
     targets = [
         (f"issue 3: cold solve (k = 4, one start) median <= {TARGET_COLD * 1e3:g} ms",
          _verdict(k4["cold"], TARGET_COLD)),
-        (f"issue 3: warm re-solve (k = 4) median <= {TARGET_WARM * 1e3:g} ms",
+        (f"issue 3: warm re-solve (k = 4; since issue 17 the default multistart plus the "
+         f"warm candidate) median <= {TARGET_WARM * 1e3:g} ms",
          _verdict(k4["warm"], TARGET_WARM)),
-        (f"issue 3: multistart (k = 4, 16x3) median <= {TARGET_MULTI:g} s",
+        (f"issue 3: multistart (k = 4, {_MULTI}) median <= {TARGET_MULTI:g} s",
          _verdict(k4["multi"], TARGET_MULTI)),
     ]
     return Section("The paper's example: k = 1 ... 16 and the box", lines, targets), out

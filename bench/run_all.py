@@ -220,8 +220,11 @@ def _update(text: str, info: dict, sections) -> str:
     new_targets = [t for s in sections for t in s.targets]
     if new_targets:
         old = blocks.get("Targets", "Targets\n\n| target | met? |\n|---|---|").split("\n")
-        names = {str(t[0]) for t in new_targets}
-        rows = [r for r in old[4:] if r.startswith("| ") and r.split("|")[1].strip() not in names]
+        # A row is replaced by a new one with the same name, or the same first 20 characters
+        # (a target whose wording changed, e.g. "issue 3: multistart (k = 4, 16x6) ...").
+        keys = {str(t[0])[:20] for t in new_targets}
+        rows = [r for r in old[4:] if r.startswith("| ")
+                and r.split("|")[1].strip()[:20] not in keys]
         blocks["Targets"] = "\n".join(old[:4] + rows + common.table(["", ""], new_targets)[2:]
                                       + [""])
         if "Targets" not in order:
