@@ -32,7 +32,7 @@ from .context import SolveContext
 from .direct import DirectResult, initial_path
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status
-from .seeding import seed_pairs
+from .seeding import distinct_basins, seed_pairs
 from .verification import fine_sample, limit_warnings, verdict
 
 if TYPE_CHECKING:
@@ -120,7 +120,8 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     timings["guess"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     best = None
-    for idx, res in _distinct(solved, problem.model.n)[:options.candidates]:
+    for idx, res in distinct_basins(solved, lambda g: g[1],
+                                    problem.model.n)[:options.candidates]:
         out, fine = _refined(planner, ctx, bounds, res)
         records[idx] = replace(records[idx], T=out.T if out.success else np.nan,
                                status="continued" if out.success else
@@ -157,17 +158,6 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         certificate=cert,
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, method="direct")
-
-
-def _distinct(solved: list, n: int) -> list:
-    """Guesses by increasing ``T``, one per basin (end configurations 1e-3 apart)."""
-    out, ends_seen = [], []
-    for idx, res in sorted(solved, key=lambda g: g[1].T):
-        ends = np.concatenate([res.x[0, :n], res.x[-1, :n]])
-        if all(np.max(np.abs(ends - e)) > 1e-3 for e in ends_seen):
-            out.append((idx, res))
-            ends_seen.append(ends)
-    return out
 
 
 def _refined(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult):

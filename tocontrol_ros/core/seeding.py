@@ -18,7 +18,7 @@ from .ik import ik_family
 from .options import SolverOptions
 from .problem import Problem
 
-__all__ = ["seed_pairs", "seed_grid", "shiftable_joints", "branch_shifts",
+__all__ = ["distinct_basins", "seed_pairs", "seed_grid", "shiftable_joints", "branch_shifts",
            "EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "EXHAUSTIVE_CANDIDATES"]
 
 #: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
@@ -211,3 +211,33 @@ def _spread(q_a: np.ndarray, q_b: np.ndarray, count: int) -> np.ndarray:
                 continue
         keep.append(i)
     return np.array((keep + skipped)[:count], dtype=int)
+
+
+#: Two direct solutions whose start and end configurations differ by less than this
+#: (max-norm, rad or m) are taken to be in the same basin.
+SAME_BASIN = 1e-3
+
+
+def distinct_basins(items: list, result, n: int) -> list:
+    """``items`` by increasing ``T``, one per basin.
+
+    Two direct solutions are in one basin when their start and end configurations are within
+    :data:`SAME_BASIN` of each other.
+
+    Parameters
+    ----------
+    items : list
+        Anything that holds a direct solution.
+    result : callable
+        ``item -> DirectResult`` (with ``T`` and states ``x`` of shape (N + 1, 2n)).
+    n : int
+        Joints.
+    """
+    out, seen = [], []
+    for item in sorted(items, key=lambda it: result(it).T):
+        x = result(item).x
+        ends = np.concatenate([x[0, :n], x[-1, :n]])
+        if all(np.max(np.abs(ends - e)) > SAME_BASIN for e in seen):
+            out.append(item)
+            seen.append(ends)
+    return out

@@ -62,7 +62,7 @@ from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status, WarmState
-from .seeding import EXHAUSTIVE_CANDIDATES, seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
 
@@ -342,17 +342,12 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ok.sort(key=lambda g: g[3].T)
     if touches(problem, ok[0][3].x):
         return None, list(records.values()), _LIMITS_BIND, ""
-    distinct = []
-    n = problem.model.n
-    for g in ok:
-        ends = np.concatenate([g[3].x[0, :n], g[3].x[-1, :n]])
-        if all(np.max(np.abs(ends - e)) > 1e-3 for _, e in distinct):
-            distinct.append((g, ends))
+    distinct = distinct_basins(ok, lambda g: g[3], problem.model.n)
     best = None
     failures = []
     t0 = time.perf_counter()
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
-    for g, _ in distinct[:count]:
+    for g in distinct[:count]:
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
