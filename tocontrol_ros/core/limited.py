@@ -7,10 +7,10 @@ bounds:
 
 1. every seed pair gets a coarse Hermite-Simpson solve at the requested ``k`` with the
    bounds at its mesh points, from the initial path timed within the velocity limits;
-2. the best ``options.candidates`` distinct ones are solved by the bounded multiple
-   shooting (:mod:`~tocontrol_ros.core.bounded`), its mesh doubled (at most
-   :data:`REFINEMENTS` times) while its RK4 error estimate is above ``integration_tol`` or
-   its motion leaves the limits between RK4 steps;
+2. the best ``options.candidates`` distinct ones are solved as B-spline joint paths whose
+   torques are their inverse dynamics (:mod:`~tocontrol_ros.core.flat`), first on
+   :data:`SPANS` uniform spans, then (at most :data:`REFINEMENTS` times) with the spans
+   halved where the acceleration changes (the junctions of arcs);
 3. the least ``T`` is verified (re-integration, limits included) and returned with
    ``method="direct"``.
 
@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .bounded import BoundedResult, ShootingTrajectory
 from .certificate import certify_open_loop
 from .context import SolveContext
 from .direct import DirectResult, initial_path
+from .flat import SET_PAD, FlatResult, FlatTrajectory, refined_breaks
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status
 from .seeding import distinct_basins, seed_pairs
@@ -38,24 +38,31 @@ from .verification import fine_sample, limit_warnings, verdict
 if TYPE_CHECKING:
     from .solver import Planner
 
-__all__ = ["MESH", "PAD", "REFINEMENTS", "TOUCH", "plan_limited", "state_bounds", "touches"]
+__all__ = ["PAD", "REFINEMENTS", "SPANS", "TOUCH", "plan_limited", "state_bounds", "touches"]
 
 #: A direct guess within this fraction of a position range (or of a velocity limit) of the
 #: planning limits is taken to touch them.
 TOUCH = 0.02
 
-#: Intervals and RK4 steps per interval of the bounded multiple shooting, up to 4 joints
-#: and beyond (where one RK4 step per interval keeps the generated derivative code to a size
-#: that compiles in minutes).
-MESH = {"small": (48, 4), "large": (96, 1)}
+#: Uniform spans of the first B-spline solve.
+SPANS = 32
 
 #: The bounded solve keeps inside the planning limits by this fraction of each range (of
-#: each velocity limit): it bounds the states after each RK4 step, and the motion between
-#: them and its re-integration by another integrator differ by the discretisation error.
+#: each velocity limit), so that its certificate's re-integration, a different integrator,
+#: stays inside them.
 PAD = 3e-4
 
-#: The mesh is doubled at most this many times.
-REFINEMENTS = 2
+#: The spans are halved at the junctions at most this many times.
+REFINEMENTS = 4
+
+#: Refinement stops when ``T`` changes by less than this (relative).
+T_SETTLED = 2e-5
+
+#: The torques between the sample times keep this far inside the control set; the set's
+#: pad (:data:`~tocontrol_ros.core.flat.SET_PAD` at first) is widened at most
+#: :data:`PAD_ROUNDS` times to get there.
+SET_MARGIN = 1e-7
+PAD_ROUNDS = 3
 
 #: Tolerance on the bounded NLP's constraint violation (its residual).
 RESIDUAL_TOL = 1e-6
@@ -101,8 +108,8 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module)."""
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
-    notes = list(notes) + ["joint limits bind: solved by direct multiple shooting with hard "
-                           "bounds (docs/limits.md)"]
+    notes = list(notes) + ["joint limits bind: solved as a B-spline path with hard bounds "
+                           "(docs/limits.md)"]
     bounds = state_bounds(problem, PAD)
     coarse = planner.direct(problem, options.guess_intervals)
     values = (problem.start.value, problem.target.value, problem.k)
@@ -120,12 +127,16 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     timings["guess"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     best = None
-    for idx, res in distinct_basins(solved, lambda g: g[1],
-                                    problem.model.n)[:options.candidates]:
+    done = 0
+    for idx, res in distinct_basins(solved, lambda g: g[1], problem.model.n):
+        if done == options.candidates:
+            break
         out, fine = _refined(planner, ctx, bounds, res)
         records[idx] = replace(records[idx], T=out.T if out.success else np.nan,
                                status="continued" if out.success else
                                f"bounded solve failed: {out.message}")
+        # A basin whose bounded solve fails does not count: the next one is tried.
+        done += bool(out.success)
         if out.success and (best is None or out.T < best[1].T):
             best = (idx, out, fine)
     timings["shooting"] += time.perf_counter() - t0
@@ -138,13 +149,11 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
             trajectory=None, residual=float("nan"), iterations=0, timings=timings,
             continuation=(), max_abs_u=float("nan"), delta=float("nan"), intervals=0,
             warnings=tuple(notes), starts=tuple(records), problem=problem, method="direct")
-    idx, res, fine = best
+    idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
-    traj = ShootingTrajectory(fine, res, problem.k)
     sample = fine_sample(traj)
     t0 = time.perf_counter()
-    cert_options = replace(options.certificate_options(fine.steps),
-                           residual_tol=RESIDUAL_TOL)
+    cert_options = replace(options.certificate_options(1), residual_tol=RESIDUAL_TOL)
     cert = certify_open_loop(problem, traj, cert_options, sample=sample,
                              solver_residual=res.residual) if options.verify else None
     timings["verify"] = time.perf_counter() - t0
@@ -154,48 +163,62 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         success=status is Status.SUCCESS, status=status, message=message, T=res.T,
         k=problem.k, trajectory=traj, residual=res.residual, iterations=res.iterations,
         timings=timings, continuation=(), max_abs_u=float(np.max(np.abs(sample.u))),
-        delta=0.0, intervals=fine.N, verification=dict(cert.figures) if cert else {},
+        delta=0.0, intervals=len(traj.breaks) - 1, verification=dict(cert.figures) if cert else {},
         certificate=cert,
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, method="direct")
 
 
-def _refined(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult):
-    """The bounded multiple shooting from a guess, on finer meshes until it is accurate.
+def _refined(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
+             ) -> tuple[FlatResult, FlatTrajectory | None]:
+    """The B-spline solve from a guess, with its spans halved at the junctions.
 
-    Returns the last result and the transcription that made it.
+    Returns the last successful result and its trajectory (or the failure and ``None``).
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
-    inside = state_bounds(problem, 0.5 * PAD)
-    source = _interpolate
-    for level in range(REFINEMENTS + 1):
-        fine = planner.bounded(problem, level)
-        out = fine.solve(*values, bounds, *source(guess, fine.N),
-                         max_time=ctx.deadline - time.perf_counter(),
-                         should_stop=ctx.should_stop)
+    n = problem.model.n
+    breaks: int | np.ndarray = SPANS
+    T, t, q, qd = guess.T, guess.t, guess.x[:, :n], guess.x[:, n:]
+    best = None
+    for _ in range(REFINEMENTS + 1):
+        flat = planner.flat(problem, breaks)
+        out = flat.solve(*values, T, flat.fit(T, t, q, qd), *bounds)
         ctx.check()
         if not out.success:
-            return out, fine
-        traj = ShootingTrajectory(fine, out, problem.k)
-        if traj.step_error() <= ctx.options.integration_tol and traj.overshoot(*inside) <= 0:
-            return out, fine
-        guess, source = traj, _resample
-    return out, fine
+            break
+        traj = FlatTrajectory(flat, out, problem.k)
+        settled = best is not None and abs(best[0].T - out.T) <= T_SETTLED * out.T
+        best = (out, traj, flat)
+        breaks = refined_breaks(traj)
+        if settled or len(breaks) == len(traj.breaks):
+            break
+        T = out.T
+        t = np.linspace(0.0, T, 8 * (len(breaks) + 8))
+        s = traj.evaluate(t)
+        q, qd = s.q, s.qd
+    if best is None:
+        return out, None
+    return _inside_set(ctx, bounds, *best)
 
 
-def _interpolate(res: DirectResult | BoundedResult, intervals: int
-                 ) -> tuple[float, np.ndarray, np.ndarray]:
-    """A direct solution on ``intervals`` uniform intervals: (T, x (N+1, 2n), u (N+1, n))."""
-    tau_old = res.t / res.T
-    tau = np.linspace(0.0, 1.0, intervals + 1)
-    x = np.stack([np.interp(tau, tau_old, col) for col in res.x.T], axis=1)
-    u = np.stack([np.interp(tau, tau_old, col) for col in res.u.T], axis=1)
-    return res.T, x, u
+def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory,
+                flat) -> tuple[FlatResult, FlatTrajectory]:
+    """Widen the set's pad until the torques between the sample times stay inside the set.
 
-
-def _resample(traj: ShootingTrajectory, intervals: int
-              ) -> tuple[float, np.ndarray, np.ndarray]:
-    """A bounded solution on ``intervals`` uniform intervals: (T, x, u)."""
-    t = np.linspace(0.0, traj.T, intervals + 1)
-    return traj.T, traj.state(t)[:, :2 * traj.n], traj.control_at(t)
+    At most :data:`PAD_ROUNDS` re-solves, each from the last solution.
+    """
+    problem = ctx.problem
+    values = (problem.start.value, problem.target.value, problem.k)
+    pad = SET_PAD
+    for _ in range(PAD_ROUNDS):
+        excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+        if excess <= 0.0:
+            break
+        pad += 2.0 * excess
+        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad)
+        ctx.check()
+        if not again.success:
+            break
+        out, traj = again, FlatTrajectory(flat, again, problem.k)
+    return out, traj

@@ -52,11 +52,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .bounded import BoundedShooting
 from .certificate import certify
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
-from .limited import MESH, plan_limited, touches
+from .flat import FlatTranscription
+from .limited import plan_limited, touches
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
@@ -121,20 +121,22 @@ class Planner:
                     torque_scale=scale, tol=tol)
             return self._direct[key]
 
-    def bounded(self, problem: Problem, level: int = 0) -> BoundedShooting:
-        """The bounded multiple shooting for this problem's kinds (built once, cached).
+    def flat(self, problem: Problem, spans: int | np.ndarray) -> FlatTranscription:
+        """The bounded B-spline transcription for this problem's kinds.
 
-        ``level`` doubles the mesh of :data:`~tocontrol_ros.core.limited.MESH` that many
-        times.
+        Cached for a number of uniform ``spans``; built anew for given breakpoints (the
+        refined meshes, which are particular to one motion).
         """
-        key = ("bounded", problem.start.kind, problem.target.kind, problem.torque_scale,
-               level)
+        def build() -> FlatTranscription:
+            return FlatTranscription(self.model, spans, problem.start.kind,
+                                     problem.target.kind, torque_scale=problem.torque_scale)
+        if np.ndim(spans) != 0:
+            return build()
+        key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
+               int(spans))
         with self._lock:
             if key not in self._direct:
-                intervals, steps = MESH["small" if self.model.n <= 4 else "large"]
-                self._direct[key] = BoundedShooting(
-                    self.model, intervals * 2 ** level, steps, problem.start.kind,
-                    problem.target.kind, torque_scale=problem.torque_scale)
+                self._direct[key] = build()
             return self._direct[key]
 
     def plan(self, problem: Problem, options: SolverOptions | None = None,

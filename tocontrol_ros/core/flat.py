@@ -1,0 +1,581 @@
+"""Bounded minimum-time motions as B-spline joint paths with inverse-dynamics torques.
+
+The transcription of the limit-bound problem (``docs/limits.md``). The joint path is a
+clamped B-spline of degree ``p`` in normalised time ``s = t / T`` with ``L`` uniform spans and
+``K = L + p`` control points ``P_j`` (n,):
+
+    q(t) = sum_j N_j(s) P_j,   qd(t) = q'(s) / T,   qdd(t) = q''(s) / T^2,
+
+and the torques are the inverse dynamics of that path, ``u(t) = ID(q, qd, qdd) / (tau_max
+scale)``, at every time: the published torques produce the published states exactly (up to
+the integrator that checks them), whatever the mesh. This matters for real arms: a light
+wrist (12 N m on a few hundredths of kg m^2) turns a torque error of 1e-4 into a speed error
+of a hundredth of a rad/s within a second, so a transcription whose torques are only
+interpolated (Hermite-Simpson, or piecewise-linear controls between mesh points) drifts by
+tenths of a metre when its torques are re-integrated.
+
+The NLP, in ``w = (P, T)``: minimise ``T`` subject to
+
+- the control set at ``S`` sample times (``per_span`` per span and ``s = 1``):
+  ``sum_i u_i^(2k) <= 1 - SET_PAD``;
+- the joint limits at the same times, linear in ``w``: ``lower <= q'' ... `` i.e.
+  ``lower <= B0 P <= upper`` and ``-v T <= B1 P <= v T`` (``B0``, ``B1`` the basis and its
+  derivative at the sample);
+- the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
+  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
+
+Its derivatives are assembled from one compiled function per sample (the constraint, its
+gradient and its weighted Hessian in the span's ``(p + 1) n`` control points and ``T``).
+"""
+
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from scipy.interpolate import BSpline
+
+from .compiled import compile_functions
+from .direct import _Scatter
+from .model import RobotModel
+from .pmp import LawParams
+from .trajectory import TrajectorySample, sample_times
+
+__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "SET_PAD",
+           "refined_breaks"]
+
+#: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
+#: times, so that the torques between them stay inside the set.
+SET_PAD = 1e-3
+
+#: A span is halved when some joint's acceleration changes across it by more than this
+#: fraction of that joint's largest acceleration (a junction of arcs: the cubic path ramps
+#: its acceleration over one span, which costs time in proportion to the span).
+REFINE_JUMP = 0.1
+
+#: Compiled per-sample functions, per model and degree (building them takes seconds).
+_FUNCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def breakpoints(spans: int | np.ndarray) -> np.ndarray:
+    """Breakpoints on [0, 1] (L + 1,): ``spans`` uniform spans, or given increasing ones."""
+    if np.ndim(spans) == 0:
+        return np.linspace(0.0, 1.0, int(spans) + 1)
+    br = np.asarray(spans, dtype=float)
+    if br[0] != 0.0 or br[-1] != 1.0 or np.any(np.diff(br) <= 0):
+        raise ValueError("breakpoints must increase from 0 to 1")
+    return br
+
+
+def knots(breaks: np.ndarray, degree: int) -> np.ndarray:
+    """Clamped knot vector (L + 2 degree + 1,) on breakpoints ``breaks`` (L + 1,)."""
+    return np.concatenate([np.zeros(degree), breaks, np.ones(degree)])
+
+
+def basis(breaks: np.ndarray, degree: int, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Basis values and derivatives at normalised times ``s`` (S,).
+
+    Returns
+    -------
+    span : ndarray of int, shape (S,)
+        First control point of each sample's support (``span ... span + degree``).
+    b : ndarray, shape (S, 3, degree + 1)
+        Values, first and second derivatives (in ``s``) of those ``degree + 1`` basis
+        functions.
+    """
+    s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, 1.0)
+    L = len(breaks) - 1
+    K = L + degree
+    spl = BSpline(knots(breaks, degree), np.eye(K), degree, extrapolate=False)
+    rows = [spl(s), spl.derivative(1)(s), spl.derivative(2)(s)]
+    span = np.clip(np.searchsorted(breaks, s, side="right") - 1, 0, L - 1)
+    idx = span[:, None] + np.arange(degree + 1)[None, :]
+    b = np.stack([np.take_along_axis(np.nan_to_num(r), idx, axis=1) for r in rows], axis=1)
+    return span, b
+
+
+def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
+    """Per-sample functions (SX): torques, the set's value, gradient and weighted Hessian.
+
+    ``z = (vec P_loc, T)`` with ``P_loc`` (n, degree + 1) the span's control points.
+    """
+    n, d1 = model.n, degree + 1
+    P = ca.SX.sym("P", n, d1)
+    T = ca.SX.sym("T")
+    b = ca.SX.sym("b", 3, d1)
+    k = ca.SX.sym("k")
+    mu = ca.SX.sym("mu")
+    scale = ca.SX.sym("scale", n)
+    q = ca.mtimes(P, b[0, :].T)
+    qd = ca.mtimes(P, b[1, :].T) / T
+    qdd = ca.mtimes(P, b[2, :].T) / T ** 2
+    u = model.rnea_sym(q, qd, qdd) / scale
+    c = ca.sum1(u ** (2 * k))
+    z = ca.vertcat(ca.vec(P), T)
+    hess = ca.hessian(mu * c, z)[0]
+    dz = z.numel()
+    upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
+    qs, qds, qdds = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
+    return [
+        ca.Function("flat_set", [P, T, b, k, scale], [c]),
+        ca.Function("flat_set_grad", [P, T, b, k, scale], [c, ca.densify(ca.gradient(c, z))]),
+        ca.Function("flat_set_hess", [P, T, b, k, scale, mu], [ca.densify(ca.cse(upper))]),
+        ca.Function("flat_id", [qs, qds, qdds, scale],
+                    [model.rnea_sym(qs, qds, qdds) / scale])]
+
+
+#: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
+OPEN_LOOP_POINTS = 8
+
+#: CVODES integrators of the open loop, per model, degree and tolerances.
+_OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _open_loop_integrator(model: RobotModel, degree: int, rtol: float,
+                          atol: float) -> ca.Function:
+    """CVODES over one span: the model's forward dynamics under the span's torques.
+
+    The torques are the inverse dynamics of the span's path, a polynomial
+    ``q(sigma) = sum_j c_j sigma^j`` in the span's normalised time ``sigma`` in [0, 1]
+    (parameters ``(vec c, h)``, ``h`` the span's duration); the state is integrated with
+    ``dx/dsigma = h f(x, tau)`` (forward dynamics through the factorised mass matrix, not
+    the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
+    """
+    key = (degree, rtol, atol)
+    cached = _OPEN_LOOP.setdefault(model, {})
+    if key in cached:
+        return cached[key]
+    n, d1 = model.n, degree + 1
+    x = ca.SX.sym("x", 2 * n)
+    c = ca.SX.sym("c", n, d1)
+    h = ca.SX.sym("h")
+    sig = ca.SX.sym("sigma")
+    pw = [sig ** j for j in range(d1)]
+    q = sum(c[:, j] * pw[j] for j in range(d1))
+    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
+    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
+    tau = model.rnea_sym(q, qd, qdd)
+    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    cached[key] = ca.integrator("flat_open_loop", "cvodes",
+                                {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode},
+                                0.0, grid.tolist(), {"reltol": rtol, "abstol": atol,
+                                                     "max_num_steps": 100000})
+    return cached[key]
+
+
+@dataclass(frozen=True)
+class FlatResult:
+    """Outcome of a bounded B-spline solve.
+
+    Attributes
+    ----------
+    success : bool
+    message : str
+        IPOPT's return status.
+    T : float
+        Final time (s).
+    P : ndarray, shape (K, n)
+        Control points (rad, m).
+    residual : float
+        Largest violation of the NLP's constraints (its bounds included).
+    iterations : int
+    solve_time : float
+        Wall time of the IPOPT call (s).
+    """
+
+    success: bool
+    message: str
+    T: float
+    P: np.ndarray
+    residual: float
+    iterations: int
+    solve_time: float
+
+
+class FlatTranscription:
+    """The bounded problem on one B-spline mesh, built once and reused for many solves.
+
+    Parameters
+    ----------
+    model : RobotModel
+    spans : int
+        Uniform spans ``L`` of the spline (``L + degree`` control points per joint).
+    start_kind, target_kind : {"point", "state"}
+    degree : int
+        Spline degree (3: ``C2`` paths, continuous torques).
+    per_span : int
+        Sample times per span for the control set and the limits.
+    torque_scale : float
+        ``1 - reserve``.
+    tol : float
+        IPOPT tolerance.
+    max_iter : int
+        IPOPT iteration limit.
+    """
+
+    def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
+                 target_kind: str = "point", degree: int = 3, per_span: int = 3,
+                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 1000,
+                 hull: bool = True) -> None:
+        self.breaks = breakpoints(spans)
+        self.spans = len(self.breaks) - 1
+        self.model, self.degree, self.per_span = model, degree, per_span
+        self.start_kind, self.target_kind = start_kind, target_kind
+        self.torque_scale = torque_scale
+        n, m, L, p = model.n, model.m, self.spans, degree
+        br = self.breaks
+        K = L + p
+        self.K = K
+        cached = _FUNCTIONS.setdefault(model, {})
+        if degree not in cached:
+            cached[degree] = compile_functions(f"flat{n}p{p}", _sample_functions(model, degree))
+        funs, self.compile_status = cached[degree]
+        self._set, set_grad, set_hess, self._id = funs
+        self.scale = model.tau_max * torque_scale
+        frac = np.arange(per_span) / per_span
+        self.s = np.concatenate([(br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel(),
+                                 [1.0]])
+        span, b = basis(br, p, self.s)
+        S = len(self.s)
+        self._span, self._b = span, b
+        nw = K * n + 1
+        iT = nw - 1
+        d = (p + 1) * n + 1
+        w = ca.MX.sym("w", nw)
+        sizes = [m if kind == "point" else 2 * n for kind in (start_kind, target_kind)]
+        par = ca.MX.sym("par", sum(sizes) + 1)
+        Pm = ca.reshape(w[:K * n], n, K)
+        T = w[iT]
+        k = par[-1]
+        sc = ca.DM(self.scale)
+        # Each sample's local control points, side by side: (n, (p + 1) S).
+        cols = (span[:, None] + np.arange(p + 1)[None, :]).ravel()
+        Ploc = Pm[:, cols.tolist()]
+        bcat = ca.DM(np.concatenate(list(b), axis=1))  # (3, (p + 1) S)
+        zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
+
+        # Linear rows: positions and velocities at the samples.
+        if hull:
+            # The convex hull of the control points (and of the derivative's): bounds that
+            # hold at every time, not only at the samples.
+            B0 = np.eye(K)
+            tk = knots(br, p)
+            c = p / (tk[p + 1:p + K] - tk[1:K])
+            B1 = np.zeros((K - 1, K))
+            B1[np.arange(K - 1), np.arange(K - 1)] = -c
+            B1[np.arange(K - 1), np.arange(1, K)] = c
+        else:
+            B0 = np.zeros((S, K))
+            B1 = np.zeros((S, K))
+            for r in range(S):
+                B0[r, span[r]:span[r] + p + 1] = b[r, 0]
+                B1[r, span[r]:span[r] + p + 1] = b[r, 1]
+        self._B0, self._B1 = B0, B1
+        lin_rows = []
+        self._lin_kind = []
+        for i in range(n):
+            sel = np.zeros((len(B0), nw))
+            sel[:, i:K * n:n] = B0
+            lin_rows.append(sel)
+            self._lin_kind.append(("q", i, len(B0)))
+        for i in range(n):
+            for sign in (+1, -1):
+                sel = np.zeros((len(B1), nw))
+                sel[:, i:K * n:n] = B1
+                lin_rows.append(sel)
+                self._lin_kind.append(("v" if sign > 0 else "V", i, len(B1)))
+        A = np.vstack(lin_rows)
+        # Velocity rows B1 P + v T >= 0 and B1 P - v T <= 0: v is a parameter of the solve.
+        vpar = ca.MX.sym("v", n)
+        A_P = ca.sparsify(ca.DM(A))
+        Tcoef = ca.vertcat(ca.MX.zeros(n * len(B0)), *[
+            ca.repmat(sign * vpar[i], len(B1), 1) for i in range(n) for sign in (+1, -1)])
+        g_lin = ca.mtimes(A_P[:, :iT], w[:iT]) + Tcoef * T
+
+        # Boundary rows.
+        sv, tv = par[:sizes[0]], par[sizes[0]:-1]
+        b_start = basis(br, p, np.array([0.0]))[1][0]
+        b_end = basis(br, p, np.array([1.0]))[1][0]
+        q_sym = ca.SX.sym("q", n)
+        fk = ca.Function("P", [q_sym], [model.point_sym(q_sym)])
+        g_b = []
+        for kind, value, pts, b_vel, q_end in (
+                (start_kind, sv, Pm[:, :p + 1], b_start[1], Pm[:, 0]),
+                (target_kind, tv, Pm[:, K - p - 1:], b_end[1], Pm[:, -1])):
+            vel = ca.mtimes(pts, ca.DM(b_vel))  # q'(s) at the end: T qd
+            if kind == "point":  # at rest, anywhere on the self-motion manifold
+                g_b += [fk(q_end) - value, vel]
+            else:
+                g_b += [q_end - value[:n], vel - T * value[n:]]
+        g_b = ca.vertcat(*g_b)
+
+        g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
+        ng_set, ng_lin, ng_b = S, A.shape[0], g_b.numel()
+        ng = ng_set + ng_lin + ng_b
+        g = ca.vertcat(g_set, g_lin, g_b)
+        self._rows = (ng_set, ng_lin, ng_b)
+
+        # Jacobian: the samples' gradients scattered, the linear rows, the boundary rows.
+        cs, grads = set_grad.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
+        scat = _Scatter(ng, nw)
+        for r in range(S):
+            scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
+        jac_set = scat.apply(ca.vec(grads))
+        jac_lin = ca.horzcat(A_P[:, :iT], Tcoef)
+        jac_b = ca.jacobian(g_b, w)
+        jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
+            + ca.vertcat(ca.MX(ng_set + ng_lin, nw), jac_b)
+        lam_g = ca.MX.sym("lam_g", ng)
+        lam_f = ca.MX.sym("lam_f")
+        hs = set_hess.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc,
+                             lam_g[:S].T)
+        sh = _Scatter(nw, nw, triu=True)
+        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
+                                           strict=True))
+        for r in range(S):
+            v = np.concatenate([zvars[r], [iT]])
+            sh.add(v[ur], v[uc])
+        hess = sh.apply(ca.vec(hs))
+        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
+        hess = hess + hb
+        self._nw, self._iT, self._ng = nw, iT, ng
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                "ipopt.tol": tol, "ipopt.max_iter": max_iter, "ipopt.acceptable_tol": tol,
+                "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
+                "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
+                "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar)], [
+                    T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
+                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar)], [g, jac],
+                                     ["x", "p"], ["g", "jac"]),
+                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar), lam_f, lam_g],
+                                        [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
+                "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+        allp = ca.vertcat(par, vpar)
+        self._g = ca.Function("g", [w, allp], [g])
+        self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
+        self._npar = par.numel()
+
+    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """``lbg``, ``ubg`` for state bounds (2n,) (infinite entries: none)."""
+        n = self.model.n
+        ng_set, ng_lin, ng_b = self._rows
+        lbg = np.concatenate([np.full(ng_set, -np.inf), np.zeros(ng_lin), np.zeros(ng_b)])
+        ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
+                              np.zeros(ng_b)])
+        r = ng_set
+        for kind, i, count in self._lin_kind:
+            rows = slice(r, r + count)
+            if kind == "q":
+                lbg[rows], ubg[rows] = lower[i], upper[i]
+            elif kind == "v":
+                ubg[rows] = np.inf if np.isfinite(upper[n + i]) else np.inf
+                lbg[rows] = 0.0 if np.isfinite(upper[n + i]) else -np.inf
+            else:
+                lbg[rows] = -np.inf
+                ubg[rows] = 0.0 if np.isfinite(upper[n + i]) else np.inf
+            r += count
+        return np.where(np.isfinite(lbg), lbg, -1e20), np.where(np.isfinite(ubg), ubg, 1e20)
+
+    def fit(self, T: float, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Least-squares control points (K, n) of a path given at times ``t`` (s).
+
+        The positions and velocities ``q``, ``qd`` (len(t), n) are interpolated linearly to
+        four times as many times as there are control points, so that the fit is
+        determined whatever the number of given times.
+        """
+        t = np.asarray(t, dtype=float)
+        if len(t) >= 4 * self.K:
+            tf, qf, vf = t, np.asarray(q), np.asarray(qd)
+        else:
+            tf = np.linspace(0.0, T, 4 * self.K)
+            qf = np.stack([np.interp(tf, t, c) for c in np.asarray(q).T], axis=1)
+            vf = np.stack([np.interp(tf, t, c) for c in np.asarray(qd).T], axis=1)
+        span, b = basis(self.breaks, self.degree, tf / T)
+        B = np.zeros((2, len(tf), self.K))
+        for r in range(len(tf)):
+            B[:, r, span[r]:span[r] + self.degree + 1] = b[r, :2]
+        A = np.vstack([B[0], B[1] / T])
+        return np.linalg.lstsq(A, np.vstack([qf, vf]), rcond=None)[0]
+
+    def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
+              t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              set_pad: float = SET_PAD) -> FlatResult:
+        """Solve from a guess.
+
+        Parameters
+        ----------
+        start_value : ndarray
+            Start point (m,) or joint state (2n,).
+        target_value : ndarray
+            Target point (m,) or joint state (2n,).
+        k : float
+        t_guess : float
+            Final time guess (s).
+        p_guess : ndarray, shape (K, n)
+            Control points guess.
+        lower, upper : ndarray, shape (2n,)
+            State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
+            symmetric).
+        set_pad : float
+
+        Returns
+        -------
+        FlatResult
+        """
+        n = self.model.n
+        vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
+        par = np.concatenate([start_value, target_value, [k], vmax])
+        lbg, ubg = self.bounds(lower, upper, set_pad)
+        w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
+        lbx = np.full(self._nw, -1e20)
+        ubx = np.full(self._nw, 1e20)
+        lbx[self._iT] = 1e-3
+        t0 = time.perf_counter()
+        sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        elapsed = time.perf_counter() - t0
+        stats = self.solver.stats()
+        w = np.array(sol["x"]).ravel()
+        g = np.array(self._g(w, par)).ravel()
+        resid = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0))))
+        return FlatResult(
+            success=bool(stats["success"]), message=str(stats["return_status"]),
+            T=float(w[-1]), P=w[:-1].reshape(self.K, n), residual=resid,
+            iterations=int(stats.get("iter_count", -1)), solve_time=elapsed)
+
+
+class FlatTrajectory:
+    """A bounded B-spline solution: states from the spline, torques its inverse dynamics.
+
+    Same interface as :class:`~tocontrol_ros.core.trajectory.Trajectory` for sampling and
+    verification; it has no costates (``psi``, ``S`` and ``H`` are NaN).
+
+    Parameters
+    ----------
+    transcription : FlatTranscription
+    result : FlatResult
+    k : float
+    """
+
+    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
+        model = transcription.model
+        self._model = model
+        self.n = model.n
+        self.T = result.T
+        self.joint_names = model.joint_names
+        self.law = LawParams(k, 0.0, transcription.torque_scale)
+        self.par = self.law.array()
+        self.breaks, self._degree = transcription.breaks, transcription.degree
+        self._P = result.P
+        self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
+        self._d1 = self._spl.derivative(1)
+        self._d2 = self._spl.derivative(2)
+        self._id = transcription._id
+        self._maps: dict = {}
+        self._scale = transcription.scale
+        self.t_grid = self.breaks * self.T
+        x = self._path(self.t_grid)[:2]
+        self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
+
+    def _path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T) / self.T
+        return self._spl(s), self._d1(s) / self.T, self._d2(s) / self.T ** 2
+
+    def _controls(self, q, qd, qdd) -> np.ndarray:
+        if len(q) == 1:  # the integrators' path: one time per call
+            return np.array(self._id(q[0], qd[0], qdd[0], self._scale)).T
+        if len(q) not in self._maps:
+            self._maps[len(q)] = self._id.map(len(q))
+        return np.array(self._maps[len(q)](q.T, qd.T, qdd.T, self._scale)).T
+
+    def open_loop(self, rtol: float, atol: float) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The published torques integrated from ``x(0)``, span by span (CVODES).
+
+        Returns
+        -------
+        t : ndarray, shape (L OPEN_LOOP_POINTS + 1,)
+            Times (s).
+        x : ndarray, shape (len(t), 2n)
+            Open-loop states.
+        success : bool
+        """
+        integ = _open_loop_integrator(self._model, self._degree, rtol, atol)
+        br = self.breaks
+        d1 = self._degree + 1
+        fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
+        x = self.state(0.0)[0, :2 * self.n]
+        ts, xs = [0.0], [x]
+        try:
+            for j in range(len(br) - 1):
+                ds = br[j + 1] - br[j]
+                # Taylor coefficients at the span's start (right-hand derivatives), in sigma.
+                derivs = np.stack([self._spl.derivative(i)(br[j]) if i else self._spl(br[j])
+                                   for i in range(d1)], axis=1)
+                coef = derivs * ds ** np.arange(d1) / fact
+                out = integ(x0=x, p=np.concatenate([coef.ravel(order="F"), [ds * self.T]]))
+                path = np.array(out["xf"]).T
+                xs.append(path)
+                ts.append(self.T * (br[j] + ds * np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]))
+                x = path[-1]
+        except RuntimeError:
+            return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), False
+        return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
+
+    def set_values(self, points: int = 32) -> np.ndarray:
+        """``sum_i u_i^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+        br = self.breaks
+        frac = (np.arange(points) + 0.5) / points
+        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
+        u = self.control_at(s * self.T)
+        return np.sum(u ** (2 * self.law.k), axis=1)
+
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
+        q, qd, _ = self._path(t)
+        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    def evaluate(self, t) -> TrajectorySample:
+        """All quantities at times ``t`` (s), scalar or shape (K,)."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        q, qd, qdd = self._path(t)
+        u = self._controls(q, qd, qdd)
+        nan = np.full((len(t), self.n), np.nan)
+        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
+                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
+
+    def sample(self, dt: float) -> TrajectorySample:
+        """Samples every ``dt`` seconds from 0, always including ``T``."""
+        return self.evaluate(sample_times(self.T, dt))
+
+    def control(self, t: float) -> np.ndarray:
+        """Normalised control at one time, shape (n,)."""
+        return self.control_at(np.atleast_1d(float(t)))[0]
+
+    def control_at(self, t: np.ndarray) -> np.ndarray:
+        """Normalised controls at times ``t`` (K,), shape (K, n)."""
+        return self._controls(*self._path(t))
+
+
+def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
+    """The breakpoints with every span halved where the motion changes its acceleration.
+
+    A span is halved when, for some joint, the acceleration at its two ends differs by more
+    than ``threshold`` times that joint's largest acceleration along the motion.
+
+    Returns
+    -------
+    ndarray, shape (L' + 1,)
+        New breakpoints on [0, 1] (the old ones when no span needs halving).
+    """
+    br = trajectory.breaks
+    T = trajectory.T
+    fine = trajectory._path(np.linspace(0.0, T, 20 * len(br)))[2]
+    scale = np.maximum(np.max(np.abs(fine), axis=0), 1e-9)
+    acc = trajectory._path(br * T)[2] / scale
+    jump = np.max(np.abs(np.diff(acc, axis=0)), axis=1)
+    split = jump > threshold
+    return np.union1d(br, 0.5 * (br[:-1] + br[1:])[split])
