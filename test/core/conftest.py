@@ -165,7 +165,8 @@ def robot_specs(request) -> dict:
     if robots is not None:
         files = {"panda": (robots / "panda_description/urdf/panda.urdf", "panda_hand",
                            PANDA_LOCKED),
-                 "ur5": (robots / "ur_description/urdf/ur5_robot.urdf", "tool0", {})}
+                 "ur5": (robots / "ur_description/urdf/ur5_robot.urdf", "tool0", {}),
+                 "xarm7": (robots / "xarm_description/urdf/xarm7.urdf", "link_eef", {})}
         for name, (path, tip, locked) in files.items():
             if path.is_file():
                 specs[name] = {"source": path, "kwargs": {
@@ -189,6 +190,12 @@ def panda(robot_specs):
 def ur5(robot_specs):
     """Universal Robots UR5 to ``tool0``, Pinocchio's gravity."""
     return _load(robot_specs, "ur5")
+
+
+@pytest.fixture(scope="session")
+def xarm7(robot_specs):
+    """UFactory xArm7 to ``link_eef`` (7 joints), Pinocchio's gravity."""
+    return _load(robot_specs, "xarm7")
 
 
 @pytest.fixture(scope="session")

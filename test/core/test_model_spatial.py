@@ -33,7 +33,7 @@ def _pinocchio_model(spec: dict):
     return model
 
 
-@pytest.fixture(scope="module", params=["panda", "ur5", "rpr"])
+@pytest.fixture(scope="module", params=["panda", "ur5", "xarm7", "rpr"])
 def case(request, robot_specs):
     """(our model, Pinocchio model and data, tip frame id, random states) of one robot."""
     ours = request.getfixturevalue(request.param)

@@ -463,6 +463,7 @@ class FlatTrajectory:
 
     def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
         model = transcription.model
+        self.transcription, self.result = transcription, result
         self._model = model
         self.n = model.n
         self.T = result.T

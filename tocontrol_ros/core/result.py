@@ -140,7 +140,7 @@ class PlanResult:
         and for a ``"direct"`` result).
     method : str
         ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
-        ``"direct"``: the joint limits bind, and the bounded direct multiple shooting solved
+        ``"direct"``: the joint limits bind, and the bounded B-spline transcription solved
         the problem (:mod:`~tocontrol_ros.core.limited`, ``docs/limits.md``).
     certificate : Certificate or None
         Every check with its value, tolerance and verdict (None with ``verify=False`` or

@@ -1,0 +1,160 @@
+"""The bounded B-spline transcription (core/flat.py): real arms within their URDF limits."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
+from tocontrol_ros.core.direct import DirectCollocation
+from tocontrol_ros.core.flat import FlatTrajectory, basis, breakpoints, refined_breaks
+from tocontrol_ros.core.limited import PAD, SPANS, state_bounds
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.solver import SolverOptions, plan
+
+#: The issue's Panda state at rest, and the configuration whose hand point is the target.
+PANDA_Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+PANDA_Q1 = np.array([0.9, 0.3, -0.4, -1.5, 0.5, 1.5, -0.2])
+#: A first bounded solve compiles the per-sample functions of the model (tens of seconds on
+#: a loaded machine): not a time the solver's budget should be judged on here.
+SLOW_OK = 900.0
+OPTIONS = SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK)
+
+
+# ----------------------------------------------------------------- the spline basis
+def test_basis_sums_to_one_and_its_derivatives_match_differences():
+    br = np.array([0.0, 0.1, 0.15, 0.5, 0.55, 1.0])
+    s = np.linspace(0.0, 1.0, 101)
+    _, b = basis(br, 3, s)
+    assert np.allclose(b[:, 0].sum(axis=1), 1.0)
+    assert np.allclose(b[:, 1].sum(axis=1), 0.0, atol=1e-9)
+    coef = np.random.default_rng(3).normal(size=len(br) - 1 + 3)
+
+    def path(x, order):
+        span, bb = basis(br, 3, x)
+        idx = span[:, None] + np.arange(4)[None, :]
+        return np.sum(bb[:, order] * coef[idx], axis=1)
+
+    x = np.array([0.05, 0.3, 0.7, 0.9])  # inside spans, away from the breakpoints
+    h = 1e-6
+    for order in (1, 2):
+        fd = (path(x + h, order - 1) - path(x - h, order - 1)) / (2 * h)
+        assert np.allclose(path(x, order), fd, rtol=1e-5, atol=1e-5)
+
+
+def test_breakpoints_must_increase_from_zero_to_one():
+    assert np.allclose(breakpoints(4), [0, 0.25, 0.5, 0.75, 1.0])
+    with pytest.raises(ValueError, match="increase from 0 to 1"):
+        breakpoints(np.array([0.0, 0.5, 0.4, 1.0]))
+
+
+# ----------------------------------------------------------------- the Panda
+@pytest.fixture(scope="module")
+def panda_limited(panda):
+    problem = Problem(panda, joint_state(PANDA_Q0), point(panda.point(PANDA_Q1)), k=4.0)
+    return plan(problem, OPTIONS)
+
+
+def test_panda_from_rest_keeps_its_urdf_limits(panda_limited):
+    res = panda_limited
+    assert res.success, res.message
+    assert res.method == "direct"
+    assert res.verification["position_limits"] <= 1e-6
+    assert res.verification["velocity_limits"] <= 1e-6
+    assert res.verification["point_error"] <= 1e-4
+    lim = res.problem.limits
+    fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 8001))
+    assert np.all(np.abs(fine.qd) <= lim.plan_velocity * (1 + 1e-9))
+    assert np.all((fine.q >= lim.plan_lower) & (fine.q <= lim.plan_upper))
+    assert np.max(np.sum(fine.u ** 8, axis=1)) <= 1 + 1e-9
+    # The velocity limits bind (the unconstrained optimum runs 15-35 times over them).
+    assert np.max(np.abs(fine.qd) / lim.plan_velocity) > 0.99
+    # The spans were halved where the acceleration jumps.
+    assert res.intervals > SPANS
+
+
+def test_panda_time_agrees_with_hermite_simpson_on_192_intervals(panda, panda_limited):
+    """Another transcription of the same bounded problem, started from the solution."""
+    res = panda_limited
+    problem = res.problem
+    N = 192
+    dc = DirectCollocation(panda, N, "state", "point")
+    s = res.trajectory.evaluate(np.linspace(0.0, res.T, N + 1))
+    ref = dc.solve(problem.start.value, problem.target.value, 4.0, res.T,
+                   np.hstack([s.q, s.qd]), np.clip(s.u, -1, 1),
+                   x_bounds=state_bounds(problem, PAD))
+    assert ref.success, ref.message
+    assert abs(res.T - ref.T) <= 1e-3 * ref.T, (res.T, ref.T)
+
+
+def test_open_loop_agrees_with_dop853(panda, panda_limited):
+    """The certificate's re-integration (CVODES, span by span) against scipy's DOP853 through
+    the published torques and the model's state function: the same end state."""
+    res = panda_limited
+    traj = res.trajectory
+    n = panda.n
+    _, x_cvodes, ok = traj.open_loop(1e-10, 1e-11)
+    assert ok
+    f = panda.function("f")
+    scale = res.problem.torque_scale
+
+    def rhs(t, x):
+        return np.array(f(x, traj.control(t) * scale)).ravel()
+
+    sol = solve_ivp(rhs, (0.0, res.T), traj.state(0.0)[0, :2 * n], method="DOP853",
+                    rtol=1e-9, atol=1e-10, t_eval=traj.t_grid)
+    assert sol.success
+    assert np.max(np.abs(sol.y[:, -1] - x_cvodes[-1])) < 1e-5
+    assert np.max(np.abs(sol.y[:, -1] - traj.state(res.T)[0, :2 * n])) < 1e-5
+
+
+def test_certificate_fails_a_faster_or_displaced_motion(panda_limited):
+    """The same path run 2 % faster leaves the control set and the velocity limits; the
+    last control points moved by 1 mrad miss the target: each check can fail."""
+    res = panda_limited
+    traj = res.trajectory
+    options = CertificateOptions()
+    faster = replace(traj.result, T=0.98 * res.T)
+    cert = certify_open_loop(res.problem, FlatTrajectory(traj.transcription, faster, 4.0),
+                             options)
+    failed = {item.name for item in cert.failures}
+    assert {"control_set", "velocity_limits"} <= failed, cert.summary()
+    P = traj.result.P.copy()
+    P[-2:] += 1e-3
+    moved = replace(traj.result, P=P)
+    cert = certify_open_loop(res.problem, FlatTrajectory(traj.transcription, moved, 4.0),
+                             options)
+    assert "end_point" in {item.name for item in cert.failures}, cert.summary()
+
+
+def test_refined_breaks_keep_the_old_ones(panda_limited):
+    traj = panda_limited.trajectory
+    new = refined_breaks(traj)
+    assert np.all(np.isin(traj.breaks, new))
+    assert new[0] == 0.0 and new[-1] == 1.0 and np.all(np.diff(new) > 0)
+
+
+@pytest.mark.slow
+def test_panda_point_to_point_keeps_its_limits(panda):
+    problem = Problem(panda, point(panda.point(PANDA_Q0)), point(panda.point(PANDA_Q1)), k=4.0)
+    res = plan(problem, OPTIONS)
+    assert res.success, res.message
+    assert res.method == "direct"
+    assert max(res.verification["position_limits"], res.verification["velocity_limits"]) <= 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot,q0,q1", [
+    ("ur5", [0.3, -1.2, 1.4, -1.0, 1.2, 0.4], [1.4, -0.8, 0.9, -1.6, 0.7, -0.5]),
+    ("xarm7", [0.2, 0.1, -0.3, 1.2, 0.2, 0.8, 0.0], [1.1, 0.5, 0.4, 1.8, -0.4, 1.2, 0.6]),
+])
+def test_other_arms_from_rest_keep_their_limits(request, robot, q0, q1):
+    model = request.getfixturevalue(robot)
+    problem = Problem(model, joint_state(np.array(q0)), point(model.point(np.array(q1))),
+                      k=4.0)
+    res = plan(problem, OPTIONS)
+    assert res.success, res.message
+    assert max(res.verification["position_limits"], res.verification["velocity_limits"]) <= 1e-6
