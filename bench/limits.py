@@ -2,17 +2,18 @@
 
 Robots: the paper's arm with velocity limits (0.4, 1, 1) rad/s and joint 1 within
 [-2.5, 2.5] rad (its URDF has continuous joints and a 100 rad/s placeholder), and, from
-example-robot-data, the UR5 (to ``tool0``) and the Panda (to ``panda_hand``, fingers locked)
-with their URDF limits. Each case: a start joint state drawn uniformly inside the limits
-shrunk by 10 % (at rest in even cases; moving at up to 30 % of each velocity limit in odd
-ones) and a target point, the end-effector point of another such configuration, at least
-0.1 m away; k = 4, ``starts=4, candidates=1``.
+example-robot-data, the UR5 (to ``tool0``), the Panda (to ``panda_hand``, fingers locked)
+and the xArm7 (to ``link_eef``) with their URDF limits. Each case: a start joint state drawn
+uniformly inside the limits shrunk by 10 % (at rest in even cases; moving at up to 30 % of
+each velocity limit in odd ones) and a target point, the end-effector point of another such
+configuration, at least 0.1 m away; k = 4, ``starts=4, candidates=1``. Cases per robot:
+``--robots Panda:50,UR5:50``.
 
 Reported per robot: successes; successes whose re-integration (the certificate's adaptive
 integrator) stays within every limit to 1e-6 of it; the same cases without limits and how
-far their optimum violates them; for up to 10 successes, ``T`` against Hermite-Simpson on
-192 intervals with the bounds at its mesh points started from the solution (a different
-transcription of the same problem).
+far their optimum violates them; for up to :data:`REFERENCES` successes, ``T`` against
+Hermite-Simpson on 192 intervals with the same bounds at its mesh points, started from the
+solution (a different transcription of the same problem).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from bench.common import (  # noqa: E402
     timed,
 )
 from tocontrol_ros.core.direct import DirectCollocation  # noqa: E402
+from tocontrol_ros.core.limited import PAD, state_bounds  # noqa: E402
 from tocontrol_ros.core.limits import JointLimits  # noqa: E402
 from tocontrol_ros.core.model import load_robot  # noqa: E402
 from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
@@ -45,6 +47,8 @@ from tocontrol_ros.core.solver import SolverOptions, plan, verify  # noqa: E402
 SEED = 16
 K = 4.0
 REFERENCE_INTERVALS = 192
+#: Successes per robot compared with the reference.
+REFERENCES = 12
 TIME_LIMIT = 300.0
 
 
@@ -59,7 +63,8 @@ def robots() -> dict:
     if root is not None:
         for name, rel, tip, locked in (
                 ("UR5", "ur_description/urdf/ur5_robot.urdf", "tool0", {}),
-                ("Panda", "panda_description/urdf/panda.urdf", "panda_hand", PANDA_LOCKED)):
+                ("Panda", "panda_description/urdf/panda.urdf", "panda_hand", PANDA_LOCKED),
+                ("xArm7", "xarm_description/urdf/xarm7.urdf", "link_eef", {})):
             path = root / rel
             if path.is_file():
                 model = load_robot(str(path), tip_link=tip, locked_joints=locked)
@@ -92,11 +97,9 @@ def _reference(model, res) -> float:
     dc = DirectCollocation(model, REFERENCE_INTERVALS, problem.start.kind, problem.target.kind)
     tau = np.linspace(0.0, res.T, REFERENCE_INTERVALS + 1)
     s = res.trajectory.evaluate(tau)
-    lim = problem.limits
-    bounds = (np.concatenate([lim.plan_lower, -lim.plan_velocity]),
-              np.concatenate([lim.plan_upper, lim.plan_velocity]))
     ref = dc.solve(problem.start.value, problem.target.value, problem.k, res.T,
-                   np.hstack([s.q, s.qd]), s.u, x_bounds=bounds)
+                   np.hstack([s.q, s.qd]), np.clip(s.u, -1, 1),
+                   x_bounds=state_bounds(problem, PAD))
     return ref.T if ref.success else float("nan")
 
 
@@ -129,7 +132,7 @@ def run_robot(name, model, limits, count, free=True) -> dict:
             f"{rec['free_violation']:.3g}")
     refs = []
     for res in solved:
-        if len(refs) < 10 and res.method == "direct":
+        if len(refs) < REFERENCES and res.method == "direct":
             ref = _reference(model, res)
             refs.append(abs(res.T - ref) / ref)
     return {"name": name, "n": model.n, "recs": recs, "refs": refs}
@@ -151,21 +154,37 @@ def _summary(out: dict) -> list:
             fmt_ms(statistics.median(times)) if times else "—"]
 
 
+def parse_robots(spec: str, count: int) -> dict:
+    """``"Panda:50,UR5"`` -> {name: cases} (``count`` where no count is given)."""
+    out = {}
+    for item in (i.strip() for i in spec.split(",")):
+        if item:
+            name, _, n = item.partition(":")
+            out[name] = int(n) if n else count
+    return out
+
+
 def run(count: int, names=None) -> Section:
+    """``names``: robot names, or {name: cases}; ``count`` cases where none is given."""
+    counts = names if isinstance(names, dict) else {n: count for n in (names or [])}
     outs = []
     for name, (model, limits) in robots().items():
-        if names and name not in names:
+        if counts and name not in counts:
             continue
-        outs.append(run_robot(name, model, limits, count))
+        outs.append(run_robot(name, model, limits, counts.get(name, count)))
+    sizes = sorted({len(o["recs"]) for o in outs})
     lines = [
-        f"{count} seeded random cases per robot (`bench/limits.py`): a start joint state "
-        "inside the limits (at rest, or moving at up to 30 % of the velocity limits), a "
-        "target point; k = 4, 4 starts. *Within limits*: the certificate's re-integration "
-        "stays inside every position range and velocity limit to 1e-6 of it. *Direct*: the "
-        "limits bound, and the bounded multiple shooting solved it (docs/limits.md). "
-        "*Reference*: |T - T_ref| / T_ref <= 1e-3 against Hermite-Simpson on 192 intervals "
-        "with the bounds at its mesh points. *Unconstrained*: the same cases without limits, "
-        "median of the largest violation (fraction of the range or of the velocity limit).",
+        f"{'/'.join(map(str, sizes))} seeded random cases per robot (`bench/limits.py`): a "
+        "start joint state inside the limits (at rest, or moving at up to 30 % of the "
+        "velocity limits), a target point; k = 4, 4 starts. *Within limits*: the "
+        "certificate's re-integration stays inside every position range and velocity limit "
+        "to 1e-6 of it. *Direct*: the limits bound, and the bounded B-spline transcription "
+        "solved it (docs/limits.md). *Reference*: |T - T_ref| / T_ref <= 1e-3 against "
+        f"Hermite-Simpson on {REFERENCE_INTERVALS} intervals with the same bounds at its mesh "
+        "points, started from the solution. *Unconstrained*: the same cases without limits, "
+        "median of the largest violation (fraction of the range or of the velocity limit). "
+        "*Time*: median of the whole plans (a first case pays any compilation not yet "
+        "cached).",
         ""]
     lines += table(["robot", "n", "success", "within limits", "direct", "reference",
                     "unconstrained violation", "median time (ms)"],
@@ -176,10 +195,11 @@ def run(count: int, names=None) -> Section:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=50)
-    parser.add_argument("--robots", default="", help="comma-separated names (default all)")
+    parser.add_argument("--robots", default="",
+                        help="comma-separated names, each with an optional :count "
+                             "(default all robots, --cases each)")
     args = parser.parse_args(argv)
-    names = [n.strip() for n in args.robots.split(",") if n.strip()] or None
-    sec = run(args.cases, names)
+    sec = run(args.cases, parse_robots(args.robots, args.cases) or None)
     print("\n".join([f"## {sec.title}", ""] + sec.lines))
     return 0
 

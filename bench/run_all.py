@@ -60,10 +60,10 @@ def _parse(argv):
                         help="comma-separated parts (peers needs paper)")
     parser.add_argument("--limit-cases", type=int, default=10,
                         help="random cases per robot of the joint-limits part (10)")
-    parser.add_argument("--limit-robots", default="3R-limited",
+    parser.add_argument("--limit-robots", default="3R-limited,UR5:50,Panda:50,xArm7",
                         help="robots of the joint-limits part, comma-separated, of "
-                             "3R-limited, UR5, Panda (3R-limited: the 6-7-joint arms take "
-                             "minutes per case with the bounded solve)")
+                             "3R-limited, UR5, Panda, xArm7, each with an optional :cases "
+                             "(default --limit-cases)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--update", action="store_true",
                         help="replace only the sections of the parts run (and their target "
@@ -159,7 +159,8 @@ def _run(args):
                 else batch.run(count=20))
     if "limits" in args.only:
         section(lambda: limits.run(3 if args.quick else args.limit_cases,
-                                   args.limit_robots.split(",")))
+                                   limits.parse_robots(args.limit_robots,
+                                                       3 if args.quick else args.limit_cases)))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

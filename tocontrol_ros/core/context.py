@@ -48,6 +48,9 @@ class SolveContext:
         ``time.perf_counter()`` value at which the solve stops with ``TIME_LIMIT``.
     should_stop : callable or None
         Polled between Newton iterations; returning True cancels the solve.
+    memo : dict
+        Values computed once per solve: ``"pairs"``, the multistart's seed pairs (inverse
+        kinematics costs), reused by the bounded solve where the joint limits bind.
     """
 
     system: CanonicalSystem
@@ -55,6 +58,7 @@ class SolveContext:
     options: SolverOptions
     deadline: float
     should_stop: Callable[[], bool] | None = None
+    memo: dict = field(default_factory=dict)
 
     def law(self, k: float, delta: float) -> LawParams:
         """The control law's parameters at ``k`` and ``delta`` for this problem."""

@@ -114,7 +114,10 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     coarse = planner.direct(problem, options.guess_intervals)
     values = (problem.start.value, problem.target.value, problem.k)
     records, solved = [], []
-    for idx, (qa, qb) in enumerate(seed_pairs(problem, options)):
+    pairs = ctx.memo.get("pairs")
+    if pairs is None:
+        pairs = seed_pairs(problem, options)
+    for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
         guess = initial_path(problem.model, qa, qb, options.guess_intervals,
                              problem.torque_scale, problem.limits.plan_velocity)

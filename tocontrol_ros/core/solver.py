@@ -320,6 +320,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
     pairs = seed_pairs(problem, options, options.exhaustive)
+    ctx.memo["pairs"] = pairs
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals)
