@@ -145,7 +145,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
           "none"),
     _spec("initial_positions", None, "Initial configuration (rad, m), held until the first "
           "trajectory; unset: the paper example's start on the bundled arm, else zero "
-          "(clipped to the joint limits)"),
+          "(clipped to 5 % of each range inside the joint limits, where the planner accepts a "
+          "start state)"),
     _spec("sim_rate", 2000.0, "Plant integration rate (Hz, fixed-step RK4); an integer "
           "multiple of control_rate", 1.0, 1.0e6),
     _spec("control_rate", 1000.0, "Control-law rate (Hz); the control is held over each "
@@ -236,7 +237,10 @@ class TrackerConfig:
             return q
         if bundled and model.n == len(PAPER_START_Q):
             return np.array(PAPER_START_Q)
-        return np.clip(np.zeros(model.n), model.q_lower, model.q_upper)
+        width = np.where(np.isfinite(model.q_upper - model.q_lower),
+                         model.q_upper - model.q_lower, 0.0)
+        return np.clip(np.zeros(model.n), model.q_lower + 0.05 * width,
+                       model.q_upper - 0.05 * width)
 
 
 # ------------------------------------------------------------------- conversions

@@ -8,9 +8,10 @@ bounds:
 1. every seed pair gets a coarse Hermite-Simpson solve at the requested ``k`` with the
    bounds at its mesh points, from the initial path timed within the velocity limits;
 2. the best ``options.candidates`` distinct ones are solved as B-spline joint paths whose
-   torques are their inverse dynamics (:mod:`~tocontrol_ros.core.flat`), first on
-   :data:`SPANS` uniform spans, then (at most :data:`REFINEMENTS` times) with the spans
-   halved where the acceleration changes (the junctions of arcs);
+   torques are their inverse dynamics (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS`
+   uniform spans (a basin that fails is replaced by the next); those within
+   :data:`REFINE_WINDOW` of the best are solved again (at most :data:`REFINEMENTS` times)
+   with the spans halved where the acceleration changes (the junctions of arcs);
 3. the least ``T`` is verified (re-integration, limits included) and returned with
    ``method="direct"``.
 
@@ -29,7 +30,7 @@ import numpy as np
 from .certificate import certify_open_loop
 from .context import SolveContext
 from .direct import DirectResult, initial_path
-from .flat import SET_PAD, FlatResult, FlatTrajectory, refined_breaks
+from .flat import SET_PAD, FlatResult, FlatTrajectory, FlatTranscription, refined_breaks
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status
 from .seeding import distinct_basins, seed_pairs
@@ -54,6 +55,10 @@ PAD = 3e-4
 
 #: The spans are halved at the junctions at most this many times.
 REFINEMENTS = 4
+
+#: Candidates whose first (uniform-mesh) ``T`` is within this fraction of the best one are
+#: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
+REFINE_WINDOW = 0.02
 
 #: Refinement stops when ``T`` changes by less than this (relative).
 T_SETTLED = 2e-5
@@ -129,19 +134,28 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
             solved.append((idx, res))
     timings["guess"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    best = None
-    done = 0
+    # Every candidate basin on the uniform mesh (a failed one is replaced by the next); the
+    # refinement, the costly part, only for those that can still be the best.
+    first = []
     for idx, res in distinct_basins(solved, lambda g: g[1], problem.model.n):
-        if done == options.candidates:
+        if len(first) == options.candidates:
             break
-        out, fine = _refined(planner, ctx, bounds, res)
-        records[idx] = replace(records[idx], T=out.T if out.success else np.nan,
-                               status="continued" if out.success else
-                               f"bounded solve failed: {out.message}")
-        # A basin whose bounded solve fails does not count: the next one is tried.
-        done += bool(out.success)
-        if out.success and (best is None or out.T < best[1].T):
-            best = (idx, out, fine)
+        out = _uniform(planner, ctx, bounds, res)
+        records[idx] = replace(records[idx], T=out[0].T if out[0].success else np.nan,
+                               status="continued" if out[0].success else
+                               f"bounded solve failed: {out[0].message}")
+        if out[0].success:
+            first.append((idx, out))
+    best = None
+    if first:
+        cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
+        for idx, out in first:
+            if out[0].T > cutoff:
+                continue
+            res, traj = _refined(planner, ctx, bounds, *out)
+            records[idx] = replace(records[idx], T=res.T)
+            if best is None or res.T < best[1].T:
+                best = (idx, res, traj)
     timings["shooting"] += time.perf_counter() - t0
     if best is None:
         timings["total"] = time.perf_counter() - t_start
@@ -172,37 +186,45 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         problem=problem, method="direct")
 
 
-def _refined(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
-             ) -> tuple[FlatResult, FlatTrajectory | None]:
-    """The B-spline solve from a guess, with its spans halved at the junctions.
+def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
+             ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
+    """The B-spline solve on :data:`SPANS` uniform spans from a direct guess."""
+    problem = ctx.problem
+    n = problem.model.n
+    flat = planner.flat(problem, SPANS)
+    out = flat.solve(problem.start.value, problem.target.value, problem.k, guess.T,
+                     flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:]), *bounds)
+    ctx.check()
+    if not out.success:
+        return out, None, None
+    return out, FlatTrajectory(flat, out, problem.k), flat
 
-    Returns the last successful result and its trajectory (or the failure and ``None``).
+
+def _refined(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
+             traj: FlatTrajectory, flat: FlatTranscription
+             ) -> tuple[FlatResult, FlatTrajectory]:
+    """A B-spline solution solved again with its spans halved at the junctions.
+
+    At most :data:`REFINEMENTS` times; then kept inside the control set between its samples.
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
-    n = problem.model.n
-    breaks: int | np.ndarray = SPANS
-    T, t, q, qd = guess.T, guess.t, guess.x[:, :n], guess.x[:, n:]
-    best = None
-    for _ in range(REFINEMENTS + 1):
-        flat = planner.flat(problem, breaks)
-        out = flat.solve(*values, T, flat.fit(T, t, q, qd), *bounds)
-        ctx.check()
-        if not out.success:
-            break
-        traj = FlatTrajectory(flat, out, problem.k)
-        settled = best is not None and abs(best[0].T - out.T) <= T_SETTLED * out.T
-        best = (out, traj, flat)
+    for _ in range(REFINEMENTS):
         breaks = refined_breaks(traj)
-        if settled or len(breaks) == len(traj.breaks):
+        if len(breaks) == len(traj.breaks):
             break
-        T = out.T
-        t = np.linspace(0.0, T, 8 * (len(breaks) + 8))
+        t = np.linspace(0.0, out.T, 8 * (len(breaks) + 8))
         s = traj.evaluate(t)
-        q, qd = s.q, s.qd
-    if best is None:
-        return out, None
-    return _inside_set(ctx, bounds, *best)
+        finer = planner.flat(problem, breaks)
+        again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds)
+        ctx.check()
+        if not again.success:
+            break
+        settled = abs(again.T - out.T) <= T_SETTLED * again.T
+        out, traj, flat = again, FlatTrajectory(finer, again, problem.k), finer
+        if settled:
+            break
+    return _inside_set(ctx, bounds, out, traj, flat)
 
 
 def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory,
