@@ -222,6 +222,17 @@ def test_config_rejects(values, match):
         config_from_values({**default_values(), **values}, task_dim=2)
 
 
+def test_the_paper_default_start_does_not_apply_to_a_spatial_arm():
+    """The Panda (task space xyz): the default start (the paper's planar point) is dropped
+    rather than refused, so the planner starts; a start the user gives is still checked."""
+    config = config_from_values(default_values(), task_dim=3)
+    assert config.default_start == ()
+    assert config_from_values({**default_values(), "default_start": [0.4, 0.0, 0.5]},
+                              task_dim=3).default_start == (0.4, 0.0, 0.5)
+    with pytest.raises(ConfigError, match=r"`default_start` must have 3 entries"):
+        config_from_values({**default_values(), "default_start": [0.4, 0.0]}, task_dim=3)
+
+
 def test_the_node_multistart_defaults_are_the_solvers():
     from tocontrol_ros.core.options import SolverOptions
 

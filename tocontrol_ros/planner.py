@@ -374,6 +374,12 @@ class PlannerNode(Node):
         if latest is not None:
             q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
             return ("state", q, qd)
+        if not config.default_start:
+            raise conv.ConversionError(
+                f"no recent joint state on joint_states (within "
+                f"joint_state_timeout = {config.joint_state_timeout:g} s) and no "
+                f"`default_start` for this arm: publish its joint states, set default_start "
+                f"({self.model.m} values) or give the start in the request")
         return ("point", np.array(config.default_start))
 
     def _on_goal(self, msg: PointStamped, info) -> None:

@@ -88,7 +88,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "~/plan response (s); the final time is always a sample.", 1e-4, 1.0),
     ParameterSpec("default_start", list(PAPER_START), "Start point (task coordinates in "
                   "frame_id, m) used when no recent joint state is available. Default: the "
-                  "paper's start.", constraints="one finite number per task axis"),
+                  "paper's start; on an arm whose task space is not the plane, none (a "
+                  "request then needs a recent joint state).",
+                  constraints="one finite number per task axis"),
     ParameterSpec("joint_state_timeout", 1.0, "A joint state older than this (s) is not "
                   "'recent': goals then start from default_start.", 0.0, 3600.0),
     ParameterSpec("marker_snapshots", 15, "Arm snapshots in ~/markers (as in the paper's "
@@ -197,6 +199,10 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
     out: dict[str, Any] = {}
     for spec in PARAMETERS:
         value = values.get(spec.name, spec.default)
+        if spec.name == "default_start" and list(value) == list(PAPER_START) and \
+                task_dim not in (None, len(PAPER_START)):
+            out[spec.name] = ()  # the paper's start, the default, means nothing to this arm
+            continue
         if isinstance(spec.default, list):
             size = 3 if spec.name == "gravity" else task_dim
             out[spec.name] = _check_vector(spec.name, value, size)
@@ -206,7 +212,7 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
         raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
                           f"({out['starts']}): only the starts' direct solutions can be "
                           f"continued")
-    if not out["default_start"]:
+    if not out["default_start"] and task_dim in (None, len(PAPER_START)):
         raise ConfigError("`default_start` must not be empty")
     return PlannerConfig(**{f.name: out[f.name] for f in fields(PlannerConfig)})
 
