@@ -301,10 +301,10 @@ class _Listener:
                        if _values(s).get("event") == "started"]
         return started[-1].get("topics", "").split(",") if started else None
 
-    def goal_matched(self) -> bool:
-        """Every subscription of the goal topic in the graph is matched by our publisher."""
-        wanted = self.node.count_subscribers("/planner/goal")
-        return wanted > 0 and self.goal_pub.get_subscription_count() >= wanted
+    def goal_matches(self) -> tuple[int, int]:
+        """Subscriptions of the goal topic matched by our publisher, and in the graph."""
+        return self.goal_pub.get_subscription_count(), self.node.count_subscribers(
+            "/planner/goal")
 
     def send_goal(self, target, frame: str) -> None:
         from geometry_msgs.msg import PointStamped
@@ -330,14 +330,14 @@ def _values(status) -> dict:
 #: The tracker's streams (volatile): recorded from their first message only. The demo
 #: starts no motion before the recorder has written one of each.
 TRACKER_STREAMS = ("/joint_states", "/tracker/tracking_error")
-#: The planner's outputs, whose publishers exist once the planner runs; the recorder must be
-#: subscribed to them before the first request.
-PLANNER_OUTPUTS = ("/planner/trajectory", "/planner/status", "/planner/ee_path",
-                   "/planner/markers")
+#: Topics whose publishers exist before the first request (the planner's outputs, the demo's
+#: goal publisher): the recorder must be subscribed to them before it.
+PUBLISHED_BEFORE = ("/planner/trajectory", "/planner/status", "/planner/ee_path",
+                    "/planner/markers", "/planner/goal")
 
 
 def _await_recorder(listener: _Listener, recorder: _Child, children) -> None:
-    """Wait until the recorder writes the tracker's streams and follows the planner.
+    """Wait until the recorder writes the tracker's streams and follows the other topics.
 
     A subscription alone is not enough: a volatile publisher sends nothing to it until its
     own side has matched it, so the first message written is the proof (the recorder's
@@ -350,7 +350,7 @@ def _await_recorder(listener: _Listener, recorder: _Child, children) -> None:
                            f"{recorder.tail()}")
     recorded = set(listener.recorder_topics())
     streams = recorded.intersection(TRACKER_STREAMS)
-    outputs = recorded.intersection(PLANNER_OUTPUTS)
+    outputs = recorded.intersection(PUBLISHED_BEFORE)
 
     def ready() -> bool:
         return (streams <= listener.recorder_events("first_message")
@@ -415,9 +415,13 @@ def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None 
         legs.append(_await_leg(listener, "leg 1 (service, free start)", 1, children))
         print(f"leg 2: ~/goal topic back to {list(start)}, from the arm's measured state")
         n_plans = len(listener.trajectories)
-        # The goal is volatile: the planner and the recorder must both have matched it.
-        if not listener.wait_for(listener.goal_matched, READY_TIMEOUT, children):
-            raise RuntimeError("nobody subscribed to /planner/goal")
+        # The goal is volatile: every subscription (the planner's, the recorder's) must have
+        # been matched by our publisher, else it never gets the goal.
+        if not listener.wait_for(lambda: 0 < listener.goal_matches()[1]
+                                 <= listener.goal_matches()[0], STOP_TIMEOUT, children):
+            matched, wanted = listener.goal_matches()
+            raise RuntimeError(f"the goal publisher matched {matched} of the {wanted} "
+                               f"subscriptions of /planner/goal in {STOP_TIMEOUT:g} s")
         listener.send_goal(start, frame)
         if not listener.wait_for(lambda: len(listener.trajectories) > n_plans, PLAN_TIMEOUT,
                                  children):

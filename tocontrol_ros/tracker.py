@@ -10,6 +10,8 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   ``trajectory_topic``, default ``/planner/trajectory``; reliable, transient local, so the
   planner's latched last plan arrives on start-up). A trajectory starts when it is received
   (``header.stamp`` is not used) and replaces the running one from the current plant state;
+  with ``start_at_first_trajectory`` the first one puts the arm at its first point (a
+  free-start plan, whose start configuration the planner chooses);
 - published: ``joint_states`` (``sensor_msgs/msg/JointState``: position, velocity,
   effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
   position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
