@@ -4,12 +4,16 @@
 
 1. loads the arm and checks its dynamics;
 2. starts the recorder, the planner and the tracker as separate processes (the same
-   executables ``ros2 run`` starts; ROS parameters on their command lines);
+   executables ``ros2 run`` starts; ROS parameters on their command lines, and
+   ``--params-file`` for all three), and waits until the planner is ready and the recorder
+   writes what the tracker streams (its ``~/status`` reports the first message of each
+   topic), so that the recording holds every motion from its first instant;
 3. asks the planner, on its ``~/plan`` service, for the paper's motion from (1.0, 1.0) to
    (2.2, 1.5) with k = 4 (configurations free, multistart);
-4. starts the simulated arm at the plan's first configuration, lets the tracker execute
-   the plan (nominal torques plus PD feedback), then sends a goal back to the start on the
-   planner's ``~/goal`` topic, which plans from the arm's measured state;
+4. the tracker (``start_at_first_trajectory``) puts the simulated arm at the plan's first
+   configuration and executes the plan (nominal torques plus PD feedback); the demo then
+   sends a goal back to the start on the planner's ``~/goal`` topic, which plans from the
+   arm's measured state;
 5. stops the recorder (SIGINT: the file is finished), writes the report from the recording
    alone (a figure per leg, a table, ``index.html``) and prints a summary table.
 
@@ -66,6 +70,11 @@ def build_parser():
                         help="multistart seed pairs (default 16)")
     parser.add_argument("--out", type=Path, default=Path("runs"), metavar="DIR",
                         help="folder of the recording and its report (default runs/)")
+    parser.add_argument("--params-file", type=Path, default=None, metavar="YAML",
+                        help="ROS parameters file given to the recorder, planner and tracker "
+                        "(sections 'recorder:', 'planner:', 'tracker:' or '/**:'), e.g. a "
+                        "plant that differs from the model; the demo's own settings (output, "
+                        "k, starts, ...) take precedence")
     parser.add_argument("--core-only", action="store_true",
                         help="no ROS: check the model and plan in this process")
     return parser
@@ -101,7 +110,9 @@ def main(argv=None):
     if args.urdf is not None:
         raise SystemExit("demo: --urdf works with --core-only (the ROS pipeline runs the "
                          "nodes' own robot parameter)")
-    return _pipeline(start, target, args.k, args.starts, args.out)
+    if args.params_file is not None and not args.params_file.is_file():
+        raise SystemExit(f"demo: --params-file: no such file: {args.params_file}")
+    return _pipeline(start, target, args.k, args.starts, args.out, args.params_file)
 
 
 # --------------------------------------------------------------------- core only
@@ -138,9 +149,12 @@ def _core_only(model, start, target, k, starts) -> int:
 class _Child:
     """One node process, its output kept in a log file."""
 
-    def __init__(self, name: str, module: str, params: dict, log_dir: Path) -> None:
+    def __init__(self, name: str, module: str, params: dict, log_dir: Path,
+                 params_file: Path | None = None) -> None:
         self.name = name
         cmd = [sys.executable, "-m", module, "--ros-args", "-r", f"__node:={name}"]
+        if params_file is not None:
+            cmd += ["--params-file", str(params_file)]
         for key, value in params.items():
             cmd += ["-p", f"{key}:={_param_text(value)}"]
         self.log_path = log_dir / f"{name}.log"
@@ -194,9 +208,11 @@ class _Listener:
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("tocontrol_demo", context=self.context)
-        self.lock = threading.Lock()
+        # Reentrant: wait_for holds it while predicates read the buckets.
+        self.lock = threading.RLock()
         self.planner_status: list = []
         self.tracker_status: list = []
+        self.recorder_status: list = []
         self.trajectories: list = []
         self.joint_states = 0
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -210,6 +226,12 @@ class _Listener:
                                       lambda m: self._add(self.planner_status, m), reliable)
         self.node.create_subscription(DiagnosticStatus, "/tracker/status",
                                       lambda m: self._add(self.tracker_status, m), history)
+        # The recorder keeps its last 100 events for late subscribers.
+        self.node.create_subscription(DiagnosticStatus, "/recorder/status",
+                                      lambda m: self._add(self.recorder_status, m),
+                                      QoSProfile(depth=100,
+                                                 reliability=ReliabilityPolicy.RELIABLE,
+                                                 durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.node.create_subscription(JointTrajectory, "/planner/trajectory",
                                       lambda m: self._add(self.trajectories, m), latched)
         self.node.create_subscription(JointState, "/joint_states", self._on_js, 50)
@@ -266,6 +288,24 @@ class _Listener:
             raise RuntimeError("the planner did not answer ~/plan in time")
         return future.result()
 
+    def recorder_events(self, event: str) -> set:
+        """Topics of the recorder's status events of kind `event`."""
+        with self.lock:
+            return {_values(s).get("topic") for s in self.recorder_status
+                    if _values(s).get("event") == event}
+
+    def recorder_topics(self) -> list | None:
+        """The topics the recorder records (from its "started" event), or None before it."""
+        with self.lock:
+            started = [_values(s) for s in self.recorder_status
+                       if _values(s).get("event") == "started"]
+        return started[-1].get("topics", "").split(",") if started else None
+
+    def goal_matches(self) -> tuple[int, int]:
+        """Subscriptions of the goal topic matched by our publisher, and in the graph."""
+        return self.goal_pub.get_subscription_count(), self.node.count_subscribers(
+            "/planner/goal")
+
     def send_goal(self, target, frame: str) -> None:
         from geometry_msgs.msg import PointStamped
 
@@ -287,7 +327,43 @@ def _values(status) -> dict:
     return {kv.key: kv.value for kv in status.values}
 
 
-def _pipeline(start, target, k, starts, out_dir: Path) -> int:
+#: The tracker's streams (volatile): recorded from their first message only. The demo
+#: starts no motion before the recorder has written one of each.
+TRACKER_STREAMS = ("/joint_states", "/tracker/tracking_error")
+#: Topics whose publishers exist before the first request (the planner's outputs, the demo's
+#: goal publisher): the recorder must be subscribed to them before it.
+PUBLISHED_BEFORE = ("/planner/trajectory", "/planner/status", "/planner/ee_path",
+                    "/planner/markers", "/planner/goal")
+
+
+def _await_recorder(listener: _Listener, recorder: _Child, children) -> None:
+    """Wait until the recorder writes the tracker's streams and follows the other topics.
+
+    A subscription alone is not enough: a volatile publisher sends nothing to it until its
+    own side has matched it, so the first message written is the proof (the recorder's
+    ``first_message`` event). Topics missing from the recorder's ``topics`` are not waited
+    for.
+    """
+    if not listener.wait_for(lambda: listener.recorder_topics() is not None, READY_TIMEOUT,
+                             children):
+        raise RuntimeError(f"no status from the recorder in {READY_TIMEOUT:g} s:\n"
+                           f"{recorder.tail()}")
+    recorded = set(listener.recorder_topics())
+    streams = recorded.intersection(TRACKER_STREAMS)
+    outputs = recorded.intersection(PUBLISHED_BEFORE)
+
+    def ready() -> bool:
+        return (streams <= listener.recorder_events("first_message")
+                and outputs <= listener.recorder_events("subscribed"))
+
+    if not listener.wait_for(ready, READY_TIMEOUT, children):
+        missing = sorted((streams - listener.recorder_events("first_message"))
+                         | (outputs - listener.recorder_events("subscribed")))
+        raise RuntimeError(f"the recorder did not record {missing} in {READY_TIMEOUT:g} s:\n"
+                           f"{recorder.tail()}")
+
+
+def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None = None) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     recording = out_dir / f"demo-{stamp}.mcap"
@@ -301,12 +377,18 @@ def _pipeline(start, target, k, starts, out_dir: Path) -> int:
     children: list[_Child] = []
     legs = []
     try:
-        children.append(_Child("recorder", "tocontrol_ros.recorder",
-                               {"output": str(recording)}, log_dir))
+        recorder = _Child("recorder", "tocontrol_ros.recorder", {"output": str(recording)},
+                          log_dir, params_file)
+        children.append(recorder)
         planner = _Child("planner", "tocontrol_ros.planner",
                          {"k": float(k), "starts": starts, "candidates": min(3, starts),
-                          "sample_period": 0.002, "verify": True}, log_dir)
+                          "sample_period": 0.002, "verify": True}, log_dir, params_file)
         children.append(planner)
+        # Started now, not after the plan: the recorder must see the arm before it moves.
+        # It takes the free-start plan's first configuration as its initial state.
+        tracker = _Child("tracker", "tocontrol_ros.tracker",
+                         {"start_at_first_trajectory": True}, log_dir, params_file)
+        children.append(tracker)
         print("waiting for the planner (the first start on a machine compiles the solver, "
               "10-20 s) ...")
         # "ready" is a volatile status event: if discovery completes after it, the service
@@ -317,6 +399,7 @@ def _pipeline(start, target, k, starts, out_dir: Path) -> int:
                                  READY_TIMEOUT, children):
             raise RuntimeError(f"the planner was not ready in {READY_TIMEOUT:g} s:\n"
                                f"{planner.tail()}")
+        _await_recorder(listener, recorder, children)
         frame = "base_link"
         print(f"leg 1: ~/plan service, {list(start)} -> {list(target)}, k = {k:g}, "
               f"{starts} starts")
@@ -329,14 +412,16 @@ def _pipeline(start, target, k, starts, out_dir: Path) -> int:
               f"path poses")
         if not listener.wait_for(lambda: listener.trajectories, 10.0, children):
             raise RuntimeError("no trajectory on /planner/trajectory")
-        first = listener.trajectories[-1]
-        q0 = list(first.points[0].positions)
-        tracker = _Child("tracker", "tocontrol_ros.tracker",
-                         {"initial_positions": [float(v) for v in q0]}, log_dir)
-        children.append(tracker)
         legs.append(_await_leg(listener, "leg 1 (service, free start)", 1, children))
         print(f"leg 2: ~/goal topic back to {list(start)}, from the arm's measured state")
         n_plans = len(listener.trajectories)
+        # The goal is volatile: every subscription (the planner's, the recorder's) must have
+        # been matched by our publisher, else it never gets the goal.
+        if not listener.wait_for(lambda: 0 < listener.goal_matches()[1]
+                                 <= listener.goal_matches()[0], STOP_TIMEOUT, children):
+            matched, wanted = listener.goal_matches()
+            raise RuntimeError(f"the goal publisher matched {matched} of the {wanted} "
+                               f"subscriptions of /planner/goal in {STOP_TIMEOUT:g} s")
         listener.send_goal(start, frame)
         if not listener.wait_for(lambda: len(listener.trajectories) > n_plans, PLAN_TIMEOUT,
                                  children):

@@ -7,6 +7,16 @@ source timestamp (publish time). Each topic's type and the QoS its publishers of
 taken from the ROS graph when a publisher first appears; the subscription asks for what all
 publishers offer (reliable, transient local), so a latched plan is captured too.
 
+Progress goes to ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, reliable, transient
+local, the last 100 kept), one event each (key ``event``): ``started`` (keys ``output`` and
+``topics``, comma-separated), ``subscribed`` when a topic is subscribed (keys ``topic``,
+``type``), ``first_message`` when its first message is written (key ``topic``),
+``not_recorded`` for a topic that cannot be (level ERROR). A topic counts as recorded from
+its ``first_message``: a subscription exists before the publisher's side has matched it, and
+what a volatile publisher sends in between is lost. A program that needs the whole of a
+stream in the file (the demo) waits for that event before it makes the stream's publisher
+act.
+
 SIGINT and SIGTERM finish the file (last chunk, summary, indexes) after taking what is
 already queued. A process killed outright (``kill -9``) leaves a file without summary and
 indexes that holds every message received up to about ``flush_period`` (0.1 s) before the
@@ -26,6 +36,7 @@ import time
 from dataclasses import dataclass
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
@@ -37,7 +48,7 @@ from rclpy.qos import (
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from tocontrol_ros import mcap_io
+from tocontrol_ros import mcap_io, qos
 from tocontrol_ros.params import ParameterSpec, declare_all, parameters_help
 
 #: Everything the planner and the tracker publish, and their inputs.
@@ -53,6 +64,8 @@ DEFAULT_TOPICS = (
 )
 #: How long (s) a stop request keeps taking messages already queued in the middleware.
 DRAIN_TIME = 0.3
+#: Status events kept for late subscribers: two per topic and a few more.
+QOS_STATUS = qos.status_profile(100, latched=True)
 
 
 @dataclass(frozen=True)
@@ -162,8 +175,13 @@ class Recorder(Node):
                 flush_period=self.config.flush_period)
         self.writer = writer
         self._recorded = {}
+        self._first_seen = set()  # topics whose first message was written
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
         self.get_logger().info(f"recording {len(self.config.topics)} topics to "
                                f"{self.writer.path}")
+        self._status(DiagnosticStatus.OK, f"recording {len(self.config.topics)} topics to "
+                     f"{self.writer.path}", event="started", output=str(self.writer.path),
+                     topics=",".join(self.config.topics))
         self.create_timer(self.config.discovery_period, self.discover)
         # Checked twice per period: a message waits at most about one period.
         self.create_timer(self.config.flush_period / 2, self.writer.flush_if_due)
@@ -173,6 +191,16 @@ class Recorder(Node):
     def pending_topics(self):
         """Topics still waiting for a publisher."""
         return [t for t in self.config.topics if t not in self._recorded]
+
+    @property
+    def receiving_topics(self):
+        """Topics whose first message has been written, in the order of ``topics``."""
+        return [t for t in self.config.topics if t in self._first_seen]
+
+    def _status(self, level, message, **values):
+        self._pub_status.publish(DiagnosticStatus(
+            level=level, name=self.get_fully_qualified_name(), message=message,
+            values=[KeyValue(key=k, value=v) for k, v in values.items()]))
 
     def discover(self):
         """Subscribe to each wanted topic that has gained a publisher."""
@@ -192,12 +220,16 @@ class Recorder(Node):
                 self.writer.add_topic(topic, type_name, offered, infos[0].topic_type_hash)
             except mcap_io.McapIOError as err:
                 self.get_logger().error(f"{topic}: not recorded: {err}")
+                self._status(DiagnosticStatus.ERROR, f"{topic}: not recorded: {err}",
+                             event="not_recorded", topic=topic)
                 self._recorded[topic] = None
                 continue
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._callback(topic),
                 subscription_qos(offered, self.config.queue_depth), raw=True)
             self.get_logger().info(f"recording {topic} ({type_name})")
+            self._status(DiagnosticStatus.OK, f"subscribed to {topic} ({type_name})",
+                         event="subscribed", topic=topic, type=type_name)
 
     def _callback(self, topic):
         write = self.writer.write
@@ -206,6 +238,10 @@ class Recorder(Node):
             received = info.get("received_timestamp") or time.time_ns()
             source = info.get("source_timestamp") or received
             write(topic, data, received, source, info.get("publication_sequence_number") or 0)
+            if topic not in self._first_seen:
+                self._first_seen.add(topic)
+                self._status(DiagnosticStatus.OK, f"first message on {topic} written",
+                             event="first_message", topic=topic)
 
         return on_message
 

@@ -10,6 +10,8 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   ``trajectory_topic``, default ``/planner/trajectory``; reliable, transient local, so the
   planner's latched last plan arrives on start-up). A trajectory starts when it is received
   (``header.stamp`` is not used) and replaces the running one from the current plant state;
+  with ``start_at_first_trajectory`` the first one puts the arm at its first point (a
+  free-start plan, whose start configuration the planner chooses);
 - published: ``joint_states`` (``sensor_msgs/msg/JointState``: position, velocity,
   effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
   position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
@@ -161,6 +163,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
           "from zero)"),
     _spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
           "trajectory_msgs/JointTrajectory"),
+    _spec("start_at_first_trajectory", False, "Put the simulated arm at the first "
+          "trajectory's first point (positions, velocities, plus initial_offset) when it "
+          "arrives, instead of checking it against start_tolerance: for a plan whose start "
+          "configuration the planner chooses (a free start on ~/plan). Only before the "
+          "first motion and any ~/reset; later trajectories are checked as usual"),
     _spec("start_tolerance", 0.1, "Largest distance (rad, m; any joint) between a "
           "trajectory's first point and the arm's position, now or as published in the last "
           "2 s of wall time (a plan made from the state of a moving arm); farther: rejected",
@@ -188,6 +195,7 @@ class TrackerConfig:
     time_scale: float
     publish_clock: bool
     trajectory_topic: str
+    start_at_first_trajectory: bool
     start_tolerance: float
     max_points: int
     max_duration: float
@@ -218,6 +226,7 @@ class TrackerConfig:
             update_rate=float(values["update_rate"]), time_scale=float(values["time_scale"]),
             publish_clock=bool(values["publish_clock"]),
             trajectory_topic=values["trajectory_topic"],
+            start_at_first_trajectory=bool(values["start_at_first_trajectory"]),
             start_tolerance=float(values["start_tolerance"]),
             max_points=int(values["max_points"]), max_duration=float(values["max_duration"]))
 
@@ -415,6 +424,8 @@ class TrackerNode(Node):
         # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
         self._parsed: list = []
         self._history: collections.deque = collections.deque()  # (wall time, q) published
+        # Until the first motion or reset: the next trajectory places the arm at its start.
+        self._place_at_start = self.config.start_at_first_trajectory
         if not self._sim_time:
             self._publish_state(self._initial_row())
         # Wall time even with use_sim_time: the tick reads the ROS clock (a sim-time timer
@@ -493,6 +504,9 @@ class TrackerNode(Node):
             nominal = item
             if self._sim_time:
                 self._follow_clock()  # a trajectory right after the first /clock: stamp with it
+            placed = self._place_at_start
+            if placed:
+                self._place_at(nominal)
             gaps = np.abs(nominal.q[0] - self.tracker.q)
             offset = float(np.max(gaps))
             # Planned from a state the arm had: a plan from the published joint states of the
@@ -500,7 +514,7 @@ class TrackerNode(Node):
             recent = np.array([q for _, q in self._history]) if self._history else \
                 self.tracker.q[None, :]
             nearest = float(np.min(np.max(np.abs(recent - nominal.q[0]), axis=1)))
-            if min(offset, nearest) > self.config.start_tolerance:
+            if not placed and min(offset, nearest) > self.config.start_tolerance:
                 j = int(np.argmax(gaps))
                 self._reject(f"its first point is {offset:.3g} rad from the current position "
                              f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
@@ -513,13 +527,15 @@ class TrackerNode(Node):
                      for field, values in (("position", self.tracker.q),
                                            ("velocity", self.tracker.qd))
                      for name, value in zip(self.joint_names, values, strict=True)}
+            self._place_at_start = False
             preempted = self.tracker.start(nominal)
             if preempted is not None:
                 self._pub_status.publish(self._summary_status(preempted))
             self._status(DiagnosticStatus.OK,
                          f"executing trajectory: {len(nominal)} points, T = "
                          f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
-                         f"position",
+                         f"position" + (" (the arm placed there: start_at_first_trajectory)"
+                                        if placed else ""),
                          {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
                           "start_offset": f"{offset:.9g}",
                           "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
@@ -549,6 +565,7 @@ class TrackerNode(Node):
             self.get_logger().warning(f"reset rejected: {item.error}")
             return
         q, qd = item.q, item.qd
+        self._place_at_start = False
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
@@ -559,6 +576,17 @@ class TrackerNode(Node):
         # The arm was put elsewhere: the positions it had before are no start for a plan.
         self._history.clear()
         self._publish_state(self._initial_row())
+
+    def _place_at(self, nominal: NominalTrajectory) -> None:
+        """``start_at_first_trajectory``: the plant at the trajectory's first point."""
+        n = self.model.n
+        offset = self.config.plant.offset(n)
+        self.tracker.reset(nominal.q[0] + offset[:n], nominal.qd[0] + offset[n:])
+        self._history.clear()
+        # The state it is put at, stamped now: the recorded motion starts from it.
+        self._publish_state(self._initial_row())
+        self.get_logger().info(f"start_at_first_trajectory: arm placed at "
+                               f"{np.round(self.tracker.q, 6).tolist()}")
 
     def destroy_node(self) -> None:
         """Stop the parsing thread, then destroy the node."""

@@ -21,6 +21,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from mcap.reader import make_reader
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros import mcap_io, qos
 from tocontrol_ros.replay import recorded_initial_state
@@ -39,14 +40,48 @@ def command(name="demo"):
         os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
 
 
+def run_demo(out_dir, *args):
+    cmd, env = command("demo")
+    proc = subprocess.run(cmd + ["--out", str(out_dir), *args], env=env, capture_output=True,
+                          text=True, timeout=420)
+    return out_dir, proc.returncode, proc.stdout + proc.stderr
+
+
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
     """The demo's folder and output (run once for the tests of this module)."""
-    out_dir = tmp_path_factory.mktemp("demo")
-    cmd, env = command("demo")
-    proc = subprocess.run(cmd + ["--out", str(out_dir)], env=env, capture_output=True,
-                          text=True, timeout=420)
-    return out_dir, proc.returncode, proc.stdout + proc.stderr
+    return run_demo(tmp_path_factory.mktemp("demo"))
+
+
+#: The tracker's joint_states period (s of simulated time; its publish_rate is 100 Hz).
+JS_PERIOD = 0.01
+
+
+def assert_first_motion_recorded(recording):
+    """The recording holds the whole first motion: joint states from before the tracker's
+    first "executing" event, the state it started from equal to the plan's first point, and
+    no gap longer than a publishing period until the plan's end."""
+    started = tracker_events(recording, "executing")
+    assert started, "no executing event recorded"
+    t_start, duration = float(started[0]["start_time"]), float(started[0]["duration"])
+    plans = [deserialize_message(r.data, JointTrajectory)
+             for r in mcap_io.iter_records(recording, topics=["/planner/trajectory"])]
+    assert plans, "no trajectory recorded"
+    messages = [deserialize_message(r.data, JointState)
+                for r in mcap_io.iter_records(recording, topics=["/joint_states"])]
+    # Stable: of two states with one stamp, the one received later stays last.
+    states = sorted(((m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, list(m.position))
+                     for m in messages), key=lambda state: state[0])
+    assert states, "no joint_states recorded"
+    assert states[0][0] <= t_start + 1e-6, (
+        f"the first recorded joint state is {states[0][0] - t_start:.3f} s after the start "
+        f"of the first motion")
+    before = [q for t, q in states if t <= t_start + 1e-6]
+    assert before[-1] == pytest.approx(list(plans[0].points[0].positions), abs=1e-9)
+    during = [t for t, _ in states if t_start - 1e-6 <= t <= t_start + duration]
+    gaps = [b - a for a, b in zip([t_start, *during], [*during, t_start + duration],
+                                  strict=True)]
+    assert max(gaps) < 1.5 * JS_PERIOD, f"a gap of {max(gaps):.3f} s in the joint states"
 
 
 def test_demo_runs_the_whole_pipeline(demo):
@@ -68,8 +103,9 @@ def test_demo_runs_the_whole_pipeline(demo):
     counts = {summary.channels[cid].topic: n
               for cid, n in summary.statistics.channel_message_counts.items()}
     assert counts.get("/planner/trajectory", 0) >= 2
-    assert counts.get("/joint_states", 0) > 100
+    assert counts.get("/planner/goal", 0) == 1
     assert counts.get("/tracker/status", 0) >= 2
+    assert_first_motion_recorded(recordings[0])
     # The report shows both legs: a figure each, a row each, all on one page.
     report = next(tmp_path.glob("demo-*_report"))
     page = (report / "index.html").read_text()
@@ -81,6 +117,17 @@ def test_demo_runs_the_whole_pipeline(demo):
     assert [r[0] for r in rows] == ["1", "2"] and all(r[-1] == "completed" for r in rows)
     assert float(rows[0][1]) == pytest.approx(0.50704, abs=2e-4)
     assert float(rows[0][4]) < 1e-3
+
+
+def test_demo_records_the_first_motion_whatever_the_recorder_delay(tmp_path):
+    """A recorder slow to find the tracker (it looks for new publishers every 2 s instead of
+    0.2) still records the whole first motion: the demo starts no motion before the recorder
+    writes the tracker's joint states (fails when the tracker moves as soon as it exists)."""
+    params = tmp_path / "slow_recorder.yaml"
+    params.write_text("recorder:\n  ros__parameters:\n    discovery_period: 2.0\n")
+    out_dir, returncode, out = run_demo(tmp_path, "--params-file", str(params))
+    assert returncode == 0, out[-4000:]
+    assert_first_motion_recorded(next(out_dir.glob("demo-*.mcap")))
 
 
 def tracker_events(path, prefix):

@@ -155,6 +155,54 @@ def test_round_trip_byte_for_byte_and_field_by_field(context, tmp_path):
             _same(msg, b, f"{t} mcap_ros2")
 
 
+def test_status_reports_subscriptions_and_first_messages(context, tmp_path):
+    """~/status: started (with the topics), subscribed when a publisher appears,
+    first_message once the first message is written (not before), once per topic."""
+    from diagnostic_msgs.msg import DiagnosticStatus  # noqa: PLC0415
+
+    from tocontrol_ros.recorder import QOS_STATUS  # noqa: PLC0415
+
+    js_topic, other = unique("/joint_states"), unique("/other")
+    ns = unique("/ns").rsplit("/", 1)[0]
+    recorder = Recorder(context=context, namespace=ns, parameter_overrides=[
+        Parameter("output", value=str(tmp_path / "s.mcap")),
+        Parameter("topics", value=[js_topic, other]),
+        Parameter("discovery_period", value=0.05)])
+    node = rclpy.create_node("probe", context=context)
+    events = []
+    node.create_subscription(DiagnosticStatus, f"{ns}/recorder/status",
+                             lambda m: events.append({kv.key: kv.value for kv in m.values}),
+                             QOS_STATUS)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(recorder)
+
+    def kinds(topic):
+        return [e["event"] for e in events if e.get("topic") == topic]
+
+    try:
+        assert spin_until(executor, lambda: events)
+        assert events[0] == {"event": "started", "output": str(tmp_path / "s.mcap"),
+                             "topics": f"{js_topic},{other}"}
+        pub = node.create_publisher(JointState, js_topic, 10)
+        assert spin_until(executor, lambda: kinds(js_topic) == ["subscribed"])
+        assert recorder.receiving_topics == []
+        assert spin_until(executor, lambda: pub.get_subscription_count() > 0)
+        for i in range(3):
+            pub.publish(JointState(name=["a"], position=[float(i)]))
+        assert spin_until(executor, lambda: recorder.writer.message_count == 3
+                          and kinds(js_topic) == ["subscribed", "first_message"])
+        assert recorder.receiving_topics == [js_topic]
+        assert kinds(other) == []
+        assert [e for e in events if e["event"] == "subscribed"][0]["type"] == (
+            "sensor_msgs/msg/JointState")
+    finally:
+        recorder.close()
+        executor.shutdown()
+        recorder.destroy_node()
+        node.destroy_node()
+
+
 def _write_stream(path, intervals_ms, topic="/joint_states"):
     log = 1_000_000_000_000
     times = [log]

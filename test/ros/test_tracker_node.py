@@ -22,6 +22,7 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -41,6 +42,9 @@ from tocontrol_ros.tracker import (
 pytestmark = pytest.mark.ros
 
 JOINTS = ["joint1", "joint2", "joint3"]
+#: Every joint state, not the newest 10 (tests that look at the newest state keep QOS_STREAM:
+#: with this depth the probe lags behind a tracker at 20 times real time).
+EVERY_STATE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 TIME_SCALE = 20.0
 _ids = itertools.count()
 
@@ -73,7 +77,7 @@ def motion_msg(model, q0, dq, duration, dt=0.01, names=JOINTS) -> JointTrajector
 class Harness:
     """Tracker + probe in a private context, spun in a thread."""
 
-    def __init__(self, overrides=()):
+    def __init__(self, overrides=(), js_qos=QOS_STREAM):
         self.ns = f"/tt{next(_ids)}"
         self.topic = f"{self.ns}/trajectory"
         self.context = rclpy.Context()
@@ -92,7 +96,7 @@ class Harness:
         self.joint_states, self.errors, self.statuses, self.clock = [], [], [], []
         self.pub = self.probe.create_publisher(JointTrajectory, self.topic, QOS_TRAJECTORY)
         self.probe.create_subscription(JointState, f"{self.ns}/joint_states",
-                                       self._keep(self.joint_states), QOS_STREAM)
+                                       self._keep(self.joint_states), js_qos)
         self.probe.create_subscription(JointState, f"{self.ns}/tracker/tracking_error",
                                        self._keep(self.errors), QOS_STREAM)
         self.probe.create_subscription(DiagnosticStatus, f"{self.ns}/tracker/status",
@@ -362,6 +366,54 @@ def test_after_a_reset_the_positions_before_it_are_no_start(harness):
     harness.pub.publish(motion_msg(harness.node.model, q0, [0.05, 0.0, -0.05], 0.5))
     status = harness.status_with("trajectory rejected")
     assert "more than start_tolerance" in status.message, status.message
+
+
+@pytest.mark.parametrize("reset_first", [False, True], ids=["first_plan", "after_reset"])
+def test_start_at_first_trajectory_places_the_arm_once(model, reset_first):
+    """With start_at_first_trajectory a first plan that starts far away (a free start) puts
+    the arm at its first point and runs from there; the next far one is checked as usual.
+    A ~/reset before any plan has already placed the arm: then the first plan is checked."""
+    # In real time: at 20 times, a loaded machine starves the probe of states.
+    h = Harness([Parameter("start_at_first_trajectory", value=True),
+                 Parameter("time_scale", value=1.0)], js_qos=EVERY_STATE)
+    try:
+        q_far = np.array(PAPER_START_Q) + [1.0, -0.8, 0.6]
+        if reset_first:
+            reset = h.probe.create_publisher(JointState, f"{h.ns}/tracker/reset", QOS_STREAM)
+            h.wait(lambda: reset.get_subscription_count() > 0, "reset subscription")
+            reset.publish(_reset_msg(np.array(PAPER_START_Q)))
+            h.status_with("reset to")
+            h.pub.publish(motion_msg(model, q_far, [0.1, 0.1, 0.1], 1.5))
+            assert "more than start_tolerance" in h.status_with("trajectory rejected").message
+            return
+        # The probe receives the states (so it gets every later one) before the plan.
+        h.wait(lambda: len(h.joint_states) >= 3, "joint_states")
+        h.pub.publish(motion_msg(model, q_far, [0.2, -0.2, 0.3], 1.5))
+        start = h.status_with("executing trajectory")
+        values = _values(start)
+        assert "the arm placed there" in start.message
+        assert [float(values[f"start_position.{j}"]) for j in JOINTS] == \
+            pytest.approx(q_far, abs=1e-12)
+        assert float(values["start_offset"]) == 0.0
+        # The state it was placed at is published, stamped with the start.
+        t_start = float(values["start_time"])
+
+        def stamps():
+            return [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in h.joint_states]
+
+        h.wait(lambda: stamps()[-1] > t_start + 0.1, "joint_states after the start")
+        with h.lock:
+            at_start = [m.position for m, t in zip(h.joint_states, stamps(), strict=True)
+                        if abs(t - t_start) < 1e-6]
+            near = [round(t - t_start, 4) for t in stamps() if abs(t - t_start) < 0.1]
+        assert at_start, f"no joint state stamped at the start; offsets of those near: {near}"
+        np.testing.assert_allclose(at_start[-1], q_far, atol=1e-12)
+        done = h.status_with("trajectory completed")
+        assert float(_values(done)["final_point_error"]) < 1e-3
+        h.pub.publish(motion_msg(model, q_far - 0.5, [0.1, 0.1, 0.1], 1.5))
+        assert "more than start_tolerance" in h.status_with("trajectory rejected").message
+    finally:
+        h.stop()
 
 
 @pytest.mark.parametrize("overrides, error", [
