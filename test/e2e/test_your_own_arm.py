@@ -98,7 +98,11 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
         "-p", "kp:=[50.0]", "-p", "kd:=[5.0]"], tmp_path)
     client = PlannerClient("/planner")
     try:
-        client.wait_ready(120.0)
+        # The services come up after the warm-up, which compiles the model's functions.
+        try:
+            client.wait_ready(FIRST_PLAN)
+        except AssertionError as exc:
+            raise AssertionError(planner.log.read_text()[-3000:]) from exc
         # The goal goes once the planner has the arm's joint states (it plans from them).
         since = len(client.status_list())
         client.wait_subscribed(client.goal_pub, 60.0)
