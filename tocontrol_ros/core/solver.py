@@ -45,13 +45,16 @@ Planner`` keeps working.
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from . import compiled
 from .bounded import BoundedShooting
 from .certificate import certify
 from .context import Run, SolveContext, StopError, newton, trajectory
@@ -105,9 +108,75 @@ class Planner:
 
     def __init__(self, model) -> None:
         self.model = model
+        #: Optimised libraries in the cache when this planner was made (see :meth:`stale`).
+        self.generation = compiled.generation()
         self.system = CanonicalSystem(model)
         self._direct: dict = {}
+        self._prepared: set = set()
         self._lock = threading.Lock()
+
+    def stale(self) -> bool:
+        """Whether optimised libraries landed since this planner was made, none pending.
+
+        A planner keeps the compiled functions it loaded; when the first use of a model got
+        quick builds (:mod:`~tocontrol_ros.core.compiled`), a new planner made once the
+        optimised ones are in the cache solves faster.
+        """
+        return compiled.generation() != self.generation and compiled.pending_builds() == 0
+
+    def prepare(self, problem: Problem, options: SolverOptions | None = None,
+                parallel: bool = True) -> None:
+        """Build and compile what solving problems of ``problem``'s kinds needs.
+
+        The direct transcription, the canonical system's compiled functions (the RK4 step's
+        Jacobian, the plain step, the pointwise evaluation, the switching functions) and the
+        boundary conditions of the start and target kinds: a solve that follows compiles
+        nothing of these. (The certificate's and the bounded solve's functions are built on
+        their first use.) With ``parallel``, a first pass on a scratch copy of this planner
+        only generates the C sources and compiles them on every core at once
+        (:func:`~tocontrol_ros.core.compiled.parallel_builds`); the second finds them in the
+        cache.
+        """
+        options = options or SolverOptions()
+        key = ("prepared", problem.start.kind, problem.target.kind, options.intervals,
+               options.steps, options.guess_intervals, problem.torque_scale)
+        if key in self._prepared:
+            return
+        if parallel:
+            with compiled.parallel_builds():
+                self._scratch()._build_all(problem, options)
+        self._build_all(problem, options)
+        self._prepared.add(key)
+
+    def _scratch(self) -> Planner:
+        """A planner sharing this one's symbolic system, with empty caches of functions."""
+        scratch = object.__new__(Planner)
+        scratch.model, scratch.generation = self.model, self.generation
+        scratch.system = copy.copy(self.system)
+        scratch.system._cache = {  # the symbolic entries only
+            key: value for key, value in self.system._cache.items()
+            if key in ("rhs", "stagewise") or (isinstance(key, tuple) and key[0] == "step_sx")}
+        scratch.system._sized = OrderedDict()
+        scratch.system._buffer_lock = threading.Lock()
+        scratch._direct, scratch._prepared, scratch._lock = {}, set(), threading.Lock()
+        return scratch
+
+    def _build_all(self, problem: Problem, options: SolverOptions) -> None:
+        """The builds of :meth:`prepare`, in this planner's caches."""
+        system = self.system
+        if system.stagewise:
+            system.rhs_jacobian_function()
+        else:
+            system.step_function(True)
+            for steps in sorted({min(options.steps, CONTINUATION_STEPS), options.steps}):
+                system.interval_function(steps, True)
+                system.interval_function(steps, False)
+        system.step_function(False)
+        system.pointwise()
+        grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
+                            options.steps, problem.start.kind, problem.target.kind)
+        grid.compile()
+        self.direct(problem, options.guess_intervals)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:
@@ -169,7 +238,7 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         Never raises for numerical failure: see ``success``, ``status`` and ``message``.
     """
     planner = _PLANNERS.get(id(problem.model))
-    if planner is None or planner.model is not problem.model:
+    if planner is None or planner.model is not problem.model or planner.stale():
         planner = Planner(problem.model)
         _PLANNERS[id(problem.model)] = planner
     return planner.plan(problem, options, warm_start, should_stop)
