@@ -21,6 +21,7 @@ library at once instead. :func:`add_listener` reports every build as it starts a
 from __future__ import annotations
 
 import functools
+import glob
 import hashlib
 import os
 import platform
@@ -39,7 +40,7 @@ import casadi as ca
 
 __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "generation",
            "pending_builds", "wait_for_builds", "add_listener", "remove_listener",
-           "parallel_builds"]
+           "parallel_builds", "in_cache"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
 #: markedly faster than portable -O1. Such a library only runs on the CPU it was built for,
@@ -149,6 +150,14 @@ def wait_for_builds(timeout: float | None = None) -> bool:
     """Wait until no background build is left; False when ``timeout`` (s) passed first."""
     with _done:
         return _done.wait_for(lambda: not _pending, timeout)
+
+
+def in_cache(prefix: str) -> bool:
+    """Whether the cache holds a library whose name starts with ``prefix``.
+
+    A cheap hint (no source generated, no hash) that a model was compiled before.
+    """
+    return any(cache_dir().glob(f"{glob.escape(prefix)}*.so"))
 
 
 # ------------------------------------------------------------------------- builds

@@ -57,6 +57,7 @@ import numpy as np
 from . import compiled
 from .bounded import BoundedShooting
 from .certificate import certify
+from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
 from .limited import MESH, plan_limited, touches
@@ -95,6 +96,14 @@ WARM_GAIN = 1e-6
 #: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
 #: may not resolve the steeper law); it only places the nodes.
 STALL_REFINE_TOL = 1e-4
+
+#: Smoothing of the second path of the continuation in k (:func:`_continue_smoothed`): wide
+#: enough that the law's transition at a switch spans several RK4 steps of the coarse mesh.
+WIDE_DELTA = 0.3
+#: ...then delta comes down by this factor per step at the requested k,
+DELTA_FACTOR = 4.0
+#: ...and a failed step is bisected (geometrically) until it is less than this ratio.
+MIN_DELTA_RATIO = 1.1
 
 
 # ----------------------------------------------------------------- planner cache
@@ -135,14 +144,16 @@ class Planner:
         their first use.) With ``parallel``, a first pass on a scratch copy of this planner
         only generates the C sources and compiles them on every core at once
         (:func:`~tocontrol_ros.core.compiled.parallel_builds`); the second finds them in the
-        cache.
+        cache. (Skipped when the cache already holds a library of this model: generating the
+        sources twice costs seconds on a 7-joint arm.)
         """
         options = options or SolverOptions()
         key = ("prepared", problem.start.kind, problem.target.kind, options.intervals,
                options.steps, options.guess_intervals, problem.torque_scale)
         if key in self._prepared:
             return
-        if parallel:
+        name = f"tocontrol_pointwise_{c_name(self.model.name)}_{self.model.n}_"
+        if parallel and not compiled.in_cache(name):
             with compiled.parallel_builds():
                 self._scratch()._build_all(problem, options)
         self._build_all(problem, options)
@@ -241,6 +252,8 @@ def plan(problem: Problem, options: SolverOptions | None = None,
     if planner is None or planner.model is not problem.model or planner.stale():
         planner = Planner(problem.model)
         _PLANNERS[id(problem.model)] = planner
+        if not problem.is_trivial():
+            planner.prepare(problem, options)  # the first use of a model: on every core
     return planner.plan(problem, options, warm_start, should_stop)
 
 
@@ -478,7 +491,24 @@ def _k_schedule(k: float) -> list[float]:
 
 
 def _continue_k(ctx: SolveContext, run: Run) -> bool:
-    """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
+    """Continue a converged k = 1 solution to the requested k.
+
+    First at ``options.smoothing_intermediate`` (:func:`_continue_in_k`); when that stalls,
+    again from the k = 1 solution along the smoothed path of :func:`_continue_smoothed`.
+    """
+    start = run.snapshot()
+    if _continue_in_k(ctx, run, ctx.options.smoothing_intermediate, stall_refine=True):
+        return True
+    stalled = run.snapshot()
+    run.restore(start)
+    if _continue_smoothed(ctx, run):
+        return True
+    run.restore(stalled)  # report where the first path stalled
+    return False
+
+
+def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool) -> bool:
+    """Continue in k at a fixed smoothing ``delta`` (doubling k, bisecting failed steps)."""
     options = ctx.options
     targets = _k_schedule(ctx.problem.k)[1:]
     refined_at = None
@@ -488,14 +518,14 @@ def _continue_k(ctx: SolveContext, run: Run) -> bool:
         while run.k < k_goal:
             k_try = k_goal
             while True:
-                rep = newton(ctx, run, k_try, options.smoothing_intermediate, loose)
+                rep = newton(ctx, run, k_try, delta, loose)
                 if rep.converged:
                     break
                 k_try = run.k + 0.5 * (k_try - run.k)
                 if k_try - run.k < options.min_k_step:
                     # The mesh may be too coarse for the steeper law: refine it at the
                     # current k, once per stall, and try again.
-                    if refined_at == run.k:
+                    if not stall_refine or refined_at == run.k:
                         return False
                     refined_at = run.k
                     saved = run.snapshot()
@@ -503,6 +533,36 @@ def _continue_k(ctx: SolveContext, run: Run) -> bool:
                         run.restore(saved)
                         return False
                     k_try = k_goal
+    return True
+
+
+def _continue_smoothed(ctx: SolveContext, run: Run) -> bool:
+    """The other path to the requested k: in k at a wide smoothing, then delta down.
+
+    Why the path at a small delta stalls (planar 5R and 8R): where a switching function
+    crosses zero inside an RK4 step, the law's transition (``|S_i| < delta |S|``) is far
+    shorter than the step, so the discrete equations are nearly discontinuous there and
+    Newton stops at that cliff however short the step in k. At :data:`WIDE_DELTA` the
+    transition spans several steps and the continuation in k goes through; then, at the
+    requested k, delta comes down by :data:`DELTA_FACTOR` per step (bisected geometrically
+    when Newton fails), with a switch mesh (a node at each switch,
+    :func:`~tocontrol_ros.core.mesh.switch_mesh`) placed anew when a step fails, down to
+    ``options.smoothing_intermediate``, where the usual final smoothing takes over.
+    """
+    options = ctx.options
+    target = options.smoothing_intermediate
+    if target >= WIDE_DELTA or not _continue_in_k(ctx, run, WIDE_DELTA, stall_refine=False):
+        return False
+    k, delta = ctx.problem.k, WIDE_DELTA
+    while delta > target:
+        d_try = max(delta / DELTA_FACTOR, target)
+        while not newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
+            if switch_mesh(ctx, run) and newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
+                break
+            d_try = float(np.sqrt(delta * d_try))
+            if delta / d_try < MIN_DELTA_RATIO:
+                return False
+        delta = d_try
     return True
 
 
