@@ -119,13 +119,14 @@ def run(runs=3):
     lines = [
         "The Panda without joint limits (the scaling section's task, k = 4, one start, "
         "verified), each route in a new process with an empty `TOCONTROL_CACHE`. *First "
-        "plan*: its wall time, compilation included; *compiled before solving*: the builds "
-        "it waited for; *background*: after the first plan, until the optimised libraries "
+        "plan*: its wall time, compilation included; *gcc before solving*: the summed gcc "
+        "time of the builds it waited for (on both cores at once: more than their wall "
+        "time); *background*: after the first plan, until the optimised libraries "
         "landed (two tiers only); *cold afterwards*: median of "
         f"{runs} cold solves on the route's final code (ratio to the optimised libraries).",
         "",
     ]
-    lines += table(["route", "first plan (s)", "compiled before solving (s)",
+    lines += table(["route", "first plan (s)", "gcc before solving (s)",
                     "background (s)", "cold afterwards (ms)", "status"], rows)
     tiers = results[0][1]
     targets = []
