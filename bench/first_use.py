@@ -128,7 +128,7 @@ def run(runs=3):
     ]
     lines += table(["route", "first plan (s)", "gcc before solving (s)",
                     "background (s)", "cold afterwards (ms)", "status"], rows)
-    tiers = results[0][1]
+    tiers = dict(results).get(ROUTES[0][0], {})
     targets = []
     if "first" in tiers:
         verdict = ("**yes**" if tiers["first"] <= TARGET_FIRST else "**no**") + \
