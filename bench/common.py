@@ -283,8 +283,14 @@ r1 = plan(pr, opts)
 t3 = time.perf_counter()
 r2 = plan(pr, opts)
 t4 = time.perf_counter()
+# Long sources got a quick build; their optimised builds finish before the process ends
+# (else the next process would start them again).
+from tocontrol_ros.core import compiled
+compiled.wait_for_builds()
+t5 = time.perf_counter()
 print(json.dumps({"import": t1 - t0, "model": t2 - t1, "first_plan": t3 - t2,
-                  "second_plan": t4 - t3, "ok": bool(r1.success and r2.success)}))
+                  "second_plan": t4 - t3, "ok": bool(r1.success and r2.success),
+                  "background": t5 - t4}))
 """
 
 

@@ -45,6 +45,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros import conversions as conv
 from tocontrol_ros import qos
+from tocontrol_ros.core import compiled
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.node_main import run_node
@@ -95,6 +96,9 @@ QOS_SERVICE = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.VOLATILE)
 #: Poll period (s) of a request waiting for a joint state newer than itself.
 STATE_POLL = 0.005
+#: While optimised libraries are being built in the background (the first use of a model
+#: got quick builds), the idle worker looks this often (s) whether they landed, to load them.
+OPTIMISED_POLL = 1.0
 
 
 @dataclass(eq=False)
@@ -168,6 +172,12 @@ class LatestSlot:
         with self._cond:
             if self._running is item:
                 self._running = None
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called."""
+        with self._cond:
+            return self._closed
 
     def has_pending(self) -> bool:
         """True while an item waits for the worker."""
@@ -490,9 +500,13 @@ class PlannerNode(Node):
     def _run(self) -> None:
         self._warm_up()
         while not self._stopping.is_set():
-            req = self._slot.take()
+            waiting = compiled.pending_builds() > 0 or self.planner.stale()
+            req = self._slot.take(OPTIMISED_POLL if waiting else None)
             if req is None:
-                break
+                if self._slot.closed:
+                    break
+                self._load_optimised()
+                continue
             try:
                 self._serve(req)
             except Exception as exc:  # noqa: BLE001  (a bug must not stop the planner)
@@ -502,37 +516,91 @@ class PlannerNode(Node):
             finally:
                 self._slot.finished(req)
 
+    def _problems(self, config) -> list:
+        """One problem of each kind the node serves, inside the limits (for the warm-up)."""
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+        model = self.model
+        lo, hi = self._limits.plan_lower, self._limits.plan_upper
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
+        # Inside the limits, and a generic move (alternating signs: not along a singular
+        # direction) that stays inside them.
+        qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
+        qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
+                      qa + 0.5 * (-1.0) ** np.arange(model.n))
+        limits = self._limits.with_margin(config.limit_margin)
+        return [Problem(model, start, point(model.point(qb)), k=config.k,
+                        reserve=config.reserve, limits=limits)
+                for start in (point(model.point(qa)), joint_state(qa))]
+
+    def _compile_progress(self, event: str, name: str, info: dict) -> None:
+        """Compile listener of the warm-up: one ``~/status`` per build started and ended."""
+        if event not in ("compiling", "compiled"):
+            return
+        quick = " (quick build; optimised in the background)" \
+            if info.get("flags", "").startswith("-O0") else ""
+        if event == "compiling":
+            message = (f"warming up: compiling {name} ({info['bytes'] / 1e3:.0f} kB of C)"
+                       f"{quick}")
+        else:
+            message = (f"warming up: compiled {name} in {info['seconds']:.1f} s"
+                       + ("" if info.get("ok") else " (failed: the virtual machine is used)"))
+        self._publish_status("OK", message, {"event": "warming up", "compile": event,
+                                             "library": name, "c_bytes": info["bytes"],
+                                             "seconds": info.get("seconds")})
+
+    def _load_optimised(self) -> None:
+        """Between requests: a new planner on the optimised libraries once they all landed."""
+        from tocontrol_ros.core.solver import Planner
+        if not self.planner.stale() or self._stopping.is_set():
+            return
+        t0 = time.monotonic()
+        planner = Planner(self.model)
+        options = solver_options(self.config)
+        try:
+            for problem in self._problems(self.config):
+                planner.prepare(problem, options)
+        except TocontrolError:
+            return
+        self.planner = planner
+        self._publish_status("OK", f"optimised code loaded in {time.monotonic() - t0:.1f} s",
+                             {"event": "optimised"})
+
     def _warm_up(self) -> None:
         """Build what requests need, so that no request pays for a build.
 
-        First the direct transcription of every problem kind the node serves (point to
-        point for ``~/plan``, joint state to point for ``~/goal`` and ``~/plan`` without a
-        start frame), always; then one throw-away solve of each kind (compiles the
-        shooting functions), stopped early when a request arrives or the node shuts down.
+        First the direct transcription and the compiled functions of every problem kind the
+        node serves (point to point for ``~/plan``, joint state to point for ``~/goal`` and
+        ``~/plan`` without a start frame), always, with one ``~/status`` per compiled
+        library; then one throw-away solve of each kind (builds the rest, e.g. the
+        certificate's functions), stopped early when a request arrives or the node shuts
+        down.
         """
-        from tocontrol_ros.core.problem import Problem, joint_state, point
         self._publish_status("OK", "warming up (the first start on a machine compiles the "
-                             "model's C code, 10-20 s)", {"event": "warming up"})
+                             "model's C code)", {"event": "warming up"})
         t0 = time.monotonic()
+        compiled.add_listener(self._compile_progress)
+        try:
+            note = self._warm_up_solves()
+        finally:
+            compiled.remove_listener(self._compile_progress)
+        if self._stopping.is_set():
+            return
+        self.ready.set()
+        self._publish_status("OK", f"ready after {time.monotonic() - t0:.1f} s{note}",
+                             {"event": "ready", "warmup_time": time.monotonic() - t0})
+
+    def _warm_up_solves(self) -> str:
+        """The warm-up's builds and throw-away solves; returns a note for the status."""
         config = self.config
-        model = self.model
         note = ""
         try:
-            lo, hi = self._limits.plan_lower, self._limits.plan_upper
-            bounded = np.isfinite(lo) & np.isfinite(hi)
-            lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
-            # Inside the limits, and a generic move (alternating signs: not along a singular
-            # direction) that stays inside them.
-            qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
-            qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
-                          qa + 0.5 * (-1.0) ** np.arange(model.n))
             options = solver_options(config)  # verify as configured: compiles the certificate
-            limits = self._limits.with_margin(config.limit_margin)
-            problems = [Problem(model, start, point(model.point(qb)), k=config.k,
-                                reserve=config.reserve, limits=limits)
-                        for start in (point(model.point(qa)), joint_state(qa))]
+            problems = self._problems(config)
             for problem in problems:
-                self.planner.direct(problem, options.guess_intervals)
+                if self._stopping.is_set():
+                    return note
+                self.planner.prepare(problem, options)
             for problem in problems:
                 result = self.planner.plan(
                     problem, options,
@@ -541,11 +609,7 @@ class PlannerNode(Node):
                     note = f" (warm-up solve: {result.message})"
         except TocontrolError as exc:
             note = f" (warm-up skipped: {exc})"
-        if self._stopping.is_set():
-            return
-        self.ready.set()
-        self._publish_status("OK", f"ready after {time.monotonic() - t0:.1f} s{note}",
-                             {"event": "ready", "warmup_time": time.monotonic() - t0})
+        return note
 
     def _should_stop(self, req: PlanRequest):
         return lambda: req.cancelled.is_set() or self._stopping.is_set()

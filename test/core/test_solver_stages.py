@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
@@ -62,3 +63,68 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
     res = plan(problem, opts)
     assert res.status is solver.Status.NEWTON_FAILED and sizes == [6, 12]
     assert "forced" in res.message
+
+
+def test_a_stalled_continuation_goes_on_along_the_wide_smoothing(galicki, monkeypatch):
+    """When the continuation in k at the intermediate smoothing stalls, the solve starts
+    again from k = 1 at WIDE_DELTA, brings delta down at the requested k and ends as
+    usual: the same T as the direct path on the paper's example."""
+    from tocontrol_ros.core import solver
+
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0)
+    opts = SolverOptions(starts=1, candidates=1, verify=False)
+    direct = plan(problem, opts)
+    assert direct.success
+    real = solver._continue_in_k
+    calls = []
+
+    def stalls_at_small_delta(ctx, run, delta, stall_refine):
+        calls.append(delta)
+        if delta == opts.smoothing_intermediate:
+            run.k = 1.5  # as if it stalled half way (the caller restores the k = 1 run)
+            return False
+        return real(ctx, run, delta, stall_refine)
+
+    monkeypatch.setattr(solver, "_continue_in_k", stalls_at_small_delta)
+    res = plan(problem, opts)
+    assert calls == [opts.smoothing_intermediate, solver.WIDE_DELTA]
+    assert res.success, res.message
+    deltas = [d for k, d, *_ in res.continuation]
+    assert solver.WIDE_DELTA in deltas and deltas[0] == 0.0
+    assert abs(res.T - direct.T) <= 1e-6 * direct.T, (res.T, direct.T)
+
+
+def _planar_urdf(n: int) -> str:
+    """The scaling benchmark's planar nR arm (bench/common.py planar_arm_urdf)."""
+    parts = [f'<robot name="planar_{n}r">', '<link name="base_link"/>']
+    parent = "base_link"
+    for i in range(1, n + 1):
+        parts += [f'<joint name="joint{i}" type="continuous"><parent link="{parent}"/>'
+                  f'<child link="link{i}"/><origin xyz="{0.0 if i == 1 else 1.0} 0 0"/>'
+                  f'<axis xyz="0 0 1"/><limit effort="{10.0 * (n - i + 1):g}" '
+                  'velocity="100.0"/><dynamics damping="0.1" friction="0.0"/></joint>',
+                  f'<link name="link{i}"><inertial><origin xyz="0.5 0 0"/><mass value="1"/>'
+                  f'<inertia ixx="0" ixy="0" ixz="0" iyy="{1 / 12!r}" iyz="0" '
+                  f'izz="{1 / 12!r}"/></inertial></link>']
+        parent = f"link{i}"
+    parts += [f'<joint name="tool_joint" type="fixed"><parent link="{parent}"/>'
+              '<child link="tool"/><origin xyz="1 0 0"/></joint>', '<link name="tool"/>',
+              "</robot>"]
+    return "\n".join(parts)
+
+
+@pytest.mark.slow
+def test_planar_5r_single_start_reaches_k4():
+    """Issue 18: the planar 5R of the scaling benchmark, one start, stalled at k = 2.59 in
+    the continuation (a switch inside an RK4 step at delta = 1e-3); the wide smoothing
+    path reaches k = 4, and the certificate checks the solution independently."""
+    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.solver import WIDE_DELTA
+
+    model = load_robot(_planar_urdf(5))
+    problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
+    res = plan(problem, SolverOptions(starts=1, candidates=1))
+    assert res.success, res.message
+    assert res.certificate is not None and res.certificate.passed
+    assert any(d == WIDE_DELTA for _, d, *_ in res.continuation)
+    assert res.k == 4.0 and 0.25 < res.T < 0.35

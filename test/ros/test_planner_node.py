@@ -26,6 +26,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 
 from tocontrol_ros.conversions import seconds
+from tocontrol_ros.core import compiled
 from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.params import RobotDescriptionError
@@ -517,6 +518,46 @@ def test_warm_up_builds_every_kind_even_when_a_request_comes_first():
     finally:
         client.close()
         running.stop()
+
+
+@pytest.mark.slow
+def test_warm_up_compiles_before_the_first_request_and_reports_progress(tmp_path, monkeypatch):
+    # Issue 18: with an empty compile cache, the warm-up compiles the model's functions
+    # (one ~/status per library, before "ready"), and the first request compiles none of
+    # them again.
+    monkeypatch.setenv("TOCONTROL_CACHE", str(tmp_path / "cache"))
+    ns = f"{NAMESPACE}_compile"
+    client = PlannerClient(f"{ns}/planner")  # subscribed before the node publishes
+    running = Running(namespace=ns)
+    builds = []
+    listener = lambda event, name, info: builds.append((event, name))  # noqa: E731
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(600.0), "warm-up did not finish"
+        client.wait_for(lambda: any("ready after" in s.message for s in client.status_list()),
+                        10.0, "ready status")
+        statuses = client.status_list()
+        ready = next(i for i, s in enumerate(statuses) if "ready after" in s.message)
+        progress = [s for s in statuses if s.values.get("compile")]
+        assert len(progress) >= 2, [s.message for s in statuses]
+        assert all(statuses.index(s) < ready for s in progress)
+        assert all(s.event == "warming up" and s.values["library"] in s.message
+                   for s in progress)
+        done = {s.values["library"] for s in progress if s.values["compile"] == "compiled"}
+        assert any(name.startswith("direct_point") for name in done), done
+        compiled.add_listener(listener)
+        _, status, _ = client.call_plan(PAPER_START, PAPER_TARGET, timeout=120.0)
+        assert status.event == "solved", status.message
+        prepared = ("direct_", "tocontrol_bc_", "tocontrol_rk4", "tocontrol_fj_",
+                    "tocontrol_pointwise_", "tocontrol_switch_")
+        again = [name for event, name in builds
+                 if event == "compiling" and name.startswith(prepared)]
+        assert again == [], f"the first request compiled {again}"
+    finally:
+        compiled.remove_listener(listener)
+        client.close()
+        running.stop()
+        compiled.wait_for_builds(300.0)  # before tmp_path goes
 
 
 def test_joint_states_do_not_wake_the_executor(planner, client):

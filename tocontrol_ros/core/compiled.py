@@ -7,11 +7,21 @@ compiled to C, so it is generated, compiled once with the system C compiler and 
 source: only the first run for a given model pays for the compiler (about 10 s for the
 paper's arm). Without a C compiler, or with ``TOCONTROL_COMPILE=0``, the virtual machine is
 used: slower, same results.
+
+Long sources are built in two tiers: gcc spends most of its time optimising long
+straight-line code (register allocation), so a source above :data:`QUICK_SOURCE` bytes is
+first compiled without optimisation (``-O0``, several times faster to build, slower to run)
+and returned at once, while the optimised library is built in a background thread at low
+priority. :func:`generation` counts the optimised libraries that have landed in the cache
+since the process started; a :class:`~tocontrol_ros.core.solver.Planner` made after that
+loads them (the cache holds both). ``TOCONTROL_COMPILE_TIERS=0`` builds the optimised
+library at once instead. :func:`add_listener` reports every build as it starts and ends.
 """
 
 from __future__ import annotations
 
 import functools
+import glob
 import hashlib
 import os
 import platform
@@ -20,12 +30,17 @@ import shutil
 import subprocess
 import tempfile
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["compile_function", "compile_functions", "cache_dir", "c_name"]
+__all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "generation",
+           "pending_builds", "wait_for_builds", "add_listener", "remove_listener",
+           "parallel_builds", "in_cache"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
 #: markedly faster than portable -O1. Such a library only runs on the CPU it was built for,
@@ -38,7 +53,22 @@ LARGE_SOURCE = 1_000_000
 LARGE_CFLAGS = ("-O1", "-march=native", "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.
 PORTABLE_CFLAGS = ("-O1", "-shared", "-fPIC")
-_lock = threading.Lock()
+#: Sources above this many bytes get a quick unoptimised build first (see the module's
+#: docstring); below it gcc is fast enough to optimise at once.
+QUICK_SOURCE = 200_000
+QUICK_CFLAGS = ("-O0", "-march=native", "-shared", "-fPIC")
+#: Niceness of the background builds: a solve running meanwhile keeps its core.
+BACKGROUND_NICE = 10
+#: Background builds run one at a time (gcc takes up to a GB on the longest sources).
+_background_slots = threading.Semaphore(1)
+
+_meta_lock = threading.Lock()
+_target_locks: dict[Path, threading.Lock] = {}
+_done = threading.Condition()
+_pending: set[Path] = set()  # optimised libraries queued or being built
+_generation = 0
+_listeners: list[Callable[[str, str, dict], None]] = []
+_deferred = threading.local()  # .pool, .futures inside parallel_builds()
 
 
 def c_name(name: str) -> str:
@@ -74,29 +104,215 @@ def _cpu_tag() -> bytes:
     return tag.encode()
 
 
-def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
-    """Compile ``tmp/name.c`` into the cache (unless there already), keyed by its source."""
-    source = Path(tmp, f"{name}.c").read_bytes()
-    cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+# ------------------------------------------------------------------ build progress
+def add_listener(listener: Callable[[str, str, dict], None]) -> None:
+    """Call ``listener(event, name, info)`` on every build from now on (any thread).
+
+    ``event`` is ``"compiling"`` or ``"compiled"`` (a build the caller waits for),
+    ``"optimising"`` or ``"optimised"`` (a background build); ``name`` is the library's;
+    ``info`` holds ``bytes`` (the C source's size), ``flags`` and, when it ended,
+    ``seconds`` and ``ok``.
+    """
+    with _meta_lock:
+        _listeners.append(listener)
+
+
+def remove_listener(listener: Callable[[str, str, dict], None]) -> None:
+    """Stop calling ``listener`` (no error when it was not registered)."""
+    with _meta_lock:
+        if listener in _listeners:
+            _listeners.remove(listener)
+
+
+def _notify(event: str, name: str, info: dict) -> None:
+    with _meta_lock:
+        listeners = list(_listeners)
+    for listener in listeners:
+        try:
+            listener(event, name, info)
+        except Exception:  # noqa: BLE001  (a reporting bug must not fail a build)
+            pass
+
+
+def generation() -> int:
+    """How many optimised libraries the background builds have put in the cache so far."""
+    with _done:
+        return _generation
+
+
+def pending_builds() -> int:
+    """Background builds queued or running."""
+    with _done:
+        return len(_pending)
+
+
+def wait_for_builds(timeout: float | None = None) -> bool:
+    """Wait until no background build is left; False when ``timeout`` (s) passed first."""
+    with _done:
+        return _done.wait_for(lambda: not _pending, timeout)
+
+
+def in_cache(prefix: str) -> bool:
+    """Whether the cache holds a library whose name starts with ``prefix``.
+
+    A cheap hint (no source generated, no hash) that a model was compiled before.
+    """
+    return any(cache_dir().glob(f"{glob.escape(prefix)}*.so"))
+
+
+# ------------------------------------------------------------------------- builds
+def _target_lock(target: Path) -> threading.Lock:
+    with _meta_lock:
+        return _target_locks.setdefault(target, threading.Lock())
+
+
+def _target(name: str, source: bytes, cflags: Sequence[str]) -> Path:
     digest = hashlib.sha256(source + " ".join(cflags).encode() + _cpu_tag()
                             ).hexdigest()[:20]
-    target = cache_dir() / f"{name}_{digest}.so"
-    how = "cached"
-    with _lock:
-        if not target.is_file():
-            how = "compiled"
-            partial = Path(tmp, f"{name}.so")
-            for flags in (cflags, PORTABLE_CFLAGS):
-                proc = subprocess.run([cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
-                                      cwd=tmp, capture_output=True, text=True)
-                if proc.returncode == 0:
-                    break
+    return cache_dir() / f"{name}_{digest}.so"
+
+
+def _gcc(cc: str, name: str, tmp: str, cflags: Sequence[str], target: Path,
+         event: str, background: bool = False) -> str:
+    """Compile ``tmp/name.c`` into ``target``; returns "" or the compiler's complaint."""
+    size = Path(tmp, f"{name}.c").stat().st_size
+    done = "compiled" if event == "compiling" else "optimised"
+    _notify(event, name, {"bytes": size, "flags": " ".join(cflags)})
+    t0 = time.perf_counter()
+    partial = Path(tmp, f"{name}.so")
+    # `nice` as a command: preexec_fn is unsafe in a process with threads.
+    nice = ["nice", "-n", str(BACKGROUND_NICE)] if background and shutil.which("nice") else []
+    for flags in (cflags, PORTABLE_CFLAGS):
+        proc = subprocess.run([*nice, cc, *flags, f"{name}.c", "-o", str(partial), "-lm"],
+                              cwd=tmp, capture_output=True, text=True)
+        if proc.returncode == 0:
+            break
+    else:
+        _notify(done, name, {"bytes": size, "flags": " ".join(cflags), "ok": False,
+                             "seconds": time.perf_counter() - t0})
+        return proc.stderr[-300:] or f"exit status {proc.returncode}"
+    staged = target.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
+    shutil.copyfile(partial, staged)
+    os.replace(staged, target)  # atomic: parallel processes never see half a file
+    _notify(done, name, {"bytes": size, "flags": " ".join(cflags), "ok": True,
+                         "seconds": time.perf_counter() - t0})
+    return ""
+
+
+def _optimise(cc: str, name: str, source: bytes, cflags: Sequence[str],
+              target: Path) -> None:
+    """Background thread: build the optimised library, then count it in."""
+    global _generation
+    ok = False
+    try:
+        with _background_slots, _target_lock(target):
+            if target.is_file():
+                ok = True
             else:
-                return None, f"virtual machine (compiler failed: {proc.stderr[-300:]})"
-            staged = target.with_suffix(f".{os.getpid()}.tmp")
-            shutil.copyfile(partial, staged)
-            os.replace(staged, target)  # atomic: parallel processes never see half a file
+                with tempfile.TemporaryDirectory() as tmp:
+                    Path(tmp, f"{name}.c").write_bytes(source)
+                    ok = not _gcc(cc, name, tmp, cflags, target, "optimising",
+                                  background=True)
+    finally:
+        with _done:
+            _pending.discard(target)
+            if ok:
+                _generation += 1
+            _done.notify_all()
+
+
+def _tiers() -> bool:
+    return os.environ.get("TOCONTROL_COMPILE_TIERS", "1") != "0"
+
+
+def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
+    """Compile ``tmp/name.c`` into the cache (unless there already), keyed by its source.
+
+    A long source without its optimised library in the cache gets the quick build, and the
+    optimised one is started in the background (see the module's docstring).
+    """
+    source = Path(tmp, f"{name}.c").read_bytes()
+    cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+    target = _target(name, source, cflags)
+    if target.is_file():
+        return target, "cached"
+    quick = _tiers() and len(source) > QUICK_SOURCE
+    if quick:
+        with _done:
+            start = target not in _pending
+            _pending.add(target)
+        if start:
+            threading.Thread(target=_optimise, args=(cc, name, source, cflags, target),
+                             name=f"optimise {name}", daemon=True).start()
+        target, cflags = _target(name, source, QUICK_CFLAGS), QUICK_CFLAGS
+    how = "cached (quick build)" if quick else "cached"
+    with _target_lock(target):
+        if not target.is_file():
+            why = _gcc(cc, name, tmp, cflags, target, "compiling")
+            if why:
+                return None, f"virtual machine (compiler failed: {why})"
+            how = "compiled (quick build)" if quick else "compiled"
     return target, how
+
+
+@contextmanager
+def parallel_builds(jobs: int | None = None) -> Iterator[None]:
+    """In this thread, :func:`compile_function` and :func:`compile_functions` only start builds.
+
+    Inside the block they generate the C source, start its build on one of ``jobs``
+    threads (default: the usable cores) and return the functions uncompiled, with ``how``
+    ``"deferred"``; the block ends when every build has ended. Made for a throw-away pass
+    over everything a model needs: the next pass finds it all in the cache, having used
+    every core for the compiler (each build still has its two tiers).
+    """
+    if getattr(_deferred, "pool", None) is not None:
+        yield  # nested: the outer block waits
+        return
+    if jobs is None:
+        jobs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+            else (os.cpu_count() or 1)
+    futures: list[Future] = []
+    with ThreadPoolExecutor(max_workers=max(1, jobs), thread_name_prefix="compile") as pool:
+        _deferred.pool, _deferred.futures = pool, futures
+        try:
+            yield
+        finally:
+            _deferred.pool = _deferred.futures = None
+            for future in futures:
+                future.result()
+
+
+def _build_owned(cc: str, name: str, tmp: tempfile.TemporaryDirectory) -> None:
+    """A deferred build: :func:`_build` in a pool thread, which then removes ``tmp``."""
+    with tmp:
+        _build(cc, name, tmp.name)
+
+
+def _defer(cc: str, name: str, write: Callable[[str], None]) -> bool:
+    """Inside :func:`parallel_builds`: write the source into a new directory, start its build."""
+    pool = getattr(_deferred, "pool", None)
+    if pool is None:
+        return False
+    tmp = tempfile.TemporaryDirectory()
+    write(tmp.name)
+    _deferred.futures.append(pool.submit(_build_owned, cc, name, tmp))
+    return True
+
+
+def _generate_one(fun: ca.Function, tmp: str) -> None:
+    cwd = os.getcwd()
+    try:
+        os.chdir(tmp)  # Function.generate writes into the working directory
+        fun.generate(f"{fun.name()}.c")
+    finally:
+        os.chdir(cwd)
+
+
+def _generate_many(name: str, funs: Sequence[ca.Function], tmp: str) -> None:
+    gen = ca.CodeGenerator(f"{name}.c")
+    for fun in funs:
+        gen.add(fun)
+    gen.generate(tmp + os.sep)
 
 
 def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
@@ -112,19 +328,18 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
     function : casadi.Function
         Same signature as ``fun``.
     how : str
-        ``"cached"``, ``"compiled"`` or ``"virtual machine (reason)"``.
+        ``"cached"``, ``"compiled"`` (either with `` (quick build)`` when the optimised
+        library is still being built), ``"deferred"`` (inside :func:`parallel_builds`: not
+        compiled yet) or ``"virtual machine (reason)"``.
     """
     cc = _compiler()
     if cc is None:
         return fun, "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
     name = fun.name()
+    if _defer(cc, name, lambda tmp: _generate_one(fun, tmp)):
+        return fun, "deferred"
     with tempfile.TemporaryDirectory() as tmp:
-        cwd = os.getcwd()
-        try:
-            os.chdir(tmp)
-            fun.generate(f"{name}.c")
-        finally:
-            os.chdir(cwd)
+        _generate_one(fun, tmp)
         target, how = _build(cc, name, tmp)
     if target is None:
         return fun, how
@@ -148,16 +363,15 @@ def compile_functions(name: str, funs: Sequence[ca.Function]
         Compiled equivalents in the order of ``funs`` (``funs`` themselves when no
         compiler).
     how : str
-        ``"cached"``, ``"compiled"`` or ``"virtual machine (reason)"``.
+        As for :func:`compile_function`.
     """
     cc = _compiler()
     if cc is None:
         return list(funs), "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
+    if _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp)):
+        return list(funs), "deferred"
     with tempfile.TemporaryDirectory() as tmp:
-        gen = ca.CodeGenerator(f"{name}.c")
-        for fun in funs:
-            gen.add(fun)
-        gen.generate(tmp + os.sep)
+        _generate_many(name, funs, tmp)
         target, how = _build(cc, name, tmp)
     if target is None:
         return list(funs), how

@@ -265,16 +265,26 @@ class ShootingGrid:
         cache[key] = BufferedFunction(compile_function(fun)[0])  # with every residual
         return cache[key]
 
-    def _switch_function(self) -> BufferedFunction:
-        """``(z (4n, B), par (3, B)) -> (S (n, B), dS/dz (n, 4n B))`` at the break nodes."""
+    def _switch_compiled(self) -> ca.Function:
+        """``(z, par) -> (S, dS/dz)`` at one node, compiled (shared by the grids)."""
         cache = self.system._cache
         if "switch" not in cache:
             sy = self.system
             fun = ca.Function(f"tocontrol_switch_{c_name(sy.model.name)}_{sy.n}",
                               [sy.z, sy.par], [sy.s, ca.densify(ca.jacobian(sy.s, sy.z))])
             cache["switch"] = compile_function(fun)[0]
+        return cache["switch"]
+
+    def _switch_function(self) -> BufferedFunction:
+        """``(z (4n, B), par (3, B)) -> (S (n, B), dS/dz (n, 4n B))`` at the break nodes."""
+        switch = self._switch_compiled()
         return self.system.sized(("switch_buffer", self.B), lambda: BufferedFunction(
-            cache["switch"].map(self.B, "serial")))
+            switch.map(self.B, "serial")))
+
+    def compile(self) -> None:
+        """Build the compiled functions of this grid's equations now (not on first use)."""
+        self._boundary_function()
+        self._switch_compiled()
 
     # ------------------------------------------------------- sparse pattern
     def _pattern(self) -> None:

@@ -45,14 +45,18 @@ Planner`` keeps working.
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from . import compiled
 from .certificate import certify
+from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
 from .flat import FlatTranscription
@@ -93,6 +97,14 @@ WARM_GAIN = 1e-6
 #: may not resolve the steeper law); it only places the nodes.
 STALL_REFINE_TOL = 1e-4
 
+#: Smoothing of the second path of the continuation in k (:func:`_continue_smoothed`): wide
+#: enough that the law's transition at a switch spans several RK4 steps of the coarse mesh.
+WIDE_DELTA = 0.3
+#: ...then delta comes down by this factor per step at the requested k,
+DELTA_FACTOR = 4.0
+#: ...and a failed step is bisected (geometrically) until it is less than this ratio.
+MIN_DELTA_RATIO = 1.1
+
 
 # ----------------------------------------------------------------- planner cache
 class Planner:
@@ -105,9 +117,77 @@ class Planner:
 
     def __init__(self, model) -> None:
         self.model = model
+        #: Optimised libraries in the cache when this planner was made (see :meth:`stale`).
+        self.generation = compiled.generation()
         self.system = CanonicalSystem(model)
         self._direct: dict = {}
+        self._prepared: set = set()
         self._lock = threading.Lock()
+
+    def stale(self) -> bool:
+        """Whether optimised libraries landed since this planner was made, none pending.
+
+        A planner keeps the compiled functions it loaded; when the first use of a model got
+        quick builds (:mod:`~tocontrol_ros.core.compiled`), a new planner made once the
+        optimised ones are in the cache solves faster.
+        """
+        return compiled.generation() != self.generation and compiled.pending_builds() == 0
+
+    def prepare(self, problem: Problem, options: SolverOptions | None = None,
+                parallel: bool = True) -> None:
+        """Build and compile what solving problems of ``problem``'s kinds needs.
+
+        The direct transcription, the canonical system's compiled functions (the RK4 step's
+        Jacobian, the plain step, the pointwise evaluation, the switching functions) and the
+        boundary conditions of the start and target kinds: a solve that follows compiles
+        nothing of these. (The certificate's and the bounded solve's functions are built on
+        their first use.) With ``parallel``, a first pass on a scratch copy of this planner
+        only generates the C sources and compiles them on every core at once
+        (:func:`~tocontrol_ros.core.compiled.parallel_builds`); the second finds them in the
+        cache. (Skipped when the cache already holds a library of this model: generating the
+        sources twice costs seconds on a 7-joint arm.)
+        """
+        options = options or SolverOptions()
+        key = ("prepared", problem.start.kind, problem.target.kind, options.intervals,
+               options.steps, options.guess_intervals, problem.torque_scale)
+        if key in self._prepared:
+            return
+        name = f"tocontrol_pointwise_{c_name(self.model.name)}_{self.model.n}_"
+        if parallel and not compiled.in_cache(name):
+            with compiled.parallel_builds():
+                self._scratch()._build_all(problem, options)
+        self._build_all(problem, options)
+        self._prepared.add(key)
+
+    def _scratch(self) -> Planner:
+        """A planner sharing this one's symbolic system, with empty caches of functions."""
+        scratch = object.__new__(Planner)
+        scratch.model, scratch.generation = self.model, self.generation
+        scratch.system = copy.copy(self.system)
+        scratch.system._cache = {  # the symbolic entries only
+            key: value for key, value in self.system._cache.items()
+            if key in ("rhs", "stagewise") or (isinstance(key, tuple) and key[0] == "step_sx")}
+        scratch.system._sized = OrderedDict()
+        scratch.system._buffer_lock = threading.Lock()
+        scratch._direct, scratch._prepared, scratch._lock = {}, set(), threading.Lock()
+        return scratch
+
+    def _build_all(self, problem: Problem, options: SolverOptions) -> None:
+        """The builds of :meth:`prepare`, in this planner's caches."""
+        system = self.system
+        if system.stagewise:
+            system.rhs_jacobian_function()
+        else:
+            system.step_function(True)
+            for steps in sorted({min(options.steps, CONTINUATION_STEPS), options.steps}):
+                system.interval_function(steps, True)
+                system.interval_function(steps, False)
+        system.step_function(False)
+        system.pointwise()
+        grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
+                            options.steps, problem.start.kind, problem.target.kind)
+        grid.compile()
+        self.direct(problem, options.guess_intervals)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:
@@ -171,9 +251,11 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         Never raises for numerical failure: see ``success``, ``status`` and ``message``.
     """
     planner = _PLANNERS.get(id(problem.model))
-    if planner is None or planner.model is not problem.model:
+    if planner is None or planner.model is not problem.model or planner.stale():
         planner = Planner(problem.model)
         _PLANNERS[id(problem.model)] = planner
+        if not problem.is_trivial():
+            planner.prepare(problem, options)  # the first use of a model: on every core
     return planner.plan(problem, options, warm_start, should_stop)
 
 
@@ -412,7 +494,24 @@ def _k_schedule(k: float) -> list[float]:
 
 
 def _continue_k(ctx: SolveContext, run: Run) -> bool:
-    """Continue a converged k = 1 solution to the requested k (bisecting failed steps)."""
+    """Continue a converged k = 1 solution to the requested k.
+
+    First at ``options.smoothing_intermediate`` (:func:`_continue_in_k`); when that stalls,
+    again from the k = 1 solution along the smoothed path of :func:`_continue_smoothed`.
+    """
+    start = run.snapshot()
+    if _continue_in_k(ctx, run, ctx.options.smoothing_intermediate, stall_refine=True):
+        return True
+    stalled = run.snapshot()
+    run.restore(start)
+    if _continue_smoothed(ctx, run):
+        return True
+    run.restore(stalled)  # report where the first path stalled
+    return False
+
+
+def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool) -> bool:
+    """Continue in k at a fixed smoothing ``delta`` (doubling k, bisecting failed steps)."""
     options = ctx.options
     targets = _k_schedule(ctx.problem.k)[1:]
     refined_at = None
@@ -422,14 +521,14 @@ def _continue_k(ctx: SolveContext, run: Run) -> bool:
         while run.k < k_goal:
             k_try = k_goal
             while True:
-                rep = newton(ctx, run, k_try, options.smoothing_intermediate, loose)
+                rep = newton(ctx, run, k_try, delta, loose)
                 if rep.converged:
                     break
                 k_try = run.k + 0.5 * (k_try - run.k)
                 if k_try - run.k < options.min_k_step:
                     # The mesh may be too coarse for the steeper law: refine it at the
                     # current k, once per stall, and try again.
-                    if refined_at == run.k:
+                    if not stall_refine or refined_at == run.k:
                         return False
                     refined_at = run.k
                     saved = run.snapshot()
@@ -437,6 +536,36 @@ def _continue_k(ctx: SolveContext, run: Run) -> bool:
                         run.restore(saved)
                         return False
                     k_try = k_goal
+    return True
+
+
+def _continue_smoothed(ctx: SolveContext, run: Run) -> bool:
+    """The other path to the requested k: in k at a wide smoothing, then delta down.
+
+    Why the path at a small delta stalls (planar 5R and 8R): where a switching function
+    crosses zero inside an RK4 step, the law's transition (``|S_i| < delta |S|``) is far
+    shorter than the step, so the discrete equations are nearly discontinuous there and
+    Newton stops at that cliff however short the step in k. At :data:`WIDE_DELTA` the
+    transition spans several steps and the continuation in k goes through; then, at the
+    requested k, delta comes down by :data:`DELTA_FACTOR` per step (bisected geometrically
+    when Newton fails), with a switch mesh (a node at each switch,
+    :func:`~tocontrol_ros.core.mesh.switch_mesh`) placed anew when a step fails, down to
+    ``options.smoothing_intermediate``, where the usual final smoothing takes over.
+    """
+    options = ctx.options
+    target = options.smoothing_intermediate
+    if target >= WIDE_DELTA or not _continue_in_k(ctx, run, WIDE_DELTA, stall_refine=False):
+        return False
+    k, delta = ctx.problem.k, WIDE_DELTA
+    while delta > target:
+        d_try = max(delta / DELTA_FACTOR, target)
+        while not newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
+            if switch_mesh(ctx, run) and newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
+                break
+            d_try = float(np.sqrt(delta * d_try))
+            if delta / d_try < MIN_DELTA_RATIO:
+                return False
+        delta = d_try
     return True
 
 

@@ -1,0 +1,130 @@
+"""The compile cache's two tiers (quick build now, optimised build in the background), its
+progress reports, and the planner that loads the optimised libraries once they landed.
+
+Every test uses a private, empty cache (``TOCONTROL_CACHE`` in ``tmp_path``) and small
+functions with ``QUICK_SOURCE`` lowered, so that real compiles stay short.
+"""
+
+from __future__ import annotations
+
+import shutil
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from tocontrol_ros.core import compiled
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
+                                reason="no C compiler")
+
+
+@pytest.fixture
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("TOCONTROL_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("TOCONTROL_COMPILE", "1")
+    monkeypatch.delenv("TOCONTROL_COMPILE_TIERS", raising=False)
+    assert compiled.wait_for_builds(120.0), "background builds of another test still running"
+    yield tmp_path / "cache"
+    assert compiled.wait_for_builds(120.0)
+
+
+def _function(name: str) -> ca.Function:
+    x = ca.SX.sym("x", 3)
+    y = ca.vertcat(ca.sin(x[0]) * x[1] ** 3, ca.exp(-x[2] ** 2) + x[0] * x[1])
+    return ca.Function(name, [x], [y, ca.jacobian(y, x)])
+
+
+def _libraries(cache, name):
+    return sorted(p.name for p in cache.glob(f"{name}_*.so"))
+
+
+def test_long_source_gets_a_quick_build_then_the_optimised_one(private_cache, monkeypatch):
+    monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+    events = []
+    listener = lambda event, name, info: events.append((event, name, info))  # noqa: E731
+    compiled.add_listener(listener)
+    try:
+        fun = _function("tiers_probe")
+        before = compiled.generation()
+        quick, how = compiled.compile_function(fun)
+        assert how == "compiled (quick build)", how
+        assert compiled.wait_for_builds(120.0)
+        assert compiled.generation() == before + 1
+        optimised, how2 = compiled.compile_function(fun)
+        assert how2 == "cached", how2
+    finally:
+        compiled.remove_listener(listener)
+    # Two libraries in the cache (the quick and the optimised build), same numbers as the
+    # virtual machine.
+    assert len(_libraries(private_cache, "tiers_probe")) == 2
+    x = np.array([0.3, -1.2, 0.7])
+    for f in (quick, optimised):
+        for got, want in zip(f(x), fun(x), strict=True):
+            np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-12, atol=1e-14)
+    kinds = [(e, info["flags"].split()[0]) for e, name, info in events if name == "tiers_probe"]
+    assert ("compiling", "-O0") in kinds and ("compiled", "-O0") in kinds, kinds
+    assert ("optimising", compiled.CFLAGS[0]) in kinds, kinds
+    assert ("optimised", compiled.CFLAGS[0]) in kinds, kinds
+    done = [info for e, name, info in events if e == "compiled" and name == "tiers_probe"]
+    assert done[0]["ok"] and done[0]["seconds"] > 0 and done[0]["bytes"] > 0
+
+
+def test_short_source_and_tiers_off_build_optimised_at_once(private_cache, monkeypatch):
+    fun = _function("short_probe")
+    assert compiled.compile_function(fun)[1] == "compiled"  # far below QUICK_SOURCE
+    assert compiled.pending_builds() == 0
+    monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+    monkeypatch.setenv("TOCONTROL_COMPILE_TIERS", "0")
+    other = _function("untiered_probe")
+    assert compiled.compile_function(other)[1] == "compiled"
+    assert compiled.pending_builds() == 0
+    assert len(_libraries(private_cache, "untiered_probe")) == 1
+
+
+def test_a_failing_listener_does_not_fail_the_build(private_cache):
+    def broken(event, name, info):
+        raise RuntimeError("listener bug")
+
+    compiled.add_listener(broken)
+    try:
+        assert compiled.compile_function(_function("listener_probe"))[1] == "compiled"
+    finally:
+        compiled.remove_listener(broken)
+    compiled.remove_listener(broken)  # twice: no error
+
+
+def test_plan_loads_the_optimised_libraries_once_they_landed(private_cache, monkeypatch):
+    from tocontrol_ros.core import solver
+
+    class Model:  # Planner only needs a model for CanonicalSystem; not built here
+        pass
+
+    monkeypatch.setattr(solver, "CanonicalSystem", lambda model: None)
+    planner = solver.Planner(Model())
+    assert not planner.stale()
+    monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+    compiled.compile_function(_function("stale_probe"))
+    assert compiled.wait_for_builds(120.0)
+    assert planner.stale()
+    assert not solver.Planner(Model()).stale()
+
+
+def test_parallel_builds_defer_then_the_next_pass_finds_the_cache(private_cache):
+    funs = [_function(f"parallel_probe{i}") for i in range(3)]
+    events = []
+    listener = lambda event, name, info: events.append((event, name))  # noqa: E731
+    compiled.add_listener(listener)
+    try:
+        with compiled.parallel_builds(jobs=2):
+            deferred = [compiled.compile_function(f) for f in funs[:2]]
+            many = compiled.compile_functions("parallel_lib", funs[2:])
+        assert [how for _, how in deferred] == ["deferred", "deferred"]
+        assert many[1] == "deferred" and many[0] == funs[2:]
+        # The block waited for every build: the next pass only loads.
+        assert [compiled.compile_function(f)[1] for f in funs[:2]] == ["cached", "cached"]
+        assert compiled.compile_functions("parallel_lib", funs[2:])[1] == "cached"
+    finally:
+        compiled.remove_listener(listener)
+    built = sorted(name for event, name in events if event == "compiled")
+    assert built == ["parallel_lib", "parallel_probe0", "parallel_probe1"], events
