@@ -6,11 +6,8 @@ Runs the installed executables (``<prefix>/lib/tocontrol_ros/<name>``, what ``ro
 starts) when there are some, so CI exercises exactly what a user runs.
 """
 
-import os
 import re
-import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,6 +16,8 @@ import rclpy
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticStatus
 from mcap.reader import make_reader
+from node_process import NodeProcess as _Process
+from node_process import command
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -28,16 +27,6 @@ from tocontrol_ros.replay import recorded_initial_state
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
-
-
-def command(name="demo"):
-    installed = Path(sys.prefix) / "lib" / "tocontrol_ros" / name
-    if installed.is_file():
-        return [str(installed)], dict(os.environ, PYTHONUNBUFFERED="1")
-    if os.environ.get("TOCONTROL_DEV_VENV"):
-        pytest.fail(f"not installed: {installed}")
-    return [sys.executable, "-m", f"tocontrol_ros.{name}"], dict(
-        os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
 
 
 def run_demo(out_dir, *args):
@@ -143,25 +132,6 @@ def tracker_events(path, prefix):
 def tracker_runs(path):
     """The tracker's completed-run summaries in a recording, in order."""
     return tracker_events(path, "trajectory completed")
-
-
-class _Process:
-    def __init__(self, name, args, log_dir):
-        cmd, env = command(name)
-        self.log = log_dir / f"{name}.log"
-        with open(self.log, "w") as log:
-            self.proc = subprocess.Popen(cmd + args, env=env, stdout=log,
-                                         stderr=subprocess.STDOUT)
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
 
 
 def _completed_runs(context, count, timeout, prefix="trajectory completed"):

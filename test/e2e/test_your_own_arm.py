@@ -9,10 +9,7 @@ within them, and the tracker executes it.
 
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -22,6 +19,7 @@ import pytest
 import rclpy
 import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticStatus
+from node_process import NodeProcess
 from planner_harness import PlannerClient
 
 from tocontrol_ros import qos
@@ -34,30 +32,6 @@ Q0 = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]
 Q1 = [0.9, 0.3, -0.4, -1.5, 0.5, 1.5, -0.2]
 #: The first plan of a new URDF compiles its functions (minutes on a loaded machine).
 FIRST_PLAN = 1200.0
-
-
-class _Node:
-    """``<prefix>/lib/tocontrol_ros/<name>`` (what ``ros2 run`` starts) in a subprocess."""
-
-    def __init__(self, name: str, args: list[str], log_dir: Path) -> None:
-        exe = Path(sys.prefix) / "lib" / "tocontrol_ros" / name
-        cmd = [str(exe)] if exe.is_file() else [sys.executable, "-m", f"tocontrol_ros.{name}"]
-        env = dict(os.environ, PYTHONUNBUFFERED="1",
-                   PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-        self.log = log_dir / f"{name}.log"
-        with open(self.log, "w") as log:
-            self.proc = subprocess.Popen(cmd + args, env=env, stdout=log,
-                                         stderr=subprocess.STDOUT)
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
 
 
 def _panda_urdf() -> Path:
@@ -88,11 +62,11 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
     urdf = urdf_path.read_text()
     model = load_robot(str(urdf_path), tip_link="panda_hand")
     goal = model.point(np.array(Q1))
-    planner = _Node("planner", [
+    planner = NodeProcess("planner", [
         "--ros-args", "-r", "__node:=planner", "-p", f"robot_description:={urdf}",
         "-p", "tip_link:=panda_hand", "-p", f"time_limit:={FIRST_PLAN}",
         "-p", "starts:=4", "-p", "candidates:=1"], tmp_path)
-    tracker = _Node("tracker", [
+    tracker = NodeProcess("tracker", [
         "--ros-args", "-r", "__node:=tracker", "-p", f"robot_description:={urdf}",
         "-p", "tip_link:=panda_hand", "-p", f"initial_positions:={Q0}",
         "-p", "kp:=[50.0]", "-p", "kd:=[5.0]"], tmp_path)
