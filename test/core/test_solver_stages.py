@@ -62,3 +62,52 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
     res = plan(problem, opts)
     assert res.status is solver.Status.NEWTON_FAILED and sizes == [6, 12]
     assert "forced" in res.message
+
+
+class _FakeRun:
+    """What :func:`_smoothing_step` uses of a Run: delta, snapshot and restore."""
+
+    def __init__(self, delta):
+        self.delta = delta
+
+    def snapshot(self):
+        return self.delta
+
+    def restore(self, snap):
+        self.delta = snap
+
+
+def test_a_failed_smoothing_step_goes_through_intermediate_deltas():
+    from tocontrol_ros.core.solver import _smoothing_step
+
+    run, tried = _FakeRun(1e-4), []
+
+    def step(d):  # converges only from a delta less than 2.5 times larger
+        tried.append(d)
+        if run.delta > 2.5 * d:
+            return "stalled"
+        run.delta = d
+        return ""
+
+    assert _smoothing_step(run, 1e-5, step) == "" and run.delta == 1e-5
+    assert np.allclose(tried, [1e-5, 10 ** -4.5, 10 ** -4.25, 10 ** -4.5, 1e-5, 10 ** -4.75,
+                               1e-5])
+    # A step that never converges leaves the run where it was and says why.
+    run = _FakeRun(1e-4)
+    assert _smoothing_step(run, 1e-5, lambda d: "stalled") == "stalled"
+    assert run.delta == 1e-4
+    # delta = 0 is not bisected.
+    assert _smoothing_step(run, 0.0, lambda d: "stalled") == "stalled" and run.delta == 1e-4
+
+
+def test_the_smoothing_reaches_a_certified_delta_past_a_stalled_decade(galicki):
+    """A random pair (bench/optimum.py's pair 59) whose best motion's smoothing stalled going
+    from delta = 1e-4 to 1e-5 (mesh refinement at 1e-5: Newton stalled), leaving max |H| =
+    1.2e-5 against 1e-5 and VERIFICATION_FAILED; through the intermediate deltas it is
+    certified, with the exhaustive reference's T."""
+    start = [-1.5366409872101394, -1.6239597777039227]
+    target = [2.550991275049022, 0.8109361907958511]
+    res = plan(Problem(galicki, point(start), point(target), k=4.0), SolverOptions())
+    assert res.success, res.message
+    assert res.certificate.passed and res.delta <= 1e-5
+    assert abs(res.T - 1.013137) < 2e-6

@@ -89,6 +89,10 @@ CONTINUATION_STEPS = 6
 #: depend on earlier requests, is kept.
 WARM_GAIN = 1e-6
 
+#: A failed step of the smoothing schedule is retried through the geometric mean of the two
+#: deltas while they are more than this factor apart (a decade is split twice at most).
+SMOOTHING_BISECT_RATIO = 3.0
+
 #: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
 #: may not resolve the steeper law); it only places the nodes.
 STALL_REFINE_TOL = 1e-4
@@ -520,13 +524,11 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
             run.restore(saved)
             if refine(ctx, run):
                 run.restore(saved)
-            saved = run.snapshot()
             t_prev = run.t_final
-            rep = newton(ctx, run, problem.k, delta)
-            if not rep.converged:
-                run.restore(saved)
+            why = _smoothing_step(run, delta, lambda d: _newton_at(ctx, run, d))
+            if why:
                 notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
-                             f"converge at delta = {delta:g} ({rep.message})")
+                             f"converge at delta = {delta:g} ({why})")
                 break
         if delta == options.smoothing[0] and not switched:
             # Resolve the switches to the final tolerance while the law is still smooth:
@@ -559,9 +561,12 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
     for snap in reversed(converged[:-1]):
         run.restore(snap)
         if not refine(ctx, run):
-            notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
-                         f"delta = {failed_delta:g} failed ({why})")
-            return notes
+            # Go down again on the refined mesh, through intermediate deltas where needed.
+            more = _confirm_smoothing(ctx, run)
+            if run.delta > failed_delta:
+                notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
+                             f"delta = {failed_delta:g} failed ({why})")
+            return notes + more
     if converged:
         run.restore(converged[-1])
     notes.append(why)
@@ -585,22 +590,57 @@ def _settled(changes: list[float], tol: float) -> bool:
     return ratio <= 0.5 and changes[-1] * ratio / (1 - ratio) <= tol
 
 
+def _newton_at(ctx: SolveContext, run: Run, delta: float) -> str:
+    """Newton at the requested k and ``delta``: "" when it converged, else why not."""
+    rep = newton(ctx, run, ctx.problem.k, delta)
+    return "" if rep.converged else rep.message
+
+
+def _newton_refine_at(ctx: SolveContext, run: Run, delta: float) -> str:
+    """Newton at ``delta``, then the mesh refinement: "" when both worked, else why not."""
+    saved = run.snapshot()
+    rep = newton(ctx, run, ctx.problem.k, delta)
+    if not rep.converged:
+        return f"Newton did not converge at delta = {delta:g} on the final mesh ({rep.message})"
+    why = refine(ctx, run)
+    if why:
+        run.restore(saved)
+        return f"{why} at delta = {delta:g}"
+    return ""
+
+
+def _smoothing_step(run: Run, delta: float, step: Callable[[float], str]) -> str:
+    """Move ``run`` to ``delta`` by ``step``, through intermediate deltas when it fails.
+
+    A decade of delta can be too long a step where the law is nearly singular (a switching
+    function that nearly touches zero becomes two switches, or none, as delta shrinks): a
+    failed step is retried through the geometric mean of the two deltas while they are more
+    than :data:`SMOOTHING_BISECT_RATIO` apart. ``step(d)`` solves at ``d`` from the run and
+    returns "" on success (the run at ``d``), else why not (the run unchanged). Returns ""
+    when ``run`` reached ``delta``; else why not, with ``run`` at the smallest delta reached.
+    """
+    saved = run.snapshot()
+    why = step(delta)
+    if not why:
+        return ""
+    run.restore(saved)
+    if not (delta > 0 and run.delta > SMOOTHING_BISECT_RATIO * delta):
+        return why
+    mid = float(np.sqrt(run.delta * delta))
+    if _smoothing_step(run, mid, step):
+        return why
+    return _smoothing_step(run, delta, step)
+
+
 def _confirm_smoothing(ctx: SolveContext, run: Run) -> list[str]:
     """Decrease delta on the final mesh until ``T`` changes by less than smoothing_tol."""
-    problem, options = ctx.problem, ctx.options
+    options = ctx.options
     smaller = [d for d in options.smoothing if d < run.delta]
     for delta in smaller:
-        saved = run.snapshot()
         t_prev = run.t_final
-        rep = newton(ctx, run, problem.k, delta)
-        if not rep.converged:
-            run.restore(saved)
-            return [f"smoothing kept at delta = {run.delta:g}: Newton did not converge at "
-                    f"delta = {delta:g} on the final mesh ({rep.message})"]
-        why = refine(ctx, run)
+        why = _smoothing_step(run, delta, lambda d: _newton_refine_at(ctx, run, d))
         if why:
-            run.restore(saved)
-            return [f"smoothing kept at delta = {run.delta:g}: {why} at delta = {delta:g}"]
+            return [f"smoothing kept at delta = {run.delta:g}: {why}"]
         t_now = run.t_final
         if abs(t_now - t_prev) <= options.smoothing_tol * t_now:
             break
