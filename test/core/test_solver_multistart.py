@@ -70,3 +70,29 @@ def test_random_problems_success_rate(galicki):
           f"{first_best}/{solved} solved")
     assert rate >= MIN_SUCCESS_RATE
     assert first_best <= solved
+
+
+def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(galicki,
+                                                                              monkeypatch):
+    """The candidate loop stops continuing direct solutions once their T (k = 1) times the
+    bound on T_k / T_1 exceeds the best final T (bench/optimum.py's pair 2: two of six)."""
+    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED, _time_ratio_bound
+
+    assert _time_ratio_bound(3, 1.0) == 1.0
+    assert _time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
+    problem = Problem(galicki, point([-2.04309337, -1.14393561]),
+                      point([-0.17558265, -3.76859332]), k=4.0)
+    res = plan(problem, SolverOptions(verify=False))
+    assert res.success
+    skipped = [r for r in res.starts if r.status == SKIPPED]
+    continued = [r for r in res.starts if np.isfinite(r.T)]
+    assert skipped and continued
+    bound = _time_ratio_bound(3, 4.0)
+    assert all(r.guess_T * bound > res.T * (1 + CANDIDATE_MARGIN) for r in skipped)
+    assert max(r.guess_T for r in continued) < min(r.guess_T for r in skipped)
+    # Continuing them too (the exhaustive mode does) finds nothing faster here.
+    monkeypatch.setattr(solver, "CANDIDATE_MARGIN", np.inf)
+    full = plan(problem, SolverOptions(verify=False))
+    assert not any(r.status == SKIPPED for r in full.starts)
+    assert full.T == pytest.approx(res.T, rel=1e-9)

@@ -62,7 +62,7 @@ from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status, WarmState
-from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, revolute_joints, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
 
@@ -88,6 +88,15 @@ CONTINUATION_STEPS = 6
 #: this (relative): within it both are the same basin, and the cold answer, which does not
 #: depend on earlier requests, is kept.
 WARM_GAIN = 1e-6
+
+#: A candidate is not continued when its direct ``T`` (k = 1) times
+#: :func:`_time_ratio_bound` exceeds the best final ``T`` so far by more than this (relative):
+#: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
+#: mesh's, so it gets a margin.
+CANDIDATE_MARGIN = 0.02
+
+#: StartRecord.status of a distinct direct solution left out by that rule.
+SKIPPED = "not continued: its direct T cannot beat the best"
 
 #: A failed step of the smoothing schedule is retried through the geometric mean of the two
 #: deltas while they are more than this factor apart (a decade is split twice at most).
@@ -346,12 +355,19 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ok.sort(key=lambda g: g[3].T)
     if touches(problem, ok[0][3].x):
         return None, list(records.values()), _LIMITS_BIND, ""
-    distinct = distinct_basins(ok, lambda g: g[3], problem.model.n)
+    distinct = distinct_basins(ok, lambda g: g[3], problem.model.n,
+                               revolute_joints(problem.model))
     best = None
     failures = []
     t0 = time.perf_counter()
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
+    ratio = _time_ratio_bound(problem.model.n, problem.k)
     for g in distinct[:count]:
+        if best is not None and not options.exhaustive and \
+                g[3].T * ratio > best[0].t_final * (1 + CANDIDATE_MARGIN):
+            # Sorted by direct T, so no later candidate can beat the best either.
+            records[g[0]] = replace(records[g[0]], status=SKIPPED)
+            continue
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
@@ -366,6 +382,16 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         return run, list(records.values()), status, message
     records[best[1]] = replace(records[best[1]], status="returned")
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
+
+
+def _time_ratio_bound(n: int, k: float) -> float:
+    """A lower bound of ``T_k / T_1`` for a gravity- and friction-free arm: ``n^(-(k-1)/(4k))``.
+
+    ``sum u_i^(2k) <= 1`` lies inside the ball ``|u|_2 <= c`` with ``c = n^((k-1)/(2k))``,
+    and without gravity and friction scaling the torques by ``c`` scales the minimum time by
+    ``1 / sqrt(c)``; so no motion at ``k`` is faster than ``T_1 / sqrt(c)``.
+    """
+    return float(n ** (-(k - 1) / (4 * k)))
 
 
 def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:
