@@ -96,3 +96,15 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
     full = plan(problem, SolverOptions(verify=False))
     assert not any(r.status == SKIPPED for r in full.starts)
     assert full.T == pytest.approx(res.T, rel=1e-9)
+
+
+def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
+    """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
+    plane; the same arm with gravity in its plane does not qualify."""
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.solver import _gravity_free
+
+    q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
+    assert _gravity_free(galicki, q)
+    upright = load_robot(str(default_urdf_path()), gravity=(0.0, -9.81, 0.0))
+    assert not _gravity_free(upright, q)
