@@ -1,8 +1,9 @@
-"""Stages of the solve: smoothing, its stopping rule, the k = 1 retry."""
+"""Stages of the solve: smoothing, its stopping rule, the k = 1 retry, the candidate loop."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
@@ -111,3 +112,41 @@ def test_the_smoothing_reaches_a_certified_delta_past_a_stalled_decade(galicki):
     assert res.success, res.message
     assert res.certificate.passed and res.delta <= 1e-5
     assert abs(res.T - 1.013137) < 2e-6
+
+
+def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(galicki,
+                                                                              monkeypatch):
+    """The candidate loop stops continuing direct solutions once their T (k = 1) times the
+    bound on T_k / T_1 exceeds the best final T (bench/optimum.py's pair 2: two of six)."""
+    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED, _time_ratio_bound
+
+    assert _time_ratio_bound(3, 1.0) == 1.0
+    assert _time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
+    problem = Problem(galicki, point([-2.04309337, -1.14393561]),
+                      point([-0.17558265, -3.76859332]), k=4.0)
+    res = plan(problem, SolverOptions(verify=False))
+    assert res.success
+    skipped = [r for r in res.starts if r.status == SKIPPED]
+    continued = [r for r in res.starts if np.isfinite(r.T)]
+    assert skipped and continued
+    bound = _time_ratio_bound(3, 4.0)
+    assert all(r.guess_T * bound > res.T * (1 + CANDIDATE_MARGIN) for r in skipped)
+    assert max(r.guess_T for r in continued) < min(r.guess_T for r in skipped)
+    # Continuing them too (the exhaustive mode does) finds nothing faster here.
+    monkeypatch.setattr(solver, "CANDIDATE_MARGIN", np.inf)
+    full = plan(problem, SolverOptions(verify=False))
+    assert not any(r.status == SKIPPED for r in full.starts)
+    assert full.T == pytest.approx(res.T, rel=1e-9)
+
+
+def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
+    """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
+    plane; the same arm with gravity in its plane does not qualify."""
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.solver import _gravity_free
+
+    q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
+    assert _gravity_free(galicki, q)
+    upright = load_robot(str(default_urdf_path()), gravity=(0.0, -9.81, 0.0))
+    assert not _gravity_free(upright, q)
