@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 from bench.common import Section, fmt_ms, log, table, timed  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.solver import SKIPPED, SolverOptions, plan  # noqa: E402
 
 SEED = 20261201
 K = 4.0
@@ -83,6 +83,7 @@ def _section(recs, default) -> Section:
     final = [len(r["optima"]) for r in recs if r["optima"]]
     direct = [len(r["res"].starts) for r in recs]
     continued = [sum(np.isfinite(s.T) for s in r["res"].starts) for r in recs]
+    skipped = [sum(s.status == SKIPPED for s in r["res"].starts) for r in recs]
     iters = [r["res"].iterations for r in recs if r["res"].success]
     ref_ok = sum(r["ref"].success for r in recs)
     below = [r for r in recs if r["below"]]
@@ -119,6 +120,8 @@ def _section(recs, default) -> Section:
          f"{statistics.median(direct):g} / {max(direct)}"],
         ["default: basins continued per plan median / max",
          f"{statistics.median(continued):g} / {max(continued)}"],
+        ["default: candidates not continued (direct T x bound above the best) median / max",
+         f"{statistics.median(skipped):g} / {max(skipped)}"],
         ["default: Newton iterations of the returned start median / max",
          f"{statistics.median(iters):g} / {max(iters)}" if iters else "—"],
         ["default motions turning a joint by more than pi", f"{long_way}/{n}"],

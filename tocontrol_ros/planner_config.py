@@ -70,8 +70,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "branches (docs/seeding.md); with the default candidates it finds the best "
                   "basin of nearly every problem of the paper's arm (1 = single start: "
                   "faster, often a worse basin).", 1, 256),
-    ParameterSpec("candidates", 6, "Distinct direct solutions continued by shooting; the "
-                  "fastest motion is returned.", 1, 32, constraints="candidates <= starts"),
+    ParameterSpec("candidates", 6, "At most this many distinct direct solutions continued by "
+                  "shooting, fastest direct T first, stopping where the rest cannot beat the "
+                  "best found (docs/seeding.md); the fastest motion is returned.", 1, 32,
+                  constraints="candidates <= starts"),
     ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s); a solve that runs "
                   "out fails with status 'time limit reached'.", 0.1, 600.0),
     ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "

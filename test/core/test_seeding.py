@@ -128,3 +128,29 @@ def test_exhaustive_mode_covers_every_branch(galicki):
     assert len(turns) == branches
     # The grid is denser than the default's.
     assert dv.shape[0] > len({tuple(np.round(a, 9)) for a, _ in ranked})
+
+
+def test_a_motion_a_full_turn_further_is_one_basin():
+    """Direct solutions whose starts differ by 2 pi in a revolute joint and that turn by the
+    same angles are one motion (bench/optimum.py's pair 10: the best direct solution three
+    times among the six continued); other joints and other displacements stay distinct."""
+    from types import SimpleNamespace
+
+    from tocontrol_ros.core.seeding import distinct_basins
+
+    def sol(T, start, move):
+        start = np.array(start, dtype=float)
+        x = np.zeros((3, 4))
+        x[0, :2], x[-1, :2] = start, start + np.array(move)
+        return SimpleNamespace(T=T, x=x)
+
+    a = sol(0.8, [-2.7294, -1.3156], [-0.7573, 2.0784])
+    b = sol(0.8, [-2.7294 + 2 * np.pi, -1.3156], [-0.7573, 2.0784])   # a turn further
+    c = sol(0.8, [-2.7294, -1.3156 - 2 * np.pi], [-0.7573, 2.0784])   # joint 2 not periodic
+    d = sol(0.9, [-2.7294 + 2 * np.pi, -1.3156], [-0.7573 + 2 * np.pi, 2.0784])  # long way
+    e = sol(0.95, [2 * np.pi - 1e-4, 0.0], [0.1, 0.1])                # across the wrap
+    f = sol(0.95, [1e-4, 0.0], [0.1, 0.1])
+    items = [a, b, c, d, e, f]
+    wrap = np.array([True, False])
+    assert distinct_basins(items, lambda s: s, 2, wrap) == [a, c, d, e]
+    assert len(distinct_basins(items, lambda s: s, 2)) == 6  # nothing periodic: as before

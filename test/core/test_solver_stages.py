@@ -1,4 +1,4 @@
-"""Stages of the solve: smoothing, its stopping rule, the k = 1 retry."""
+"""Stages of the solve: smoothing, its stopping rule, the k = 1 retry, the candidate loop."""
 
 from __future__ import annotations
 
@@ -128,3 +128,90 @@ def test_planar_5r_single_start_reaches_k4():
     assert res.certificate is not None and res.certificate.passed
     assert any(d == WIDE_DELTA for _, d, *_ in res.continuation)
     assert res.k == 4.0 and 0.25 < res.T < 0.35
+
+
+class _FakeRun:
+    """What :func:`_smoothing_step` uses of a Run: delta, snapshot and restore."""
+
+    def __init__(self, delta):
+        self.delta = delta
+
+    def snapshot(self):
+        return self.delta
+
+    def restore(self, snap):
+        self.delta = snap
+
+
+def test_a_failed_smoothing_step_goes_through_intermediate_deltas():
+    from tocontrol_ros.core.solver import _smoothing_step
+
+    run, tried = _FakeRun(1e-4), []
+
+    def step(d):  # converges only from a delta less than 2.5 times larger
+        tried.append(d)
+        if run.delta > 2.5 * d:
+            return "stalled"
+        run.delta = d
+        return ""
+
+    assert _smoothing_step(run, 1e-5, step) == "" and run.delta == 1e-5
+    assert np.allclose(tried, [1e-5, 10 ** -4.5, 10 ** -4.25, 10 ** -4.5, 1e-5, 10 ** -4.75,
+                               1e-5])
+    # A step that never converges leaves the run where it was and says why.
+    run = _FakeRun(1e-4)
+    assert _smoothing_step(run, 1e-5, lambda d: "stalled") == "stalled"
+    assert run.delta == 1e-4
+    # delta = 0 is not bisected.
+    assert _smoothing_step(run, 0.0, lambda d: "stalled") == "stalled" and run.delta == 1e-4
+
+
+def test_the_smoothing_reaches_a_certified_delta_past_a_stalled_decade(galicki):
+    """A random pair (bench/optimum.py's pair 59) whose best motion's smoothing stalled going
+    from delta = 1e-4 to 1e-5 (mesh refinement at 1e-5: Newton stalled), leaving max |H| =
+    1.2e-5 against 1e-5 and VERIFICATION_FAILED; through the intermediate deltas it is
+    certified, with the exhaustive reference's T."""
+    start = [-1.5366409872101394, -1.6239597777039227]
+    target = [2.550991275049022, 0.8109361907958511]
+    res = plan(Problem(galicki, point(start), point(target), k=4.0), SolverOptions())
+    assert res.success, res.message
+    assert res.certificate.passed and res.delta <= 1e-5
+    assert abs(res.T - 1.013137) < 2e-6
+
+
+def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(galicki,
+                                                                              monkeypatch):
+    """The candidate loop stops continuing direct solutions once their T (k = 1) times the
+    bound on T_k / T_1 exceeds the best final T (bench/optimum.py's pair 2: two of six)."""
+    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED, _time_ratio_bound
+
+    assert _time_ratio_bound(3, 1.0) == 1.0
+    assert _time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
+    problem = Problem(galicki, point([-2.04309337, -1.14393561]),
+                      point([-0.17558265, -3.76859332]), k=4.0)
+    res = plan(problem, SolverOptions(verify=False))
+    assert res.success
+    skipped = [r for r in res.starts if r.status == SKIPPED]
+    continued = [r for r in res.starts if np.isfinite(r.T)]
+    assert skipped and continued
+    bound = _time_ratio_bound(3, 4.0)
+    assert all(r.guess_T * bound > res.T * (1 + CANDIDATE_MARGIN) for r in skipped)
+    assert max(r.guess_T for r in continued) < min(r.guess_T for r in skipped)
+    # Continuing them too (the exhaustive mode does) finds nothing faster here.
+    monkeypatch.setattr(solver, "CANDIDATE_MARGIN", np.inf)
+    full = plan(problem, SolverOptions(verify=False))
+    assert not any(r.status == SKIPPED for r in full.starts)
+    assert full.T == pytest.approx(res.T, rel=1e-9)
+
+
+def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
+    """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
+    plane; the same arm with gravity in its plane does not qualify."""
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.solver import _gravity_free
+
+    q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
+    assert _gravity_free(galicki, q)
+    upright = load_robot(str(default_urdf_path()), gravity=(0.0, -9.81, 0.0))
+    assert not _gravity_free(upright, q)

@@ -55,9 +55,11 @@ class SolverOptions:
         self-motion grids and their full-turn branches (``docs/seeding.md``). The paper's arm
         has dozens of local optima and the first seed pair is seldom in the best basin.
     candidates : int
-        Distinct direct solutions (best ``T`` at k = 1 first) continued to the requested
-        ``k`` by shooting; the best final ``T`` is returned. The best motion's direct
-        solution is often the fourth to sixth by ``T`` at k = 1, hence 6.
+        At most this many distinct direct solutions (best ``T`` at k = 1 first) continued to
+        the requested ``k`` by shooting; the best final ``T`` is returned. The best motion's
+        direct solution is not always the first by ``T`` at k = 1 (up to the fifth on the
+        benchmark's pairs), hence 6; those that cannot beat the best found are not continued
+        (``docs/seeding.md``).
     ik_count : int
         Angles of the self-motion family per end point (see
         :func:`~tocontrol_ros.core.ik.ik_family`).

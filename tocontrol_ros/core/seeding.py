@@ -18,7 +18,8 @@ from .ik import ik_family
 from .options import SolverOptions
 from .problem import Problem
 
-__all__ = ["distinct_basins", "seed_pairs", "seed_grid", "shiftable_joints", "branch_shifts",
+__all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
+           "branch_shifts",
            "EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "EXHAUSTIVE_CANDIDATES"]
 
 #: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
@@ -55,13 +56,23 @@ def shiftable_joints(problem: Problem) -> np.ndarray:
     ndarray of bool, shape (n,)
     """
     model = problem.model
-    revolute = np.array([b.kind == "revolute" for b in model.bodies])
+    revolute = revolute_joints(model)
     if problem.target.kind != "point":
         return np.zeros(model.n, dtype=bool)
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     with np.errstate(invalid="ignore"):
         wide = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi - lo >= 2 * np.pi)
     return revolute & wide
+
+
+def revolute_joints(model) -> np.ndarray:
+    """Revolute joints (continuous included): a configuration 2 pi further is the same pose.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    return np.array([b.kind == "revolute" for b in model.bodies])
 
 
 def branch_shifts(shiftable: np.ndarray) -> np.ndarray:
@@ -218,11 +229,15 @@ def _spread(q_a: np.ndarray, q_b: np.ndarray, count: int) -> np.ndarray:
 SAME_BASIN = 1e-3
 
 
-def distinct_basins(items: list, result, n: int) -> list:
+def distinct_basins(items: list, result, n: int, periodic: np.ndarray | None = None) -> list:
     """``items`` by increasing ``T``, one per basin.
 
     Two direct solutions are in one basin when their start and end configurations are within
-    :data:`SAME_BASIN` of each other.
+    :data:`SAME_BASIN` of each other. For the ``periodic`` joints the start configurations
+    are compared modulo 2 pi, and the displacements (end minus start) instead of the ends: a
+    revolute joint that starts a full turn further and turns by the same angle makes the same
+    motion (the dynamics are 2 pi-periodic in it), and the inverse-kinematics families hold
+    both.
 
     Parameters
     ----------
@@ -232,12 +247,24 @@ def distinct_basins(items: list, result, n: int) -> list:
         ``item -> DirectResult`` (with ``T`` and states ``x`` of shape (N + 1, 2n)).
     n : int
         Joints.
+    periodic : ndarray of bool, shape (n,), optional
+        Joints whose start configuration counts modulo 2 pi (default: none).
     """
+    wrap = np.zeros(n, dtype=bool) if periodic is None else np.asarray(periodic, dtype=bool)
     out, seen = [], []
     for item in sorted(items, key=lambda it: result(it).T):
         x = result(item).x
-        ends = np.concatenate([x[0, :n], x[-1, :n]])
-        if all(np.max(np.abs(ends - e)) > SAME_BASIN for e in seen):
+        start = np.where(wrap, np.mod(x[0, :n], 2 * np.pi), x[0, :n])
+        ends = np.concatenate([start, np.where(wrap, x[-1, :n] - x[0, :n], x[-1, :n])])
+        if all(_basin_distance(ends, e, wrap) > SAME_BASIN for e in seen):
             out.append(item)
             seen.append(ends)
     return out
+
+
+def _basin_distance(a: np.ndarray, b: np.ndarray, wrap: np.ndarray) -> float:
+    """Max-norm distance of two (start, displacement) rows, the wrapped starts on the circle."""
+    diff = np.abs(a - b)
+    n = len(wrap)
+    diff[:n] = np.where(wrap, np.minimum(diff[:n], 2 * np.pi - diff[:n]), diff[:n])
+    return float(np.max(diff))

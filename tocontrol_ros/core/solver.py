@@ -66,7 +66,7 @@ from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status, WarmState
-from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, revolute_joints, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
 
@@ -92,6 +92,22 @@ CONTINUATION_STEPS = 6
 #: this (relative): within it both are the same basin, and the cold answer, which does not
 #: depend on earlier requests, is kept.
 WARM_GAIN = 1e-6
+
+#: A candidate is not continued when its direct ``T`` (k = 1) times
+#: :func:`_time_ratio_bound` exceeds the best final ``T`` so far by more than this (relative):
+#: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
+#: mesh's, so it gets a margin.
+CANDIDATE_MARGIN = 0.02
+
+#: Gravity torques below this (relative to tau_max) count as none for that rule.
+GRAVITY_FREE = 1e-9
+
+#: StartRecord.status of a distinct direct solution left out by that rule.
+SKIPPED = "not continued: its direct T cannot beat the best"
+
+#: A failed step of the smoothing schedule is retried through the geometric mean of the two
+#: deltas while they are more than this factor apart (a decade is split twice at most).
+SMOOTHING_BISECT_RATIO = 3.0
 
 #: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
 #: may not resolve the steeper law); it only places the nodes.
@@ -427,12 +443,23 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ok.sort(key=lambda g: g[3].T)
     if touches(problem, ok[0][3].x):
         return None, list(records.values()), _LIMITS_BIND, ""
-    distinct = distinct_basins(ok, lambda g: g[3], problem.model.n)
+    distinct = distinct_basins(ok, lambda g: g[3], problem.model.n,
+                               revolute_joints(problem.model))
     best = None
     failures = []
     t0 = time.perf_counter()
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
+    # The bound needs an arm on which gravity does no work (with gravity the larger torque
+    # set also frees more torque for acceleration): checked along the candidates' guesses.
+    ratio = _time_ratio_bound(problem.model.n, problem.k) if _gravity_free(
+        problem.model, np.vstack([g[3].x[:, :problem.model.n] for g in distinct[:count]])) \
+        else 0.0
     for g in distinct[:count]:
+        if best is not None and not options.exhaustive and \
+                g[3].T * ratio > best[0].t_final * (1 + CANDIDATE_MARGIN):
+            # Sorted by direct T, so no later candidate can beat the best either.
+            records[g[0]] = replace(records[g[0]], status=SKIPPED)
+            continue
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
@@ -447,6 +474,23 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         return run, list(records.values()), status, message
     records[best[1]] = replace(records[best[1]], status="returned")
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
+
+
+def _time_ratio_bound(n: int, k: float) -> float:
+    """A lower bound of ``T_k / T_1`` for a gravity- and friction-free arm: ``n^(-(k-1)/(4k))``.
+
+    ``sum u_i^(2k) <= 1`` lies inside the ball ``|u|_2 <= c`` with ``c = n^((k-1)/(2k))``,
+    and without gravity and friction scaling the torques by ``c`` scales the minimum time by
+    ``1 / sqrt(c)``; so no motion at ``k`` is faster than ``T_1 / sqrt(c)``.
+    """
+    return float(n ** (-(k - 1) / (4 * k)))
+
+
+def _gravity_free(model, q: np.ndarray) -> bool:
+    """Whether gravity loads no joint at the configurations ``q`` (K, n) (rad, m)."""
+    zero = np.zeros((model.n, len(q)))
+    g = np.array(model.function("id")(q.T, zero, zero))
+    return bool(np.max(np.abs(g) / model.tau_max[:, None]) <= GRAVITY_FREE)
 
 
 def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:
@@ -652,13 +696,11 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
             run.restore(saved)
             if refine(ctx, run):
                 run.restore(saved)
-            saved = run.snapshot()
             t_prev = run.t_final
-            rep = newton(ctx, run, problem.k, delta)
-            if not rep.converged:
-                run.restore(saved)
+            why = _smoothing_step(run, delta, lambda d: _newton_at(ctx, run, d))
+            if why:
                 notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
-                             f"converge at delta = {delta:g} ({rep.message})")
+                             f"converge at delta = {delta:g} ({why})")
                 break
         if delta == options.smoothing[0] and not switched:
             # Resolve the switches to the final tolerance while the law is still smooth:
@@ -691,9 +733,12 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
     for snap in reversed(converged[:-1]):
         run.restore(snap)
         if not refine(ctx, run):
-            notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
-                         f"delta = {failed_delta:g} failed ({why})")
-            return notes
+            # Go down again on the refined mesh, through intermediate deltas where needed.
+            more = _confirm_smoothing(ctx, run)
+            if run.delta > failed_delta:
+                notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
+                             f"delta = {failed_delta:g} failed ({why})")
+            return notes + more
     if converged:
         run.restore(converged[-1])
     notes.append(why)
@@ -717,22 +762,57 @@ def _settled(changes: list[float], tol: float) -> bool:
     return ratio <= 0.5 and changes[-1] * ratio / (1 - ratio) <= tol
 
 
+def _newton_at(ctx: SolveContext, run: Run, delta: float) -> str:
+    """Newton at the requested k and ``delta``: "" when it converged, else why not."""
+    rep = newton(ctx, run, ctx.problem.k, delta)
+    return "" if rep.converged else rep.message
+
+
+def _newton_refine_at(ctx: SolveContext, run: Run, delta: float) -> str:
+    """Newton at ``delta``, then the mesh refinement: "" when both worked, else why not."""
+    saved = run.snapshot()
+    rep = newton(ctx, run, ctx.problem.k, delta)
+    if not rep.converged:
+        return f"Newton did not converge at delta = {delta:g} on the final mesh ({rep.message})"
+    why = refine(ctx, run)
+    if why:
+        run.restore(saved)
+        return f"{why} at delta = {delta:g}"
+    return ""
+
+
+def _smoothing_step(run: Run, delta: float, step: Callable[[float], str]) -> str:
+    """Move ``run`` to ``delta`` by ``step``, through intermediate deltas when it fails.
+
+    A decade of delta can be too long a step where the law is nearly singular (a switching
+    function that nearly touches zero becomes two switches, or none, as delta shrinks): a
+    failed step is retried through the geometric mean of the two deltas while they are more
+    than :data:`SMOOTHING_BISECT_RATIO` apart. ``step(d)`` solves at ``d`` from the run and
+    returns "" on success (the run at ``d``), else why not (the run unchanged). Returns ""
+    when ``run`` reached ``delta``; else why not, with ``run`` at the smallest delta reached.
+    """
+    saved = run.snapshot()
+    why = step(delta)
+    if not why:
+        return ""
+    run.restore(saved)
+    if not (delta > 0 and run.delta > SMOOTHING_BISECT_RATIO * delta):
+        return why
+    mid = float(np.sqrt(run.delta * delta))
+    if _smoothing_step(run, mid, step):
+        return why
+    return _smoothing_step(run, delta, step)
+
+
 def _confirm_smoothing(ctx: SolveContext, run: Run) -> list[str]:
     """Decrease delta on the final mesh until ``T`` changes by less than smoothing_tol."""
-    problem, options = ctx.problem, ctx.options
+    options = ctx.options
     smaller = [d for d in options.smoothing if d < run.delta]
     for delta in smaller:
-        saved = run.snapshot()
         t_prev = run.t_final
-        rep = newton(ctx, run, problem.k, delta)
-        if not rep.converged:
-            run.restore(saved)
-            return [f"smoothing kept at delta = {run.delta:g}: Newton did not converge at "
-                    f"delta = {delta:g} on the final mesh ({rep.message})"]
-        why = refine(ctx, run)
+        why = _smoothing_step(run, delta, lambda d: _newton_refine_at(ctx, run, d))
         if why:
-            run.restore(saved)
-            return [f"smoothing kept at delta = {run.delta:g}: {why} at delta = {delta:g}"]
+            return [f"smoothing kept at delta = {run.delta:g}: {why}"]
         t_now = run.t_final
         if abs(t_now - t_prev) <= options.smoothing_tol * t_now:
             break
