@@ -30,8 +30,15 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 #: The Panda's start (at rest) and the configuration whose hand point is the goal.
 Q0 = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]
 Q1 = [0.9, 0.3, -0.4, -1.5, 0.5, 1.5, -0.2]
-#: The first plan of a new URDF compiles its functions (minutes on a loaded machine).
-FIRST_PLAN = 1200.0
+#: The README's gains: 30 rad/s, damping ratio 0.7 on the mass matrix's diagonal at Q0
+#: (kp_i = w^2 M_ii / tau_max_i, kd_i = 2 zeta w M_ii / tau_max_i, normalised). One gain for
+#: all joints is unstable on the light wrist at the tracker's 1 kHz (kd = 5: the wrist's
+#: discrete damping factor kd tau_max dt / M_77 is 9 against a bound of 2).
+KP = [10.0, 20.0, 13.0, 10.0, 2.4, 4.0, 0.5]
+KD = [0.47, 0.91, 0.6, 0.49, 0.11, 0.19, 0.023]
+#: The first plan of a new URDF compiles its functions (minutes on a loaded machine); the
+#: planner's largest time_limit.
+FIRST_PLAN = 600.0
 
 
 def _panda_urdf() -> Path:
@@ -69,14 +76,14 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
     tracker = NodeProcess("tracker", [
         "--ros-args", "-r", "__node:=tracker", "-p", f"robot_description:={urdf}",
         "-p", "tip_link:=panda_hand", "-p", f"initial_positions:={Q0}",
-        "-p", "kp:=[50.0]", "-p", "kd:=[5.0]"], tmp_path)
+        "-p", f"kp:={KP}", "-p", f"kd:={KD}"], tmp_path)
     client = PlannerClient("/planner")
     try:
         # The services come up after the warm-up, which compiles the model's functions.
-        try:
-            client.wait_ready(FIRST_PLAN)
-        except AssertionError as exc:
-            raise AssertionError(planner.log.read_text()[-3000:]) from exc
+        deadline = time.monotonic() + FIRST_PLAN
+        while not client.plan_client.wait_for_service(timeout_sec=1.0):
+            assert planner.proc.poll() is None, planner.log.read_text()[-3000:]
+            assert time.monotonic() < deadline, planner.log.read_text()[-3000:]
         # The goal goes once the planner has the arm's joint states (it plans from them).
         since = len(client.status_list())
         client.wait_subscribed(client.goal_pub, 60.0)
@@ -94,7 +101,8 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
         assert np.all(q >= model.q_lower - 1e-9) and np.all(q <= model.q_upper + 1e-9)
         assert np.all(np.abs(qd) <= model.qd_max * (1 + 1e-9))
         assert np.max(np.abs(qd) / model.qd_max) > 0.99
-        assert np.allclose(q[0], Q0, atol=1e-6)
+        # Planned from the arm's joint states, where the tracker holds it.
+        assert np.allclose(q[0], Q0, atol=1e-3), (q[0], Q0)
         # The tracker executes it with the same URDF.
         context = rclpy.Context()
         rclpy.init(context=context)

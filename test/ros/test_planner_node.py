@@ -628,7 +628,9 @@ def test_plans_keep_to_a_moveit_joint_limits_file(tmp_path):
     namespace = f"/limits_{os.getpid()}"
     running = Running([Parameter("joint_limits", value=str(path)),
                        Parameter("limit_margin", value=0.1),
-                       Parameter("starts", value=4), Parameter("candidates", value=2)],
+                       Parameter("starts", value=4), Parameter("candidates", value=2),
+                       # The bounded solve takes seconds, tens of them on a loaded machine.
+                       Parameter("time_limit", value=300.0)],
                       namespace=namespace)
     c = PlannerClient(f"{namespace}/planner")
     try:
