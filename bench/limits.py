@@ -189,7 +189,26 @@ def run(count: int, names=None) -> Section:
     lines += table(["robot", "n", "success", "within limits", "direct", "reference",
                     "unconstrained violation", "median time (ms)"],
                    [_summary(o) for o in outs])
-    return Section("Joint limits", lines)
+    return Section("Joint limits", lines, targets=_targets(outs))
+
+
+def _targets(outs: list) -> list:
+    """Issue 16's bar per 6-7-joint robot: >= 95 % success, every success within the
+    limits, T within 1e-3 of the reference on at least 10 cases."""
+    rows = []
+    for out in outs:
+        if out["n"] < 6:
+            continue
+        recs, refs = out["recs"], out["refs"]
+        ok = [r for r in recs if r["success"]]
+        within = sum(r["within"] for r in ok)
+        agree = sum(e <= 1e-3 for e in refs)
+        met = len(ok) >= 0.95 * len(recs) and within == len(ok) and agree >= 10
+        rows.append((f"{out['name']} with its URDF limits: >= 95 % of {len(recs)} random cases "
+                     "succeed, all within the limits, T within 1e-3 of the reference on >= 10",
+                     f"{'**yes**' if met else '**no**'}: {len(ok)}/{len(recs)} succeed, "
+                     f"{within}/{len(ok)} within the limits, {agree}/{len(refs)} within 1e-3"))
+    return rows
 
 
 def main(argv=None) -> int:

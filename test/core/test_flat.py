@@ -10,7 +10,7 @@ from scipy.integrate import solve_ivp
 
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
 from tocontrol_ros.core.direct import DirectCollocation
-from tocontrol_ros.core.flat import FlatTrajectory, basis, breakpoints, refined_breaks
+from tocontrol_ros.core.flat import basis, breakpoints, refined_breaks
 from tocontrol_ros.core.limited import PAD, SPANS, state_bounds
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, plan
@@ -118,15 +118,13 @@ def test_certificate_fails_a_faster_or_displaced_motion(panda_limited):
     traj = res.trajectory
     options = CertificateOptions()
     faster = replace(traj.result, T=0.98 * res.T)
-    cert = certify_open_loop(res.problem, FlatTrajectory(traj.transcription, faster, 4.0),
-                             options)
+    cert = certify_open_loop(res.problem, traj.with_result(faster), options)
     failed = {item.name for item in cert.failures}
     assert {"control_set", "velocity_limits"} <= failed, cert.summary()
     P = traj.result.P.copy()
     P[-2:] += 1e-3
     moved = replace(traj.result, P=P)
-    cert = certify_open_loop(res.problem, FlatTrajectory(traj.transcription, moved, 4.0),
-                             options)
+    cert = certify_open_loop(res.problem, traj.with_result(moved), options)
     assert "end_point" in {item.name for item in cert.failures}, cert.summary()
 
 

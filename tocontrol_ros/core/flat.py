@@ -30,6 +30,7 @@ gradient and its weighted Hessian in the span's ``(p + 1) n`` control points and
 
 from __future__ import annotations
 
+import copy
 import time
 import weakref
 from dataclasses import dataclass
@@ -462,22 +463,33 @@ class FlatTrajectory:
     """
 
     def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
+        # Only what evaluating needs: not the transcription (its NLP solver is large, and a
+        # refined mesh's transcription serves one motion).
         model = transcription.model
-        self.transcription, self.result = transcription, result
         self._model = model
         self.n = model.n
-        self.T = result.T
         self.joint_names = model.joint_names
         self.law = LawParams(k, 0.0, transcription.torque_scale)
         self.par = self.law.array()
         self.breaks, self._degree = transcription.breaks, transcription.degree
+        self._id = transcription._id
+        self._scale = transcription.scale
+        self._set_result(result)
+
+    def with_result(self, result: FlatResult) -> FlatTrajectory:
+        """The same mesh and model with other control points and ``T`` (e.g. to test)."""
+        other = copy.copy(self)
+        other._set_result(result)
+        return other
+
+    def _set_result(self, result: FlatResult) -> None:
+        self.result = result
+        self.T = result.T
         self._P = result.P
         self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
         self._d1 = self._spl.derivative(1)
         self._d2 = self._spl.derivative(2)
-        self._id = transcription._id
         self._maps: dict = {}
-        self._scale = transcription.scale
         self.t_grid = self.breaks * self.T
         x = self._path(self.t_grid)[:2]
         self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
