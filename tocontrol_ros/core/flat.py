@@ -168,6 +168,39 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float,
     return cached[key]
 
 
+class _Interrupt(ca.Callback):
+    """IPOPT's iteration callback: stops the solve at a deadline or when asked to."""
+
+    def __init__(self, nx: int, ng: int, npar: int) -> None:
+        ca.Callback.__init__(self)
+        self._sizes = (nx, 1, ng, nx, ng, npar)
+        self.deadline, self.should_stop = np.inf, None
+        self.construct("flat_interrupt", {})
+
+    def arm(self, deadline: float, should_stop) -> None:
+        self.deadline, self.should_stop = deadline, should_stop
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self._sizes[i], 1)
+
+    def eval(self, arg):
+        stop = time.perf_counter() > self.deadline or (
+            self.should_stop is not None and self.should_stop())
+        return [1 if stop else 0]
+
+
 @dataclass(frozen=True)
 class FlatResult:
     """Outcome of a bounded B-spline solve.
@@ -220,7 +253,7 @@ class FlatTranscription:
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
-                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 1000,
+                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
                  hull: bool = True) -> None:
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
@@ -356,6 +389,8 @@ class FlatTranscription:
                                         [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         allp = ca.vertcat(par, vpar)
+        self._interrupt = _Interrupt(nw, ng, allp.numel())
+        opts["iteration_callback"] = self._interrupt
         self._g = ca.Function("g", [w, allp], [g])
         self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
         self._npar = par.numel()
@@ -405,7 +440,8 @@ class FlatTranscription:
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              set_pad: float = SET_PAD) -> FlatResult:
+              set_pad: float = SET_PAD, max_time: float = 1e6,
+              should_stop=None) -> FlatResult:
         """Solve from a guess.
 
         Parameters
@@ -423,6 +459,10 @@ class FlatTranscription:
             State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
             symmetric).
         set_pad : float
+        max_time : float
+            Wall-time budget of this solve (s): IPOPT stops after it (a failed result).
+        should_stop : callable, optional
+            Polled every IPOPT iteration; returning True stops the solve.
 
         Returns
         -------
@@ -437,7 +477,11 @@ class FlatTranscription:
         ubx = np.full(self._nw, 1e20)
         lbx[self._iT] = 1e-3
         t0 = time.perf_counter()
-        sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        self._interrupt.arm(t0 + max_time, should_stop)
+        try:
+            sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        finally:
+            self._interrupt.arm(np.inf, None)
         elapsed = time.perf_counter() - t0
         stats = self.solver.stats()
         w = np.array(sol["x"]).ravel()

@@ -60,6 +60,9 @@ REFINEMENTS = 4
 #: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
 REFINE_WINDOW = 0.02
 
+#: Least wall time (s) a refinement level may take (else ten times the level before).
+REFINE_BUDGET = 5.0
+
 #: Refinement stops when ``T`` changes by less than this (relative).
 T_SETTLED = 2e-5
 
@@ -186,6 +189,12 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         problem=problem, method="direct")
 
 
+def _budget(ctx: SolveContext, cap: float = np.inf) -> dict:
+    """One B-spline solve's limits: the deadline (or ``cap`` seconds, if sooner), the cancel."""
+    return {"max_time": max(min(ctx.deadline - time.perf_counter(), cap), 0.0),
+            "should_stop": ctx.should_stop}
+
+
 def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
              ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
     """The B-spline solve on :data:`SPANS` uniform spans from a direct guess."""
@@ -193,7 +202,8 @@ def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
     n = problem.model.n
     flat = planner.flat(problem, SPANS)
     out = flat.solve(problem.start.value, problem.target.value, problem.k, guess.T,
-                     flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:]), *bounds)
+                     flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:]), *bounds,
+                     **_budget(ctx))
     ctx.check()
     if not out.success:
         return out, None, None
@@ -216,7 +226,10 @@ def _refined(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
         t = np.linspace(0.0, out.T, 8 * (len(breaks) + 8))
         s = traj.evaluate(t)
         finer = planner.flat(problem, breaks)
-        again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds)
+        # A refinement that takes far longer than the level before it (IPOPT crawling, seen
+        # at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser one stands.
+        again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds,
+                            **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
         ctx.check()
         if not again.success:
             break
@@ -241,7 +254,7 @@ def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory
         if excess <= 0.0:
             break
         pad += 2.0 * excess
-        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad)
+        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad, **_budget(ctx))
         ctx.check()
         if not again.success:
             break
