@@ -7,7 +7,9 @@ direct solves and every distinct basin continued (``docs/seeding.md``). The exha
 ``T`` is the reference; the gap of the default and the local optima per pair (the distinct
 final ``T`` of the continued basins) are reported.
 
-Run alone: ``scripts/dev run python bench/optimum.py [PAIRS]`` (prints the section).
+Run alone: ``scripts/dev run python bench/optimum.py [PAIRS]`` (prints the section);
+``... bench/optimum.py PAIRS --times`` only times the default and the peer on the same pairs,
+side by side (minutes instead of the reference's quarter hour: for a quiet machine).
 """
 
 import os
@@ -154,9 +156,27 @@ def _section(recs, default) -> Section:
                    f"({n} pairs)", lines, targets)
 
 
+def times(model, count: int) -> None:
+    """Median plan time of the default and of the peer on the same pairs (printed)."""
+    default = SolverOptions()
+    pairs = draw_pairs(model, count, seed=SEED)
+    plan(Problem(model, point(pairs[0][0]), point(pairs[0][1]), k=K), default)  # warm-up
+    t_def, t_old = [], []
+    for a, b in pairs:
+        problem = Problem(model, point(a), point(b), k=K)
+        t_def.append(timed(lambda p=problem: plan(p, default))[0])
+        t_old.append(timed(lambda p=problem: plan(p, PEER))[0])
+    print(f"default plan time median {fmt_ms(statistics.median(t_def))} ms, p90 "
+          f"{fmt_ms(float(np.percentile(t_def, 90)))} ms; peer (16x3) median "
+          f"{fmt_ms(statistics.median(t_old))} ms; {count} pairs, load {os.getloadavg()}")
+
+
 if __name__ == "__main__":
     from bench.common import paper_model
 
+    if "--times" in sys.argv:
+        times(paper_model(), int(sys.argv[1]))
+        sys.exit(0)
     sec = run(paper_model(), int(sys.argv[1]) if len(sys.argv) > 1 else 100)
     print(f"## {sec.title}\n")
     print("\n".join(sec.lines))
