@@ -244,19 +244,20 @@ def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory
                 flat) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.
 
-    At most :data:`PAD_ROUNDS` re-solves, each from the last solution.
+    At most :data:`PAD_ROUNDS` re-solves, each from the last solution; a re-solve that
+    fails (IPOPT's step computation, seen on the xArm7) is tried again with a wider pad.
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
     pad = SET_PAD
+    excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
     for _ in range(PAD_ROUNDS):
-        excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
         if excess <= 0.0:
             break
         pad += 2.0 * excess
         again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad, **_budget(ctx))
         ctx.check()
-        if not again.success:
-            break
-        out, traj = again, FlatTrajectory(flat, again, problem.k)
+        if again.success:
+            out, traj = again, FlatTrajectory(flat, again, problem.k)
+            excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
     return out, traj
