@@ -18,9 +18,9 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
 
 - the control set at ``S`` sample times (``per_span`` per span and ``s = 1``):
   ``sum_i u_i^(2k) <= 1 - SET_PAD``;
-- the joint limits at the same times, linear in ``w``: ``lower <= q'' ... `` i.e.
-  ``lower <= B0 P <= upper`` and ``-v T <= B1 P <= v T`` (``B0``, ``B1`` the basis and its
-  derivative at the sample);
+- the joint limits at every time, linear in ``w`` through the convex hull of the control
+  points and of the derivative's: ``lower <= P_j <= upper`` and
+  ``-v T <= p (P_j+1 - P_j) / (t_j+p+1 - t_j+1) <= v T``;
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
   target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
 
@@ -253,8 +253,7 @@ class FlatTranscription:
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
-                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 hull: bool = True) -> None:
+                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300) -> None:
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
@@ -275,7 +274,6 @@ class FlatTranscription:
                                  [1.0]])
         span, b = basis(br, p, self.s)
         S = len(self.s)
-        self._span, self._b = span, b
         nw = K * n + 1
         iT = nw - 1
         d = (p + 1) * n + 1
@@ -292,23 +290,14 @@ class FlatTranscription:
         bcat = ca.DM(np.concatenate(list(b), axis=1))  # (3, (p + 1) S)
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
-        # Linear rows: positions and velocities at the samples.
-        if hull:
-            # The convex hull of the control points (and of the derivative's): bounds that
-            # hold at every time, not only at the samples.
-            B0 = np.eye(K)
-            tk = knots(br, p)
-            c = p / (tk[p + 1:p + K] - tk[1:K])
-            B1 = np.zeros((K - 1, K))
-            B1[np.arange(K - 1), np.arange(K - 1)] = -c
-            B1[np.arange(K - 1), np.arange(1, K)] = c
-        else:
-            B0 = np.zeros((S, K))
-            B1 = np.zeros((S, K))
-            for r in range(S):
-                B0[r, span[r]:span[r] + p + 1] = b[r, 0]
-                B1[r, span[r]:span[r] + p + 1] = b[r, 1]
-        self._B0, self._B1 = B0, B1
+        # Linear rows: the convex hull of the control points (and of the derivative's),
+        # bounds that hold at every time, not only at the samples.
+        B0 = np.eye(K)
+        tk = knots(br, p)
+        c = p / (tk[p + 1:p + K] - tk[1:K])
+        B1 = np.zeros((K - 1, K))
+        B1[np.arange(K - 1), np.arange(K - 1)] = -c
+        B1[np.arange(K - 1), np.arange(1, K)] = c
         lin_rows = []
         self._lin_kind = []
         for i in range(n):
@@ -361,6 +350,7 @@ class FlatTranscription:
         jac_set = scat.apply(ca.vec(grads))
         jac_lin = ca.horzcat(A_P[:, :iT], Tcoef)
         jac_b = ca.jacobian(g_b, w)
+        g_eval = ca.vertcat(ca.vec(cs), g_lin, g_b)  # the set's values come with its gradients
         jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
             + ca.vertcat(ca.MX(ng_set + ng_lin, nw), jac_b)
         lam_g = ca.MX.sym("lam_g", ng)
@@ -383,7 +373,7 @@ class FlatTranscription:
                 "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
                 "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar)], [
                     T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
-                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar)], [g, jac],
+                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar)], [g_eval, jac],
                                      ["x", "p"], ["g", "jac"]),
                 "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar), lam_f, lam_g],
                                         [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
@@ -393,7 +383,6 @@ class FlatTranscription:
         opts["iteration_callback"] = self._interrupt
         self._g = ca.Function("g", [w, allp], [g])
         self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
-        self._npar = par.numel()
 
     def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD
                ) -> tuple[np.ndarray, np.ndarray]:
