@@ -37,7 +37,9 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+from scipy import sparse
 from scipy.interpolate import BSpline
+from scipy.sparse.linalg import spsolve
 
 from .compiled import compile_functions
 from .direct import _Scatter
@@ -298,23 +300,22 @@ class FlatTranscription:
         B1 = np.zeros((K - 1, K))
         B1[np.arange(K - 1), np.arange(K - 1)] = -c
         B1[np.arange(K - 1), np.arange(1, K)] = c
-        lin_rows = []
+        # Built as triplets: a dense (rows, nw) matrix costs seconds to convert at 150 spans.
+        rows, cols, vals = [], [], []
         self._lin_kind = []
-        for i in range(n):
-            sel = np.zeros((len(B0), nw))
-            sel[:, i:K * n:n] = B0
-            lin_rows.append(sel)
-            self._lin_kind.append(("q", i, len(B0)))
-        for i in range(n):
-            for sign in (+1, -1):
-                sel = np.zeros((len(B1), nw))
-                sel[:, i:K * n:n] = B1
-                lin_rows.append(sel)
-                self._lin_kind.append(("v" if sign > 0 else "V", i, len(B1)))
-        A = np.vstack(lin_rows)
+        r0 = 0
+        for i, block, kind in [(i, B0, "q") for i in range(n)] + [
+                (i, B1, s) for i in range(n) for s in ("v", "V")]:
+            br_, bc_ = np.nonzero(block)
+            rows.append(r0 + br_)
+            cols.append(i + n * bc_)
+            vals.append(block[br_, bc_])
+            self._lin_kind.append((kind, i, len(block)))
+            r0 += len(block)
         # Velocity rows B1 P + v T >= 0 and B1 P - v T <= 0: v is a parameter of the solve.
         vpar = ca.MX.sym("v", n)
-        A_P = ca.sparsify(ca.DM(A))
+        A_P = ca.DM.triplet(np.concatenate(rows).tolist(), np.concatenate(cols).tolist(),
+                            ca.DM(np.concatenate(vals)), r0, nw)
         Tcoef = ca.vertcat(ca.MX.zeros(n * len(B0)), *[
             ca.repmat(sign * vpar[i], len(B1), 1) for i in range(n) for sign in (+1, -1)])
         g_lin = ca.mtimes(A_P[:, :iT], w[:iT]) + Tcoef * T
@@ -337,7 +338,7 @@ class FlatTranscription:
         g_b = ca.vertcat(*g_b)
 
         g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
-        ng_set, ng_lin, ng_b = S, A.shape[0], g_b.numel()
+        ng_set, ng_lin, ng_b = S, r0, g_b.numel()
         ng = ng_set + ng_lin + ng_b
         g = ca.vertcat(g_set, g_lin, g_b)
         self._rows = (ng_set, ng_lin, ng_b)
@@ -421,11 +422,14 @@ class FlatTranscription:
             qf = np.stack([np.interp(tf, t, c) for c in np.asarray(q).T], axis=1)
             vf = np.stack([np.interp(tf, t, c) for c in np.asarray(qd).T], axis=1)
         span, b = basis(self.breaks, self.degree, tf / T)
-        B = np.zeros((2, len(tf), self.K))
-        for r in range(len(tf)):
-            B[:, r, span[r]:span[r] + self.degree + 1] = b[r, :2]
-        A = np.vstack([B[0], B[1] / T])
-        return np.linalg.lstsq(A, np.vstack([qf, vf]), rcond=None)[0]
+        # Banded rows (degree + 1 per time): solved through sparse normal equations, which
+        # stay well conditioned for a B-spline basis sampled this densely.
+        r = np.repeat(np.arange(len(tf)), self.degree + 1)
+        c = (span[:, None] + np.arange(self.degree + 1)[None, :]).ravel()
+        A = sparse.vstack([sparse.csr_matrix((b[:, 0].ravel(), (r, c)), (len(tf), self.K)),
+                           sparse.csr_matrix((b[:, 1].ravel() / T, (r, c)),
+                                             (len(tf), self.K))]).tocsc()
+        return spsolve((A.T @ A).tocsc(), A.T @ np.vstack([qf, vf])).reshape(self.K, -1)
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
