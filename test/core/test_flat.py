@@ -90,13 +90,15 @@ def test_panda_time_agrees_with_hermite_simpson_on_192_intervals(panda, panda_li
     assert abs(res.T - ref.T) <= 1e-3 * ref.T, (res.T, ref.T)
 
 
-def test_open_loop_agrees_with_dop853(panda, panda_limited):
-    """The certificate's re-integration (CVODES, span by span) against scipy's DOP853 through
-    the published torques and the model's state function: the same end state."""
+@pytest.mark.parametrize("stiff", [False, True], ids=["adams", "bdf"])
+def test_open_loop_agrees_with_dop853(panda, panda_limited, stiff):
+    """The certificate's re-integration (CVODES span by span: Adams, and BDF, its fallback)
+    against scipy's DOP853 through the published torques and the model's state function:
+    the same end state."""
     res = panda_limited
     traj = res.trajectory
     n = panda.n
-    _, x_cvodes, ok = traj.open_loop(1e-10, 1e-11)
+    _, x_cvodes, ok = traj.open_loop(1e-10, 1e-11, stiff=stiff)
     assert ok
     f = panda.function("f")
     scale = res.problem.torque_scale

@@ -137,8 +137,8 @@ OPEN_LOOP_POINTS = 8
 _OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _open_loop_integrator(model: RobotModel, degree: int, rtol: float,
-                          atol: float) -> ca.Function:
+def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
+                          stiff: bool = False) -> ca.Function:
     """CVODES over one span: the model's forward dynamics under the span's torques.
 
     The torques are the inverse dynamics of the span's path, a polynomial
@@ -146,8 +146,10 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float,
     (parameters ``(vec c, h)``, ``h`` the span's duration); the state is integrated with
     ``dx/dsigma = h f(x, tau)`` (forward dynamics through the factorised mass matrix, not
     the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
+    Adams with functional iteration (no Jacobians: the motion is not stiff), or BDF with
+    Newton iteration when ``stiff``.
     """
-    key = (degree, rtol, atol)
+    key = (degree, rtol, atol, stiff)
     cached = _OPEN_LOOP.setdefault(model, {})
     if key in cached:
         return cached[key]
@@ -163,10 +165,12 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float,
     tau = model.rnea_sym(q, qd, qdd)
     ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
     grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    method = {} if stiff else {"linear_multistep_method": "adams",
+                               "nonlinear_solver_iteration": "functional"}
     cached[key] = ca.integrator("flat_open_loop", "cvodes",
                                 {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode},
                                 0.0, grid.tolist(), {"reltol": rtol, "abstol": atol,
-                                                     "max_num_steps": 100000})
+                                                     "max_num_steps": 100000, **method})
     return cached[key]
 
 
@@ -542,8 +546,11 @@ class FlatTrajectory:
             self._maps[len(q)] = self._id.map(len(q))
         return np.array(self._maps[len(q)](q.T, qd.T, qdd.T, self._scale)).T
 
-    def open_loop(self, rtol: float, atol: float) -> tuple[np.ndarray, np.ndarray, bool]:
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, bool]:
         """The published torques integrated from ``x(0)``, span by span (CVODES).
+
+        Adams first; BDF (``stiff``) when Adams fails.
 
         Returns
         -------
@@ -553,7 +560,7 @@ class FlatTrajectory:
             Open-loop states.
         success : bool
         """
-        integ = _open_loop_integrator(self._model, self._degree, rtol, atol)
+        integ = _open_loop_integrator(self._model, self._degree, rtol, atol, stiff)
         br = self.breaks
         d1 = self._degree + 1
         fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
@@ -572,6 +579,8 @@ class FlatTrajectory:
                 ts.append(self.T * (br[j] + ds * np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]))
                 x = path[-1]
         except RuntimeError:
+            if not stiff:
+                return self.open_loop(rtol, atol, stiff=True)
             return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), False
         return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
 
