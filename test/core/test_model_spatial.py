@@ -141,3 +141,26 @@ def test_tip_poses_at_once_equal_one_by_one(name, request):
     # ...and against the model's own (CasADi) kinematics, where the task space is xyz.
     if model.m == 3:
         np.testing.assert_allclose(positions, [model.point(qk) for qk in q], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5", "xarm7"])
+def test_ik_family_reaches_the_point_within_the_limits(name, request):
+    """The batched Levenberg-Marquardt of ``ik_family`` on a redundant or 6-joint arm: every
+    configuration returned reaches the point and lies within the URDF limits, and most
+    seeds find one."""
+    from tocontrol_ros.core.ik import IK_TOL, _lm_batch, ik_family
+
+    model = request.getfixturevalue(name)
+    rng = np.random.default_rng(3)
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    found = 0
+    for _ in range(4):
+        p = model.point(lo + rng.uniform(0.1, 0.9, model.n) * (hi - lo))
+        family = ik_family(model, p, 8, rng=np.random.default_rng(0))
+        for q in family:
+            assert np.linalg.norm(model.point(q) - p) < IK_TOL
+            assert np.all(q >= model.q_lower - 1e-9) and np.all(q <= model.q_upper + 1e-9)
+        q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(8)]))
+        found += int(np.sum(err < IK_TOL))
+    assert found >= 20, found

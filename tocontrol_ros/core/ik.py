@@ -63,6 +63,84 @@ def _lm(model: RobotModel, p: np.ndarray, seed: np.ndarray, phi: float | None = 
     return sol.x, err
 
 
+def _lm_batch(model: RobotModel, p: np.ndarray, seeds: np.ndarray,
+              phis: np.ndarray | None = None, max_iter: int = 200
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt from many seeds at once, within the joint limits.
+
+    All seeds advance together through one mapped call of the kinematics per iteration (the
+    per-seed ``least_squares`` spent most of a redundant arm's plan in Python overhead).
+    Steps ``dq = -J^T (J J^T + lambda I)^-1 r`` (the minimum-norm step of a redundant arm),
+    projected onto the limits; ``lambda`` per seed, lowered after a step that reduces the
+    residual, raised (and the step undone) otherwise.
+
+    Parameters
+    ----------
+    p : ndarray, shape (m,)
+        Task-space point (m).
+    seeds : ndarray, shape (N, n)
+        Start configurations (rad or m).
+    phis : ndarray, shape (N,), optional
+        Planar arms: the absolute angle ``sum q`` each solution must also have (rad).
+
+    Returns
+    -------
+    q : ndarray, shape (N, n)
+    err : ndarray, shape (N,)
+        ``|P(q) - p|`` (m).
+    """
+    seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
+    N, n = seeds.shape
+    fk, jac = model.function("P").map(N), model.function("J").map(N)
+    lo, hi = _bounds(model)
+    lo = np.where(np.isfinite(lo), lo + 1e-9, -np.inf)
+    hi = np.where(np.isfinite(hi), hi - 1e-9, np.inf)
+
+    def residual(q):
+        r = np.array(fk(q.T)).T - p
+        if phis is not None:
+            d = np.sum(q, axis=1) - phis
+            r = np.hstack([r, np.arctan2(np.sin(d), np.cos(d))[:, None]])
+        return r
+
+    q = np.clip(seeds, lo, hi)
+    r = residual(q)
+    cost = np.sum(r * r, axis=1)
+    lam = np.full(N, 1e-3)
+    stuck = np.zeros(N, dtype=bool)
+    for _ in range(max_iter):
+        active = (cost > (1e-2 * IK_TOL) ** 2) & ~stuck
+        if not active.any():
+            break
+        J = np.array(jac(q.T)).reshape(-1, N, n).transpose(1, 0, 2)  # (N, m, n)
+        if phis is not None:
+            J = np.concatenate([J, np.ones((N, 1, n))], axis=1)
+        dq = _step(J, r, lam)
+        # Joints the step would push through a limit are held there and the step is taken
+        # again with the others (plain clipping stalls seeds against the limits).
+        held = (q + dq < lo) | (q + dq > hi)
+        if held.any():
+            dq = _step(J * ~held[:, None, :], r, lam)
+        q_new = np.where(active[:, None], np.clip(q + dq, lo, hi), q)
+        r_new = residual(q_new)
+        cost_new = np.sum(r_new * r_new, axis=1)
+        better = active & (cost_new < cost)
+        q[better], r[better], cost[better] = q_new[better], r_new[better], cost_new[better]
+        lam = np.where(better, np.maximum(lam / 4, 1e-12), np.where(active, lam * 8, lam))
+        # A seed whose damping has grown this large is stuck (at a limit or a singularity).
+        stuck |= lam > 1e8
+    err = np.linalg.norm(np.array(fk(q.T)).T - p, axis=1)
+    return q, err
+
+
+def _step(J: np.ndarray, r: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Damped minimum-norm steps (N, n) for Jacobians J (N, m, n), residuals r (N, m)."""
+    mr = J.shape[1]
+    scale = np.maximum(np.einsum("kij,kij->k", J, J) / mr, 1e-12)
+    A = J @ J.transpose(0, 2, 1) + (lam * scale)[:, None, None] * np.eye(mr)
+    return -np.einsum("kji,kj->ki", J, np.linalg.solve(A, r[..., None])[..., 0])
+
+
 def _planar3r_lengths(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
     """Offsets of a standard planar 3R (all frames aligned, offsets along x), else None.
 
@@ -167,27 +245,19 @@ def ik_family(model: RobotModel, p, count: int = 12,
     """
     p = np.asarray(p, dtype=float)
     rng = np.random.default_rng(0) if rng is None else rng
-    cands: list[np.ndarray] = []
     phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
     if _planar3r_lengths(model) is not None:
         return _distinct_solutions(model, p, list(_planar3r(model, p, phis)))
     planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
         model.n >= 3 and _axes_parallel(model)
     if planar:
-        for phi in phis:
-            for elbow in (1, -1):
-                seed = np.full(model.n, 0.3 * elbow)
-                q, err = _lm(model, p, seed, phi=phi)
-                if err < IK_TOL:
-                    cands.append(q)
-        return _distinct_solutions(model, p, cands)
+        seeds = np.repeat([[0.3], [-0.3]], model.n, axis=1)
+        q, err = _lm_batch(model, p, np.tile(seeds, (count, 1)), np.repeat(phis, 2))
+        return _distinct_solutions(model, p, list(q[err < IK_TOL]))
     lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
-    for _ in range(count):
-        q, err = _lm(model, p, rng.uniform(lo, hi))
-        if err < IK_TOL:
-            cands.append(q)
-    return _distinct_solutions(model, p, cands)
+    q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
+    return _distinct_solutions(model, p, list(q[err < IK_TOL]))
 
 
 def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[np.ndarray]:
