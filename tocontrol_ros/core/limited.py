@@ -5,8 +5,9 @@ direct guess comes within :data:`TOUCH` of a joint limit (:func:`touches`), or i
 leaves the limits, :func:`plan_limited` solves the problem again with the limits as hard
 bounds:
 
-1. every seed pair gets a coarse Hermite-Simpson solve at the requested ``k`` with the
-   bounds at its mesh points, from the initial path timed within the velocity limits;
+1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
+   from the initial path timed within the velocity limits (the multistart's own guesses,
+   solved within the bounds at ``k = 1``, when it made them; else at the requested ``k``);
 2. the best ``options.candidates`` distinct ones are solved as B-spline joint paths whose
    torques are their inverse dynamics (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS`
    uniform spans (a basin that fails is replaced by the next); those within
@@ -119,17 +120,22 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     notes = list(notes) + ["joint limits bind: solved as a B-spline path with hard bounds "
                            "(docs/limits.md)"]
     bounds = state_bounds(problem, PAD)
-    coarse = planner.direct(problem, options.guess_intervals)
     values = (problem.start.value, problem.target.value, problem.k)
     records, solved = [], []
     pairs = ctx.memo.get("pairs")
     if pairs is None:
         pairs = seed_pairs(problem, options)
+    # The multistart's guesses, solved within these bounds at k = 1, when it made them.
+    known = dict(ctx.memo.get("guesses", ()))
+    coarse = None
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
-        guess = initial_path(problem.model, qa, qb, options.guess_intervals,
-                             problem.torque_scale, problem.limits.plan_velocity)
-        res = coarse.solve(*values, *guess, x_bounds=bounds)
+        res = known.get(idx)
+        if res is None:
+            coarse = coarse or planner.direct(problem, options.guess_intervals)
+            guess = initial_path(problem.model, qa, qb, options.guess_intervals,
+                                 problem.torque_scale, problem.limits.plan_velocity)
+            res = coarse.solve(*values, *guess, x_bounds=bounds)
         records.append(StartRecord(idx, qa, qb, res.T if res.success else np.nan, np.nan,
                                    "guess only" if res.success else
                                    f"direct method failed: {res.message}"))

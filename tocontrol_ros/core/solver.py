@@ -60,7 +60,7 @@ from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, initial_path
 from .flat import FlatTranscription
-from .limited import plan_limited, touches
+from .limited import PAD, plan_limited, state_bounds, touches
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
@@ -422,6 +422,10 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals)
+    # With joint limits the guesses keep within them: when they bind, the bounded solve
+    # starts from these guesses (no second round of guesses), and when they don't, a
+    # guess inside its bounds is the unconstrained one.
+    x_bounds = state_bounds(problem, PAD) if problem.limits.active else None
     guesses = []
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
@@ -430,8 +434,9 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
                                                  problem.torque_scale,
                                                  problem.limits.plan_velocity)
         res = direct.solve(problem.start.value, problem.target.value, 1.0, t_guess,
-                           x_guess, u_guess)
+                           x_guess, u_guess, x_bounds=x_bounds)
         guesses.append((idx, qa, qb, res))
+    ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
     timings["guess"] += time.perf_counter() - t0
     ok = [g for g in guesses if g[3].success]
     records = {g[0]: StartRecord(g[0], g[1], g[2], g[3].T if g[3].success else np.nan,
