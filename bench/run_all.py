@@ -5,20 +5,20 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,optimum,scaling,first_use,verification,deployed,batch,
-                limits]
+        [--only paper,peers,random,optimum,optimum_panda,scaling,first_use,verification,
+                deployed,batch,limits]
 
-Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart),
-``peers`` (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's
-example), ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default
-multistart against the exhaustive reference on 100 seeded pairs, about half an hour),
-``scaling`` (planar arms of 2 to 8 links, the Panda), ``first_use`` (the Panda's compile
-routes, each in a new process with an empty cache), ``verification`` (the certificate's
-cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
-processes: idle CPU and ~/plan round trip against the same request in-process), ``batch``
-(batch planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint
-limits enforced). Every timing is taken in this one process, side by side; compiled
-functions go to a fresh temporary cache so that first-run costs are measured, not inherited.
+Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
+(direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
+``random_pairs`` (seeded start/target pairs), ``optimum`` (the default multistart against the
+exhaustive reference on 100 seeded pairs, about half an hour), ``optimum_panda`` (the same on the
+Panda with its joint limits), ``scaling`` (planar arms of 2 to 8 links, the Panda), ``first_use``
+(the Panda's compile routes, each in a new process with an empty cache), ``verification`` (the
+certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
+processes: idle CPU and ~/plan round trip against the same request in-process), ``batch`` (batch
+planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
+enforced). Every timing is taken in this one process, side by side; compiled functions go to a
+fresh temporary cache so that first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -36,8 +36,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "optimum", "scaling", "first_use", "verification",
-         "deployed", "batch", "limits")
+PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "scaling", "first_use",
+         "verification", "deployed", "batch", "limits")
 
 
 def _parse(argv):
@@ -60,6 +60,8 @@ def _parse(argv):
                              "4 with --quick); the exhaustive reference takes 10-40 s each")
     parser.add_argument("--only", default=",".join(PARTS),
                         help="comma-separated parts (peers needs paper)")
+    parser.add_argument("--optimum-panda-cases", type=int, default=20,
+                        help="cases of the best-motion section on the Panda (default 20)")
     parser.add_argument("--limit-cases", type=int, default=10,
                         help="random cases per robot of the joint-limits part (10)")
     parser.add_argument("--limit-robots", default="3R-limited,UR5:50,Panda:50,xArm7",
@@ -109,6 +111,7 @@ def _run(args):
         first_use,
         limits,
         optimum,
+        optimum_panda,
         paper,
         peers,
         random_pairs,
@@ -147,6 +150,8 @@ def _run(args):
                                          args.pair_candidates))
     if "optimum" in args.only:
         section(lambda: optimum.run(model, args.optimum_pairs))
+    if "optimum_panda" in args.only:
+        section(lambda: optimum_panda.run(2 if args.quick else args.optimum_panda_cases))
     if "scaling" in args.only:
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)

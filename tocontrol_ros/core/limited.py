@@ -8,11 +8,12 @@ bounds:
 1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
    from the initial path timed within the velocity limits (the multistart's own guesses,
    solved within the bounds at ``k = 1``, when it made them; else at the requested ``k``);
-2. the best ``options.candidates`` distinct ones are solved as B-spline joint paths whose
-   torques are their inverse dynamics (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS`
-   uniform spans (a basin that fails is replaced by the next); those within
-   :data:`REFINE_WINDOW` of the best are solved again (at most :data:`REFINEMENTS` times)
-   with the spans halved where the acceleration changes (the junctions of arcs);
+2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
+   B-spline joint paths whose torques are their inverse dynamics
+   (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS` uniform spans (a basin that fails is
+   replaced by the next); those within :data:`REFINE_WINDOW` of the best are solved again
+   (at most :data:`REFINEMENTS` times) with the spans halved where the acceleration changes
+   (the junctions of arcs);
 3. the least ``T`` is verified (re-integration, limits included) and returned with
    ``method="direct"``.
 
@@ -34,7 +35,7 @@ from .direct import DirectResult, initial_path
 from .flat import SET_PAD, FlatResult, FlatTrajectory, FlatTranscription, refined_breaks
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status
-from .seeding import distinct_basins, seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, seed_pairs
 from .verification import fine_sample, limit_warnings, verdict
 
 if TYPE_CHECKING:
@@ -146,8 +147,9 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     # Every candidate basin on the uniform mesh (a failed one is replaced by the next); the
     # refinement, the costly part, only for those that can still be the best.
     first = []
+    count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     for idx, res in distinct_basins(solved, lambda g: g[1], problem.model.n):
-        if len(first) == options.candidates:
+        if len(first) == count:
             break
         out = _uniform(planner, ctx, bounds, res)
         records[idx] = replace(records[idx], T=out[0].T if out[0].success else np.nan,
