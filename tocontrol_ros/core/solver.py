@@ -572,13 +572,13 @@ def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool
 
     Towards 2, 4, ... then the requested k; a failed step is halved, and the next step after
     a success is doubled only when that one converged easily (:data:`EASY_K_NEWTON`).
-    With ``stall_refine``, the first stall (a step below ``options.min_k_step``) refines
-    the mesh and goes on; the next one ends the continuation (False, the run where it
-    stalled).
+    With ``stall_refine``, a stall (a step below ``options.min_k_step``) refines the mesh
+    and goes on; a second stall at the same k ends the continuation (False, the run where
+    it stalled).
     """
     options = ctx.options
     targets = _k_schedule(ctx.problem.k)[1:]
-    refined = False
+    refined_at = None
     for k_goal in targets:
         last = k_goal == targets[-1] and options.switch_nodes
         loose = max(options.tol, PLACEMENT_TOL if last else CONTINUATION_TOL)
@@ -593,12 +593,12 @@ def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool
             step *= 0.5
             if step < options.min_k_step:
                 # The mesh may be too coarse for the steeper law: refine it at the
-                # current k, once, and go on from the step that failed. (Once: each
-                # refinement and restart from a full step cost the planar 8R tens of
-                # seconds on 65 intervals, stalling a little further each time.)
-                if not stall_refine or refined:
+                # current k, once per stall, and go on from the step that failed (a
+                # restart from the full step after each refinement cost the planar 8R
+                # tens of seconds of failing Newton solves on 65 intervals).
+                if not stall_refine or refined_at == run.k:
                     return False
-                refined = True
+                refined_at = run.k
                 saved = run.snapshot()
                 if refine(ctx, run, tol=max(options.integration_tol, STALL_REFINE_TOL)):
                     run.restore(saved)
