@@ -392,7 +392,9 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
             print(status.event, status.message, {key: status.values.get(key) for key in
                                                  ("start_q", "start_qd", "target", "k")})
     # Every goal from the moving arm answered by its own solve; one numerical failure of a
-    # single-start solve is tolerated (sweeps of moving starts: about 1 in 90).
+    # single-start solve is tolerated: in core sweeps of 120 moving starts along these
+    # motions (with and without 3 mrad of noise) 1 and 2 failed, CONTINUATION_FAILED where
+    # the k = 1 optimum's branch ends before k = 4 (the 16-start default solves them).
     assert [s.event for s in finals].count("solved") >= len(goals) - 1, events
     assert all(s.event in ("solved", "failed") for s in finals), events
     assert finals[-1].event == "solved", finals[-1].message
