@@ -130,6 +130,26 @@ def test_planar_5r_single_start_reaches_k4():
     assert res.k == 4.0 and 0.25 < res.T < 0.35
 
 
+@pytest.mark.slow
+def test_planar_8r_single_start_reaches_k4():
+    """Issue 18: the planar 8R of the scaling benchmark, one start. Both paths stalled: in k
+    at delta = 1e-3 (k = 2.36), and bringing delta down from WIDE_DELTA at k = 4 (from
+    0.15 to 0.06 each step failed from the previous solution, and on the switch meshes
+    placed in between). Along the tangent on the continuation's mesh delta comes down to
+    the final smoothing; the certificate checks the solution independently. (A time limit
+    for a loaded machine: this is about robustness, the benchmark measures speed.)"""
+    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.solver import WIDE_DELTA
+
+    model = load_robot(_planar_urdf(8))
+    problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
+    res = plan(problem, SolverOptions(starts=1, candidates=1, time_limit=600.0))
+    assert res.success, res.message
+    assert res.certificate is not None and res.certificate.passed
+    assert any(d == WIDE_DELTA for _, d, *_ in res.continuation)
+    assert res.k == 4.0 and res.delta <= 1e-5 and 0.25 < res.T < 0.33
+
+
 class _FakeRun:
     """What :func:`_smoothing_step` uses of a Run: delta, snapshot and restore."""
 

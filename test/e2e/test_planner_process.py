@@ -34,6 +34,9 @@ from tocontrol_ros.core.model import default_urdf_path, load_robot
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
+#: test_goals_while_the_arm_moves_are_solved_and_executed: each goal this long (s) after the
+#: tracker started the previous motion (T ~ 0.6 s): mid-motion, at speed.
+MOVING_DELAY = 0.15
 #: Storm bound (KiB): measured growth 1-4 MiB (allocator noise); one solve's result with its
 #: messages is about 0.25 MiB (tracemalloc), so retaining that for each of 50 goals fails.
 STORM_RSS_BOUND = 12 * 1024
@@ -322,14 +325,16 @@ def GetPlanRequest(start, goal):  # noqa: N802  (reads like the message construc
     return req
 
 
-# Slow, not in CI's fast run: it fails about half the time on a loaded machine, on the base
-# commit of session 7 too (two helpers and a CI rehearsal saw it): goals superseded under load,
-# and one plan from the moving arm's state failing its certificate (max |H| 2.1e-5 against
-# 1e-5), a smoothing that stalls. Left for the next session to fix, not to hide.
-@pytest.mark.slow
 def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
     # Issue 14, defect 1 as a user saw it: with the tracker running, goals sent while the arm
     # moved were each superseded mid-solve (1 of 13 solved in 14 s).
+    #
+    # Each goal is sent while the arm executes the previous one (MOVING_DELAY after the
+    # tracker starts it, T ~ 0.6 s) and after the planner answered the previous goal, so a
+    # superseded goal means the moving arm interrupted a solve, not that a loaded machine
+    # (two cores shared by several test runs) solved slower than goals came: with a goal
+    # every 0.4 s regardless, the test failed about half the time under load, solves from
+    # the moving arm taking 0.3-3 s there.
     from diagnostic_msgs.msg import DiagnosticStatus
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -341,8 +346,7 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", **planner_env)
     args = ["--ros-args", "-r", f"__ns:={ns}"]
     logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
-    # One start (the issue's setting then): each goal is solved in tens of ms, so a goal
-    # every 0.4 s is superseded only if the planner itself is slowed down.
+    # One start (the issue's setting then).
     fast = ["-p", "starts:=1", "-p", "candidates:=1"]
     procs = [subprocess.Popen(planner_cmd + args + fast, env=env, stdout=logs[0],
                               stderr=subprocess.STDOUT),
@@ -356,18 +360,23 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL))
     goals = [(2.2, 1.5), (1.0, 1.0)] * 3
+    finals = []
     try:
         client.wait_ready(120.0)
         client.call_plan(PAPER_START, PAPER_TARGET)  # after the warm-up's builds
         client.wait_subscribed(client.goal_pub)
         since = len(client.status_list())
-        for goal in goals:  # every 0.4 s: each arrives while the previous motion runs
+        for goal in goals:
+            before = len(client.status_list())
+            executing = sum("executing" in m for m in tracker_status)
             client.send_goal(goal)
-            time.sleep(0.4)
-        last = client.final_status(since, 60.0, match=lambda s: s.request_id is not None
-                                   and s.request_id >= max(
-                                       (t.request_id or 0) for t in client.status_list()[since:]
-                                       if t.event == "accepted"))
+            final = client.final_status(before, 60.0)
+            finals.append(final)
+            if final.event == "solved":  # the next goal arrives while this motion runs
+                client.wait_for(lambda n=executing: sum("executing" in m
+                                                        for m in tracker_status) > n,
+                                30.0, "the tracker executing the motion")
+                time.sleep(MOVING_DELAY)
         time.sleep(1.0)
     finally:
         client.close()
@@ -378,8 +387,19 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
             log.close()
     events = storm_events(client, since)
     print(f"planner events {events}; tracker: {tracker_status[-3:]}")
-    assert last.event == "solved", last.message
-    assert events.get("solved", 0) >= len(goals) - 1, events
+    for status in finals:  # to reproduce a failure in the core
+        if status.event != "solved":
+            print(status.event, status.message, {key: status.values.get(key) for key in
+                                                 ("start_q", "start_qd", "target", "k")})
+    # Every goal from the moving arm answered by its own solve; one numerical failure of a
+    # single-start solve is tolerated: in core sweeps of 120 moving starts along these
+    # motions (with and without 3 mrad of noise) 1 and 2 failed, CONTINUATION_FAILED where
+    # the k = 1 optimum's branch ends before k = 4 (the 16-start default solves them).
+    assert [s.event for s in finals].count("solved") >= len(goals) - 1, events
+    assert all(s.event in ("solved", "failed") for s in finals), events
+    assert finals[-1].event == "solved", finals[-1].message
+    # Each from the arm in motion: none is the trivial "nothing to plan" at rest.
+    assert not [s.message for s in finals if "nothing to plan" in s.message]
     assert not [m for m in tracker_status if "rejected" in m], tracker_status
     assert sum("executing" in m for m in tracker_status) >= events["solved"]
     assert codes == [0, 0]

@@ -53,6 +53,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from scipy.sparse.linalg import splu
 
 from . import compiled
 from .certificate import certify
@@ -116,10 +117,22 @@ STALL_REFINE_TOL = 1e-4
 #: Smoothing of the second path of the continuation in k (:func:`_continue_smoothed`): wide
 #: enough that the law's transition at a switch spans several RK4 steps of the coarse mesh.
 WIDE_DELTA = 0.3
-#: ...then delta comes down by this factor per step at the requested k,
-DELTA_FACTOR = 4.0
-#: ...and a failed step is bisected (geometrically) until it is less than this ratio.
+#: ...then delta comes down at the requested k, first by this factor per step,
+DELTA_FACTOR = 2.0
+#: ...a failed step is bisected (geometrically) until it is less than this ratio,
 MIN_DELTA_RATIO = 1.1
+#: ...and a step's ratio grows by half (in log delta) after a step that took at most this
+#: many Newton iterations (the solution barely moved: a longer step will do), and shrinks
+#: by a third after one that took more than twice as many (close to the radius where
+#: Newton fails; a failure costs far more than a short step).
+EASY_NEWTON = 4
+#: Relative change of delta of the central differences of :func:`_predicted`.
+TANGENT_DIFFERENCE = 1e-6
+
+#: A continuation step in k that converged in at most this many Newton iterations doubles
+#: the next step (after a failure the step stays short until the solution moves easily
+#: again, instead of jumping back to the next doubling of k and failing there again).
+EASY_K_NEWTON = 6
 
 
 # ----------------------------------------------------------------- planner cache
@@ -560,31 +573,42 @@ def _continue_k(ctx: SolveContext, run: Run) -> bool:
 
 
 def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool) -> bool:
-    """Continue in k at a fixed smoothing ``delta`` (doubling k, bisecting failed steps)."""
+    """Continue in k at a fixed smoothing ``delta``.
+
+    Towards 2, 4, ... then the requested k; a failed step is halved, and the next step after
+    a success is doubled only when that one converged easily (:data:`EASY_K_NEWTON`).
+    With ``stall_refine``, a stall (a step below ``options.min_k_step``) refines the mesh
+    and goes on; a second stall at the same k ends the continuation (False, the run where
+    it stalled).
+    """
     options = ctx.options
     targets = _k_schedule(ctx.problem.k)[1:]
     refined_at = None
     for k_goal in targets:
         last = k_goal == targets[-1] and options.switch_nodes
         loose = max(options.tol, PLACEMENT_TOL if last else CONTINUATION_TOL)
+        step = k_goal - run.k
         while run.k < k_goal:
-            k_try = k_goal
-            while True:
-                rep = newton(ctx, run, k_try, delta, loose)
-                if rep.converged:
-                    break
-                k_try = run.k + 0.5 * (k_try - run.k)
-                if k_try - run.k < options.min_k_step:
-                    # The mesh may be too coarse for the steeper law: refine it at the
-                    # current k, once per stall, and try again.
-                    if not stall_refine or refined_at == run.k:
-                        return False
-                    refined_at = run.k
-                    saved = run.snapshot()
-                    if refine(ctx, run, tol=max(options.integration_tol, STALL_REFINE_TOL)):
-                        run.restore(saved)
-                        return False
-                    k_try = k_goal
+            k_try = min(run.k + step, k_goal)
+            rep = newton(ctx, run, k_try, delta, loose)
+            if rep.converged:
+                if rep.iterations <= EASY_K_NEWTON:
+                    step *= 2.0
+                continue
+            step *= 0.5
+            if step < options.min_k_step:
+                # The mesh may be too coarse for the steeper law: refine it at the
+                # current k, once per stall, and go on from the step that failed (a
+                # restart from the full step after each refinement cost the planar 8R
+                # tens of seconds of failing Newton solves on 65 intervals).
+                if not stall_refine or refined_at == run.k:
+                    return False
+                refined_at = run.k
+                saved = run.snapshot()
+                if refine(ctx, run, tol=max(options.integration_tol, STALL_REFINE_TOL)):
+                    run.restore(saved)
+                    return False
+                step *= 2.0
     return True
 
 
@@ -596,26 +620,69 @@ def _continue_smoothed(ctx: SolveContext, run: Run) -> bool:
     shorter than the step, so the discrete equations are nearly discontinuous there and
     Newton stops at that cliff however short the step in k. At :data:`WIDE_DELTA` the
     transition spans several steps and the continuation in k goes through; then, at the
-    requested k, delta comes down by :data:`DELTA_FACTOR` per step (bisected geometrically
-    when Newton fails), with a switch mesh (a node at each switch,
-    :func:`~tocontrol_ros.core.mesh.switch_mesh`) placed anew when a step fails, down to
-    ``options.smoothing_intermediate``, where the usual final smoothing takes over.
+    requested k, delta comes down on the same mesh, by :data:`DELTA_FACTOR` at first, each
+    step from the tangent's prediction (:func:`_predicted`), its ratio adapted to how easily
+    Newton converged (:data:`EASY_NEWTON`) and bisected geometrically when Newton fails,
+    down to ``options.smoothing_intermediate``, where the usual final smoothing (and its
+    switch mesh) takes over.
+
+    No switch mesh on the way down: from a wide delta to a small one the switches of a
+    redundant arm appear, merge and vanish, and a node pinned to ``S_i = 0`` cannot follow
+    (planar 8R: the steps on a switch mesh failed from delta = 0.15 down to 0.07, where
+    the same steps on the continuation's uniform mesh converge in 5 to 10 iterations).
     """
     options = ctx.options
     target = options.smoothing_intermediate
     if target >= WIDE_DELTA or not _continue_in_k(ctx, run, WIDE_DELTA, stall_refine=False):
         return False
     k, delta = ctx.problem.k, WIDE_DELTA
+    log_step = float(np.log(DELTA_FACTOR))
     while delta > target:
-        d_try = max(delta / DELTA_FACTOR, target)
-        while not newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
-            if switch_mesh(ctx, run) and newton(ctx, run, k, d_try, CONTINUATION_TOL).converged:
-                break
-            d_try = float(np.sqrt(delta * d_try))
-            if delta / d_try < MIN_DELTA_RATIO:
-                return False
-        delta = d_try
+        d_try = max(delta * float(np.exp(-log_step)), target)
+        before = run.w
+        run.w = _predicted(ctx, run, d_try)
+        rep = newton(ctx, run, k, d_try, CONTINUATION_TOL)
+        if rep.converged:
+            delta = d_try
+            if rep.iterations <= EASY_NEWTON:
+                log_step *= 1.5
+            elif rep.iterations > 2 * EASY_NEWTON:
+                log_step /= 1.5
+            continue
+        run.w = before
+        log_step = 0.5 * float(np.log(delta / d_try))
+        if log_step < np.log(MIN_DELTA_RATIO):
+            return False
     return True
+
+
+def _predicted(ctx: SolveContext, run: Run, delta: float) -> np.ndarray:
+    """The run's unknowns moved along the tangent of its solution path to ``delta``.
+
+    First order in ``log delta``: ``dw = -J^-1 dG/dlog(delta)``, the derivative of the
+    equations by central differences. Along the smoothing path of a redundant arm the
+    solution moves far per step (planar 8R: ``T`` by 2 % from delta = 0.1 to 0.09), and from
+    the previous solution Newton fails where from this prediction it converges. The
+    Jacobian's factors are kept for Newton's first (chord) steps. The unknowns unchanged
+    when the Jacobian is singular.
+    """
+    grid, values = run.grid, ctx.problem.boundary_values
+    par = ctx.law(run.k, run.delta).array()
+    _, jac = grid.residual(run.w, values, par)
+    try:
+        lu = splu(jac)
+    except RuntimeError:
+        return run.w
+    run.factors = (grid, lu)
+    rel = TANGENT_DIFFERENCE
+    up = ctx.law(run.k, run.delta * np.exp(rel)).array()
+    down = ctx.law(run.k, run.delta * np.exp(-rel)).array()
+    slope = (grid.residual(run.w, values, up, jacobian=False)[0]
+             - grid.residual(run.w, values, down, jacobian=False)[0]) / (2 * rel)
+    dw = -lu.solve(slope) * float(np.log(delta / run.delta))
+    if not np.all(np.isfinite(dw)) or grid.admissible_step(run.w, dw) < 1.0:
+        return run.w
+    return run.w + dw
 
 
 # -------------------------------------------------------------------- warm start
