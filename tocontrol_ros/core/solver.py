@@ -58,7 +58,7 @@ from . import compiled
 from .certificate import certify
 from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
-from .direct import DirectCollocation, DirectResult, initial_path
+from .direct import DirectCollocation, DirectResult, initial_paths
 from .flat import FlatTranscription
 from .limited import plan_limited, touches
 from .mesh import refine, switch_mesh
@@ -423,14 +423,13 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals)
     guesses = []
+    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
+                          np.array([p[1] for p in pairs]), options.guess_intervals,
+                          problem.torque_scale, problem.limits.plan_velocity)
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
-        t_guess, x_guess, u_guess = initial_path(problem.model, qa, qb,
-                                                 options.guess_intervals,
-                                                 problem.torque_scale,
-                                                 problem.limits.plan_velocity)
-        res = direct.solve(problem.start.value, problem.target.value, 1.0, t_guess,
-                           x_guess, u_guess)
+        res = direct.solve(problem.start.value, problem.target.value, 1.0, paths[0][idx],
+                           paths[1][idx], paths[2][idx])
         guesses.append((idx, qa, qb, res))
     timings["guess"] += time.perf_counter() - t0
     ok = [g for g in guesses if g[3].success]
