@@ -157,11 +157,11 @@ def test_a_motion_a_full_turn_further_is_one_basin():
 
 
 def test_guess_tolerance_keeps_the_basins(galicki):
-    """The multistart's direct guesses at GUESS_TOL reach the same solutions as at 1e-8
-    (the paper's example's seed pairs): the looser tolerance only saves iterations."""
+    """The multistart's direct guesses at the default ``guess_tol`` reach the same solutions
+    as at 1e-8 (the paper's example's seed pairs): the looser tolerance only saves
+    iterations."""
     from tocontrol_ros.core.direct import DirectCollocation, initial_paths
     from tocontrol_ros.core.seeding import SAME_BASIN
-    from tocontrol_ros.core.solver import GUESS_TOL
 
     problem = _problem(galicki)
     options = SolverOptions()
@@ -169,7 +169,7 @@ def test_guess_tolerance_keeps_the_basins(galicki):
     paths = initial_paths(galicki, np.array([p[0] for p in pairs]),
                           np.array([p[1] for p in pairs]), options.guess_intervals)
     tight = DirectCollocation(galicki, options.guess_intervals, tol=1e-8)
-    loose = DirectCollocation(galicki, options.guess_intervals, tol=GUESS_TOL)
+    loose = DirectCollocation(galicki, options.guess_intervals, tol=options.guess_tol)
     n, its = galicki.n, [0, 0]
     for i in range(len(pairs)):
         args = (problem.start.value, problem.target.value, 1.0,

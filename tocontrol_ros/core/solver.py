@@ -99,11 +99,6 @@ WARM_GAIN = 1e-6
 #: mesh's, so it gets a margin.
 CANDIDATE_MARGIN = 0.02
 
-#: IPOPT tolerance of the multistart's direct guesses: the shooting refines them, and a
-#: guess's ``T`` only ranks the candidates (against a 2 % margin), so the last iterations of
-#: a tight tolerance buy nothing; the same basins as at 1e-8.
-GUESS_TOL = 1e-5
-
 #: Gravity torques below this (relative to tau_max) count as none for that rule.
 GRAVITY_FREE = 1e-9
 
@@ -208,7 +203,7 @@ class Planner:
         grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
                             options.steps, problem.start.kind, problem.target.kind)
         grid.compile()
-        self.direct(problem, options.guess_intervals, tol=GUESS_TOL)
+        self.direct(problem, options.guess_intervals, tol=options.guess_tol)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:
@@ -426,7 +421,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ctx.memo["pairs"] = pairs
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
-    direct = planner.direct(problem, options.guess_intervals, tol=GUESS_TOL)
+    direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
     guesses = []
     paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
                           np.array([p[1] for p in pairs]), options.guess_intervals,
