@@ -8,7 +8,8 @@ direct solves and every distinct basin continued (``docs/seeding.md``). The exha
 final ``T`` of the continued basins) are reported.
 
 Run alone: ``scripts/dev run python bench/optimum.py [PAIRS]`` (prints the section);
-``... bench/optimum.py PAIRS --times`` only times the default and the peer on the same pairs,
+``... bench/optimum.py PAIRS --times`` only times the default, the peer and the default with
+the guess settings before (``BEFORE``) on the same pairs,
 side by side (minutes instead of the reference's quarter hour: for a quiet machine).
 """
 
@@ -37,6 +38,8 @@ SAME_T = 1e-6
 TARGET_HITS = 0.97
 #: The peer: the default before the best-motion work (16 starts, 3 candidates), same seeding.
 PEER = SolverOptions(starts=16, candidates=3)
+#: The default's guess settings before the guess-phase work (12 intervals, IPOPT tol 1e-8).
+BEFORE = SolverOptions(guess_intervals=12, guess_tol=1e-8)
 TARGET_MEDIAN = 0.5
 
 
@@ -61,11 +64,14 @@ def run(model, count: int) -> Section:
         problem = Problem(model, point(a), point(b), k=K)
         t_def, res = timed(lambda p=problem: plan(p, default))
         t_old, old = timed(lambda p=problem: plan(p, PEER))
+        t_before, before = timed(lambda p=problem: plan(p, BEFORE))
         t_ref, ref = timed(lambda p=problem: plan(p, reference))
         best = min([t for t in (res.T, ref.T) if np.isfinite(t)], default=np.nan)
         gap = (res.T - best) / best if res.success else np.inf
         gap_old = (old.T - best) / best if old.success else np.inf
+        gap_before = (before.T - best) / best if before.success else np.inf
         recs.append({"a": a, "b": b, "res": res, "ref": ref, "t_def": t_def, "t_ref": t_ref,
+                     "t_before": t_before, "gap_before": gap_before,
                      "gap_old": gap_old, "t_old": t_old,
                      "gap": gap, "optima": _optima(ref), "direct": _optima(ref, "guess_T"),
                      "below": res.T < ref.T * (1 - SAME_T)})
@@ -109,6 +115,10 @@ def _section(recs, default) -> Section:
         [f"peer `starts=16, candidates=3` within {GAP_TOL:g} of the best",
          f"{sum(r['gap_old'] <= GAP_TOL for r in recs)}/{n}"],
         ["peer plan time median (ms)", fmt_ms(statistics.median([r["t_old"] for r in recs]))],
+        [f"default with the guess settings before (12 intervals, tol 1e-8) within "
+         f"{GAP_TOL:g} of the best", f"{sum(r['gap_before'] <= GAP_TOL for r in recs)}/{n}"],
+        ["default plan time / the same with the guess settings before: median of the "
+         "per-pair ratios", f"{statistics.median(r['t_def'] / r['t_before'] for r in recs):.3f}"],
         [f"default gaps above {GAP_TOL:g} (largest first)",
          ", ".join(f"{100 * g:.2f} %" for g in gaps[:10]) or "none"],
         ["default below the exhaustive reference (by > 1e-6)", f"{len(below)}"],
@@ -161,14 +171,18 @@ def times(model, count: int) -> None:
     default = SolverOptions()
     pairs = draw_pairs(model, count, seed=SEED)
     plan(Problem(model, point(pairs[0][0]), point(pairs[0][1]), k=K), default)  # warm-up
-    t_def, t_old = [], []
+    t_def, t_old, t_before = [], [], []
     for a, b in pairs:
         problem = Problem(model, point(a), point(b), k=K)
         t_def.append(timed(lambda p=problem: plan(p, default))[0])
         t_old.append(timed(lambda p=problem: plan(p, PEER))[0])
+        t_before.append(timed(lambda p=problem: plan(p, BEFORE))[0])
+    ratio = statistics.median(d / b for d, b in zip(t_def, t_before, strict=True))
     print(f"default plan time median {fmt_ms(statistics.median(t_def))} ms, p90 "
           f"{fmt_ms(float(np.percentile(t_def, 90)))} ms; peer (16x3) median "
-          f"{fmt_ms(statistics.median(t_old))} ms; {count} pairs, load {os.getloadavg()}")
+          f"{fmt_ms(statistics.median(t_old))} ms; guess settings before (12 intervals, "
+          f"tol 1e-8) median {fmt_ms(statistics.median(t_before))} ms, default / before "
+          f"{ratio:.3f} (median of per-pair ratios); {count} pairs, load {os.getloadavg()}")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.direct import GUESS_LOAD, DirectCollocation, initial_path
+from tocontrol_ros.core.direct import GUESS_LOAD, DirectCollocation, initial_path, initial_paths
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 
 P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
@@ -152,3 +152,17 @@ def test_initial_path_is_rest_to_rest(galicki):
     # Timed to the control set: the largest torques are at the ends, at rest, where they are
     # M qdd alone (no gravity in this arm's plane) and scale like 1 / T^2 exactly.
     assert np.max(np.linalg.norm(expected, axis=1)) == pytest.approx(GUESS_LOAD, rel=1e-9)
+
+
+def test_initial_paths_are_initial_path_seed_by_seed(galicki):
+    rng = np.random.default_rng(3)
+    q0, qT = rng.uniform(-4, 4, (2, 9, galicki.n))
+    qT[4] = q0[4]  # no motion: its peak is zero, it keeps its first time
+    velocity = np.array([1.0, 2.0, 3.0])
+    for vel in (None, velocity):
+        t_all, x_all, u_all = initial_paths(galicki, q0, qT, 12, 0.9, vel)
+        for i in range(len(q0)):
+            t_one, x_one, u_one = initial_path(galicki, q0[i], qT[i], 12, 0.9, vel)
+            # The same arithmetic per seed: equal to the last bit.
+            assert t_all[i] == t_one
+            assert np.array_equal(x_all[i], x_one) and np.array_equal(u_all[i], u_one)

@@ -154,3 +154,30 @@ def test_a_motion_a_full_turn_further_is_one_basin():
     wrap = np.array([True, False])
     assert distinct_basins(items, lambda s: s, 2, wrap) == [a, c, d, e]
     assert len(distinct_basins(items, lambda s: s, 2)) == 6  # nothing periodic: as before
+
+
+def test_guess_tolerance_keeps_the_basins(galicki):
+    """The multistart's direct guesses at the default ``guess_tol`` reach the same solutions
+    as at 1e-8 (the paper's example's seed pairs): the looser tolerance only saves
+    iterations."""
+    from tocontrol_ros.core.direct import DirectCollocation, initial_paths
+    from tocontrol_ros.core.seeding import SAME_BASIN
+
+    problem = _problem(galicki)
+    options = SolverOptions()
+    pairs = seed_pairs(problem, options)
+    paths = initial_paths(galicki, np.array([p[0] for p in pairs]),
+                          np.array([p[1] for p in pairs]), options.guess_intervals)
+    tight = DirectCollocation(galicki, options.guess_intervals, tol=1e-8)
+    loose = DirectCollocation(galicki, options.guess_intervals, tol=options.guess_tol)
+    n, its = galicki.n, [0, 0]
+    for i in range(len(pairs)):
+        args = (problem.start.value, problem.target.value, 1.0,
+                paths[0][i], paths[1][i], paths[2][i])
+        a, b = tight.solve(*args), loose.solve(*args)
+        assert a.success and b.success, (i, a.message, b.message)
+        assert abs(a.T - b.T) <= 1e-5 * a.T, (i, a.T, b.T)
+        assert np.max(np.abs(a.x[[0, -1], :n] - b.x[[0, -1], :n])) < SAME_BASIN, i
+        its[0] += a.iterations
+        its[1] += b.iterations
+    assert its[1] < its[0], its

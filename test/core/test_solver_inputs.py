@@ -79,6 +79,7 @@ def test_moving_state_on_the_target_point_is_not_trivial(galicki):
     ({"tol": math.nan}, r"`tol` must be a positive number"),
     ({"time_limit": -1.0}, r"`time_limit` must be a positive number"),
     ({"integration_tol": math.inf}, r"`integration_tol` must be a positive number"),
+    ({"guess_tol": 0.0}, r"`guess_tol` must be a positive number"),
     ({"max_newton": 0}, r"`max_newton` must be an integer >= 1"),
     ({"intervals": 2.5}, r"`intervals` must be an integer >= 1"),
     ({"starts": 0}, r"`starts` must be an integer >= 1"),

@@ -23,7 +23,7 @@ import numpy as np
 from .compiled import compile_functions
 from .model import RobotModel, spd_solve
 
-__all__ = ["DirectResult", "DirectCollocation", "initial_path"]
+__all__ = ["DirectResult", "DirectCollocation", "initial_path", "initial_paths"]
 
 
 @dataclass(frozen=True)
@@ -89,25 +89,66 @@ def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: i
     u : ndarray, shape (intervals + 1, n)
         Normalised torques of the path by inverse dynamics, clipped to [-0.9, 0.9].
     """
-    dq = qT - q0
-    inertia = np.diag(model.mass_matrix(q0))
+    t_final, x, u = initial_paths(model, np.atleast_2d(q0), np.atleast_2d(qT), intervals,
+                                  torque_scale, velocity)
+    return float(t_final[0]), x[0], u[0]
+
+
+def initial_paths(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: int,
+                  torque_scale: float = 1.0, velocity: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`initial_path` for ``S`` seed pairs at once (the same values, seed by seed).
+
+    One call of the model's mass matrix and three of its inverse dynamics for all the seeds
+    (CasADi maps them over the columns), instead of four per seed.
+
+    Parameters
+    ----------
+    model : RobotModel
+    q0, qT : ndarray, shape (S, n)
+        Start and end configurations of the paths (rad, m).
+    intervals : int
+    torque_scale : float
+    velocity : ndarray, shape (n,), optional
+        Velocity limits (rad/s, m/s).
+
+    Returns
+    -------
+    T : ndarray, shape (S,)
+        Times of the paths (s).
+    x : ndarray, shape (S, intervals + 1, 2n)
+    u : ndarray, shape (S, intervals + 1, n)
+    """
+    q0 = np.asarray(q0, dtype=float)
+    dq = np.asarray(qT, dtype=float) - q0                        # (S, n)
+    count, n = dq.shape
+    mass = np.array(model.function("M").map(count)(q0.T))      # (n, S n), blocks per seed
+    inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(count)])
     acc = model.tau_max * torque_scale / inertia
-    t_final = max(1.5 * float(np.max(2 * np.sqrt(np.abs(dq) / acc))), 1e-2)
-    t_vel = 0.0 if velocity is None else float(np.max(1.5 * np.abs(dq) / (GUESS_LOAD * velocity)))
-    t_final = max(t_final, t_vel)
+    t_final = np.maximum(1.5 * np.max(2 * np.sqrt(np.abs(dq) / acc), axis=1), 1e-2)
+    t_vel = np.zeros(count) if velocity is None else \
+        np.max(1.5 * np.abs(dq) / (GUESS_LOAD * velocity), axis=1)
+    t_final = np.maximum(t_final, t_vel)
     tau = np.linspace(0, 1, intervals + 1)
-    q = q0 + np.outer(3 * tau**2 - 2 * tau**3, dq)
+    q = q0[:, None, :] + (3 * tau**2 - 2 * tau**3)[None, :, None] * dq[:, None, :]
+    # A seed whose peak is not a positive number keeps its time (and so its torques).
+    active = np.ones(count, dtype=bool)
     for rescale in (True, True, False):
-        qd = np.outer((6 * tau - 6 * tau**2) / t_final, dq)
-        qdd = np.outer((6 - 12 * tau) / t_final**2, dq)
-        # One call for all nodes (CasADi maps a function over extra columns).
-        u = np.array(model.function("id")(q.T, qd.T, qdd.T)).T / (model.tau_max * torque_scale)
-        peak = float(np.max(np.linalg.norm(u, axis=1)))
-        if not rescale or not np.isfinite(peak) or peak <= 0:
+        qd = ((6 * tau - 6 * tau**2)[None, :] / t_final[:, None])[:, :, None] * dq[:, None, :]
+        qdd = ((6 - 12 * tau)[None, :] / t_final[:, None] ** 2)[:, :, None] * dq[:, None, :]
+        cols = count * (intervals + 1)
+        u = np.array(model.function("id")(q.reshape(cols, n).T, qd.reshape(cols, n).T,
+                                          qdd.reshape(cols, n).T)).T
+        u = u.reshape(count, intervals + 1, n) / (model.tau_max * torque_scale)
+        if not rescale:
             break
-        t_final = max(t_final * float(np.clip(np.sqrt(peak / GUESS_LOAD), 0.25, 4.0)), 1e-2,
-                      t_vel)
-    return t_final, np.hstack([q, qd]), np.clip(u, -0.9, 0.9)
+        peak = np.max(np.linalg.norm(u, axis=2), axis=1)
+        with np.errstate(invalid="ignore"):
+            active &= np.isfinite(peak) & (peak > 0)
+        factor = np.clip(np.sqrt(np.where(active, peak, GUESS_LOAD) / GUESS_LOAD), 0.25, 4.0)
+        t_final = np.where(active, np.maximum(np.maximum(t_final * factor, 1e-2), t_vel),
+                           t_final)
+    return t_final, np.concatenate([q, qd], axis=2), np.clip(u, -0.9, 0.9)
 
 
 class _Layout:

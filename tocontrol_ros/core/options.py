@@ -31,7 +31,13 @@ class SolverOptions:
         k, whose solutions only lead to the switch mesh, take at most
         :data:`~tocontrol_ros.core.solver.CONTINUATION_STEPS`.
     guess_intervals : int
-        Mesh intervals of the direct method that makes the initial guess.
+        Mesh intervals of the direct method that makes the initial guess. Its IPOPT solves
+        are most of a plan's time; 10 finds the same best motions as 12 on the benchmark's
+        pairs of the paper's arm for less time, 8 misses more (``docs/seeding.md``).
+    guess_tol : float
+        IPOPT tolerance of those direct solves: the shooting refines the guess and a guess's
+        ``T`` only ranks the candidates, so a tight tolerance buys nothing (the same basins
+        as at 1e-8, ``docs/seeding.md``).
     integration_tol : float
         Mesh refinement: max RK4 error estimate per interval (max-norm of ``z``). The
         default keeps ``|H|`` below 1e-6 along the paper's example for k = 1 ... 16 and the
@@ -89,7 +95,8 @@ class SolverOptions:
     max_newton: int = 30
     intervals: int = 12
     steps: int = 12
-    guess_intervals: int = 12
+    guess_intervals: int = 10
+    guess_tol: float = 1e-5
     integration_tol: float = 1e-6
     max_intervals: int = 1000
     smoothing: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 0.0)
@@ -108,7 +115,7 @@ class SolverOptions:
     certificate: CertificateOptions | None = None
 
     def __post_init__(self) -> None:
-        positive = ("tol", "integration_tol", "smoothing_tol", "min_k_step",
+        positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",
                     "verify_point_tol", "verify_velocity_tol", "time_limit",
                     "smoothing_intermediate")
         for name in positive:

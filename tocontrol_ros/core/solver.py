@@ -59,7 +59,7 @@ from . import compiled
 from .certificate import certify
 from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
-from .direct import DirectCollocation, DirectResult, initial_path
+from .direct import DirectCollocation, DirectResult, initial_paths
 from .flat import FlatTranscription
 from .limited import PAD, plan_limited, state_bounds, touches
 from .mesh import refine, switch_mesh
@@ -216,7 +216,7 @@ class Planner:
         grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
                             options.steps, problem.start.kind, problem.target.kind)
         grid.compile()
-        self.direct(problem, options.guess_intervals)
+        self.direct(problem, options.guess_intervals, tol=options.guess_tol)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:
@@ -434,20 +434,19 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ctx.memo["pairs"] = pairs
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
-    direct = planner.direct(problem, options.guess_intervals)
+    direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
     # With joint limits the guesses keep within them: when they bind, the bounded solve
     # starts from these guesses (no second round of guesses), and when they don't, a
     # guess inside its bounds is the unconstrained one.
     x_bounds = state_bounds(problem, PAD) if problem.limits.active else None
     guesses = []
+    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
+                          np.array([p[1] for p in pairs]), options.guess_intervals,
+                          problem.torque_scale, problem.limits.plan_velocity)
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
-        t_guess, x_guess, u_guess = initial_path(problem.model, qa, qb,
-                                                 options.guess_intervals,
-                                                 problem.torque_scale,
-                                                 problem.limits.plan_velocity)
-        res = direct.solve(problem.start.value, problem.target.value, 1.0, t_guess,
-                           x_guess, u_guess, x_bounds=x_bounds)
+        res = direct.solve(problem.start.value, problem.target.value, 1.0, paths[0][idx],
+                           paths[1][idx], paths[2][idx], x_bounds=x_bounds)
         guesses.append((idx, qa, qb, res))
     ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
     timings["guess"] += time.perf_counter() - t0
