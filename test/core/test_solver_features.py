@@ -220,3 +220,36 @@ def test_a_position_limit_the_optimum_overshoots_is_enforced():
     assert 0.26 < q_max <= model.q_upper[0]
     assert res.verification["position_limits"] <= 1e-6
     assert res.T > free.T
+
+
+def test_a_basin_that_fails_its_certificate_gives_way_to_the_next(galicki, monkeypatch):
+    """When the best basin's certificate fails, the next best continued basin is finished,
+    certified and returned (with a note); with no other basin the failure is returned."""
+    import tocontrol_ros.core.solver as solver_module
+    from tocontrol_ros.core.result import Status
+
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4)
+    options = SolverOptions(starts=16, candidates=4)
+    honest = plan(problem, options)
+    assert honest.success, honest.message
+    real = solver_module.verdict
+    calls = []
+
+    def first_fails(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            return Status.VERIFICATION_FAILED, "verification failed: (forced by the test)"
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(solver_module, "verdict", first_fails)
+    res = plan(problem, options)
+    assert res.success, res.message
+    assert len(calls) == 2
+    assert res.T > honest.T * (1 + 1e-6)  # the next basin, not the best one again
+    returned = [r for r in res.starts if r.status == "returned"]
+    assert len(returned) == 1 and returned[0].T == pytest.approx(res.T)
+    assert any("forced by the test" in r.status for r in res.starts)
+    assert any("failed its certificate" in w for w in res.warnings)
+    calls.clear()
+    alone = plan(problem, SolverOptions(starts=1, candidates=1))
+    assert alone.status is Status.VERIFICATION_FAILED and len(calls) == 1

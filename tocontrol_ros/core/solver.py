@@ -358,22 +358,40 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
             if status is not Status.SUCCESS:
                 timings["total"] = time.perf_counter() - t_start
                 return _failure(problem, status, message, timings, records, run)
-        t0 = time.perf_counter()
-        notes += _finish_warm(ctx, run) if finished else _final_smoothing(ctx, run)
-        timings["refine"] += time.perf_counter() - t0
-        traj = trajectory(ctx, run)
-        sample = fine_sample(traj)
-        if problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0:
-            if warm_start is not None:
-                timings["total"] = time.perf_counter() - t_start
-                return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
-                                "leaves the joint limits", timings, run=run)
-            notes.append("the solution of the maximum principle leaves the joint limits")
-            return plan_limited(planner, ctx, timings, t_start, notes)
+        # The next basins of the multistart, best T first, in case the best one's
+        # certificate fails (a motion that cannot be certified is never returned when a
+        # certified one was found).
+        queue = [(run, None)] + ctx.memo.get("others", [])
+        why = ""
+        while queue:
+            run, idx = queue.pop(0)
+            t0 = time.perf_counter()
+            tried = list(notes)
+            tried += _finish_warm(ctx, run) if finished else _final_smoothing(ctx, run)
+            timings["refine"] += time.perf_counter() - t0
+            traj = trajectory(ctx, run)
+            sample = fine_sample(traj)
+            if problem.limits.active and \
+                    max(problem.limits.violations(sample.q, sample.qd)) > 0:
+                if warm_start is not None:
+                    timings["total"] = time.perf_counter() - t_start
+                    return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
+                                    "leaves the joint limits", timings, run=run)
+                notes.append("the solution of the maximum principle leaves the joint limits")
+                return plan_limited(planner, ctx, timings, t_start, notes)
+            if idx is not None:
+                records = [replace(r, status="returned") if r.index == idx else
+                           replace(r, status=why) if r.status == "returned" else r
+                           for r in records]
+            result = _result(ctx, run, records, tried, timings, t_start, traj, sample)
+            if result.status is not Status.VERIFICATION_FAILED or not queue:
+                return result
+            why = result.message
+            notes.append(f"the basin with T = {result.T:.6f} s failed its certificate "
+                         f"({result.message}); the next best one was tried")
     except StopError as stop:
         timings["total"] = time.perf_counter() - t_start
         return _failure(problem, stop.status, "solve interrupted", timings, records, run)
-    return _result(ctx, run, records, notes, timings, t_start, traj, sample)
 
 
 def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list[str],
@@ -463,7 +481,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     distinct = distinct_basins(ok, lambda g: g[3], problem.model.n,
                                revolute_joints(problem.model))
     best = None
-    failures = []
+    failures, succeeded = [], []
     t0 = time.perf_counter()
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     # The bound needs an arm on which gravity does no work (with gravity the larger torque
@@ -480,6 +498,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         run, status, message = _solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
+            succeeded.append((run, g[0]))
             if best is None or run.t_final < best[0].t_final:
                 best = (run, g[0])
         else:
@@ -490,6 +509,8 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         run, status, message = failures[0]
         return run, list(records.values()), status, message
     records[best[1]] = replace(records[best[1]], status="returned")
+    ctx.memo["others"] = sorted(((r, i) for r, i in succeeded if i != best[1]),
+                                key=lambda ri: ri[0].t_final)
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
 
 
