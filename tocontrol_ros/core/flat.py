@@ -39,14 +39,14 @@ import casadi as ca
 import numpy as np
 from scipy.interpolate import BSpline
 
-from .compiled import compile_functions
+from .compiled import compile_owned
 from .direct import _Scatter
 from .model import RobotModel
 from .pmp import LawParams
 from .trajectory import TrajectorySample, sample_times
 
 __all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "SET_PAD",
-           "refined_breaks"]
+           "compile_flat", "refined_breaks"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -57,8 +57,6 @@ SET_PAD = 1e-3
 #: its acceleration over one span, which costs time in proportion to the span).
 REFINE_JUMP = 0.1
 
-#: Compiled per-sample functions, per model and degree (building them takes seconds).
-_FUNCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def breakpoints(spans: int | np.ndarray) -> np.ndarray:
@@ -148,6 +146,15 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
         ca.Function("flat_set_hess", [P, T, b, k, scale, mu], [ca.densify(ca.cse(upper))]),
         ca.Function("flat_id", [qs, qds, qdds, scale],
                     [model.rnea_sym(qs, qds, qdds) / scale])]
+
+
+def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function], str]:
+    """The per-sample functions compiled, once per model and degree (see ``compile_owned``).
+
+    Inside :func:`~tocontrol_ros.core.compiled.parallel_builds` this only starts the build.
+    """
+    return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
+                         lambda: _sample_functions(model, degree))
 
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
@@ -285,10 +292,7 @@ class FlatTranscription:
         br = self.breaks
         K = L + p
         self.K = K
-        cached = _FUNCTIONS.setdefault(model, {})
-        if degree not in cached:
-            cached[degree] = compile_functions(f"flat{n}p{p}", _sample_functions(model, degree))
-        funs, self.compile_status = cached[degree]
+        funs, self.compile_status = compile_flat(model, degree)
         self._set, set_grad, set_hess, self._id = funs
         self.scale = model.tau_max * torque_scale
         frac = np.arange(per_span) / per_span
