@@ -231,22 +231,25 @@ def _tiers() -> bool:
     return os.environ.get("TOCONTROL_COMPILE_TIERS", "1") != "0"
 
 
-def _paths(name: str, source: bytes) -> tuple[tuple[str, ...], Path, Path | None]:
+def _paths(name: str, source: bytes, cflags: Sequence[str] | None = None
+           ) -> tuple[tuple[str, ...], Path, Path | None]:
     """The optimised library's flags and path, and the quick build's path (or None)."""
-    cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+    if cflags is None:
+        cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
     quick = _tiers() and len(source) > QUICK_SOURCE
-    return cflags, _target(name, source, cflags), \
+    return tuple(cflags), _target(name, source, cflags), \
         _target(name, source, QUICK_CFLAGS) if quick else None
 
 
-def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
+def _build(cc: str, name: str, tmp: str, cflags: Sequence[str] | None = None
+           ) -> tuple[Path | None, str]:
     """Compile ``tmp/name.c`` into the cache (unless there already), keyed by its source.
 
     A long source without its optimised library in the cache gets the quick build, and the
     optimised one is started in the background (see the module's docstring).
     """
     source = Path(tmp, f"{name}.c").read_bytes()
-    cflags, target, quick_target = _paths(name, source)
+    cflags, target, quick_target = _paths(name, source, cflags)
     if target.is_file():
         return target, "cached"
     quick = quick_target is not None
@@ -299,14 +302,15 @@ def parallel_builds(jobs: int | None = None, wait: bool = True) -> Iterator[None
                 future.result()
 
 
-def _build_owned(cc: str, name: str, tmp: tempfile.TemporaryDirectory) -> None:
+def _build_owned(cc: str, name: str, tmp: tempfile.TemporaryDirectory,
+                 cflags: Sequence[str] | None = None) -> None:
     """A deferred build: :func:`_build` in a pool thread, which then removes ``tmp``."""
     with tmp:
-        _build(cc, name, tmp.name)
+        _build(cc, name, tmp.name, cflags)
 
 
-def _defer(cc: str, name: str, write: Callable[[str], None]
-           ) -> tuple[Path, Path | None, Future] | None:
+def _defer(cc: str, name: str, write: Callable[[str], None],
+           cflags: Sequence[str] | None = None) -> tuple[Path, Path | None, Future] | None:
     """Inside :func:`parallel_builds`: write the source into a new directory, start its build.
 
     Returns the paths the build will fill (optimised, quick or None) and the build's
@@ -317,8 +321,8 @@ def _defer(cc: str, name: str, write: Callable[[str], None]
         return None
     tmp = tempfile.TemporaryDirectory()
     write(tmp.name)
-    _, target, quick = _paths(name, Path(tmp.name, f"{name}.c").read_bytes())
-    future = pool.submit(_build_owned, cc, name, tmp)
+    _, target, quick = _paths(name, Path(tmp.name, f"{name}.c").read_bytes(), cflags)
+    future = pool.submit(_build_owned, cc, name, tmp, cflags)
     _deferred.futures.append(future)
     return target, quick, future
 
@@ -423,8 +427,8 @@ _owned: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def compile_owned(owner: object, key: object, name: str,
-                  build: Callable[[], Sequence[ca.Function]]
-                  ) -> tuple[list[ca.Function], str]:
+                  build: Callable[[], Sequence[ca.Function]],
+                  cflags: Sequence[str] | None = None) -> tuple[list[ca.Function], str]:
     """:func:`compile_functions` of ``build()`` for one owner, its graphs built once.
 
     Parameters
@@ -437,6 +441,8 @@ def compile_owned(owner: object, key: object, name: str,
         Name of the library (a C identifier).
     build : callable
         Returns the symbolic functions; called on the first use of ``(owner, key)`` only.
+    cflags : sequence of str, optional
+        Flags of the optimised library (default: by the source's size, as for all).
 
     Returns
     -------
@@ -470,15 +476,15 @@ def compile_owned(owner: object, key: object, name: str,
                     entry.compiled = [ca.external(f.name(), str(path)) for f in funs]
                     entry.loaded, entry.how = path, how
                 return entry.compiled, entry.how
-        deferred = _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp))
+        deferred = _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp), cflags)
         if deferred is not None:
             entry.paths, entry.build = deferred[:2], deferred[2]
             return list(funs), "deferred"
         with tempfile.TemporaryDirectory() as tmp:
             _generate_many(name, funs, tmp)
-            target, how = _build(cc, name, tmp)
+            target, how = _build(cc, name, tmp, cflags)
             source = Path(tmp, f"{name}.c").read_bytes()
-        entry.paths = _paths(name, source)[1:]
+        entry.paths = _paths(name, source, cflags)[1:]
         if target is None:
             return list(funs), how
         entry.compiled = [ca.external(f.name(), str(target)) for f in funs]

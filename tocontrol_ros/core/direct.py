@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .compiled import compile_owned
+from .compiled import LARGE_CFLAGS, compile_owned
 from .model import RobotModel, spd_solve
 
 __all__ = ["DirectResult", "DirectCollocation", "compile_direct", "initial_path"]
@@ -503,15 +503,24 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
     return {"g": g_fun, "grad_f": grad_f, "jac_g": jac_g, "hess_l": hess_l}
 
 
+def _flags(n: int) -> tuple[str, ...] | None:
+    """The optimised flags of the per-point and per-interval libraries of an n-joint arm."""
+    # As one library their source was above LARGE_SOURCE from 7 joints on (the Panda 1.76 MB,
+    # the xArm7 1.87 MB; the UR5 0.89 MB).
+    return LARGE_CFLAGS if n >= 7 else None
+
+
 def _compiled(model: RobotModel, lay: _Layout) -> tuple[list, str, list, str]:
     """The per-point and the assembly functions, compiled once per model (and mesh)."""
     n, N = lay.n, lay.N
-    # The dynamics' derivatives (the costly part to compile) depend on the model only.
+    # The dynamics' derivatives (the costly part to compile) depend on the model only. Two
+    # libraries, built at the same time; optimised with the flags they had as one library
+    # above LARGE_SOURCE (-O2 rounds the guesses differently, and a bounded solve of the
+    # Panda then ends in another local optimum).
     point, how_point = compile_owned(model, "direct_point", f"direct_point{n}",
-                                     lambda: _point_functions(model))
-    # A library of its own: compiled at the same time as the per-point one.
+                                     lambda: _point_functions(model), _flags(model.n))
     inter, how_inter = compile_owned(model, "direct_interval", f"direct_interval{n}",
-                                     lambda: _interval_functions(n))
+                                     lambda: _interval_functions(n), _flags(model.n))
     if how_inter != how_point:
         how_point = f"{how_point}, intervals {how_inter}"
     asm, how_asm = compile_owned(
