@@ -514,9 +514,8 @@ def _compiled(model: RobotModel, lay: _Layout) -> tuple[list, str, list, str]:
     """The per-point and the assembly functions, compiled once per model (and mesh)."""
     n, N = lay.n, lay.N
     # The dynamics' derivatives (the costly part to compile) depend on the model only. Two
-    # libraries, built at the same time; optimised with the flags they had as one library
-    # above LARGE_SOURCE (-O2 rounds the guesses differently, and a bounded solve of the
-    # Panda then ends in another local optimum).
+    # libraries, built at the same time, optimised with the flags they had as one library
+    # (the same code as before; -O2 takes gcc several times longer on these sources).
     point, how_point = compile_owned(model, "direct_point", f"direct_point{n}",
                                      lambda: _point_functions(model), _flags(model.n))
     inter, how_inter = compile_owned(model, "direct_interval", f"direct_interval{n}",

@@ -368,6 +368,8 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
     try:
         finished = False
         if warm_start is not None:
+            # A planner made since (optimised libraries landed) loads the shooting's first.
+            ctx.extend(planner.prepare_shooting(problem, options))
             run, finished = _warm(ctx, warm_start)
             timings["shooting"] += time.perf_counter() - t_start
             if run is None:
