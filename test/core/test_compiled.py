@@ -128,3 +128,103 @@ def test_parallel_builds_defer_then_the_next_pass_finds_the_cache(private_cache)
         compiled.remove_listener(listener)
     built = sorted(name for event, name in events if event == "compiled")
     assert built == ["parallel_lib", "parallel_probe0", "parallel_probe1"], events
+
+
+def test_owned_functions_are_built_once_and_move_to_the_optimised_library(private_cache,
+                                                                         monkeypatch):
+    monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+
+    class Owner:
+        pass
+
+    owner, calls = Owner(), []
+
+    def build():
+        calls.append(1)
+        return [_function("owned_probe")]
+
+    quick, how = compiled.compile_owned(owner, "probe", "owned_lib", build)
+    assert how == "compiled (quick build)", how
+    assert compiled.compile_owned(owner, "probe", "owned_lib", build)[0] is quick
+    assert compiled.wait_for_builds(120.0)
+    optimised, how = compiled.compile_owned(owner, "probe", "owned_lib", build)
+    assert how == "cached" and optimised is not quick
+    assert len(calls) == 1  # the symbolic functions were built once
+    x = np.array([0.3, -1.2, 0.7])
+    for got, want in zip(optimised[0](x), build()[0](x), strict=True):
+        np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-12, atol=1e-14)
+
+
+def test_owned_builds_started_in_parallel_are_loaded_without_generating_again(
+        private_cache, monkeypatch):
+    generated = []
+    generate = compiled._generate_many
+    monkeypatch.setattr(compiled, "_generate_many",
+                        lambda *a: (generated.append(a[0]), generate(*a)))
+
+    class Owner:
+        pass
+
+    owner = Owner()
+    funs = [_function("owned_parallel_probe")]
+    with compiled.parallel_builds(jobs=2, wait=False):
+        assert compiled.compile_owned(owner, 1, "owned_parallel", lambda: funs)[1] == "deferred"
+    loaded, how = compiled.compile_owned(owner, 1, "owned_parallel", lambda: funs)
+    assert how == "cached" and loaded[0] is not funs[0]
+    assert generated == ["owned_parallel"]
+
+
+def test_bounded_transcription_moves_to_the_optimised_library(private_cache, monkeypatch):
+    """A model's B-spline functions are reloaded once their optimised build landed (they
+    were kept as the quick build for the model's lifetime)."""
+    from tocontrol_ros.core.flat import FlatTranscription
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+
+    monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+    model = load_robot(default_urdf_path())
+    assert FlatTranscription(model, 4).compile_status == "compiled (quick build)"
+    assert compiled.wait_for_builds(300.0)
+    assert FlatTranscription(model, 4).compile_status == "cached"
+
+
+@pytest.mark.slow  # compiles the paper's arm in full (about a minute under load)
+def test_first_plan_compiles_the_shooting_only_when_a_solve_reaches_it(private_cache):
+    """Issue 18: where the joint limits bind, the first plan of a model builds the guesses'
+    and the bounded solve's libraries, none of the shooting's; a plan that reaches the
+    shooting compiles those then, and succeeds (the compile time is not held against its
+    time limit)."""
+    from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+    from tocontrol_ros.core.limits import JointLimits
+    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.solver import SolverOptions, plan
+
+    model = load_robot(default_urdf_path())  # a new model: nothing of it loaded yet
+    base = JointLimits.from_model(model)
+    tight = JointLimits(base.names, np.array([-2.5, -np.inf, -np.inf]),
+                        np.array([2.5, np.inf, np.inf]), np.array([0.4, 1.0, 1.0]))
+    free = JointLimits(base.names, np.full(3, -np.inf), np.full(3, np.inf),
+                       np.full(3, np.inf))
+    built = []
+
+    def listener(event, name, info):
+        if event == "compiled":
+            built.append(name)
+
+    compiled.add_listener(listener)
+    try:
+        limited = plan(Problem(model, point(PAPER_START), point(PAPER_TARGET), k=4,
+                               limits=tight), SolverOptions(starts=1, candidates=1))
+        first = list(built)
+        unlimited = plan(Problem(model, point(PAPER_START), point(PAPER_TARGET), k=4,
+                                 limits=free),
+                         SolverOptions(starts=1, candidates=1, time_limit=5.0))
+    finally:
+        compiled.remove_listener(listener)
+    assert limited.success and limited.method == "direct", limited.message
+    assert any(name.startswith("flat") for name in first), first
+    assert any(name.startswith("direct_point") for name in first), first
+    assert not any(name.startswith("tocontrol_") for name in first), first
+    assert unlimited.success and unlimited.method != "direct", unlimited.message
+    assert any(name.startswith("tocontrol_rk4") or name.startswith("tocontrol_fj")
+               for name in built[len(first):]), built

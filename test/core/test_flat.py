@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import casadi as ca
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
 from tocontrol_ros.core.direct import DirectCollocation
-from tocontrol_ros.core.flat import basis, breakpoints, refined_breaks
+from tocontrol_ros.core.flat import _sample_functions, basis, breakpoints, refined_breaks
 from tocontrol_ros.core.limited import PAD, SPANS, state_bounds
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, plan
@@ -49,6 +50,36 @@ def test_breakpoints_must_increase_from_zero_to_one():
     assert np.allclose(breakpoints(4), [0, 0.25, 0.5, 0.75, 1.0])
     with pytest.raises(ValueError, match="increase from 0 to 1"):
         breakpoints(np.array([0.0, 0.5, 0.4, 1.0]))
+
+
+# ----------------------------------------------------------------- the per-sample functions
+@pytest.mark.parametrize("robot", ["galicki", "panda"])
+def test_sample_functions_are_the_derivatives_of_the_set(request, robot):
+    """The structured gradient and Hessian equal CasADi's of the composite ``c(z)``."""
+    model = request.getfixturevalue(robot)
+    n, d1 = model.n, 4
+    set_, set_grad, set_hess, _ = _sample_functions(model, 3)
+    P, T, b = ca.SX.sym("P", n, d1), ca.SX.sym("T"), ca.SX.sym("b", 3, d1)
+    k, scale = ca.SX.sym("k"), ca.SX.sym("scale", n)
+    z = ca.vertcat(ca.vec(P), T)
+    c = set_(P, T, b, k, scale)
+    ref = ca.Function("ref", [P, T, b, k, scale],
+                      [ca.gradient(c, z), ca.hessian(c, z)[0]])
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        args = [rng.normal(size=(n, d1)), rng.uniform(0.3, 2.0), rng.normal(size=(3, d1)),
+                4.0, model.tau_max * rng.uniform(0.02, 0.1)]
+        mu = rng.uniform(0.5, 2.0)
+        grad, hess = (np.array(v) for v in ref(*args))
+        value, grad_s = set_grad(*args)
+        assert float(value) == pytest.approx(float(set_(*args)), rel=1e-12)
+        assert np.allclose(np.array(grad_s).ravel(), grad.ravel(),
+                           rtol=1e-9, atol=1e-9 * np.max(np.abs(grad)))
+        upper = np.array(set_hess(*args, mu)).ravel()
+        dz = n * d1 + 1
+        rows, cols = zip(*[(r, col) for col in range(dz) for r in range(col + 1)], strict=True)
+        expected = mu * hess[list(rows), list(cols)]
+        assert np.allclose(upper, expected, rtol=1e-9, atol=1e-9 * np.max(np.abs(expected)))
 
 
 # ----------------------------------------------------------------- the Panda

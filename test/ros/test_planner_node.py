@@ -548,7 +548,7 @@ def test_warm_up_compiles_before_the_first_request_and_reports_progress(tmp_path
         compiled.add_listener(listener)
         _, status, _ = client.call_plan(PAPER_START, PAPER_TARGET, timeout=120.0)
         assert status.event == "solved", status.message
-        prepared = ("direct_", "tocontrol_bc_", "tocontrol_rk4", "tocontrol_fj_",
+        prepared = ("direct_", "flat", "tocontrol_bc_", "tocontrol_rk4", "tocontrol_fj_",
                     "tocontrol_pointwise_", "tocontrol_switch_")
         again = [name for event, name in builds
                  if event == "compiling" and name.startswith(prepared)]

@@ -16,6 +16,10 @@ priority. :func:`generation` counts the optimised libraries that have landed in 
 since the process started; a :class:`~tocontrol_ros.core.solver.Planner` made after that
 loads them (the cache holds both). ``TOCONTROL_COMPILE_TIERS=0`` builds the optimised
 library at once instead. :func:`add_listener` reports every build as it starts and ends.
+
+:func:`compile_owned` keeps the functions of one owner (a model) for its lifetime: its
+symbolic functions are built once, a later call returns the loaded library, or the optimised
+one once it has landed, without generating the source again.
 """
 
 from __future__ import annotations
@@ -31,16 +35,18 @@ import subprocess
 import tempfile
 import threading
 import time
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import casadi as ca
 
 __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "generation",
            "pending_builds", "wait_for_builds", "add_listener", "remove_listener",
-           "parallel_builds", "in_cache"]
+           "parallel_builds", "in_cache", "compile_owned"]
 
 #: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
 #: markedly faster than portable -O1. Such a library only runs on the CPU it was built for,
@@ -225,18 +231,28 @@ def _tiers() -> bool:
     return os.environ.get("TOCONTROL_COMPILE_TIERS", "1") != "0"
 
 
-def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
+def _paths(name: str, source: bytes, cflags: Sequence[str] | None = None
+           ) -> tuple[tuple[str, ...], Path, Path | None]:
+    """The optimised library's flags and path, and the quick build's path (or None)."""
+    if cflags is None:
+        cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
+    quick = _tiers() and len(source) > QUICK_SOURCE
+    return tuple(cflags), _target(name, source, cflags), \
+        _target(name, source, QUICK_CFLAGS) if quick else None
+
+
+def _build(cc: str, name: str, tmp: str, cflags: Sequence[str] | None = None
+           ) -> tuple[Path | None, str]:
     """Compile ``tmp/name.c`` into the cache (unless there already), keyed by its source.
 
     A long source without its optimised library in the cache gets the quick build, and the
     optimised one is started in the background (see the module's docstring).
     """
     source = Path(tmp, f"{name}.c").read_bytes()
-    cflags = CFLAGS if len(source) <= LARGE_SOURCE else LARGE_CFLAGS
-    target = _target(name, source, cflags)
+    cflags, target, quick_target = _paths(name, source, cflags)
     if target.is_file():
         return target, "cached"
-    quick = _tiers() and len(source) > QUICK_SOURCE
+    quick = quick_target is not None
     if quick:
         with _done:
             start = target not in _pending
@@ -244,7 +260,7 @@ def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
         if start:
             threading.Thread(target=_optimise, args=(cc, name, source, cflags, target),
                              name=f"optimise {name}", daemon=True).start()
-        target, cflags = _target(name, source, QUICK_CFLAGS), QUICK_CFLAGS
+        target, cflags = quick_target, QUICK_CFLAGS
     how = "cached (quick build)" if quick else "cached"
     with _target_lock(target):
         if not target.is_file():
@@ -256,14 +272,16 @@ def _build(cc: str, name: str, tmp: str) -> tuple[Path | None, str]:
 
 
 @contextmanager
-def parallel_builds(jobs: int | None = None) -> Iterator[None]:
+def parallel_builds(jobs: int | None = None, wait: bool = True) -> Iterator[None]:
     """In this thread, :func:`compile_function` and :func:`compile_functions` only start builds.
 
     Inside the block they generate the C source, start its build on one of ``jobs``
     threads (default: the usable cores) and return the functions uncompiled, with ``how``
     ``"deferred"``; the block ends when every build has ended. Made for a throw-away pass
     over everything a model needs: the next pass finds it all in the cache, having used
-    every core for the compiler (each build still has its two tiers).
+    every core for the compiler (each build still has its two tiers). With ``wait`` False
+    the block ends at once and the builds go on: :func:`compile_owned` waits for its own
+    build on the next call, so that what is needed first can be used while the rest builds.
     """
     if getattr(_deferred, "pool", None) is not None:
         yield  # nested: the outer block waits
@@ -272,31 +290,41 @@ def parallel_builds(jobs: int | None = None) -> Iterator[None]:
         jobs = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
             else (os.cpu_count() or 1)
     futures: list[Future] = []
-    with ThreadPoolExecutor(max_workers=max(1, jobs), thread_name_prefix="compile") as pool:
-        _deferred.pool, _deferred.futures = pool, futures
-        try:
-            yield
-        finally:
-            _deferred.pool = _deferred.futures = None
+    pool = ThreadPoolExecutor(max_workers=max(1, jobs), thread_name_prefix="compile")
+    _deferred.pool, _deferred.futures = pool, futures
+    try:
+        yield
+    finally:
+        _deferred.pool = _deferred.futures = None
+        pool.shutdown(wait=wait)
+        if wait:
             for future in futures:
                 future.result()
 
 
-def _build_owned(cc: str, name: str, tmp: tempfile.TemporaryDirectory) -> None:
+def _build_owned(cc: str, name: str, tmp: tempfile.TemporaryDirectory,
+                 cflags: Sequence[str] | None = None) -> None:
     """A deferred build: :func:`_build` in a pool thread, which then removes ``tmp``."""
     with tmp:
-        _build(cc, name, tmp.name)
+        _build(cc, name, tmp.name, cflags)
 
 
-def _defer(cc: str, name: str, write: Callable[[str], None]) -> bool:
-    """Inside :func:`parallel_builds`: write the source into a new directory, start its build."""
+def _defer(cc: str, name: str, write: Callable[[str], None],
+           cflags: Sequence[str] | None = None) -> tuple[Path, Path | None, Future] | None:
+    """Inside :func:`parallel_builds`: write the source into a new directory, start its build.
+
+    Returns the paths the build will fill (optimised, quick or None) and the build's
+    future, or None outside.
+    """
     pool = getattr(_deferred, "pool", None)
     if pool is None:
-        return False
+        return None
     tmp = tempfile.TemporaryDirectory()
     write(tmp.name)
-    _deferred.futures.append(pool.submit(_build_owned, cc, name, tmp))
-    return True
+    _, target, quick = _paths(name, Path(tmp.name, f"{name}.c").read_bytes(), cflags)
+    future = pool.submit(_build_owned, cc, name, tmp, cflags)
+    _deferred.futures.append(future)
+    return target, quick, future
 
 
 def _generate_one(fun: ca.Function, tmp: str) -> None:
@@ -336,7 +364,7 @@ def compile_function(fun: ca.Function) -> tuple[ca.Function, str]:
     if cc is None:
         return fun, "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
     name = fun.name()
-    if _defer(cc, name, lambda tmp: _generate_one(fun, tmp)):
+    if _defer(cc, name, lambda tmp: _generate_one(fun, tmp)) is not None:
         return fun, "deferred"
     with tempfile.TemporaryDirectory() as tmp:
         _generate_one(fun, tmp)
@@ -368,7 +396,7 @@ def compile_functions(name: str, funs: Sequence[ca.Function]
     cc = _compiler()
     if cc is None:
         return list(funs), "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
-    if _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp)):
+    if _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp)) is not None:
         return list(funs), "deferred"
     with tempfile.TemporaryDirectory() as tmp:
         _generate_many(name, funs, tmp)
@@ -376,3 +404,89 @@ def compile_functions(name: str, funs: Sequence[ca.Function]
     if target is None:
         return list(funs), how
     return [ca.external(fun.name(), str(target)) for fun in funs], how
+
+
+# ------------------------------------------------------------------ owned functions
+@dataclass
+class _Owned:
+    """One owner's library: its symbolic functions, and what was loaded for them."""
+
+    funs: list
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    #: (optimised, quick or None) libraries of the source, once it was generated.
+    paths: tuple[Path, Path | None] | None = None
+    #: The build started inside :func:`parallel_builds`, until it ended.
+    build: Future | None = None
+    loaded: Path | None = None
+    compiled: list | None = None
+    how: str = ""
+
+
+#: owner -> {key: _Owned}; an entry lives as long as its owner.
+_owned: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def compile_owned(owner: object, key: object, name: str,
+                  build: Callable[[], Sequence[ca.Function]],
+                  cflags: Sequence[str] | None = None) -> tuple[list[ca.Function], str]:
+    """:func:`compile_functions` of ``build()`` for one owner, its graphs built once.
+
+    Parameters
+    ----------
+    owner : object
+        What the functions belong to (a model; held weakly): they live as long as it does.
+    key : hashable
+        Which of the owner's libraries.
+    name : str
+        Name of the library (a C identifier).
+    build : callable
+        Returns the symbolic functions; called on the first use of ``(owner, key)`` only.
+    cflags : sequence of str, optional
+        Flags of the optimised library (default: by the source's size, as for all).
+
+    Returns
+    -------
+    functions, how
+        As for :func:`compile_functions`. A later call returns the same compiled functions,
+        or loads the optimised library once it has landed after a quick build; inside
+        :func:`parallel_builds` the build is started and the next call outside the block
+        loads it, without generating the source again in either case.
+    """
+    with _meta_lock:
+        entries = _owned.setdefault(owner, {})
+        entry = entries.get(key)
+        if entry is None:
+            entry = entries[key] = _Owned(funs=[])
+    with entry.lock:
+        if not entry.funs:
+            entry.funs = list(build())
+        funs = entry.funs
+        cc = _compiler()
+        if cc is None:
+            return list(funs), "virtual machine (no C compiler or TOCONTROL_COMPILE=0)"
+        if entry.build is not None:
+            entry.build.result()  # started without waiting (parallel_builds(wait=False))
+            entry.build = None
+        if entry.paths is not None:
+            optimised, quick = entry.paths
+            for path, how in ((optimised, "cached"), (quick, "cached (quick build)")):
+                if path is None or not path.is_file():
+                    continue
+                if entry.loaded != path:
+                    entry.compiled = [ca.external(f.name(), str(path)) for f in funs]
+                    entry.loaded, entry.how = path, how
+                return entry.compiled, entry.how
+        deferred = _defer(cc, name, lambda tmp: _generate_many(name, funs, tmp), cflags)
+        if deferred is not None:
+            entry.paths, entry.build = deferred[:2], deferred[2]
+            return list(funs), "deferred"
+        with tempfile.TemporaryDirectory() as tmp:
+            _generate_many(name, funs, tmp)
+            target, how = _build(cc, name, tmp, cflags)
+            source = Path(tmp, f"{name}.c").read_bytes()
+        entry.paths = _paths(name, source, cflags)[1:]
+        if target is None:
+            return list(funs), how
+        entry.compiled = [ca.external(f.name(), str(target)) for f in funs]
+        entry.loaded, entry.how = target, how
+        return entry.compiled, how

@@ -60,6 +60,11 @@ class SolveContext:
     should_stop: Callable[[], bool] | None = None
     memo: dict = field(default_factory=dict)
 
+    def extend(self, seconds: float) -> None:
+        """Move the deadline ``seconds`` later (time spent compiling, not solving)."""
+        if seconds > 0.0:
+            object.__setattr__(self, "deadline", self.deadline + seconds)
+
     def law(self, k: float, delta: float) -> LawParams:
         """The control law's parameters at ``k`` and ``delta`` for this problem."""
         return LawParams(k, delta, self.problem.torque_scale)

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .compiled import compile_functions
+from .compiled import LARGE_CFLAGS, compile_owned
 from .model import RobotModel, spd_solve
 
-__all__ = ["DirectResult", "DirectCollocation", "initial_path", "initial_paths"]
+__all__ = ["DirectResult", "DirectCollocation", "compile_direct", "initial_path", "initial_paths"]
 
 
 @dataclass(frozen=True)
@@ -544,6 +544,44 @@ def _nlp_functions(lay: _Layout, point: list[ca.Function], asm: list[ca.Function
     return {"g": g_fun, "grad_f": grad_f, "jac_g": jac_g, "hess_l": hess_l}
 
 
+def _flags(n: int) -> tuple[str, ...] | None:
+    """The optimised flags of the per-point and per-interval libraries of an n-joint arm."""
+    # As one library their source was above LARGE_SOURCE from 7 joints on (the Panda 1.76 MB,
+    # the xArm7 1.87 MB; the UR5 0.89 MB).
+    return LARGE_CFLAGS if n >= 7 else None
+
+
+def _compiled(model: RobotModel, lay: _Layout) -> tuple[list, str, list, str]:
+    """The per-point and the assembly functions, compiled once per model (and mesh)."""
+    n, N = lay.n, lay.N
+    # The dynamics' derivatives (the costly part to compile) depend on the model only. Two
+    # libraries, built at the same time, optimised with the flags they had as one library
+    # (the same code as before; -O2 takes gcc several times longer on these sources).
+    point, how_point = compile_owned(model, "direct_point", f"direct_point{n}",
+                                     lambda: _point_functions(model), _flags(model.n))
+    inter, how_inter = compile_owned(model, "direct_interval", f"direct_interval{n}",
+                                     lambda: _interval_functions(n), _flags(model.n))
+    if how_inter != how_point:
+        how_point = f"{how_point}, intervals {how_inter}"
+    asm, how_asm = compile_owned(
+        model, ("direct_asm", N, lay.kinds, lay.box),
+        f"direct_asm{n}x{N}", lambda: _assembly_functions(model, lay))
+    return point + inter, how_point, asm, how_asm
+
+
+def compile_direct(model: RobotModel, intervals: int, start_kind: str = "point",
+                   target_kind: str = "point", box: bool = False) -> str:
+    """Compile what a :class:`DirectCollocation` of these arguments needs, without making one.
+
+    Inside :func:`~tocontrol_ros.core.compiled.parallel_builds` this only starts the builds
+    (a :class:`DirectCollocation` made after the block loads them). Returns how the
+    functions run (as ``compile_status``).
+    """
+    lay = _Layout(model.n, model.m, intervals, start_kind, target_kind, box)
+    _, how_point, _, how_asm = _compiled(model, lay)
+    return how_point if how_point == how_asm else f"dynamics {how_point}, assembly {how_asm}"
+
+
 class DirectCollocation:
     """Hermite-Simpson transcription, built once per mesh and reused for many solves.
 
@@ -594,10 +632,7 @@ class DirectCollocation:
         self.box = box
         n, N = model.n, intervals
         lay = _Layout(model.n, model.m, intervals, start_kind, target_kind, box)
-        # The dynamics' derivatives (the costly part to compile) depend on the model only.
-        point, how_point = compile_functions(
-            f"direct_point{n}", _point_functions(model) + _interval_functions(n))
-        asm, how_asm = compile_functions(f"direct_asm{n}x{N}", _assembly_functions(model, lay))
+        point, how_point, asm, how_asm = _compiled(model, lay)
         self.compile_status = how_point if how_point == how_asm else \
             f"dynamics {how_point}, assembly {how_asm}"
         funs = _nlp_functions(lay, point, asm, model.tau_max * torque_scale)

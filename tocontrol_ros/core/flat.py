@@ -41,14 +41,14 @@ from scipy import sparse
 from scipy.interpolate import BSpline
 from scipy.sparse.linalg import spsolve
 
-from .compiled import compile_functions
+from .compiled import compile_owned
 from .direct import _Scatter
 from .model import RobotModel
 from .pmp import LawParams
 from .trajectory import TrajectorySample, sample_times
 
 __all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "SET_PAD",
-           "refined_breaks"]
+           "compile_flat", "refined_breaks"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -59,8 +59,6 @@ SET_PAD = 1e-3
 #: its acceleration over one span, which costs time in proportion to the span).
 REFINE_JUMP = 0.1
 
-#: Compiled per-sample functions, per model and degree (building them takes seconds).
-_FUNCTIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def breakpoints(spans: int | np.ndarray) -> np.ndarray:
@@ -103,7 +101,17 @@ def basis(breaks: np.ndarray, degree: int, s: np.ndarray) -> tuple[np.ndarray, n
 def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     """Per-sample functions (SX): torques, the set's value, gradient and weighted Hessian.
 
-    ``z = (vec P_loc, T)`` with ``P_loc`` (n, degree + 1) the span's control points.
+    ``z = (vec P_loc, T)`` with ``P_loc`` (n, degree + 1) the span's control points. The
+    Hessian is assembled through ``y = (q, qd, qdd)`` (3n,), the inverse dynamics' inputs:
+    with ``u = ID(y) / scale``, ``w = mu dc/du`` and ``Ju = du/dy``,
+
+        Hess_z(mu c) = Jy^T (Ju^T diag(mu d2c/du2) Ju + Hess_y(w^T u)) Jy
+                       + sum_j (Ju^T w)_j Hess_z(y_j),
+
+    ``Jy = dy/dz`` being bilinear in ``P`` and ``1/T``. The same matrix as differentiating
+    ``c(z)`` twice, from a graph about half as long (the inverse dynamics is differentiated
+    in its ``3n`` inputs, not in the ``(degree + 1) n + 1`` of ``z``): shorter to compile
+    and to run.
     """
     n, d1 = model.n, degree + 1
     P = ca.SX.sym("P", n, d1)
@@ -112,13 +120,25 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     k = ca.SX.sym("k")
     mu = ca.SX.sym("mu")
     scale = ca.SX.sym("scale", n)
-    q = ca.mtimes(P, b[0, :].T)
-    qd = ca.mtimes(P, b[1, :].T) / T
-    qdd = ca.mtimes(P, b[2, :].T) / T ** 2
-    u = model.rnea_sym(q, qd, qdd) / scale
-    c = ca.sum1(u ** (2 * k))
     z = ca.vertcat(ca.vec(P), T)
-    hess = ca.hessian(mu * c, z)[0]
+    y = ca.vertcat(ca.mtimes(P, b[0, :].T), ca.mtimes(P, b[1, :].T) / T,
+                   ca.mtimes(P, b[2, :].T) / T ** 2)
+    u = model.rnea_sym(y[:n], y[n:2 * n], y[2 * n:]) / scale
+    c = ca.sum1(u ** (2 * k))
+    # The inverse dynamics' derivatives in its own inputs, then evaluated at y(z).
+    ys, vs, gs = ca.SX.sym("y", 3 * n), ca.SX.sym("v", n), ca.SX.sym("g", 3 * n)
+    tau = model.rnea_sym(ys[:n], ys[n:2 * n], ys[2 * n:])
+    jac_id = ca.Function("jac_id", [ys], [ca.jacobian(tau, ys)])
+    hess_id = ca.Function("hess_id", [ys, vs], [ca.hessian(ca.dot(vs, tau), ys)[0]])
+    jy = ca.jacobian(y, z)
+    hess_y = ca.Function("hess_y", [z, b, gs], [ca.hessian(ca.dot(gs, y), z)[0]])
+    ju = jac_id(y) / ca.repmat(scale, 1, 3 * n)
+    w = mu * 2 * k * u ** (2 * k - 1)
+    juz = ca.mtimes(ju, jy)
+    hess = ca.mtimes(juz.T, ca.mtimes(ca.diag(mu * 2 * k * (2 * k - 1) * u ** (2 * k - 2)),
+                                      juz)) \
+        + ca.mtimes(jy.T, ca.mtimes(hess_id(y, w / scale), jy)) \
+        + hess_y(z, b, ca.densify(ca.mtimes(ju.T, w)))
     dz = z.numel()
     upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
     qs, qds, qdds = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
@@ -128,6 +148,15 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
         ca.Function("flat_set_hess", [P, T, b, k, scale, mu], [ca.densify(ca.cse(upper))]),
         ca.Function("flat_id", [qs, qds, qdds, scale],
                     [model.rnea_sym(qs, qds, qdds) / scale])]
+
+
+def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function], str]:
+    """The per-sample functions compiled, once per model and degree (see ``compile_owned``).
+
+    Inside :func:`~tocontrol_ros.core.compiled.parallel_builds` this only starts the build.
+    """
+    return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
+                         lambda: _sample_functions(model, degree))
 
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
@@ -269,10 +298,7 @@ class FlatTranscription:
         br = self.breaks
         K = L + p
         self.K = K
-        cached = _FUNCTIONS.setdefault(model, {})
-        if degree not in cached:
-            cached[degree] = compile_functions(f"flat{n}p{p}", _sample_functions(model, degree))
-        funs, self.compile_status = cached[degree]
+        funs, self.compile_status = compile_flat(model, degree)
         self._set, set_grad, set_hess, self._id = funs
         self.scale = model.tau_max * torque_scale
         frac = np.arange(per_span) / per_span

@@ -59,9 +59,9 @@ from . import compiled
 from .certificate import certify
 from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
-from .direct import DirectCollocation, DirectResult, initial_paths
-from .flat import FlatTranscription
-from .limited import PAD, plan_limited, state_bounds, touches
+from .direct import DirectCollocation, DirectResult, compile_direct, initial_paths
+from .flat import FlatTranscription, compile_flat
+from .limited import PAD, SPANS, plan_limited, state_bounds, touches
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
@@ -163,30 +163,67 @@ class Planner:
         return compiled.generation() != self.generation and compiled.pending_builds() == 0
 
     def prepare(self, problem: Problem, options: SolverOptions | None = None,
-                parallel: bool = True) -> None:
+                parallel: bool = True, shooting: bool = True) -> None:
         """Build and compile what solving problems of ``problem``'s kinds needs.
 
-        The direct transcription, the canonical system's compiled functions (the RK4 step's
-        Jacobian, the plain step, the pointwise evaluation, the switching functions) and the
-        boundary conditions of the start and target kinds: a solve that follows compiles
-        nothing of these. (The certificate's and the bounded solve's functions are built on
-        their first use.) With ``parallel``, a first pass on a scratch copy of this planner
-        only generates the C sources and compiles them on every core at once
-        (:func:`~tocontrol_ros.core.compiled.parallel_builds`); the second finds them in the
-        cache. (Skipped when the cache already holds a library of this model: generating the
-        sources twice costs seconds on a 7-joint arm.)
+        First what every solve starts with: the direct transcription (the guesses) and,
+        when ``problem`` has joint limits, the bounded B-spline transcription; then, with
+        ``shooting``, what the maximum principle's solve needs (:meth:`prepare_shooting`),
+        which a plan whose joint limits bind never uses (:func:`plan` leaves it to the
+        first solve that gets there). With ``parallel``, the C sources are generated first
+        and compiled on every core at once
+        (:func:`~tocontrol_ros.core.compiled.parallel_builds`), then loaded. Without
+        ``shooting`` the bounded transcription is only started: its library builds while
+        the guesses are solved, and the first bounded solve waits for it. (The
+        certificate's functions are built on their first use.)
         """
         options = options or SolverOptions()
-        key = ("prepared", problem.start.kind, problem.target.kind, options.intervals,
-               options.steps, options.guess_intervals, problem.torque_scale)
+        key = ("guess", problem.start.kind, problem.target.kind, options.guess_intervals,
+               problem.torque_scale, problem.limits.active)
+        if key not in self._prepared:
+            model, kinds = self.model, (problem.start.kind, problem.target.kind)
+            if parallel:
+                with compiled.parallel_builds(wait=False):
+                    compile_direct(model, options.guess_intervals, *kinds)
+                    if problem.limits.active:
+                        compile_flat(model)
+            self.direct(problem, options.guess_intervals, tol=options.guess_tol)
+            self._prepared.add(key)
+        if shooting:
+            if problem.limits.active:
+                self.flat(problem, SPANS)
+            self.prepare_shooting(problem, options, parallel)
+
+    def prepare_shooting(self, problem: Problem, options: SolverOptions | None = None,
+                         parallel: bool = True) -> float:
+        """Build and compile the maximum principle's functions for ``problem``'s kinds.
+
+        The canonical system's compiled functions (the RK4 step's Jacobian, the plain step,
+        the pointwise evaluation, the switching functions) and the boundary conditions of
+        the start and target kinds: a solve that follows compiles nothing of these. With
+        ``parallel``, a first pass on a scratch copy of this planner only generates the C
+        sources and compiles them on every core at once; the second finds them in the
+        cache. (Skipped when the cache already holds a library of this model: generating
+        the sources twice costs seconds on a 7-joint arm.)
+
+        Returns
+        -------
+        float
+            Wall time spent here (s): 0 once prepared.
+        """
+        options = options or SolverOptions()
+        key = ("shooting", problem.start.kind, problem.target.kind, options.intervals,
+               options.steps)
         if key in self._prepared:
-            return
+            return 0.0
+        t0 = time.perf_counter()
         name = f"tocontrol_pointwise_{c_name(self.model.name)}_{self.model.n}_"
         if parallel and not compiled.in_cache(name):
             with compiled.parallel_builds():
-                self._scratch()._build_all(problem, options)
-        self._build_all(problem, options)
+                self._scratch()._build_shooting(problem, options)
+        self._build_shooting(problem, options)
         self._prepared.add(key)
+        return time.perf_counter() - t0
 
     def _scratch(self) -> Planner:
         """A planner sharing this one's symbolic system, with empty caches of functions."""
@@ -201,8 +238,8 @@ class Planner:
         scratch._direct, scratch._prepared, scratch._lock = {}, set(), threading.Lock()
         return scratch
 
-    def _build_all(self, problem: Problem, options: SolverOptions) -> None:
-        """The builds of :meth:`prepare`, in this planner's caches."""
+    def _build_shooting(self, problem: Problem, options: SolverOptions) -> None:
+        """The builds of :meth:`prepare_shooting`, in this planner's caches."""
         system = self.system
         if system.stagewise:
             system.rhs_jacobian_function()
@@ -216,7 +253,6 @@ class Planner:
         grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
                             options.steps, problem.start.kind, problem.target.kind)
         grid.compile()
-        self.direct(problem, options.guess_intervals, tol=options.guess_tol)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:
@@ -283,8 +319,8 @@ def plan(problem: Problem, options: SolverOptions | None = None,
     if planner is None or planner.model is not problem.model or planner.stale():
         planner = Planner(problem.model)
         _PLANNERS[id(problem.model)] = planner
-        if not problem.is_trivial():
-            planner.prepare(problem, options)  # the first use of a model: on every core
+        if not problem.is_trivial():  # the first use of a model: on every core
+            planner.prepare(problem, options, shooting=False)
     return planner.plan(problem, options, warm_start, should_stop)
 
 
@@ -345,6 +381,8 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
     try:
         finished = False
         if warm_start is not None:
+            # A planner made since (optimised libraries landed) loads the shooting's first.
+            ctx.extend(planner.prepare_shooting(problem, options))
             run, finished = _warm(ctx, warm_start)
             timings["shooting"] += time.perf_counter() - t_start
             if run is None:
@@ -478,6 +516,9 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ok.sort(key=lambda g: g[3].T)
     if touches(problem, ok[0][3].x):
         return None, list(records.values()), _LIMITS_BIND, ""
+    # The first solve of a model that gets here compiles the shooting's functions (plan()
+    # leaves them out): the time limit is for solving.
+    ctx.extend(planner.prepare_shooting(problem, options))
     distinct = distinct_basins(ok, lambda g: g[3], problem.model.n,
                                revolute_joints(problem.model))
     best = None
