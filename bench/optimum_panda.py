@@ -1,4 +1,4 @@
-"""The best motion on the Panda with its joint limits: the default against the exhaustive mode.
+"""The best motion on the Panda with its joint limits: the default against a denser multistart.
 
 Cases drawn like the joint-limits section's (:func:`bench.limits.draw_cases`, their own
 seed): even cases from a point (the end-effector point of the drawn start configuration)
