@@ -197,11 +197,13 @@ def test_reexecution_reproduces_the_demo(demo, tmp_path, sim_time):
     again = tracker_runs(rerun)
     assert len(again) == 2, again
     if sim_time:
-        # Each plan started on the tracker at the time it was recorded (the replay's clock).
+        # Each plan started on the tracker at the time it was recorded (the replay's clock),
+        # give or take delivery and a control tick: 59 ms were seen under load. On wall time
+        # the starts would be the seconds since the demo ran later.
         planned = [r.log_time * 1e-9 for r in mcap_io.iter_records(
             recording, topics=["/planner/trajectory"])]
         starts = [float(s["start_time"]) for s in tracker_events(rerun, "executing")]
-        assert starts == pytest.approx(planned, abs=0.05)
+        assert starts == pytest.approx(planned, abs=0.25)
     for before, after in zip(original, again, strict=True):
         assert float(after["final_point_error"]) == pytest.approx(
             float(before["final_point_error"]), abs=1e-7)
