@@ -64,7 +64,7 @@ def _lm(model: RobotModel, p: np.ndarray, seed: np.ndarray, phi: float | None = 
 
 
 def _lm_batch(model: RobotModel, p: np.ndarray, seeds: np.ndarray,
-              phis: np.ndarray | None = None, max_iter: int = 200
+              phis: np.ndarray | None = None, max_iter: int = 200, first: bool = False
               ) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg-Marquardt from many seeds at once, within the joint limits.
 
@@ -82,6 +82,8 @@ def _lm_batch(model: RobotModel, p: np.ndarray, seeds: np.ndarray,
         Start configurations (rad or m).
     phis : ndarray, shape (N,), optional
         Planar arms: the absolute angle ``sum q`` each solution must also have (rad).
+    first : bool
+        Stop as soon as one seed has converged (the others keep their last iterate).
 
     Returns
     -------
@@ -109,8 +111,9 @@ def _lm_batch(model: RobotModel, p: np.ndarray, seeds: np.ndarray,
     lam = np.full(N, 1e-3)
     stuck = np.zeros(N, dtype=bool)
     for _ in range(max_iter):
-        active = (cost > (1e-2 * IK_TOL) ** 2) & ~stuck
-        if not active.any():
+        done = cost <= (1e-2 * IK_TOL) ** 2
+        active = ~done & ~stuck
+        if not active.any() or (first and done.any()):
             break
         J = np.array(jac(q.T)).reshape(-1, N, n).transpose(1, 0, 2)  # (N, m, n)
         if phis is not None:
@@ -200,7 +203,8 @@ def solve_ik(model: RobotModel, p, q_seed=None, tries: int = 8,
     p : array_like, shape (m,)
         Task-space point (m).
     q_seed : array_like, shape (n,), optional
-        First seed; random seeds within the limits follow.
+        First seed; random seeds within the limits follow (all solved at once until one
+        converges; the first of those in this order gives the result).
     tries : int
         Number of seeds.
     rng : numpy.random.Generator, optional
@@ -216,11 +220,9 @@ def solve_ik(model: RobotModel, p, q_seed=None, tries: int = 8,
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
     seeds = [np.asarray(q_seed, dtype=float)] if q_seed is not None else []
     seeds += [rng.uniform(lo, hi) for _ in range(tries)]
-    for seed in seeds:
-        q, err = _lm(model, p, seed)
-        if err < IK_TOL:
-            return wrap_angles(q, model)
-    return None
+    q, err = _lm_batch(model, p, np.array(seeds), first=True)
+    ok = np.flatnonzero(err < IK_TOL)
+    return wrap_angles(q[ok[0]], model) if len(ok) else None
 
 
 def ik_family(model: RobotModel, p, count: int = 12,
