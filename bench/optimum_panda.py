@@ -25,7 +25,7 @@ if __name__ == "__main__":
 
 import numpy as np  # noqa: E402
 
-from bench.common import Section, fmt_ms, log, table, timed  # noqa: E402
+from bench.common import Section, log, table, timed  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
 from bench.optimum import GAP_TOL, _optima  # noqa: E402
 from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
@@ -100,7 +100,6 @@ def _section(recs, default) -> Section:
          f"{statistics.median(t_def):.1f} / {max(t_def):.1f}"],
         ["reference plan time median / max (s)",
          f"{statistics.median(t_ref):.1f} / {max(t_ref):.1f}"],
-        ["default plan time median (ms)", fmt_ms(statistics.median(t_def))],
         ["distinct bounded guesses at k = 1 per case (reference) median / min / max",
          f"{statistics.median(direct):g} / {min(direct)} / {max(direct)}" if direct else "—"],
         ["distinct final T of the reference's solved basins median / min / max",
