@@ -6,8 +6,8 @@ leaves the limits, :func:`plan_limited` solves the problem again with the limits
 bounds:
 
 1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
-   from the initial path timed within the velocity limits (the multistart's own guesses,
-   solved within the bounds at ``k = 1``, when it made them; else at the requested ``k``);
+   from the initial path timed within the velocity limits (the multistart's own guesses
+   when it solved them within the bounds at ``k = 1``; else at the requested ``k``);
 2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
    B-spline joint paths whose torques are their inverse dynamics
    (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS` uniform spans (a basin that fails is
@@ -126,7 +126,7 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     pairs = ctx.memo.get("pairs")
     if pairs is None:
         pairs = seed_pairs(problem, options)
-    # The multistart's guesses, solved within these bounds at k = 1, when it made them.
+    # The multistart's guesses, when it solved them within these bounds (at k = 1).
     known = dict(ctx.memo.get("guesses", ()))
     coarse = None
     for idx, (qa, qb) in enumerate(pairs):

@@ -491,20 +491,28 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
-    # With joint limits the guesses keep within them: when they bind, the bounded solve
-    # starts from these guesses (no second round of guesses), and when they don't, a
-    # guess inside its bounds is the unconstrained one.
-    x_bounds = state_bounds(problem, PAD) if problem.limits.active else None
+    # When the first guess reaches the joint limits, it and the others are solved within
+    # them: the bounded solve then starts from these guesses (no second round). Otherwise
+    # they are solved without bounds, as on an arm without limits (bounds that never bind
+    # still move IPOPT's iterates, and with them which basin a guess lands in).
+    bounds = state_bounds(problem, PAD) if problem.limits.active else None
+    x_bounds = None
     guesses = []
     paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
                           np.array([p[1] for p in pairs]), options.guess_intervals,
                           problem.torque_scale, problem.limits.plan_velocity)
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
-        res = direct.solve(problem.start.value, problem.target.value, 1.0, paths[0][idx],
-                           paths[1][idx], paths[2][idx], x_bounds=x_bounds)
+        path = (paths[0][idx], paths[1][idx], paths[2][idx])
+        res = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
+                           x_bounds=x_bounds)
+        if idx == 0 and bounds is not None and res.success and touches(problem, res.x):
+            x_bounds = bounds
+            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
+                               x_bounds=x_bounds)
         guesses.append((idx, qa, qb, res))
-    ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
+    if x_bounds is not None:
+        ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
     timings["guess"] += time.perf_counter() - t0
     ok = [g for g in guesses if g[3].success]
     records = {g[0]: StartRecord(g[0], g[1], g[2], g[3].T if g[3].success else np.nan,
