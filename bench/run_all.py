@@ -23,6 +23,7 @@ fresh temporary cache so that first-run costs are measured, not inherited.
 
 import argparse
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -216,6 +217,11 @@ def _report(args, info, load_start, load_end, sections, total):
     return "\n".join(lines) + "\n"
 
 
+def _stem(title: str) -> str:
+    """A section title without its trailing count in parentheses."""
+    return re.sub(r" \(\d+ [a-z]+\)$", "", title)
+
+
 def _update(text: str, info: dict, sections) -> str:
     """``text`` (a report) with these sections and their target rows replaced or added."""
     head, *parts = text.rstrip("\n").split("\n## ")
@@ -225,7 +231,15 @@ def _update(text: str, info: dict, sections) -> str:
     for s in sections:
         body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}.)", ""]
         body += s.lines + [""]
-        if s.title not in blocks:
+        # The same section run with another count ("... (6 cases)") is replaced, in place.
+        same = [t for t in order if _stem(t) == _stem(s.title)]
+        if same:
+            order[order.index(same[0])] = s.title
+            for t in same[1:]:
+                order.remove(t)
+            for t in same:
+                blocks.pop(t, None)
+        else:
             order.append(s.title)
         blocks[s.title] = "\n".join(body)
     new_targets = [t for s in sections for t in s.targets]
