@@ -232,7 +232,10 @@ def test_bad_trajectories_are_rejected_and_the_arm_holds(harness, model, corrupt
 
 def test_a_new_trajectory_preempts_from_the_current_state(harness, model):
     q0 = np.array(PAPER_START_Q)
-    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 3.0))
+    # 20 s of trajectory time, 1 s of wall time at TIME_SCALE: long enough that the second
+    # message arrives before the first motion ends even on a loaded machine (at 3 s, 0.15 s
+    # of wall time, it once did not and nothing was preempted).
+    harness.pub.publish(motion_msg(model, q0, [0.3, -0.2, 0.3], 20.0))
     harness.status_with("executing trajectory")
     harness.wait(lambda: harness.node.tracker.trajectory_time() > 1.0, "progress")
     assert harness.node.tracker.running
@@ -241,8 +244,8 @@ def test_a_new_trajectory_preempts_from_the_current_state(harness, model):
     harness.pub.publish(motion_msg(model, q_now, [-0.1, 0.1, -0.1], 1.0))
     preempted = harness.status_with("preempted")
     values = _values(preempted)
-    assert values["outcome"] == "preempted" and float(values["duration"]) == pytest.approx(3.0)
-    assert 1.0 < float(values["elapsed"]) < 3.0
+    assert values["outcome"] == "preempted" and float(values["duration"]) == pytest.approx(20.0)
+    assert 1.0 < float(values["elapsed"]) < 20.0
     done = harness.status_with("trajectory completed")
     assert float(_values(done)["duration"]) == pytest.approx(1.0)
     np.testing.assert_allclose(harness.node.tracker.q, q_now + [-0.1, 0.1, -0.1], atol=3e-3)
