@@ -11,9 +11,10 @@ bounds:
 2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
    B-spline joint paths whose torques are their inverse dynamics
    (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS` uniform spans (a basin that fails is
-   replaced by the next); those within :data:`REFINE_WINDOW` of the best are solved again
-   (at most :data:`REFINEMENTS` times) with the spans halved where the acceleration changes
-   (the junctions of arcs);
+   replaced by the next, repeats dropped); those within :data:`REFINE_WINDOW` of the best
+   are solved again level by level (at most :data:`REFINEMENTS` levels) with the spans
+   halved where the acceleration changes (the junctions of arcs), each level leaving
+   behind those too far above the best (:data:`LEVEL_WINDOWS`);
 3. the least ``T`` is verified (re-integration, limits included) and returned with
    ``method="direct"``.
 
@@ -35,7 +36,7 @@ from .direct import DirectResult, initial_path
 from .flat import SET_PAD, FlatResult, FlatTrajectory, FlatTranscription, refined_breaks
 from .problem import Problem
 from .result import PlanResult, StartRecord, Status
-from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, seed_pairs
+from .seeding import EXHAUSTIVE_CANDIDATES, SAME_BASIN, distinct_basins, seed_pairs
 from .verification import fine_sample, limit_warnings, verdict
 
 if TYPE_CHECKING:
@@ -62,11 +63,25 @@ REFINEMENTS = 4
 #: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
 REFINE_WINDOW = 0.02
 
+#: After refinement level ``l`` (0-based), candidates more than ``LEVEL_WINDOWS[l]`` above
+#: the best ``T`` so far stop there: the refinement lowers ``T`` by up to 1.6 % in all, of
+#: which up to 0.2 % after the first level and 4e-5 after the second (the Panda's
+#: candidates; a candidate 0.2 % behind after the first level was the best in the end).
+LEVEL_WINDOWS = (5e-3, 1e-3, 5e-4)
+
 #: Least wall time (s) a refinement level may take (else ten times the level before).
 REFINE_BUDGET = 5.0
 
-#: Refinement stops when ``T`` changes by less than this (relative).
-T_SETTLED = 2e-5
+#: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
+#: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
+#: the level after a change this small would move ``T`` by about 1e-5, a tenth of the
+#: benchmark's 1e-3 against the reference, at the cost of the finest and slowest solve
+#: (about 130 spans: 0.6-6 s, two thirds of a Panda plan's refinement).
+T_SETTLED = 1e-4
+
+#: Two uniform-mesh solutions with ``T`` this close (relative) and the same control points
+#: are one.
+SAME_T = 1e-6
 
 #: The torques between the sample times keep this far inside the control set; the set's
 #: pad (:data:`~tocontrol_ros.core.flat.SET_PAD` at first) is widened at most
@@ -157,15 +172,12 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
                                f"bounded solve failed: {out[0].message}")
         if out[0].success:
             first.append((idx, out))
+    first = _distinct_solutions(first)
     best = None
     if first:
-        cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
-        for idx, out in first:
-            if out[0].T > cutoff:
-                continue
-            res, traj = _refined(planner, ctx, bounds, *out)
+        for idx, res, traj, contender in _race(planner, ctx, bounds, first):
             records[idx] = replace(records[idx], T=res.T)
-            if best is None or res.T < best[1].T:
+            if contender and (best is None or res.T < best[1].T):
                 best = (idx, res, traj)
     timings["shooting"] += time.perf_counter() - t0
     if best is None:
@@ -197,6 +209,22 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         problem=problem, method="direct")
 
 
+def _distinct_solutions(first: list) -> list:
+    """The uniform-mesh solutions less repeats.
+
+    Two guesses of different basins at ``k = 1`` can meet in one B-spline solution (same
+    ``T`` to :data:`SAME_T`, control points within
+    :data:`~tocontrol_ros.core.seeding.SAME_BASIN`), which would be refined twice.
+    """
+    out = []
+    for idx, sol in first:
+        res = sol[0]
+        if not any(abs(res.T - o.T) <= SAME_T * o.T and np.max(np.abs(res.P - o.P)) <= SAME_BASIN
+                   for _, (o, *_) in out):
+            out.append((idx, sol))
+    return out
+
+
 def _budget(ctx: SolveContext, cap: float = np.inf) -> dict:
     """One B-spline solve's limits: the deadline (or ``cap`` seconds, if sooner), the cancel."""
     return {"max_time": max(min(ctx.deadline - time.perf_counter(), cap), 0.0),
@@ -218,34 +246,59 @@ def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult
     return out, FlatTrajectory(flat, out, problem.k), flat
 
 
-def _refined(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
-             traj: FlatTrajectory, flat: FlatTranscription
-             ) -> tuple[FlatResult, FlatTrajectory]:
-    """A B-spline solution solved again with its spans halved at the junctions.
+def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
+    """The uniform-mesh solutions refined level by level, the hopeless ones left behind.
 
-    At most :data:`REFINEMENTS` times; then kept inside the control set between its samples.
+    All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
+    (their spans halved at the junctions, at most :data:`REFINEMENTS` levels, until ``T``
+    changes by less than :data:`T_SETTLED`); after level ``l`` those more than
+    ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Each one kept is then held
+    inside the control set between its samples (:func:`_inside_set`).
+
+    Returns
+    -------
+    list of (int, FlatResult, FlatTrajectory, bool)
+        The seed index, last solve and trajectory of every candidate refined, and whether it
+        is still a contender (within the last window, and held inside the control set).
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
-    for _ in range(REFINEMENTS):
-        breaks = refined_breaks(traj)
-        if len(breaks) == len(traj.breaks):
+    cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
+    # idx -> [result, trajectory, transcription, still refining]
+    race = {idx: [*out, True] for idx, out in first if out[0].T <= cutoff}
+    for level in range(REFINEMENTS):
+        for entry in race.values():
+            out, traj, flat, going = entry
+            if not going:
+                continue
+            breaks = refined_breaks(traj)
+            if len(breaks) == len(traj.breaks):
+                entry[3] = False
+                continue
+            t = np.linspace(0.0, out.T, 8 * (len(breaks) + 8))
+            s = traj.evaluate(t)
+            finer = planner.flat(problem, breaks)
+            # A refinement that takes far longer than the level before it (IPOPT crawling,
+            # seen at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser
+            # one stands.
+            again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds,
+                                **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
+            ctx.check()
+            if not again.success:
+                entry[3] = False
+                continue
+            entry[:] = [again, FlatTrajectory(finer, again, problem.k), finer,
+                        abs(again.T - out.T) > T_SETTLED * again.T]
+        best = min(entry[0].T for entry in race.values())
+        window = LEVEL_WINDOWS[min(level, len(LEVEL_WINDOWS) - 1)]
+        for entry in race.values():
+            if entry[0].T > (1 + window) * best:
+                entry[3] = False
+        if not any(entry[3] for entry in race.values()):
             break
-        t = np.linspace(0.0, out.T, 8 * (len(breaks) + 8))
-        s = traj.evaluate(t)
-        finer = planner.flat(problem, breaks)
-        # A refinement that takes far longer than the level before it (IPOPT crawling, seen
-        # at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser one stands.
-        again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds,
-                            **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
-        ctx.check()
-        if not again.success:
-            break
-        settled = abs(again.T - out.T) <= T_SETTLED * again.T
-        out, traj, flat = again, FlatTrajectory(finer, again, problem.k), finer
-        if settled:
-            break
-    return _inside_set(ctx, bounds, out, traj, flat)
+    cutoff = (1 + LEVEL_WINDOWS[-1]) * min(entry[0].T for entry in race.values())
+    return [(idx, *_inside_set(ctx, bounds, *entry[:3]), True) if entry[0].T <= cutoff
+            else (idx, entry[0], entry[1], False) for idx, entry in race.items()]
 
 
 def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory,
