@@ -227,3 +227,20 @@ def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
     # Fingers opened: the hand's lumped inertia moves, so the dynamics differ.
     q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
     assert not np.allclose(opened.mass_matrix(q), model.mass_matrix(q))
+
+
+# ------------------------------------------------------- the candidates' refinement race
+def test_repeats_of_one_bounded_solution_are_refined_once():
+    from tocontrol_ros.core.flat import FlatResult
+    from tocontrol_ros.core.limited import _distinct_solutions
+
+    P = np.linspace(0.0, 1.0, 12).reshape(4, 3)
+
+    def sol(T, shift=0.0):
+        return (FlatResult(True, "ok", T, P + shift, 0.0, 10, 0.1), None, None)
+
+    first = [(0, sol(0.5)), (3, sol(0.5 * (1 + 1e-8), 1e-5)), (5, sol(0.5, 0.1)),
+             (7, sol(0.6))]
+    kept = _distinct_solutions(first)
+    assert [idx for idx, _ in kept] == [0, 5, 7]
+
