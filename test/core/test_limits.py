@@ -244,3 +244,18 @@ def test_repeats_of_one_bounded_solution_are_refined_once():
     kept = _distinct_solutions(first)
     assert [idx for idx, _ in kept] == [0, 5, 7]
 
+
+
+def test_bounded_solve_at_a_k_that_is_not_an_integer(galicki):
+    """The set is sum |u_i|^(2k): at k = 2.5, u^5 would leave negative torques unbounded.
+
+    (and at k = 2.25 a negative u^4.5 is NaN).
+    """
+    for k in (2.5, 2.25):
+        problem = Problem(galicki, point(P_START), point(P_TARGET), k=k,
+                          limits=_tight(galicki))
+        res = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
+        assert res.success, (k, res.message)
+        assert res.method == "direct"
+        fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 4001))
+        assert np.max(np.sum(np.abs(fine.u) ** (2 * k), axis=1)) <= 1 + 1e-9
