@@ -41,6 +41,12 @@ def _median(fn, runs):
     return float(np.median(times)), out
 
 
+def _resample(t, values, intervals):
+    """``values`` (len(t), d) at ``intervals + 1`` equally spaced times, linearly."""
+    tt = np.linspace(t[0], t[-1], intervals + 1)
+    return np.stack([np.interp(tt, t, c) for c in np.asarray(values).T], axis=1)
+
+
 def run(runs=3) -> Section:
     title = "The Panda against direct collocation (k = 4, its limits enforced)"
     path = panda_urdf()
@@ -66,20 +72,33 @@ def run(runs=3) -> Section:
     ours_err = abs(ours.T - ref.T) / ref.T
     log(f"panda peer: ours {fmt_ms(ours_t)} ms T {ours.T:.6f} ({ours.method}), reference "
         f"T {ref.T:.6f}, error {ours_err:.1e}")
-    rows, matches = [], []
+    peers = []
     for N in MESHES:
         build, dc = timed(lambda n=N: DirectCollocation(model, n, "point", "point"))
         guess = initial_path(model, seed.q_start, seed.q_target, N, problem.torque_scale,
                              problem.limits.plan_velocity)
         t, res = _median(lambda g=guess, d=dc: d.solve(a, b, K, *g, x_bounds=bounds), runs)
-        err = abs(res.T - ref.T) / ref.T if res.success else float("nan")
+        peers.append((N, build, t, res))
+    # The peer's own basin: its finest solution refined on the reference mesh (from the
+    # same seed a direct solve at k = 4 need not land where ours does).
+    finest = [p for p in peers if p[3].success]
+    peer_ref = None
+    if finest:
+        fine = finest[-1][3]
+        peer_ref = ref_dc.solve(a, b, K, fine.T, _resample(fine.t, fine.x, REFERENCE_INTERVALS),
+                                _resample(fine.t, fine.u, REFERENCE_INTERVALS),
+                                x_bounds=bounds)
+    rows, matches = [], []
+    for N, build, t, res in peers:
+        ok = res.success and peer_ref is not None and peer_ref.success
+        err = abs(res.T - peer_ref.T) / peer_ref.T if ok else float("nan")
         log(f"panda peer: HS N = {N}: {fmt_ms(t)} ms, {res.message}, T {res.T:.6f}, "
-            f"error {err:.1e}, {res.iterations} it")
+            f"error {err:.1e} (its basin), {res.iterations} it")
         rows.append([f"Hermite-Simpson, N = {N}", f"{build:.2f}", fmt_ms(t),
                      f"{res.T:.6f}" if res.success else "—", f"{err:.1e}",
                      res.iterations, f"{t / ours_t:.2f}",
                      "ok" if res.success else f"**{res.message}**"])
-        if res.success and err <= max(ours_err, MATCH_FLOOR):
+        if ok and err <= max(ours_err, MATCH_FLOOR):
             matches.append((t, N))
     lines = [
         "The scaling section's Panda task, k = 4, one start, its URDF limits enforced (they "
@@ -88,9 +107,11 @@ def run(runs=3) -> Section:
         "Hermite-Simpson (CasADi + IPOPT, tol 1e-8) at k = 4 with the same bounds at its "
         "mesh points, cold from our seed pair (`initial_path`), median of "
         f"{runs} solves, its build apart; error = |T - T_ref| / T_ref against Hermite-Simpson "
-        f"on {REFERENCE_INTERVALS} intervals started from our solution (T_ref = "
-        f"{ref.T:.6f} s). Ratio = peer / ours (above 1: ours is faster). The peer's bounds "
-        "hold at its mesh points only; ours everywhere.",
+        f"on {REFERENCE_INTERVALS} intervals started from the solution itself (ours: T_ref = "
+        f"{ref.T:.6f} s; the peer's: from its finest mesh, T_ref = "
+        + (f"{peer_ref.T:.6f} s" if peer_ref is not None and peer_ref.success else "—")
+        + "), so each is measured in its own basin. Ratio = peer / ours (above 1: ours is "
+        "faster). The peer's bounds hold at its mesh points only; ours everywhere.",
         "",
     ]
     lines += table(["method", "build (s)", "solve (ms)", "T (s)", "error", "iterations",
@@ -107,6 +128,11 @@ def run(runs=3) -> Section:
         verdict = (f"no mesh up to N = {MESHES[-1]} is as accurate in T as ours "
                    f"({ours_err:.1e}); ours {fmt_ms(ours_t)} ms")
     lines += ["", f"Same accuracy in T: {verdict}."]
+    if peer_ref is not None and peer_ref.success and peer_ref.T < ref.T * (1 - 1e-3):
+        lines += ["", f"Basins: from this seed pair the peer, solved at k = 4 from the "
+                  f"initial path, lands in a faster basin (T_ref {peer_ref.T:.6f} s) than our "
+                  f"single start ({ref.T:.6f} s), which solves the guess at k = 1 first; our "
+                  "default multistart finds the faster one (the scaling section's 4x2 row)."]
     return Section(title, lines, [("Panda: ratio of the direct collocation peer (same "
                                    "accuracy in T) to ours, cold, one start (reported)",
                                    verdict)])
