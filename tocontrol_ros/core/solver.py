@@ -458,8 +458,11 @@ def _fallback(planner: Planner, ctx: SolveContext, timings: dict, t_start: float
     if res.success:
         return res
     timings["total"] = time.perf_counter() - t_start
+    # Its own words (its status, LIMITS_INFEASIBLE, speaks of limits the problem may not have).
+    why_direct = next((r.status for r in res.starts if r.status.startswith("bounded solve")),
+                      res.message)
     return _failure(ctx.problem, status, f"{message}; the direct B-spline method did not "
-                    f"succeed either ({res.message})", timings, records, run)
+                    f"succeed either ({why_direct})", timings, records, run)
 
 
 def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list[str],
