@@ -84,7 +84,7 @@ def _case(label, model, start, target, k, runs, setting="1"):
 def _row(c):
     res = c["res"]
     ph = res.timings
-    status = "ok" if res.success else f"**{res.message}**"
+    status = f"ok ({res.method})" if res.success else f"**{res.message}**"
     t = c["times"]
     if c["compiled_before"]:
         first, compile_cost = f"{fmt_s(c['first'])} (compiled above)", "—"
@@ -98,6 +98,26 @@ def _row(c):
                        for key in ("guess", "shooting", "refine")),
             res.iterations, res.intervals, fmt_t(res.T),
             "stage-wise" if c["stagewise"] else "whole step", status]
+
+
+def _exponents(cases) -> list[str]:
+    """Cold time against n on the planar arms: least-squares ``log t = a + p log n``."""
+    out = []
+    for k in PLANAR_KS:
+        for setting in SETTINGS:
+            pts = [(c["n"], c["median"]) for c in cases if c["k"] == k and
+                   c["setting"] == setting and c["res"].success and np.isfinite(c["median"])]
+            if len(pts) < 3:
+                continue
+            n, t = np.log(np.array(pts, dtype=float)).T
+            p, a = np.polyfit(n, t, 1)
+            out.append(f"- k = {k:g}, starts {setting}: cold time ~ n^{p:.2f} over n = "
+                       f"{', '.join(str(int(round(np.exp(v)))) for v in n)} (the rows that "
+                       f"succeeded; {np.exp(a) * 1e3:.2f} ms x n^{p:.2f})")
+    if out:
+        out.insert(0, "Fitted exponent of the cold time against the number of joints "
+                      "(planar arms, least squares in log-log):")
+    return out
 
 
 def run(runs, panda_runs):
@@ -130,10 +150,15 @@ def run(runs, panda_runs):
         "phases of the last one; a failing solve is repeated once only. *Starts*: `1` = "
         "`starts=1, candidates=1`, `4x2` = `starts=4, candidates=2` (a small multistart: "
         "on the redundant arms the first-ranked seed pair's guess does not always "
-        "converge). Large models use the stage-wise RK4 Jacobian.",
+        "converge). Large models use the stage-wise RK4 Jacobian. *Status*: the method "
+        "of the plan, `indirect` (the maximum principle's shooting) or `direct` (the "
+        "B-spline path of docs/limits.md: the Panda's limits bind, or the shooting failed "
+        "and `direct_fallback` solved it; the other columns then have the bounded solve's "
+        "figures: IPOPT iterations, spans).",
         "",
     ]
     lines += table(header, [_row(c) for c in cases + panda_cases])
+    lines += ["", *_exponents(cases)]
     if panda_cases:
         a = panda_cases[0]["res"].problem
         lines += ["", f"Panda task: q = {list(PANDA_Q_START)} -> {list(PANDA_Q_TARGET)} rad, "

@@ -227,3 +227,35 @@ def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
     # Fingers opened: the hand's lumped inertia moves, so the dynamics differ.
     q = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
     assert not np.allclose(opened.mass_matrix(q), model.mass_matrix(q))
+
+
+# ------------------------------------------------------- the candidates' refinement race
+def test_repeats_of_one_bounded_solution_are_refined_once():
+    from tocontrol_ros.core.flat import FlatResult
+    from tocontrol_ros.core.limited import _distinct_solutions
+
+    P = np.linspace(0.0, 1.0, 12).reshape(4, 3)
+
+    def sol(T, shift=0.0):
+        return (FlatResult(True, "ok", T, P + shift, 0.0, 10, 0.1), None, None)
+
+    first = [(0, sol(0.5)), (3, sol(0.5 * (1 + 1e-8), 1e-5)), (5, sol(0.5, 0.1)),
+             (7, sol(0.6))]
+    kept = _distinct_solutions(first)
+    assert [idx for idx, _ in kept] == [0, 5, 7]
+
+
+
+def test_bounded_solve_at_a_k_that_is_not_an_integer(galicki):
+    """The set is sum |u_i|^(2k): at k = 2.5, u^5 would leave negative torques unbounded.
+
+    (and at k = 2.25 a negative u^4.5 is NaN).
+    """
+    for k in (2.5, 2.25):
+        problem = Problem(galicki, point(P_START), point(P_TARGET), k=k,
+                          limits=_tight(galicki))
+        res = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
+        assert res.success, (k, res.message)
+        assert res.method == "direct"
+        fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 4001))
+        assert np.max(np.sum(np.abs(fine.u) ** (2 * k), axis=1)) <= 1 + 1e-9

@@ -423,8 +423,10 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
     # Constraints: the same expression as the plain transcription.
     defects = X[:, 1:] - X[:, :-1] - h / 6 * (F[:, :-1] + 4 * FM + F[:, 1:])
     g = [ca.vec(defects)]
+    # |u|^(2k): k need not be an integer.
+    absu = ca.fabs(allu)
     if not lay.box:
-        g.append(ca.sum1(allu ** (2 * k)).T - 1)
+        g.append(ca.sum1(absu ** (2 * k)).T - 1)
     for kind, col, offset, size in bounds:
         xc = X[:, col]
         target = par[offset:offset + size]
@@ -438,7 +440,7 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
     for j in range(N):
         sc.block(2 * n * j + np.arange(2 * n), lay.interval(j))
     if not lay.box:
-        values.append(ca.vec(2 * k * allu ** (2 * k - 1)))
+        values.append(ca.vec(2 * k * ca.sign(allu) * absu ** (2 * k - 1)))
         for p in range(2 * N + 1):
             sc.add(lay.r_ctrl + p, lay.u(p))
     for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):
@@ -480,7 +482,7 @@ def _assembly_functions(model: RobotModel, lay: _Layout) -> list[ca.Function]:
         sh.block(lay.z(j), lay.z(j))
     if not lay.box:
         mu = lam_g[lay.r_ctrl:lay.r_ctrl + lay.n_ctrl].T
-        values.append(ca.vec(2 * k * (2 * k - 1) * allu ** (2 * k - 2) * ca.repmat(mu, n, 1)))
+        values.append(ca.vec(2 * k * (2 * k - 1) * absu ** (2 * k - 2) * ca.repmat(mu, n, 1)))
         for p in range(2 * N + 1):
             sh.add(lay.u(p), lay.u(p))
     for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):

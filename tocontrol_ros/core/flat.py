@@ -124,7 +124,10 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     y = ca.vertcat(ca.mtimes(P, b[0, :].T), ca.mtimes(P, b[1, :].T) / T,
                    ca.mtimes(P, b[2, :].T) / T ** 2)
     u = model.rnea_sym(y[:n], y[n:2 * n], y[2 * n:]) / scale
-    c = ca.sum1(u ** (2 * k))
+    # |u|^(2k): k need not be an integer (u^5 at k = 2.5 would leave negative torques
+    # unbounded, and u^4.5 of a negative u is NaN).
+    au = ca.fabs(u)
+    c = ca.sum1(au ** (2 * k))
     # The inverse dynamics' derivatives in its own inputs, then evaluated at y(z).
     ys, vs, gs = ca.SX.sym("y", 3 * n), ca.SX.sym("v", n), ca.SX.sym("g", 3 * n)
     tau = model.rnea_sym(ys[:n], ys[n:2 * n], ys[2 * n:])
@@ -133,9 +136,9 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     jy = ca.jacobian(y, z)
     hess_y = ca.Function("hess_y", [z, b, gs], [ca.hessian(ca.dot(gs, y), z)[0]])
     ju = jac_id(y) / ca.repmat(scale, 1, 3 * n)
-    w = mu * 2 * k * u ** (2 * k - 1)
+    w = mu * 2 * k * ca.sign(u) * au ** (2 * k - 1)
     juz = ca.mtimes(ju, jy)
-    hess = ca.mtimes(juz.T, ca.mtimes(ca.diag(mu * 2 * k * (2 * k - 1) * u ** (2 * k - 2)),
+    hess = ca.mtimes(juz.T, ca.mtimes(ca.diag(mu * 2 * k * (2 * k - 1) * au ** (2 * k - 2)),
                                       juz)) \
         + ca.mtimes(jy.T, ca.mtimes(hess_id(y, w / scale), jy)) \
         + hess_y(z, b, ca.densify(ca.mtimes(ju.T, w)))
@@ -611,12 +614,12 @@ class FlatTrajectory:
         return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
 
     def set_values(self, points: int = 32) -> np.ndarray:
-        """``sum_i u_i^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
         br = self.breaks
         frac = (np.arange(points) + 0.5) / points
         s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
         u = self.control_at(s * self.T)
-        return np.sum(u ** (2 * self.law.k), axis=1)
+        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
 
     def state(self, t) -> np.ndarray:
         """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""

@@ -129,12 +129,16 @@ def state_bounds(problem: Problem, pad: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
-                 notes: list[str]) -> PlanResult:
-    """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module)."""
+                 notes: list[str], reason: str | None = None) -> PlanResult:
+    """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
+
+    ``reason`` replaces the note that the limits bind (the solve is also the fallback of a
+    failed shooting, :attr:`SolverOptions.direct_fallback`).
+    """
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
-    notes = list(notes) + ["joint limits bind: solved as a B-spline path with hard bounds "
-                           "(docs/limits.md)"]
+    notes = list(notes) + [reason or "joint limits bind: solved as a B-spline path with "
+                           "hard bounds (docs/limits.md)"]
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
     records, solved = [], []

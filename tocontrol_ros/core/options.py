@@ -89,6 +89,14 @@ class SolverOptions:
         tolerances, ``tol`` its residual tolerance.
     time_limit : float
         Wall-time budget (s); the best result so far is reported when it runs out.
+    direct_fallback : bool
+        When the maximum principle's shooting fails on every candidate (Newton at ``k = 1``
+        or the continuation in ``k``: seen on planar arms of 5-8 links), solve the same
+        problem as a B-spline path with its torques as inverse dynamics
+        (``docs/limits.md``, the method of plans whose joint limits bind) from the same
+        guesses. The result then says ``method="direct"``, and its warnings name the
+        shooting's failure; it is certified like any other. ``False`` reports the
+        shooting's failure instead.
     """
 
     tol: float = 1e-10
@@ -113,6 +121,7 @@ class SolverOptions:
     verify_velocity_tol: float = 1e-3
     time_limit: float = 60.0
     certificate: CertificateOptions | None = None
+    direct_fallback: bool = True
 
     def __post_init__(self) -> None:
         positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",

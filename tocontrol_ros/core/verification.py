@@ -70,7 +70,7 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
     planned_end = trajectory.state(trajectory.T)[0, :2 * n]
     pos_viol, vel_viol = problem.limits.violations(sol.y[:n].T, sol.y[n:2 * n].T)
     k = trajectory.law.k
-    set_err = np.abs(np.sum(sample.u ** (2 * k), axis=1) - 1)
+    set_err = np.abs(np.sum(np.abs(sample.u) ** (2 * k), axis=1) - 1)
     return {
         "point_error": float(np.linalg.norm(model.point(x_end[:n]) - problem.target_point)),
         "state_error": float(np.max(np.abs(x_end - planned_end))),
