@@ -5,14 +5,15 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,optimum,optimum_panda,scaling,first_use,verification,
-                deployed,batch,limits]
+        [--only paper,peers,random,optimum,optimum_panda,scaling,panda_peer,first_use,
+                verification,deployed,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
 ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default multistart against the
 exhaustive reference on 100 seeded pairs, about half an hour), ``optimum_panda`` (the same on the
-Panda with its joint limits), ``scaling`` (planar arms of 2 to 8 links, the Panda), ``first_use``
+Panda with its joint limits), ``scaling`` (planar arms of 2 to 8 links, the Panda),
+``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation), ``first_use``
 (the Panda's compile routes, each in a new process with an empty cache), ``verification`` (the
 certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
 processes: idle CPU and ~/plan round trip against the same request in-process), ``batch`` (batch
@@ -37,7 +38,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "scaling", "first_use",
+PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "scaling", "panda_peer",
+         "first_use",
          "verification", "deployed", "batch", "limits")
 
 
@@ -113,6 +115,7 @@ def _run(args):
         limits,
         optimum,
         optimum_panda,
+        panda_peer,
         paper,
         peers,
         random_pairs,
@@ -158,6 +161,8 @@ def _run(args):
             scaling.PLANAR_NS = (2, 3, 5)
         section(lambda: scaling.run(runs=3 if args.quick else 5,
                                     panda_runs=1 if args.quick else 2))
+    if "panda_peer" in args.only:
+        section(lambda: panda_peer.run(runs=1 if args.quick else 3))
     if "first_use" in args.only:
         section(lambda: first_use.run(runs=1 if args.quick else 3))
     if "verification" in args.only:
