@@ -227,16 +227,3 @@ def test_leaving_candidates_behind_keeps_the_best_motion(panda, monkeypatch):
     # Narrow: only the best after the first level goes on (fewer solves), T still near.
     assert runs["narrow"][1] < runs["none"][1]
     assert runs["narrow"][0] == pytest.approx(runs["none"][0], rel=2e-3)
-
-
-def test_bounded_guesses_at_the_requested_k_find_the_faster_basin(panda):
-    """One start on the Panda task of bench/scaling.py: the guess solved at k = 4 from its
-    initial path leads to T ~ 0.2578 s; from the multistart's k = 1 solution the B-spline
-    solve stayed in a basin of T ~ 0.2795 s (what bench/panda_peer.py's Hermite-Simpson
-    peer from the same seed showed)."""
-    a = panda.point(np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]))
-    b = panda.point(np.array([0.8, 0.2, 0.3, -1.6, 0.2, 1.8, 0.5]))
-    res = plan(Problem(panda, point(a), point(b), k=4.0),
-               SolverOptions(starts=1, candidates=1, verify=False, time_limit=600.0))
-    assert res.success and res.method == "direct", res.message
-    assert res.T < 0.265

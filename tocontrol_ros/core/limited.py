@@ -5,9 +5,9 @@ direct guess comes within :data:`TOUCH` of a joint limit (:func:`touches`), or i
 leaves the limits, :func:`plan_limited` solves the problem again with the limits as hard
 bounds:
 
-1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points
-   at the requested ``k``, from the initial path timed within the velocity limits (at
-   ``k = 1``, the multistart's own guesses when it solved them within the bounds);
+1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
+   from the initial path timed within the velocity limits (the multistart's own guesses
+   when it solved them within the bounds at ``k = 1``; else at the requested ``k``);
 2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
    B-spline joint paths whose torques are their inverse dynamics
    (:mod:`~tocontrol_ros.core.flat`) on :data:`SPANS` uniform spans (a basin that fails is
@@ -145,11 +145,8 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     pairs = ctx.memo.get("pairs")
     if pairs is None:
         pairs = seed_pairs(problem, options)
-    # The multistart's guesses (solved at k = 1) only at k = 1: above, each guess is solved
-    # at the requested k from its initial path, which lands in faster basins (the Panda
-    # task of bench/scaling.py, one start: T = 0.2578 s instead of 0.2795 s from the k = 1
-    # solution, in the same time; a Hermite-Simpson peer from the same seed found it).
-    known = dict(ctx.memo.get("guesses", ())) if problem.k == 1 else {}
+    # The multistart's guesses, when it solved them within these bounds (at k = 1).
+    known = dict(ctx.memo.get("guesses", ()))
     coarse = None
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
