@@ -17,6 +17,7 @@ fingers locked, its URDF limits enforced, which bind), k = 4, points to points:
 """
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from bench.common import PANDA_LOCKED, Section, fmt_ms, log, panda_urdf, table, timed
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET
@@ -43,8 +44,7 @@ def _median(fn, runs):
 
 def _resample(t, values, intervals):
     """``values`` (len(t), d) at ``intervals + 1`` equally spaced times, linearly."""
-    tt = np.linspace(t[0], t[-1], intervals + 1)
-    return np.stack([np.interp(tt, t, c) for c in np.asarray(values).T], axis=1)
+    return make_interp_spline(t, values, k=1)(np.linspace(t[0], t[-1], intervals + 1))
 
 
 def run(runs=3) -> Section:

@@ -53,6 +53,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 from scipy.sparse.linalg import splu
 
 from . import compiled
@@ -623,10 +624,12 @@ def _finer_guess(planner: Planner, problem: Problem, coarse: DirectResult) -> Di
     interpolated.
     """
     direct = planner.direct(problem, FINE_GUESS_INTERVALS, tol=FINE_GUESS_TOL)
-    t = np.linspace(0.0, coarse.T, FINE_GUESS_INTERVALS + 1)
-    x = np.stack([np.interp(t, coarse.t, c) for c in coarse.x.T], axis=1)
-    u = np.stack([np.interp(t, coarse.t, c) for c in coarse.u.T], axis=1)
-    return direct.solve(problem.start.value, problem.target.value, 1.0, coarse.T, x, u)
+    # States and controls interpolated linearly onto the finer mesh.
+    linear = make_interp_spline(coarse.t, np.hstack([coarse.x, coarse.u]), k=1)
+    xu = linear(np.linspace(0.0, coarse.T, FINE_GUESS_INTERVALS + 1))
+    n2 = coarse.x.shape[1]
+    return direct.solve(problem.start.value, problem.target.value, 1.0, coarse.T,
+                        xu[:, :n2], xu[:, n2:])
 
 
 def _time_ratio_bound(n: int, k: float) -> float:
