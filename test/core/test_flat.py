@@ -8,6 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
 from tocontrol_ros.core.direct import DirectCollocation
@@ -169,6 +170,51 @@ def test_refined_breaks_keep_the_old_ones(panda_limited):
     new = refined_breaks(traj)
     assert np.all(np.isin(traj.breaks, new))
     assert new[0] == 0.0 and new[-1] == 1.0 and np.all(np.diff(new) > 0)
+
+
+def test_control_points_on_finer_breaks_keep_the_path_exactly(panda_limited):
+    traj = panda_limited.trajectory
+    new = refined_breaks(traj, threshold=0.0, parts=3)  # every span in thirds
+    P = traj.control_points_on(new)
+    assert P.shape == (len(new) - 1 + 3, traj.n)
+    finer = BSpline(np.concatenate([[0.0] * 3, new, [1.0] * 3]), P, 3)
+    s = np.linspace(0.0, 1.0, 997)
+    for order in range(3):  # positions, velocities, accelerations: the same torques
+        old = traj._spl.derivative(order)(s) if order else traj._spl(s)
+        got = finer.derivative(order)(s) if order else finer(s)
+        assert np.max(np.abs(got - old)) <= 1e-9 * max(1.0, np.max(np.abs(old)))
+    with pytest.raises(ValueError, match="own breakpoints"):
+        traj.control_points_on(np.linspace(0.0, 1.0, 7))
+
+
+def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypatch):
+    """Each refinement level lowers T (or keeps it): solved warm from the coarser path.
+
+    A Panda problem (points, k = 4, its limits) whose first refinement, solved with IPOPT's
+    defaults from a least-squares fit of the coarse path, rose 0.9 % in T (another basin)
+    and whose next level left the solution (T 0.54 s) and crawled at 1.5 s per iteration.
+    """
+    from tocontrol_ros.core import flat
+
+    qa = np.array([0.223, -0.589, 0.124, -2.499, 0.002, 1.962, 0.622])
+    qb = np.array([0.695, 0.384, 0.19, -1.811, 0.319, 1.769, 0.679])
+    problem = Problem(panda, point(panda.point(qa)), point(panda.point(qb)), k=4.0)
+    solves = []
+    original = flat.FlatTranscription.solve
+
+    def recorded(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        solves.append((self.spans, out.T, out.success))
+        return out
+
+    monkeypatch.setattr(flat.FlatTranscription, "solve", recorded)
+    res = plan(problem, SolverOptions(starts=1, candidates=1, verify=False,
+                                      time_limit=SLOW_OK))
+    assert res.success and res.method == "direct", res.message
+    assert len(solves) >= 3 and all(ok for _, _, ok in solves), solves
+    for (_, before, _), (_, after, _) in zip(solves, solves[1:], strict=False):
+        assert after <= before * (1 + 1e-4), solves
+    assert res.T == pytest.approx(solves[-1][1], rel=1e-12)
 
 
 @pytest.mark.slow

@@ -19,8 +19,8 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
 - the control set at ``S`` sample times (``per_span`` per span and ``s = 1``):
   ``sum_i u_i^(2k) <= 1 - SET_PAD``;
 - the joint limits at every time, linear in ``w`` through the convex hull of the control
-  points and of the derivative's: ``lower <= P_j <= upper`` and
-  ``-v T <= p (P_j+1 - P_j) / (t_j+p+1 - t_j+1) <= v T``;
+  points and of the derivative's: ``lower <= P_j <= upper`` (bounds on the variables) and
+  ``-v T <= p (P_j+1 - P_j) / (t_j+p+1 - t_j+1) <= v T`` (linear rows);
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
   target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
 
@@ -48,7 +48,7 @@ from .pmp import LawParams
 from .trajectory import TrajectorySample, sample_times
 
 __all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "SET_PAD",
-           "compile_flat", "refined_breaks"]
+           "WARM_MU", "WARM_PUSH", "compile_flat", "refined_breaks"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -59,6 +59,15 @@ SET_PAD = 1e-3
 #: its acceleration over one span, which costs time in proportion to the span).
 REFINE_JUMP = 0.1
 
+#: IPOPT's first barrier parameter on a mesh whose solves start at a nearby solution
+#: (``FlatTranscription(warm=True)``), decreased monotonically, and how far (absolute and
+#: relative) the start is moved inside its bounds. With IPOPT's defaults (adaptive
+#: barrier from 0.1, 1 % inside the bounds) the first steps of a refined Panda solve left
+#: the solution (T 0.2756 -> 0.54 s) and then crawled (1.5 s per iteration at 132 spans);
+#: measured on 8 Panda problems with its limits (one start): 70 s in all and 33 s at most
+#: with the defaults, 14.6 s and 2.8 s with these (mu 1e-4: 48 s; 1e-5: 17 s).
+WARM_MU = 1e-6
+WARM_PUSH = 1e-6
 
 
 def breakpoints(spans: int | np.ndarray) -> np.ndarray:
@@ -287,11 +296,18 @@ class FlatTranscription:
         IPOPT tolerance.
     max_iter : int
         IPOPT iteration limit.
+    warm : bool
+        Every solve starts at a solution of a nearby problem (a refined mesh, solved from
+        the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with a
+        monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
+        instead of starting at ``mu = 0.1`` 1 % inside them, which first leaves the
+        solution (see :data:`WARM_MU`).
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
-                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300) -> None:
+                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
+                 warm: bool = False) -> None:
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
@@ -325,9 +341,9 @@ class FlatTranscription:
         bcat = ca.DM(np.concatenate(list(b), axis=1))  # (3, (p + 1) S)
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
-        # Linear rows: the convex hull of the control points (and of the derivative's),
-        # bounds that hold at every time, not only at the samples.
-        B0 = np.eye(K)
+        # Linear rows: the convex hull of the derivative's control points, bounds that hold
+        # at every time, not only at the samples (the control points' own hull is bounds on
+        # the variables: no rows, see ``bounds``).
         tk = knots(br, p)
         c = p / (tk[p + 1:p + K] - tk[1:K])
         B1 = np.zeros((K - 1, K))
@@ -337,8 +353,7 @@ class FlatTranscription:
         rows, cols, vals = [], [], []
         self._lin_kind = []
         r0 = 0
-        for i, block, kind in [(i, B0, "q") for i in range(n)] + [
-                (i, B1, s) for i in range(n) for s in ("v", "V")]:
+        for i, block, kind in [(i, B1, s) for i in range(n) for s in ("v", "V")]:
             br_, bc_ = np.nonzero(block)
             rows.append(r0 + br_)
             cols.append(i + n * bc_)
@@ -349,8 +364,8 @@ class FlatTranscription:
         vpar = ca.MX.sym("v", n)
         A_P = ca.DM.triplet(np.concatenate(rows).tolist(), np.concatenate(cols).tolist(),
                             ca.DM(np.concatenate(vals)), r0, nw)
-        Tcoef = ca.vertcat(ca.MX.zeros(n * len(B0)), *[
-            ca.repmat(sign * vpar[i], len(B1), 1) for i in range(n) for sign in (+1, -1)])
+        Tcoef = ca.vertcat(*[ca.repmat(sign * vpar[i], len(B1), 1)
+                             for i in range(n) for sign in (+1, -1)])
         g_lin = ca.mtimes(A_P[:, :iT], w[:iT]) + Tcoef * T
 
         # Boundary rows.
@@ -412,6 +427,10 @@ class FlatTranscription:
                 "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar), lam_f, lam_g],
                                         [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+        if warm:
+            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU, **{
+                f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
+                                                     "slack_bound_push", "slack_bound_frac")}})
         allp = ca.vertcat(par, vpar)
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
@@ -419,8 +438,12 @@ class FlatTranscription:
         self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
 
     def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD
-               ) -> tuple[np.ndarray, np.ndarray]:
-        """``lbg``, ``ubg`` for state bounds (2n,) (infinite entries: none)."""
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``lbg``, ``ubg``, ``lbx``, ``ubx`` for state bounds (2n,) (infinite entries: none).
+
+        The position bounds are bounds on the control points (variables, not rows); ``T``
+        is at least 1 ms.
+        """
         n = self.model.n
         ng_set, ng_lin, ng_b = self._rows
         lbg = np.concatenate([np.full(ng_set, -np.inf), np.zeros(ng_lin), np.zeros(ng_b)])
@@ -429,16 +452,18 @@ class FlatTranscription:
         r = ng_set
         for kind, i, count in self._lin_kind:
             rows = slice(r, r + count)
-            if kind == "q":
-                lbg[rows], ubg[rows] = lower[i], upper[i]
-            elif kind == "v":
-                ubg[rows] = np.inf if np.isfinite(upper[n + i]) else np.inf
-                lbg[rows] = 0.0 if np.isfinite(upper[n + i]) else -np.inf
-            else:
-                lbg[rows] = -np.inf
-                ubg[rows] = 0.0 if np.isfinite(upper[n + i]) else np.inf
+            finite = np.isfinite(upper[n + i])
+            if kind == "v":  # B1 P + v T >= 0
+                lbg[rows], ubg[rows] = (0.0 if finite else -np.inf), np.inf
+            else:  # B1 P - v T <= 0
+                lbg[rows], ubg[rows] = -np.inf, (0.0 if finite else np.inf)
             r += count
-        return np.where(np.isfinite(lbg), lbg, -1e20), np.where(np.isfinite(ubg), ubg, 1e20)
+        lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
+        ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
+
+        def big(v):
+            return np.where(np.isfinite(v), v, np.copysign(1e20, v))
+        return big(lbg), big(ubg), big(lbx), big(ubx)
 
     def fit(self, T: float, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Least-squares control points (K, n) of a path given at times ``t`` (s).
@@ -497,11 +522,8 @@ class FlatTranscription:
         n = self.model.n
         vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
         par = np.concatenate([start_value, target_value, [k], vmax])
-        lbg, ubg = self.bounds(lower, upper, set_pad)
+        lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
-        lbx = np.full(self._nw, -1e20)
-        ubx = np.full(self._nw, 1e20)
-        lbx[self._iT] = 1e-3
         t0 = time.perf_counter()
         self._interrupt.arm(t0 + max_time, should_stop)
         try:
@@ -512,7 +534,8 @@ class FlatTranscription:
         stats = self.solver.stats()
         w = np.array(sol["x"]).ravel()
         g = np.array(self._g(w, par)).ravel()
-        resid = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0))))
+        resid = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                          np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
         return FlatResult(
             success=bool(stats["success"]), message=str(stats["return_status"]),
             T=float(w[-1]), P=w[:-1].reshape(self.K, n), residual=resid,
@@ -563,6 +586,23 @@ class FlatTrajectory:
         self.t_grid = self.breaks * self.T
         x = self._path(self.t_grid)[:2]
         self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
+
+    def control_points_on(self, breaks: np.ndarray) -> np.ndarray:
+        """The same path's control points (K', n) on finer breakpoints (exact).
+
+        ``breaks`` must hold this path's breakpoints: the new ones are inserted as knots
+        (Boehm), which keeps the path, its velocities and accelerations, and so its torques,
+        exactly, where a least-squares fit on a mesh with short spans changes the
+        accelerations (a fit's constraint violation was 425 at the start of a refined
+        Panda solve, and IPOPT then wandered off).
+        """
+        spl = self._spl
+        for x in np.setdiff1d(breaks, self.breaks):
+            spl = spl.insert_knot(float(x))
+        if len(spl.t) != len(breaks) + 2 * self._degree or not np.allclose(
+                spl.t, knots(breaks, self._degree), rtol=0.0, atol=1e-14):
+            raise ValueError("`breaks` must contain the path's own breakpoints")
+        return np.asarray(spl.c)
 
     def _path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T) / self.T
@@ -648,7 +688,8 @@ class FlatTrajectory:
         return self._controls(*self._path(t))
 
 
-def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
+def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP,
+                   parts: int = 2) -> np.ndarray:
     """The breakpoints with every span halved where the motion changes its acceleration.
 
     A span is halved when, for some joint, the acceleration at its two ends differs by more
@@ -666,4 +707,6 @@ def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -
     acc = trajectory._path(br * T)[2] / scale
     jump = np.max(np.abs(np.diff(acc, axis=0)), axis=1)
     split = jump > threshold
-    return np.union1d(br, 0.5 * (br[:-1] + br[1:])[split])
+    frac = np.arange(1, parts) / parts
+    new = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None])[split]
+    return np.union1d(br, new.ravel())

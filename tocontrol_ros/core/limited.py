@@ -279,13 +279,11 @@ def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
             if len(breaks) == len(traj.breaks):
                 entry[3] = False
                 continue
-            t = np.linspace(0.0, out.T, 8 * (len(breaks) + 8))
-            s = traj.evaluate(t)
             finer = planner.flat(problem, breaks)
             # A refinement that takes far longer than the level before it (IPOPT crawling,
             # seen at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser
             # one stands.
-            again = finer.solve(*values, out.T, finer.fit(out.T, t, s.q, s.qd), *bounds,
+            again = finer.solve(*values, out.T, traj.control_points_on(breaks), *bounds,
                                 **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
             ctx.check()
             if not again.success:
@@ -309,8 +307,9 @@ def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory
                 flat) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.
 
-    At most :data:`PAD_ROUNDS` re-solves, each from the last solution; a re-solve that
-    fails (IPOPT's step computation, seen on the xArm7) is tried again with a wider pad.
+    At most :data:`PAD_ROUNDS` re-solves, each from the last solution and within the
+    refinement's time cap; a re-solve that fails (IPOPT's step computation, seen on the
+    xArm7) is tried again with a wider pad.
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
@@ -320,7 +319,8 @@ def _inside_set(ctx: SolveContext, bounds, out: FlatResult, traj: FlatTrajectory
         if excess <= 0.0:
             break
         pad += 2.0 * excess
-        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad, **_budget(ctx))
+        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
+                           **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
         ctx.check()
         if again.success:
             out, traj = again, FlatTrajectory(flat, again, problem.k)

@@ -271,11 +271,14 @@ class Planner:
         """The bounded B-spline transcription for this problem's kinds.
 
         Cached for a number of uniform ``spans``; built anew for given breakpoints (the
-        refined meshes, which are particular to one motion).
+        refined meshes, which are particular to one motion, and solved warm:
+        ``FlatTranscription(warm=True)``).
         """
         def build() -> FlatTranscription:
+            # A refined mesh is only solved from the coarser one's solution.
             return FlatTranscription(self.model, spans, problem.start.kind,
-                                     problem.target.kind, torque_scale=problem.torque_scale)
+                                     problem.target.kind, torque_scale=problem.torque_scale,
+                                     warm=np.ndim(spans) != 0)
         if np.ndim(spans) != 0:
             return build()
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
