@@ -252,17 +252,27 @@ def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     assert not _gravity_free(upright, q)
 
 
-def test_a_failed_shooting_falls_back_to_the_direct_method():
+def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     """The planar 5R, one start, default guess: the continuation in k stalls (at k = 1.56)
     from the coarse guess and from the finer one; the same problem is then solved as a
-    B-spline path (method "direct"), certified, and the warnings say why. Without the
-    fallback the shooting's failure is reported."""
+    B-spline path (method "direct") from the finer guess, certified, and the warnings say
+    why. Without the fallback the shooting's failure is reported."""
+    from tocontrol_ros.core import limited
     from tocontrol_ros.core.model import load_robot
-    from tocontrol_ros.core.solver import Status
+    from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
 
     model = load_robot(_planar_urdf(5))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
+    started = []
+    original = limited._uniform
+
+    def uniform(planner, ctx, bounds, guess):
+        started.append(len(guess.t) - 1)
+        return original(planner, ctx, bounds, guess)
+
+    monkeypatch.setattr(limited, "_uniform", uniform)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
+    assert started == [FINE_GUESS_INTERVALS]
     assert res.success, res.message
     assert res.method == "direct"
     assert res.certificate is not None and res.certificate.passed

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 from scipy import sparse
-from scipy.interpolate import BSpline
+from scipy.interpolate import BSpline, CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
 from .compiled import compile_owned
@@ -468,17 +468,20 @@ class FlatTranscription:
     def fit(self, T: float, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Least-squares control points (K, n) of a path given at times ``t`` (s).
 
-        The positions and velocities ``q``, ``qd`` (len(t), n) are interpolated linearly to
-        four times as many times as there are control points, so that the fit is
-        determined whatever the number of given times.
+        The positions and velocities ``q``, ``qd`` (len(t), n) are interpolated to four
+        times as many times as there are control points, so that the fit is determined
+        whatever the number of given times: by the cubic Hermite interpolant of both (the
+        state of a Hermite-Simpson solution between its mesh points; linear interpolation
+        of each, whose kinks the spline followed with accelerations, started the planar 8R's
+        fallback with torques 30 times the set's).
         """
         t = np.asarray(t, dtype=float)
         if len(t) >= 4 * self.K:
             tf, qf, vf = t, np.asarray(q), np.asarray(qd)
         else:
             tf = np.linspace(0.0, T, 4 * self.K)
-            qf = np.stack([np.interp(tf, t, c) for c in np.asarray(q).T], axis=1)
-            vf = np.stack([np.interp(tf, t, c) for c in np.asarray(qd).T], axis=1)
+            path = CubicHermiteSpline(t, np.asarray(q), np.asarray(qd))
+            qf, vf = path(tf), path(tf, 1)
         span, b = basis(self.breaks, self.degree, tf / T)
         # Banded rows (degree + 1 per time): solved through sparse normal equations, which
         # stay well conditioned for a B-spline basis sampled this densely.

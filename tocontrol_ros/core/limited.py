@@ -147,6 +147,8 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
         pairs = seed_pairs(problem, options)
     # The multistart's guesses, when it solved them within these bounds (at k = 1).
     known = dict(ctx.memo.get("guesses", ()))
+    # After a failed shooting, the guess it was retried from (finer, tighter).
+    known.update(ctx.memo.get("finer", {}))
     coarse = None
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
