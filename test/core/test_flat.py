@@ -217,6 +217,34 @@ def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypa
     assert res.T == pytest.approx(solves[-1][1], rel=1e-12)
 
 
+def test_torques_between_samples_are_brought_inside_the_set(panda):
+    """Case 34 of bench/limits.py's Panda: the refined solution's torques leave the set
+    between its samples by 1.7e-3; the re-solves with a wider pad, from the warm start of
+    the refined mesh, all failed and the plan failed its certificate. They now start as
+    IPOPT does by default, and the plan is certified."""
+    from tocontrol_ros.core import flat
+
+    q0 = np.array([-0.5338229825970606, 0.30773567715355116, 0.7863894957580588,
+                   -1.2204077330213567, -0.8281207701729179, 1.6282500082433669,
+                   -2.552027336517661])
+    target = np.array([0.5091020144428229, 0.23647708130297732, 0.14495267618112728])
+    problem = Problem(panda, joint_state(q0, np.zeros(7)), point(target), k=4.0)
+    pads = []
+    original = flat.FlatTranscription.solve
+
+    def recorded(self, *args, **kwargs):
+        pads.append((kwargs.get("set_pad", flat.SET_PAD), self.warm))
+        return original(self, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(flat.FlatTranscription, "solve", recorded)
+        res = plan(problem, replace(OPTIONS, starts=4, candidates=1))
+    assert res.success, res.message
+    assert res.certificate.passed and res.method == "direct"
+    widened = [warm for pad, warm in pads if pad > flat.SET_PAD]
+    assert widened and not any(widened)
+
+
 @pytest.mark.slow
 def test_panda_point_to_point_keeps_its_limits(panda):
     problem = Problem(panda, point(panda.point(PANDA_Q0)), point(panda.point(PANDA_Q1)), k=4.0)
