@@ -21,6 +21,7 @@ import rclpy.executors
 from diagnostic_msgs.msg import DiagnosticStatus
 from node_process import NodeProcess
 from planner_harness import PlannerClient
+from sensor_msgs.msg import JointState
 
 from tocontrol_ros import qos
 from tocontrol_ros.core.model import load_robot
@@ -90,9 +91,15 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
         while not client.plan_client.wait_for_service(timeout_sec=1.0):
             assert planner.proc.poll() is None, planner.log.read_text()[-3000:]
             assert time.monotonic() < deadline, planner.log.read_text()[-3000:]
-        # The goal goes once the planner has the arm's joint states (it plans from them).
+        # The goal goes once the planner has the arm's joint states (it plans from them):
+        # once they flow (the tracker starts publishing after its own warm-up, which under
+        # load came after a fixed second: "no recent joint state" in a slow-suite run).
         since = len(client.status_list())
         client.wait_subscribed(client.goal_pub, 60.0)
+        states = []
+        client.node.create_subscription(JointState, "/joint_states", states.append,
+                                        qos.RELIABLE)
+        client.wait_for(lambda: len(states) >= 5, FIRST_PLAN, "the tracker's joint states")
         time.sleep(1.0)
         client.send_goal(goal, frame="panda_link0")
         status = client.final_status(since, FIRST_PLAN + 60.0)
