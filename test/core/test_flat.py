@@ -217,6 +217,70 @@ def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypa
     assert res.T == pytest.approx(solves[-1][1], rel=1e-12)
 
 
+def test_torques_between_samples_are_brought_inside_the_set(panda):
+    """Case 34 of bench/limits.py's Panda: the refined solution's torques leave the set
+    between its samples by 1.7e-3; the re-solves with a wider pad, from the warm start of
+    the refined mesh, all failed and the plan failed its certificate. They now start as
+    IPOPT does by default, and the plan is certified."""
+    from tocontrol_ros.core import flat
+
+    q0 = np.array([-0.5338229825970606, 0.30773567715355116, 0.7863894957580588,
+                   -1.2204077330213567, -0.8281207701729179, 1.6282500082433669,
+                   -2.552027336517661])
+    target = np.array([0.5091020144428229, 0.23647708130297732, 0.14495267618112728])
+    problem = Problem(panda, joint_state(q0, np.zeros(7)), point(target), k=4.0)
+    pads = []
+    original = flat.FlatTranscription.solve
+
+    def recorded(self, *args, **kwargs):
+        pads.append((kwargs.get("set_pad", flat.SET_PAD), self.warm))
+        return original(self, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(flat.FlatTranscription, "solve", recorded)
+        res = plan(problem, replace(OPTIONS, starts=4, candidates=1))
+    assert res.success, res.message
+    assert res.certificate.passed and res.method == "direct"
+    widened = [warm for pad, warm in pads if pad > flat.SET_PAD]
+    assert widened and not any(widened)
+
+
+def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):
+    """Case 40 of bench/limits.py's UR5 (4 starts, one basin): in the benchmark the
+    uniform-mesh solve stopped at its 300 iterations at the solution's T (residual 1e-5)
+    and the plan was LIMITS_INFEASIBLE. Here the cold solve is stopped at 15 iterations;
+    continued warm from where it stopped, the plan converges and is certified."""
+    from tocontrol_ros.core import flat, solver
+
+    q0 = np.array([-0.7974811845879118, -5.534415029278804, 0.1507150029737384,
+                   4.834252918102076, 1.5310195967278124, 2.554346643521837])
+    target = np.array([0.23567566147669725, -0.45870454611599043, -0.4348003926129555])
+    problem = Problem(ur5, joint_state(q0, np.zeros(6)), point(target), k=4.0)
+    solves = []
+    init, solve = flat.FlatTranscription.__init__, flat.FlatTranscription.solve
+
+    def short(self, *args, warm=False, **kwargs):
+        init(self, *args, warm=warm, **{**kwargs, "max_iter": 300 if warm else 15})
+
+    def recorded(self, *args, **kwargs):
+        out = solve(self, *args, **kwargs)
+        solves.append((self.spans, self.warm, out.message))
+        return out
+
+    plan(problem, replace(OPTIONS, starts=1, candidates=1, verify=False))  # the planner
+    planner = solver._PLANNERS[id(ur5)]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(flat.FlatTranscription, "__init__", short)
+        mp.setattr(flat.FlatTranscription, "solve", recorded)
+        mp.setattr(planner, "_direct", {key: value for key, value in planner._direct.items()
+                                        if key[0] != "flat"})
+        res = plan(problem, replace(OPTIONS, starts=4, candidates=1))
+    assert len(solves) >= 2 and solves[0] == (SPANS, False, "Maximum_Iterations_Exceeded"), \
+        solves
+    assert solves[1] == (SPANS, True, "Solve_Succeeded"), solves
+    assert res.success and res.certificate.passed, res.message
+
+
 @pytest.mark.slow
 def test_panda_point_to_point_keeps_its_limits(panda):
     problem = Problem(panda, point(panda.point(PANDA_Q0)), point(panda.point(PANDA_Q1)), k=4.0)

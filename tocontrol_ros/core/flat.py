@@ -315,6 +315,7 @@ class FlatTranscription:
         self.model, self.degree, self.per_span = model, degree, per_span
         self.start_kind, self.target_kind = start_kind, target_kind
         self.torque_scale = torque_scale
+        self.warm = warm
         n, m, L, p = model.n, model.m, self.spans, degree
         br = self.breaks
         K = L + p

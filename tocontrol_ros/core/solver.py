@@ -267,22 +267,25 @@ class Planner:
                     torque_scale=scale, tol=tol)
             return self._direct[key]
 
-    def flat(self, problem: Problem, spans: int | np.ndarray) -> FlatTranscription:
+    def flat(self, problem: Problem, spans: int | np.ndarray,
+             warm: bool | None = None) -> FlatTranscription:
         """The bounded B-spline transcription for this problem's kinds.
 
         Cached for a number of uniform ``spans``; built anew for given breakpoints (the
-        refined meshes, which are particular to one motion, and solved warm:
-        ``FlatTranscription(warm=True)``).
+        refined meshes, which are particular to one motion). ``warm`` (default: for given
+        breakpoints, which are only solved from the coarser mesh's solution):
+        ``FlatTranscription(warm=True)``.
         """
+        warm = np.ndim(spans) != 0 if warm is None else warm
+
         def build() -> FlatTranscription:
-            # A refined mesh is only solved from the coarser one's solution.
             return FlatTranscription(self.model, spans, problem.start.kind,
                                      problem.target.kind, torque_scale=problem.torque_scale,
-                                     warm=np.ndim(spans) != 0)
+                                     warm=warm)
         if np.ndim(spans) != 0:
             return build()
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
-               int(spans))
+               int(spans), warm)
         with self._lock:
             if key not in self._direct:
                 self._direct[key] = build()
