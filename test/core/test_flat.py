@@ -174,7 +174,7 @@ def test_refined_breaks_keep_the_old_ones(panda_limited):
 
 def test_control_points_on_finer_breaks_keep_the_path_exactly(panda_limited):
     traj = panda_limited.trajectory
-    new = refined_breaks(traj, threshold=0.0, parts=3)  # every span in thirds
+    new = refined_breaks(traj, threshold=0.0)  # every span halved
     P = traj.control_points_on(new)
     assert P.shape == (len(new) - 1 + 3, traj.n)
     finer = BSpline(np.concatenate([[0.0] * 3, new, [1.0] * 3]), P, 3)

@@ -471,20 +471,17 @@ class FlatTranscription:
     def fit(self, T: float, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Least-squares control points (K, n) of a path given at times ``t`` (s).
 
-        The positions and velocities ``q``, ``qd`` (len(t), n) are interpolated to four
-        times as many times as there are control points, so that the fit is determined
-        whatever the number of given times: by the cubic Hermite interpolant of both (the
-        state of a Hermite-Simpson solution between its mesh points; linear interpolation
-        of each, whose kinks the spline followed with accelerations, started the planar 8R's
-        fallback with torques 30 times the set's).
+        The positions and velocities ``q``, ``qd`` (len(t), n) are sampled at four times as
+        many times as there are control points, so that the fit is determined whatever the
+        number of given times, from their cubic Hermite interpolant (the state of a
+        Hermite-Simpson solution between its mesh points; linear interpolation of each,
+        whose kinks the spline followed with accelerations, started the planar 8R's fallback
+        with torques 30 times the set's). (A refined mesh takes a solution's control points
+        exactly instead: :meth:`FlatTrajectory.control_points_on`.)
         """
-        t = np.asarray(t, dtype=float)
-        if len(t) >= 4 * self.K:
-            tf, qf, vf = t, np.asarray(q), np.asarray(qd)
-        else:
-            tf = np.linspace(0.0, T, 4 * self.K)
-            path = CubicHermiteSpline(t, np.asarray(q), np.asarray(qd))
-            qf, vf = path(tf), path(tf, 1)
+        tf = np.linspace(0.0, T, 4 * self.K)
+        path = CubicHermiteSpline(np.asarray(t, dtype=float), np.asarray(q), np.asarray(qd))
+        qf, vf = path(tf), path(tf, 1)
         span, b = basis(self.breaks, self.degree, tf / T)
         # Banded rows (degree + 1 per time): solved through sparse normal equations, which
         # stay well conditioned for a B-spline basis sampled this densely.
@@ -694,8 +691,7 @@ class FlatTrajectory:
         return self._controls(*self._path(t))
 
 
-def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP,
-                   parts: int = 2) -> np.ndarray:
+def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
     """The breakpoints with every span halved where the motion changes its acceleration.
 
     A span is halved when, for some joint, the acceleration at its two ends differs by more
@@ -713,6 +709,4 @@ def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP,
     acc = trajectory._path(br * T)[2] / scale
     jump = np.max(np.abs(np.diff(acc, axis=0)), axis=1)
     split = jump > threshold
-    frac = np.arange(1, parts) / parts
-    new = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None])[split]
-    return np.union1d(br, new.ravel())
+    return np.union1d(br, 0.5 * (br[:-1] + br[1:])[split])
