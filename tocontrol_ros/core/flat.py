@@ -523,8 +523,7 @@ class FlatTranscription:
         FlatResult
         """
         n = self.model.n
-        vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
-        par = np.concatenate([start_value, target_value, [k], vmax])
+        par = self._parameters(start_value, target_value, k, upper)
         lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
         t0 = time.perf_counter()
@@ -536,13 +535,32 @@ class FlatTranscription:
         elapsed = time.perf_counter() - t0
         stats = self.solver.stats()
         w = np.array(sol["x"]).ravel()
-        g = np.array(self._g(w, par)).ravel()
-        resid = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
-                          np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
         return FlatResult(
             success=bool(stats["success"]), message=str(stats["return_status"]),
-            T=float(w[-1]), P=w[:-1].reshape(self.K, n), residual=resid,
+            T=float(w[-1]), P=w[:-1].reshape(self.K, n),
+            residual=self._residual(w, par, lbg, ubg, lbx, ubx),
             iterations=int(stats.get("iter_count", -1)), solve_time=elapsed)
+
+    def residual(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
+                 T: float, P: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 set_pad: float = SET_PAD) -> float:
+        """Largest violation of the NLP's constraints and bounds at ``(P, T)``.
+
+        Parameters as in :meth:`solve` (``P`` (K, n) control points, ``T`` in s).
+        """
+        par = self._parameters(start_value, target_value, k, upper)
+        w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
+        return self._residual(w, par, *self.bounds(lower, upper, set_pad))
+
+    def _parameters(self, start_value, target_value, k, upper) -> np.ndarray:
+        n = self.model.n
+        vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
+        return np.concatenate([start_value, target_value, [k], vmax])
+
+    def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
+        g = np.array(self._g(w, par)).ravel()
+        return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                         np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
 
 
 class FlatTrajectory:
