@@ -187,6 +187,71 @@ def test_control_points_on_finer_breaks_keep_the_path_exactly(panda_limited):
         traj.control_points_on(np.linspace(0.0, 1.0, 7))
 
 
+def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda_limited):
+    """``on(breaks)`` (the solver built once per number of spans, the mesh a parameter)
+    solves the refined mesh as a transcription built for those breakpoints: the same
+    iterations, T and control points to rounding."""
+    from tocontrol_ros.core.flat import FlatTranscription
+
+    res = panda_limited
+    problem, traj = res.problem, res.trajectory
+    breaks = refined_breaks(traj, threshold=0.0)[::2]  # another mesh, as many spans
+    breaks[-1] = 1.0
+    breaks = np.unique(np.concatenate([breaks, traj.breaks[:1]]))
+    kinds = (problem.start.kind, problem.target.kind)
+    built = FlatTranscription(problem.model, breaks, *kinds,
+                              torque_scale=problem.torque_scale, warm=True)
+    uniform = FlatTranscription(problem.model, len(breaks) - 1, *kinds,
+                                torque_scale=problem.torque_scale, warm=True)
+    view = uniform.on(breaks)
+    assert np.array_equal(view.breaks, breaks) and view.solver is uniform.solver
+    assert np.array_equal(uniform.breaks, np.linspace(0.0, 1.0, len(breaks)))
+    values = (problem.start.value, problem.target.value, problem.k)
+    bounds = state_bounds(problem, PAD)
+    P0 = built.fit(res.T, *(lambda s: (s.t, s.q, s.qd))(traj.evaluate(
+        np.linspace(0.0, res.T, 200))))
+    a = built.solve(*values, res.T, P0, *bounds)
+    b = view.solve(*values, res.T, P0, *bounds)
+    assert a.success and b.success, (a.message, b.message)
+    assert a.iterations == b.iterations
+    assert b.T == pytest.approx(a.T, rel=1e-9)
+    assert np.max(np.abs(b.P - a.P)) <= 1e-7
+    with pytest.raises(ValueError, match="spans"):
+        uniform.on(np.linspace(0.0, 1.0, len(breaks) + 1))
+
+
+def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):
+    """The planner's refined meshes have a multiple of SPAN_BUCKET spans and a second plan
+    of the same motion builds no transcription."""
+    from tocontrol_ros.core import flat
+    from tocontrol_ros.core.limited import SPAN_BUCKET, _bucketed
+
+    br = _bucketed(np.array([0.0, 0.1, 0.15, 0.5, 1.0]))
+    assert len(br) - 1 == SPAN_BUCKET and np.all(np.isin([0.0, 0.1, 0.15, 0.5, 1.0], br))
+    assert np.max(np.diff(br)) <= 0.25 + 1e-12  # the longest spans were the ones halved
+    problem = panda_limited.problem
+    options = SolverOptions(starts=1, candidates=1, verify=False, time_limit=SLOW_OK)
+    plan(problem, options)
+    built, spans = [], []
+    init, solve = flat.FlatTranscription.__init__, flat.FlatTranscription.solve
+
+    def counted(self, *args, **kwargs):
+        built.append(args)
+        init(self, *args, **kwargs)
+
+    def recorded(self, *args, **kwargs):
+        spans.append(self.spans)
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(flat.FlatTranscription, "__init__", counted)
+    monkeypatch.setattr(flat.FlatTranscription, "solve", recorded)
+    res = plan(problem, options)
+    assert res.success, res.message
+    assert not built
+    assert len(spans) >= 2 and spans[0] == SPANS
+    assert all(count % SPAN_BUCKET == 0 for count in spans[1:]), spans
+
+
 def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypatch):
     """Each refinement level lowers T (or keeps it): solved warm from the coarser path.
 

@@ -323,65 +323,57 @@ class FlatTranscription:
         funs, self.compile_status = compile_flat(model, degree)
         self._set, set_grad, set_hess, self._id = funs
         self.scale = model.tau_max * torque_scale
-        frac = np.arange(per_span) / per_span
-        self.s = np.concatenate([(br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel(),
-                                 [1.0]])
-        span, b = basis(br, p, self.s)
-        S = len(self.s)
+        S = L * per_span + 1
+        self._geo = self._geometry(br)
         nw = K * n + 1
         iT = nw - 1
         d = (p + 1) * n + 1
         w = ca.MX.sym("w", nw)
         sizes = [m if kind == "point" else 2 * n for kind in (start_kind, target_kind)]
         par = ca.MX.sym("par", sum(sizes) + 1)
+        # The mesh's geometry is a parameter too (see :meth:`on`): the samples' basis
+        # values, the derivative's hull coefficients, the end velocities' basis.
+        geo = ca.MX.sym("geo", len(self._geo))
+        nb = 3 * (p + 1) * S
+        bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
+        cvec = geo[nb:nb + K - 1]
+        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:]
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
         sc = ca.DM(self.scale)
-        # Each sample's local control points, side by side: (n, (p + 1) S).
+        # Sample r lies in span r // per_span (the last, s = 1, in the last span), whatever
+        # the breakpoints: its local control points, side by side: (n, (p + 1) S).
+        span = self._span
         cols = (span[:, None] + np.arange(p + 1)[None, :]).ravel()
         Ploc = Pm[:, cols.tolist()]
-        bcat = ca.DM(np.concatenate(list(b), axis=1))  # (3, (p + 1) S)
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
-        # Linear rows: the convex hull of the derivative's control points, bounds that hold
-        # at every time, not only at the samples (the control points' own hull is bounds on
-        # the variables: no rows, see ``bounds``).
-        tk = knots(br, p)
-        c = p / (tk[p + 1:p + K] - tk[1:K])
-        B1 = np.zeros((K - 1, K))
-        B1[np.arange(K - 1), np.arange(K - 1)] = -c
-        B1[np.arange(K - 1), np.arange(1, K)] = c
-        # Built as triplets: a dense (rows, nw) matrix costs seconds to convert at 150 spans.
-        rows, cols, vals = [], [], []
-        self._lin_kind = []
-        r0 = 0
-        for i, block, kind in [(i, B1, s) for i in range(n) for s in ("v", "V")]:
-            br_, bc_ = np.nonzero(block)
-            rows.append(r0 + br_)
-            cols.append(i + n * bc_)
-            vals.append(block[br_, bc_])
-            self._lin_kind.append((kind, i, len(block)))
-            r0 += len(block)
-        # Velocity rows B1 P + v T >= 0 and B1 P - v T <= 0: v is a parameter of the solve.
+        # Linear rows: the convex hull of the derivative's control points,
+        # c_j (P_j+1 - P_j), bounds that hold at every time, not only at the samples (the
+        # control points' own hull is bounds on the variables: no rows, see ``bounds``).
+        # Velocity rows c_j (P_j+1 - P_j) + v T >= 0 and c_j (P_j+1 - P_j) - v T <= 0: v is
+        # a parameter of the solve.
         vpar = ca.MX.sym("v", n)
-        A_P = ca.DM.triplet(np.concatenate(rows).tolist(), np.concatenate(cols).tolist(),
-                            ca.DM(np.concatenate(vals)), r0, nw)
-        Tcoef = ca.vertcat(*[ca.repmat(sign * vpar[i], len(B1), 1)
-                             for i in range(n) for sign in (+1, -1)])
-        g_lin = ca.mtimes(A_P[:, :iT], w[:iT]) + Tcoef * T
+        self._lin_kind = []
+        g_lin = []
+        for i in range(n):
+            diff = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
+            for sign, kind in ((+1, "v"), (-1, "V")):
+                g_lin.append(diff + sign * vpar[i] * T)
+                self._lin_kind.append((kind, i, K - 1))
+        g_lin = ca.vertcat(*g_lin)
+        r0 = g_lin.numel()
 
         # Boundary rows.
         sv, tv = par[:sizes[0]], par[sizes[0]:-1]
-        b_start = basis(br, p, np.array([0.0]))[1][0]
-        b_end = basis(br, p, np.array([1.0]))[1][0]
         q_sym = ca.SX.sym("q", n)
         fk = ca.Function("P", [q_sym], [model.point_sym(q_sym)])
         g_b = []
         for kind, value, pts, b_vel, q_end in (
-                (start_kind, sv, Pm[:, :p + 1], b_start[1], Pm[:, 0]),
-                (target_kind, tv, Pm[:, K - p - 1:], b_end[1], Pm[:, -1])):
-            vel = ca.mtimes(pts, ca.DM(b_vel))  # q'(s) at the end: T qd
+                (start_kind, sv, Pm[:, :p + 1], b_start_vel, Pm[:, 0]),
+                (target_kind, tv, Pm[:, K - p - 1:], b_end_vel, Pm[:, -1])):
+            vel = ca.mtimes(pts, b_vel)  # q'(s) at the end: T qd
             if kind == "point":  # at rest, anywhere on the self-motion manifold
                 g_b += [fk(q_end) - value, vel]
             else:
@@ -400,7 +392,7 @@ class FlatTranscription:
         for r in range(S):
             scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
         jac_set = scat.apply(ca.vec(grads))
-        jac_lin = ca.horzcat(A_P[:, :iT], Tcoef)
+        jac_lin = ca.jacobian(g_lin, w)
         jac_b = ca.jacobian(g_b, w)
         g_eval = ca.vertcat(ca.vec(cs), g_lin, g_b)  # the set's values come with its gradients
         jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
@@ -423,18 +415,18 @@ class FlatTranscription:
                 "ipopt.tol": tol, "ipopt.max_iter": max_iter, "ipopt.acceptable_tol": tol,
                 "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
                 "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
-                "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar)], [
+                "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar, geo)], [
                     T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
-                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar)], [g_eval, jac],
+                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar, geo)], [g_eval, jac],
                                      ["x", "p"], ["g", "jac"]),
-                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar), lam_f, lam_g],
+                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar, geo), lam_f, lam_g],
                                         [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         if warm:
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU, **{
                 f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
                                                      "slack_bound_push", "slack_bound_frac")}})
-        allp = ca.vertcat(par, vpar)
+        allp = ca.vertcat(par, vpar, geo)
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
         self._g = ca.Function("g", [w, allp], [g])
@@ -555,7 +547,52 @@ class FlatTranscription:
     def _parameters(self, start_value, target_value, k, upper) -> np.ndarray:
         n = self.model.n
         vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
-        return np.concatenate([start_value, target_value, [k], vmax])
+        return np.concatenate([start_value, target_value, [k], vmax, self._geo])
+
+    def _geometry(self, breaks: np.ndarray) -> np.ndarray:
+        """The NLP's parameters that depend on the breakpoints (L + 1,).
+
+        Sets the sample times ``s`` (S,) and their spans; raises ValueError if a sample
+        falls outside span ``r // per_span`` (the NLP's structure).
+        """
+        p, L, ps = self.degree, len(breaks) - 1, self.per_span
+        frac = np.arange(ps) / ps
+        s = np.concatenate([(breaks[:-1, None] + frac[None, :] * np.diff(breaks)[:, None])
+                            .ravel(), [1.0]])
+        span, b = basis(breaks, p, s)
+        expected = np.minimum(np.arange(len(s)) // ps, L - 1)
+        if not np.array_equal(span, expected):
+            raise ValueError("breakpoints too close together for the samples' spans")
+        self.s, self._span = s, span
+        tk = knots(breaks, p)
+        K = L + p
+        c = p / (tk[p + 1:p + K] - tk[1:K])
+        b_start = basis(breaks, p, np.array([0.0]))[1][0][1]
+        b_end = basis(breaks, p, np.array([1.0]))[1][0][1]
+        bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
+        return np.concatenate([bcat.ravel(order="F"), c, b_start, b_end])
+
+    def on(self, breaks: np.ndarray) -> FlatTranscription:
+        """The same NLP on other breakpoints with as many spans (no new build).
+
+        Parameters
+        ----------
+        breaks : ndarray, shape (spans + 1,)
+            Increasing breakpoints from 0 to 1.
+
+        Returns
+        -------
+        FlatTranscription
+            A view sharing this one's solver (solves through either are not concurrent).
+        """
+        breaks = breakpoints(breaks)
+        if len(breaks) != len(self.breaks):
+            raise ValueError(f"{len(breaks) - 1} spans given, the transcription has "
+                             f"{self.spans}")
+        other = copy.copy(self)
+        other.breaks = breaks
+        other._geo = other._geometry(breaks)
+        return other
 
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
         g = np.array(self._g(w, par)).ravel()

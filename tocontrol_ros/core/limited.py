@@ -89,6 +89,10 @@ SAME_T = 1e-6
 SET_MARGIN = 1e-7
 PAD_ROUNDS = 3
 
+#: Refined meshes have a multiple of this many spans (the longest halved to get there), so
+#: that their transcriptions, built once per number of spans, serve other motions.
+SPAN_BUCKET = 8
+
 #: Relative slow-downs of a path tried before widening the pad (:func:`_stretched`).
 STRETCHES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)
 
@@ -295,6 +299,7 @@ def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
             if len(breaks) == len(traj.breaks):
                 entry[3] = False
                 continue
+            breaks = _bucketed(breaks)
             finer = planner.flat(problem, breaks)
             # A refinement that takes far longer than the level before it (IPOPT crawling,
             # seen at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser
@@ -380,3 +385,12 @@ def _stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, v
         if float(np.max(slower.set_values())) <= 1.0 - SET_MARGIN:
             return res, slower
     return None
+
+
+def _bucketed(breaks: np.ndarray) -> np.ndarray:
+    """``breaks`` with the longest spans halved to a multiple of :data:`SPAN_BUCKET` spans."""
+    breaks = np.asarray(breaks, dtype=float)
+    while (len(breaks) - 1) % SPAN_BUCKET:
+        j = int(np.argmax(np.diff(breaks)))
+        breaks = np.insert(breaks, j + 1, 0.5 * (breaks[j] + breaks[j + 1]))
+    return breaks
