@@ -74,10 +74,12 @@ REFINE_BUDGET = 5.0
 
 #: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
 #: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
-#: the level after a change this small would move ``T`` by about 1e-5, a tenth of the
+#: the level after a change this small would move ``T`` by about 5e-5, a twentieth of the
 #: benchmark's 1e-3 against the reference, at the cost of the finest and slowest solve
-#: (about 130 spans: 0.6-6 s, two thirds of a Panda plan's refinement).
-T_SETTLED = 1e-4
+#: (120-170 spans: 0.6-6 s, up to half of a Panda plan). On 8 Panda problems (one start)
+#: 2e-4 instead of 1e-4 left out 3 such levels and took 20 % less time in all, with T
+#: higher by 6e-5 at most (3e-4: 9e-5).
+T_SETTLED = 2e-4
 
 #: Two uniform-mesh solutions with ``T`` this close (relative) and the same control points
 #: are one.
