@@ -47,8 +47,8 @@ from .model import RobotModel
 from .pmp import LawParams
 from .trajectory import TrajectorySample, sample_times
 
-__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "SET_PAD",
-           "WARM_MU", "WARM_PUSH", "compile_flat", "refined_breaks"]
+__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "RESUME_MU",
+           "SET_PAD", "WARM_MU", "WARM_PUSH", "compile_flat", "refined_breaks"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -70,6 +70,16 @@ REFINE_JUMP = 0.1
 #: same T on every problem.
 WARM_MU = 1e-7
 WARM_PUSH = 1e-6
+
+#: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
+#: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its
+#: bounds). From IPOPT's default start (1 % inside the bounds: on a 96-span Panda mesh the
+#: set's value at the start was 1e10) such re-solves crawled (0.5 s per iteration, MUMPS
+#: reallocating, 20 s without converging) on a Panda plan from a moving state; from this
+#: barrier they took 0.7 and 1.8 s there and 0.7 s on another Panda case (from 1e-3:
+#: 2.6-3.3 s; the adaptive barrier with the small push failed on one of the three; from
+#: :data:`WARM_MU` all three re-solves of a Panda case failed).
+RESUME_MU = 1e-5
 
 
 def breakpoints(spans: int | np.ndarray) -> np.ndarray:
@@ -298,18 +308,20 @@ class FlatTranscription:
         IPOPT tolerance.
     max_iter : int
         IPOPT iteration limit.
-    warm : bool
-        Every solve starts at a solution of a nearby problem (a refined mesh, solved from
-        the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with a
-        monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
+    warm : bool or "resume"
+        True: every solve starts at a solution of a nearby problem (a refined mesh, solved
+        from the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
+        a monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
         instead of starting at ``mu = 0.1`` 1 % inside them, which first leaves the
-        solution (see :data:`WARM_MU`).
+        solution (see :data:`WARM_MU`). ``"resume"``: from a solution that tightened
+        constraints make infeasible (a wider set pad): the same, the barrier from
+        :data:`RESUME_MU`.
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 warm: bool = False) -> None:
+                 warm: bool | str = False) -> None:
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
@@ -423,7 +435,8 @@ class FlatTranscription:
                                         [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         if warm:
-            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU, **{
+            mu = RESUME_MU if warm == "resume" else WARM_MU
+            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
                 f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
                                                      "slack_bound_push", "slack_bound_frac")}})
         allp = ca.vertcat(par, vpar, geo)

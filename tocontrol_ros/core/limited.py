@@ -336,8 +336,11 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
     :data:`PAD_ROUNDS` re-solves, each from the last solution and within the
     refinement's time cap; a re-solve that fails (IPOPT's step computation, seen on the
     xArm7) is tried again with a wider pad. The wider pad makes the last solution
-    infeasible at its samples: the re-solves use IPOPT's default start, not the warm one
-    of a refined mesh (from which all three failed on a Panda case).
+    infeasible at its samples: the re-solves start IPOPT's barrier at
+    :data:`~tocontrol_ros.core.flat.RESUME_MU` (``warm="resume"``), not at the warm start's
+    ``1e-7`` (from which all three failed on a Panda case), nor from IPOPT's default start
+    (whose 1 % push into the bounds changes the short spans' torques by orders of
+    magnitude: 20 s per re-solve without converging on a Panda case).
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
@@ -350,8 +353,8 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
     for _ in range(PAD_ROUNDS):
         if excess <= 0.0:
             break
-        if flat.warm:
-            flat = planner.flat(problem, flat.breaks, warm=False)
+        if flat.warm != "resume":
+            flat = planner.flat(problem, flat.breaks, warm="resume")
         pad += 2.0 * excess
         again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
                            **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))

@@ -268,14 +268,14 @@ class Planner:
             return self._direct[key]
 
     def flat(self, problem: Problem, spans: int | np.ndarray,
-             warm: bool | None = None) -> FlatTranscription:
+             warm: bool | str | None = None) -> FlatTranscription:
         """The bounded B-spline transcription for this problem's kinds.
 
         ``spans``: a number of uniform spans, or breakpoints (the refined meshes). Built
         once per number of spans (and kinds, torque scale, ``warm``), then reused on other
         breakpoints with as many spans (:meth:`FlatTranscription.on`). ``warm`` (default:
         for given breakpoints, which are only solved from the coarser mesh's solution):
-        ``FlatTranscription(warm=True)``.
+        ``FlatTranscription(warm=True)``; ``"resume"`` for re-solves with a wider set pad.
         """
         warm = np.ndim(spans) != 0 if warm is None else warm
         count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
