@@ -338,9 +338,11 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
     xArm7) is tried again with a wider pad. The wider pad makes the last solution
     infeasible at its samples: the re-solves start IPOPT's barrier at
     :data:`~tocontrol_ros.core.flat.RESUME_MU` (``warm="resume"``), not at the warm start's
-    ``1e-7`` (from which all three failed on a Panda case), nor from IPOPT's default start
-    (whose 1 % push into the bounds changes the short spans' torques by orders of
-    magnitude: 20 s per re-solve without converging on a Panda case).
+    ``1e-7`` (from which all three failed on a Panda case); one that fails is tried from
+    IPOPT's default start (whose 1 % push into the bounds changes the short spans' torques
+    by orders of magnitude: 20 s per re-solve without converging on one Panda case, where
+    the resumed ones converged; on another, bench/limits.py's Panda case 29, the three
+    resumed ones failed, Error_In_Step_Computation, and the plan failed its certificate).
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
@@ -353,15 +355,16 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
     for _ in range(PAD_ROUNDS):
         if excess <= 0.0:
             break
-        if flat.warm != "resume":
-            flat = planner.flat(problem, flat.breaks, warm="resume")
         pad += 2.0 * excess
-        again = flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
-                           **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
-        ctx.check()
-        if again.success:
-            out, traj = again, FlatTrajectory(flat, again, problem.k)
-            excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+        for start in ("resume", False):
+            again_flat = planner.flat(problem, flat.breaks, warm=start)
+            again = again_flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
+                                     **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
+            ctx.check()
+            if again.success:
+                out, traj = again, FlatTrajectory(again_flat, again, problem.k)
+                excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+                break
     return out, traj
 
 
