@@ -252,6 +252,22 @@ def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkey
     assert all(count % SPAN_BUCKET == 0 for count in spans[1:]), spans
 
 
+def test_a_planner_keeps_the_most_recently_used_transcriptions(galicki, monkeypatch):
+    from tocontrol_ros.core import solver
+
+    monkeypatch.setattr(solver, "FLAT_CACHE", 2)
+    planner = solver.Planner(galicki)
+    problem = Problem(galicki, point(galicki.point(np.array([0.3, 0.4, 0.2]))),
+                      point(galicki.point(np.array([1.0, -0.5, 0.6]))), k=4.0)
+    first = planner.flat(problem, 4)
+    planner.flat(problem, 5)
+    assert planner.flat(problem, 4) is first  # used again: the most recent
+    planner.flat(problem, 6)  # drops 5, the least recently used
+    kept = sorted(key[4] for key in planner._direct if key[0] == "flat")
+    assert kept == [4, 6]
+    assert planner.flat(problem, 4) is first
+
+
 def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypatch):
     """Each refinement level lowers T (or keeps it): solved warm from the coarser path.
 
