@@ -325,32 +325,43 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
     assert _stretched(flat, faster, traj.with_result(faster), values, bounds) is None
 
 
+def _plan_recording_pad_solves(problem: Problem, options: SolverOptions) -> tuple:
+    """``plan(problem, options)`` and its re-solves with a widened set pad, each as
+    ``(spans, warm, FlatResult)``."""
+    from tocontrol_ros.core import flat
+
+    padded = []
+    original = flat.FlatTranscription.solve
+
+    def recorded(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        if kwargs.get("set_pad", flat.SET_PAD) > flat.SET_PAD:
+            padded.append((self.spans, self.warm, out))
+        return out
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(flat.FlatTranscription, "solve", recorded)
+        res = plan(problem, options)
+    return res, padded
+
+
 def test_torques_between_samples_are_brought_inside_the_set(panda):
     """Case 34 of bench/limits.py's Panda: the refined solution's torques leave the set
     between its samples by 1.7e-3; the re-solves with a wider pad, from the warm start of
     the refined mesh, all failed and the plan failed its certificate. The path is now
     slowed down first (``_stretched``), and a re-solve with a wider pad, if one is still
     needed, starts its barrier higher (``warm="resume"``): the plan is certified."""
-    from tocontrol_ros.core import flat
 
     q0 = np.array([-0.5338229825970606, 0.30773567715355116, 0.7863894957580588,
                    -1.2204077330213567, -0.8281207701729179, 1.6282500082433669,
                    -2.552027336517661])
     target = np.array([0.5091020144428229, 0.23647708130297732, 0.14495267618112728])
     problem = Problem(panda, joint_state(q0, np.zeros(7)), point(target), k=4.0)
-    pads = []
-    original = flat.FlatTranscription.solve
-
-    def recorded(self, *args, **kwargs):
-        pads.append((kwargs.get("set_pad", flat.SET_PAD), self.warm))
-        return original(self, *args, **kwargs)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(flat.FlatTranscription, "solve", recorded)
-        res = plan(problem, replace(OPTIONS, starts=4, candidates=1))
+    res, padded = _plan_recording_pad_solves(problem, replace(OPTIONS, starts=4,
+                                                              candidates=1))
     assert res.success, res.message
     assert res.certificate.passed and res.method == "direct"
-    widened = [warm for pad, warm in pads if pad > flat.SET_PAD]
+    widened = [warm for _, warm, _ in padded]
     assert all(warm == "resume" for warm in widened), widened
 
 
@@ -361,7 +372,6 @@ def test_a_moving_start_pads_its_set_without_crawling(panda):
     re-solves began with the set's value at 1e10 and crawled (0.5 s per iteration, stopped
     at their 5 s cap, 33 s of a 40 s plan); from the higher barrier of ``warm="resume"``
     each converges."""
-    from tocontrol_ros.core import flat
 
     q0 = np.array([1.9268194592204666, 0.2726961563769517, 2.4945844444649157,
                    -2.4758281071942108, 1.3860301854540757, 3.0090742029781934,
@@ -371,22 +381,11 @@ def test_a_moving_start_pads_its_set_without_crawling(panda):
                     -0.03227972939634192])
     target = np.array([0.4604369079400326, -0.5986279880560181, 0.2576997629737329])
     problem = Problem(panda, joint_state(q0, qd0), point(target), k=4.0)
-    padded = []
-    original = flat.FlatTranscription.solve
-
-    def recorded(self, *args, **kwargs):
-        out = original(self, *args, **kwargs)
-        if kwargs.get("set_pad", flat.SET_PAD) > flat.SET_PAD:
-            padded.append((self.spans, self.warm, out.message))
-        return out
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(flat.FlatTranscription, "solve", recorded)
-        res = plan(problem, SolverOptions(time_limit=SLOW_OK))
+    res, padded = _plan_recording_pad_solves(problem, SolverOptions(time_limit=SLOW_OK))
     assert res.success and res.certificate.passed, res.message
     assert padded, "the premise: the set's pad is widened"
-    assert all(warm == "resume" and message == "Solve_Succeeded"
-               for _, warm, message in padded), padded
+    assert all(warm == "resume" and out.message == "Solve_Succeeded"
+               for _, warm, out in padded), padded
 
 
 def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
@@ -394,7 +393,6 @@ def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
     resumed re-solves with a wider pad fail (Error_In_Step_Computation) and the plan failed
     its certificate (control set 5e-4 over); a failed resumed re-solve is now tried from
     IPOPT's default start, and the plan is certified."""
-    from tocontrol_ros.core import flat
 
     q0 = np.array([2.060047545209286, 0.03540634871715286, -1.4304923464752393,
                    -2.7567648347898004, -1.1248762997545216, 2.49681585764533,
@@ -404,21 +402,11 @@ def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
                     0.04908453210717684])
     target = np.array([-0.08358199286036902, 0.565856099938681, 0.5908179553312848])
     problem = Problem(panda, joint_state(q0, qd0), point(target), k=4.0)
-    padded = []
-    original = flat.FlatTranscription.solve
-
-    def recorded(self, *args, **kwargs):
-        out = original(self, *args, **kwargs)
-        if kwargs.get("set_pad", flat.SET_PAD) > flat.SET_PAD:
-            padded.append((self.warm, out.success))
-        return out
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(flat.FlatTranscription, "solve", recorded)
-        res = plan(problem, OPTIONS)
+    res, padded = _plan_recording_pad_solves(problem, OPTIONS)
     assert res.success and res.certificate.passed, res.message
-    if any(warm == "resume" and not ok for warm, ok in padded):  # as in the benchmark
-        assert (False, True) in padded, padded
+    solves = [(warm, out.success) for _, warm, out in padded]
+    if any(warm == "resume" and not ok for warm, ok in solves):  # as in the benchmark
+        assert (False, True) in solves, solves
 
 
 def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):

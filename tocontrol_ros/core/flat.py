@@ -336,6 +336,9 @@ class FlatTranscription:
         self._set, set_grad, set_hess, self._id = funs
         self.scale = model.tau_max * torque_scale
         S = L * per_span + 1
+        # Sample r lies in span r // per_span (the last, s = 1, in the last span), whatever
+        # the breakpoints.
+        self._span = np.minimum(np.arange(S) // per_span, L - 1)
         self._geo = self._geometry(br)
         nw = K * n + 1
         iT = nw - 1
@@ -354,8 +357,7 @@ class FlatTranscription:
         T = w[iT]
         k = par[-1]
         sc = ca.DM(self.scale)
-        # Sample r lies in span r // per_span (the last, s = 1, in the last span), whatever
-        # the breakpoints: its local control points, side by side: (n, (p + 1) S).
+        # Each sample's local control points, side by side: (n, (p + 1) S).
         span = self._span
         cols = (span[:, None] + np.arange(p + 1)[None, :]).ravel()
         Ploc = Pm[:, cols.tolist()]
@@ -565,25 +567,22 @@ class FlatTranscription:
     def _geometry(self, breaks: np.ndarray) -> np.ndarray:
         """The NLP's parameters that depend on the breakpoints (L + 1,).
 
-        Sets the sample times ``s`` (S,) and their spans; raises ValueError if a sample
-        falls outside span ``r // per_span`` (the NLP's structure).
+        Raises ValueError if a sample falls outside span ``r // per_span`` (the NLP's
+        structure, ``self._span``).
         """
         p, L, ps = self.degree, len(breaks) - 1, self.per_span
         frac = np.arange(ps) / ps
         s = np.concatenate([(breaks[:-1, None] + frac[None, :] * np.diff(breaks)[:, None])
                             .ravel(), [1.0]])
         span, b = basis(breaks, p, s)
-        expected = np.minimum(np.arange(len(s)) // ps, L - 1)
-        if not np.array_equal(span, expected):
+        if not np.array_equal(span, self._span):
             raise ValueError("breakpoints too close together for the samples' spans")
-        self.s, self._span = s, span
         tk = knots(breaks, p)
         K = L + p
         c = p / (tk[p + 1:p + K] - tk[1:K])
-        b_start = basis(breaks, p, np.array([0.0]))[1][0][1]
-        b_end = basis(breaks, p, np.array([1.0]))[1][0][1]
         bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
-        return np.concatenate([bcat.ravel(order="F"), c, b_start, b_end])
+        # The first and last samples are s = 0 and s = 1: the end velocities' basis.
+        return np.concatenate([bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]])
 
     def on(self, breaks: np.ndarray) -> FlatTranscription:
         """The same NLP on other breakpoints with as many spans (no new build).

@@ -554,18 +554,19 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
         path = (paths[0][idx], paths[1][idx], paths[2][idx])
-        within = None
         if idx == 0 and bounds is not None:
             within = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
                                   x_bounds=bounds)
             if within.success and touches(problem, within.x):
-                x_bounds = bounds
-        res = within if x_bounds is not None and idx == 0 else direct.solve(
-            problem.start.value, problem.target.value, 1.0, *path, x_bounds=x_bounds)
-        if within is not None and x_bounds is None and res.success \
-                and touches(problem, res.x):
-            # Within the limits it kept off them, without them it reaches them.
-            x_bounds, res = bounds, within
+                x_bounds, res = bounds, within
+            else:
+                res = direct.solve(problem.start.value, problem.target.value, 1.0, *path)
+                if res.success and touches(problem, res.x):
+                    # Within the limits it kept off them, without them it reaches them.
+                    x_bounds, res = bounds, within
+        else:
+            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
+                               x_bounds=x_bounds)
         guesses.append((idx, qa, qb, res))
     if x_bounds is not None or not problem.limits.active:
         # Guesses a bounded solve can start from (no bounds: every one).
