@@ -8,6 +8,7 @@ functions with ``QUICK_SOURCE`` lowered, so that real compiles stay short.
 from __future__ import annotations
 
 import shutil
+import threading
 
 import casadi as ca
 import numpy as np
@@ -133,6 +134,11 @@ def test_parallel_builds_defer_then_the_next_pass_finds_the_cache(private_cache)
 def test_owned_functions_are_built_once_and_move_to_the_optimised_library(private_cache,
                                                                          monkeypatch):
     monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
+    # The optimised build is held back until the quick build has been used twice: a probe
+    # this small otherwise lands between the two calls on a fast machine.
+    release, optimise = threading.Event(), compiled._optimise
+    monkeypatch.setattr(compiled, "_optimise",
+                        lambda *a: (release.wait(120.0), optimise(*a)))
 
     class Owner:
         pass
@@ -146,6 +152,7 @@ def test_owned_functions_are_built_once_and_move_to_the_optimised_library(privat
     quick, how = compiled.compile_owned(owner, "probe", "owned_lib", build)
     assert how == "compiled (quick build)", how
     assert compiled.compile_owned(owner, "probe", "owned_lib", build)[0] is quick
+    release.set()
     assert compiled.wait_for_builds(120.0)
     optimised, how = compiled.compile_owned(owner, "probe", "owned_lib", build)
     assert how == "cached" and optimised is not quick
