@@ -639,6 +639,8 @@ class PlannerNode(Node):
         extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
                  "solve_time": result.timings.get("total"), "residual": result.residual,
                  "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
+                 "warm_returned": any(r.index == -1 and r.status == "returned"
+                                      for r in result.starts),
                  "solver_status": result.status.name, "method": result.method,
                  "verify_time": result.timings.get("verify") if result.certificate else None,
                  **conv.certificate_values(result.certificate)}

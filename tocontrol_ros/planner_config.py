@@ -83,9 +83,15 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "plan that fails is reported as failed, never published."),
     ParameterSpec("warm_start", True, "Also continue the previous solution when the new "
                   "problem is near it (same kinds and reserve, each end point within 0.1 m): "
-                  "one more candidate next to the multistart, never instead of it; returned "
-                  "only when it is faster. Identical requests give the same T whatever came "
-                  "before."),
+                  "one more candidate next to the multistart, never instead of it (unless "
+                  "warm_only); returned only when it is faster. Identical requests give the "
+                  "same T whatever came before."),
+    ParameterSpec("warm_only", False, "With warm_start, return the previous solution "
+                  "continued to the new problem without running the multistart, when it "
+                  "succeeds: the quickest re-plan after a small move (the Panda with its "
+                  "limits: about 0.5 s against 4 s), in the previous motion's basin, which "
+                  "the multistart might beat. A failed warm start falls back to the "
+                  "multistart."),
     ParameterSpec("sample_period", 0.01, "Sample period of ~/trajectory, ~/ee_path and the "
                   "~/plan response (s); the final time is always a sample.", 1e-4, 1.0),
     ParameterSpec("default_start", list(PAPER_START), "Start point (task coordinates in "
@@ -132,6 +138,7 @@ class PlannerConfig:
     time_limit: float
     verify: bool
     warm_start: bool
+    warm_only: bool
     sample_period: float
     default_start: tuple[float, ...]
     joint_state_timeout: float
@@ -225,4 +232,4 @@ def solver_options(config: PlannerConfig):
 
     return SolverOptions(tol=config.tol, max_newton=config.max_newton, starts=config.starts,
                          candidates=config.candidates, time_limit=config.time_limit,
-                         verify=config.verify)
+                         verify=config.verify, warm_only=config.warm_only)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -173,6 +175,73 @@ def test_limits_cost_time(galicki, limited):
                 SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
     assert free.method == "indirect" and free.success
     assert limited.T > free.T
+
+
+def _moved(limited, by=(0.02, 0.0)):
+    problem = limited.problem
+    return Problem(problem.model, problem.start, point(P_TARGET + np.asarray(by)), k=4.0,
+                   limits=problem.limits)
+
+
+def test_a_bounded_plan_is_continued_warm_to_a_moved_target(galicki, limited):
+    """``warm_only``: the previous B-spline solution solved again on its mesh for a target
+    moved by 2 cm, without the multistart; a local optimum of the moved problem (an
+    independent fine collocation from it agrees), certified, itself warm-startable."""
+    moved = _moved(limited)
+    assert limited.can_warm_start(moved)
+    warm = plan(moved, SolverOptions(starts=4, candidates=1, warm_only=True,
+                                     time_limit=SLOW_OK), warm_start=limited)
+    assert warm.success, warm.message
+    assert warm.method == "direct" and warm.certificate.passed
+    assert [(r.index, r.status) for r in warm.starts] == [(-1, "returned")]
+    assert warm.timings["guess"] == 0.0  # no multistart ran
+    assert any("warm from the previous solution" in w for w in warm.warnings)
+    assert warm.intervals == limited.intervals  # the previous mesh
+    assert warm.verification["point_error"] < 1e-6
+    assert warm.T != limited.T
+    N = 192
+    tau = np.linspace(0.0, warm.T, N + 1)
+    sample = warm.trajectory.evaluate(tau)
+    bounds = (np.concatenate([-np.full(3, np.inf), -TIGHT]),
+              np.concatenate([np.full(3, np.inf), TIGHT]))
+    ref = DirectCollocation(galicki, N).solve(moved.start.value, moved.target.value, 4.0,
+                                              warm.T, np.hstack([sample.q, sample.qd]),
+                                              sample.u, x_bounds=bounds)
+    assert ref.success, ref.message
+    assert abs(warm.T - ref.T) <= 1e-3 * ref.T
+    # And on: the warm result warm-starts the next move.
+    again = _moved(limited, (0.02, 0.02))
+    assert warm.can_warm_start(again)
+    assert plan(again, SolverOptions(warm_only=True, time_limit=SLOW_OK),
+                warm_start=warm).starts[0].index == -1
+
+
+def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
+    moved = _moved(limited)
+    options = SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK)
+    both = plan(moved, options, warm_start=limited)
+    cold = plan(moved, options)
+    assert both.success and cold.success
+    warm = [r for r in both.starts if r.index == -1]
+    assert len(warm) == 1 and warm[0].status in ("warm start", "returned")
+    assert len(both.starts) == len(cold.starts) + 1
+    assert both.T <= cold.T
+
+
+def test_a_failed_warm_start_falls_back_to_the_multistart(limited, monkeypatch):
+    from tocontrol_ros.core import solver
+
+    def failing(planner, ctx, warm, timings, t_start):
+        return replace(limited, success=False, status=Status.LIMITS_INFEASIBLE,
+                       message="the warm bounded solve failed (test)", problem=ctx.problem)
+
+    monkeypatch.setattr(solver, "plan_limited_warm", failing)
+    res = plan(_moved(limited), SolverOptions(starts=4, candidates=1, warm_only=True,
+                                              time_limit=SLOW_OK), warm_start=limited)
+    assert res.success, res.message
+    assert res.starts[0].index == -1 and "warm start failed" in res.starts[0].status
+    assert any(r.status == "returned" for r in res.starts[1:])
+    assert res.timings["guess"] > 0.0
 
 
 def test_verification_fails_a_motion_that_leaves_the_limits(galicki):

@@ -348,6 +348,20 @@ def test_parameter_change_applies_to_next_request(planner, client):
         client.set_parameters(sample_period=0.01)
 
 
+def test_warm_only_returns_the_continued_motion(planner, client):
+    """``warm_only``: a nearby second request gets the first motion continued, alone."""
+    assert all(r.successful for r in client.set_parameters(warm_only=True))
+    try:
+        _, first, _ = client.call_plan(PAPER_START, (2.2, 1.5))
+        _, second, _ = client.call_plan(PAPER_START, (2.21, 1.5))
+    finally:
+        client.set_parameters(warm_only=False)
+    assert first.event == "solved" and second.event == "solved", second.message
+    assert second.values["warm_start"] == "true"
+    assert second.values["warm_returned"] == "true"
+    assert second.values["certified"] == "true"
+
+
 def test_newest_service_call_supersedes_older(planner, client):
     results = {}
 

@@ -35,14 +35,15 @@ from .context import SolveContext
 from .direct import DirectResult, initial_path
 from .flat import SET_PAD, FlatResult, FlatTrajectory, FlatTranscription, refined_breaks
 from .problem import Problem
-from .result import PlanResult, StartRecord, Status
+from .result import PathWarmState, PlanResult, StartRecord, Status
 from .seeding import EXHAUSTIVE_CANDIDATES, SAME_BASIN, distinct_basins, seed_pairs
 from .verification import fine_sample, limit_warnings, verdict
 
 if TYPE_CHECKING:
     from .solver import Planner
 
-__all__ = ["PAD", "REFINEMENTS", "SPANS", "TOUCH", "plan_limited", "state_bounds", "touches"]
+__all__ = ["PAD", "REFINEMENTS", "SPANS", "TOUCH", "plan_limited", "plan_limited_warm",
+           "state_bounds", "touches"]
 
 #: A direct guess within this fraction of a position range (or of a velocity limit) of the
 #: planning limits is taken to touch them.
@@ -206,6 +207,47 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
             warnings=tuple(notes), starts=tuple(records), problem=problem, method="direct")
     idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
+    return _result(ctx, res, traj, records, notes, timings, t_start)
+
+
+def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
+                      timings: dict, t_start: float) -> PlanResult:
+    """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
+
+    On that solution's mesh, from its path and ``T`` (``FlatTranscription(warm=True)``),
+    then held inside the control set between the samples and verified as
+    :func:`plan_limited` does. A failure is reported (the caller then solves cold).
+    """
+    problem = ctx.problem
+    t0 = time.perf_counter()
+    bounds = state_bounds(problem, PAD)
+    values = (problem.start.value, problem.target.value, problem.k)
+    flat = planner.flat(problem, warm.breaks, warm=True)
+    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx))
+    ctx.check()
+    traj = None
+    if out.success:
+        out, traj = _inside_set(planner, ctx, bounds, out,
+                                FlatTrajectory(flat, out, problem.k), flat)
+    timings["shooting"] += time.perf_counter() - t0
+    if traj is None:
+        timings["total"] = time.perf_counter() - t_start
+        return PlanResult(
+            success=False, status=Status.LIMITS_INFEASIBLE,
+            message=f"{Status.LIMITS_INFEASIBLE.value}: the warm bounded solve failed "
+            f"({out.message})", T=float("nan"), k=problem.k, trajectory=None,
+            residual=out.residual, iterations=out.iterations, timings=timings,
+            continuation=(), max_abs_u=float("nan"), delta=float("nan"),
+            intervals=flat.spans, problem=problem, method="direct")
+    notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
+             f"previous solution on its mesh of {flat.spans} spans"]
+    return _result(ctx, out, traj, [], notes, timings, t_start)
+
+
+def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: list,
+            notes: list[str], timings: dict, t_start: float) -> PlanResult:
+    """The verified result of a bounded solve (its warm state: the mesh and path)."""
+    problem, options = ctx.problem, ctx.options
     sample = fine_sample(traj)
     t0 = time.perf_counter()
     cert_options = replace(options.certificate_options(1), residual_tol=RESIDUAL_TOL)
@@ -214,14 +256,17 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     timings["verify"] = time.perf_counter() - t0
     status, message = verdict(options, cert, res.residual, RESIDUAL_TOL)
     timings["total"] = time.perf_counter() - t_start
+    success = status is Status.SUCCESS
     return PlanResult(
-        success=status is Status.SUCCESS, status=status, message=message, T=res.T,
+        success=success, status=status, message=message, T=res.T,
         k=problem.k, trajectory=traj, residual=res.residual, iterations=res.iterations,
         timings=timings, continuation=(), max_abs_u=float(np.max(np.abs(sample.u))),
         delta=0.0, intervals=len(traj.breaks) - 1, verification=dict(cert.figures) if cert else {},
         certificate=cert,
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
-        problem=problem, method="direct")
+        problem=problem, method="direct",
+        warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T)
+        if success else None)
 
 
 def _distinct_solutions(first: list) -> list:

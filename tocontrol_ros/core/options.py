@@ -97,6 +97,12 @@ class SolverOptions:
         guesses. The result then says ``method="direct"``, and its warnings name the
         shooting's failure; it is certified like any other. ``False`` reports the
         shooting's failure instead.
+    warm_only : bool
+        With a ``warm_start`` that applies (:meth:`PlanResult.can_warm_start`), return its
+        solution without running the multistart when it succeeds (and is certified): the
+        quickest re-plan after a small move, in the previous motion's basin, which the
+        multistart might beat. When it fails, the multistart runs as usual. Default False:
+        the multistart always runs, and the warm solution is one more candidate.
     """
 
     tol: float = 1e-10
@@ -122,6 +128,7 @@ class SolverOptions:
     time_limit: float = 60.0
     certificate: CertificateOptions | None = None
     direct_fallback: bool = True
+    warm_only: bool = False
 
     def __post_init__(self) -> None:
         positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",

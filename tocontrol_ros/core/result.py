@@ -13,8 +13,8 @@ from .problem import Problem
 from .shooting import ShootingGrid
 from .trajectory import Trajectory
 
-__all__ = ["Status", "StartRecord", "WarmState", "PlanResult", "WARM_RADIUS",
-           "WARM_JOINT_RADIUS"]
+__all__ = ["Status", "StartRecord", "WarmState", "PathWarmState", "PlanResult",
+           "WARM_RADIUS", "WARM_JOINT_RADIUS"]
 
 #: A previous solution warm-starts a problem only when each end point moved by at most this
 #: (m): farther, the warm solution often lands in another (worse) basin than the multistart
@@ -99,6 +99,25 @@ class WarmState:
                             kinds=self.kinds, breaks=self.breaks)
 
 
+@dataclass(frozen=True, eq=False)
+class PathWarmState:
+    """The final B-spline mesh and path of a ``"direct"`` solve: what its warm start uses.
+
+    Attributes
+    ----------
+    breaks : ndarray, shape (L + 1,)
+        Breakpoints of the spline in normalised time ``s = t / T`` (from 0 to 1).
+    P : ndarray, shape (L + degree, n)
+        Control points (rad, m).
+    T : float
+        Final time (s).
+    """
+
+    breaks: np.ndarray
+    P: np.ndarray
+    T: float
+
+
 @dataclass(frozen=True)
 class PlanResult:
     """Outcome of :func:`~tocontrol_ros.core.solver.plan` (like ``solve_bvp``'s result).
@@ -135,9 +154,9 @@ class PlanResult:
     starts : tuple of StartRecord
     problem : Problem or None
         The problem solved.
-    warm_state : WarmState or None
-        The final mesh and unknowns, from which a warm start continues (None on failure,
-        and for a ``"direct"`` result).
+    warm_state : WarmState or PathWarmState or None
+        What a warm start continues from (None on failure): the final shooting mesh and
+        unknowns, or for a ``"direct"`` result the final B-spline mesh and path.
     method : str
         ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
         ``"direct"``: the joint limits bind, and the bounded B-spline transcription solved
@@ -164,7 +183,7 @@ class PlanResult:
     warnings: tuple[str, ...] = ()
     starts: tuple[StartRecord, ...] = ()
     problem: Problem | None = field(default=None, repr=False)
-    warm_state: WarmState | None = field(default=None, repr=False)
+    warm_state: WarmState | PathWarmState | None = field(default=None, repr=False)
     certificate: Certificate | None = None
     method: str = "indirect"
 

@@ -62,12 +62,12 @@ from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, compile_direct, initial_paths
 from .flat import FlatTranscription, compile_flat
-from .limited import PAD, SPANS, plan_limited, state_bounds, touches
+from .limited import PAD, SPANS, plan_limited, plan_limited_warm, state_bounds, touches
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
 from .problem import Problem
-from .result import PlanResult, StartRecord, Status, WarmState
+from .result import PathWarmState, PlanResult, StartRecord, Status, WarmState
 from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, revolute_joints, seed_pairs
 from .shooting import NewtonReport, ShootingGrid
 from .verification import fine_sample, limit_warnings, verdict, verify
@@ -349,6 +349,8 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     previous ones) is solved too, and returned only when its ``T`` is lower by more than
     :data:`WARM_GAIN` (relative). So the cold answer, which does not depend on what was
     solved before, is returned unless a near previous solution leads to a better basin.
+    With ``options.warm_only`` a warm start that succeeds is returned alone (the
+    multistart runs only when it fails).
     """
     t_start = time.perf_counter()
     if problem.model is not planner.model:
@@ -358,6 +360,12 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     if warm_start is not None and warm_start.can_warm_start(problem) \
             and not problem.is_trivial():
         warm = _plan_from(planner, problem, options, warm_start, should_stop, deadline)
+    if warm is not None and warm.success and options.warm_only:
+        record = StartRecord(-1, *warm.trajectory.state([0.0, warm.T])[:, :problem.model.n],
+                             np.nan, warm.T, "returned")
+        best = replace(warm, starts=(record,))
+        best.timings["total"] = time.perf_counter() - t_start
+        return best
     cold = _plan_from(planner, problem, options, None, should_stop, deadline)
     best = cold
     if warm is not None:
@@ -395,6 +403,8 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
     records: list[StartRecord] = []
     try:
         finished = False
+        if warm_start is not None and isinstance(warm_start.warm_state, PathWarmState):
+            return plan_limited_warm(planner, ctx, warm_start.warm_state, timings, t_start)
         if warm_start is not None:
             # A planner made since (optimised libraries landed) loads the shooting's first.
             ctx.extend(planner.prepare_shooting(problem, options))
