@@ -214,16 +214,18 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
                       timings: dict, t_start: float) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
-    On that solution's mesh, from its path and ``T`` (``FlatTranscription(warm=True)``),
-    then held inside the control set between the samples and verified as
-    :func:`plan_limited` does. A failure is reported (the caller then solves cold).
+    On that solution's mesh, from its path and ``T`` (``FlatTranscription(warm=True)``,
+    within :data:`REFINE_BUDGET`), then held inside the control set between the samples and
+    verified as :func:`plan_limited` does. A failure is reported (the caller then solves
+    cold).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
     flat = planner.flat(problem, warm.breaks, warm=True)
-    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx))
+    # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
+    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, REFINE_BUDGET))
     ctx.check()
     traj = None
     if out.success:
