@@ -244,6 +244,33 @@ def test_a_failed_warm_start_falls_back_to_the_multistart(limited, monkeypatch):
     assert res.timings["guess"] > 0.0
 
 
+def test_a_uniform_solve_that_fails_at_k_is_continued_in_k(galicki, monkeypatch):
+    """The bounded solve on the uniform mesh, when it fails at the requested k from the
+    guess (forced here), is solved at k = 1 from the guess and continued in k (the planar
+    8R's fallback: test_solver_stages.py)."""
+    from tocontrol_ros.core.flat import FlatResult, FlatTranscription
+    from tocontrol_ros.core.limited import SPANS, k_steps
+
+    solve, calls = FlatTranscription.solve, []
+
+    def failing_at_k(self, start, target, k, *args, **kwargs):
+        calls.append((self.spans, self.warm, k))
+        if self.spans == SPANS and not self.warm and k == 4.0:
+            return FlatResult(False, "Maximum_Iterations_Exceeded", np.nan,
+                              np.full((self.K, 3), np.nan), np.inf, 300, 0.0)
+        return solve(self, start, target, k, *args, **kwargs)
+
+    monkeypatch.setattr(FlatTranscription, "solve", failing_at_k)
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0,
+                      limits=_tight(galicki))
+    res = plan(problem, SolverOptions(starts=1, candidates=1, time_limit=SLOW_OK))
+    assert res.success, res.message
+    assert res.method == "direct" and res.certificate.passed
+    assert k_steps(4.0) == [1.0, 2.0, 3.0, 4.0]
+    uniform = [(warm, k) for spans, warm, k in calls if spans == SPANS]
+    assert uniform == [(False, 4.0), (False, 1.0), (True, 2.0), (True, 3.0), (True, 4.0)]
+
+
 def test_verification_fails_a_motion_that_leaves_the_limits(galicki):
     free_problem = Problem(galicki, point(P_START), point(P_TARGET), k=1.0)
     free = plan(free_problem, SolverOptions(starts=1, candidates=1, time_limit=SLOW_OK))
