@@ -274,9 +274,10 @@ def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
 
 def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     """The planar 5R, one start, default guess: the continuation in k stalls (at k = 1.56)
-    from the coarse guess and from the finer one; the same problem is then solved as a
-    B-spline path (method "direct") from the finer guess, certified, and the warnings say
-    why. Without the fallback the shooting's failure is reported."""
+    from the coarse guess, whose k = 1 solution the finer one leads to as well; the same
+    problem is then solved as a B-spline path (method "direct") from the finer guess,
+    certified, and the warnings say why. Without the fallback the shooting's failure is
+    reported."""
     from tocontrol_ros.core import limited
     from tocontrol_ros.core.model import load_robot
     from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
@@ -291,8 +292,20 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
         return original(planner, ctx, bounds, guess, in_k)
 
     monkeypatch.setattr(limited, "_uniform", uniform)
+    from tocontrol_ros.core import solver
+
+    shot, solve_from_guess = [], solver._solve_from_guess
+
+    def shoot(ctx, guess):
+        shot.append(len(guess.t) - 1)
+        return solve_from_guess(ctx, guess)
+
+    monkeypatch.setattr(solver, "_solve_from_guess", shoot)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
     assert started == [(FINE_GUESS_INTERVALS, True)]  # by continuation in k
+    # The finer guess leads to the k = 1 solution the continuation stalled from: it is
+    # not shot from again (SAME_K1), only the fallback starts from it.
+    assert shot == [SolverOptions().guess_intervals]
     assert res.success, res.message
     assert res.method == "direct"
     assert res.certificate is not None and res.certificate.passed

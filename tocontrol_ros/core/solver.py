@@ -464,6 +464,11 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
 #: The finer direct guess tried when the shooting failed from every coarse one.
 FINE_GUESS_INTERVALS = 24
 FINE_GUESS_TOL = 1e-8
+#: ...but not shot from when the first candidate's continuation in k stalled from a k = 1
+#: solution whose ``T`` the finer guess matches to this (relative): the same k = 1
+#: solution, the same stall (the Panda without limits repeated its continuation's 19
+#: Newton solves to the digit, 2.3 s).
+SAME_K1 = 1e-3
 
 #: Failures of the shooting after which ``options.direct_fallback`` solves directly.
 _SHOOTING_FAILURES = (Status.NEWTON_FAILED, Status.CONTINUATION_FAILED)
@@ -628,7 +633,14 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         # and 7R of bench/scaling.py, one start).
         g = distinct[0]
         fine = _finer_guess(planner, problem, g[3])
-        if fine.success:
+        stalled_from = _k1_time(failures[0][0]) \
+            if failures[0][1] is Status.CONTINUATION_FAILED else None
+        if fine.success and stalled_from is not None and \
+                abs(fine.T - stalled_from) <= SAME_K1 * stalled_from:
+            # It leads to the k = 1 solution the continuation stalled from: the same
+            # stall again (the Panda without limits: 2.3 s), so only the fallback uses it.
+            ctx.memo["finer"] = {g[0]: fine}
+        elif fine.success:
             run, status, message = _solve_from_guess(ctx, fine)
             if status is Status.SUCCESS:
                 records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
@@ -651,6 +663,13 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ctx.memo["others"] = sorted(((r, i) for r, i in succeeded if i != best[1]),
                                 key=lambda ri: ri[0].t_final)
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
+
+
+def _k1_time(run) -> float | None:
+    """``T`` (s) of a run's converged solve at ``k = 1`` without smoothing, or None."""
+    if run is None:
+        return None
+    return next((T for k, delta, T, *_ in run.log if k == 1.0 and delta == 0.0), None)
 
 
 def _finer_guess(planner: Planner, problem: Problem, coarse: DirectResult) -> DirectResult:
