@@ -53,7 +53,6 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-from scipy.interpolate import make_interp_spline
 from scipy.sparse.linalg import splu
 
 from . import compiled
@@ -62,7 +61,16 @@ from .compiled import c_name
 from .context import Run, SolveContext, StopError, newton, trajectory
 from .direct import DirectCollocation, DirectResult, compile_direct, initial_paths
 from .flat import FlatTranscription, compile_flat
-from .limited import PAD, SPANS, plan_limited, plan_limited_warm, state_bounds, touches
+from .limited import (
+    FINE_GUESS_INTERVALS,
+    PAD,
+    SPANS,
+    finer_guess,
+    plan_limited,
+    plan_limited_warm,
+    state_bounds,
+    touches,
+)
 from .mesh import refine, switch_mesh
 from .options import SolverOptions
 from .pmp import CanonicalSystem
@@ -461,13 +469,11 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
         return _failure(problem, stop.status, "solve interrupted", timings, records, run)
 
 
-#: The finer direct guess tried when the shooting failed from every coarse one.
-FINE_GUESS_INTERVALS = 24
-FINE_GUESS_TOL = 1e-8
-#: ...but not shot from when the first candidate's continuation in k stalled from a k = 1
-#: solution whose ``T`` the finer guess matches to this (relative): the same k = 1
-#: solution, the same stall (the Panda without limits repeated its continuation's 19
-#: Newton solves to the digit, 2.3 s).
+#: The finer direct guess (:func:`~tocontrol_ros.core.limited.finer_guess`) tried when the
+#: shooting failed from every coarse one is not shot from when the first candidate's
+#: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
+#: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
+#: its continuation's 19 Newton solves to the digit, 2.3 s).
 SAME_K1 = 1e-3
 
 #: Failures of the shooting after which ``options.direct_fallback`` solves directly.
@@ -632,7 +638,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         # k = 1 and the continuation fail from the coarse one more often: the planar 5R
         # and 7R of bench/scaling.py, one start).
         g = distinct[0]
-        fine = _finer_guess(planner, problem, g[3])
+        fine = finer_guess(planner, problem, g[3])
         stalled_from = _k1_time(failures[0][0]) \
             if failures[0][1] is Status.CONTINUATION_FAILED else None
         if fine.success and stalled_from is not None and \
@@ -670,21 +676,6 @@ def _k1_time(run) -> float | None:
     if run is None:
         return None
     return next((T for k, delta, T, *_ in run.log if k == 1.0 and delta == 0.0), None)
-
-
-def _finer_guess(planner: Planner, problem: Problem, coarse: DirectResult) -> DirectResult:
-    """A direct solution at k = 1 solved again, finer.
-
-    On :data:`FINE_GUESS_INTERVALS` intervals to :data:`FINE_GUESS_TOL`, from itself
-    interpolated.
-    """
-    direct = planner.direct(problem, FINE_GUESS_INTERVALS, tol=FINE_GUESS_TOL)
-    # States and controls interpolated linearly onto the finer mesh.
-    linear = make_interp_spline(coarse.t, np.hstack([coarse.x, coarse.u]), k=1)
-    xu = linear(np.linspace(0.0, coarse.T, FINE_GUESS_INTERVALS + 1))
-    n2 = coarse.x.shape[1]
-    return direct.solve(problem.start.value, problem.target.value, 1.0, coarse.T,
-                        xu[:, :n2], xu[:, n2:])
 
 
 def _time_ratio_bound(n: int, k: float) -> float:
