@@ -165,9 +165,10 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
 
     ``reason`` replaces the note that the limits bind (the solve is also the fallback of a
-    failed shooting, :attr:`SolverOptions.direct_fallback`); the fallback solves each
-    candidate on the uniform mesh by continuation in ``k`` (:func:`_continued_in_k`), the
-    bounded solve at the requested ``k`` first.
+    failed shooting, :attr:`SolverOptions.direct_fallback`). The fallback starts each
+    candidate from its finer guess and solves it on the uniform mesh by continuation in
+    ``k`` (:func:`_continued_in_k`); a plan whose limits bind solves at the requested ``k``
+    first (:func:`_uniform`).
     """
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
@@ -229,14 +230,9 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
                 best = (idx, res, traj)
     timings["shooting"] += time.perf_counter() - t0
     if best is None:
-        timings["total"] = time.perf_counter() - t_start
         why = records[0].status if records else "no inverse-kinematics seed"
-        return PlanResult(
-            success=False, status=Status.LIMITS_INFEASIBLE,
-            message=f"{Status.LIMITS_INFEASIBLE.value}: {why}", T=float("nan"), k=problem.k,
-            trajectory=None, residual=float("nan"), iterations=0, timings=timings,
-            continuation=(), max_abs_u=float("nan"), delta=float("nan"), intervals=0,
-            warnings=tuple(notes), starts=tuple(records), problem=problem, method="direct")
+        return _infeasible(problem, why, timings, t_start, warnings=tuple(notes),
+                           starts=tuple(records))
     idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
     return _result(ctx, res, traj, records, notes, timings, t_start)
@@ -265,17 +261,25 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
                                 FlatTrajectory(flat, out, problem.k), flat)
     timings["shooting"] += time.perf_counter() - t0
     if traj is None:
-        timings["total"] = time.perf_counter() - t_start
-        return PlanResult(
-            success=False, status=Status.LIMITS_INFEASIBLE,
-            message=f"{Status.LIMITS_INFEASIBLE.value}: the warm bounded solve failed "
-            f"({out.message})", T=float("nan"), k=problem.k, trajectory=None,
-            residual=out.residual, iterations=out.iterations, timings=timings,
-            continuation=(), max_abs_u=float("nan"), delta=float("nan"),
-            intervals=flat.spans, problem=problem, method="direct")
+        return _infeasible(problem, f"the warm bounded solve failed ({out.message})",
+                           timings, t_start, residual=out.residual,
+                           iterations=out.iterations, intervals=flat.spans)
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
              f"previous solution on its mesh of {flat.spans} spans"]
     return _result(ctx, out, traj, [], notes, timings, t_start)
+
+
+def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,
+                **fields) -> PlanResult:
+    """A failed bounded solve (``LIMITS_INFEASIBLE``), ``why`` in its message."""
+    timings["total"] = time.perf_counter() - t_start
+    return PlanResult(**{
+        "success": False, "status": Status.LIMITS_INFEASIBLE,
+        "message": f"{Status.LIMITS_INFEASIBLE.value}: {why}", "T": float("nan"),
+        "k": problem.k, "trajectory": None, "residual": float("nan"), "iterations": 0,
+        "timings": timings, "continuation": (), "max_abs_u": float("nan"),
+        "delta": float("nan"), "intervals": 0, "problem": problem, "method": "direct",
+        **fields})
 
 
 def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: list,
@@ -337,9 +341,7 @@ def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult,
     ``in_k`` (the fallback of a failed shooting) the continuation in ``k`` is the only
     solve: on the planar 8R (bench/scaling.py, k = 4, one start) the solve at ``k = 4``
     took 600 iterations (12 s) to fail before the continuation converged (14.5 s for the
-    plan instead of 31 s); four starts and two candidates then succeed within the
-    60 s time limit (57.5 s: three of the four guesses fail at ``k = 1``); the planar 5R,
-    the same ``T`` in 2.0 s instead of 2.6 s.
+    plan instead of 31 s); the planar 5R, the same ``T`` in 2.0 s instead of 2.6 s.
     """
     problem = ctx.problem
     n = problem.model.n
@@ -348,19 +350,17 @@ def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult,
     P0 = flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:])
     if in_k and problem.k > 1.0:
         out, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
-        if not out.success:
-            return out, None, None
-        return out, FlatTrajectory(flat, out, problem.k), flat
-    out = flat.solve(*values, guess.T, P0, *bounds, **_budget(ctx))
-    ctx.check()
-    if not out.success and out.message == "Maximum_Iterations_Exceeded" \
-            and np.all(np.isfinite(out.P)) and np.isfinite(out.T):
-        flat = planner.flat(problem, SPANS, warm=True)
-        out = flat.solve(*values, out.T, out.P, *bounds, **_budget(ctx))
+    else:
+        out = flat.solve(*values, guess.T, P0, *bounds, **_budget(ctx))
         ctx.check()
-    if not out.success and problem.k > 1.0:
-        again, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
-        out = again if again.success else out
+        if not out.success and out.message == "Maximum_Iterations_Exceeded" \
+                and np.all(np.isfinite(out.P)) and np.isfinite(out.T):
+            flat = planner.flat(problem, SPANS, warm=True)
+            out = flat.solve(*values, out.T, out.P, *bounds, **_budget(ctx))
+            ctx.check()
+        if not out.success and problem.k > 1.0:
+            again, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
+            out = again if again.success else out
     if not out.success:
         return out, None, None
     return out, FlatTrajectory(flat, out, problem.k), flat

@@ -368,20 +368,19 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     if warm_start is not None and warm_start.can_warm_start(problem) \
             and not problem.is_trivial():
         warm = _plan_from(planner, problem, options, warm_start, should_stop, deadline)
-    if warm is not None and warm.success and options.warm_only:
-        record = StartRecord(-1, *warm.trajectory.state([0.0, warm.T])[:, :problem.model.n],
-                             np.nan, warm.T, "returned")
-        best = replace(warm, starts=(record,))
-        best.timings["total"] = time.perf_counter() - t_start
-        return best
-    cold = _plan_from(planner, problem, options, None, should_stop, deadline)
-    best = cold
     if warm is not None:
         n = problem.model.n
         ends = warm.trajectory.state([0.0, warm.T])[:, :n] if warm.success \
             else np.full((2, n), np.nan)
         record = StartRecord(-1, ends[0], ends[1], np.nan, warm.T, "warm start" if
                              warm.success else f"warm start failed: {warm.message}")
+        if warm.success and options.warm_only:
+            best = replace(warm, starts=(replace(record, status="returned"),))
+            best.timings["total"] = time.perf_counter() - t_start
+            return best
+    cold = _plan_from(planner, problem, options, None, should_stop, deadline)
+    best = cold
+    if warm is not None:
         better = warm.success and (not cold.success or warm.T < cold.T * (1 - WARM_GAIN))
         best = warm if better else cold
         starts = tuple(replace(r, status="continued") if better and r.status == "returned"
