@@ -331,3 +331,42 @@ def test_a_finer_guess_when_the_shooting_fails_from_the_coarse_one():
     assert res.success, res.message
     assert res.method == "indirect"
     assert any("solved again on 24" in w for w in res.warnings), res.warnings
+
+
+def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrier(
+        galicki, monkeypatch):
+    """The planner node's CI run (test_planner_process.py, goals while the arm moves, one
+    start): from this moving state the shooting stalls at k = 1.06, and the fallback's
+    continuation in k failed its step k = 1 -> 2 from the barrier 1e-7 (300 iterations, T
+    0.466 -> 0.402 s), so the goal failed. Solved again from 1e-5 the step converges and
+    the plan succeeds, certified; an independent Hermite-Simpson collocation on 192
+    intervals, started from the motion, agrees on T."""
+    from tocontrol_ros.core import flat as flat_mod
+    from tocontrol_ros.core.direct import DirectCollocation
+    from tocontrol_ros.core.problem import joint_state
+
+    modes = []
+    original = flat_mod.FlatTranscription.solve
+
+    def solve(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        modes.append((args[2], self.warm, out.success))
+        return out
+
+    monkeypatch.setattr(flat_mod.FlatTranscription, "solve", solve)
+    start = joint_state([-0.719637912, 2.7061137, -1.16548131],
+                        [-0.0874305797, 0.441203283, -0.888124462])
+    problem = Problem(galicki, start, point((1.0, 1.0)), k=4.0)
+    res = plan(problem, SolverOptions(starts=1, candidates=1))
+    assert res.success, res.message
+    assert res.method == "direct" and res.certificate.passed
+    # The step to k = 2 failed warm, then converged from the wider barrier.
+    assert (2.0, True, False) in modes and (2.0, "resume", True) in modes, modes
+    N = 192
+    tau = np.linspace(0.0, res.T, N + 1)
+    sample = res.trajectory.evaluate(tau)
+    ref = DirectCollocation(galicki, N, "state", "point").solve(
+        problem.start.value, problem.target.value, 4.0, res.T,
+        np.hstack([sample.q, sample.qd]), sample.u)
+    assert ref.success, ref.message
+    assert abs(res.T - ref.T) <= 1e-3 * ref.T

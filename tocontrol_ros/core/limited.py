@@ -387,16 +387,25 @@ def _continued_in_k(planner: Planner, ctx: SolveContext, bounds, T: float, P: np
     creeping from 0.330 to 0.291 s: IPOPT regularising a Hessian that is not positive
     definite on the redundancy) after its shooting had stalled at k = 1.625; by
     continuation from the same guess, 202 + 220 + 53 + 59 iterations, T = 0.289712 s.
+    A step that fails from the last solution with the barrier at :data:`~tocontrol_ros.
+    core.flat.WARM_MU` is solved again from it with the barrier at :data:`~tocontrol_ros.
+    core.flat.RESUME_MU` (``warm="resume"``): the paper's arm from a moving state (the
+    planner node's CI run, one start) went from T 0.466 s at k = 1 to 0.402 s at k = 2 in
+    300 iterations without converging, where from 1e-5 it took 0.05 s (T 0.424 s); the
+    planar 8R's steps fail from 1e-5 and converge from 1e-7, so that order.
     Returns the last solve (a failure stops there) and its transcription.
     """
     problem = ctx.problem
     ends = (problem.start.value, problem.target.value)
     flat = planner.flat(problem, SPANS)
     for i, k in enumerate(k_steps(problem.k)):
-        if i == 1:
-            flat = planner.flat(problem, SPANS, warm=True)
-        out = flat.solve(*ends, k, T, P, *bounds, **_budget(ctx))
-        ctx.check()
+        modes = (False,) if i == 0 else (True, "resume")
+        for warm in modes:
+            flat = planner.flat(problem, SPANS, warm=warm)
+            out = flat.solve(*ends, k, T, P, *bounds, **_budget(ctx))
+            ctx.check()
+            if out.success:
+                break
         if not out.success:
             break
         T, P = out.T, out.P
