@@ -370,3 +370,50 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
         np.hstack([sample.q, sample.qd]), sample.u)
     assert ref.success, ref.message
     assert abs(res.T - ref.T) <= 1e-3 * ref.T
+
+
+def _moving_start_problem(galicki):
+    """The CI run's moving state of the test above, to the point (1, 1) m, k = 4."""
+    from tocontrol_ros.core.problem import joint_state
+
+    start = joint_state([-0.719637912, 2.7061137, -1.16548131],
+                        [-0.0874305797, 0.441203283, -0.888124462])
+    return Problem(galicki, start, point((1.0, 1.0)), k=4.0)
+
+
+def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(galicki):
+    """The default multistart on that state: the best guess (k = 1, T 0.466 s) stalls in
+    the continuation and another basin is continued to T = 0.916 s; the failed basin's
+    k = 1 motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
+    returned, certified, the records saying which was slower."""
+    problem = _moving_start_problem(galicki)
+    res = plan(problem, SolverOptions())
+    assert res.success, res.message
+    assert res.method == "direct" and res.certificate.passed
+    assert res.T < 0.45
+    assert any("is faster than the solution found" in w for w in res.warnings), res.warnings
+    slower = [r for r in res.starts if r.status == "slower than the B-spline path"]
+    assert len(slower) == 1 and slower[0].T > 0.9
+    returned = [r for r in res.starts if r.status == "returned"]
+    assert len(returned) == 1 and returned[0].T == res.T
+    assert returned[0].guess_T < slower[0].T  # its k = 1 guess, from the multistart
+    # Without the fallback the multistart's (slower) solution is what there is.
+    bare = plan(problem, SolverOptions(direct_fallback=False))
+    assert bare.success and bare.method == "indirect" and bare.T > 0.9
+
+
+def test_a_slower_direct_solution_leaves_the_shooting_result(galicki, monkeypatch):
+    """When the B-spline path of the failed candidates is not faster, the multistart's
+    solution is returned, and its warnings say what was tried."""
+    from tocontrol_ros.core import solver
+
+    original = solver.plan_limited
+
+    def slower(*args, **kwargs):
+        res = original(*args, **kwargs)
+        return replace(res, T=10.0)
+
+    monkeypatch.setattr(solver, "plan_limited", slower)
+    res = plan(_moving_start_problem(galicki), SolverOptions())
+    assert res.success and res.method == "indirect" and res.T > 0.9
+    assert any("their B-spline path is not faster" in w for w in res.warnings), res.warnings

@@ -161,14 +161,16 @@ def state_bounds(problem: Problem, pad: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
-                 notes: list[str], reason: str | None = None) -> PlanResult:
+                 notes: list[str], reason: str | None = None,
+                 only: frozenset[int] | None = None) -> PlanResult:
     """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
 
     ``reason`` replaces the note that the limits bind (the solve is also the fallback of a
     failed shooting, :attr:`SolverOptions.direct_fallback`). The fallback starts each
     candidate from its finer guess and solves it on the uniform mesh by continuation in
     ``k`` (:func:`_continued_in_k`); a plan whose limits bind solves at the requested ``k``
-    first (:func:`_uniform`).
+    first (:func:`_uniform`). ``only``: the seed pairs (indices) to solve from, the others
+    recorded as not solved (default: all).
     """
     problem, options = ctx.problem, ctx.options
     t0 = time.perf_counter()
@@ -187,6 +189,9 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     coarse = None
     for idx, (qa, qb) in enumerate(pairs):
         ctx.check()
+        if only is not None and idx not in only:
+            records.append(StartRecord(idx, qa, qb, np.nan, np.nan, "not solved directly"))
+            continue
         res = known.get(idx)
         if res is None:
             coarse = coarse or planner.direct(problem, options.guess_intervals)

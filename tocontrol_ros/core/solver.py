@@ -432,6 +432,13 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
             if status is not Status.SUCCESS:
                 timings["total"] = time.perf_counter() - t_start
                 return _failure(problem, status, message, timings, records, run)
+            faster = _faster_failures(records, run.t_final)
+            if faster and options.direct_fallback:
+                direct, note = _faster_direct(planner, ctx, timings, t_start, faster, run,
+                                              records)
+                if direct is not None:
+                    return direct
+                notes.append(note)
         # The next basins of the multistart, best T first, in case the best one's
         # certificate fails (a motion that cannot be certified is never returned when a
         # certified one was found).
@@ -498,6 +505,53 @@ def _fallback(planner: Planner, ctx: SolveContext, timings: dict, t_start: float
                       res.message)
     return _failure(ctx.problem, status, f"{message}; the direct B-spline method did not "
                     f"succeed either ({why_direct})", timings, records, run)
+
+
+def _faster_failures(records: list[StartRecord], T: float) -> frozenset[int]:
+    """Seed pairs whose shooting failed though their guess's ``T`` (s) is below ``T`` (s).
+
+    The guess solves ``k = 1``, whose control set (the unit ball) lies inside every other
+    one: a basin whose ``k = 1`` motion is faster than the one found very likely holds a
+    faster motion at ``k`` as well.
+    """
+    failed = tuple(s.value for s in _SHOOTING_FAILURES)
+    return frozenset(r.index for r in records
+                     if r.status.startswith(failed) and r.guess_T < T)
+
+
+def _faster_direct(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
+                   faster: frozenset[int], run: Run, records: list[StartRecord]
+                   ) -> tuple[PlanResult | None, str]:
+    """The B-spline solve of the candidates :func:`_faster_failures` names.
+
+    Within half the time left. Returns its result when it succeeds and is faster than
+    ``run`` (its records merged with the multistart's), else None and a note saying why.
+    Found by the planner node's CI run (one start per goal): from a moving state the best
+    guess (k = 1, T 0.466 s) stalled in the continuation, and the default multistart
+    returned another basin's T = 0.916 s where this basin's B-spline path has 0.406 s.
+    """
+    now = time.perf_counter()
+    sub = replace(ctx, deadline=now + 0.5 * (ctx.deadline - now))
+    best_guess = min(r.guess_T for r in records if r.index in faster)
+    why = (f"the shooting failed from {len(faster)} candidate(s) whose guess (T = "
+           f"{best_guess:.6f} s at k = 1) is faster than the solution found "
+           f"(T = {run.t_final:.6f} s)")
+    try:
+        res = plan_limited(planner, sub, timings, t_start, [], only=faster, reason=(
+            f"{why}: solved from them as a B-spline path (docs/limits.md)"))
+    except StopError as stop:
+        if stop.status is Status.CANCELLED:
+            raise
+        return None, f"{why}; their B-spline solve did not finish in half the time left"
+    if not res.success:
+        return None, f"{why}; their B-spline solve failed ({res.message})"
+    if res.T >= run.t_final:
+        return None, (f"{why}; their B-spline path is not faster (T = {res.T:.6f} s)")
+    direct = {r.index: r for r in res.starts if r.index in faster}
+    merged = [replace(r, T=direct[r.index].T, status=direct[r.index].status)
+              if r.index in direct else replace(r, status="slower than the B-spline path")
+              if r.status == "returned" else r for r in records]
+    return replace(res, starts=tuple(merged)), ""
 
 
 def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list[str],
