@@ -163,6 +163,36 @@ def steal_text(before, after):
     return f"{100 * (after[0] - before[0]) / (after[1] - before[1]):.0f} %"
 
 
+def speed_probe(runs: int = 5) -> str:
+    """A fixed workload timed on this machine now: how fast it is, apart from our code.
+
+    The figures of ``BENCHMARKS.md`` are wall times on shared virtual machines whose speed
+    differs between sessions (the same commit's Panda plan took 0.75 s on one and 2.1 s on
+    another, the interpreter's own loop 0.3 s against 0.9 s); each section records this
+    probe beside its figures, so that two sections (or two runs) can be compared. Medians
+    over ``runs`` of: a pure-Python loop (5e5 additions) and one IPOPT solve of a fixed
+    NLP through CasADi (the chained Rosenbrock function in 200 variables from x = -1.2,
+    exact Hessian, built once): the interpreter, and the compiled solver stack the planner
+    spends its time in.
+    """
+    import casadi as ca
+
+    x = ca.SX.sym("x", 200)
+    f = ca.sum1(100 * (x[1:] - x[:-1] ** 2) ** 2 + (1 - x[:-1]) ** 2)
+    solver = ca.nlpsol("probe", "ipopt", {"x": x, "f": f},
+                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"})
+
+    def loop():
+        total = 0
+        for i in range(500_000):
+            total += i
+        return total
+
+    py = statistics.median(timed(loop)[0] for _ in range(runs))
+    nlp = statistics.median(timed(lambda: solver(x0=-1.2))[0] for _ in range(runs))
+    return f"Python loop {1e3 * py:.0f} ms, IPOPT probe {1e3 * nlp:.0f} ms"
+
+
 def machine_info():
     cpu = "unknown"
     try:
@@ -329,3 +359,4 @@ class Section:
     targets: list = field(default_factory=list)  # (target, verdict) pairs
     seconds: float = float("nan")
     steal: str = "unknown"  # CPU steal during the section (see cpu_ticks)
+    speed: str = "unknown"  # speed_probe() just before the section

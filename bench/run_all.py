@@ -134,8 +134,10 @@ def _run(args):
 
     def section(run):
         """``run()`` -> Section, timed, with the CPU steal while it ran; kept in order."""
+        speed = common.speed_probe()
         ts, ticks = time.perf_counter(), common.cpu_ticks()
         sec = run()
+        sec.speed = speed
         sec.seconds = time.perf_counter() - ts
         sec.steal = common.steal_text(ticks, common.cpu_ticks())
         sections.append(sec)
@@ -218,7 +220,8 @@ def _report(args, info, load_start, load_end, sections, total):
         lines += common.table(["target", "met?"], targets)
     for s in sections:
         lines += ["", f"## {s.title}", "",
-                  f"({s.seconds:.0f} s of the run; CPU steal {s.steal}.)", ""] + s.lines
+                  f"({s.seconds:.0f} s of the run; CPU steal {s.steal}; machine speed "
+                  f"before it: {s.speed}.)", ""] + s.lines
     return "\n".join(lines) + "\n"
 
 
@@ -234,7 +237,8 @@ def _update(text: str, info: dict, sections) -> str:
     order = [p.split("\n", 1)[0] for p in parts]
     stamp = f"regenerated alone by `run_all.py --update` on {info['commit']}, {info['date']}"
     for s in sections:
-        body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}.)", ""]
+        body = [s.title, "", f"({s.seconds:.0f} s, {stamp}; CPU steal {s.steal}; machine "
+                             f"speed before it: {s.speed}.)", ""]
         body += s.lines + [""]
         # The same section run with another count ("... (6 cases)") is replaced, in place.
         same = [t for t in order if _stem(t) == _stem(s.title)]
