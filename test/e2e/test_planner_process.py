@@ -366,7 +366,14 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
         client.call_plan(PAPER_START, PAPER_TARGET)  # after the warm-up's builds
         client.wait_subscribed(client.goal_pub)
         since = len(client.status_list())
-        for goal in goals:
+        for i in range(len(goals) + 1):
+            if i == len(goals):
+                if finals[-1].event == "solved":
+                    break
+                # The tolerated failure fell on the last goal: one more, to show the node
+                # still serves after it.
+                goals.append(goals[-2])
+            goal = goals[i]
             before = len(client.status_list())
             executing = sum("executing" in m for m in tracker_status)
             client.send_goal(goal)
@@ -394,7 +401,9 @@ def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
     # Every goal from the moving arm answered by its own solve; one numerical failure of a
     # single-start solve is tolerated: in core sweeps of 120 moving starts along these
     # motions (with and without 3 mrad of noise) 1 and 2 failed, CONTINUATION_FAILED where
-    # the k = 1 optimum's branch ends before k = 4 (the 16-start default solves them).
+    # the k = 1 optimum's branch ends before k = 4 (the 16-start default solves them). Such
+    # a failure then falls back to the B-spline method, which since session 13 also solves
+    # the one CI met (test_solver_stages.py, the continuation step from a wider barrier).
     assert [s.event for s in finals].count("solved") >= len(goals) - 1, events
     assert all(s.event in ("solved", "failed") for s in finals), events
     assert finals[-1].event == "solved", finals[-1].message
