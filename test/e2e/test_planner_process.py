@@ -215,7 +215,9 @@ def test_goal_storm(client, process):
         events = storm_events(client, since)
         print(f"e2e storm: sent in {sent:.2f} s, last served after {total:.2f} s; {events}; "
               f"planner RSS {rss0} -> {rss1} KiB")
-        assert sent < 1.0
+        # The premise, a storm: goals came faster than the node solves them, so some were
+        # superseded (not a timed assertion: sending 50 took 0.9-2.8 s, with the machine).
+        assert events.get("superseded", 0) > 0, events
         assert status.event == "solved", status.message
         accepted = events.get("accepted", 0)
         assert accepted >= 10

@@ -402,11 +402,13 @@ def test_goal_storm(planner, client):
         rss0 = rss_kib()
         since, sent, status, total = goal_storm(client, 50, 2.1)
         rss1 = rss_kib()
-        assert sent < 1.0
         assert status.event == "solved", status.message
         events = storm_events(client, since)
         print(f"storm: sent in {sent:.2f} s, last served after {total:.2f} s; events {events}; "
               f"RSS {rss0} -> {rss1} KiB")
+        # The premise, a storm: goals came faster than the node solves them, so some were
+        # superseded (not a timed assertion: sending 50 took 0.9-2.8 s, with the machine).
+        assert events.get("superseded", 0) > 0, events
         accepted = events.get("accepted", 0)
         assert accepted >= 10
         # Every accepted goal gets exactly one outcome.
