@@ -51,7 +51,10 @@ class StartRecord:
     q_start, q_target : ndarray, shape (n,)
         Seed configurations (rad, m).
     guess_T : float
-        ``T`` of the direct method at k = 1 (s), NaN when it failed.
+        ``T`` of the direct method's guess (s), NaN when it failed: at k = 1 for the
+        multistart's guesses, at the requested k for those a bounded solve
+        (``method="direct"``) made itself (where the multistart's were not within the
+        limits).
     T : float
         Final ``T`` at the requested k (s), NaN when not continued or failed.
     status : str
