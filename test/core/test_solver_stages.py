@@ -343,7 +343,6 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
     intervals, started from the motion, agrees on T."""
     from tocontrol_ros.core import flat as flat_mod
     from tocontrol_ros.core.direct import DirectCollocation
-    from tocontrol_ros.core.problem import joint_state
 
     modes = []
     original = flat_mod.FlatTranscription.solve
@@ -354,9 +353,7 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
         return out
 
     monkeypatch.setattr(flat_mod.FlatTranscription, "solve", solve)
-    start = joint_state([-0.719637912, 2.7061137, -1.16548131],
-                        [-0.0874305797, 0.441203283, -0.888124462])
-    problem = Problem(galicki, start, point((1.0, 1.0)), k=4.0)
+    problem = _moving_start_problem(galicki)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
     assert res.success, res.message
     assert res.method == "direct" and res.certificate.passed
@@ -373,7 +370,7 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
 
 
 def _moving_start_problem(galicki):
-    """The CI run's moving state of the test above, to the point (1, 1) m, k = 4."""
+    """The planner node's CI run's moving state, to the point (1, 1) m, k = 4."""
     from tocontrol_ros.core.problem import joint_state
 
     start = joint_state([-0.719637912, 2.7061137, -1.16548131],

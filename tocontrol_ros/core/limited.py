@@ -402,8 +402,7 @@ def _continued_in_k(planner: Planner, ctx: SolveContext, bounds, T: float, P: np
     """
     problem = ctx.problem
     ends = (problem.start.value, problem.target.value)
-    flat = planner.flat(problem, SPANS)
-    for i, k in enumerate(k_steps(problem.k)):
+    for i, k in enumerate(k_steps(problem.k)):  # k_steps starts with 1: never empty
         modes = (False,) if i == 0 else (True, "resume")
         for warm in modes:
             flat = planner.flat(problem, SPANS, warm=warm)

@@ -548,9 +548,13 @@ def _faster_direct(planner: Planner, ctx: SolveContext, timings: dict, t_start: 
     if res.T >= run.t_final:
         return None, (f"{why}; their B-spline path is not faster (T = {res.T:.6f} s)")
     direct = {r.index: r for r in res.starts if r.index in faster}
-    merged = [replace(r, T=direct[r.index].T, status=direct[r.index].status)
-              if r.index in direct else replace(r, status="slower than the B-spline path")
-              if r.status == "returned" else r for r in records]
+    merged = []
+    for r in records:
+        if r.index in direct:  # the multistart's guess_T (k = 1), the direct outcome
+            r = replace(r, T=direct[r.index].T, status=direct[r.index].status)
+        elif r.status == "returned":
+            r = replace(r, status="slower than the B-spline path")
+        merged.append(r)
     return replace(res, starts=tuple(merged)), ""
 
 
