@@ -216,6 +216,28 @@ def test_a_bounded_plan_is_continued_warm_to_a_moved_target(galicki, limited):
                 warm_start=warm).starts[0].index == -1
 
 
+def test_a_bounded_warm_re_solve_starts_from_the_previous_multipliers(limited):
+    """The previous solve's multipliers come with its warm state and start IPOPT's warm
+    re-solve: the same motion as from the path alone, in fewer iterations; multipliers that
+    do not fit the NLP (another kind of start: other rows) are left out."""
+    state = limited.warm_state
+    assert state.lam_g is not None and np.all(np.isfinite(state.lam_g))
+    assert len(state.lam_x) == state.P.size + 1
+    moved = _moved(limited)
+    options = SolverOptions(warm_only=True, time_limit=SLOW_OK)
+    dual = plan(moved, options, warm_start=limited)
+    path_only = plan(moved, options, warm_start=replace(
+        limited, warm_state=replace(state, lam_g=None, lam_x=None)))
+    assert dual.success and path_only.success, (dual.message, path_only.message)
+    assert dual.starts[0].index == path_only.starts[0].index == -1
+    assert abs(dual.T - path_only.T) <= 1e-6 * dual.T
+    assert dual.iterations < path_only.iterations
+    misfit = plan(moved, options, warm_start=replace(
+        limited, warm_state=replace(state, lam_g=state.lam_g[:-1])))
+    assert misfit.success and misfit.starts[0].index == -1
+    assert misfit.iterations == path_only.iterations
+
+
 def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
     moved = _moved(limited)
     options = SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK)

@@ -247,18 +247,25 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
                       timings: dict, t_start: float) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
-    On that solution's mesh, from its path and ``T`` (``FlatTranscription(warm=True)``,
-    within :data:`REFINE_BUDGET`), then held inside the control set between the samples and
-    verified as :func:`plan_limited` does. A failure is reported (the caller then solves
-    cold).
+    On that solution's mesh, from its path and ``T`` and, where they fit this problem's
+    NLP (same kinds of start and target), its multipliers (``FlatTranscription(warm="dual")``;
+    otherwise ``warm=True``, the path alone), within :data:`REFINE_BUDGET`, then held inside
+    the control set between the samples and verified as :func:`plan_limited` does. A
+    failure is reported (the caller then solves cold).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
-    flat = planner.flat(problem, warm.breaks, warm=True)
+    flat = planner.flat(problem, warm.breaks, warm="dual")
+    duals = {}
+    if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
+            and len(warm.lam_x) == flat.K * flat.model.n + 1):
+        duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
+    else:
+        flat = planner.flat(problem, warm.breaks, warm=True)
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
-    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, REFINE_BUDGET))
+    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, REFINE_BUDGET), **duals)
     ctx.check()
     traj = None
     if out.success:
@@ -308,8 +315,8 @@ def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: l
         certificate=cert,
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, method="direct",
-        warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T)
-        if success else None)
+        warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T,
+                                 res.lam_g, res.lam_x) if success else None)
 
 
 def _distinct_solutions(first: list) -> list:

@@ -114,11 +114,16 @@ class PathWarmState:
         Control points (rad, m).
     T : float
         Final time (s).
+    lam_g, lam_x : ndarray or None
+        The NLP's multipliers at that solution (rows, then variables' bounds): a warm
+        re-solve on the same mesh starts from them too (docs/limits.md).
     """
 
     breaks: np.ndarray
     P: np.ndarray
     T: float
+    lam_g: np.ndarray | None = None
+    lam_x: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

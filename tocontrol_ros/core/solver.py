@@ -290,7 +290,8 @@ class Planner:
         breakpoints with as many spans (:meth:`FlatTranscription.on`); the
         :data:`FLAT_CACHE` most recently used are kept. ``warm`` (default:
         for given breakpoints, which are only solved from the coarser mesh's solution):
-        ``FlatTranscription(warm=True)``; ``"resume"`` for re-solves with a wider set pad.
+        ``FlatTranscription(warm=True)``; ``"resume"`` for re-solves with a wider set pad,
+        ``"dual"`` for warm re-solves from a solution and its multipliers.
         """
         warm = np.ndim(spans) != 0 if warm is None else warm
         count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
