@@ -18,10 +18,13 @@ fingers locked, its URDF limits enforced, which bind), k = 4, points to points:
 Warm re-solves (issue 18's goal: at least 10x the peer's): the default multistart's
 solution, the target then moved by 2 cm along x, y and z in turn; *ours*
 ``plan(moved, SolverOptions(warm_only=True, verify=False), warm_start=previous)`` (the
-previous B-spline path solved again on its mesh); *the peer* each Hermite-Simpson mesh
+previous B-spline path solved again on its mesh, from its multipliers too), and the same
+from the path alone (the warm state without its multipliers); *the peer* each Hermite-Simpson mesh
 started from the previous solution (states and torques at its mesh points); errors against
 Hermite-Simpson on 256 intervals from each one's own solution.
 """
+
+from dataclasses import replace
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
@@ -179,6 +182,9 @@ def _warm(model, problem, bounds, runs):
     x_prev = np.hstack([s_prev.q, s_prev.qd])
     peers = {N: DirectCollocation(model, N, "point", "point") for N in MESHES}
     options = SolverOptions(verify=False, warm_only=True, time_limit=600.0)
+    # The same warm start without the multipliers (the path alone, FlatTranscription(warm=True)).
+    path_only = replace(previous, warm_state=replace(previous.warm_state, lam_g=None,
+                                                     lam_x=None))
     rows, ours_times, ratios = [], [], []
     for axis in range(3):
         move = np.zeros(3)
@@ -187,10 +193,13 @@ def _warm(model, problem, bounds, runs):
                         limits=problem.limits)
         t, ours = _median(lambda m=moved: plan(m, options, warm_start=previous), runs)
         if not (ours.success and ours.starts and ours.starts[0].index == -1):
-            rows.append(["xyz"[axis], fmt_ms(t), "—", "—", "—", "—", "—",
+            rows.append(["xyz"[axis], fmt_ms(t), "—", "—", "—", "—", "—", "—",
                          f"**{ours.message}**"])
             continue
         ours_times.append(t)
+        t_path, path = _median(lambda m=moved: plan(m, options, warm_start=path_only), runs)
+        path_col = (f"{fmt_ms(t_path)} ms, {path.iterations} it."
+                    if path.success and path.starts[0].index == -1 else f"**{path.message}**")
         s = ours.trajectory.evaluate(t_prev * ours.T / previous.T)
         ref = _reference_time(model, moved, bounds, ours.T, t_prev * ours.T / previous.T,
                            np.hstack([s.q, s.qd]), s.u)
@@ -215,7 +224,7 @@ def _warm(model, problem, bounds, runs):
         if best is not None:
             ratios.append(best[0] / t)
         rows.append(["xyz"[axis], fmt_ms(t), f"{ours.T:.6f}", f"{err:.1e}",
-                     ours.iterations,
+                     ours.iterations, path_col,
                      f"N = {best[1]}: {fmt_ms(best[0])} ms, T {best[2]:.6f}, error "
                      f"{best[3]:.1e}" if best else f"none up to N = {MESHES[-1]}",
                      f"{best[0] / t:.2f}" if best else "—", "ok"])
@@ -224,14 +233,16 @@ def _warm(model, problem, bounds, runs):
         f"{previous.intervals} spans), the target then moved by {MOVE * 100:g} cm along x, y "
         "and z. *Ours*: `plan(moved, SolverOptions(warm_only=True, verify=False), "
         "warm_start=previous)` (the previous B-spline path solved again on its mesh, "
-        f"docs/limits.md), median of {runs}. *Peer*: each Hermite-Simpson mesh "
+        "IPOPT started from its multipliers too, docs/limits.md), median of "
+        f"{runs}; *path alone*: the same without the multipliers (a warm state stripped of "
+        "them). *Peer*: each Hermite-Simpson mesh "
         f"({', '.join(str(N) for N in MESHES)} intervals) started from the previous "
         "solution, the fastest as accurate in T as ours (errors against Hermite-Simpson on "
         f"{REFERENCE_INTERVALS} intervals from each one's own solution). Ratio = peer / ours.",
         "",
     ]
     lines += table(["moved along", "ours warm (ms)", "T (s)", "error", "iterations",
-                    "peer, same accuracy", "ratio", "status"], rows)
+                    "path alone", "peer, same accuracy", "ratio", "status"], rows)
     if not ours_times:
         return lines, "**no**: the warm re-solves failed"
     med = float(np.median(ours_times))

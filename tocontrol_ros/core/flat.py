@@ -438,17 +438,16 @@ class FlatTranscription:
         hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
         hess = hess + hb
         self._nw, self._iT, self._ng = nw, iT, ng
-        self._jac_g = ca.Function("jac_g", [w, ca.vertcat(par, vpar, geo)], [g_eval, jac],
-                                  ["x", "p"], ["g", "jac"])
-        self._hess_l = ca.Function("hess_l", [w, ca.vertcat(par, vpar, geo), lam_f, lam_g],
-                                   [hess], ["x", "p", "lam_f", "lam_g"], ["hess"])
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                 "ipopt.tol": tol, "ipopt.max_iter": max_iter, "ipopt.acceptable_tol": tol,
                 "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
                 "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
                 "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar, geo)], [
                     T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
-                "jac_g": self._jac_g, "hess_lag": self._hess_l,
+                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar, geo)], [g_eval, jac],
+                                     ["x", "p"], ["g", "jac"]),
+                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar, geo), lam_f, lam_g],
+                                        [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
                 "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         if warm == "dual":
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,

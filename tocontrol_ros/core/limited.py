@@ -257,13 +257,12 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
     t0 = time.perf_counter()
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
-    flat = planner.flat(problem, warm.breaks, warm="dual")
+    flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
     duals = {}
     if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
             and len(warm.lam_x) == flat.K * flat.model.n + 1):
+        flat = planner.flat(problem, warm.breaks, warm="dual")
         duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-    else:
-        flat = planner.flat(problem, warm.breaks, warm=True)
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
     out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, REFINE_BUDGET), **duals)
     ctx.check()
