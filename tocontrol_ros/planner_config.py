@@ -89,7 +89,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("warm_only", False, "With warm_start, return the previous solution "
                   "continued to the new problem without running the multistart, when it "
                   "succeeds: the quickest re-plan after a small move (the Panda with its "
-                  "limits: about 0.5 s against 4 s), in the previous motion's basin, which "
+                  "limits: 0.2-0.5 s against seconds), in the previous motion's basin, which "
                   "the multistart might beat. A failed warm start falls back to the "
                   "multistart."),
     ParameterSpec("sample_period", 0.01, "Sample period of ~/trajectory, ~/ee_path and the "
