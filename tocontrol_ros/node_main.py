@@ -7,18 +7,33 @@ import sys
 from collections.abc import Callable
 
 import rclpy
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from tocontrol_ros.core.errors import TocontrolError
 
-__all__ = ["run_node"]
+__all__ = ["run_node", "spin_slice"]
 
 #: The main loop waits at most this long (s) for a callback before it looks at the stop
 #: flag again (see run_node).
 SHUTDOWN_POLL = 0.25
+
+
+def spin_slice(executor: Executor, timeout_sec: float) -> None:
+    """One executor iteration, waiting at most ``timeout_sec`` (s) for a callback.
+
+    An entity destroyed while the executor waited on it is skipped, not fatal: rclpy's
+    executors then raise ``InvalidHandle`` (a ``RuntimeError``; ros2/rclpy#1284), which
+    stopped the planner's executor when ``use_sim_time`` was set back to false (rclpy
+    destroys its ``/clock`` subscription from the parameter service's thread). The next
+    iteration builds its wait set without that entity.
+    """
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+    except InvalidHandle:
+        pass
 
 
 def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
@@ -67,7 +82,7 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
         # Bounded slices: a Python signal handler runs only between them (the executor
         # waits in C), so a stop is noticed within SHUTDOWN_POLL.
         while not stop and rclpy.ok():
-            executor.spin_once(timeout_sec=SHUTDOWN_POLL)
+            spin_slice(executor, SHUTDOWN_POLL)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:

@@ -29,6 +29,7 @@ from tocontrol_ros.conversions import seconds
 from tocontrol_ros.core import compiled
 from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
+from tocontrol_ros.node_main import spin_slice
 from tocontrol_ros.params import RobotDescriptionError
 from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
 
@@ -49,10 +50,17 @@ class Running:
         self.executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS,
                                               context=self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
+    def _spin(self):
+        # As the executables' main loop spins (tocontrol_ros.node_main).
+        while not self._stopping.is_set() and self.context.ok():
+            spin_slice(self.executor, 0.1)
+
     def stop(self):
+        self._stopping.set()
         self.node.destroy_node()
         self.executor.shutdown(timeout_sec=2.0)
         rclpy.try_shutdown(context=self.context)
@@ -574,6 +582,44 @@ def test_warm_up_compiles_before_the_first_request_and_reports_progress(tmp_path
         client.close()
         running.stop()
         compiled.wait_for_builds(300.0)  # before tmp_path goes
+
+
+def test_use_sim_time_toggled_under_goals_leaves_the_planner_serving(planner, client):
+    # Setting use_sim_time back to false destroys rclpy's /clock subscription from the
+    # parameter service's thread; an executor iteration waiting on it raised InvalidHandle,
+    # which stopped the planner's executor (seen once in a full run: the next test's goal got
+    # no status in 60 s). Toggled 200 times (without spin_slice's guard this raised
+    # InvalidHandle in the executor's thread), then a goal must still be served.
+    for _ in range(200):
+        assert client.set_parameters(use_sim_time=True)[0].successful
+        assert client.set_parameters(use_sim_time=False)[0].successful
+    since = len(client.status_list())
+    client.send_goal(PAPER_TARGET)
+    assert client.final_status(since, 60.0).event == "solved"
+
+
+def test_an_invalid_handle_in_one_executor_iteration_is_skipped():
+    # ros2/rclpy#1284: an entity destroyed while the executor waits on it raises
+    # InvalidHandle (a RuntimeError) from spin_once; the main loop goes on.
+    from rclpy.exceptions import InvalidHandle
+
+    class Failing:
+        calls = 0
+
+        def spin_once(self, timeout_sec=None):
+            Failing.calls += 1
+            if Failing.calls == 1:
+                raise InvalidHandle("cannot use Destroyable because destruction was requested")
+
+    executor = Failing()
+    spin_slice(executor, 0.0)
+    spin_slice(executor, 0.0)
+    assert Failing.calls == 2
+    with pytest.raises(ValueError):  # other errors still propagate
+        class Broken:
+            def spin_once(self, timeout_sec=None):
+                raise ValueError("not an entity")
+        spin_slice(Broken(), 0.0)
 
 
 def test_joint_states_do_not_wake_the_executor(planner, client):
