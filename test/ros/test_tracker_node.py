@@ -177,12 +177,17 @@ def test_executes_a_trajectory_and_reports(harness, model):
     np.testing.assert_allclose(last.position, q0 + dq, atol=1e-3)
     assert np.max(np.abs(last.velocity)) < 1e-2
     assert len(last.effort) == 3 and np.all(np.abs(last.effort) <= model.tau_max)
-    # Stamps are simulated time, regular at publish_rate.
+    # Stamps are simulated time, regular at publish_rate: every step between the states
+    # received is a whole number of periods (at time_scale 20 the tracker publishes 1000
+    # states per second of wall time, and a loaded machine's probe drops some: a fresh-clone
+    # CI run received one in 0.23 s of simulated time, median), the shortest one period.
     with harness.lock:
         stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
                   for m in harness.joint_states]
-    steps = np.diff(stamps)
-    assert np.all(steps > 0) and np.median(steps) == pytest.approx(0.02, abs=1e-6)
+    periods = np.diff(stamps) / 0.02
+    assert np.all(periods > 0.5), periods
+    np.testing.assert_allclose(periods, np.round(periods), atol=1e-4)
+    assert np.min(np.round(periods)) == 1.0
     assert list(errors[-1].name) == JOINTS and len(errors[-1].position) == 3
     assert max(max(abs(v) for v in e.position) for e in errors) < 1e-3
 
