@@ -325,8 +325,9 @@ class FlatTranscription:
         :data:`RESUME_MU`. ``"dual"``: from a solution of this mesh and its multipliers
         (``lam_g0``, ``lam_x0`` of :meth:`solve`: a warm re-solve for a moved target),
         IPOPT's warm start (``warm_start_init_point``), the barrier from :data:`WARM_MU`:
-        on the Panda's warm re-solves (80 spans, target moved 2 cm along x, y, z) 29, 29
-        and 22 iterations instead of 53, 46 and 34 from the path alone (barrier from
+        on the Panda's warm re-solves (80 spans, target moved 2 cm along x, y, z) 35, 24
+        and 18 IPOPT iterations instead of 53, 46 and 34 from the path alone (BENCHMARKS.md;
+        29, 29 and 22 from the solution solved again alone, where the barrier from
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
     """
