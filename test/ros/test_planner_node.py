@@ -611,14 +611,15 @@ def test_an_invalid_handle_in_one_executor_iteration_is_skipped():
             if Failing.calls == 1:
                 raise InvalidHandle("cannot use Destroyable because destruction was requested")
 
+    class Broken:
+        def spin_once(self, timeout_sec=None):
+            raise ValueError("not an entity")
+
     executor = Failing()
     spin_slice(executor, 0.0)
     spin_slice(executor, 0.0)
     assert Failing.calls == 2
     with pytest.raises(ValueError):  # other errors still propagate
-        class Broken:
-            def spin_once(self, timeout_sec=None):
-                raise ValueError("not an entity")
         spin_slice(Broken(), 0.0)
 
 
