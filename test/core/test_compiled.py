@@ -235,3 +235,33 @@ def test_first_plan_compiles_the_shooting_only_when_a_solve_reaches_it(private_c
     assert unlimited.success and unlimited.method != "direct", unlimited.message
     assert any(name.startswith("tocontrol_rk4") or name.startswith("tocontrol_fj")
                for name in built[len(first):]), built
+
+
+def test_every_build_of_a_source_gives_the_same_bits(private_cache, galicki):
+    """Same request, same plan whichever library is loaded: the quick build (-O0), the
+    optimised ones (-O2, -O1 for long sources, -march=native) and the portable fallback round
+    alike (no fused multiply-add: ``compiled.SAME_BITS``). The function is the arm's forward
+    dynamics with its Jacobian, evaluated at 200 random states."""
+    q, qd, tau = (ca.SX.sym(name, galicki.n) for name in ("q", "qd", "tau"))
+    qdd = galicki.forward_dynamics_sym(q, qd, tau)
+    args = ca.vertcat(q, qd, tau)
+    fun = ca.Function("same_bits_probe", [args], [qdd, ca.jacobian(qdd, args)])
+    cc = compiled._compiler()
+    rng = np.random.default_rng(7)
+    x = rng.uniform(-2.0, 2.0, size=(3 * galicki.n, 200))
+    outputs = {}
+    for flags in (compiled.QUICK_CFLAGS, compiled.CFLAGS, compiled.LARGE_CFLAGS,
+                  compiled.PORTABLE_CFLAGS):
+        with compiled.tempfile.TemporaryDirectory() as tmp:
+            compiled._generate_one(fun, tmp)
+            target, how = compiled._build(cc, fun.name(), tmp, flags)
+        assert target is not None, how
+        lib = ca.external(fun.name(), str(target))
+        out = lib.map(x.shape[1])(x)
+        outputs[" ".join(flags)] = tuple(np.array(o).tobytes() for o in out)
+    vm = fun.map(x.shape[1])(x)
+    assert np.allclose(np.array(vm[0]), np.frombuffer(outputs[" ".join(compiled.CFLAGS)][0])
+                       .reshape(np.array(vm[0]).shape, order="C"), rtol=1e-12, atol=1e-12)
+    reference = outputs[" ".join(compiled.CFLAGS)]
+    differ = [flags for flags, out in outputs.items() if out != reference]
+    assert not differ, f"other bits than {' '.join(compiled.CFLAGS)}: {differ}"

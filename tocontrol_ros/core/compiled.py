@@ -48,21 +48,25 @@ __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "gene
            "pending_builds", "wait_for_builds", "add_listener", "remove_listener",
            "parallel_builds", "in_cache", "compile_owned"]
 
-#: -march=native (vector units, fused multiply-add) makes the RK4 step with its Jacobian
-#: markedly faster than portable -O1. Such a library only runs on the CPU it was built for,
-#: so the cache key includes the CPU's identity.
-CFLAGS = ("-O2", "-march=native", "-shared", "-fPIC")
+#: -march=native (vector units) makes the RK4 step with its Jacobian markedly faster than
+#: portable -O1. Such a library only runs on the CPU it was built for, so the cache key
+#: includes the CPU's identity. ``-ffp-contract=off`` (in every set of flags): no fused
+#: multiply-add, so that every optimisation level rounds alike and the quick build, the
+#: optimised one and the portable fallback give the same bits (same request, same plan,
+#: whichever library had landed; a test compares them).
+SAME_BITS = "-ffp-contract=off"
+CFLAGS = ("-O2", "-march=native", SAME_BITS, "-shared", "-fPIC")
 #: gcc's -O2 time grows much faster than linearly with the size of these straight-line
 #: functions (minutes for a planar 6R), so sources above this many bytes get
 #: :data:`LARGE_CFLAGS`.
 LARGE_SOURCE = 1_000_000
-LARGE_CFLAGS = ("-O1", "-march=native", "-shared", "-fPIC")
+LARGE_CFLAGS = ("-O1", "-march=native", SAME_BITS, "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.
-PORTABLE_CFLAGS = ("-O1", "-shared", "-fPIC")
+PORTABLE_CFLAGS = ("-O1", SAME_BITS, "-shared", "-fPIC")
 #: Sources above this many bytes get a quick unoptimised build first (see the module's
 #: docstring); below it gcc is fast enough to optimise at once.
 QUICK_SOURCE = 200_000
-QUICK_CFLAGS = ("-O0", "-march=native", "-shared", "-fPIC")
+QUICK_CFLAGS = ("-O0", "-march=native", SAME_BITS, "-shared", "-fPIC")
 #: Niceness of the background builds: a solve running meanwhile keeps its core.
 BACKGROUND_NICE = 10
 #: Background builds run one at a time (gcc takes up to a GB on the longest sources).
