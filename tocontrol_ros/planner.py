@@ -649,9 +649,11 @@ class PlannerNode(Node):
                 ("cancelled", "node shutting down")
             self._finish(req, "WARN", event, reason, extra)
             return
-        if not result.success:
+        if not result.success and result.trajectory is None:
             self._finish(req, "ERROR", "failed", result.message, extra)
             return
+        # Otherwise a success, or TIME_LIMIT with the best checked motion found before the
+        # deadline: published, its warning (WARN) saying it may not be the optimum.
         if result.status.name == "TRIVIAL":
             # The core's rule (Problem.is_trivial): the start is at rest on the target.
             gap = float(np.linalg.norm(start_point - req.target))

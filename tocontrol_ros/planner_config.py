@@ -74,8 +74,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "shooting, fastest direct T first, stopping where the rest cannot beat the "
                   "best found (docs/seeding.md); the fastest motion is returned.", 1, 32,
                   constraints="candidates <= starts"),
-    ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s); a solve that runs "
-                  "out fails with status 'time limit reached'.", 0.1, 600.0),
+    ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s), the solver's one "
+                  "reading of the clock that changes its course (it decides by work "
+                  "otherwise: the same request gives the same plan on any load). A solve "
+                  "that runs out ends with status TIME_LIMIT; when it had found a motion that "
+                  "passes its certificate, the best one is published with a WARN status "
+                  "(not shown to be the optimum), else nothing is.", 0.1, 600.0),
     ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "
                   "torques re-integrated through the model by an independent adaptive "
                   "integrator must land on the target at rest, the torques stay inside the "

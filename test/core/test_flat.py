@@ -13,7 +13,7 @@ from scipy.interpolate import BSpline
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
 from tocontrol_ros.core.direct import DirectCollocation
 from tocontrol_ros.core.flat import _sample_functions, basis, breakpoints, refined_breaks
-from tocontrol_ros.core.limited import PAD, SPANS, state_bounds
+from tocontrol_ros.core.limited import NEAR_MAX_ITER, PAD, SPANS, state_bounds
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, plan
 
@@ -371,7 +371,8 @@ def test_a_moving_start_pads_its_set_without_crawling(panda):
     pad is widened on refined meshes of 96 and 112 spans. From IPOPT's default start those
     re-solves began with the set's value at 1e10 and crawled (0.5 s per iteration, stopped
     at their 5 s cap, 33 s of a 40 s plan); from the higher barrier of ``warm="resume"``
-    each converges."""
+    they converge, and the one from the default start (``warm="restart"``) that follows a
+    failed one stops at its work limit instead of crawling (its regularisation capped)."""
 
     q0 = np.array([1.9268194592204666, 0.2726961563769517, 2.4945844444649157,
                    -2.4758281071942108, 1.3860301854540757, 3.0090742029781934,
@@ -384,8 +385,10 @@ def test_a_moving_start_pads_its_set_without_crawling(panda):
     res, padded = _plan_recording_pad_solves(problem, SolverOptions(time_limit=SLOW_OK))
     assert res.success and res.certificate.passed, res.message
     assert padded, "the premise: the set's pad is widened"
-    assert all(warm == "resume" and out.message == "Solve_Succeeded"
-               for _, warm, out in padded), padded
+    # The resumed re-solves converge (here after one that fails at 96 spans, then one from
+    # the default start stopped at its work limit); none crawls past it.
+    assert any(warm == "resume" and out.success for _, warm, out in padded), padded
+    assert all(out.success or out.iterations <= NEAR_MAX_ITER for _, _, out in padded), padded
 
 
 def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
@@ -406,7 +409,7 @@ def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
     assert res.success and res.certificate.passed, res.message
     solves = [(warm, out.success) for _, warm, out in padded]
     if any(warm == "resume" and not ok for warm, ok in solves):  # as in the benchmark
-        assert (False, True) in solves, solves
+        assert ("restart", True) in solves, solves
 
 
 def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):

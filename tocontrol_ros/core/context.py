@@ -19,7 +19,7 @@ import numpy as np
 from .options import SolverOptions
 from .pmp import CanonicalSystem, LawParams
 from .problem import Problem
-from .result import Status
+from .result import PlanResult, Status
 from .shooting import NewtonReport, ShootingGrid, newton_solve
 from .trajectory import Trajectory
 
@@ -50,7 +50,8 @@ class SolveContext:
         Polled between Newton iterations; returning True cancels the solve.
     memo : dict
         Values computed once per solve: ``"pairs"``, the multistart's seed pairs (inverse
-        kinematics costs), reused by the bounded solve where the joint limits bind.
+        kinematics costs), reused by the bounded solve where the joint limits bind;
+        ``"incumbents"``, the motions found so far (:meth:`offer`).
     """
 
     system: CanonicalSystem
@@ -68,6 +69,30 @@ class SolveContext:
     def law(self, k: float, delta: float) -> LawParams:
         """The control law's parameters at ``k`` and ``delta`` for this problem."""
         return LawParams(k, delta, self.problem.torque_scale)
+
+    def offer(self, T: float, build: Callable[[dict, float], PlanResult]) -> None:
+        """Keep a motion found so far: its ``T`` (s) and how to build its checked result.
+
+        ``build(timings, t_start)`` returns the result (its timings and start time as
+        :func:`~tocontrol_ros.core.solver.plan` reports them).
+        At the caller's deadline :func:`~tocontrol_ros.core.solver.plan` returns the best
+        one that passes its checks (:meth:`incumbent`), with the ``TIME_LIMIT`` status.
+        ``build`` must not depend on state that later stages change (take a snapshot).
+        """
+        if np.isfinite(T):
+            self.memo.setdefault("incumbents", []).append((float(T), build))
+
+    def incumbent(self, tries: int, timings: dict, t_start: float) -> PlanResult | None:
+        """The least-``T`` motion offered whose result passes its checks, or None.
+
+        At most ``tries`` results are built (each one a certificate), least ``T`` first.
+        """
+        offered = sorted(self.memo.get("incumbents", ()), key=lambda entry: entry[0])
+        for _, build in offered[:tries]:
+            result = build(timings, t_start)
+            if result.status is Status.SUCCESS:
+                return result
+        return None
 
     def check(self) -> None:
         """Raise :class:`StopError` when the caller cancelled or the deadline passed."""

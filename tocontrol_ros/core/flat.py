@@ -47,8 +47,9 @@ from .model import RobotModel
 from .pmp import LawParams
 from .trajectory import TrajectorySample, sample_times
 
-__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP", "RESUME_MU",
-           "SET_PAD", "WARM_MU", "WARM_PUSH", "compile_flat", "refined_breaks"]
+__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP",
+           "RESTART_MAX_PERTURBATION", "RESUME_MU", "SET_PAD", "WARM_MU", "WARM_PUSH",
+           "compile_flat", "refined_breaks"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -80,6 +81,17 @@ WARM_PUSH = 1e-6
 #: 2.6-3.3 s; the adaptive barrier with the small push failed on one of the three; from
 #: :data:`WARM_MU` all three re-solves of a Panda case failed).
 RESUME_MU = 1e-5
+
+
+#: IPOPT's largest Hessian regularisation in a re-solve from its default start
+#: (``FlatTranscription(warm="restart")``); past it IPOPT skips to its restoration phase.
+#: Such re-solves (a wider set pad after the resumed one failed) can crawl with the
+#: regularisation at 1e8-1e12, each iteration factorising the KKT matrix over and over
+#: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
+#: here, the same 150 iterations took 2.2 s (1e6: 5.8 s), and bench/limits.py's case 29,
+#: whose resumed re-solves all fail, still converges from the default start. A bound on
+#: work per iteration where a wall-time cap was before.
+RESTART_MAX_PERTURBATION = 1e4
 
 
 def breakpoints(spans: int | np.ndarray) -> np.ndarray:
@@ -228,16 +240,20 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
 
 
 class _Interrupt(ca.Callback):
-    """IPOPT's iteration callback: stops the solve at a deadline or when asked to."""
+    """IPOPT's iteration callback: stops the solve at a deadline, when asked, or by work.
+
+    The work limit (a number of iterations) can be tighter than the transcription's own.
+    """
 
     def __init__(self, nx: int, ng: int, npar: int) -> None:
         ca.Callback.__init__(self)
         self._sizes = (nx, 1, ng, nx, ng, npar)
-        self.deadline, self.should_stop = np.inf, None
+        self.arm(np.inf, None, None)
         self.construct("flat_interrupt", {})
 
-    def arm(self, deadline: float, should_stop) -> None:
-        self.deadline, self.should_stop = deadline, should_stop
+    def arm(self, deadline: float, should_stop, max_iter: int | None) -> None:
+        self.deadline, self.should_stop, self.max_iter = deadline, should_stop, max_iter
+        self.calls, self.reason = 0, ""
 
     def get_n_in(self) -> int:
         return ca.nlpsol_n_out()
@@ -255,9 +271,15 @@ class _Interrupt(ca.Callback):
         return ca.Sparsity.dense(self._sizes[i], 1)
 
     def eval(self, arg):
-        stop = time.perf_counter() > self.deadline or (
-            self.should_stop is not None and self.should_stop())
-        return [1 if stop else 0]
+        # IPOPT calls this once per iteration, the starting point (iteration 0) included.
+        self.calls += 1
+        if self.max_iter is not None and self.calls > self.max_iter:
+            self.reason = f"stopped after {self.max_iter} iterations (its work limit)"
+        elif self.should_stop is not None and self.should_stop():
+            self.reason = "cancelled"
+        elif time.perf_counter() > self.deadline:  # the caller's deadline, nothing else
+            self.reason = "time limit reached"
+        return [1 if self.reason else 0]
 
 
 @dataclass(frozen=True)
@@ -315,7 +337,7 @@ class FlatTranscription:
         IPOPT tolerance.
     max_iter : int
         IPOPT iteration limit.
-    warm : bool or "resume" or "dual"
+    warm : bool or "resume" or "dual" or "restart"
         True: every solve starts at a solution of a nearby problem (a refined mesh, solved
         from the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
         a monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
@@ -330,6 +352,8 @@ class FlatTranscription:
         29, 29 and 22 from the solution solved again alone, where the barrier from
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
+        ``"restart"``: IPOPT's default start, its regularisation capped at
+        :data:`RESTART_MAX_PERTURBATION` (the last resort of a re-solve with a wider pad).
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
@@ -453,6 +477,8 @@ class FlatTranscription:
         if warm == "dual":
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
                          "ipopt.warm_start_init_point": "yes"})
+        elif warm == "restart":
+            opts["ipopt.max_hessian_perturbation"] = RESTART_MAX_PERTURBATION
         elif warm:
             mu = RESUME_MU if warm == "resume" else WARM_MU
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
@@ -523,8 +549,8 @@ class FlatTranscription:
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              set_pad: float = SET_PAD, max_time: float = 1e6,
-              should_stop=None, lam_g0: np.ndarray | None = None,
+              set_pad: float = SET_PAD, deadline: float = np.inf,
+              max_iter: int | None = None, should_stop=None, lam_g0: np.ndarray | None = None,
               lam_x0: np.ndarray | None = None) -> FlatResult:
         """Solve from a guess.
 
@@ -543,8 +569,13 @@ class FlatTranscription:
             State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
             symmetric).
         set_pad : float
-        max_time : float
-            Wall-time budget of this solve (s): IPOPT stops after it (a failed result).
+        deadline : float
+            The caller's deadline, a ``time.perf_counter()`` value (s): IPOPT stops there
+            (a failed result). The one reading of the clock that may end a solve.
+        max_iter : int, optional
+            Stop after this many IPOPT iterations (a failed result whose message says so);
+            default: the transcription's own limit. A work limit, so that the same
+            request takes the same path on an idle and on a loaded machine.
         should_stop : callable, optional
             Polled every IPOPT iteration; returning True stops the solve.
         lam_g0, lam_x0 : ndarray, optional
@@ -560,17 +591,18 @@ class FlatTranscription:
         lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
         t0 = time.perf_counter()
-        self._interrupt.arm(t0 + max_time, should_stop)
+        self._interrupt.arm(deadline, should_stop, max_iter)
         try:
             duals = {} if lam_g0 is None else {"lam_g0": lam_g0, "lam_x0": lam_x0}
             sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **duals)
+            why = self._interrupt.reason
         finally:
-            self._interrupt.arm(np.inf, None)
+            self._interrupt.arm(np.inf, None, None)
         elapsed = time.perf_counter() - t0
         stats = self.solver.stats()
         w = np.array(sol["x"]).ravel()
         return FlatResult(
-            success=bool(stats["success"]), message=str(stats["return_status"]),
+            success=bool(stats["success"]), message=why or str(stats["return_status"]),
             T=float(w[-1]), P=w[:-1].reshape(self.K, n),
             residual=self._residual(w, par, lbg, ubg, lbx, ubx),
             iterations=int(stats.get("iter_count", -1)), solve_time=elapsed,

@@ -71,8 +71,12 @@ REFINE_WINDOW = 0.02
 #: candidates; a candidate 0.2 % behind after the first level was the best in the end).
 LEVEL_WINDOWS = (5e-3, 1e-3, 5e-4)
 
-#: Least wall time (s) a refinement level may take (else ten times the level before).
-REFINE_BUDGET = 5.0
+#: IPOPT iterations a solve from a nearby solution may take (a refinement level, a pad
+#: re-solve, a warm re-solve): they take 15-40, one that needs far more is crawling (a
+#: regularised Hessian, seen at 0.7 s per iteration on a UR5's 119 spans), and the coarser
+#: solution stands. A count, not a time: the same request takes the same path on an idle and
+#: on a loaded machine.
+NEAR_MAX_ITER = 150
 
 #: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
 #: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
@@ -226,6 +230,7 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
                                f"bounded solve failed: {out[0].message}")
         if out[0].success:
             first.append((idx, out))
+            _offer(ctx, bounds, *out, notes)
     first = _distinct_solutions(first)
     best = None
     if first:
@@ -249,7 +254,7 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
 
     On that solution's mesh, from its path and ``T`` and, where they fit this problem's
     NLP (same kinds of start and target), its multipliers (``FlatTranscription(warm="dual")``;
-    otherwise ``warm=True``, the path alone), within :data:`REFINE_BUDGET`, then held inside
+    otherwise ``warm=True``, the path alone), within :data:`NEAR_MAX_ITER`, then held inside
     the control set between the samples and verified as :func:`plan_limited` does. A
     failure is reported (the caller then solves cold).
     """
@@ -264,7 +269,7 @@ def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
         flat = planner.flat(problem, warm.breaks, warm="dual")
         duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
-    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, REFINE_BUDGET), **duals)
+    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
     ctx.check()
     traj = None
     if out.success:
@@ -318,6 +323,27 @@ def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: l
                                  res.lam_g, res.lam_x) if success else None)
 
 
+def _offer(ctx: SolveContext, bounds, res: FlatResult, traj: FlatTrajectory,
+           flat: FlatTranscription, notes: list[str]) -> None:
+    """Offer a bounded solution (:meth:`SolveContext.offer`) for a result at the deadline.
+
+    Built, it is first slowed down just enough to hold its torques inside the set between
+    the samples (:func:`_stretched`, no re-solve), as :func:`_inside_set` would first try.
+    """
+    if not res.success:
+        return
+    problem = ctx.problem
+
+    def build(timings: dict, t_start: float) -> PlanResult:
+        out, path = res, traj
+        if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
+            values = (problem.start.value, problem.target.value, problem.k)
+            out, path = _stretched(flat, res, traj, values, bounds) or (res, traj)
+        return _result(ctx, out, path, [], list(notes), timings, t_start)
+
+    ctx.offer(res.T, build)
+
+
 def _distinct_solutions(first: list) -> list:
     """The uniform-mesh solutions less repeats.
 
@@ -334,10 +360,9 @@ def _distinct_solutions(first: list) -> list:
     return out
 
 
-def _budget(ctx: SolveContext, cap: float = np.inf) -> dict:
-    """One B-spline solve's limits: the deadline (or ``cap`` seconds, if sooner), the cancel."""
-    return {"max_time": max(min(ctx.deadline - time.perf_counter(), cap), 0.0),
-            "should_stop": ctx.should_stop}
+def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
+    """One B-spline solve's limits: the caller's deadline and cancel, ``max_iter`` iterations."""
+    return {"deadline": ctx.deadline, "should_stop": ctx.should_stop, "max_iter": max_iter}
 
 
 def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult,
@@ -453,17 +478,16 @@ def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
                 continue
             breaks = _bucketed(breaks)
             finer = planner.flat(problem, breaks)
-            # A refinement that takes far longer than the level before it (IPOPT crawling,
-            # seen at 119 spans on the UR5: 0.7 s per iteration) is given up: the coarser
-            # one stands.
+            # A refinement that crawls is given up: the coarser one stands.
             again = finer.solve(*values, out.T, traj.control_points_on(breaks), *bounds,
-                                **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
+                                **_budget(ctx, NEAR_MAX_ITER))
             ctx.check()
             if not again.success:
                 entry[3] = False
                 continue
             entry[:] = [again, FlatTrajectory(finer, again, problem.k), finer,
                         abs(again.T - out.T) > T_SETTLED * again.T]
+            _offer(ctx, bounds, *entry[:3], [])
         best = min(entry[0].T for entry in race.values())
         window = LEVEL_WINDOWS[min(level, len(LEVEL_WINDOWS) - 1)]
         for entry in race.values():
@@ -483,16 +507,17 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
     """Widen the set's pad until the torques between the sample times stay inside the set.
 
     First the same path slowed down (:func:`_stretched`); if that is not enough, at most
-    :data:`PAD_ROUNDS` re-solves, each from the last solution and within the
-    refinement's time cap; a re-solve that fails (IPOPT's step computation, seen on the
-    xArm7) is tried again with a wider pad. The wider pad makes the last solution
+    :data:`PAD_ROUNDS` re-solves, each from the last solution and within
+    :data:`NEAR_MAX_ITER` iterations; a re-solve that fails (IPOPT's step computation, seen
+    on the xArm7) is tried again with a wider pad. The wider pad makes the last solution
     infeasible at its samples: the re-solves start IPOPT's barrier at
     :data:`~tocontrol_ros.core.flat.RESUME_MU` (``warm="resume"``), not at the warm start's
     ``1e-7`` (from which all three failed on a Panda case); one that fails is tried from
-    IPOPT's default start (whose 1 % push into the bounds changes the short spans' torques
-    by orders of magnitude: 20 s per re-solve without converging on one Panda case, where
-    the resumed ones converged; on another, bench/limits.py's Panda case 29, the three
-    resumed ones failed, Error_In_Step_Computation, and the plan failed its certificate).
+    IPOPT's default start (``warm="restart"``, whose 1 % push into the bounds changes the
+    short spans' torques by orders of magnitude: it crawled on Panda cases until its
+    regularisation was capped, :data:`~tocontrol_ros.core.flat.RESTART_MAX_PERTURBATION`;
+    on bench/limits.py's Panda case 29 the three resumed ones failed,
+    Error_In_Step_Computation, and the plan failed its certificate before this).
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
@@ -506,10 +531,10 @@ def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
         if excess <= 0.0:
             break
         pad += 2.0 * excess
-        for start in ("resume", False):
+        for start in ("resume", "restart"):
             again_flat = planner.flat(problem, flat.breaks, warm=start)
             again = again_flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
-                                     **_budget(ctx, max(REFINE_BUDGET, 10 * out.solve_time)))
+                                     **_budget(ctx, NEAR_MAX_ITER))
             ctx.check()
             if again.success:
                 out, traj = again, FlatTrajectory(again_flat, again, problem.k)

@@ -109,6 +109,11 @@ WARM_GAIN = 1e-6
 #: mesh's, so it gets a margin.
 CANDIDATE_MARGIN = 0.02
 
+#: At the caller's deadline at most this many motions found so far are checked (least ``T``
+#: first) for a ``TIME_LIMIT`` result that carries one: the result comes at most this many
+#: certificates after the deadline.
+INCUMBENT_TRIES = 2
+
 #: Gravity torques below this (relative to tau_max) count as none for that rule.
 GRAVITY_FREE = 1e-9
 
@@ -472,8 +477,50 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
             notes.append(f"the basin with T = {result.T:.6f} s failed its certificate "
                          f"({result.message}); the next best one was tried")
     except StopError as stop:
+        best = None
+        if stop.status is Status.TIME_LIMIT:
+            best = ctx.incumbent(INCUMBENT_TRIES, timings, t_start)
         timings["total"] = time.perf_counter() - t_start
+        if best is not None:
+            return _time_limited(best)
         return _failure(problem, stop.status, "solve interrupted", timings, records, run)
+
+
+def _time_limited(best: PlanResult) -> PlanResult:
+    """``best``, a checked motion found before the deadline, as a ``TIME_LIMIT`` result.
+
+    Not a success (the solve did not finish: the motion is not shown to be the least ``T``
+    of its basin), but it carries the motion and its certificate.
+    """
+    checked = "certified" if best.certificate is not None else "converged (not certified)"
+    note = (f"the time limit ran out: this is the best {checked} motion found before it "
+            f"(T = {best.T:.6f} s), not shown to be the optimum")
+    return replace(best, success=False, status=Status.TIME_LIMIT,
+                   message=f"{Status.TIME_LIMIT.value}: {note}",
+                   warnings=(note,) + best.warnings)
+
+
+def _offer(ctx: SolveContext, run: Run) -> None:
+    """Offer the run's current solution (:meth:`SolveContext.offer`) when it can pass.
+
+    Only at the requested ``k`` and within ``options.tol``: a looser one cannot pass its
+    certificate. The result is built from a snapshot (later stages move the run).
+    """
+    problem = ctx.problem
+    if run.k != problem.k or not run.residual <= ctx.options.tol:
+        return
+    grid, w, k, delta, residual = run.snapshot()
+
+    def build(timings: dict, t_start: float) -> PlanResult:
+        frozen = Run(grid=grid, w=w, k=k, delta=delta, residual=residual)
+        traj = trajectory(ctx, frozen)
+        sample = fine_sample(traj)
+        if problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0:
+            return _failure(problem, Status.LIMITS_INFEASIBLE, "leaves the joint limits",
+                            timings)
+        return _result(ctx, frozen, [], [], timings, t_start, traj, sample)
+
+    ctx.offer(run.t_final, build)
 
 
 #: The finer direct guess (:func:`~tocontrol_ros.core.limited.finer_guess`) tried when the
@@ -525,25 +572,19 @@ def _faster_direct(planner: Planner, ctx: SolveContext, timings: dict, t_start: 
                    ) -> tuple[PlanResult | None, str]:
     """The B-spline solve of the candidates :func:`_faster_failures` names.
 
-    Within half the time left. Returns its result when it succeeds and is faster than
-    ``run`` (its records merged with the multistart's), else None and a note saying why.
-    Found by the planner node's CI run (one start per goal): from a moving state the best
-    guess (k = 1, T 0.466 s) stalled in the continuation, and the default multistart
-    returned another basin's T = 0.916 s where this basin's B-spline path has 0.406 s.
+    Returns its result when it succeeds and is faster than ``run`` (its records merged
+    with the multistart's), else None and a note saying why. Found by the planner node's CI
+    run (one start per goal): from a moving state the best guess (k = 1, T 0.466 s) stalled
+    in the continuation, and the default multistart returned another basin's T = 0.916 s
+    where this basin's B-spline path has 0.406 s. Its work is bounded by the candidates it
+    solves (IPOPT's iteration limits); the caller's deadline applies as everywhere.
     """
-    now = time.perf_counter()
-    sub = replace(ctx, deadline=now + 0.5 * (ctx.deadline - now))
     best_guess = min(r.guess_T for r in records if r.index in faster)
     why = (f"the shooting failed from {len(faster)} candidate(s) whose guess (T = "
            f"{best_guess:.6f} s at k = 1) is faster than the solution found "
            f"(T = {run.t_final:.6f} s)")
-    try:
-        res = plan_limited(planner, sub, timings, t_start, [], only=faster, reason=(
-            f"{why}: solved from them as a B-spline path (docs/limits.md)"))
-    except StopError as stop:
-        if stop.status is Status.CANCELLED:
-            raise
-        return None, f"{why}; their B-spline solve did not finish in half the time left"
+    res = plan_limited(planner, ctx, timings, t_start, [], only=faster, reason=(
+        f"{why}: solved from them as a B-spline path (docs/limits.md)"))
     if not res.success:
         return None, f"{why}; their B-spline solve failed ({res.message})"
     if res.T >= run.t_final:
@@ -1026,6 +1067,7 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
             if refine(ctx, run):
                 run.restore(saved)
         converged.append(run.snapshot())
+        _offer(ctx, run)
         t_now = run.t_final
         if t_prev is not None:
             changes.append(abs(t_now - t_prev))
