@@ -649,11 +649,13 @@ class PlannerNode(Node):
                 ("cancelled", "node shutting down")
             self._finish(req, "WARN", event, reason, extra)
             return
-        if not result.success and result.trajectory is None:
+        # A success is published; so is a TIME_LIMIT that carries the best checked motion
+        # found before the deadline (its warning, WARN, says it may not be the optimum).
+        # Any other result is not, even with a trajectory (one that failed its certificate).
+        time_limited = result.status.name == "TIME_LIMIT" and result.trajectory is not None
+        if not (result.success or time_limited):
             self._finish(req, "ERROR", "failed", result.message, extra)
             return
-        # Otherwise a success, or TIME_LIMIT with the best checked motion found before the
-        # deadline: published, its warning (WARN) saying it may not be the optimum.
         if result.status.name == "TRIVIAL":
             # The core's rule (Problem.is_trivial): the start is at rest on the target.
             gap = float(np.linalg.norm(start_point - req.target))

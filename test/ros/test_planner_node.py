@@ -722,3 +722,45 @@ def test_plans_keep_to_a_moveit_joint_limits_file(tmp_path):
 def test_bad_limits_or_locked_joints_name_the_parameter(overrides, match):
     with pytest.raises(TocontrolError, match=match):
         Running(overrides, namespace=f"/bad_limits_{os.getpid()}")
+
+
+def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monkeypatch):
+    """A solve that ran out of time after finding a certified motion (the core's TIME_LIMIT
+    result carrying it, here made from a finished solve) is published, with a WARN status
+    that says it is not shown to be the optimum; one without a motion publishes nothing."""
+    from tocontrol_ros.core import solver as solver_module
+
+    real = solver_module.Planner.plan
+    modes = {"carry": True}
+
+    def time_limited(self, problem, options=None, warm_start=None, should_stop=None):
+        result = real(self, problem, options, warm_start, should_stop)
+        if not result.success:
+            return result
+        if modes["carry"]:
+            return solver_module._time_limited(result)
+        return solver_module._failure(problem, solver_module.Status.TIME_LIMIT,
+                                      "solve interrupted", dict(result.timings))
+
+    monkeypatch.setattr(solver_module.Planner, "plan", time_limited)
+    ns = f"{NAMESPACE}_time_limit"
+    running = Running(namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(120.0)
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "solved" and status.level == 1, status.message
+        assert status.values["solver_status"] == "TIME_LIMIT"
+        assert status.values["certified"] == "true"
+        assert "not shown to be the optimum" in status.message
+        assert len(path.poses) > 1
+        client.wait_for(lambda: len(client.trajectories) == 1, 60.0, "the trajectory")
+        modes["carry"] = False
+        path, status, _ = client.call_plan(PAPER_START, (2.0, 1.2))
+        assert status.event == "failed" and status.level == 2, status.message
+        assert status.values["solver_status"] == "TIME_LIMIT"
+        assert len(path.poses) == 0
+    finally:
+        client.close()
+        running.stop()
