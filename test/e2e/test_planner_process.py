@@ -254,7 +254,10 @@ def test_shutdown_during_solve(tmp_path, sig):
         code, elapsed = proc.stop(sig)
         print(f"{sig.name} during a solve: exit {code} after {elapsed:.3f} s")
         log = proc.log()
-        assert code == 0 and elapsed < 5.0, f"exit {code} after {elapsed:.1f} s; log:\n{log}"
+        # The bound catches a hang, not slowness (a loaded machine stretches any time): that
+        # the solve is cancelled rather than finished is checked in-process
+        # (test_planner_node.py::test_shutdown_during_solve_is_prompt).
+        assert code == 0 and elapsed < 120.0, f"exit {code} after {elapsed:.1f} s; log:\n{log}"
         assert "Traceback" not in log, log
     finally:
         client.close()

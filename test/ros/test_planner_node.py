@@ -37,6 +37,8 @@ pytestmark = pytest.mark.ros
 NAMESPACE = f"/inproc_{os.getpid()}"
 PLANNER = f"{NAMESPACE}/planner"
 JOINTS = ("joint1", "joint2", "joint3")
+#: A wait that only catches a hang (s): never a claim about speed.
+HANG = 120.0
 
 
 class Running:
@@ -489,12 +491,25 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
         running.stop()
 
 
-def test_shutdown_during_solve_is_prompt():
+def test_shutdown_during_solve_is_prompt(monkeypatch):
+    from tocontrol_ros.core import solver as solver_module
+
     # A slow solve (a multistart of 128 direct guesses, well over a second) so that it is
     # surely running when the node goes.
     ns = f"{NAMESPACE}_shutdown"
     running = Running([Parameter("starts", value=128), Parameter("candidates", value=8)],
                       namespace=ns)
+    outcomes = []
+    plan = solver_module.Planner.plan
+
+    def recorded(self, *args, **kwargs):
+        result = plan(self, *args, **kwargs)
+        if running.node.ready.is_set():  # not a warm-up solve
+            outcomes.append(result)
+        return result
+
+    # On the class: the node makes a new Planner when the optimised libraries land.
+    monkeypatch.setattr(solver_module.Planner, "plan", recorded)
     client = PlannerClient(f"{ns}/planner")
     try:
         client.wait_ready(30.0)
@@ -510,7 +525,11 @@ def test_shutdown_during_solve_is_prompt():
         running.stop()
         elapsed = time.monotonic() - t0
         print(f"shutdown during a solve took {elapsed:.3f} s")
-        assert elapsed < 3.0
+        # Prompt means the solve was cancelled, not run to its end: checked by its status,
+        # not by the wall time (a loaded machine stretches any time); the bound only
+        # catches a hang.
+        assert [r.status.name for r in outcomes] == ["CANCELLED"], outcomes
+        assert elapsed < HANG
         assert not running.node._worker.is_alive()
     finally:
         client.close()
