@@ -458,8 +458,7 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
             timings["refine"] += time.perf_counter() - t0
             traj = trajectory(ctx, run)
             sample = fine_sample(traj)
-            if problem.limits.active and \
-                    max(problem.limits.violations(sample.q, sample.qd)) > 0:
+            if _leaves_limits(problem, sample):
                 if warm_start is not None:
                     timings["total"] = time.perf_counter() - t_start
                     return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
@@ -500,27 +499,32 @@ def _time_limited(best: PlanResult) -> PlanResult:
                    warnings=(note,) + best.warnings)
 
 
-def _offer(ctx: SolveContext, run: Run) -> None:
-    """Offer the run's current solution (:meth:`SolveContext.offer`) when it can pass.
+def _leaves_limits(problem: Problem, sample) -> bool:
+    """Whether a fine sample of a solution leaves the problem's joint limits."""
+    return problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0
+
+
+def _offer(ctx: SolveContext, snap: tuple) -> None:
+    """Offer a run's :meth:`~Run.snapshot` (:meth:`SolveContext.offer`) when it can pass.
 
     Only at the requested ``k`` and within ``options.tol``: a looser one cannot pass its
-    certificate. The result is built from a snapshot (later stages move the run).
+    certificate. A snapshot, because later stages move the run.
     """
+    grid, w, k, delta, residual = snap
     problem = ctx.problem
-    if run.k != problem.k or not run.residual <= ctx.options.tol:
+    if k != problem.k or not residual <= ctx.options.tol:
         return
-    grid, w, k, delta, residual = run.snapshot()
+    frozen = Run(grid=grid, w=w, k=k, delta=delta, residual=residual)
 
     def build(timings: dict, t_start: float) -> PlanResult:
-        frozen = Run(grid=grid, w=w, k=k, delta=delta, residual=residual)
         traj = trajectory(ctx, frozen)
         sample = fine_sample(traj)
-        if problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0:
+        if _leaves_limits(problem, sample):
             return _failure(problem, Status.LIMITS_INFEASIBLE, "leaves the joint limits",
                             timings)
         return _result(ctx, frozen, [], [], timings, t_start, traj, sample)
 
-    ctx.offer(run.t_final, build)
+    ctx.offer(frozen.t_final, build)
 
 
 #: The finer direct guess (:func:`~tocontrol_ros.core.limited.finer_guess`) tried when the
@@ -1067,7 +1071,7 @@ def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
             if refine(ctx, run):
                 run.restore(saved)
         converged.append(run.snapshot())
-        _offer(ctx, run)
+        _offer(ctx, converged[-1])
         t_now = run.t_final
         if t_prev is not None:
             changes.append(abs(t_now - t_prev))
