@@ -1,6 +1,7 @@
 """The planner node in-process: a private rclpy context, the node spun by its own executor,
 driven by a client node over DDS (services, topics, parameters)."""
 
+import contextlib
 import os
 import threading
 import time
@@ -67,6 +68,21 @@ class Running:
         self.executor.shutdown(timeout_sec=2.0)
         rclpy.try_shutdown(context=self.context)
         self.thread.join(timeout=2.0)
+
+
+@contextlib.contextmanager
+def ready_planner(suffix: str):
+    """A planner of its own (namespace ``NAMESPACE_suffix``) and a client, once it is ready."""
+    ns = f"{NAMESPACE}_{suffix}"
+    running = Running(namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(120.0)
+        yield running, client
+    finally:
+        client.close()
+        running.stop()
 
 
 @pytest.fixture(scope="module")
@@ -471,12 +487,7 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     real = planner_module.solver_options
     monkeypatch.setattr(planner_module, "solver_options", lambda config: dataclasses.replace(
         real(config), certificate=strict))
-    ns = f"{NAMESPACE}_strict"
-    running = Running(namespace=ns)
-    client = PlannerClient(f"{ns}/planner")
-    try:
-        client.wait_ready(30.0)
-        assert running.node.ready.wait(120.0)
+    with ready_planner("strict") as (_, client):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
         assert status.event == "failed" and status.level == 2, status.message
         assert "max_abs_H" in status.message
@@ -486,9 +497,6 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
         assert len(path.poses) == 0
         time.sleep(0.2)
         assert not client.trajectories
-    finally:
-        client.close()
-        running.stop()
 
 
 def test_shutdown_during_solve_is_prompt(monkeypatch):
@@ -762,12 +770,7 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
                                       "solve interrupted", dict(result.timings))
 
     monkeypatch.setattr(solver_module.Planner, "plan", time_limited)
-    ns = f"{NAMESPACE}_time_limit"
-    running = Running(namespace=ns)
-    client = PlannerClient(f"{ns}/planner")
-    try:
-        client.wait_ready(30.0)
-        assert running.node.ready.wait(120.0)
+    with ready_planner("time_limit") as (_, client):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
         assert status.event == "solved" and status.level == 1, status.message
         assert status.values["solver_status"] == "TIME_LIMIT"
@@ -780,6 +783,3 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
         assert status.event == "failed" and status.level == 2, status.message
         assert status.values["solver_status"] == "TIME_LIMIT"
         assert len(path.poses) == 0
-    finally:
-        client.close()
-        running.stop()
