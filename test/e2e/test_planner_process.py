@@ -251,13 +251,14 @@ def test_shutdown_during_solve(tmp_path, sig):
                                     for s in client.status_list()[since:]), 10.0, "accepted")
         time.sleep(0.5)
         assert not any(s.event == "solved" for s in client.status_list()[since:])
-        code, elapsed = proc.stop(sig)
-        print(f"{sig.name} during a solve: exit {code} after {elapsed:.3f} s")
-        log = proc.log()
         # The bound catches a hang, not slowness (a loaded machine stretches any time): that
         # the solve is cancelled rather than finished is checked in-process
-        # (test_planner_node.py::test_shutdown_during_solve_is_prompt).
-        assert code == 0 and elapsed < 120.0, f"exit {code} after {elapsed:.1f} s; log:\n{log}"
+        # (test_planner_node.py::test_shutdown_during_solve_is_prompt). stop()'s own wait is
+        # the bound (past it the process is aborted and its exit code is not 0).
+        code, elapsed = proc.stop(sig, timeout=120.0)
+        print(f"{sig.name} during a solve: exit {code} after {elapsed:.3f} s")
+        log = proc.log()
+        assert code == 0, f"exit {code} after {elapsed:.1f} s; log:\n{log}"
         assert "Traceback" not in log, log
     finally:
         client.close()
