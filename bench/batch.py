@@ -31,10 +31,10 @@ import yaml  # noqa: E402
 
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 from bench.common import Section, log, table  # noqa: E402
-from tocontrol_ros import batch  # noqa: E402
-from tocontrol_ros.batch_library import library_paths  # noqa: E402
-from tocontrol_ros.batch_tasks import load_model, load_task_file  # noqa: E402
-from tocontrol_ros.batch_worker import run_task  # noqa: E402
+from tocontrol_ros.batch.cli import cli as batch  # noqa: E402
+from tocontrol_ros.batch.library import library_paths  # noqa: E402
+from tocontrol_ros.batch.tasks import load_model, load_task_file  # noqa: E402
+from tocontrol_ros.batch.worker import run_task  # noqa: E402
 
 EXAMPLE = common.REPO / "config" / "cell_example.yaml"
 

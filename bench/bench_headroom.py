@@ -9,7 +9,7 @@ The paper's example (the bundled 3R arm, end effector from (1.0, 1.0) to (2.2, 1
 planned with k = 4 and with k = 16 (close to bang-bang), each also with a 20 % torque
 reserve (``Problem(reserve=0.2)``). Every plan is sampled every 1 ms (so that the
 interpolation of the nominal torques is not what is measured) and executed by
-:func:`tocontrol_ros.core.tracking.simulate` on a mismatched plant, with the feedforward
+:func:`tocontrol_ros.core.sim.tracking.simulate` on a mismatched plant, with the feedforward
 alone (FF) and with the default PD gains of ``config/tracker.yaml`` (PD), plant at 2 kHz,
 control at 1 kHz:
 
@@ -42,15 +42,15 @@ except ImportError:  # not installed: use the source tree
 import numpy as np  # noqa: E402
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET  # noqa: E402
-from tocontrol_ros.core.model import default_urdf_path, load_robot  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.solver import plan  # noqa: E402
-from tocontrol_ros.core.tracking import (  # noqa: E402
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot  # noqa: E402
+from tocontrol_ros.core.sim.tracking import (  # noqa: E402
     NominalTrajectory,
     PlantConfig,
     TrackingGains,
     simulate,
 )
+from tocontrol_ros.core.solver import plan  # noqa: E402
 
 START, TARGET = PAPER_START, PAPER_TARGET
 GAINS = TrackingGains(kp=(100.0, 100.0, 30.0), kd=(10.0, 10.0, 3.0))

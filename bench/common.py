@@ -237,7 +237,7 @@ def machine_info():
 
 # ----------------------------------------------------------------------------- robots
 def paper_model():
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
     return load_robot(str(default_urdf_path()))
 
@@ -300,7 +300,7 @@ def planar_arm_urdf(n, length=1.0, mass=1.0, damping=0.1, effort_per_link=10.0):
 FIRST_RUN_CODE = r"""
 import json, sys, time
 t0 = time.perf_counter()
-from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, plan
 t1 = time.perf_counter()
@@ -315,7 +315,7 @@ r2 = plan(pr, opts)
 t4 = time.perf_counter()
 # Long sources got a quick build; their optimised builds finish before the process ends
 # (else the next process would start them again).
-from tocontrol_ros.core import compiled
+from tocontrol_ros.core.robot import compiled
 compiled.wait_for_builds()
 t5 = time.perf_counter()
 print(json.dumps({"import": t1 - t0, "model": t2 - t1, "first_plan": t3 - t2,

@@ -128,10 +128,14 @@ class _Client:
 
 def _in_process():
     """A function that serves the paper's example in this process; returns T (s)."""
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
     from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
     from tocontrol_ros.core.solver import Planner
-    from tocontrol_ros.planner_config import config_from_values, default_values, solver_options
+    from tocontrol_ros.nodes.planner_config import (
+        config_from_values,
+        default_values,
+        solver_options,
+    )
 
     config = config_from_values(default_values(), task_dim=2)
     model = load_robot(default_urdf_path())

@@ -3,11 +3,11 @@
 The Panda (``panda.urdf`` of example-robot-data to ``panda_hand``, fingers locked), the
 scaling section's task at k = 4, one start, verified, planned as a user's first ``plan()``
 does: with its URDF joint limits, which bind (the bounded solve: Hermite-Simpson guesses,
-then the B-spline transcription of :mod:`tocontrol_ros.core.flat`), and without them (the
+then the B-spline transcription of :mod:`tocontrol_ros.core.direct.flat`), and without them (the
 maximum principle's multiple shooting). Routes:
 
 - *two tiers* (the default): long sources built at ``-O0`` first, optimised in the
-  background (:mod:`tocontrol_ros.core.compiled`);
+  background (:mod:`tocontrol_ros.core.robot.compiled`);
 - *optimised at once* (``TOCONTROL_COMPILE_TIERS=0``): every library optimised before use;
 - *-O0 only*: every library unoptimised, to measure what the quick builds cost a solve.
 
@@ -44,11 +44,11 @@ CODE = r"""
 import json, os, resource, sys, time
 import numpy as np
 t0 = time.perf_counter()
-from tocontrol_ros.core import compiled
+from tocontrol_ros.core.robot import compiled
 if os.environ.get("BENCH_O0_ONLY"):
     compiled.CFLAGS = compiled.LARGE_CFLAGS = compiled.QUICK_CFLAGS
-from tocontrol_ros.core.limits import JointLimits
-from tocontrol_ros.core.model import load_robot
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, plan
 path, locked, qa, qb, runs, limited = json.loads(sys.argv[1])

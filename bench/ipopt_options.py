@@ -5,7 +5,8 @@ Usage::
     scripts/dev bench ipopt_options.py '{"ipopt.mu_oracle": "probing"}' ...
 
 Each argument is a dict literal of extra ``nlpsol`` options, applied on top of
-:class:`~tocontrol_ros.core.direct.DirectCollocation`'s own (12 intervals, the paper's arm);
+:class:`~tocontrol_ros.core.direct.collocation.DirectCollocation`'s own (12 intervals, the
+paper's arm);
 the first row is the project's setting. The guesses are the ones a multistart solves: the
 paper's example and 20 seeded random pairs, 4 seed pairs each (84 solves). Every solve runs
 with every option set, interleaved and twice (the faster kept), so that the machine's drift
@@ -28,8 +29,8 @@ import numpy as np  # noqa: E402
 
 from bench.common import START, TARGET, paper_model  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
-from tocontrol_ros.core import direct as direct_module  # noqa: E402
-from tocontrol_ros.core.direct import DirectCollocation, initial_path  # noqa: E402
+from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path  # noqa: E402
+from tocontrol_ros.core.direct.collocation import collocation as direct_module  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
 from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
 from tocontrol_ros.core.solver import SolverOptions  # noqa: E402

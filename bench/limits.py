@@ -37,11 +37,11 @@ from bench.common import (  # noqa: E402
     table,
     timed,
 )
-from tocontrol_ros.core.direct import DirectCollocation  # noqa: E402
-from tocontrol_ros.core.limited import PAD, state_bounds  # noqa: E402
-from tocontrol_ros.core.limits import JointLimits  # noqa: E402
-from tocontrol_ros.core.model import load_robot  # noqa: E402
+from tocontrol_ros.core.direct.collocation import DirectCollocation  # noqa: E402
+from tocontrol_ros.core.direct.limited import PAD, state_bounds  # noqa: E402
 from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
+from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.solver import SolverOptions, plan, verify  # noqa: E402
 
 SEED = 16

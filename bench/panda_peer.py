@@ -31,11 +31,11 @@ from scipy.interpolate import make_interp_spline
 
 from bench.common import PANDA_LOCKED, Section, fmt_ms, log, panda_urdf, table, timed
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET
-from tocontrol_ros.core import compiled
-from tocontrol_ros.core.direct import DirectCollocation, initial_path
-from tocontrol_ros.core.limited import PAD, state_bounds
-from tocontrol_ros.core.model import load_robot
+from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
+from tocontrol_ros.core.direct.limited import PAD, state_bounds
 from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.solver import SolverOptions, plan
 
 K = 4.0

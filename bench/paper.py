@@ -29,7 +29,7 @@ from bench.common import (
     measure,
     table,
 )
-from tocontrol_ros.core.direct import DirectCollocation
+from tocontrol_ros.core.direct.collocation import DirectCollocation
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, plan, verify
 

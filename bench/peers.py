@@ -22,7 +22,7 @@ import numpy as np
 
 from bench.common import START, TARGET, Section, fmt_ms, fmt_t, log, measure, table, timed
 from bench.radau import RadauCollocation, interpolator
-from tocontrol_ros.core.direct import DirectCollocation, initial_path
+from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
 
 MESHES = (50, 100, 200)
 K = 4.0

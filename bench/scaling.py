@@ -29,9 +29,9 @@ from bench.common import (
     table,
     timed,
 )
-from tocontrol_ros.core import compiled
-from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.solver import _PLANNERS, SolverOptions, plan
 
 PLANAR_NS = (2, 3, 4, 5, 6, 7, 8)

@@ -28,9 +28,9 @@ from bench.common import (
 from bench.random_pairs import draw_pairs
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET
 from tocontrol_ros.core.certificate import certify
-from tocontrol_ros.core.limits import JointLimits
-from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.solver import SolverOptions, plan, verify
 from tocontrol_ros.core.verification import fine_sample
 
@@ -64,7 +64,7 @@ def _cvodes(problem, res, rtol, atol):
     """CVODES on the same chain as the certificate: (wall time, end point error)."""
     import casadi as ca
 
-    from tocontrol_ros.core.adaptive import AdaptiveIntegrator
+    from tocontrol_ros.core.indirect.adaptive import AdaptiveIntegrator
 
     traj = res.trajectory
     n = problem.model.n

@@ -25,12 +25,13 @@ sys.path.insert(0, str(Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
 
 from bench.common import MOVED_TARGET, START, TARGET, paper_model  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
-from tocontrol_ros.core import shooting, solver  # noqa: E402
+from tocontrol_ros.core import solver  # noqa: E402
+from tocontrol_ros.core.indirect import shooting  # noqa: E402
 from tocontrol_ros.core.problem import Problem, point  # noqa: E402
 from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
 
 try:  # the error estimates live in core/mesh.py since the solver's split, before in solver.py
-    from tocontrol_ros.core import mesh as _estimates
+    from tocontrol_ros.core.indirect import mesh as _estimates
     _ESTIMATE = "interval_errors"
 except ImportError:
     _estimates, _ESTIMATE = solver, "_interval_errors"

@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 import yaml
 
-from tocontrol_ros import batch, cdr
-from tocontrol_ros.batch_library import TOPIC_PREFIX, library_paths
-from tocontrol_ros.batch_tasks import TaskFileError, load_task_file
-from tocontrol_ros.core.model import default_urdf_path
+from tocontrol_ros.batch.cli import cli as batch
+from tocontrol_ros.batch.library import TOPIC_PREFIX, library_paths
+from tocontrol_ros.batch.tasks import TaskFileError, load_task_file
+from tocontrol_ros.core.robot.model import default_urdf_path
+from tocontrol_ros.recording import cdr
 
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
 REPO = Path(__file__).resolve().parents[1]
@@ -302,7 +303,7 @@ def test_replay_plays_one_motion_of_the_library(small_run):
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from trajectory_msgs.msg import JointTrajectory
 
-    from tocontrol_ros import mcap_io
+    from tocontrol_ros.recording import mcap_io
 
     _, _, paths = small_run
     topic = f"/t{uuid.uuid4().hex[:8]}/planner/trajectory"
@@ -353,7 +354,7 @@ def _outcome(task):
 
 
 def test_journal_drops_a_torn_last_line_and_plans_that_task_again(tmp_path):
-    from tocontrol_ros.batch_library import Journal
+    from tocontrol_ros.batch.library import Journal
 
     task_set = _three_tasks(tmp_path)
     path = tmp_path / "cell.journal.jsonl"
@@ -374,7 +375,7 @@ def test_journal_drops_a_torn_last_line_and_plans_that_task_again(tmp_path):
 
 
 def test_journal_records_a_task_once(tmp_path):
-    from tocontrol_ros.batch_library import Journal
+    from tocontrol_ros.batch.library import Journal
 
     task_set = _three_tasks(tmp_path)
     journal = Journal(tmp_path / "j.jsonl", task_set.fingerprint)
@@ -388,7 +389,7 @@ def test_journal_records_a_task_once(tmp_path):
 def test_progress_line_counts_rate_and_eta():
     import io
 
-    from tocontrol_ros.batch_runner import Progress
+    from tocontrol_ros.batch.runner import Progress
 
     out = io.StringIO()
     progress = Progress(total=10, done=4, stream=out, period=0.0)

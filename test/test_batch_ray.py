@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tocontrol_ros import batch
-from tocontrol_ros.batch_library import TOPIC_PREFIX, library_paths
+from tocontrol_ros.batch.cli import cli as batch
+from tocontrol_ros.batch.library import TOPIC_PREFIX, library_paths
 
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
 REPO = Path(__file__).resolve().parents[1]

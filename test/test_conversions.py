@@ -8,10 +8,10 @@ import pytest
 from geometry_msgs.msg import Point
 from sensor_msgs.msg import JointState
 
-from tocontrol_ros import conversions as conv
-from tocontrol_ros.core.model import default_urdf_path, load_robot
-from tocontrol_ros.params import descriptor
-from tocontrol_ros.planner_config import (
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes.params import descriptor
+from tocontrol_ros.nodes.planner_config import (
     PARAMETERS,
     ConfigError,
     config_from_values,

@@ -22,8 +22,8 @@ from std_msgs.msg import Empty, Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
-from tocontrol_ros import cdr as cdr_exact
-from tocontrol_ros import mcap_io
+from tocontrol_ros.recording import cdr as cdr_exact
+from tocontrol_ros.recording import mcap_io
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 mcap_ros2_dynamic = pytest.importorskip("mcap_ros2._dynamic")

@@ -3,18 +3,18 @@
 import pytest
 from rcl_interfaces.msg import ParameterType
 
-from tocontrol_ros import params
-from tocontrol_ros.core.model import default_urdf_path
-from tocontrol_ros.params import (
+from tocontrol_ros.core.robot.model import default_urdf_path
+from tocontrol_ros.nodes import params
+from tocontrol_ros.nodes.params import (
     ParameterSpec,
     RobotDescriptionError,
     descriptor,
     load_model,
     parse_locked_joints,
 )
-from tocontrol_ros.planner_config import PARAMETERS as PLANNER
-from tocontrol_ros.recorder import PARAMETERS as RECORDER
-from tocontrol_ros.tracker import PARAMETERS as TRACKER
+from tocontrol_ros.nodes.planner_config import PARAMETERS as PLANNER
+from tocontrol_ros.nodes.tracker import PARAMETERS as TRACKER
+from tocontrol_ros.recording.recorder import PARAMETERS as RECORDER
 
 
 def test_every_node_takes_the_robot_under_the_same_names():

@@ -11,9 +11,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from tocontrol_ros import cdr as cdr_exact
-from tocontrol_ros import mcap_io, report
-from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.recording import cdr as cdr_exact
+from tocontrol_ros.recording import mcap_io, report
 
 T = 1.5
 T0 = 100.0  # trajectory start stamp (s)

@@ -44,8 +44,8 @@ STOP_TIMEOUT = 20.0
 
 
 def default_urdf_path():
-    """Path of the bundled example arm (see :func:`tocontrol_ros.core.model.default_urdf_path`)."""
-    from tocontrol_ros.core.model import default_urdf_path as core_default
+    """Path of the bundled example arm (see ``core.robot.model.default_urdf_path``)."""
+    from tocontrol_ros.core.robot.model import default_urdf_path as core_default
 
     return core_default()
 
@@ -95,7 +95,7 @@ def main(argv=None):
     """
     args = build_parser().parse_args(argv)
     # Imported after argument parsing so that --help stays fast.
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
 
     path = args.urdf if args.urdf is not None else default_urdf_path()
     if not os.path.isfile(path):
@@ -439,7 +439,7 @@ def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None 
     js_count = listener.joint_states
     listener.close()
     print("\nprocesses stopped: " + ", ".join(f"{n} exit {c}" for n, c in codes.items()))
-    from tocontrol_ros import report
+    from tocontrol_ros.recording import report
 
     print(f"\nreport from the recording {recording}:")
     report_dir = out_dir / f"demo-{stamp}_report"

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.model import default_urdf_path, load_robot
 from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.core.solver import SolverOptions, plan
 
 #: Pinocchio's default gravity; the cross-checks give our models the same one.

@@ -18,8 +18,8 @@ import sys
 import numpy as np
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.model import default_urdf_path, load_robot
 from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.core.solver import SolverOptions, plan
 
 #: A Panda motion from rest whose velocity and position limits bind (as in test_flat.py).

@@ -16,9 +16,9 @@ import pytest
 from tocontrol_ros.core.certificate import Certificate, CertificateOptions, certify
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.limits import JointLimits
-from tocontrol_ros.core.model import default_urdf_path, load_robot
 from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.core.solver import SolverOptions, Status, plan
 from tocontrol_ros.core.trajectory import Trajectory
 from tocontrol_ros.core.verification import fine_sample

@@ -14,7 +14,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core import compiled
+from tocontrol_ros.core.robot import compiled
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
                                 reason="no C compiler")
@@ -184,8 +184,8 @@ def test_owned_builds_started_in_parallel_are_loaded_without_generating_again(
 def test_bounded_transcription_moves_to_the_optimised_library(private_cache, monkeypatch):
     """A model's B-spline functions are reloaded once their optimised build landed (they
     were kept as the quick build for the model's lifetime)."""
-    from tocontrol_ros.core.flat import FlatTranscription
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.direct.flat import FlatTranscription
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
     monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)
     model = load_robot(default_urdf_path())
@@ -201,9 +201,9 @@ def test_first_plan_compiles_the_shooting_only_when_a_solve_reaches_it(private_c
     shooting compiles those then, and succeeds (the compile time is not held against its
     time limit)."""
     from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-    from tocontrol_ros.core.limits import JointLimits
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
     from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
     from tocontrol_ros.core.solver import SolverOptions, plan
 
     model = load_robot(default_urdf_path())  # a new model: nothing of it loaded yet

@@ -50,12 +50,12 @@ def _probe(names: list[str]) -> dict:
 
 def test_core_modules_are_found():
     """Guards the test below against an empty package walk."""
-    assert "tocontrol_ros.core.model" in _core_modules()
+    assert "tocontrol_ros.core.robot.model" in _core_modules()
     assert "tocontrol_ros.core.errors" in _core_modules()
 
 
 def test_model_alone_imports_no_ros_nor_matplotlib():
-    assert _probe(["tocontrol_ros.core.model"]) == {"tocontrol_ros.core.model": []}
+    assert _probe(["tocontrol_ros.core.robot.model"]) == {"tocontrol_ros.core.robot.model": []}
 
 
 def test_every_core_module_imports_no_ros_nor_matplotlib():

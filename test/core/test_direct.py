@@ -15,7 +15,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.direct import GUESS_LOAD, DirectCollocation, initial_path, initial_paths
+from tocontrol_ros.core.direct.collocation import (
+    GUESS_LOAD,
+    DirectCollocation,
+    initial_path,
+    initial_paths,
+)
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 
 P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)

@@ -11,9 +11,9 @@ from scipy.integrate import solve_ivp
 from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
-from tocontrol_ros.core.direct import DirectCollocation
-from tocontrol_ros.core.flat import _sample_functions, basis, breakpoints, refined_breaks
-from tocontrol_ros.core.limited import NEAR_MAX_ITER, PAD, SPANS, state_bounds
+from tocontrol_ros.core.direct.collocation import DirectCollocation
+from tocontrol_ros.core.direct.flat import _sample_functions, basis, breakpoints, refined_breaks
+from tocontrol_ros.core.direct.limited import NEAR_MAX_ITER, PAD, SPANS, state_bounds
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, plan
 
@@ -191,7 +191,7 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
     """``on(breaks)`` (the solver built once per number of spans, the mesh a parameter)
     solves the refined mesh as a transcription built for those breakpoints: the same
     iterations, T and control points to rounding."""
-    from tocontrol_ros.core.flat import FlatTranscription
+    from tocontrol_ros.core.direct.flat import FlatTranscription
 
     res = panda_limited
     problem, traj = res.problem, res.trajectory
@@ -223,8 +223,8 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
 def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):
     """The planner's refined meshes have a multiple of SPAN_BUCKET spans and a second plan
     of the same motion builds no transcription."""
-    from tocontrol_ros.core import flat
-    from tocontrol_ros.core.limited import SPAN_BUCKET, _bucketed
+    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct.limited import SPAN_BUCKET, _bucketed
 
     br = _bucketed(np.array([0.0, 0.1, 0.15, 0.5, 1.0]))
     assert len(br) - 1 == SPAN_BUCKET and np.all(np.isin([0.0, 0.1, 0.15, 0.5, 1.0], br))
@@ -275,7 +275,7 @@ def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypa
     defaults from a least-squares fit of the coarse path, rose 0.9 % in T (another basin)
     and whose next level left the solution (T 0.54 s) and crawled at 1.5 s per iteration.
     """
-    from tocontrol_ros.core import flat
+    from tocontrol_ros.core.direct.collocation import flat
 
     qa = np.array([0.223, -0.589, 0.124, -2.499, 0.002, 1.962, 0.622])
     qb = np.array([0.695, 0.384, 0.19, -1.811, 0.319, 1.769, 0.679])
@@ -302,8 +302,8 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
     """The certified plan run 1e-4 faster leaves the set between its samples; the same
     path slowed down by the least of STRETCHES that suffices is back inside it, meets the
     NLP's constraints, and costs at most 3e-4 of T."""
-    from tocontrol_ros.core.flat import FlatTranscription
-    from tocontrol_ros.core.limited import RESIDUAL_TOL, SET_MARGIN, STRETCHES, _stretched
+    from tocontrol_ros.core.direct.flat import FlatTranscription
+    from tocontrol_ros.core.direct.limited import RESIDUAL_TOL, SET_MARGIN, STRETCHES, _stretched
 
     res = panda_limited
     problem, traj = res.problem, res.trajectory
@@ -328,7 +328,7 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
 def _plan_recording_pad_solves(problem: Problem, options: SolverOptions) -> tuple:
     """``plan(problem, options)`` and its re-solves with a widened set pad, each as
     ``(spans, warm, FlatResult)``."""
-    from tocontrol_ros.core import flat
+    from tocontrol_ros.core.direct.collocation import flat
 
     padded = []
     original = flat.FlatTranscription.solve
@@ -417,7 +417,8 @@ def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):
     uniform-mesh solve stopped at its 300 iterations at the solution's T (residual 1e-5)
     and the plan was LIMITS_INFEASIBLE. Here the cold solve is stopped at 15 iterations;
     continued warm from where it stopped, the plan converges and is certified."""
-    from tocontrol_ros.core import flat, solver
+    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.direct.collocation import flat
 
     q0 = np.array([-0.7974811845879118, -5.534415029278804, 0.1507150029737384,
                    4.834252918102076, 1.5310195967278124, 2.554346643521837])
@@ -477,8 +478,8 @@ def test_leaving_candidates_behind_keeps_the_best_motion(panda, monkeypatch):
     The Panda point to point of bench/scaling.py, 16 starts and 6 candidates: three
     distinct candidates within 2 % after the uniform mesh, within 0.3 % of each other.
     """
-    from tocontrol_ros.core import flat
-    from tocontrol_ros.core import limited as lim
+    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct.collocation import limited as lim
 
     a = panda.point(np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]))
     b = panda.point(np.array([0.8, 0.2, 0.3, -1.6, 0.2, 1.8, 0.5]))

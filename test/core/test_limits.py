@@ -7,14 +7,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.direct import DirectCollocation, initial_path
+from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.limits import (
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.robot.limits import (
     JointLimits,
     load_joint_limits_yaml,
     parse_joint_limits_yaml,
 )
-from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
 
 P_START = np.array([1.0, 1.0])
@@ -270,8 +270,8 @@ def test_a_uniform_solve_that_fails_at_k_is_continued_in_k(galicki, monkeypatch)
     """The bounded solve on the uniform mesh, when it fails at the requested k from the
     guess (forced here), is solved at k = 1 from the guess and continued in k (the planar
     8R's fallback: test_solver_stages.py)."""
-    from tocontrol_ros.core.flat import FlatResult, FlatTranscription
-    from tocontrol_ros.core.limited import SPANS, k_steps
+    from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+    from tocontrol_ros.core.direct.limited import SPANS, k_steps
 
     solve, calls = FlatTranscription.solve, []
 
@@ -331,7 +331,7 @@ def test_direct_guess_respects_bounds(galicki):
 
 def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
     """The Panda as it comes: its fingers (below panda_hand) are locked at 0 (closed)."""
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
 
     if "panda" not in robot_specs:
         pytest.skip("example-robot-data is not installed")
@@ -349,8 +349,8 @@ def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
 
 # ------------------------------------------------------- the candidates' refinement race
 def test_repeats_of_one_bounded_solution_are_refined_once():
-    from tocontrol_ros.core.flat import FlatResult
-    from tocontrol_ros.core.limited import _distinct_solutions
+    from tocontrol_ros.core.direct.flat import FlatResult
+    from tocontrol_ros.core.direct.limited import _distinct_solutions
 
     P = np.linspace(0.0, 1.0, 12).reshape(4, 3)
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.mesh import Mesh, interval_errors, merge_pairs
-from tocontrol_ros.core.shooting import integrate
+from tocontrol_ros.core.indirect.mesh import Mesh, interval_errors, merge_pairs
+from tocontrol_ros.core.indirect.shooting import integrate
 from tocontrol_ros.core.solver import SolverOptions
 
 
@@ -43,7 +43,7 @@ def test_switch_nodes_give_the_same_answer_as_a_uniform_refinement(galicki, solv
 def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(solved, solved_grid):
     """Every interval of the returned mesh passes the RK4 estimate; merging keeps switch
     nodes and graded intervals and only merges what stays under tol / MERGE_MARGIN."""
-    from tocontrol_ros.core.mesh import MERGE_MARGIN
+    from tocontrol_ros.core.indirect.mesh import MERGE_MARGIN
 
     res = solved["nodes"]
     grid, nodes, t_final, lengths = solved_grid
@@ -87,7 +87,7 @@ def test_final_mesh_meets_the_tolerance_and_merging_respects_switches(solved, so
 
 @pytest.mark.parametrize("kind", [1, -1])
 def test_graded_split_puts_a_short_graded_part_at_the_switch(kind):
-    from tocontrol_ros.core.mesh import CASCADE_RATIO, graded_split
+    from tocontrol_ros.core.indirect.mesh import CASCADE_RATIO, graded_split
 
     parts = graded_split(0.08, kind, err=5e-6, tol=1e-6, k=4.0)
     np.testing.assert_allclose(parts.sum(), 0.08, rtol=1e-14)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from tocontrol_ros.core.errors import ModelError, TocontrolError
-from tocontrol_ros.core.model import load_robot
+from tocontrol_ros.core.robot.model import load_robot
 
 INERTIAL = """<inertial><origin xyz="0.5 0 0"/><mass value="1"/>
       <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>"""

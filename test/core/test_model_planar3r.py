@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
 LENGTHS = np.array([2.5, 2.0, 1.0])
 MASSES = np.array([5.0, 4.0, 2.0])
@@ -198,7 +198,7 @@ def test_stretched_arm_reaches_sum_of_lengths(galicki):
 def test_ik_family_spans_both_elbows_and_reaches_the_point(galicki):
     """The closed-form family of the planar 3R: every configuration reaches the point, they
     are distinct modulo full turns, and each end angle that can reach it gives both elbows."""
-    from tocontrol_ros.core.ik import ik_family
+    from tocontrol_ros.core.robot.ik import ik_family
 
     p = np.array([2.0, 1.5])
     family = ik_family(galicki, p, 8)

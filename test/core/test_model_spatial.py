@@ -126,7 +126,7 @@ def test_self_check_passes(case):
 @pytest.mark.parametrize("name", ["rpr", "panda"])
 def test_tip_poses_at_once_equal_one_by_one(name, request):
     """The batched forward kinematics (messages) against the per-configuration one."""
-    from tocontrol_ros.core.kinematics import tip_pose, tip_poses
+    from tocontrol_ros.core.robot.kinematics import tip_pose, tip_poses
 
     model = request.getfixturevalue(name)
     rng = np.random.default_rng(7)
@@ -148,7 +148,7 @@ def test_ik_family_reaches_the_point_within_the_limits(name, request):
     """The batched Levenberg-Marquardt of ``ik_family`` on a redundant or 6-joint arm: every
     configuration returned reaches the point and lies within the URDF limits, and most
     seeds find one."""
-    from tocontrol_ros.core.ik import IK_TOL, _lm_batch, ik_family
+    from tocontrol_ros.core.robot.ik import IK_TOL, _lm_batch, ik_family
 
     model = request.getfixturevalue(name)
     rng = np.random.default_rng(3)

@@ -4,7 +4,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.pmp import CanonicalSystem, LawParams, control_law
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem, LawParams, control_law
 
 
 @pytest.mark.parametrize("k", [1, 2, 4, 16])

@@ -160,7 +160,7 @@ def test_guess_tolerance_keeps_the_basins(galicki):
     """The multistart's direct guesses at the default ``guess_tol`` reach the same solutions
     as at 1e-8 (the paper's example's seed pairs): the looser tolerance only saves
     iterations."""
-    from tocontrol_ros.core.direct import DirectCollocation, initial_paths
+    from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_paths
     from tocontrol_ros.core.seeding import SAME_BASIN
 
     problem = _problem(galicki)

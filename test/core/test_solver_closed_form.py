@@ -42,8 +42,8 @@ import numpy as np
 import pytest
 from scipy.integrate import IntegrationWarning, quad
 
-from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.solver import Status, plan
 
 M1, M2 = 3.0, 2.0  # kg

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.limits import JointLimits
-from tocontrol_ros.core.model import load_robot
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.result import WARM_RADIUS
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.solver import Planner, SolverOptions, plan
 
 #: One start: these tests do not depend on the basin, and multistart costs time.

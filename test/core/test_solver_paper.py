@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.direct import DirectCollocation
+from tocontrol_ros.core.direct.collocation import DirectCollocation
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify

@@ -124,7 +124,7 @@ def test_planar_5r_single_start_reaches_k4():
     """Issue 18: the planar 5R of the scaling benchmark, one start, stalled at k = 2.59 in
     the continuation (a switch inside an RK4 step at delta = 1e-3); the wide smoothing
     path reaches k = 4, and the certificate checks the solution independently."""
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
     from tocontrol_ros.core.solver import WIDE_DELTA
 
     model = load_robot(_planar_urdf(5))
@@ -153,7 +153,7 @@ def test_planar_8r_single_start_reaches_k4():
     placed in between). Along the tangent on the continuation's mesh delta comes down to
     the final smoothing; the certificate checks the solution independently. (A time limit
     for a loaded machine: this is about robustness, the benchmark measures speed.)"""
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
     from tocontrol_ros.core.solver import WIDE_DELTA
 
     model = load_robot(_planar_urdf(8))
@@ -173,7 +173,7 @@ def test_planar_8r_single_start_reaches_k4_by_the_direct_fallback():
     guess stopped at 300 iterations twice, T creeping, and the plan failed; by continuation
     in k on the uniform mesh it converges (docs/limits.md), and the certificate checks the
     motion independently. (A time limit for a loaded machine: this is about robustness.)"""
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
 
     model = load_robot(_planar_urdf(8))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -263,7 +263,7 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
 def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
     plane; the same arm with gravity in its plane does not qualify."""
-    from tocontrol_ros.core.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
     from tocontrol_ros.core.solver import _gravity_free
 
     q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
@@ -278,8 +278,8 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     problem is then solved as a B-spline path (method "direct") from the finer guess,
     certified, and the warnings say why. Without the fallback the shooting's failure is
     reported."""
-    from tocontrol_ros.core import limited
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.direct.collocation import limited
+    from tocontrol_ros.core.robot.model import load_robot
     from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
 
     model = load_robot(_planar_urdf(5))
@@ -323,7 +323,7 @@ def test_a_finer_guess_when_the_shooting_fails_from_the_coarse_one():
     """The planar 7R, one start: Newton at k = 1 stalls from the 10-interval guess; from
     the same guess solved on 24 intervals to 1e-8 it converges and the continuation reaches
     k = 4 (the maximum principle's solution, not the direct fallback)."""
-    from tocontrol_ros.core.model import load_robot
+    from tocontrol_ros.core.robot.model import load_robot
 
     model = load_robot(_planar_urdf(7))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -341,8 +341,8 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
     0.466 -> 0.402 s), so the goal failed. Solved again from 1e-5 the step converges and
     the plan succeeds, certified; an independent Hermite-Simpson collocation on 192
     intervals, started from the motion, agrees on T."""
-    from tocontrol_ros.core import flat as flat_mod
-    from tocontrol_ros.core.direct import DirectCollocation
+    from tocontrol_ros.core.direct.collocation import DirectCollocation
+    from tocontrol_ros.core.direct.collocation import flat as flat_mod
 
     modes = []
     original = flat_mod.FlatTranscription.solve

@@ -13,8 +13,7 @@ import pytest
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import plan
-from tocontrol_ros.core.tracking import (
+from tocontrol_ros.core.sim.tracking import (
     NominalTrajectory,
     PlantConfig,
     Tracker,
@@ -22,6 +21,7 @@ from tocontrol_ros.core.tracking import (
     make_plant_model,
     simulate,
 )
+from tocontrol_ros.core.solver import plan
 
 START, TARGET = PAPER_START, PAPER_TARGET
 #: The gains of config/tracker.yaml (normalised units: 1/rad, s/rad).

@@ -22,8 +22,9 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from tocontrol_ros import mcap_io, qos
-from tocontrol_ros.replay import recorded_initial_state
+from tocontrol_ros.nodes import qos
+from tocontrol_ros.recording import mcap_io
+from tocontrol_ros.recording.replay import recorded_initial_state
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]

@@ -29,8 +29,8 @@ from planner_harness import (
     storm_events,
 )
 
-from tocontrol_ros.conversions import seconds
-from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes.conversions import seconds
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]

@@ -20,7 +20,7 @@ from rclpy.context import Context
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from tocontrol_ros import mcap_io
+from tocontrol_ros.recording import mcap_io
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]

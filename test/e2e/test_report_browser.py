@@ -17,8 +17,8 @@ import time
 import pytest
 from test_report import write_two_motions
 
-from tocontrol_ros import report
-from tocontrol_ros.core.model import default_urdf_path, load_robot
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.recording import report
 
 pytestmark = pytest.mark.slow
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",

@@ -23,8 +23,8 @@ from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
 
-from tocontrol_ros import qos
-from tocontrol_ros.core.model import load_robot
+from tocontrol_ros.core.robot.model import load_robot
+from tocontrol_ros.nodes import qos
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

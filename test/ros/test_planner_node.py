@@ -26,13 +26,13 @@ from planner_harness import (
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 
-from tocontrol_ros.conversions import seconds
-from tocontrol_ros.core import compiled
 from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
-from tocontrol_ros.node_main import spin_slice
-from tocontrol_ros.params import RobotDescriptionError
-from tocontrol_ros.planner import EXECUTOR_THREADS, PlannerNode
+from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.nodes.conversions import seconds
+from tocontrol_ros.nodes.node_main import spin_slice
+from tocontrol_ros.nodes.params import RobotDescriptionError
+from tocontrol_ros.nodes.planner import EXECUTOR_THREADS, PlannerNode
 
 pytestmark = pytest.mark.ros
 NAMESPACE = f"/inproc_{os.getpid()}"
@@ -58,7 +58,7 @@ class Running:
         self.thread.start()
 
     def _spin(self):
-        # As the executables' main loop spins (tocontrol_ros.node_main).
+        # As the executables' main loop spins (tocontrol_ros.nodes.node_main).
         while not self._stopping.is_set() and self.context.ok():
             spin_slice(self.executor, 0.1)
 
@@ -184,7 +184,7 @@ def test_goal_topic_from_joint_state(planner, client):
 def test_goal_plans_from_a_joint_state_received_after_it(planner, client):
     """A joint state that arrives just after the goal (within FRESH_STATE_WAIT) is the start:
     a goal is not planned from a state still queued, or older, while the arm moves."""
-    from tocontrol_ros.planner import FRESH_STATE_WAIT
+    from tocontrol_ros.nodes.planner import FRESH_STATE_WAIT
 
     names = ["joint1", "joint2", "joint3"]
     old_q, new_q = np.array([0.2, 1.1, -0.4]), np.array([0.25, 1.05, -0.35])
@@ -480,8 +480,8 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     """A solution whose certificate fails (here: an impossible |H| tolerance) is a failure."""
     import dataclasses
 
-    from tocontrol_ros import planner as planner_module
     from tocontrol_ros.core.certificate import CertificateOptions
+    from tocontrol_ros.nodes import planner as planner_module
 
     strict = CertificateOptions(hamiltonian_tol=1e-15)
     real = planner_module.solver_options

@@ -21,10 +21,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from tocontrol_ros import cdr as cdr_exact
-from tocontrol_ros import mcap_io
-from tocontrol_ros.recorder import Recorder
-from tocontrol_ros.replay import Player
+from tocontrol_ros.recording import cdr as cdr_exact
+from tocontrol_ros.recording import mcap_io
+from tocontrol_ros.recording.recorder import Recorder
+from tocontrol_ros.recording.replay import Player
 
 pytestmark = pytest.mark.ros
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
@@ -160,7 +160,7 @@ def test_status_reports_subscriptions_and_first_messages(context, tmp_path):
     first_message once the first message is written (not before), once per topic."""
     from diagnostic_msgs.msg import DiagnosticStatus  # noqa: PLC0415
 
-    from tocontrol_ros.recorder import QOS_STATUS  # noqa: PLC0415
+    from tocontrol_ros.recording.recorder import QOS_STATUS  # noqa: PLC0415
 
     js_topic, other = unique("/joint_states"), unique("/other")
     ns = unique("/ns").rsplit("/", 1)[0]

@@ -24,9 +24,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from tocontrol_ros import cdr as cdr_exact
-from tocontrol_ros import mcap_io
-from tocontrol_ros.replay import Player, parse_remaps, recorded_initial_state
+from tocontrol_ros.recording import cdr as cdr_exact
+from tocontrol_ros.recording import mcap_io
+from tocontrol_ros.recording.replay import Player, parse_remaps, recorded_initial_state
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]

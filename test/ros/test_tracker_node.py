@@ -28,9 +28,9 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.model import default_urdf_path, load_robot
-from tocontrol_ros.params import RobotDescriptionError
-from tocontrol_ros.tracker import (
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes.params import RobotDescriptionError
+from tocontrol_ros.nodes.tracker import (
     PAPER_START_Q,
     QOS_STATUS,
     QOS_STREAM,
@@ -484,7 +484,7 @@ def test_size_and_duration_are_bounded(model):
 
 
 def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
-    import tocontrol_ros.tracker as tracker_module
+    import tocontrol_ros.nodes.tracker as tracker_module
 
     parse = tracker_module.nominal_from_msg
     during = []

@@ -36,12 +36,12 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from .adaptive import integrator
-from .compiled import c_name, compile_function
-from .errors import ProblemError
-from .pmp import BufferedFunction, CanonicalSystem
-from .problem import Problem
-from .trajectory import Trajectory, TrajectorySample
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.indirect.adaptive import integrator
+from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.robot.compiled import c_name, compile_function
+from tocontrol_ros.core.trajectory import Trajectory, TrajectorySample
 
 __all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify",
            "certify_open_loop"]
@@ -378,7 +378,7 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     The nominal torques are integrated from ``x(0)`` by scipy's DOP853 (adaptive, error
     control at ``options.rtol``; a different method from the motion's own), through the
     sampling's times, or by the trajectory's own ``open_loop(rtol, atol)`` when it has one
-    (:meth:`~tocontrol_ros.core.flat.FlatTrajectory.open_loop`: CVODES span by span); the
+    (:meth:`~tocontrol_ros.core.direct.flat.FlatTrajectory.open_loop`: CVODES span by span); the
     items are the end point, velocity (and position for a joint-state
     target), the torques inside the set, the joint limits along the sampling and the
     integration, and the solver's residual. There is no ``H``, boundary-of-costate or
@@ -389,7 +389,7 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     problem : Problem
     trajectory : object
         With ``T``, ``t_grid``, ``evaluate``, ``state`` and ``control`` (e.g.
-        :class:`~tocontrol_ros.core.flat.FlatTrajectory`).
+        :class:`~tocontrol_ros.core.direct.flat.FlatTrajectory`).
     options : CertificateOptions, optional
     sample : TrajectorySample, optional
         Default: 2001 equally spaced times.

@@ -3,7 +3,7 @@
 :class:`SolveContext` carries the problem, the options, the deadline and the cancel flag;
 :class:`Run` is the mutable iterate of one start, and :func:`newton` the solve that moves it.
 
-The stages (:mod:`~tocontrol_ros.core.solver`, :mod:`~tocontrol_ros.core.mesh`) take a
+The stages (:mod:`~tocontrol_ros.core.solver`, :mod:`~tocontrol_ros.core.indirect.mesh`) take a
 :class:`SolveContext` and a :class:`Run`; a cancelled or timed-out solve unwinds them all by
 :class:`StopError`, which :func:`~tocontrol_ros.core.solver.plan` turns into a result.
 """
@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .options import SolverOptions
-from .pmp import CanonicalSystem, LawParams
-from .problem import Problem
-from .result import PlanResult, Status
-from .shooting import NewtonReport, ShootingGrid, newton_solve
-from .trajectory import Trajectory
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem, LawParams
+from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid, newton_solve
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import PlanResult, Status
+from tocontrol_ros.core.trajectory import Trajectory
 
 __all__ = ["SolveContext", "Run", "StopError", "newton", "trajectory"]
 

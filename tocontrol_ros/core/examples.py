@@ -1,6 +1,6 @@
 """The paper's example (Galicki, Section 5), used by the demo, the figures, benchmarks, tests.
 
-The arm is the bundled URDF (:func:`~tocontrol_ros.core.model.default_urdf_path`,
+The arm is the bundled URDF (:func:`~tocontrol_ros.core.robot.model.default_urdf_path`,
 ``config/galicki_3r.urdf``); its end effector moves between two points of the plane.
 """
 

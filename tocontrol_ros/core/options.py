@@ -6,8 +6,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .certificate import CertificateOptions
-from .errors import ProblemError
+from tocontrol_ros.core.certificate import CertificateOptions
+from tocontrol_ros.core.errors import ProblemError
 
 __all__ = ["SolverOptions"]
 
@@ -68,7 +68,7 @@ class SolverOptions:
         (``docs/seeding.md``).
     ik_count : int
         Angles of the self-motion family per end point (see
-        :func:`~tocontrol_ros.core.ik.ik_family`).
+        :func:`~tocontrol_ros.core.robot.ik.ik_family`).
     exhaustive : bool
         Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
         a dense self-motion grid, every full-turn branch, many seed pairs solved by the

@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ProblemError
-from .limits import JointLimits
-from .model import RobotModel
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.robot.model import RobotModel
 
 __all__ = ["Endpoint", "Problem", "point", "joint_state", "MIN_MOVE", "REST_SPEED"]
 
@@ -190,7 +190,7 @@ def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
     Unreachable: numerical IK from a few starts fails. On the workspace boundary: every
     configuration found (three IK runs) is singular.
     """
-    from .ik import solve_ik
+    from tocontrol_ros.core.robot.ik import solve_ik
 
     q = solve_ik(model, p)
     if q is None:

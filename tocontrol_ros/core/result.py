@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .certificate import Certificate
-from .pmp import CanonicalSystem
-from .problem import Problem
-from .shooting import ShootingGrid
-from .trajectory import Trajectory
+from tocontrol_ros.core.certificate import Certificate
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem
+from tocontrol_ros.core.indirect.shooting import ShootingGrid
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.trajectory import Trajectory
 
 __all__ = ["Status", "StartRecord", "WarmState", "PathWarmState", "PlanResult",
            "WARM_RADIUS", "WARM_JOINT_RADIUS"]
@@ -168,7 +168,7 @@ class PlanResult:
     method : str
         ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
         ``"direct"``: the joint limits bind, and the bounded B-spline transcription solved
-        the problem (:mod:`~tocontrol_ros.core.limited`, ``docs/limits.md``).
+        the problem (:mod:`~tocontrol_ros.core.direct.limited`, ``docs/limits.md``).
     certificate : Certificate or None
         Every check with its value, tolerance and verdict (None with ``verify=False`` or
         without a solution).

@@ -1,7 +1,7 @@
 """Seed pairs of the multistart: start and target configurations, most promising first.
 
 The configurations come from the inverse kinematics
-(:func:`~tocontrol_ros.core.ik.ik_family`, spread over each end point's self-motion
+(:func:`~tocontrol_ros.core.robot.ik.ik_family`, spread over each end point's self-motion
 manifold); this module pairs them, adds the 2 pi-shifted branches of the joints that may
 turn the long way, and ranks every (start, target, branch) by a cheap time estimate, so that
 many seeds cost little and only the best few are solved by the direct method.
@@ -14,9 +14,9 @@ import itertools
 
 import numpy as np
 
-from .ik import ik_family
-from .options import SolverOptions
-from .problem import Problem
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.robot.ik import ik_family
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
            "branch_shifts",

@@ -3,15 +3,16 @@
 :func:`plan` is the one-shot entry point. For one start it
 
 1. solves a coarse direct transcription (k = 1) from a pair of inverse-kinematics seeds; its
-   multipliers are the initial costates (:mod:`tocontrol_ros.core.direct`);
+   multipliers are the initial costates (:mod:`tocontrol_ros.core.direct.collocation`);
 2. solves the boundary-value problem (16), (21) by multiple shooting and Newton at k = 1
-   (:mod:`tocontrol_ros.core.shooting`);
+   (:mod:`tocontrol_ros.core.indirect.shooting`);
 3. continues in ``k`` (doubling up to the requested value, bisecting a step that fails),
    with the control law smoothed by ``delta`` at intermediate values;
 4. at the requested ``k`` (> 1), moves to a mesh with a node at every sign change of a
    switching function ``S_i`` (switch nodes: the node's time is an unknown with
    ``S_i = 0`` there, and the RK4 steps next to it are graded towards it, see
-   :class:`~tocontrol_ros.core.shooting.ShootingGrid`), drives ``delta`` down until ``T`` no
+   :class:`~tocontrol_ros.core.indirect.shooting.ShootingGrid`), drives ``delta`` down until
+   ``T`` no
    longer changes, refines the mesh until every interval's RK4 error estimate is below
    tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
    unchanged;
@@ -35,7 +36,8 @@ This module is the orchestration; the pieces live next to it:
 - :mod:`~tocontrol_ros.core.context`: the solve's context (deadline, cancel flag, options),
   the iterate of one start and its Newton solve;
 - :mod:`~tocontrol_ros.core.seeding`: seed pairs of the multistart (step 1);
-- :mod:`~tocontrol_ros.core.mesh`: error estimates, refinement and the switch mesh (step 4);
+- :mod:`~tocontrol_ros.core.indirect.mesh`: error estimates, refinement and the switch mesh
+  (step 4);
 - :mod:`~tocontrol_ros.core.certificate`, :mod:`~tocontrol_ros.core.verification`: the
   checks of step 5 and the status they give.
 
@@ -55,13 +57,16 @@ from dataclasses import replace
 import numpy as np
 from scipy.sparse.linalg import splu
 
-from . import compiled
-from .certificate import certify
-from .compiled import c_name
-from .context import Run, SolveContext, StopError, newton, trajectory
-from .direct import DirectCollocation, DirectResult, compile_direct, initial_paths
-from .flat import FlatTranscription, compile_flat
-from .limited import (
+from tocontrol_ros.core.certificate import certify
+from tocontrol_ros.core.context import Run, SolveContext, StopError, newton, trajectory
+from tocontrol_ros.core.direct.collocation import (
+    DirectCollocation,
+    DirectResult,
+    compile_direct,
+    initial_paths,
+)
+from tocontrol_ros.core.direct.flat import FlatTranscription, compile_flat
+from tocontrol_ros.core.direct.limited import (
     FINE_GUESS_INTERVALS,
     PAD,
     SPANS,
@@ -71,14 +76,21 @@ from .limited import (
     state_bounds,
     touches,
 )
-from .mesh import refine, switch_mesh
-from .options import SolverOptions
-from .pmp import CanonicalSystem
-from .problem import Problem
-from .result import PathWarmState, PlanResult, StartRecord, Status, WarmState
-from .seeding import EXHAUSTIVE_CANDIDATES, distinct_basins, revolute_joints, seed_pairs
-from .shooting import NewtonReport, ShootingGrid
-from .verification import fine_sample, limit_warnings, verdict, verify
+from tocontrol_ros.core.indirect.mesh import refine, switch_mesh
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem
+from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status, WarmState
+from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.core.robot.compiled import c_name
+from tocontrol_ros.core.seeding import (
+    EXHAUSTIVE_CANDIDATES,
+    distinct_basins,
+    revolute_joints,
+    seed_pairs,
+)
+from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict, verify
 
 __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "WarmState", "Planner",
            "plan", "verify"]
@@ -177,7 +189,7 @@ class Planner:
         """Whether optimised libraries landed since this planner was made, none pending.
 
         A planner keeps the compiled functions it loaded; when the first use of a model got
-        quick builds (:mod:`~tocontrol_ros.core.compiled`), a new planner made once the
+        quick builds (:mod:`~tocontrol_ros.core.robot.compiled`), a new planner made once the
         optimised ones are in the cache solves faster.
         """
         return compiled.generation() != self.generation and compiled.pending_builds() == 0
@@ -192,7 +204,7 @@ class Planner:
         which a plan whose joint limits bind never uses (:func:`plan` leaves it to the
         first solve that gets there). With ``parallel``, the C sources are generated first
         and compiled on every core at once
-        (:func:`~tocontrol_ros.core.compiled.parallel_builds`), then loaded. Without
+        (:func:`~tocontrol_ros.core.robot.compiled.parallel_builds`), then loaded. Without
         ``shooting`` the bounded transcription is only started: its library builds while
         the guesses are solved, and the first bounded solve waits for it. (The
         certificate's functions are built on their first use.)
@@ -527,7 +539,7 @@ def _offer(ctx: SolveContext, snap: tuple) -> None:
     ctx.offer(frozen.t_final, build)
 
 
-#: The finer direct guess (:func:`~tocontrol_ros.core.limited.finer_guess`) tried when the
+#: The finer direct guess (:func:`~tocontrol_ros.core.direct.limited.finer_guess`) tried when the
 #: shooting failed from every coarse one is not shot from when the first candidate's
 #: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
 #: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
@@ -542,7 +554,7 @@ def _fallback(planner: Planner, ctx: SolveContext, timings: dict, t_start: float
               status: Status, message: str, records: list[StartRecord], run) -> PlanResult:
     """The problem solved as a B-spline path after the shooting failed on every candidate.
 
-    The bounded direct solve of :func:`~tocontrol_ros.core.limited.plan_limited` (with the
+    The bounded direct solve of :func:`~tocontrol_ros.core.direct.limited.plan_limited` (with the
     limits, if any, as bounds) from the multistart's guesses; when it fails too, the
     shooting's failure is reported, with both messages.
     """

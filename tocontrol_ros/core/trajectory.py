@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pmp import CanonicalSystem, LawParams
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem, LawParams
 
 __all__ = ["Trajectory", "TrajectorySample", "sample_times"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ProblemError
+from tocontrol_ros.core.errors import ProblemError
 
 __all__ = ["finite_array"]
 

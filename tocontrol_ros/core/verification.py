@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .certificate import Certificate
-from .options import SolverOptions
-from .problem import Problem
-from .result import Status
-from .trajectory import Trajectory, TrajectorySample
+from tocontrol_ros.core.certificate import Certificate
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import Status
+from tocontrol_ros.core.trajectory import Trajectory, TrajectorySample
 
 __all__ = ["SAMPLE_GAPS", "fine_sample", "limit_warnings", "verdict", "verify"]
 

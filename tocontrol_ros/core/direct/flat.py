@@ -1,0 +1,839 @@
+"""Bounded minimum-time motions as B-spline joint paths with inverse-dynamics torques.
+
+The transcription of the limit-bound problem (``docs/limits.md``). The joint path is a
+clamped B-spline of degree ``p`` in normalised time ``s = t / T`` with ``L`` uniform spans and
+``K = L + p`` control points ``P_j`` (n,):
+
+    q(t) = sum_j N_j(s) P_j,   qd(t) = q'(s) / T,   qdd(t) = q''(s) / T^2,
+
+and the torques are the inverse dynamics of that path, ``u(t) = ID(q, qd, qdd) / (tau_max
+scale)``, at every time: the published torques produce the published states exactly (up to
+the integrator that checks them), whatever the mesh. This matters for real arms: a light
+wrist (12 N m on a few hundredths of kg m^2) turns a torque error of 1e-4 into a speed error
+of a hundredth of a rad/s within a second, so a transcription whose torques are only
+interpolated (Hermite-Simpson, or piecewise-linear controls between mesh points) drifts by
+tenths of a metre when its torques are re-integrated.
+
+The NLP, in ``w = (P, T)``: minimise ``T`` subject to
+
+- the control set at ``S`` sample times (``per_span`` per span and ``s = 1``):
+  ``sum_i u_i^(2k) <= 1 - SET_PAD``;
+- the joint limits at every time, linear in ``w`` through the convex hull of the control
+  points and of the derivative's: ``lower <= P_j <= upper`` (bounds on the variables) and
+  ``-v T <= p (P_j+1 - P_j) / (t_j+p+1 - t_j+1) <= v T`` (linear rows);
+- the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
+  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
+
+Its derivatives are assembled from one compiled function per sample (the constraint, its
+gradient and its weighted Hessian in the span's ``(p + 1) n`` control points and ``T``).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+import weakref
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+from scipy import sparse
+from scipy.interpolate import BSpline, CubicHermiteSpline
+from scipy.sparse.linalg import spsolve
+
+from tocontrol_ros.core.direct.collocation import _Scatter
+from tocontrol_ros.core.indirect.pmp import LawParams
+from tocontrol_ros.core.robot.compiled import compile_owned
+from tocontrol_ros.core.robot.model import RobotModel
+from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
+
+__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP",
+           "RESTART_MAX_PERTURBATION", "RESUME_MU", "SET_PAD", "WARM_MU", "WARM_PUSH",
+           "compile_flat", "refined_breaks"]
+
+#: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
+#: times, so that the torques between them stay inside the set.
+SET_PAD = 1e-3
+
+#: A span is halved when some joint's acceleration changes across it by more than this
+#: fraction of that joint's largest acceleration (a junction of arcs: the cubic path ramps
+#: its acceleration over one span, which costs time in proportion to the span).
+REFINE_JUMP = 0.1
+
+#: IPOPT's first barrier parameter on a mesh whose solves start at a nearby solution
+#: (``FlatTranscription(warm=True)``), decreased monotonically, and how far (absolute and
+#: relative) the start is moved inside its bounds. With IPOPT's defaults (adaptive
+#: barrier from 0.1, 1 % inside the bounds) the first steps of a refined Panda solve left
+#: the solution (T 0.2756 -> 0.54 s) and then crawled (1.5 s per iteration at 132 spans);
+#: measured on 8 Panda problems with its limits (one start): 70 s in all and 33 s at most
+#: with the defaults, 14.6 s and 2.8 s from mu 1e-6 (1e-4: 48 s; 1e-5: 17 s); from 1e-7
+#: the refined solves took 716 IPOPT iterations in all instead of 867 (1e-8: 781), the
+#: same T on every problem.
+WARM_MU = 1e-7
+WARM_PUSH = 1e-6
+
+#: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
+#: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its
+#: bounds). From IPOPT's default start (1 % inside the bounds: on a 96-span Panda mesh the
+#: set's value at the start was 1e10) such re-solves crawled (0.5 s per iteration, MUMPS
+#: reallocating, 20 s without converging) on a Panda plan from a moving state; from this
+#: barrier they took 0.7 and 1.8 s there and 0.7 s on another Panda case (from 1e-3:
+#: 2.6-3.3 s; the adaptive barrier with the small push failed on one of the three; from
+#: :data:`WARM_MU` all three re-solves of a Panda case failed).
+RESUME_MU = 1e-5
+
+
+#: IPOPT's largest Hessian regularisation in a re-solve from its default start
+#: (``FlatTranscription(warm="restart")``); past it IPOPT skips to its restoration phase.
+#: Such re-solves (a wider set pad after the resumed one failed) can crawl with the
+#: regularisation at 1e8-1e12, each iteration factorising the KKT matrix over and over
+#: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
+#: here, the same 150 iterations took 2.2 s (1e6: 5.8 s), and bench/limits.py's case 29,
+#: whose resumed re-solves all fail, still converges from the default start. A bound on
+#: work per iteration where a wall-time cap was before.
+RESTART_MAX_PERTURBATION = 1e4
+
+
+def breakpoints(spans: int | np.ndarray) -> np.ndarray:
+    """Breakpoints on [0, 1] (L + 1,): ``spans`` uniform spans, or given increasing ones."""
+    if np.ndim(spans) == 0:
+        return np.linspace(0.0, 1.0, int(spans) + 1)
+    br = np.asarray(spans, dtype=float)
+    if br[0] != 0.0 or br[-1] != 1.0 or np.any(np.diff(br) <= 0):
+        raise ValueError("breakpoints must increase from 0 to 1")
+    return br
+
+
+def knots(breaks: np.ndarray, degree: int) -> np.ndarray:
+    """Clamped knot vector (L + 2 degree + 1,) on breakpoints ``breaks`` (L + 1,)."""
+    return np.concatenate([np.zeros(degree), breaks, np.ones(degree)])
+
+
+def basis(breaks: np.ndarray, degree: int, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Basis values and derivatives at normalised times ``s`` (S,).
+
+    Returns
+    -------
+    span : ndarray of int, shape (S,)
+        First control point of each sample's support (``span ... span + degree``).
+    b : ndarray, shape (S, 3, degree + 1)
+        Values, first and second derivatives (in ``s``) of those ``degree + 1`` basis
+        functions.
+    """
+    s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, 1.0)
+    L = len(breaks) - 1
+    K = L + degree
+    spl = BSpline(knots(breaks, degree), np.eye(K), degree, extrapolate=False)
+    rows = [spl(s), spl.derivative(1)(s), spl.derivative(2)(s)]
+    span = np.clip(np.searchsorted(breaks, s, side="right") - 1, 0, L - 1)
+    idx = span[:, None] + np.arange(degree + 1)[None, :]
+    b = np.stack([np.take_along_axis(np.nan_to_num(r), idx, axis=1) for r in rows], axis=1)
+    return span, b
+
+
+def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
+    """Per-sample functions (SX): torques, the set's value, gradient and weighted Hessian.
+
+    ``z = (vec P_loc, T)`` with ``P_loc`` (n, degree + 1) the span's control points. The
+    Hessian is assembled through ``y = (q, qd, qdd)`` (3n,), the inverse dynamics' inputs:
+    with ``u = ID(y) / scale``, ``w = mu dc/du`` and ``Ju = du/dy``,
+
+        Hess_z(mu c) = Jy^T (Ju^T diag(mu d2c/du2) Ju + Hess_y(w^T u)) Jy
+                       + sum_j (Ju^T w)_j Hess_z(y_j),
+
+    ``Jy = dy/dz`` being bilinear in ``P`` and ``1/T``. The same matrix as differentiating
+    ``c(z)`` twice, from a graph about half as long (the inverse dynamics is differentiated
+    in its ``3n`` inputs, not in the ``(degree + 1) n + 1`` of ``z``): shorter to compile
+    and to run.
+    """
+    n, d1 = model.n, degree + 1
+    P = ca.SX.sym("P", n, d1)
+    T = ca.SX.sym("T")
+    b = ca.SX.sym("b", 3, d1)
+    k = ca.SX.sym("k")
+    mu = ca.SX.sym("mu")
+    scale = ca.SX.sym("scale", n)
+    z = ca.vertcat(ca.vec(P), T)
+    y = ca.vertcat(ca.mtimes(P, b[0, :].T), ca.mtimes(P, b[1, :].T) / T,
+                   ca.mtimes(P, b[2, :].T) / T ** 2)
+    u = model.rnea_sym(y[:n], y[n:2 * n], y[2 * n:]) / scale
+    # |u|^(2k): k need not be an integer (u^5 at k = 2.5 would leave negative torques
+    # unbounded, and u^4.5 of a negative u is NaN).
+    au = ca.fabs(u)
+    c = ca.sum1(au ** (2 * k))
+    # The inverse dynamics' derivatives in its own inputs, then evaluated at y(z).
+    ys, vs, gs = ca.SX.sym("y", 3 * n), ca.SX.sym("v", n), ca.SX.sym("g", 3 * n)
+    tau = model.rnea_sym(ys[:n], ys[n:2 * n], ys[2 * n:])
+    jac_id = ca.Function("jac_id", [ys], [ca.jacobian(tau, ys)])
+    hess_id = ca.Function("hess_id", [ys, vs], [ca.hessian(ca.dot(vs, tau), ys)[0]])
+    jy = ca.jacobian(y, z)
+    hess_y = ca.Function("hess_y", [z, b, gs], [ca.hessian(ca.dot(gs, y), z)[0]])
+    ju = jac_id(y) / ca.repmat(scale, 1, 3 * n)
+    w = mu * 2 * k * ca.sign(u) * au ** (2 * k - 1)
+    juz = ca.mtimes(ju, jy)
+    hess = ca.mtimes(juz.T, ca.mtimes(ca.diag(mu * 2 * k * (2 * k - 1) * au ** (2 * k - 2)),
+                                      juz)) \
+        + ca.mtimes(jy.T, ca.mtimes(hess_id(y, w / scale), jy)) \
+        + hess_y(z, b, ca.densify(ca.mtimes(ju.T, w)))
+    dz = z.numel()
+    upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
+    qs, qds, qdds = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
+    return [
+        ca.Function("flat_set", [P, T, b, k, scale], [c]),
+        ca.Function("flat_set_grad", [P, T, b, k, scale], [c, ca.densify(ca.gradient(c, z))]),
+        ca.Function("flat_set_hess", [P, T, b, k, scale, mu], [ca.densify(ca.cse(upper))]),
+        ca.Function("flat_id", [qs, qds, qdds, scale],
+                    [model.rnea_sym(qs, qds, qdds) / scale])]
+
+
+def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function], str]:
+    """The per-sample functions compiled, once per model and degree (see ``compile_owned``).
+
+    Inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds` this only starts the build.
+    """
+    return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
+                         lambda: _sample_functions(model, degree))
+
+
+#: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
+OPEN_LOOP_POINTS = 8
+
+#: CVODES integrators of the open loop, per model, degree and tolerances.
+_OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
+                          stiff: bool = False) -> ca.Function:
+    """CVODES over one span: the model's forward dynamics under the span's torques.
+
+    The torques are the inverse dynamics of the span's path, a polynomial
+    ``q(sigma) = sum_j c_j sigma^j`` in the span's normalised time ``sigma`` in [0, 1]
+    (parameters ``(vec c, h)``, ``h`` the span's duration); the state is integrated with
+    ``dx/dsigma = h f(x, tau)`` (forward dynamics through the factorised mass matrix, not
+    the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
+    Adams with functional iteration (no Jacobians: the motion is not stiff), or BDF with
+    Newton iteration when ``stiff``.
+    """
+    key = (degree, rtol, atol, stiff)
+    cached = _OPEN_LOOP.setdefault(model, {})
+    if key in cached:
+        return cached[key]
+    n, d1 = model.n, degree + 1
+    x = ca.SX.sym("x", 2 * n)
+    c = ca.SX.sym("c", n, d1)
+    h = ca.SX.sym("h")
+    sig = ca.SX.sym("sigma")
+    pw = [sig ** j for j in range(d1)]
+    q = sum(c[:, j] * pw[j] for j in range(d1))
+    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
+    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
+    tau = model.rnea_sym(q, qd, qdd)
+    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    method = {} if stiff else {"linear_multistep_method": "adams",
+                               "nonlinear_solver_iteration": "functional"}
+    cached[key] = ca.integrator("flat_open_loop", "cvodes",
+                                {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode},
+                                0.0, grid.tolist(), {"reltol": rtol, "abstol": atol,
+                                                     "max_num_steps": 100000, **method})
+    return cached[key]
+
+
+class _Interrupt(ca.Callback):
+    """IPOPT's iteration callback: stops the solve at a deadline, when asked, or by work.
+
+    The work limit (a number of iterations) can be tighter than the transcription's own.
+    """
+
+    def __init__(self, nx: int, ng: int, npar: int) -> None:
+        ca.Callback.__init__(self)
+        self._sizes = (nx, 1, ng, nx, ng, npar)
+        self.arm(np.inf, None, None)
+        self.construct("flat_interrupt", {})
+
+    def arm(self, deadline: float, should_stop, max_iter: int | None) -> None:
+        self.deadline, self.should_stop, self.max_iter = deadline, should_stop, max_iter
+        self.calls, self.reason = 0, ""
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self._sizes[i], 1)
+
+    def eval(self, arg):
+        # IPOPT calls this once per iteration, the starting point (iteration 0) included.
+        self.calls += 1
+        if self.max_iter is not None and self.calls > self.max_iter:
+            self.reason = f"stopped after {self.max_iter} iterations (its work limit)"
+        elif self.should_stop is not None and self.should_stop():
+            self.reason = "cancelled"
+        elif time.perf_counter() > self.deadline:  # the caller's deadline, nothing else
+            self.reason = "time limit reached"
+        return [1 if self.reason else 0]
+
+
+@dataclass(frozen=True)
+class FlatResult:
+    """Outcome of a bounded B-spline solve.
+
+    Attributes
+    ----------
+    success : bool
+    message : str
+        IPOPT's return status.
+    T : float
+        Final time (s).
+    P : ndarray, shape (K, n)
+        Control points (rad, m).
+    residual : float
+        Largest violation of the NLP's constraints (its bounds included).
+    iterations : int
+    solve_time : float
+        Wall time of the IPOPT call (s).
+    lam_g : ndarray or None
+        IPOPT's multipliers of the NLP's rows (constraints) at the result, shape (rows,):
+        what a warm re-solve on the same mesh starts from (``warm="dual"``).
+    lam_x : ndarray or None
+        Its multipliers of the variables' bounds, shape (K n + 1,).
+    """
+
+    success: bool
+    message: str
+    T: float
+    P: np.ndarray
+    residual: float
+    iterations: int
+    solve_time: float
+    lam_g: np.ndarray | None = field(default=None, repr=False)
+    lam_x: np.ndarray | None = field(default=None, repr=False)
+
+
+class FlatTranscription:
+    """The bounded problem on one B-spline mesh, built once and reused for many solves.
+
+    Parameters
+    ----------
+    model : RobotModel
+    spans : int
+        Uniform spans ``L`` of the spline (``L + degree`` control points per joint).
+    start_kind, target_kind : {"point", "state"}
+    degree : int
+        Spline degree (3: ``C2`` paths, continuous torques).
+    per_span : int
+        Sample times per span for the control set and the limits.
+    torque_scale : float
+        ``1 - reserve``.
+    tol : float
+        IPOPT tolerance.
+    max_iter : int
+        IPOPT iteration limit.
+    warm : bool or "resume" or "dual" or "restart"
+        True: every solve starts at a solution of a nearby problem (a refined mesh, solved
+        from the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
+        a monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
+        instead of starting at ``mu = 0.1`` 1 % inside them, which first leaves the
+        solution (see :data:`WARM_MU`). ``"resume"``: from a solution that tightened
+        constraints make infeasible (a wider set pad): the same, the barrier from
+        :data:`RESUME_MU`. ``"dual"``: from a solution of this mesh and its multipliers
+        (``lam_g0``, ``lam_x0`` of :meth:`solve`: a warm re-solve for a moved target),
+        IPOPT's warm start (``warm_start_init_point``), the barrier from :data:`WARM_MU`:
+        on the Panda's warm re-solves (80 spans, target moved 2 cm along x, y, z) 35, 24
+        and 18 IPOPT iterations instead of 53, 46 and 34 from the path alone (BENCHMARKS.md;
+        29, 29 and 22 from the solution solved again alone, where the barrier from
+        1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
+        58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
+        ``"restart"``: IPOPT's default start, its regularisation capped at
+        :data:`RESTART_MAX_PERTURBATION` (the last resort of a re-solve with a wider pad).
+    """
+
+    def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
+                 target_kind: str = "point", degree: int = 3, per_span: int = 3,
+                 torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
+                 warm: bool | str = False) -> None:
+        self.breaks = breakpoints(spans)
+        self.spans = len(self.breaks) - 1
+        self.model, self.degree, self.per_span = model, degree, per_span
+        self.start_kind, self.target_kind = start_kind, target_kind
+        self.torque_scale = torque_scale
+        self.warm = warm
+        n, m, L, p = model.n, model.m, self.spans, degree
+        br = self.breaks
+        K = L + p
+        self.K = K
+        funs, self.compile_status = compile_flat(model, degree)
+        self._set, set_grad, set_hess, self._id = funs
+        self.scale = model.tau_max * torque_scale
+        S = L * per_span + 1
+        # Sample r lies in span r // per_span (the last, s = 1, in the last span), whatever
+        # the breakpoints.
+        self._span = np.minimum(np.arange(S) // per_span, L - 1)
+        self._geo = self._geometry(br)
+        nw = K * n + 1
+        iT = nw - 1
+        d = (p + 1) * n + 1
+        w = ca.MX.sym("w", nw)
+        sizes = [m if kind == "point" else 2 * n for kind in (start_kind, target_kind)]
+        par = ca.MX.sym("par", sum(sizes) + 1)
+        # The mesh's geometry is a parameter too (see :meth:`on`): the samples' basis
+        # values, the derivative's hull coefficients, the end velocities' basis.
+        geo = ca.MX.sym("geo", len(self._geo))
+        nb = 3 * (p + 1) * S
+        bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
+        cvec = geo[nb:nb + K - 1]
+        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:]
+        Pm = ca.reshape(w[:K * n], n, K)
+        T = w[iT]
+        k = par[-1]
+        sc = ca.DM(self.scale)
+        # Each sample's local control points, side by side: (n, (p + 1) S).
+        span = self._span
+        cols = (span[:, None] + np.arange(p + 1)[None, :]).ravel()
+        Ploc = Pm[:, cols.tolist()]
+        zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
+
+        # Linear rows: the convex hull of the derivative's control points,
+        # c_j (P_j+1 - P_j), bounds that hold at every time, not only at the samples (the
+        # control points' own hull is bounds on the variables: no rows, see ``bounds``).
+        # Velocity rows c_j (P_j+1 - P_j) + v T >= 0 and c_j (P_j+1 - P_j) - v T <= 0: v is
+        # a parameter of the solve.
+        vpar = ca.MX.sym("v", n)
+        self._lin_kind = []
+        g_lin = []
+        for i in range(n):
+            diff = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
+            for sign, kind in ((+1, "v"), (-1, "V")):
+                g_lin.append(diff + sign * vpar[i] * T)
+                self._lin_kind.append((kind, i, K - 1))
+        g_lin = ca.vertcat(*g_lin)
+        r0 = g_lin.numel()
+
+        # Boundary rows.
+        sv, tv = par[:sizes[0]], par[sizes[0]:-1]
+        q_sym = ca.SX.sym("q", n)
+        fk = ca.Function("P", [q_sym], [model.point_sym(q_sym)])
+        g_b = []
+        for kind, value, pts, b_vel, q_end in (
+                (start_kind, sv, Pm[:, :p + 1], b_start_vel, Pm[:, 0]),
+                (target_kind, tv, Pm[:, K - p - 1:], b_end_vel, Pm[:, -1])):
+            vel = ca.mtimes(pts, b_vel)  # q'(s) at the end: T qd
+            if kind == "point":  # at rest, anywhere on the self-motion manifold
+                g_b += [fk(q_end) - value, vel]
+            else:
+                g_b += [q_end - value[:n], vel - T * value[n:]]
+        g_b = ca.vertcat(*g_b)
+
+        g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
+        ng_set, ng_lin, ng_b = S, r0, g_b.numel()
+        ng = ng_set + ng_lin + ng_b
+        g = ca.vertcat(g_set, g_lin, g_b)
+        self._rows = (ng_set, ng_lin, ng_b)
+
+        # Jacobian: the samples' gradients scattered, the linear rows, the boundary rows.
+        cs, grads = set_grad.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
+        scat = _Scatter(ng, nw)
+        for r in range(S):
+            scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
+        jac_set = scat.apply(ca.vec(grads))
+        jac_lin = ca.jacobian(g_lin, w)
+        jac_b = ca.jacobian(g_b, w)
+        g_eval = ca.vertcat(ca.vec(cs), g_lin, g_b)  # the set's values come with its gradients
+        jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
+            + ca.vertcat(ca.MX(ng_set + ng_lin, nw), jac_b)
+        lam_g = ca.MX.sym("lam_g", ng)
+        lam_f = ca.MX.sym("lam_f")
+        hs = set_hess.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc,
+                             lam_g[:S].T)
+        sh = _Scatter(nw, nw, triu=True)
+        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
+                                           strict=True))
+        for r in range(S):
+            v = np.concatenate([zvars[r], [iT]])
+            sh.add(v[ur], v[uc])
+        hess = sh.apply(ca.vec(hs))
+        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
+        hess = hess + hb
+        self._nw, self._iT, self._ng = nw, iT, ng
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                "ipopt.tol": tol, "ipopt.max_iter": max_iter, "ipopt.acceptable_tol": tol,
+                "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
+                "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
+                "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar, geo)], [
+                    T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
+                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar, geo)], [g_eval, jac],
+                                     ["x", "p"], ["g", "jac"]),
+                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar, geo), lam_f, lam_g],
+                                        [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
+                "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+        if warm == "dual":
+            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
+                         "ipopt.warm_start_init_point": "yes"})
+        elif warm == "restart":
+            opts["ipopt.max_hessian_perturbation"] = RESTART_MAX_PERTURBATION
+        elif warm:
+            mu = RESUME_MU if warm == "resume" else WARM_MU
+            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
+                f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
+                                                     "slack_bound_push", "slack_bound_frac")}})
+        allp = ca.vertcat(par, vpar, geo)
+        self._interrupt = _Interrupt(nw, ng, allp.numel())
+        opts["iteration_callback"] = self._interrupt
+        self._g = ca.Function("g", [w, allp], [g])
+        self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
+
+    @property
+    def rows(self) -> int:
+        """Rows of the NLP (its constraints; ``lam_g`` has as many)."""
+        return self._ng
+
+    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``lbg``, ``ubg``, ``lbx``, ``ubx`` for state bounds (2n,) (infinite entries: none).
+
+        The position bounds are bounds on the control points (variables, not rows); ``T``
+        is at least 1 ms.
+        """
+        n = self.model.n
+        ng_set, ng_lin, ng_b = self._rows
+        lbg = np.concatenate([np.full(ng_set, -np.inf), np.zeros(ng_lin), np.zeros(ng_b)])
+        ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
+                              np.zeros(ng_b)])
+        r = ng_set
+        for kind, i, count in self._lin_kind:
+            rows = slice(r, r + count)
+            finite = np.isfinite(upper[n + i])
+            if kind == "v":  # B1 P + v T >= 0
+                lbg[rows], ubg[rows] = (0.0 if finite else -np.inf), np.inf
+            else:  # B1 P - v T <= 0
+                lbg[rows], ubg[rows] = -np.inf, (0.0 if finite else np.inf)
+            r += count
+        lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
+        ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
+
+        def big(v):
+            return np.where(np.isfinite(v), v, np.copysign(1e20, v))
+        return big(lbg), big(ubg), big(lbx), big(ubx)
+
+    def fit(self, T: float, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Least-squares control points (K, n) of a path given at times ``t`` (s).
+
+        The positions and velocities ``q``, ``qd`` (len(t), n) are sampled at four times as
+        many times as there are control points, so that the fit is determined whatever the
+        number of given times, from their cubic Hermite interpolant (the state of a
+        Hermite-Simpson solution between its mesh points; linear interpolation of each,
+        whose kinks the spline followed with accelerations, started the planar 8R's fallback
+        with torques 30 times the set's). (A refined mesh takes a solution's control points
+        exactly instead: :meth:`FlatTrajectory.control_points_on`.)
+        """
+        tf = np.linspace(0.0, T, 4 * self.K)
+        path = CubicHermiteSpline(np.asarray(t, dtype=float), np.asarray(q), np.asarray(qd))
+        qf, vf = path(tf), path(tf, 1)
+        span, b = basis(self.breaks, self.degree, tf / T)
+        # Banded rows (degree + 1 per time): solved through sparse normal equations, which
+        # stay well conditioned for a B-spline basis sampled this densely.
+        r = np.repeat(np.arange(len(tf)), self.degree + 1)
+        c = (span[:, None] + np.arange(self.degree + 1)[None, :]).ravel()
+        A = sparse.vstack([sparse.csr_matrix((b[:, 0].ravel(), (r, c)), (len(tf), self.K)),
+                           sparse.csr_matrix((b[:, 1].ravel() / T, (r, c)),
+                                             (len(tf), self.K))]).tocsc()
+        return spsolve((A.T @ A).tocsc(), A.T @ np.vstack([qf, vf])).reshape(self.K, -1)
+
+    def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
+              t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              set_pad: float = SET_PAD, deadline: float = np.inf,
+              max_iter: int | None = None, should_stop=None, lam_g0: np.ndarray | None = None,
+              lam_x0: np.ndarray | None = None) -> FlatResult:
+        """Solve from a guess.
+
+        Parameters
+        ----------
+        start_value : ndarray
+            Start point (m,) or joint state (2n,).
+        target_value : ndarray
+            Target point (m,) or joint state (2n,).
+        k : float
+        t_guess : float
+            Final time guess (s).
+        p_guess : ndarray, shape (K, n)
+            Control points guess.
+        lower, upper : ndarray, shape (2n,)
+            State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
+            symmetric).
+        set_pad : float
+        deadline : float
+            The caller's deadline, a ``time.perf_counter()`` value (s): IPOPT stops there
+            (a failed result). The one reading of the clock that may end a solve.
+        max_iter : int, optional
+            Stop after this many IPOPT iterations (a failed result whose message says so);
+            default: the transcription's own limit. A work limit, so that the same
+            request takes the same path on an idle and on a loaded machine.
+        should_stop : callable, optional
+            Polled every IPOPT iteration; returning True stops the solve.
+        lam_g0, lam_x0 : ndarray, optional
+            Multipliers to start from (:attr:`FlatResult.lam_g`, :attr:`FlatResult.lam_x`
+            of a solve on this mesh); used by a ``warm="dual"`` transcription.
+
+        Returns
+        -------
+        FlatResult
+        """
+        n = self.model.n
+        par = self._parameters(start_value, target_value, k, upper)
+        lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
+        w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
+        t0 = time.perf_counter()
+        self._interrupt.arm(deadline, should_stop, max_iter)
+        try:
+            duals = {} if lam_g0 is None else {"lam_g0": lam_g0, "lam_x0": lam_x0}
+            sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **duals)
+            why = self._interrupt.reason
+        finally:
+            self._interrupt.arm(np.inf, None, None)
+        elapsed = time.perf_counter() - t0
+        stats = self.solver.stats()
+        w = np.array(sol["x"]).ravel()
+        return FlatResult(
+            success=bool(stats["success"]), message=why or str(stats["return_status"]),
+            T=float(w[-1]), P=w[:-1].reshape(self.K, n),
+            residual=self._residual(w, par, lbg, ubg, lbx, ubx),
+            iterations=int(stats.get("iter_count", -1)), solve_time=elapsed,
+            lam_g=np.array(sol["lam_g"]).ravel(), lam_x=np.array(sol["lam_x"]).ravel())
+
+    def residual(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
+                 T: float, P: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 set_pad: float = SET_PAD) -> float:
+        """Largest violation of the NLP's constraints and bounds at ``(P, T)``.
+
+        Parameters as in :meth:`solve` (``P`` (K, n) control points, ``T`` in s).
+        """
+        par = self._parameters(start_value, target_value, k, upper)
+        w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
+        return self._residual(w, par, *self.bounds(lower, upper, set_pad))
+
+    def _parameters(self, start_value, target_value, k, upper) -> np.ndarray:
+        n = self.model.n
+        vmax = np.where(np.isfinite(upper[n:]), upper[n:], 0.0)
+        return np.concatenate([start_value, target_value, [k], vmax, self._geo])
+
+    def _geometry(self, breaks: np.ndarray) -> np.ndarray:
+        """The NLP's parameters that depend on the breakpoints (L + 1,).
+
+        Raises ValueError if a sample falls outside span ``r // per_span`` (the NLP's
+        structure, ``self._span``).
+        """
+        p, L, ps = self.degree, len(breaks) - 1, self.per_span
+        frac = np.arange(ps) / ps
+        s = np.concatenate([(breaks[:-1, None] + frac[None, :] * np.diff(breaks)[:, None])
+                            .ravel(), [1.0]])
+        span, b = basis(breaks, p, s)
+        if not np.array_equal(span, self._span):
+            raise ValueError("breakpoints too close together for the samples' spans")
+        tk = knots(breaks, p)
+        K = L + p
+        c = p / (tk[p + 1:p + K] - tk[1:K])
+        bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
+        # The first and last samples are s = 0 and s = 1: the end velocities' basis.
+        return np.concatenate([bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]])
+
+    def on(self, breaks: np.ndarray) -> FlatTranscription:
+        """The same NLP on other breakpoints with as many spans (no new build).
+
+        Parameters
+        ----------
+        breaks : ndarray, shape (spans + 1,)
+            Increasing breakpoints from 0 to 1.
+
+        Returns
+        -------
+        FlatTranscription
+            A view sharing this one's solver (solves through either are not concurrent).
+        """
+        breaks = breakpoints(breaks)
+        if len(breaks) != len(self.breaks):
+            raise ValueError(f"{len(breaks) - 1} spans given, the transcription has "
+                             f"{self.spans}")
+        other = copy.copy(self)
+        other.breaks = breaks
+        other._geo = other._geometry(breaks)
+        return other
+
+    def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
+        g = np.array(self._g(w, par)).ravel()
+        return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                         np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+
+
+class FlatTrajectory:
+    """A bounded B-spline solution: states from the spline, torques its inverse dynamics.
+
+    Same interface as :class:`~tocontrol_ros.core.trajectory.Trajectory` for sampling and
+    verification; it has no costates (``psi``, ``S`` and ``H`` are NaN).
+
+    Parameters
+    ----------
+    transcription : FlatTranscription
+    result : FlatResult
+    k : float
+    """
+
+    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
+        # Only what evaluating needs: not the transcription (its NLP solver is large, and a
+        # refined mesh's transcription serves one motion).
+        model = transcription.model
+        self._model = model
+        self.n = model.n
+        self.joint_names = model.joint_names
+        self.law = LawParams(k, 0.0, transcription.torque_scale)
+        self.par = self.law.array()
+        self.breaks, self._degree = transcription.breaks, transcription.degree
+        self._id = transcription._id
+        self._scale = transcription.scale
+        self._set_result(result)
+
+    def with_result(self, result: FlatResult) -> FlatTrajectory:
+        """The same mesh and model with other control points and ``T`` (e.g. to test)."""
+        other = copy.copy(self)
+        other._set_result(result)
+        return other
+
+    def _set_result(self, result: FlatResult) -> None:
+        self.result = result
+        self.T = result.T
+        self._P = result.P
+        self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
+        self._d1 = self._spl.derivative(1)
+        self._d2 = self._spl.derivative(2)
+        self._maps: dict = {}
+        self.t_grid = self.breaks * self.T
+        x = self._path(self.t_grid)[:2]
+        self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
+
+    def control_points_on(self, breaks: np.ndarray) -> np.ndarray:
+        """The same path's control points (K', n) on finer breakpoints (exact).
+
+        ``breaks`` must hold this path's breakpoints: the new ones are inserted as knots
+        (Boehm), which keeps the path, its velocities and accelerations, and so its torques,
+        exactly, where a least-squares fit on a mesh with short spans changes the
+        accelerations (a fit's constraint violation was 425 at the start of a refined
+        Panda solve, and IPOPT then wandered off).
+        """
+        spl = self._spl
+        for x in np.setdiff1d(breaks, self.breaks):
+            spl = spl.insert_knot(float(x))
+        if len(spl.t) != len(breaks) + 2 * self._degree or not np.allclose(
+                spl.t, knots(breaks, self._degree), rtol=0.0, atol=1e-14):
+            raise ValueError("`breaks` must contain the path's own breakpoints")
+        return np.asarray(spl.c)
+
+    def _path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T) / self.T
+        return self._spl(s), self._d1(s) / self.T, self._d2(s) / self.T ** 2
+
+    def _controls(self, q, qd, qdd) -> np.ndarray:
+        if len(q) == 1:  # the integrators' path: one time per call
+            return np.array(self._id(q[0], qd[0], qdd[0], self._scale)).T
+        if len(q) not in self._maps:
+            self._maps[len(q)] = self._id.map(len(q))
+        return np.array(self._maps[len(q)](q.T, qd.T, qdd.T, self._scale)).T
+
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The published torques integrated from ``x(0)``, span by span (CVODES).
+
+        Adams first; BDF (``stiff``) when Adams fails.
+
+        Returns
+        -------
+        t : ndarray, shape (L OPEN_LOOP_POINTS + 1,)
+            Times (s).
+        x : ndarray, shape (len(t), 2n)
+            Open-loop states.
+        success : bool
+        """
+        integ = _open_loop_integrator(self._model, self._degree, rtol, atol, stiff)
+        br = self.breaks
+        d1 = self._degree + 1
+        fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
+        x = self.state(0.0)[0, :2 * self.n]
+        ts, xs = [0.0], [x]
+        try:
+            for j in range(len(br) - 1):
+                ds = br[j + 1] - br[j]
+                # Taylor coefficients at the span's start (right-hand derivatives), in sigma.
+                derivs = np.stack([self._spl.derivative(i)(br[j]) if i else self._spl(br[j])
+                                   for i in range(d1)], axis=1)
+                coef = derivs * ds ** np.arange(d1) / fact
+                out = integ(x0=x, p=np.concatenate([coef.ravel(order="F"), [ds * self.T]]))
+                path = np.array(out["xf"]).T
+                xs.append(path)
+                ts.append(self.T * (br[j] + ds * np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]))
+                x = path[-1]
+        except RuntimeError:
+            if not stiff:
+                return self.open_loop(rtol, atol, stiff=True)
+            return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), False
+        return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
+
+    def set_values(self, points: int = 32) -> np.ndarray:
+        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+        br = self.breaks
+        frac = (np.arange(points) + 0.5) / points
+        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
+        u = self.control_at(s * self.T)
+        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
+        q, qd, _ = self._path(t)
+        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    def evaluate(self, t) -> TrajectorySample:
+        """All quantities at times ``t`` (s), scalar or shape (K,)."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        q, qd, qdd = self._path(t)
+        u = self._controls(q, qd, qdd)
+        nan = np.full((len(t), self.n), np.nan)
+        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
+                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
+
+    def sample(self, dt: float) -> TrajectorySample:
+        """Samples every ``dt`` seconds from 0, always including ``T``."""
+        return self.evaluate(sample_times(self.T, dt))
+
+    def control(self, t: float) -> np.ndarray:
+        """Normalised control at one time, shape (n,)."""
+        return self.control_at(np.atleast_1d(float(t)))[0]
+
+    def control_at(self, t: np.ndarray) -> np.ndarray:
+        """Normalised controls at times ``t`` (K,), shape (K, n)."""
+        return self._controls(*self._path(t))
+
+
+def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
+    """The breakpoints with every span halved where the motion changes its acceleration.
+
+    A span is halved when, for some joint, the acceleration at its two ends differs by more
+    than ``threshold`` times that joint's largest acceleration along the motion.
+
+    Returns
+    -------
+    ndarray, shape (L' + 1,)
+        New breakpoints on [0, 1] (the old ones when no span needs halving).
+    """
+    br = trajectory.breaks
+    T = trajectory.T
+    fine = trajectory._path(np.linspace(0.0, T, 20 * len(br)))[2]
+    scale = np.maximum(np.max(np.abs(fine), axis=0), 1e-9)
+    acc = trajectory._path(br * T)[2] / scale
+    jump = np.max(np.abs(np.diff(acc, axis=0)), axis=1)
+    split = jump > threshold
+    return np.union1d(br, 0.5 * (br[:-1] + br[1:])[split])

@@ -1,0 +1,590 @@
+"""Plans whose joint limits bind: detection, and the bounded direct solve.
+
+:func:`~tocontrol_ros.core.solver.plan` solves the maximum principle first; when its best
+direct guess comes within :data:`TOUCH` of a joint limit (:func:`touches`), or its solution
+leaves the limits, :func:`plan_limited` solves the problem again with the limits as hard
+bounds:
+
+1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
+   from the initial path timed within the velocity limits (the multistart's own guesses
+   when it solved them within the bounds at ``k = 1``; else at the requested ``k``);
+2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
+   B-spline joint paths whose torques are their inverse dynamics
+   (:mod:`~tocontrol_ros.core.direct.flat`) on :data:`SPANS` uniform spans (a basin that fails is
+   replaced by the next, repeats dropped); those within :data:`REFINE_WINDOW` of the best
+   are solved again level by level (at most :data:`REFINEMENTS` levels) with the spans
+   halved where the acceleration changes (the junctions of arcs), each level leaving
+   behind those too far above the best (:data:`LEVEL_WINDOWS`);
+3. the least ``T`` is verified (re-integration, limits included) and returned with
+   ``method="direct"``.
+
+See ``docs/limits.md`` for the formulation and why the maximum principle does not carry the
+limits itself.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+
+from tocontrol_ros.core.certificate import certify_open_loop
+from tocontrol_ros.core.context import SolveContext
+from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
+from tocontrol_ros.core.direct.flat import (
+    SET_PAD,
+    FlatResult,
+    FlatTrajectory,
+    FlatTranscription,
+    refined_breaks,
+)
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status
+from tocontrol_ros.core.seeding import (
+    EXHAUSTIVE_CANDIDATES,
+    SAME_BASIN,
+    distinct_basins,
+    seed_pairs,
+)
+from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
+
+if TYPE_CHECKING:
+    from tocontrol_ros.core.solver import Planner
+
+__all__ = ["FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "PAD", "REFINEMENTS", "SPANS", "TOUCH",
+           "finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
+
+#: A direct guess within this fraction of a position range (or of a velocity limit) of the
+#: planning limits is taken to touch them.
+TOUCH = 0.02
+
+#: Uniform spans of the first B-spline solve.
+SPANS = 32
+
+#: The bounded solve keeps inside the planning limits by this fraction of each range (of
+#: each velocity limit), so that its certificate's re-integration, a different integrator,
+#: stays inside them.
+PAD = 3e-4
+
+#: The spans are halved at the junctions at most this many times.
+REFINEMENTS = 4
+
+#: Candidates whose first (uniform-mesh) ``T`` is within this fraction of the best one are
+#: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
+REFINE_WINDOW = 0.02
+
+#: After refinement level ``l`` (0-based), candidates more than ``LEVEL_WINDOWS[l]`` above
+#: the best ``T`` so far stop there: the refinement lowers ``T`` by up to 1.6 % in all, of
+#: which up to 0.2 % after the first level and 4e-5 after the second (the Panda's
+#: candidates; a candidate 0.2 % behind after the first level was the best in the end).
+LEVEL_WINDOWS = (5e-3, 1e-3, 5e-4)
+
+#: IPOPT iterations a solve from a nearby solution may take (a refinement level, a pad
+#: re-solve, a warm re-solve): they take 15-40, one that needs far more is crawling (a
+#: regularised Hessian, seen at 0.7 s per iteration on a UR5's 119 spans), and the coarser
+#: solution stands. A count, not a time: the same request takes the same path on an idle and
+#: on a loaded machine.
+NEAR_MAX_ITER = 150
+
+#: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
+#: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
+#: the level after a change this small would move ``T`` by about 5e-5, a twentieth of the
+#: benchmark's 1e-3 against the reference, at the cost of the finest and slowest solve
+#: (120-170 spans: 0.6-6 s, up to half of a Panda plan). On 8 Panda problems (one start)
+#: 2e-4 instead of 1e-4 left out 3 such levels and took 20 % less time in all, with T
+#: higher by 6e-5 at most (3e-4: 9e-5).
+T_SETTLED = 2e-4
+
+#: Two uniform-mesh solutions with ``T`` this close (relative) and the same control points
+#: are one.
+SAME_T = 1e-6
+
+#: The torques between the sample times keep this far inside the control set; the set's
+#: pad (:data:`~tocontrol_ros.core.direct.flat.SET_PAD` at first) is widened at most
+#: :data:`PAD_ROUNDS` times to get there.
+SET_MARGIN = 1e-7
+PAD_ROUNDS = 3
+
+#: Refined meshes have a multiple of this many spans (the longest halved to get there), so
+#: that their transcriptions, built once per number of spans, serve other motions.
+SPAN_BUCKET = 8
+
+#: Relative slow-downs of a path tried before widening the pad (:func:`_stretched`).
+STRETCHES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)
+
+#: Tolerance on the bounded NLP's constraint violation (its residual).
+RESIDUAL_TOL = 1e-6
+
+
+#: The finer direct guess: a guess solved again on this many intervals, to this tolerance
+#: (after a failed shooting, for the shooting's retry and for the fallback).
+FINE_GUESS_INTERVALS = 24
+FINE_GUESS_TOL = 1e-8
+
+
+def finer_guess(planner: Planner, problem: Problem, coarse: DirectResult) -> DirectResult:
+    """A direct solution at k = 1 solved again, finer.
+
+    On :data:`FINE_GUESS_INTERVALS` intervals to :data:`FINE_GUESS_TOL`, from itself
+    interpolated.
+    """
+    direct = planner.direct(problem, FINE_GUESS_INTERVALS, tol=FINE_GUESS_TOL)
+    # States and controls interpolated linearly onto the finer mesh.
+    linear = make_interp_spline(coarse.t, np.hstack([coarse.x, coarse.u]), k=1)
+    xu = linear(np.linspace(0.0, coarse.T, FINE_GUESS_INTERVALS + 1))
+    n2 = coarse.x.shape[1]
+    return direct.solve(problem.start.value, problem.target.value, 1.0, coarse.T,
+                        xu[:, :n2], xu[:, n2:])
+
+
+def touches(problem: Problem, x: np.ndarray) -> bool:
+    """Whether states ``x`` (K, 2n) come within :data:`TOUCH` of the planning limits."""
+    lim = problem.limits
+    if not lim.active:
+        return False
+    n = problem.model.n
+    lo, hi, v = lim.plan_lower, lim.plan_upper, lim.plan_velocity
+    width = hi - lo
+    q, qd = x[:, :n], x[:, n:2 * n]
+    with np.errstate(invalid="ignore"):
+        near_q = np.isfinite(width) & ((q - lo < TOUCH * width) | (hi - q < TOUCH * width))
+        near_v = np.isfinite(v) & (np.abs(qd) > (1 - TOUCH) * v)
+    return bool(np.any(near_q) or np.any(near_v))
+
+
+def state_bounds(problem: Problem, pad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (2n,) of the state: the planning limits shrunk by ``pad`` of each range.
+
+    Widened where needed to hold a start or target joint state.
+    """
+    lim = problem.limits
+    n = problem.model.n
+    lo, hi, v = lim.plan_lower, lim.plan_upper, lim.plan_velocity
+    width = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+    lower = np.concatenate([lo + pad * width, -(1 - pad) * v])
+    upper = np.concatenate([hi - pad * width, (1 - pad) * v])
+    if problem.start.kind == "state":
+        x0 = problem.start.value
+        lower, upper = np.minimum(lower, x0), np.maximum(upper, x0)
+    if problem.target.kind == "state":
+        xt = problem.target.value[:n]
+        lower[:n], upper[:n] = np.minimum(lower[:n], xt), np.maximum(upper[:n], xt)
+    return lower, upper
+
+
+def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
+                 notes: list[str], reason: str | None = None,
+                 only: frozenset[int] | None = None) -> PlanResult:
+    """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
+
+    ``reason`` replaces the note that the limits bind (the solve is also the fallback of a
+    failed shooting, :attr:`SolverOptions.direct_fallback`). The fallback starts each
+    candidate from its finer guess and solves it on the uniform mesh by continuation in
+    ``k`` (:func:`_continued_in_k`); a plan whose limits bind solves at the requested ``k``
+    first (:func:`_uniform`). ``only``: the seed pairs (indices) to solve from, the others
+    recorded as not solved (default: all).
+    """
+    problem, options = ctx.problem, ctx.options
+    t0 = time.perf_counter()
+    notes = list(notes) + [reason or "joint limits bind: solved as a B-spline path with "
+                           "hard bounds (docs/limits.md)"]
+    bounds = state_bounds(problem, PAD)
+    values = (problem.start.value, problem.target.value, problem.k)
+    records, solved = [], []
+    pairs = ctx.memo.get("pairs")
+    if pairs is None:
+        pairs = seed_pairs(problem, options)
+    # The multistart's guesses, when it solved them within these bounds (at k = 1).
+    known = dict(ctx.memo.get("guesses", ()))
+    # After a failed shooting, the guess it was retried from (finer, tighter).
+    known.update(ctx.memo.get("finer", {}))
+    coarse = None
+    for idx, (qa, qb) in enumerate(pairs):
+        ctx.check()
+        if only is not None and idx not in only:
+            records.append(StartRecord(idx, qa, qb, np.nan, np.nan, "not solved directly"))
+            continue
+        res = known.get(idx)
+        if res is None:
+            coarse = coarse or planner.direct(problem, options.guess_intervals)
+            guess = initial_path(problem.model, qa, qb, options.guess_intervals,
+                                 problem.torque_scale, problem.limits.plan_velocity)
+            res = coarse.solve(*values, *guess, x_bounds=bounds)
+        records.append(StartRecord(idx, qa, qb, res.T if res.success else np.nan, np.nan,
+                                   "guess only" if res.success else
+                                   f"direct method failed: {res.message}"))
+        if res.success:
+            solved.append((idx, res))
+    timings["guess"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    # Every candidate basin on the uniform mesh (a failed one is replaced by the next); the
+    # refinement, the costly part, only for those that can still be the best.
+    first = []
+    count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
+    fallback = reason is not None
+    for idx, res in distinct_basins(solved, lambda g: g[1], problem.model.n):
+        if len(first) == count:
+            break
+        if fallback and len(res.t) - 1 != FINE_GUESS_INTERVALS:
+            # The fallback starts every candidate from its finer guess: the planar 8R's
+            # coarse guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at
+            # k = 1 (300 iterations, 9 s each: four starts and two candidates 50-60 s,
+            # at the time limit), from the finer ones 39-141 (14.7 s in all).
+            fine = finer_guess(planner, problem, res)
+            res = fine if fine.success else res
+        out = _uniform(planner, ctx, bounds, res, in_k=fallback)
+        records[idx] = replace(records[idx], T=out[0].T if out[0].success else np.nan,
+                               status="continued" if out[0].success else
+                               f"bounded solve failed: {out[0].message}")
+        if out[0].success:
+            first.append((idx, out))
+            _offer(ctx, bounds, *out, notes)
+    first = _distinct_solutions(first)
+    best = None
+    if first:
+        for idx, res, traj, contender in _race(planner, ctx, bounds, first):
+            records[idx] = replace(records[idx], T=res.T)
+            if contender and (best is None or res.T < best[1].T):
+                best = (idx, res, traj)
+    timings["shooting"] += time.perf_counter() - t0
+    if best is None:
+        why = records[0].status if records else "no inverse-kinematics seed"
+        return _infeasible(problem, why, timings, t_start, warnings=tuple(notes),
+                           starts=tuple(records))
+    idx, res, traj = best
+    records[idx] = replace(records[idx], status="returned")
+    return _result(ctx, res, traj, records, notes, timings, t_start)
+
+
+def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
+                      timings: dict, t_start: float) -> PlanResult:
+    """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
+
+    On that solution's mesh, from its path and ``T`` and, where they fit this problem's
+    NLP (same kinds of start and target), its multipliers (``FlatTranscription(warm="dual")``;
+    otherwise ``warm=True``, the path alone), within :data:`NEAR_MAX_ITER`, then held inside
+    the control set between the samples and verified as :func:`plan_limited` does. A
+    failure is reported (the caller then solves cold).
+    """
+    problem = ctx.problem
+    t0 = time.perf_counter()
+    bounds = state_bounds(problem, PAD)
+    values = (problem.start.value, problem.target.value, problem.k)
+    flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
+    duals = {}
+    if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
+            and len(warm.lam_x) == flat.K * flat.model.n + 1):
+        flat = planner.flat(problem, warm.breaks, warm="dual")
+        duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
+    # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
+    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
+    ctx.check()
+    traj = None
+    if out.success:
+        out, traj = _inside_set(planner, ctx, bounds, out,
+                                FlatTrajectory(flat, out, problem.k), flat)
+    timings["shooting"] += time.perf_counter() - t0
+    if traj is None:
+        return _infeasible(problem, f"the warm bounded solve failed ({out.message})",
+                           timings, t_start, residual=out.residual,
+                           iterations=out.iterations, intervals=flat.spans)
+    notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
+             f"previous solution on its mesh of {flat.spans} spans"]
+    return _result(ctx, out, traj, [], notes, timings, t_start)
+
+
+def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,
+                **fields) -> PlanResult:
+    """A failed bounded solve (``LIMITS_INFEASIBLE``), ``why`` in its message."""
+    timings["total"] = time.perf_counter() - t_start
+    return PlanResult(**{
+        "success": False, "status": Status.LIMITS_INFEASIBLE,
+        "message": f"{Status.LIMITS_INFEASIBLE.value}: {why}", "T": float("nan"),
+        "k": problem.k, "trajectory": None, "residual": float("nan"), "iterations": 0,
+        "timings": timings, "continuation": (), "max_abs_u": float("nan"),
+        "delta": float("nan"), "intervals": 0, "problem": problem, "method": "direct",
+        **fields})
+
+
+def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: list,
+            notes: list[str], timings: dict, t_start: float) -> PlanResult:
+    """The verified result of a bounded solve (its warm state: the mesh and path)."""
+    problem, options = ctx.problem, ctx.options
+    sample = fine_sample(traj)
+    t0 = time.perf_counter()
+    cert_options = replace(options.certificate_options(1), residual_tol=RESIDUAL_TOL)
+    cert = certify_open_loop(problem, traj, cert_options, sample=sample,
+                             solver_residual=res.residual) if options.verify else None
+    timings["verify"] = time.perf_counter() - t0
+    status, message = verdict(options, cert, res.residual, RESIDUAL_TOL)
+    timings["total"] = time.perf_counter() - t_start
+    success = status is Status.SUCCESS
+    return PlanResult(
+        success=success, status=status, message=message, T=res.T,
+        k=problem.k, trajectory=traj, residual=res.residual, iterations=res.iterations,
+        timings=timings, continuation=(), max_abs_u=float(np.max(np.abs(sample.u))),
+        delta=0.0, intervals=len(traj.breaks) - 1, verification=dict(cert.figures) if cert else {},
+        certificate=cert,
+        warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
+        problem=problem, method="direct",
+        warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T,
+                                 res.lam_g, res.lam_x) if success else None)
+
+
+def _offer(ctx: SolveContext, bounds, res: FlatResult, traj: FlatTrajectory,
+           flat: FlatTranscription, notes: list[str]) -> None:
+    """Offer a bounded solution (:meth:`SolveContext.offer`) for a result at the deadline.
+
+    Built, it is first slowed down just enough to hold its torques inside the set between
+    the samples (:func:`_stretched`, no re-solve), as :func:`_inside_set` would first try.
+    """
+    if not res.success:
+        return
+    problem = ctx.problem
+
+    def build(timings: dict, t_start: float) -> PlanResult:
+        out, path = res, traj
+        if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
+            values = (problem.start.value, problem.target.value, problem.k)
+            out, path = _stretched(flat, res, traj, values, bounds) or (res, traj)
+        return _result(ctx, out, path, [], list(notes), timings, t_start)
+
+    ctx.offer(res.T, build)
+
+
+def _distinct_solutions(first: list) -> list:
+    """The uniform-mesh solutions less repeats.
+
+    Two guesses of different basins at ``k = 1`` can meet in one B-spline solution (same
+    ``T`` to :data:`SAME_T`, control points within
+    :data:`~tocontrol_ros.core.seeding.SAME_BASIN`), which would be refined twice.
+    """
+    out = []
+    for idx, sol in first:
+        res = sol[0]
+        if not any(abs(res.T - o.T) <= SAME_T * o.T and np.max(np.abs(res.P - o.P)) <= SAME_BASIN
+                   for _, (o, *_) in out):
+            out.append((idx, sol))
+    return out
+
+
+def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
+    """One B-spline solve's limits: the caller's deadline and cancel, ``max_iter`` iterations."""
+    return {"deadline": ctx.deadline, "should_stop": ctx.should_stop, "max_iter": max_iter}
+
+
+def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult,
+             in_k: bool = False
+             ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
+    """The B-spline solve on :data:`SPANS` uniform spans from a direct guess.
+
+    A solve that stops at its iteration limit is continued once from where it stopped,
+    warm (``FlatTranscription(warm=True)``): seen on a UR5 case, 300 iterations at the
+    solution's ``T`` with its residual at 1e-5, which the warm start finished. One that
+    still fails is solved again by continuation in ``k`` (:func:`_continued_in_k`). With
+    ``in_k`` (the fallback of a failed shooting) the continuation in ``k`` is the only
+    solve: on the planar 8R (bench/scaling.py, k = 4, one start) the solve at ``k = 4``
+    took 600 iterations (12 s) to fail before the continuation converged (14.5 s for the
+    plan instead of 31 s); the planar 5R, the same ``T`` in 2.0 s instead of 2.6 s.
+    """
+    problem = ctx.problem
+    n = problem.model.n
+    values = (problem.start.value, problem.target.value, problem.k)
+    flat = planner.flat(problem, SPANS)
+    P0 = flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:])
+    if in_k and problem.k > 1.0:
+        out, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
+    else:
+        out = flat.solve(*values, guess.T, P0, *bounds, **_budget(ctx))
+        ctx.check()
+        if not out.success and out.message == "Maximum_Iterations_Exceeded" \
+                and np.all(np.isfinite(out.P)) and np.isfinite(out.T):
+            flat = planner.flat(problem, SPANS, warm=True)
+            out = flat.solve(*values, out.T, out.P, *bounds, **_budget(ctx))
+            ctx.check()
+        if not out.success and problem.k > 1.0:
+            again, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
+            out = again if again.success else out
+    if not out.success:
+        return out, None, None
+    return out, FlatTrajectory(flat, out, problem.k), flat
+
+
+def k_steps(k: float) -> list[float]:
+    """Exponents of the continuation in ``k`` of :func:`_continued_in_k`: from 1 to ``k``.
+
+    Steps of 1 up to 4, then of half the last exponent (1, 2, 3, 4, 6, 9, 13, 16 for 16).
+    """
+    ks = [1.0]
+    while ks[-1] < k:
+        ks.append(min(float(k), ks[-1] + max(1.0, float(np.floor(ks[-1] / 2)))))
+    return ks
+
+
+def _continued_in_k(planner: Planner, ctx: SolveContext, bounds, T: float, P: np.ndarray
+                    ) -> tuple[FlatResult, FlatTranscription]:
+    """The uniform-mesh solve by continuation in ``k`` from the guess ``(T, P)``.
+
+    At ``k = 1`` from the guess, then at each of :func:`k_steps` from the last solution
+    (warm). Where the solve at the requested ``k`` does not converge from the guess: the
+    planar 8R (bench/scaling.py, k = 4, one start) stopped at 300 iterations twice (T
+    creeping from 0.330 to 0.291 s: IPOPT regularising a Hessian that is not positive
+    definite on the redundancy) after its shooting had stalled at k = 1.625; by
+    continuation from the same guess, 202 + 220 + 53 + 59 iterations, T = 0.289712 s.
+    A step that fails from the last solution with the barrier at :data:`~tocontrol_ros.
+    core.flat.WARM_MU` is solved again from it with the barrier at :data:`~tocontrol_ros.
+    core.flat.RESUME_MU` (``warm="resume"``): the paper's arm from a moving state (the
+    planner node's CI run, one start) went from T 0.466 s at k = 1 to 0.402 s at k = 2 in
+    300 iterations without converging, where from 1e-5 it took 0.05 s (T 0.424 s); the
+    planar 8R's steps fail from 1e-5 and converge from 1e-7, so that order.
+    Returns the last solve (a failure stops there) and its transcription.
+    """
+    problem = ctx.problem
+    ends = (problem.start.value, problem.target.value)
+    for i, k in enumerate(k_steps(problem.k)):  # k_steps starts with 1: never empty
+        modes = (False,) if i == 0 else (True, "resume")
+        for warm in modes:
+            flat = planner.flat(problem, SPANS, warm=warm)
+            out = flat.solve(*ends, k, T, P, *bounds, **_budget(ctx))
+            ctx.check()
+            if out.success:
+                break
+        if not out.success:
+            break
+        T, P = out.T, out.P
+    return out, flat
+
+
+def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
+    """The uniform-mesh solutions refined level by level, the hopeless ones left behind.
+
+    All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
+    (their spans halved at the junctions, at most :data:`REFINEMENTS` levels, until ``T``
+    changes by less than :data:`T_SETTLED`); after level ``l`` those more than
+    ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Each one kept is then held
+    inside the control set between its samples (:func:`_inside_set`).
+
+    Returns
+    -------
+    list of (int, FlatResult, FlatTrajectory, bool)
+        The seed index, last solve and trajectory of every candidate refined, and whether it
+        is still a contender (within the last window, and held inside the control set).
+    """
+    problem = ctx.problem
+    values = (problem.start.value, problem.target.value, problem.k)
+    cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
+    # idx -> [result, trajectory, transcription, still refining]
+    race = {idx: [*out, True] for idx, out in first if out[0].T <= cutoff}
+    for level in range(REFINEMENTS):
+        for entry in race.values():
+            out, traj, flat, going = entry
+            if not going:
+                continue
+            breaks = refined_breaks(traj)
+            if len(breaks) == len(traj.breaks):
+                entry[3] = False
+                continue
+            breaks = _bucketed(breaks)
+            finer = planner.flat(problem, breaks)
+            # A refinement that crawls is given up: the coarser one stands.
+            again = finer.solve(*values, out.T, traj.control_points_on(breaks), *bounds,
+                                **_budget(ctx, NEAR_MAX_ITER))
+            ctx.check()
+            if not again.success:
+                entry[3] = False
+                continue
+            entry[:] = [again, FlatTrajectory(finer, again, problem.k), finer,
+                        abs(again.T - out.T) > T_SETTLED * again.T]
+            _offer(ctx, bounds, *entry[:3], [])
+        best = min(entry[0].T for entry in race.values())
+        window = LEVEL_WINDOWS[min(level, len(LEVEL_WINDOWS) - 1)]
+        for entry in race.values():
+            if entry[0].T > (1 + window) * best:
+                entry[3] = False
+        if not any(entry[3] for entry in race.values()):
+            break
+    cutoff = (1 + LEVEL_WINDOWS[-1]) * min(entry[0].T for entry in race.values())
+    return [(idx, *_inside_set(planner, ctx, bounds, *entry[:3]), True)
+            if entry[0].T <= cutoff
+            else (idx, entry[0], entry[1], False) for idx, entry in race.items()]
+
+
+def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
+                traj: FlatTrajectory, flat: FlatTranscription
+                ) -> tuple[FlatResult, FlatTrajectory]:
+    """Widen the set's pad until the torques between the sample times stay inside the set.
+
+    First the same path slowed down (:func:`_stretched`); if that is not enough, at most
+    :data:`PAD_ROUNDS` re-solves, each from the last solution and within
+    :data:`NEAR_MAX_ITER` iterations; a re-solve that fails (IPOPT's step computation, seen
+    on the xArm7) is tried again with a wider pad. The wider pad makes the last solution
+    infeasible at its samples: the re-solves start IPOPT's barrier at
+    :data:`~tocontrol_ros.core.direct.flat.RESUME_MU` (``warm="resume"``), not at the warm start's
+    ``1e-7`` (from which all three failed on a Panda case); one that fails is tried from
+    IPOPT's default start (``warm="restart"``, whose 1 % push into the bounds changes the
+    short spans' torques by orders of magnitude: it crawled on Panda cases until its
+    regularisation was capped, :data:`~tocontrol_ros.core.direct.flat.RESTART_MAX_PERTURBATION`;
+    on bench/limits.py's Panda case 29 the three resumed ones failed,
+    Error_In_Step_Computation, and the plan failed its certificate before this).
+    """
+    problem = ctx.problem
+    values = (problem.start.value, problem.target.value, problem.k)
+    pad = SET_PAD
+    excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+    if excess > 0.0:
+        stretched = _stretched(flat, out, traj, values, bounds)
+        if stretched is not None:
+            return stretched
+    for _ in range(PAD_ROUNDS):
+        if excess <= 0.0:
+            break
+        pad += 2.0 * excess
+        for start in ("resume", "restart"):
+            again_flat = planner.flat(problem, flat.breaks, warm=start)
+            again = again_flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,
+                                     **_budget(ctx, NEAR_MAX_ITER))
+            ctx.check()
+            if again.success:
+                out, traj = again, FlatTrajectory(again_flat, again, problem.k)
+                excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+                break
+    return out, traj
+
+
+def _stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, values,
+               bounds) -> tuple[FlatResult, FlatTrajectory] | None:
+    """The same path run slower, its torques inside the set between the samples, or None.
+
+    ``T (1 + e)`` for the first ``e`` of :data:`STRETCHES` that suffices.
+
+    Slowing a path down scales its inertial torques by ``1 / (1 + e)^2`` and its friction
+    by ``1 / (1 + e)``; the gravity torques stay, so the set's value need not fall, and each
+    ``e`` is checked: the torques at 32 times per span, and the NLP's residual (its velocity
+    rows only loosen; a start or target joint state with a velocity is no longer met: no
+    stretch). ``T`` grows by ``e``, in place of one to three IPOPT solves from the default
+    start: on two of eight Panda problems (one start, its limits) the pad re-solves took 17
+    and 19 s (1-16 s each, IPOPT crawling at 118 spans); the stretches were 1e-4 and 1e-6,
+    in 61 and 15 ms.
+    """
+    for e in STRETCHES:
+        T = out.T * (1.0 + e)
+        resid = flat.residual(*values, T, out.P, *bounds)
+        if resid > RESIDUAL_TOL:
+            continue
+        res = replace(out, T=T, residual=resid)
+        slower = traj.with_result(res)
+        if float(np.max(slower.set_values())) <= 1.0 - SET_MARGIN:
+            return res, slower
+    return None
+
+
+def _bucketed(breaks: np.ndarray) -> np.ndarray:
+    """``breaks`` with the longest spans halved to a multiple of :data:`SPAN_BUCKET` spans."""
+    breaks = np.asarray(breaks, dtype=float)
+    while (len(breaks) - 1) % SPAN_BUCKET:
+        j = int(np.argmax(np.diff(breaks)))
+        breaks = np.insert(breaks, j + 1, 0.5 * (breaks[j] + breaks[j + 1]))
+    return breaks

@@ -1,0 +1,292 @@
+"""Inverse kinematics: configurations that put the tip at a task-space point.
+
+The solver seeds its starts with configurations spread over the self-motion manifold of
+each end point. For a planar arm the manifold is swept by the absolute angle of the last
+link (``phi = sum q`` for revolute joints about parallel axes) and the elbow sign; for the
+standard planar 3R (link offsets along each frame's x axis) this is closed form. Other arms
+use Levenberg-Marquardt (``scipy.optimize.least_squares``) from spread seeds.
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from tocontrol_ros.core.robot.model import RobotModel
+
+__all__ = ["solve_ik", "ik_family", "wrap_angles"]
+
+#: A configuration counts as reaching a point when ``|P(q) - p|`` is below this (m).
+IK_TOL = 1e-9
+
+
+def wrap_angles(q: np.ndarray, model: RobotModel) -> np.ndarray:
+    """Wrap continuous (unlimited revolute) joints into (-pi, pi]; other joints unchanged.
+
+    ``q`` is one configuration (n,) or one per row (K, n).
+    """
+    q = np.array(q, dtype=float)
+    cont = ~np.isfinite(model.q_lower) & np.array([b.kind == "revolute" for b in model.bodies])
+    q[..., cont] = np.pi - np.mod(np.pi - q[..., cont], 2 * np.pi)
+    return q
+
+
+def _bounds(model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+    return model.q_lower.copy(), model.q_upper.copy()
+
+
+def _lm(model: RobotModel, p: np.ndarray, seed: np.ndarray, phi: float | None = None):
+    fk = model.function("P")
+    jac = model.function("J")
+    lo, hi = _bounds(model)
+    seed = np.clip(seed, np.where(np.isfinite(lo), lo + 1e-9, -np.inf),
+                   np.where(np.isfinite(hi), hi - 1e-9, np.inf))
+
+    def res(q):
+        r = np.array(fk(q)).ravel() - p
+        if phi is not None:
+            d = np.sum(q) - phi
+            r = np.append(r, np.arctan2(np.sin(d), np.cos(d)))
+        return r
+
+    def jacobian(q):
+        j = np.array(jac(q))
+        if phi is not None:
+            j = np.vstack([j, np.ones(model.n)])
+        return j
+
+    sol = least_squares(res, seed, jac=jacobian, bounds=(lo, hi), method="trf",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+    err = np.linalg.norm(np.array(fk(sol.x)).ravel() - p)
+    return sol.x, err
+
+
+def _lm_batch(model: RobotModel, p: np.ndarray, seeds: np.ndarray,
+              phis: np.ndarray | None = None, max_iter: int = 200, first: bool = False
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt from many seeds at once, within the joint limits.
+
+    All seeds advance together through one mapped call of the kinematics per iteration (the
+    per-seed ``least_squares`` spent most of a redundant arm's plan in Python overhead).
+    Steps ``dq = -J^T (J J^T + lambda I)^-1 r`` (the minimum-norm step of a redundant arm),
+    projected onto the limits; ``lambda`` per seed, lowered after a step that reduces the
+    residual, raised (and the step undone) otherwise.
+
+    Parameters
+    ----------
+    p : ndarray, shape (m,)
+        Task-space point (m).
+    seeds : ndarray, shape (N, n)
+        Start configurations (rad or m).
+    phis : ndarray, shape (N,), optional
+        Planar arms: the absolute angle ``sum q`` each solution must also have (rad).
+    first : bool
+        Stop as soon as one seed has converged (the others keep their last iterate).
+
+    Returns
+    -------
+    q : ndarray, shape (N, n)
+    err : ndarray, shape (N,)
+        ``|P(q) - p|`` (m).
+    """
+    seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
+    N, n = seeds.shape
+    fk, jac = model.function("P").map(N), model.function("J").map(N)
+    lo, hi = _bounds(model)
+    lo = np.where(np.isfinite(lo), lo + 1e-9, -np.inf)
+    hi = np.where(np.isfinite(hi), hi - 1e-9, np.inf)
+
+    def residual(q):
+        r = np.array(fk(q.T)).T - p
+        if phis is not None:
+            d = np.sum(q, axis=1) - phis
+            r = np.hstack([r, np.arctan2(np.sin(d), np.cos(d))[:, None]])
+        return r
+
+    q = np.clip(seeds, lo, hi)
+    r = residual(q)
+    cost = np.sum(r * r, axis=1)
+    lam = np.full(N, 1e-3)
+    stuck = np.zeros(N, dtype=bool)
+    for _ in range(max_iter):
+        done = cost <= (1e-2 * IK_TOL) ** 2
+        active = ~done & ~stuck
+        if not active.any() or (first and done.any()):
+            break
+        J = np.array(jac(q.T)).reshape(-1, N, n).transpose(1, 0, 2)  # (N, m, n)
+        if phis is not None:
+            J = np.concatenate([J, np.ones((N, 1, n))], axis=1)
+        dq = _step(J, r, lam)
+        # Joints the step would push through a limit are held there and the step is taken
+        # again with the others (plain clipping stalls seeds against the limits).
+        held = (q + dq < lo) | (q + dq > hi)
+        if held.any():
+            dq = _step(J * ~held[:, None, :], r, lam)
+        q_new = np.where(active[:, None], np.clip(q + dq, lo, hi), q)
+        r_new = residual(q_new)
+        cost_new = np.sum(r_new * r_new, axis=1)
+        better = active & (cost_new < cost)
+        q[better], r[better], cost[better] = q_new[better], r_new[better], cost_new[better]
+        lam = np.where(better, np.maximum(lam / 4, 1e-12), np.where(active, lam * 8, lam))
+        # A seed whose damping has grown this large is stuck (at a limit or a singularity).
+        stuck |= lam > 1e8
+    err = np.linalg.norm(np.array(fk(q.T)).T - p, axis=1)
+    return q, err
+
+
+def _step(J: np.ndarray, r: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Damped minimum-norm steps (N, n) for Jacobians J (N, m, n), residuals r (N, m)."""
+    mr = J.shape[1]
+    scale = np.maximum(np.einsum("kij,kij->k", J, J) / mr, 1e-12)
+    A = J @ J.transpose(0, 2, 1) + (lam * scale)[:, None, None] * np.eye(mr)
+    return -np.einsum("kji,kj->ki", J, np.linalg.solve(A, r[..., None])[..., 0])
+
+
+def _planar3r_lengths(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
+    """Offsets of a standard planar 3R (all frames aligned, offsets along x), else None.
+
+    Computed once per model (the solver asks for every seed).
+    """
+    if model not in _PLANAR3R:
+        _PLANAR3R[model] = _planar3r_lengths_of(model)
+    return _PLANAR3R[model]
+
+
+_PLANAR3R: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _planar3r_lengths_of(model: RobotModel) -> tuple[np.ndarray, float, float, float] | None:
+    if model.n != 3 or model.m != 2 or model.task_axes != (0, 1):
+        return None
+    for b in model.bodies:
+        if b.kind != "revolute" or not np.allclose(b.rotation, np.eye(3)) or \
+                not np.allclose(b.axis, [0, 0, 1]):
+            return None
+    offsets = [b.translation for b in model.bodies[1:]] + [model.tip_translation]
+    if not np.allclose(model.tip_rotation, np.eye(3)):
+        return None
+    if any(abs(o[1]) > 1e-12 or o[0] <= 0 for o in offsets):
+        return None
+    return model.bodies[0].translation[:2], offsets[0][0], offsets[1][0], offsets[2][0]
+
+
+def _planar3r(model: RobotModel, p: np.ndarray, phis: np.ndarray) -> np.ndarray:
+    """Closed-form IK of a planar 3R for absolute end angles ``phis`` (K,), both elbows.
+
+    Returns
+    -------
+    ndarray, shape (J, 3)
+        Per angle, the elbow-up then the elbow-down configuration where ``p`` is reachable
+        with that angle (J <= 2K, in that order).
+    """
+    base, l1, l2, l3 = _planar3r_lengths(model)
+    phi = np.repeat(np.asarray(phis, dtype=float), 2)
+    elbow = np.tile([1.0, -1.0], len(phis))
+    w = (p - base)[None, :] - l3 * np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    c2 = (np.sum(w * w, axis=1) - l1**2 - l2**2) / (2 * l1 * l2)
+    ok = np.abs(c2) <= 1
+    phi, elbow, w, c2 = phi[ok], elbow[ok], w[ok], c2[ok]
+    q2 = elbow * np.arccos(np.clip(c2, -1, 1))
+    q1 = np.arctan2(w[:, 1], w[:, 0]) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
+    return np.stack([q1, q2, phi - q1 - q2], axis=1)
+
+
+def solve_ik(model: RobotModel, p, q_seed=None, tries: int = 8,
+             rng: np.random.Generator | None = None) -> np.ndarray | None:
+    """One configuration with ``P(q) = p``, or None when none is found.
+
+    Parameters
+    ----------
+    model : RobotModel
+    p : array_like, shape (m,)
+        Task-space point (m).
+    q_seed : array_like, shape (n,), optional
+        First seed; random seeds within the limits follow (all solved at once until one
+        converges; the first of those in this order gives the result).
+    tries : int
+        Number of seeds.
+    rng : numpy.random.Generator, optional
+        Source of the random seeds (default: seeded, so results repeat).
+
+    Returns
+    -------
+    ndarray, shape (n,) or None
+    """
+    p = np.asarray(p, dtype=float)
+    rng = np.random.default_rng(0) if rng is None else rng
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    seeds = [np.asarray(q_seed, dtype=float)] if q_seed is not None else []
+    seeds += [rng.uniform(lo, hi) for _ in range(tries)]
+    q, err = _lm_batch(model, p, np.array(seeds), first=True)
+    ok = np.flatnonzero(err < IK_TOL)
+    return wrap_angles(q[ok[0]], model) if len(ok) else None
+
+
+def ik_family(model: RobotModel, p, count: int = 12,
+              rng: np.random.Generator | None = None) -> list[np.ndarray]:
+    """Configurations spread over the self-motion manifold of ``p``.
+
+    Parameters
+    ----------
+    model : RobotModel
+    p : array_like, shape (m,)
+        Task-space point (m).
+    count : int
+        Planar arms: number of absolute angles of the last link, each with both elbows.
+        Other arms: number of seeds.
+    rng : numpy.random.Generator, optional
+
+    Returns
+    -------
+    list of ndarray, shape (n,)
+        Distinct configurations (continuous joints wrapped into (-pi, pi]); empty when
+        ``p`` is out of reach.
+    """
+    p = np.asarray(p, dtype=float)
+    rng = np.random.default_rng(0) if rng is None else rng
+    phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
+    if _planar3r_lengths(model) is not None:
+        return _distinct_solutions(model, p, list(_planar3r(model, p, phis)))
+    planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
+        model.n >= 3 and _axes_parallel(model)
+    if planar:
+        seeds = np.repeat([[0.3], [-0.3]], model.n, axis=1)
+        q, err = _lm_batch(model, p, np.tile(seeds, (count, 1)), np.repeat(phis, 2))
+        return _distinct_solutions(model, p, list(q[err < IK_TOL]))
+    lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
+    hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
+    q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
+    return _distinct_solutions(model, p, list(q[err < IK_TOL]))
+
+
+def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[np.ndarray]:
+    """The candidates (wrapped) that reach ``p``, without repeats, in their order.
+
+    One mapped call of the forward kinematics checks them all.
+    """
+    if not cands:
+        return []
+    qs = wrap_angles(np.array(cands), model)  # (K, n)
+    points = np.array(model.function("P").map(len(qs))(qs.T)).T  # (K, m)
+    qs = qs[np.linalg.norm(points - p, axis=1) <= IK_TOL]
+    # Pairwise distances modulo full turns; keep each candidate not within 1e-6 of an
+    # earlier kept one (earlier duplicates of a kept one are dropped with it).
+    diff = np.angle(np.exp(1j * (qs[:, None, :] - qs[None, :, :])))
+    near = np.linalg.norm(diff, axis=2) <= 1e-6
+    keep: list[int] = []
+    for i in range(len(qs)):
+        if not near[i, keep].any():
+            keep.append(i)
+    return [qs[i] for i in keep]
+
+
+def _axes_parallel(model: RobotModel) -> bool:
+    rot = np.eye(3)
+    axes = []
+    for b in model.bodies:
+        rot = rot @ b.rotation
+        axes.append(rot @ b.axis)
+    return all(abs(abs(a @ axes[0]) - 1) < 1e-9 for a in axes)

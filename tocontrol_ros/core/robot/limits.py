@@ -1,0 +1,251 @@
+"""Joint position and velocity limits of a problem.
+
+They come from the URDF, may be narrowed by a MoveIt-style ``joint_limits.yaml``, and are
+shrunk by a margin.
+
+The effective limit of each joint is the tighter of the URDF's ``<limit lower upper velocity>``
+and the YAML's ``min_position``/``max_position``/``max_velocity`` (where ``has_position_limits``
+or ``has_velocity_limits`` is true): a YAML file narrows the URDF, it never widens it. A margin
+``m`` in [0, 1) plans inside them: the position range shrinks about its centre to ``1 - m`` of
+its width and the velocity limit to ``1 - m`` of its value, as the torque ``reserve`` does for
+the torque limits. Continuous joints have no position limit; a joint without a velocity limit
+has an infinite one.
+
+Where they bind, the solver enforces them as hard bounds (see ``docs/limits.md``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tocontrol_ros.core.errors import ProblemError
+
+__all__ = ["JointLimits", "load_joint_limits_yaml", "parse_joint_limits_yaml"]
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Position and velocity limits of the n joints of a model, and a planning margin.
+
+    Attributes
+    ----------
+    names : tuple of str, length n
+        Joint names, in the model's order.
+    lower, upper : ndarray, shape (n,)
+        Position limits (rad, m); ``-inf``/``inf`` where a joint has none.
+    velocity : ndarray, shape (n,)
+        Velocity limits (rad/s, m/s), > 0; ``inf`` where a joint has none.
+    margin : float
+        Fraction in [0, 1) of each range kept free (see the module's docstring).
+    """
+
+    names: tuple[str, ...]
+    lower: np.ndarray = field(repr=False)
+    upper: np.ndarray = field(repr=False)
+    velocity: np.ndarray = field(repr=False)
+    margin: float = 0.0
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        for name in ("lower", "upper", "velocity"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (n,) or np.any(np.isnan(a)):
+                raise ProblemError(f"`{name}` limits must have shape ({n},) without NaN, "
+                                   f"got {a.tolist()}")
+            object.__setattr__(self, name, a)
+        bad = np.flatnonzero(~(self.lower < self.upper))
+        if bad.size:
+            i = int(bad[0])
+            raise ProblemError(f"joint {self.names[i]!r}: lower position limit "
+                               f"{self.lower[i]:.6g} is not below the upper {self.upper[i]:.6g}")
+        bad = np.flatnonzero(~(self.velocity > 0))
+        if bad.size:
+            i = int(bad[0])
+            raise ProblemError(f"joint {self.names[i]!r}: velocity limit must be > 0, got "
+                               f"{self.velocity[i]:.6g}")
+        m = float(self.margin)
+        if not (np.isfinite(m) and 0.0 <= m < 1.0):
+            raise ProblemError(f"`margin` must be in [0, 1), got {self.margin!r}")
+        object.__setattr__(self, "margin", m)
+
+    # ---------------------------------------------------------------- builders
+    @classmethod
+    def from_model(cls, model, margin: float = 0.0) -> JointLimits:
+        """The URDF's limits of ``model`` (a :class:`~.model.RobotModel`)."""
+        return cls(tuple(model.joint_names), model.q_lower.copy(), model.q_upper.copy(),
+                   model.qd_max.copy(), margin)
+
+    def narrowed(self, table: Mapping[str, Mapping], source: str = "joint limits") -> JointLimits:
+        """These limits narrowed by a MoveIt ``joint_limits`` table (name -> entry).
+
+        An entry may give ``has_position_limits`` with ``min_position``/``max_position`` and
+        ``has_velocity_limits`` with ``max_velocity``; other keys (accelerations, jerks,
+        efforts) are accepted and ignored. Names that are not joints of the model raise, so
+        that a typo is not silently ignored.
+        """
+        lower, upper, velocity = self.lower.copy(), self.upper.copy(), self.velocity.copy()
+        index = {name: i for i, name in enumerate(self.names)}
+        for name, entry in table.items():
+            if name not in index:
+                raise ProblemError(f"{source}: joint {name!r} is not a moving joint of the "
+                                   f"model (joints: {', '.join(self.names)})")
+            if not isinstance(entry, Mapping):
+                raise ProblemError(f"{source}: the entry of joint {name!r} must be a mapping, "
+                                   f"got {entry!r}")
+            i = index[name]
+            if _flag(entry, "has_position_limits", name, source):
+                lo = _number(entry, "min_position", name, source)
+                hi = _number(entry, "max_position", name, source)
+                if not lo < hi:
+                    raise ProblemError(f"{source}: joint {name!r} min_position {lo:g} is not "
+                                       f"below max_position {hi:g}")
+                lower[i], upper[i] = max(lower[i], lo), min(upper[i], hi)
+                if not lower[i] < upper[i]:
+                    raise ProblemError(
+                        f"{source}: joint {name!r} range [{lo:g}, {hi:g}] does not overlap the "
+                        f"URDF range [{self.lower[i]:g}, {self.upper[i]:g}]")
+            if _flag(entry, "has_velocity_limits", name, source):
+                v = _number(entry, "max_velocity", name, source)
+                if not v > 0:
+                    raise ProblemError(f"{source}: joint {name!r} max_velocity must be > 0, "
+                                       f"got {v:g}")
+                velocity[i] = min(velocity[i], v)
+        return JointLimits(self.names, lower, upper, velocity, self.margin)
+
+    def with_margin(self, margin: float) -> JointLimits:
+        """The same limits with another margin."""
+        return JointLimits(self.names, self.lower, self.upper, self.velocity, margin)
+
+    # ---------------------------------------------------------------- planning bounds
+    @property
+    def plan_lower(self) -> np.ndarray:
+        """Position bounds the planner keeps to (margin applied), shape (n,)."""
+        return self._shrunk()[0]
+
+    @property
+    def plan_upper(self) -> np.ndarray:
+        """See :attr:`plan_lower`."""
+        return self._shrunk()[1]
+
+    @property
+    def plan_velocity(self) -> np.ndarray:
+        """Velocity bounds the planner keeps to (margin applied), shape (n,)."""
+        return (1.0 - self.margin) * self.velocity
+
+    def _shrunk(self) -> tuple[np.ndarray, np.ndarray]:
+        finite = np.isfinite(self.lower) & np.isfinite(self.upper)
+        lo, hi = np.where(finite, self.lower, 0.0), np.where(finite, self.upper, 0.0)
+        c = 0.5 * (lo + hi)
+        h = np.where(finite, 0.5 * (hi - lo) * (1.0 - self.margin), np.inf)
+        lo = np.where(finite, c - h, self.lower)
+        hi = np.where(finite, c + h, self.upper)
+        return lo, hi
+
+    @property
+    def active(self) -> bool:
+        """Whether any joint has a finite position or velocity limit."""
+        return bool(np.any(np.isfinite(self.lower) | np.isfinite(self.upper))
+                    or np.any(np.isfinite(self.velocity)))
+
+    # ---------------------------------------------------------------- checks
+    def check_state(self, name: str, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """Raise :class:`ProblemError` naming the joint when a state is outside the limits.
+
+        Strictly inside the planning bounds (margin applied) for positions, and below the
+        planning velocity limit.
+        """
+        lo, hi = self._shrunk()
+        for i, joint in enumerate(self.names):
+            if not lo[i] < q[i] < hi[i]:
+                what = ("its limits" if self.margin == 0.0 else
+                        f"its limits shrunk by the margin {self.margin:g}")
+                raise ProblemError(f"`{name}` joint {joint!r} at {q[i]:.6g} is not inside "
+                                   f"{what} ({lo[i]:.6g}, {hi[i]:.6g})")
+        if qd is None:
+            return
+        v = self.plan_velocity
+        for i, joint in enumerate(self.names):
+            if not abs(qd[i]) < v[i]:
+                raise ProblemError(f"`{name}` joint {joint!r} velocity {qd[i]:.6g} is not "
+                                   f"below its limit {v[i]:.6g}")
+
+    def violations(self, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+        """Largest violation of the limits (margin NOT applied) along samples, as fractions.
+
+        Parameters
+        ----------
+        q, qd : ndarray, shape (K, n)
+
+        Returns
+        -------
+        (position, velocity) : float
+            ``max(0, q - upper, lower - q) / (upper - lower)`` and
+            ``max(0, |qd| - v) / v`` over samples and joints; 0 when within.
+        """
+        finite = np.isfinite(self.lower) & np.isfinite(self.upper)
+        width = np.where(finite, self.upper - self.lower, 1.0)
+        over = np.maximum(q - self.upper, self.lower - q)
+        pos = float(np.max(np.where(finite, over / width, -np.inf), initial=0.0))
+        vfin = np.isfinite(self.velocity)
+        vel = float(np.max(np.where(vfin, (np.abs(qd) - self.velocity)
+                                    / np.where(vfin, self.velocity, 1.0), -np.inf),
+                           initial=0.0))
+        return max(pos, 0.0), max(vel, 0.0)
+
+
+def _flag(entry: Mapping, key: str, joint: str, source: str) -> bool:
+    value = entry.get(key, False)
+    if not isinstance(value, bool):
+        raise ProblemError(f"{source}: joint {joint!r} `{key}` must be true or false, got "
+                           f"{value!r}")
+    return value
+
+
+def _number(entry: Mapping, key: str, joint: str, source: str) -> float:
+    if key not in entry:
+        raise ProblemError(f"{source}: joint {joint!r} has no `{key}`")
+    value = entry[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not np.isfinite(value):
+        raise ProblemError(f"{source}: joint {joint!r} `{key}` must be a finite number, got "
+                           f"{value!r}")
+    return float(value)
+
+
+def parse_joint_limits_yaml(text: str, label: str = "joint limits YAML") -> dict:
+    """The ``joint_limits`` table of MoveIt ``joint_limits.yaml`` text.
+
+    Returns
+    -------
+    dict
+        Joint name -> entry (``has_position_limits``, ``min_position``, ...).
+    """
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ProblemError(f"{label} is not valid YAML: {exc}") from exc
+    if not isinstance(data, Mapping) or not isinstance(data.get("joint_limits"), Mapping):
+        raise ProblemError(f"{label} must have a top-level mapping `joint_limits:` (MoveIt's "
+                           f"format), got {type(data).__name__}")
+    return dict(data["joint_limits"])
+
+
+def load_joint_limits_yaml(path: str | Path) -> dict:
+    """The ``joint_limits`` table of a MoveIt ``joint_limits.yaml`` file.
+
+    See :func:`parse_joint_limits_yaml`.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ProblemError(f"joint limits file {str(path)!r} does not exist")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProblemError(f"joint limits file {str(path)!r} cannot be read: {exc}") from exc
+    return parse_joint_limits_yaml(text, f"joint limits file {str(path)!r}")

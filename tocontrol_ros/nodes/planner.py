@@ -1,0 +1,758 @@
+"""The planner node: time-optimal plans on request, over standard ROS 2 interfaces only.
+
+Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-planner``
+(pip) or ``python -m tocontrol_ros.planner``; parameters from ``config/planner.yaml`` with
+``--ros-args --params-file``. Interfaces (one page each in ``msg_docs/``):
+
+- service ``~/plan`` (``nav_msgs/srv/GetPlan``): start and goal end-effector points; the
+  answer is the end-effector path stamped with the planned times, empty on failure;
+- topic ``~/goal`` (``geometry_msgs/msg/PointStamped``): plan from the robot's current state
+  (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
+- published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local),
+  ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
+  ``~/ee_path`` (``nav_msgs/msg/Path``), ``~/markers`` (``visualization_msgs/msg/MarkerArray``).
+
+Concurrency: callbacks only convert and queue. One worker thread solves; it is fed by a
+slot that holds the newest request (newest wins: a request that arrives while another is
+pending or being solved supersedes it, and a running solve is stopped through the solver's
+``should_stop``). Service callbacks run in a reentrant group and wait for their request's
+outcome; everything else stays served meanwhile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PointStamped
+from nav_msgs.msg import Path
+from nav_msgs.srv import GetPlan
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
+
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.problem import MIN_MOVE
+from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.node_main import run_node
+from tocontrol_ros.nodes.params import declare_all, load_model, parse_locked_joints
+from tocontrol_ros.nodes.planner_config import (
+    PARAMETERS,
+    ConfigError,
+    PlannerConfig,
+    config_from_values,
+    solver_options,
+)
+
+__all__ = ["PlannerNode", "PlanRequest", "LatestSlot", "main", "QOS_LATCHED", "QOS_STATUS",
+           "QOS_GOAL", "QOS_JOINT_STATES"]
+
+#: Threads of the executor: service calls each hold one while they wait for their outcome.
+EXECUTOR_THREADS = 8
+#: A request that starts from the robot's current state waits up to this long (s) for a
+#: joint state that arrived after it (a goal: received after the goal; a service request:
+#: processed after the request), so that a state still queued when the request came is not
+#: used while the arm moves. Without joint states newer than that, the newest one within
+#: ``joint_state_timeout`` is used after the wait.
+FRESH_STATE_WAIT = 0.1
+#: A solver note that is routine, not a warning: the warm start was tried and the solve
+#: went on cold (the status stays OK and keeps the note).
+ROUTINE_NOTE = "warm start did not converge"
+#: How often a waiting service callback looks at the shutdown flag (s).
+WAIT_POLL = 0.05
+#: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
+#: while the C compiler of the first-ever solve runs).
+JOIN_TIMEOUT = 3.0
+
+#: Outputs for late subscribers (a viewer, a tracker started after the plan): the last one.
+QOS_LATCHED = qos.LATCHED
+#: One message per request event; deep enough for a burst of requests.
+QOS_STATUS = qos.status_profile(100, latched=False)
+#: Goals: reliable; newest wins anyway, so a short queue is enough.
+QOS_GOAL = qos.RELIABLE
+#: Joint states: best effort matches both reliable and best-effort publishers; the newest
+#: one is all the planner needs, so the middleware keeps one.
+QOS_JOINT_STATES = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.VOLATILE)
+#: Service requests: a burst of calls must not overflow the request queue before the
+#: executor takes them (each call gets exactly one response).
+QOS_SERVICE = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+#: Poll period (s) of a request waiting for a joint state newer than itself.
+STATE_POLL = 0.005
+#: While optimised libraries are being built in the background (the first use of a model
+#: got quick builds), the idle worker looks this often (s) whether they landed, to load them.
+OPTIMISED_POLL = 1.0
+
+
+@dataclass(eq=False)
+class PlanRequest:
+    """One request, from its acceptance to its outcome.
+
+    Attributes
+    ----------
+    id : int
+        Increasing per node, from 1 (``request_id`` in ``~/status``).
+    source : {"service", "goal"}
+    start : tuple
+        ``("point", p)`` with p of shape (m,) (m), or ``("state", q, qd)`` (rad, rad/s).
+    target : ndarray, shape (m,)
+        Task-space target point (m).
+    config : PlannerConfig
+        Parameters at acceptance (later changes apply to later requests).
+    """
+
+    id: int
+    source: str
+    start: tuple
+    target: np.ndarray
+    config: PlannerConfig
+    received: float = field(default_factory=time.monotonic)
+    done: threading.Event = field(default_factory=threading.Event)
+    cancelled: threading.Event = field(default_factory=threading.Event)
+    cancel_reason: tuple[str, str] = ("", "")
+    path: Path | None = None
+
+    def cancel(self, event: str, reason: str) -> None:
+        """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""
+        if not self.cancelled.is_set():
+            self.cancel_reason = (event, reason)
+            self.cancelled.set()
+
+
+class LatestSlot:
+    """Hand-over between the callbacks and the worker: one pending and one running item.
+
+    ``put`` replaces the pending item (newest wins) and reports what it replaced and what is
+    running, atomically, so that no request can slip between "taken" and "running".
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._pending = None
+        self._running = None
+        self._closed = False
+
+    def put(self, item):
+        """Make ``item`` the pending one; return ``(replaced pending, running)``."""
+        with self._cond:
+            if self._closed:
+                raise RuntimeError("the slot is closed (node shutting down)")
+            replaced, self._pending = self._pending, item
+            self._cond.notify_all()
+            return replaced, self._running
+
+    def take(self, timeout: float | None = None):
+        """Move the pending item to running and return it; None when closed (or timeout)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._pending is not None or self._closed, timeout)
+            if self._closed or self._pending is None:
+                return None
+            self._running, self._pending = self._pending, None
+            return self._running
+
+    def finished(self, item) -> None:
+        """The worker is done with ``item``."""
+        with self._cond:
+            if self._running is item:
+                self._running = None
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called."""
+        with self._cond:
+            return self._closed
+
+    def has_pending(self) -> bool:
+        """True while an item waits for the worker."""
+        with self._cond:
+            return self._pending is not None
+
+    def close(self):
+        """Refuse further items, wake the worker; return the pending item (or None)."""
+        with self._cond:
+            self._closed = True
+            leftover, self._pending = self._pending, None
+            self._cond.notify_all()
+            return leftover
+
+
+class LatestMessage:
+    """The newest message of a topic, taken from the middleware only when asked for.
+
+    The subscription belongs to a hidden helper node (name starting with ``_``) that no
+    executor spins: incoming messages never wake the planner's executor, the middleware keeps
+    only the newest (depth 1), and :meth:`newest` takes it when a request needs it. A
+    subscription with a callback would cost an executor iteration per message (most of a
+    core at 500 Hz with rclpy's executors).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The owner: its context and namespace are used, and it resolves the topic name (with
+        its remappings).
+    msg_type : type
+    topic : str
+    qos_profile : QoSProfile
+    """
+
+    def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile) -> None:
+        self._msg_type = msg_type
+        # The owner resolves the name (its namespace and remappings); the helper takes no
+        # command-line arguments, so that a global `-r __node:=...` (as `ros2 launch` passes)
+        # does not give it the owner's name.
+        resolved = node.resolve_topic_name(topic)
+        self._helper = Node(f"_{node.get_name()}_{topic.strip('/').replace('/', '_')}",
+                            namespace=node.get_namespace(), context=node.context,
+                            use_global_arguments=False, start_parameter_services=False,
+                            enable_rosout=False)
+        self._sub = self._helper.create_subscription(msg_type, resolved, lambda _msg: None,
+                                                     qos_profile)
+        self._lock = threading.Lock()
+        self._latest = None  # (message, DDS receive time in ns)
+
+    def _take(self) -> None:
+        """Take everything queued; keep the newest. Holds ``self._lock``."""
+        while True:
+            try:
+                with self._sub.handle:
+                    taken = self._sub.handle.take_message(self._msg_type, False)
+            except Exception:  # noqa: BLE001  (subscription gone during shutdown)
+                return
+            if taken is None or taken[0] is None:
+                return
+            msg, info = taken
+            self._latest = (msg, int(info.get("received_timestamp", 0)) or time.time_ns())
+
+    def newest(self, since_ns: int, max_age: float, wait: float):
+        """The newest message not older than ``max_age`` s, or None.
+
+        When the newest one is recent but received before ``since_ns`` (``time.time_ns()``
+        scale), wait up to ``wait`` s for a newer one.
+        """
+        deadline = time.monotonic() + wait
+        with self._lock:
+            self._take()
+            while (self._latest is not None and self._latest[1] < since_ns
+                   and time.time_ns() - self._latest[1] <= max_age * 1e9
+                   and time.monotonic() < deadline):
+                time.sleep(STATE_POLL)
+                self._take()
+            latest = self._latest
+        if latest is None or time.time_ns() - latest[1] > max_age * 1e9:
+            return None
+        return latest[0]
+
+    def destroy(self) -> None:
+        """Destroy the helper node."""
+        with self._lock:
+            self._helper.destroy_node()
+
+
+def _load_model(config: PlannerConfig):
+    return load_model(config.robot_description, config.robot_description_file,
+                      base_link=config.base_link or None, tip_link=config.tip_link or None,
+                      gravity=config.gravity, task_axes=config.task_axes or None,
+                      locked_joints=parse_locked_joints(config.locked_joints))[0]
+
+
+def _joint_limits(config: PlannerConfig, model):
+    """The URDF's joint limits narrowed by the ``joint_limits`` file (no margin yet)."""
+    from tocontrol_ros.core.robot.limits import JointLimits, load_joint_limits_yaml
+
+    limits = JointLimits.from_model(model)
+    if config.joint_limits:
+        limits = limits.narrowed(load_joint_limits_yaml(config.joint_limits),
+                                 f"`joint_limits` file {config.joint_limits!r}")
+    return limits
+
+
+class PlannerNode(Node):
+    """Serves time-optimal plans (see the module docstring and ``msg_docs/``).
+
+    Parameters
+    ----------
+    node_name : str
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+
+    Raises
+    ------
+    ConfigError
+        A parameter value the planner cannot use.
+    ModelError
+        The robot description cannot be turned into a model (message from the core).
+    """
+
+    def __init__(self, node_name: str = "planner", **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        config = config_from_values(declare_all(self, PARAMETERS))
+        self.model = _load_model(config)
+        self._limits = _joint_limits(config, self.model)
+        self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
+        self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
+        from tocontrol_ros.core.solver import Planner
+
+        self.planner = Planner(self.model)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        self._status_lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._slot = LatestSlot()
+        self._joint_states = LatestMessage(self, JointState, "joint_states",
+                                           QOS_JOINT_STATES)
+        self._last_result = None
+        self.ready = threading.Event()
+
+        self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory",
+                                                     QOS_LATCHED)
+        self._pub_path = self.create_publisher(Path, "~/ee_path", QOS_LATCHED)
+        self._pub_markers = self.create_publisher(MarkerArray, "~/markers", QOS_LATCHED)
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
+        waiting = ReentrantCallbackGroup()
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_service(GetPlan, "~/plan", self._on_plan, qos_profile=QOS_SERVICE,
+                            callback_group=waiting)
+        self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
+                                 callback_group=inputs)
+        self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
+            f"{''.join('xyz'[a] for a in self.model.task_axes)}) in frame "
+            f"{self.frame.frame_id!r}")
+
+    # ------------------------------------------------------------ parameters
+    def _parameter_values(self) -> dict:
+        return {spec.name: self.get_parameter(spec.name).value for spec in PARAMETERS}
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        values = self._parameter_values()
+        # Only the planner's own: rclpy's (use_sim_time) are rclpy's to check.
+        values.update({p.name: p.value for p in params if p.name in values})
+        try:
+            config = config_from_values(values, task_dim=self.model.m)
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        with self._lock:
+            self._config = config
+        return SetParametersResult(successful=True)
+
+    @property
+    def last_result(self):
+        """The last successful :class:`~tocontrol_ros.core.solver.PlanResult` (or None)."""
+        return self._last_result
+
+    @property
+    def config(self) -> PlannerConfig:
+        """The parameters as they are now (each request keeps the ones at its acceptance)."""
+        with self._lock:
+            return self._config
+
+    # -------------------------------------------------------------- callbacks
+    def _current_start(self, config: PlannerConfig, since_ns: int) -> tuple:
+        """The robot's current state if a recent joint state is there, else default_start.
+
+        Parameters
+        ----------
+        config : PlannerConfig
+        since_ns : int
+            When the request came (``time.time_ns()``, or a goal's DDS receive time): with a
+            recent joint state, wait up to :data:`FRESH_STATE_WAIT` for one received after
+            this, so that a state still queued when the request came is not used.
+        """
+        latest = self._joint_states.newest(since_ns, config.joint_state_timeout,
+                                           FRESH_STATE_WAIT)
+        if latest is not None:
+            q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
+            return ("state", q, qd)
+        if not config.default_start:
+            raise conv.ConversionError(
+                f"no recent joint state on joint_states (within "
+                f"joint_state_timeout = {config.joint_state_timeout:g} s) and no "
+                f"`default_start` for this arm: publish its joint states, set default_start "
+                f"({self.model.m} values) or give the start in the request")
+        return ("point", np.array(config.default_start))
+
+    def _on_goal(self, msg: PointStamped, info) -> None:
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
+        rid = next(self._ids)
+        config = self.config
+        try:
+            target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
+            start = self._current_start(config, since)
+        except conv.ConversionError as exc:
+            self._reject(rid, "goal", str(exc))
+            return
+        self._submit(PlanRequest(rid, "goal", start, target, config))
+
+    def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
+        since = time.time_ns()
+        rid = next(self._ids)
+        config = self.config
+        try:
+            if request.start.header.frame_id == "":
+                start = self._current_start(config, since)
+            else:
+                start = ("point", conv.point_from_msg(
+                    request.start.pose.position, request.start.header.frame_id, self.frame,
+                    "start.pose.position"))
+            target = conv.point_from_msg(request.goal.pose.position,
+                                         request.goal.header.frame_id, self.frame,
+                                         "goal.pose.position")
+        except conv.ConversionError as exc:
+            self._reject(rid, "service", str(exc))
+            response.plan = conv.empty_path(self.frame.frame_id, self._now())
+            return response
+        req = PlanRequest(rid, "service", start, target, config)
+        self._submit(req)
+        deadline = time.monotonic() + config.service_timeout
+        while not req.done.wait(WAIT_POLL):
+            if self._stopping.is_set():
+                break
+            if time.monotonic() > deadline:
+                req.cancel("timed out", f"no outcome within service_timeout = "
+                           f"{config.service_timeout:g} s")
+                break
+        path = req.path if req.done.is_set() else None
+        response.plan = path if path is not None else conv.empty_path(self.frame.frame_id,
+                                                                      self._now())
+        return response
+
+    def _submit(self, req: PlanRequest) -> None:
+        self._status(req, "OK", "accepted", f"request {req.id} accepted")
+        try:
+            replaced, running = self._slot.put(req)
+        except RuntimeError:
+            self._finish(req, "WARN", "cancelled", "node shutting down")
+            return
+        if replaced is not None:
+            self._finish(replaced, "WARN", "superseded",
+                         f"superseded by request {req.id} before its solve started")
+        if running is not None:
+            running.cancel("superseded", f"superseded by request {req.id} during its solve")
+
+    # ------------------------------------------------------------ status out
+    def _now(self):
+        return self.get_clock().now().to_msg()
+
+    def _values(self, req: PlanRequest, event: str, extra: dict | None = None) -> dict:
+        start = req.start[1] if req.start[0] == "point" else None
+        values = {"request_id": req.id, "event": event, "source": req.source,
+                  "start": start, "start_q": None if start is not None else req.start[1],
+                  "start_qd": None if start is not None else req.start[2],
+                  "target": req.target, "frame_id": self.frame.frame_id,
+                  "k": req.config.k}
+        values.update(extra or {})
+        return values
+
+    def _publish_status(self, level: str, message: str, values: dict) -> None:
+        msg = conv.status_msg(level, self.get_fully_qualified_name(), message,
+                              self.model.name, values)
+        with self._status_lock:
+            try:
+                self._pub_status.publish(msg)
+            except Exception:  # noqa: BLE001  (publisher gone during shutdown)
+                return
+        if level == "ERROR":
+            self.get_logger().error(message)
+        elif level == "WARN":
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().info(message)
+
+    def _status(self, req: PlanRequest, level: str, event: str, message: str,
+                extra: dict | None = None) -> None:
+        self._publish_status(level, message, self._values(req, event, extra))
+
+    def _reject(self, rid: int, source: str, reason: str) -> None:
+        self._publish_status("ERROR", f"request {rid} rejected: {reason}",
+                             {"request_id": rid, "event": "failed", "source": source,
+                              "frame_id": self.frame.frame_id})
+
+    def _finish(self, req: PlanRequest, level: str, event: str, message: str,
+                extra: dict | None = None, path: Path | None = None) -> None:
+        latency = time.monotonic() - req.received
+        self._status(req, level, event, f"request {req.id} {event}: {message}",
+                     {"latency": latency, **(extra or {})})
+        req.path = path
+        req.done.set()
+
+    # ----------------------------------------------------------------- worker
+    def _run(self) -> None:
+        self._warm_up()
+        while not self._stopping.is_set():
+            waiting = compiled.pending_builds() > 0 or self.planner.stale()
+            req = self._slot.take(OPTIMISED_POLL if waiting else None)
+            if req is None:
+                if self._slot.closed:
+                    break
+                self._load_optimised()
+                continue
+            try:
+                self._serve(req)
+            except Exception as exc:  # noqa: BLE001  (a bug must not stop the planner)
+                self.get_logger().error(f"request {req.id}: internal error: {exc!r}")
+                if not req.done.is_set():
+                    self._finish(req, "ERROR", "failed", f"internal error: {exc!r}")
+            finally:
+                self._slot.finished(req)
+
+    def _problems(self, config) -> list:
+        """One problem of each kind the node serves, inside the limits (for the warm-up)."""
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+        model = self.model
+        lo, hi = self._limits.plan_lower, self._limits.plan_upper
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
+        # Inside the limits, and a generic move (alternating signs: not along a singular
+        # direction) that stays inside them.
+        qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
+        qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
+                      qa + 0.5 * (-1.0) ** np.arange(model.n))
+        limits = self._limits.with_margin(config.limit_margin)
+        return [Problem(model, start, point(model.point(qb)), k=config.k,
+                        reserve=config.reserve, limits=limits)
+                for start in (point(model.point(qa)), joint_state(qa))]
+
+    def _compile_progress(self, event: str, name: str, info: dict) -> None:
+        """Compile listener of the warm-up: one ``~/status`` per build started and ended."""
+        if event not in ("compiling", "compiled"):
+            return
+        quick = " (quick build; optimised in the background)" \
+            if info.get("flags", "").startswith("-O0") else ""
+        if event == "compiling":
+            message = (f"warming up: compiling {name} ({info['bytes'] / 1e3:.0f} kB of C)"
+                       f"{quick}")
+        else:
+            message = (f"warming up: compiled {name} in {info['seconds']:.1f} s"
+                       + ("" if info.get("ok") else " (failed: the virtual machine is used)"))
+        self._publish_status("OK", message, {"event": "warming up", "compile": event,
+                                             "library": name, "c_bytes": info["bytes"],
+                                             "seconds": info.get("seconds")})
+
+    def _load_optimised(self) -> None:
+        """Between requests: a new planner on the optimised libraries once they all landed."""
+        from tocontrol_ros.core.solver import Planner
+        if not self.planner.stale() or self._stopping.is_set():
+            return
+        t0 = time.monotonic()
+        planner = Planner(self.model)
+        options = solver_options(self.config)
+        try:
+            for problem in self._problems(self.config):
+                planner.prepare(problem, options)
+        except TocontrolError:
+            return
+        self.planner = planner
+        self._publish_status("OK", f"optimised code loaded in {time.monotonic() - t0:.1f} s",
+                             {"event": "optimised"})
+
+    def _warm_up(self) -> None:
+        """Build what requests need, so that no request pays for a build.
+
+        First the direct transcription and the compiled functions of every problem kind the
+        node serves (point to point for ``~/plan``, joint state to point for ``~/goal`` and
+        ``~/plan`` without a start frame), always, with one ``~/status`` per compiled
+        library; then one throw-away solve of each kind (builds the rest, e.g. the
+        certificate's functions), stopped early when a request arrives or the node shuts
+        down.
+        """
+        self._publish_status("OK", "warming up (the first start on a machine compiles the "
+                             "model's C code)", {"event": "warming up"})
+        t0 = time.monotonic()
+        compiled.add_listener(self._compile_progress)
+        try:
+            note = self._warm_up_solves()
+        finally:
+            compiled.remove_listener(self._compile_progress)
+        if self._stopping.is_set():
+            return
+        self.ready.set()
+        self._publish_status("OK", f"ready after {time.monotonic() - t0:.1f} s{note}",
+                             {"event": "ready", "warmup_time": time.monotonic() - t0})
+
+    def _warm_up_solves(self) -> str:
+        """The warm-up's builds and throw-away solves; returns a note for the status."""
+        config = self.config
+        note = ""
+        try:
+            options = solver_options(config)  # verify as configured: compiles the certificate
+            problems = self._problems(config)
+            for problem in problems:
+                if self._stopping.is_set():
+                    return note
+                self.planner.prepare(problem, options)
+            for problem in problems:
+                result = self.planner.plan(
+                    problem, options,
+                    should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
+                if not result.success and not note:
+                    note = f" (warm-up solve: {result.message})"
+        except TocontrolError as exc:
+            note = f" (warm-up skipped: {exc})"
+        return note
+
+    def _should_stop(self, req: PlanRequest):
+        return lambda: req.cancelled.is_set() or self._stopping.is_set()
+
+    def _serve(self, req: PlanRequest) -> None:
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        config = req.config
+        if req.cancelled.is_set():
+            self._finish(req, "WARN", *req.cancel_reason)
+            return
+        try:
+            start = point(req.start[1]) if req.start[0] == "point" else \
+                joint_state(req.start[1], req.start[2])
+            problem = Problem(self.model, start, point(req.target), k=config.k,
+                              reserve=config.reserve,
+                              limits=self._limits.with_margin(config.limit_margin))
+        except TocontrolError as exc:
+            self._finish(req, "ERROR", "failed", str(exc))
+            return
+        start_point = problem.start_point
+        last = self._last_result
+        warm = last if config.warm_start and last is not None and \
+            last.can_warm_start(problem) else None
+        result = self.planner.plan(problem, solver_options(config), warm_start=warm,
+                                   should_stop=self._should_stop(req))
+        extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
+                 "solve_time": result.timings.get("total"), "residual": result.residual,
+                 "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
+                 "warm_returned": any(r.index == -1 and r.status == "returned"
+                                      for r in result.starts),
+                 "solver_status": result.status.name, "method": result.method,
+                 "verify_time": result.timings.get("verify") if result.certificate else None,
+                 **conv.certificate_values(result.certificate)}
+        if req.cancelled.is_set() or self._stopping.is_set():
+            event, reason = req.cancel_reason if req.cancelled.is_set() else \
+                ("cancelled", "node shutting down")
+            self._finish(req, "WARN", event, reason, extra)
+            return
+        # A success is published; so is a TIME_LIMIT that carries the best checked motion
+        # found before the deadline (its warning, WARN, says it may not be the optimum).
+        # Any other result is not, even with a trajectory (one that failed its certificate).
+        time_limited = result.status.name == "TIME_LIMIT" and result.trajectory is not None
+        if not (result.success or time_limited):
+            self._finish(req, "ERROR", "failed", result.message, extra)
+            return
+        if result.status.name == "TRIVIAL":
+            # The core's rule (Problem.is_trivial): the start is at rest on the target.
+            gap = float(np.linalg.norm(start_point - req.target))
+            path = conv.point_path(self.frame, start_point, self.frame.frame_id, self._now())
+            self._finish(req, "OK", "solved",
+                         f"nothing to plan: the target {req.target.tolist()} is "
+                         f"{gap:.3g} m from the start at rest (within MIN_MOVE = "
+                         f"{MIN_MOVE:g} m); T = 0, no trajectory published",
+                         {**extra, "samples": 1}, path=path)
+            return
+        self._last_result = result
+        sample = result.trajectory.sample(config.sample_period)
+        stamp = self._now()
+        frame_id = self.frame.frame_id
+        path = conv.path_msg(self.model, sample, frame_id, stamp)
+        try:
+            self._pub_trajectory.publish(conv.trajectory_msg(sample, self.model.joint_names,
+                                                             frame_id, stamp))
+            self._pub_path.publish(path)
+        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+            req.done.set()
+            return
+        verified = "certified" if result.certificate else "not certified (verify = false)"
+        message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} "
+                   f"Newton iterations, {result.timings['total']:.3f} s, residual "
+                   f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
+        level = "OK"
+        routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
+        warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
+        if routine:
+            message += "; " + "; ".join(routine)
+        if warnings:
+            level = "WARN"
+            message += "; warnings: " + "; ".join(warnings)
+        self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
+                     path=path)
+        # The viewer's markers after the answer: the caller does not wait for them.
+        snaps = result.trajectory.evaluate(
+            np.linspace(0.0, result.T, config.marker_snapshots)).q
+        ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                       for p in path.poses])
+        markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
+                                   start_point), conv.embed_point(self.frame, req.target),
+                                   frame_id, stamp)
+        try:
+            self._pub_markers.publish(markers)
+        except Exception:  # noqa: BLE001  (publisher gone during shutdown)
+            return
+
+    # --------------------------------------------------------------- shutdown
+    def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:
+        """Stop the worker: cancel the running solve, answer the pending request, join."""
+        self._stopping.set()
+        leftover = self._slot.close()
+        if leftover is not None:
+            self._finish(leftover, "WARN", "cancelled", "node shutting down")
+        if self._worker.is_alive() and threading.current_thread() is not self._worker:
+            self._worker.join(timeout)
+
+    def destroy_node(self) -> None:
+        """Stop the worker, then destroy the node."""
+        self.stop_worker()
+        self._joint_states.destroy()
+        super().destroy_node()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line: no options of its own besides ``--help``; ROS arguments pass through."""
+    return argparse.ArgumentParser(
+        prog="planner",
+        description="Serve time-optimal plans: service ~/plan (nav_msgs/srv/GetPlan), topic "
+        "~/goal (geometry_msgs/msg/PointStamped); publishes ~/trajectory, ~/status, "
+        "~/ee_path, ~/markers. Interfaces and parameters: msg_docs/ in the source tree.",
+        epilog="ROS arguments: --ros-args --params-file config/planner.yaml -p k:=8.0 "
+        "-r __ns:=/arm",
+    )
+
+
+def main(args=None) -> int:
+    """Run the planner node until Ctrl-C, SIGTERM or an external shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments (``--ros-args ...``)
+        included; ``sys.argv`` if None.
+
+    Returns
+    -------
+    int
+        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
+    return run_node("planner", argv, PlannerNode,
+                    lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

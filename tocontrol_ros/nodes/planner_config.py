@@ -1,0 +1,239 @@
+"""Parameters of the planner node: declared in one table, read into a frozen config.
+
+:data:`PARAMETERS` is the only place a parameter is defined (name, default, range,
+description, whether a change needs a restart). The node declares each one with the
+:class:`rcl_interfaces.msg.ParameterDescriptor` built by :mod:`tocontrol_ros.nodes.params`, so
+that rclpy itself rejects values out of range or of the wrong type and any change of a
+read-only one; its on-set-parameters callback runs :func:`config_from_values` on the
+would-be values for the checks that involve more than one parameter or the model. Nothing
+here needs a running node.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.examples import PAPER_START
+from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
+from tocontrol_ros.nodes.params import (
+    LOCKED_JOINTS,
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    ParameterSpec,
+)
+
+__all__ = ["ConfigError", "PARAMETERS", "PlannerConfig",
+           "config_from_values", "solver_options", "default_values"]
+
+class ConfigError(TocontrolError, ValueError):
+    """A parameter value that the planner cannot use; the message names the parameter."""
+
+
+PARAMETERS: tuple[ParameterSpec, ...] = (
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    LOCKED_JOINTS,
+    ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
+                  "position and velocity limits (has_position_limits, min_position, "
+                  "max_position, has_velocity_limits, max_velocity; the tighter of the two "
+                  "wins). Empty: the URDF's limits.", read_only=True),
+    ParameterSpec("limit_margin", 0.0, "Fraction of each joint's position range and velocity "
+                  "limit kept free by the plans (as reserve does for torque).", 0.0, 0.5),
+    ParameterSpec("base_link", "", "Link fixed to the world; start, target and outputs are "
+                  "in its frame. Empty: the URDF's root link.", read_only=True),
+    ParameterSpec("tip_link", "", "Link whose origin is the end-effector point. Empty: the "
+                  "only leaf link.", read_only=True),
+    ParameterSpec("task_axes", "", "Base-frame coordinates that form the task space, e.g. "
+                  "'xy'. Empty: the plane of motion of a planar arm, else 'xyz'.",
+                  read_only=True),
+    ParameterSpec("gravity", list(STANDARD_GRAVITY), "Gravity acceleration in the base frame "
+                  "(m/s^2), 3 numbers.", read_only=True,
+                  constraints="3 finite numbers"),
+    ParameterSpec("frame_id", "", "Frame of every point the planner receives and publishes. "
+                  "Empty: the base link's name. Requests in another frame are rejected "
+                  "(no tf lookup).", read_only=True),
+    ParameterSpec("k", 4.0, "Convexification exponent of the torque set sum u_i^(2k) <= 1 "
+                  "(dimensionless); larger is closer to bang-bang.", 1.0, 64.0),
+    ParameterSpec("reserve", 0.0, "Torque reserve r (fraction): plan against (1 - r) "
+                  "tau_max, leaving r tau_max for feedback.", 0.0, 0.95),
+    ParameterSpec("tol", 1e-10, "Newton tolerance on the max-norm of the boundary-value "
+                  "equations.", 1e-14, 1e-4),
+    ParameterSpec("max_newton", 30, "Newton iterations per solve (each continuation step "
+                  "is one solve).", 1, 500),
+    # starts and candidates: SolverOptions' defaults (checked by a test).
+    ParameterSpec("starts", 16, "Seed pairs tried by the direct method that makes the "
+                  "initial guess: the best-ranked of the self-motion grid and its full-turn "
+                  "branches (docs/seeding.md); with the default candidates it finds the best "
+                  "basin of nearly every problem of the paper's arm (1 = single start: "
+                  "faster, often a worse basin).", 1, 256),
+    ParameterSpec("candidates", 6, "At most this many distinct direct solutions continued by "
+                  "shooting, fastest direct T first, stopping where the rest cannot beat the "
+                  "best found (docs/seeding.md); the fastest motion is returned.", 1, 32,
+                  constraints="candidates <= starts"),
+    ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s), the solver's one "
+                  "reading of the clock that changes its course (it decides by work "
+                  "otherwise: the same request gives the same plan on any load). A solve "
+                  "that runs out ends with status TIME_LIMIT; when it had found a motion that "
+                  "passes its certificate, the best one is published with a WARN status "
+                  "(not shown to be the optimum), else nothing is.", 0.1, 600.0),
+    ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "
+                  "torques re-integrated through the model by an independent adaptive "
+                  "integrator must land on the target at rest, the torques stay inside the "
+                  "set, H = 0 (a few ms on the paper's arm; see msg_docs/certificate.md). A "
+                  "plan that fails is reported as failed, never published."),
+    ParameterSpec("warm_start", True, "Also continue the previous solution when the new "
+                  "problem is near it (same kinds and reserve, each end point within 0.1 m): "
+                  "one more candidate next to the multistart, never instead of it (unless "
+                  "warm_only); returned only when it is faster. Identical requests give the "
+                  "same T whatever came before."),
+    ParameterSpec("warm_only", False, "With warm_start, return the previous solution "
+                  "continued to the new problem without running the multistart, when it "
+                  "succeeds: the quickest re-plan after a small move (the Panda with its "
+                  "limits: 0.2-0.5 s against seconds), in the previous motion's basin, which "
+                  "the multistart might beat. A failed warm start falls back to the "
+                  "multistart."),
+    ParameterSpec("sample_period", 0.01, "Sample period of ~/trajectory, ~/ee_path and the "
+                  "~/plan response (s); the final time is always a sample.", 1e-4, 1.0),
+    ParameterSpec("default_start", list(PAPER_START), "Start point (task coordinates in "
+                  "frame_id, m) used when no recent joint state is available. Default: the "
+                  "paper's start; on an arm whose task space is not the plane, none (a "
+                  "request then needs a recent joint state).",
+                  constraints="one finite number per task axis"),
+    ParameterSpec("joint_state_timeout", 1.0, "A joint state older than this (s) is not "
+                  "'recent': goals then start from default_start.", 0.0, 3600.0),
+    ParameterSpec("marker_snapshots", 15, "Arm snapshots in ~/markers (as in the paper's "
+                  "Figure 4).", 2, 200),
+    ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
+                  "(s); then it returns an empty path.", 1.0, 3600.0),
+)
+
+_SPECS = {spec.name: spec for spec in PARAMETERS}
+
+
+def default_values() -> dict[str, Any]:
+    """Parameter name -> default value."""
+    return {spec.name: spec.default for spec in PARAMETERS}
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """The planner's parameters, checked (see :data:`PARAMETERS` for meanings and units)."""
+
+    robot_description: str
+    robot_description_file: str
+    locked_joints: str
+    joint_limits: str
+    limit_margin: float
+    base_link: str
+    tip_link: str
+    task_axes: str
+    gravity: tuple[float, float, float]
+    frame_id: str
+    k: float
+    reserve: float
+    tol: float
+    max_newton: int
+    starts: int
+    candidates: int
+    time_limit: float
+    verify: bool
+    warm_start: bool
+    warm_only: bool
+    sample_period: float
+    default_start: tuple[float, ...]
+    joint_state_timeout: float
+    marker_snapshots: int
+    service_timeout: float
+
+
+def _check_scalar(spec: ParameterSpec, value: Any) -> Any:
+    kind = type(spec.default)
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"`{spec.name}` must be true or false, got {value!r}")
+        return value
+    if kind is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"`{spec.name}` must be a string, got {value!r}")
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"`{spec.name}` must be an integer, got {value!r}")
+    elif isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"`{spec.name}` must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"`{spec.name}` must be finite, got {value!r}")
+    if spec.low is not None and not (spec.low <= value <= spec.high):
+        raise ConfigError(f"`{spec.name}` must be in [{spec.low:g}, {spec.high:g}], got "
+                          f"{value!r}")
+    return kind(value)
+
+
+def _check_vector(name: str, value: Any, size: int | None) -> tuple[float, ...]:
+    try:
+        vec = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"`{name}` must be a list of numbers, got {value!r}") from exc
+    if size is not None and len(vec) != size:
+        raise ConfigError(f"`{name}` must have {size} entries, got {len(vec)}: {list(vec)}")
+    if not all(math.isfinite(v) for v in vec):
+        raise ConfigError(f"`{name}` must be finite, got {list(vec)}")
+    return vec
+
+
+def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -> PlannerConfig:
+    """Check a full set of parameter values and return them as a config.
+
+    Parameters
+    ----------
+    values : mapping of str to value
+        Every name of :data:`PARAMETERS`; missing names take their defaults.
+    task_dim : int, optional
+        The model's task-space dimension m, when known: ``default_start`` must have m
+        entries.
+
+    Returns
+    -------
+    PlannerConfig
+
+    Raises
+    ------
+    ConfigError
+        A value of the wrong type or out of range, or an inconsistent combination; the
+        message names the parameter.
+    """
+    unknown = sorted(set(values) - set(_SPECS))
+    if unknown:
+        raise ConfigError(f"unknown parameter(s) {unknown}; known: {sorted(_SPECS)}")
+    out: dict[str, Any] = {}
+    for spec in PARAMETERS:
+        value = values.get(spec.name, spec.default)
+        if spec.name == "default_start" and list(value) == list(PAPER_START) and \
+                task_dim not in (None, len(PAPER_START)):
+            out[spec.name] = ()  # the paper's start, the default, means nothing to this arm
+            continue
+        if isinstance(spec.default, list):
+            size = 3 if spec.name == "gravity" else task_dim
+            out[spec.name] = _check_vector(spec.name, value, size)
+        else:
+            out[spec.name] = _check_scalar(spec, value)
+    if out["candidates"] > out["starts"]:
+        raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
+                          f"({out['starts']}): only the starts' direct solutions can be "
+                          f"continued")
+    if not out["default_start"] and task_dim in (None, len(PAPER_START)):
+        raise ConfigError("`default_start` must not be empty")
+    return PlannerConfig(**{f.name: out[f.name] for f in fields(PlannerConfig)})
+
+
+def solver_options(config: PlannerConfig):
+    """The :class:`~tocontrol_ros.core.solver.SolverOptions` of a config."""
+    from tocontrol_ros.core.solver import SolverOptions
+
+    return SolverOptions(tol=config.tol, max_newton=config.max_newton, starts=config.starts,
+                         candidates=config.candidates, time_limit=config.time_limit,
+                         verify=config.verify, warm_only=config.warm_only)

@@ -1,0 +1,704 @@
+"""The tracker node: executes planned trajectories on a simulated arm, nominal torques + PD.
+
+Run as ``ros2 run tocontrol_ros tracker`` (either install route), ``tocontrol-tracker`` (pip)
+or ``python -m tocontrol_ros.tracker``; parameters from ``config/tracker.yaml`` with
+``--ros-args --params-file``. The simulation and the control law are
+:mod:`tocontrol_ros.core.sim.tracking`; this node converts messages, keeps the clock and
+publishes. Interfaces (one page each in ``msg_docs/``):
+
+- subscribed: the planner's ``trajectory_msgs/msg/JointTrajectory`` (parameter
+  ``trajectory_topic``, default ``/planner/trajectory``; reliable, transient local, so the
+  planner's latched last plan arrives on start-up). A trajectory starts when it is received
+  (``header.stamp`` is not used) and replaces the running one from the current plant state;
+  with ``start_at_first_trajectory`` the first one puts the arm at its first point (a
+  free-start plan, whose start configuration the planner chooses);
+- published: ``joint_states`` (``sensor_msgs/msg/JointState``: position, velocity,
+  effort = torque acting on the joint), ``~/tracking_error`` (``sensor_msgs/msg/JointState``:
+  position = ``q_des - q``, velocity = ``qd_des - qd``, effort = feedback torque
+  ``(u - u_nom) tau_max``), ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``: accepted,
+  rejected, completed and preempted trajectories, with the run summary; a start event carries
+  the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
+  and ``/clock`` (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
+- subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
+  velocities): puts the plant at that state now and holds it, stopping a running trajectory
+  (``replay --reexecute`` re-executes a recorded run from its recorded initial state); the
+  ``~/status`` event (key ``event`` = ``reset``) echoes the request's stamp.
+
+Time: a wall-clock timer (``update_rate``) advances the simulation by the wall time elapsed
+times ``time_scale``, in whole control periods. Messages are stamped with the simulated
+time: offset from the node's start time (so that with ``time_scale = 1`` stamps follow the
+node's clock), or from zero when ``publish_clock`` is true, and then ``/clock`` carries the
+same time (other nodes follow it with ``use_sim_time``). With ``use_sim_time`` true the
+simulation follows the ROS clock on ``/clock`` instead (``time_scale`` is then unused): it
+waits for the first ``/clock``, stamps with that time, and counts again from the clock if
+it jumps back (a looped replay). ``joint_states`` and ``~/tracking_error`` are published
+every ``1 / publish_rate`` seconds of simulated time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import sys
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
+from rclpy.node import Node
+from rclpy.utilities import remove_ros_args
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+from trajectory_msgs.msg import JointTrajectory
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.robot.model import RobotModel
+from tocontrol_ros.core.sim.tracking import (
+    NominalTrajectory,
+    PlantConfig,
+    Tracker,
+    TrackingGains,
+    TrackingSummary,
+)
+from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.node_main import run_node
+from tocontrol_ros.nodes.params import (
+    LOCKED_JOINTS,
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    ParameterSpec,
+    declare_all,
+    load_model,
+    parameters_help,
+    parse_locked_joints,
+)
+
+__all__ = ["TrackerNode", "TrackerConfig", "PARAMETERS", "TrajectoryRejectedError",
+           "nominal_from_msg", "check_limits", "reset_state_from_msg", "summary_status",
+           "build_parser", "main"]
+
+#: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
+#: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
+PAPER_START_Q = (-0.5487769600, 2.2111963800, 1.1613502200)
+
+#: The planner's trajectory is latched: late subscribers get the last plan.
+QOS_TRAJECTORY = qos.LATCHED
+#: Streams: reliable publishers match both reliable and best-effort subscribers.
+QOS_STREAM = qos.RELIABLE
+#: Status events; the last few are kept for late subscribers.
+QOS_STATUS = qos.status_profile(20, latched=True)
+#: Control periods one timer tick may simulate (a few tens of ms of work); beyond, the
+#: simulation drops time (it cannot keep up with ``time_scale``) rather than starve the
+#: executor.
+MAX_TICK_PERIODS = 10_000
+
+
+class TrajectoryRejectedError(ProblemError):
+    """A trajectory message the tracker cannot execute; the message says why."""
+
+
+class _Reset(NamedTuple):
+    """A parsed ``~/reset`` request, queued behind the trajectories received before it."""
+
+    q: np.ndarray | None
+    qd: np.ndarray | None
+    stamp: str
+    error: str | None
+
+
+# -------------------------------------------------------------------- parameters
+def _spec(name, default, description, low=None, high=None) -> ParameterSpec:
+    return ParameterSpec(name, default, description, low, high, read_only=True)
+
+
+#: Every parameter: name, default (fixing the type; ``None`` = an optional double array),
+#: description with units, inclusive range. All are read-only: the model, the plant and
+#: the compiled control law are built at start-up.
+PARAMETERS: tuple[ParameterSpec, ...] = (
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    LOCKED_JOINTS,
+    _spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
+    _spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
+    _spec("kp", [100.0, 100.0, 30.0], "Proportional gains per joint (or one for all), "
+          "normalised: fraction of tau_max per rad (per m)"),
+    _spec("kd", [10.0, 10.0, 3.0], "Derivative gains per joint (or one for all), "
+          "normalised: fraction of tau_max per rad/s (per m/s)"),
+    _spec("mass_scale", 1.0, "Plant: factor on every link mass", 0.01, 100.0),
+    _spec("inertia_scale", 1.0, "Plant: factor on every link inertia about its centre of "
+          "mass", 0.01, 100.0),
+    _spec("friction_scale", 1.0, "Plant: factor on the viscous friction of every joint",
+          0.0, 100.0),
+    _spec("payload_mass", 0.0, "Plant: point mass at the tip frame origin (kg)", 0.0, 1000.0),
+    _spec("torque_noise", 0.0, "Plant: torque noise standard deviation, fraction of tau_max, "
+          "drawn per joint and control period", 0.0, 1.0),
+    _spec("noise_seed", 0, "Plant: seed of the torque noise", 0, 2**31 - 1),
+    _spec("initial_offset", None, "Plant: offset of the initial state from "
+          "initial_positions: n positions (rad, m) or 2n (positions, velocities); unset: "
+          "none"),
+    _spec("initial_positions", None, "Initial configuration (rad, m), held until the first "
+          "trajectory; unset: the paper example's start on the bundled arm, else zero "
+          "(clipped to 5 % of each range inside the joint limits, where the planner accepts a "
+          "start state)"),
+    _spec("sim_rate", 2000.0, "Plant integration rate (Hz, fixed-step RK4); an integer "
+          "multiple of control_rate", 1.0, 1.0e6),
+    _spec("control_rate", 1000.0, "Control-law rate (Hz); the control is held over each "
+          "period", 1.0, 1.0e5),
+    _spec("publish_rate", 100.0, "Rate of joint_states and ~/tracking_error (Hz of "
+          "simulated time)", 0.1, 1.0e4),
+    _spec("update_rate", 100.0, "Rate of the simulation timer (Hz of wall time)", 1.0,
+          1000.0),
+    _spec("time_scale", 1.0, "Simulated seconds per wall second (1: real time; larger: "
+          "faster than real time, for tests and batch runs)", 0.001, 1000.0),
+    _spec("publish_clock", False, "Publish the simulated time on /clock (stamps then count "
+          "from zero)"),
+    _spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
+          "trajectory_msgs/JointTrajectory"),
+    _spec("start_at_first_trajectory", False, "Put the simulated arm at the first "
+          "trajectory's first point (positions, velocities, plus initial_offset) when it "
+          "arrives, instead of checking it against start_tolerance: for a plan whose start "
+          "configuration the planner chooses (a free start on ~/plan). Only before the "
+          "first motion and any ~/reset; later trajectories are checked as usual"),
+    _spec("start_tolerance", 0.1, "Largest distance (rad, m; any joint) between a "
+          "trajectory's first point and the arm's position, now or as published in the last "
+          "2 s of wall time (a plan made from the state of a moving arm); farther: rejected",
+          0.0, 1.0e3),
+    _spec("max_points", 20000, "Largest number of points of a trajectory; more: rejected "
+          "before it is parsed", 1, 10_000_000),
+    _spec("max_duration", 600.0, "Longest trajectory (s); longer: rejected", 0.001, 1.0e6),
+)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The node's parameters, checked and converted (see :data:`PARAMETERS`)."""
+
+    robot_description: str
+    robot_description_file: str
+    locked_joints: str
+    base_link: str
+    tip_link: str
+    gains: TrackingGains
+    plant: PlantConfig
+    initial_positions: tuple[float, ...]
+    publish_rate: float
+    update_rate: float
+    time_scale: float
+    publish_clock: bool
+    trajectory_topic: str
+    start_at_first_trajectory: bool
+    start_tolerance: float
+    max_points: int
+    max_duration: float
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any]) -> TrackerConfig:
+        """Build from parameter values (``None`` for an unset optional array).
+
+        Raises
+        ------
+        ProblemError
+            A value the core rejects (the message names it).
+        """
+        plant = PlantConfig(
+            mass_scale=values["mass_scale"], inertia_scale=values["inertia_scale"],
+            friction_scale=values["friction_scale"], payload_mass=values["payload_mass"],
+            torque_noise=values["torque_noise"], noise_seed=int(values["noise_seed"]),
+            initial_offset=tuple(values["initial_offset"] or ()),
+            sim_rate=values["sim_rate"], control_rate=values["control_rate"])
+        return cls(
+            robot_description=values["robot_description"],
+            robot_description_file=values["robot_description_file"],
+            locked_joints=values["locked_joints"],
+            base_link=values["base_link"], tip_link=values["tip_link"],
+            gains=TrackingGains(kp=tuple(values["kp"]), kd=tuple(values["kd"])),
+            plant=plant, initial_positions=tuple(values["initial_positions"] or ()),
+            publish_rate=float(values["publish_rate"]),
+            update_rate=float(values["update_rate"]), time_scale=float(values["time_scale"]),
+            publish_clock=bool(values["publish_clock"]),
+            trajectory_topic=values["trajectory_topic"],
+            start_at_first_trajectory=bool(values["start_at_first_trajectory"]),
+            start_tolerance=float(values["start_tolerance"]),
+            max_points=int(values["max_points"]), max_duration=float(values["max_duration"]))
+
+    def load_model(self) -> tuple[RobotModel, bool]:
+        """The robot model, and whether it is the bundled arm."""
+        return load_model(self.robot_description, self.robot_description_file,
+                          base_link=self.base_link or None, tip_link=self.tip_link or None,
+                          locked_joints=parse_locked_joints(self.locked_joints))
+
+    def start_configuration(self, model: RobotModel, bundled: bool) -> np.ndarray:
+        """``initial_positions``, or the default described in :data:`PARAMETERS`."""
+        if self.initial_positions:
+            q = np.asarray(self.initial_positions, dtype=float)
+            if q.shape != (model.n,) or not np.all(np.isfinite(q)):
+                raise ProblemError(f"`initial_positions` must be {model.n} finite values, "
+                                   f"got {list(self.initial_positions)}")
+            return q
+        if bundled and model.n == len(PAPER_START_Q):
+            return np.array(PAPER_START_Q)
+        width = np.where(np.isfinite(model.q_upper - model.q_lower),
+                         model.q_upper - model.q_lower, 0.0)
+        return np.clip(np.zeros(model.n), model.q_lower + 0.05 * width,
+                       model.q_upper - 0.05 * width)
+
+
+# ------------------------------------------------------------------- conversions
+def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> NominalTrajectory:
+    """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
+
+    Every point needs positions, velocities, accelerations and effort (the nominal torques,
+    N m) for all joints; ``time_from_start`` must increase strictly. The joints may come in
+    any order.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, missing or short fields, NaN, times that do
+        not increase; the message names the point and the field.
+    """
+    names = list(msg.joint_names)
+    want = list(joint_names)
+    if len(set(names)) != len(names):
+        raise TrajectoryRejectedError(f"joint_names has duplicates: {names}")
+    if sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"joint_names {names} do not match the robot's joints "
+                                      f"{want}")
+    if not msg.points:
+        raise TrajectoryRejectedError("the trajectory has no points")
+    order = [names.index(j) for j in want]
+    n, points = len(want), msg.points
+    arrays = {}
+    for field in ("positions", "velocities", "accelerations", "effort"):
+        rows = [getattr(p, field) for p in points]
+        short = [i for i, row in enumerate(rows) if len(row) != n]
+        if short:
+            i = short[0]
+            raise TrajectoryRejectedError(
+                f"point {i}: {field} has {len(rows[i])} values for {n} joints (the tracker "
+                f"needs positions, velocities, accelerations and effort)")
+        arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
+    t = np.array([conv.seconds(p.time_from_start) for p in points])
+    try:
+        return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
+                                 arrays["accelerations"], arrays["effort"],
+                                 joint_names=want)
+    except ProblemError as exc:
+        text = str(exc).replace("`t`", "time_from_start").replace(
+            "`q`", "positions").replace("`qd`", "velocities").replace(
+            "`qdd`", "accelerations").replace("`effort`", "effort")
+        raise TrajectoryRejectedError(text) from exc
+
+
+#: A trajectory may start from any position the arm had (as published on joint_states) in
+#: this many wall-clock seconds: a plan made from a state of a moving arm arrives after the
+#: arm has moved on (the planner uses joint states up to joint_state_timeout = 1 s old).
+START_HISTORY = 2.0
+#: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
+EFFORT_MARGIN = 1e-6
+
+
+def check_limits(nominal: NominalTrajectory, tau_max, max_duration: float) -> None:
+    """Reject a trajectory whose effort exceeds the torque limits or that lasts too long.
+
+    Parameters
+    ----------
+    nominal : NominalTrajectory
+    tau_max : array_like, shape (n,)
+        Torque limits (N m, N).
+    max_duration : float
+        Longest duration (s).
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Naming the first point and joint over its limit, or the duration.
+    """
+    if nominal.duration > max_duration:
+        raise TrajectoryRejectedError(f"it lasts {nominal.duration:.6g} s, more than "
+                                      f"max_duration = {max_duration:g} s")
+    limit = np.asarray(tau_max, dtype=float) * (1.0 + EFFORT_MARGIN)
+    over = np.abs(nominal.effort) > limit
+    if np.any(over):
+        i, j = (int(v) for v in np.argwhere(over)[0])
+        name = nominal.joint_names[j] if nominal.joint_names else f"joint {j}"
+        raise TrajectoryRejectedError(
+            f"point {i}: effort {nominal.effort[i, j]:.6g} of {name} exceeds its torque "
+            f"limit {float(np.asarray(tau_max)[j]):.6g}")
+
+
+def reset_state_from_msg(msg: JointState,
+                         joint_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (zero if none given) of a ``~/reset`` request, model order.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, a position or velocity count that does not
+        match them, a value that is not finite.
+    """
+    names, want = list(msg.name), list(joint_names)
+    if len(set(names)) != len(names) or sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"name {names} does not match the robot's joints {want}")
+    order = [names.index(j) for j in want]
+    fields = {}
+    for field in ("position", "velocity"):
+        values = np.asarray(getattr(msg, field), dtype=float)
+        if field == "velocity" and values.size == 0:
+            values = np.zeros(len(want))
+        elif values.size != len(want):
+            raise TrajectoryRejectedError(f"{field} has {values.size} values for {len(want)} "
+                                          f"joints")
+        if not np.all(np.isfinite(values)):
+            raise TrajectoryRejectedError(f"{field} is not finite: {values.tolist()}")
+        fields[field] = values[order]
+    return fields["position"], fields["velocity"]
+
+
+def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
+                   joint_names: Sequence[str]) -> DiagnosticStatus:
+    """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
+    worst = int(np.argmax(summary.max_error))
+    verb = "completed" if summary.outcome == "completed" else (
+        f"preempted after {summary.elapsed:.3f} s of {summary.duration:.3f} s")
+    message = (f"trajectory {verb}: final end-effector error {summary.final_point_error:.3g} "
+               f"m, max tracking error {summary.max_error[worst]:.3g} rad "
+               f"({joint_names[worst]}), saturated {100 * summary.saturated_fraction:.1f} % "
+               f"of the time, largest feedback share {summary.max_feedback:.3g}")
+    values = [KeyValue(key=key, value=value if isinstance(value, str) else f"{value:.9g}")
+              for key, value in summary.as_dict(joint_names).items()]
+    return DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=message,
+                            hardware_id=hardware_id, values=values)
+
+
+# -------------------------------------------------------------------------- node
+class TrackerNode(Node):
+    """Simulated arm under the tracking law; see the module docstring for its interfaces.
+
+    Parameters
+    ----------
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
+    """
+
+    def __init__(self, node_name: str = "tracker", **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        self.config = TrackerConfig.from_values(declare_all(self, PARAMETERS))
+        self.model, bundled = self.config.load_model()
+        self.joint_names = list(self.model.joint_names)
+        q0 = self.config.start_configuration(self.model, bundled)
+        self.tracker = Tracker(self.model, self.config.plant, self.config.gains, q0=q0)
+        self.tracker.prepare()  # compile the control period now, not in the first tick
+
+        self._pub_joints = self.create_publisher(JointState, "joint_states", QOS_STREAM)
+        self._pub_error = self.create_publisher(JointState, "~/tracking_error", QOS_STREAM)
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
+        self._pub_clock = (self.create_publisher(Clock, "/clock", QOS_STREAM)
+                           if self.config.publish_clock else None)
+        self.create_subscription(JointTrajectory, self.config.trajectory_topic,
+                                 self._on_trajectory, QOS_TRAJECTORY)
+        self.create_subscription(JointState, "~/reset", self._on_reset, QOS_STREAM)
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        if self._sim_time and self.config.publish_clock:
+            raise ProblemError("`use_sim_time` and `publish_clock` cannot both be true (the "
+                               "tracker would follow its own clock)")
+        self._clock_seen = False  # with use_sim_time: a /clock has arrived
+        self._epoch = 0.0 if self.config.publish_clock or self._sim_time else (
+            self.get_clock().now().nanoseconds * 1e-9)
+        self._publish_period = 1.0 / self.config.publish_rate
+        self._next_publish = self._publish_period
+        self._wall_start = time.monotonic()
+        self._sim_offset = 0.0  # simulated time dropped when the simulation fell behind
+        self.trajectories_received = 0
+        self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
+        self._parsed_lock = threading.Lock()
+        # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
+        self._parsed: list = []
+        self._history: collections.deque = collections.deque()  # (wall time, q) published
+        # Until the first motion or reset: the next trajectory places the arm at its start.
+        self._place_at_start = self.config.start_at_first_trajectory
+        if not self._sim_time:
+            self._publish_state(self._initial_row())
+        # Wall time even with use_sim_time: the tick reads the ROS clock (a sim-time timer
+        # would not fire at all before the first /clock).
+        self.create_timer(1.0 / self.config.update_rate, self._on_timer,
+                          clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(
+            f"tracking on {self.model.name!r} ({self.model.n} joints) from "
+            f"{self.config.trajectory_topic}; plant: {self._plant_text()}; "
+            f"time_scale {self.config.time_scale:g}")
+
+    # ---------------------------------------------------------------- helpers
+    def _plant_text(self) -> str:
+        p = self.config.plant
+        if p.identical and p.torque_noise == 0 and not p.initial_offset:
+            return f"identical to the model, {p.sim_rate:g} Hz, control {p.control_rate:g} Hz"
+        return (f"mass x{p.mass_scale:g}, inertia x{p.inertia_scale:g}, friction "
+                f"x{p.friction_scale:g}, payload {p.payload_mass:g} kg, noise "
+                f"{p.torque_noise:g}, offset {list(p.initial_offset)}, {p.sim_rate:g} Hz, "
+                f"control {p.control_rate:g} Hz")
+
+    def _status(self, level: bytes, message: str, values: Mapping[str, str] = ()) -> None:
+        self._pub_status.publish(DiagnosticStatus(
+            level=level, name=self.get_fully_qualified_name(), message=message,
+            hardware_id=self.model.name,
+            values=[KeyValue(key=k, value=v) for k, v in dict(values).items()]))
+
+    def _initial_row(self) -> dict:
+        n = self.model.n
+        return {"t": self.tracker.t, "q": self.tracker.q, "qd": self.tracker.qd,
+                "error": np.zeros(n), "error_rate": np.zeros(n), "feedback": np.zeros(n),
+                "tau": np.zeros(n)}
+
+    # -------------------------------------------------------------- callbacks
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        # Only a size check here; parsing runs off the executor, so that a large trajectory
+        # never holds up the control loop (the timer picks the result up).
+        self.trajectories_received += 1
+        if len(msg.points) > self.config.max_points:
+            self._reject(f"{len(msg.points)} points, more than max_points = "
+                         f"{self.config.max_points}")
+            return
+        try:
+            self._parser.submit(self._parse, msg)
+        except RuntimeError:  # the node is shutting down
+            return
+
+    def _parse(self, msg: JointTrajectory) -> None:
+        try:
+            nominal = nominal_from_msg(msg, self.joint_names)
+            check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
+            item = nominal
+        except TrajectoryRejectedError as exc:
+            item = exc
+        except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)
+            item = TrajectoryRejectedError(f"cannot be parsed: {exc!r}")
+        with self._parsed_lock:
+            self._parsed.append(item)
+
+    def _reject(self, reason: str) -> None:
+        running = "continuing the current trajectory" if self.tracker.running else "holding"
+        self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
+        self.get_logger().warning(f"trajectory rejected: {reason}")
+
+    def _start_parsed(self) -> None:
+        """Start (or reject) the trajectories parsed since the last tick, in arrival order."""
+        with self._parsed_lock:
+            items, self._parsed = self._parsed, []
+        for item in items:
+            if isinstance(item, TrajectoryRejectedError):
+                self._reject(str(item))
+                continue
+            if isinstance(item, _Reset):
+                self._apply_reset(item)
+                continue
+            nominal = item
+            if self._sim_time:
+                self._follow_clock()  # a trajectory right after the first /clock: stamp with it
+            placed = self._place_at_start
+            if placed:
+                self._place_at(nominal)
+            gaps = np.abs(nominal.q[0] - self.tracker.q)
+            offset = float(np.max(gaps))
+            # Planned from a state the arm had: a plan from the published joint states of the
+            # last START_HISTORY seconds is accepted although the arm has moved on since.
+            recent = np.array([q for _, q in self._history]) if self._history else \
+                self.tracker.q[None, :]
+            nearest = float(np.min(np.max(np.abs(recent - nominal.q[0]), axis=1)))
+            if not placed and min(offset, nearest) > self.config.start_tolerance:
+                j = int(np.argmax(gaps))
+                self._reject(f"its first point is {offset:.3g} rad from the current position "
+                             f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
+                             f"position of the last {START_HISTORY:g} s, more than "
+                             f"start_tolerance = {self.config.start_tolerance:g}")
+                continue
+            # The state it starts from, for re-execution (the status is latched: a recorder
+            # that subscribes late still gets it).
+            state = {f"start_{field}.{name}": f"{value:.17g}"
+                     for field, values in (("position", self.tracker.q),
+                                           ("velocity", self.tracker.qd))
+                     for name, value in zip(self.joint_names, values, strict=True)}
+            self._place_at_start = False
+            preempted = self.tracker.start(nominal)
+            if preempted is not None:
+                self._pub_status.publish(self._summary_status(preempted))
+            self._status(DiagnosticStatus.OK,
+                         f"executing trajectory: {len(nominal)} points, T = "
+                         f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
+                         f"position" + (" (the arm placed there: start_at_first_trajectory)"
+                                        if placed else ""),
+                         {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
+                          "start_offset": f"{offset:.9g}",
+                          "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
+
+    def _on_reset(self, msg: JointState) -> None:
+        # Through the parsing thread's queue: a reset takes effect after the trajectories
+        # received before it, never before (the timer applies both in arrival order).
+        try:
+            self._parser.submit(self._parse_reset, msg)
+        except RuntimeError:  # the node is shutting down
+            return
+
+    def _parse_reset(self, msg: JointState) -> None:
+        stamp = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+        try:
+            q, qd = reset_state_from_msg(msg, self.joint_names)
+            item = _Reset(q, qd, stamp, None)
+        except TrajectoryRejectedError as exc:
+            item = _Reset(None, None, stamp, str(exc))
+        with self._parsed_lock:
+            self._parsed.append(item)
+
+    def _apply_reset(self, item: _Reset) -> None:
+        if item.error is not None:
+            self._status(DiagnosticStatus.ERROR, f"reset rejected: {item.error}",
+                         {"event": "reset_rejected"})
+            self.get_logger().warning(f"reset rejected: {item.error}")
+            return
+        q, qd = item.q, item.qd
+        self._place_at_start = False
+        preempted = self.tracker.reset(q, qd)
+        if preempted is not None:
+            self._pub_status.publish(self._summary_status(preempted))
+        self._status(DiagnosticStatus.OK,
+                     f"reset to positions {np.round(q, 6).tolist()}, velocities "
+                     f"{np.round(qd, 6).tolist()}; holding",
+                     {"event": "reset", "request_stamp": item.stamp})
+        # The arm was put elsewhere: the positions it had before are no start for a plan.
+        self._history.clear()
+        self._publish_state(self._initial_row())
+
+    def _place_at(self, nominal: NominalTrajectory) -> None:
+        """``start_at_first_trajectory``: the plant at the trajectory's first point."""
+        n = self.model.n
+        offset = self.config.plant.offset(n)
+        self.tracker.reset(nominal.q[0] + offset[:n], nominal.qd[0] + offset[n:])
+        self._history.clear()
+        # The state it is put at, stamped now: the recorded motion starts from it.
+        self._publish_state(self._initial_row())
+        self.get_logger().info(f"start_at_first_trajectory: arm placed at "
+                               f"{np.round(self.tracker.q, 6).tolist()}")
+
+    def destroy_node(self) -> None:
+        """Stop the parsing thread, then destroy the node."""
+        self._parser.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
+
+    def _summary_status(self, summary: TrackingSummary) -> DiagnosticStatus:
+        return summary_status(summary, self.get_fully_qualified_name(), self.model.name,
+                              self.joint_names)
+
+    def _target_time(self) -> float | None:
+        """Simulated time to advance to; None while waiting for the first /clock."""
+        if not self._sim_time:
+            return ((time.monotonic() - self._wall_start) * self.config.time_scale
+                    - self._sim_offset)
+        now = self._follow_clock()
+        return None if now is None else now - self._epoch - self._sim_offset
+
+    def _follow_clock(self) -> float | None:
+        """With use_sim_time: the ROS time (s), the epoch set from it; None before /clock."""
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if now <= 0.0:
+            return None
+        tracker = self.tracker
+        if not self._clock_seen or now < self._epoch + tracker.t - tracker.h:
+            # The first clock, or the clock went back (a looped replay): count from it.
+            self._epoch, self._sim_offset = now - tracker.t, 0.0
+            if not self._clock_seen:
+                self._clock_seen = True
+                self._publish_state(self._initial_row())
+        return now
+
+    def _on_timer(self) -> None:
+        self._start_parsed()
+        target = self._target_time()
+        if target is None:
+            return
+        tracker = self.tracker
+        behind = int(math.ceil((target - tracker.t) / tracker.h - 1e-9))
+        if behind > MAX_TICK_PERIODS:
+            # Cannot keep up with time_scale: simulate what one tick may, drop the rest.
+            dropped = (behind - MAX_TICK_PERIODS) * tracker.h
+            self._sim_offset += dropped
+            target -= dropped
+            self.get_logger().warning(
+                f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
+                f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
+        report = tracker.advance(target)
+        log = report.log
+        if len(log):
+            # The first control instant at or after each publishing time.
+            due = np.arange(self._next_publish, log.t[-1] + 1e-9, self._publish_period)
+            rows = np.unique(np.searchsorted(log.t, due - 1e-9))
+            for i in rows:
+                self._publish_state({
+                    "t": log.t[i], "q": log.q[i], "qd": log.qd[i], "error": log.error[i],
+                    "error_rate": log.error_rate[i],
+                    "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max,
+                    "tau": log.tau[i]})
+            self._next_publish += due.size * self._publish_period
+        # After the states: whoever acts on "completed" (e.g. sends the next goal, which the
+        # planner plans from the latest joint state) has seen the final state by then.
+        for summary in report.summaries:
+            self._pub_status.publish(self._summary_status(summary))
+        if self._pub_clock is not None:
+            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
+
+    def _publish_state(self, row: Mapping[str, Any]) -> None:
+        now = time.monotonic()
+        self._history.append((now, np.array(row["q"], dtype=float)))
+        while self._history and self._history[0][0] < now - START_HISTORY:
+            self._history.popleft()
+        header = Header(stamp=conv.time_from_seconds(self._epoch + float(row["t"])), frame_id="")
+        self._pub_joints.publish(JointState(
+            header=header, name=self.joint_names, position=np.asarray(row["q"]).tolist(),
+            velocity=np.asarray(row["qd"]).tolist(), effort=np.asarray(row["tau"]).tolist()))
+        self._pub_error.publish(JointState(
+            header=header, name=self.joint_names,
+            position=np.asarray(row["error"]).tolist(),
+            velocity=np.asarray(row["error_rate"]).tolist(),
+            effort=np.asarray(row["feedback"]).tolist()))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command line of ``ros2 run tocontrol_ros tracker``: only ``--help`` (ROS parameters)."""
+    parameters = parameters_help(PARAMETERS)
+    return argparse.ArgumentParser(
+        prog="tracker", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Execute planned trajectories on a simulated arm: nominal torques plus "
+        "PD feedback, saturated to |u_i| <= 1. Settings are ROS parameters "
+        "(--ros-args -p name:=value or --params-file config/tracker.yaml).",
+        epilog="parameters (all read-only):\n" + parameters)
+
+
+def main(args=None) -> int:
+    """Run the tracker node until Ctrl-C, SIGTERM or an external shutdown.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments included; ``sys.argv``
+        if None.
+
+    Returns
+    -------
+    int
+        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
+    return run_node("tracker", argv, TrackerNode)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

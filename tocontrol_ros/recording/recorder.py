@@ -1,0 +1,333 @@
+"""Recorder: ``ros2 run tocontrol_ros recorder`` writes topics to a rosbag2-compatible MCAP.
+
+Subscribes to a set of topics (by default everything the planner and tracker publish, plus
+their inputs) with raw (serialized) messages, so nothing is deserialized on the way, and
+writes each message's exact CDR bytes with its receive time (log time) and the publisher's
+source timestamp (publish time). Each topic's type and the QoS its publishers offer are
+taken from the ROS graph when a publisher first appears; the subscription asks for what all
+publishers offer (reliable, transient local), so a latched plan is captured too.
+
+Progress goes to ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, reliable, transient
+local, the last 100 kept), one event each (key ``event``): ``started`` (keys ``output`` and
+``topics``, comma-separated), ``subscribed`` when a topic is subscribed (keys ``topic``,
+``type``), ``first_message`` when its first message is written (key ``topic``),
+``not_recorded`` for a topic that cannot be (level ERROR). A topic counts as recorded from
+its ``first_message``: a subscription exists before the publisher's side has matched it, and
+what a volatile publisher sends in between is lost. A program that needs the whole of a
+stream in the file (the demo) waits for that event before it makes the stream's publisher
+act.
+
+SIGINT and SIGTERM finish the file (last chunk, summary, indexes) after taking what is
+already queued. A process killed outright (``kill -9``) leaves a file without summary and
+indexes that holds every message received up to about ``flush_period`` (0.1 s) before the
+kill (chunks are handed to the OS at least that often): a streaming reader reads it as is,
+and ``ros2 run tocontrol_ros reindex FILE`` rewrites it as a complete file for indexed
+readers and rosbags. The output never overwrites an existing file; an output that cannot be
+written ends the recorder with a one-line error and exit status 2.
+
+Parameters (all read-only; see ``config/recorder.yaml``): ``topics``, ``output``,
+``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``.
+"""
+
+import argparse
+import signal
+import sys
+import time
+from dataclasses import dataclass
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.params import ParameterSpec, declare_all, parameters_help
+from tocontrol_ros.recording import mcap_io
+
+#: Everything the planner and the tracker publish, and their inputs.
+DEFAULT_TOPICS = (
+    "/planner/goal",
+    "/planner/trajectory",
+    "/planner/status",
+    "/planner/ee_path",
+    "/planner/markers",
+    "/joint_states",
+    "/tracker/tracking_error",
+    "/tracker/status",
+)
+#: How long (s) a stop request keeps taking messages already queued in the middleware.
+DRAIN_TIME = 0.3
+#: Status events kept for late subscribers: two per topic and a few more.
+QOS_STATUS = qos.status_profile(100, latched=True)
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """Validated recorder parameters.
+
+    Attributes
+    ----------
+    topics : tuple of str
+        Absolute topic names to record.
+    output : str
+        Output file; empty means ``runs/<YYYYmmdd-HHMMSS>.mcap`` in the working directory.
+    compression : str
+        ``none``, ``zstd`` or ``lz4`` (chunk compression).
+    discovery_period : float
+        How often (s) to look for publishers of topics not yet subscribed.
+    chunk_size : int
+        MCAP chunk size (bytes).
+    flush_period : float
+        Longest time (s) a received message stays only in memory.
+    queue_depth : int
+        Subscription history depth (messages): generous, so bursts are not dropped.
+    """
+
+    topics: tuple
+    output: str
+    compression: str
+    discovery_period: float
+    chunk_size: int
+    flush_period: float
+    queue_depth: int
+
+
+PARAMETERS: tuple[ParameterSpec, ...] = (
+    ParameterSpec("topics", list(DEFAULT_TOPICS), "Topics to record (absolute names).",
+                  read_only=True),
+    ParameterSpec("output", "", "Output .mcap file; empty: runs/<YYYYmmdd-HHMMSS>.mcap. "
+                  "Never overwritten.", read_only=True),
+    ParameterSpec("compression", "none", "Chunk compression: none, zstd or lz4.",
+                  read_only=True),
+    ParameterSpec("discovery_period", 0.2, "Period (s) of the search for publishers of "
+                  "topics not yet subscribed.", 0.01, 10.0, read_only=True),
+    ParameterSpec("chunk_size", mcap_io.DEFAULT_CHUNK_SIZE, "MCAP chunk size (bytes, "
+                  "uncompressed).", 1024, 64 * 1024 * 1024, read_only=True),
+    ParameterSpec("flush_period", mcap_io.DEFAULT_FLUSH_PERIOD, "Longest time (s) a received "
+                  "message is held in memory before it is written (what a killed recorder "
+                  "loses).", 0.01, 60.0, read_only=True),
+    ParameterSpec("queue_depth", 1000, "Subscription history depth (messages).", 1, 100000,
+                  read_only=True),
+)
+
+
+def read_config(node):
+    """Declare the parameters on `node` and return them as a :class:`RecorderConfig`.
+
+    Raises
+    ------
+    ValueError
+        For a compression name outside none/zstd/lz4 or a relative topic name.
+    """
+    values = declare_all(node, PARAMETERS)
+    if values["compression"] not in mcap_io.COMPRESSIONS:
+        raise ValueError(f"parameter `compression` must be one of "
+                         f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
+    topics = tuple(values["topics"])
+    bad = [t for t in topics if not t.startswith("/")]
+    if bad or not topics:
+        raise ValueError(f"parameter `topics` must list absolute topic names, got {topics!r}")
+    values["topics"] = tuple(dict.fromkeys(topics))
+    return RecorderConfig(**values)
+
+
+def subscription_qos(offered, depth):
+    """QoS that matches every offered profile (as rosbag2 adapts its requests).
+
+    Reliable only if every publisher is reliable, transient local only if every publisher
+    is; keep-last `depth`.
+    """
+    reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+    latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+class Recorder(Node):
+    """Node that records topics into a :class:`tocontrol_ros.recording.mcap_io.RecordingWriter`.
+
+    Parameters
+    ----------
+    writer : RecordingWriter, optional
+        Where to write; opened from the ``output`` parameter if None.
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``).
+    """
+
+    def __init__(self, writer=None, **kwargs):
+        super().__init__("recorder", **kwargs)
+        self.config = read_config(self)
+        if writer is None:
+            path = self.config.output or str(mcap_io.default_output_path())
+            writer = mcap_io.RecordingWriter(
+                path, compression=self.config.compression, chunk_size=self.config.chunk_size,
+                flush_period=self.config.flush_period)
+        self.writer = writer
+        self._recorded = {}
+        self._first_seen = set()  # topics whose first message was written
+        self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
+        self.get_logger().info(f"recording {len(self.config.topics)} topics to "
+                               f"{self.writer.path}")
+        self._status(DiagnosticStatus.OK, f"recording {len(self.config.topics)} topics to "
+                     f"{self.writer.path}", event="started", output=str(self.writer.path),
+                     topics=",".join(self.config.topics))
+        self.create_timer(self.config.discovery_period, self.discover)
+        # Checked twice per period: a message waits at most about one period.
+        self.create_timer(self.config.flush_period / 2, self.writer.flush_if_due)
+        self.discover()
+
+    @property
+    def pending_topics(self):
+        """Topics still waiting for a publisher."""
+        return [t for t in self.config.topics if t not in self._recorded]
+
+    @property
+    def receiving_topics(self):
+        """Topics whose first message has been written, in the order of ``topics``."""
+        return [t for t in self.config.topics if t in self._first_seen]
+
+    def _status(self, level, message, **values):
+        self._pub_status.publish(DiagnosticStatus(
+            level=level, name=self.get_fully_qualified_name(), message=message,
+            values=[KeyValue(key=k, value=v) for k, v in values.items()]))
+
+    def discover(self):
+        """Subscribe to each wanted topic that has gained a publisher."""
+        for topic in self.pending_topics:
+            infos = self.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            types = sorted({info.topic_type for info in infos})
+            type_name = types[0]
+            if len(types) > 1:
+                self.get_logger().warning(
+                    f"{topic}: publishers of several types {types}; recording {type_name}")
+                infos = [info for info in infos if info.topic_type == type_name]
+            offered = [info.qos_profile for info in infos]
+            try:
+                msg_class = mcap_io.message_class(type_name)
+                self.writer.add_topic(topic, type_name, offered, infos[0].topic_type_hash)
+            except mcap_io.McapIOError as err:
+                self.get_logger().error(f"{topic}: not recorded: {err}")
+                self._status(DiagnosticStatus.ERROR, f"{topic}: not recorded: {err}",
+                             event="not_recorded", topic=topic)
+                self._recorded[topic] = None
+                continue
+            self._recorded[topic] = self.create_subscription(
+                msg_class, topic, self._callback(topic),
+                subscription_qos(offered, self.config.queue_depth), raw=True)
+            self.get_logger().info(f"recording {topic} ({type_name})")
+            self._status(DiagnosticStatus.OK, f"subscribed to {topic} ({type_name})",
+                         event="subscribed", topic=topic, type=type_name)
+
+    def _callback(self, topic):
+        write = self.writer.write
+
+        def on_message(data, info):
+            received = info.get("received_timestamp") or time.time_ns()
+            source = info.get("source_timestamp") or received
+            write(topic, data, received, source, info.get("publication_sequence_number") or 0)
+            if topic not in self._first_seen:
+                self._first_seen.add(topic)
+                self._status(DiagnosticStatus.OK, f"first message on {topic} written",
+                             event="first_message", topic=topic)
+
+        return on_message
+
+    def close(self):
+        """Finish the file (summary and indexes) and log what it holds."""
+        if self.writer.closed:
+            return
+        self.writer.close()
+        counts = ", ".join(f"{t} {n}" for t, (_, n) in self.writer.topics.items())
+        self.get_logger().info(f"wrote {self.writer.message_count} messages to "
+                               f"{self.writer.path} ({counts or 'no topics'})")
+
+
+def spin_until_stopped(executor, stop, drain_time=DRAIN_TIME):
+    """Spin until ``stop()`` is true, then take what is already queued for `drain_time` s."""
+    while not stop():
+        executor.spin_once(timeout_sec=0.1)
+    deadline = time.monotonic() + drain_time
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.01)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command line of ``ros2 run tocontrol_ros recorder``: only ``--help`` (ROS parameters)."""
+    parameters = parameters_help(PARAMETERS)
+    return argparse.ArgumentParser(
+        prog="recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Record topics to a rosbag2-compatible MCAP file until SIGINT or "
+        "SIGTERM. Settings are ROS parameters (--ros-args -p name:=value or "
+        "--params-file config/recorder.yaml).",
+        epilog="parameters (all read-only):\n" + parameters)
+
+
+def main(args=None):
+    """Run the recorder until SIGINT or SIGTERM, then finish the file.
+
+    Parameters
+    ----------
+    args : list of str, optional
+        The whole command line, program name first, ROS arguments included; ``sys.argv``
+        if None.
+
+    Returns
+    -------
+    int
+        0 after a clean stop, 2 for bad parameters or an existing output file.
+    """
+    argv = list(sys.argv if args is None else args)
+    build_parser().parse_args(remove_ros_args(argv)[1:])
+    # Own handlers: a signal stops the loop, queued messages are still taken, and the
+    # file is finished before the context shuts down.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stopping = []
+    previous = {sig: signal.signal(sig, lambda *_: stopping.append(True))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    status = 0
+    try:
+        node = Recorder()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_until_stopped(executor, lambda: bool(stopping))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, mcap_io.McapIOError) as err:
+        print(f"recorder: {err}", file=sys.stderr)
+        status = 2
+    except OSError as err:
+        # e.g. an unwritable output: one line, not a traceback.
+        print(f"recorder: cannot write the recording: {err.strerror or err}: "
+              f"{err.filename or ''}".rstrip(": "), file=sys.stderr)
+        status = 2
+    finally:
+        if node is not None:
+            try:
+                node.close()
+            except OSError as err:
+                print(f"recorder: cannot finish the recording: {err}", file=sys.stderr)
+                status = 2
+            node.destroy_node()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
