@@ -31,7 +31,7 @@ import yaml  # noqa: E402
 
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 from bench.common import Section, log, table  # noqa: E402
-from tocontrol_ros.batch.cli import cli as batch  # noqa: E402
+from tocontrol_ros.batch import cli as batch  # noqa: E402
 from tocontrol_ros.batch.library import library_paths  # noqa: E402
 from tocontrol_ros.batch.tasks import load_model, load_task_file  # noqa: E402
 from tocontrol_ros.batch.worker import run_task  # noqa: E402

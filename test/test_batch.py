@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tocontrol_ros.batch.cli import cli as batch
+from tocontrol_ros.batch import cli as batch
 from tocontrol_ros.batch.library import TOPIC_PREFIX, library_paths
 from tocontrol_ros.batch.tasks import TaskFileError, load_task_file
 from tocontrol_ros.core.robot.model import default_urdf_path

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tocontrol_ros.batch.cli import cli as batch
+from tocontrol_ros.batch import cli as batch
 from tocontrol_ros.batch.library import TOPIC_PREFIX, library_paths
 
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader

@@ -96,12 +96,12 @@ def test_a_failing_listener_does_not_fail_the_build(private_cache):
 
 
 def test_plan_loads_the_optimised_libraries_once_they_landed(private_cache, monkeypatch):
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core import prepared, solver
 
     class Model:  # Planner only needs a model for CanonicalSystem; not built here
         pass
 
-    monkeypatch.setattr(solver, "CanonicalSystem", lambda model: None)
+    monkeypatch.setattr(prepared, "CanonicalSystem", lambda model: None)
     planner = solver.Planner(Model())
     assert not planner.stale()
     monkeypatch.setattr(compiled, "QUICK_SOURCE", 0)

@@ -52,14 +52,14 @@ CLOCK_SITES = {
     ("solver.py", "_plan_from"): "timings",
     ("solver.py", "_cold"): "timings",
     ("solver.py", "_result"): "timings",
-    ("solver.py", "prepare_shooting"): "timings (the deadline moves by the compile time)",
+    ("prepared.py", "prepare_shooting"): "timings (the deadline moves by the compile time)",
     ("solver.py", "elapsed"): "timings",
     ("limited.py", "plan_limited"): "timings",
     ("limited.py", "plan_limited_warm"): "timings",
     ("limited.py", "_result"): "timings",
     ("limited.py", "_infeasible"): "timings",
     ("flat.py", "solve"): "timings (FlatResult.solve_time)",
-    ("direct.py", "solve"): "timings (DirectResult.solve_time)",
+    ("collocation.py", "solve"): "timings (DirectResult.solve_time)",
     ("compiled.py", "_gcc"): "timings of the compiler (progress reports)",
 }
 

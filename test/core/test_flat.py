@@ -223,7 +223,7 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
 def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):
     """The planner's refined meshes have a multiple of SPAN_BUCKET spans and a second plan
     of the same motion builds no transcription."""
-    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct import flat
     from tocontrol_ros.core.direct.limited import SPAN_BUCKET, _bucketed
 
     br = _bucketed(np.array([0.0, 0.1, 0.15, 0.5, 1.0]))
@@ -253,9 +253,9 @@ def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkey
 
 
 def test_a_planner_keeps_the_most_recently_used_transcriptions(galicki, monkeypatch):
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core import prepared, solver
 
-    monkeypatch.setattr(solver, "FLAT_CACHE", 2)
+    monkeypatch.setattr(prepared, "FLAT_CACHE", 2)
     planner = solver.Planner(galicki)
     problem = Problem(galicki, point(galicki.point(np.array([0.3, 0.4, 0.2]))),
                       point(galicki.point(np.array([1.0, -0.5, 0.6]))), k=4.0)
@@ -275,7 +275,7 @@ def test_refined_meshes_stay_in_the_basin_of_the_coarse_solution(panda, monkeypa
     defaults from a least-squares fit of the coarse path, rose 0.9 % in T (another basin)
     and whose next level left the solution (T 0.54 s) and crawled at 1.5 s per iteration.
     """
-    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct import flat
 
     qa = np.array([0.223, -0.589, 0.124, -2.499, 0.002, 1.962, 0.622])
     qb = np.array([0.695, 0.384, 0.19, -1.811, 0.319, 1.769, 0.679])
@@ -328,7 +328,7 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
 def _plan_recording_pad_solves(problem: Problem, options: SolverOptions) -> tuple:
     """``plan(problem, options)`` and its re-solves with a widened set pad, each as
     ``(spans, warm, FlatResult)``."""
-    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct import flat
 
     padded = []
     original = flat.FlatTranscription.solve
@@ -418,7 +418,7 @@ def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):
     and the plan was LIMITS_INFEASIBLE. Here the cold solve is stopped at 15 iterations;
     continued warm from where it stopped, the plan converges and is certified."""
     from tocontrol_ros.core import solver
-    from tocontrol_ros.core.direct.collocation import flat
+    from tocontrol_ros.core.direct import flat
 
     q0 = np.array([-0.7974811845879118, -5.534415029278804, 0.1507150029737384,
                    4.834252918102076, 1.5310195967278124, 2.554346643521837])
@@ -478,8 +478,8 @@ def test_leaving_candidates_behind_keeps_the_best_motion(panda, monkeypatch):
     The Panda point to point of bench/scaling.py, 16 starts and 6 candidates: three
     distinct candidates within 2 % after the uniform mesh, within 0.3 % of each other.
     """
-    from tocontrol_ros.core.direct.collocation import flat
-    from tocontrol_ros.core.direct.collocation import limited as lim
+    from tocontrol_ros.core.direct import flat
+    from tocontrol_ros.core.direct import limited as lim
 
     a = panda.point(np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]))
     b = panda.point(np.array([0.8, 0.2, 0.3, -1.6, 0.2, 1.8, 0.5]))

@@ -15,7 +15,7 @@ P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 
 
 def test_settled_stops_only_on_a_geometric_tail_below_tol():
-    from tocontrol_ros.core.solver import _settled
+    from tocontrol_ros.core.indirect.continuation import _settled
 
     # T changes of the paper's example at k = 4 for delta = 1e-3 -> 1e-4 -> 1e-5: a ratio of
     # about 1/87, so the rest of the series is ~2e-10, below 1e-8 * T.
@@ -43,6 +43,7 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
     (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
     on 24); a failure on both is reported as NEWTON_FAILED."""
     from tocontrol_ros.core import context, solver
+    from tocontrol_ros.core.indirect.shooting import NewtonReport
 
     sizes = []
     real = context.newton_solve
@@ -51,7 +52,7 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
         def newton(grid, *args, **kwargs):
             sizes.append(grid.N)
             if grid.N in bad:
-                return solver.NewtonReport(False, args[0], 1.0, 1, "stalled (forced)")
+                return NewtonReport(False, args[0], 1.0, 1, "stalled (forced)")
             return real(grid, *args, **kwargs)
         return newton
 
@@ -75,13 +76,13 @@ def test_a_stalled_continuation_goes_on_along_the_wide_smoothing(galicki, monkey
     """When the continuation in k at the intermediate smoothing stalls, the solve starts
     again from k = 1 at WIDE_DELTA, brings delta down at the requested k and ends as
     usual: the same T as the direct path on the paper's example."""
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.indirect import continuation
 
     problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0)
     opts = SolverOptions(starts=1, candidates=1, verify=False)
     direct = plan(problem, opts)
     assert direct.success
-    real = solver._continue_in_k
+    real = continuation._continue_in_k
     calls = []
 
     def stalls_at_small_delta(ctx, run, delta, stall_refine):
@@ -91,12 +92,12 @@ def test_a_stalled_continuation_goes_on_along_the_wide_smoothing(galicki, monkey
             return False
         return real(ctx, run, delta, stall_refine)
 
-    monkeypatch.setattr(solver, "_continue_in_k", stalls_at_small_delta)
+    monkeypatch.setattr(continuation, "_continue_in_k", stalls_at_small_delta)
     res = plan(problem, opts)
-    assert calls == [opts.smoothing_intermediate, solver.WIDE_DELTA]
+    assert calls == [opts.smoothing_intermediate, continuation.WIDE_DELTA]
     assert res.success, res.message
     deltas = [d for k, d, *_ in res.continuation]
-    assert solver.WIDE_DELTA in deltas and deltas[0] == 0.0
+    assert continuation.WIDE_DELTA in deltas and deltas[0] == 0.0
     assert abs(res.T - direct.T) <= 1e-6 * direct.T, (res.T, direct.T)
 
 
@@ -124,8 +125,8 @@ def test_planar_5r_single_start_reaches_k4():
     """Issue 18: the planar 5R of the scaling benchmark, one start, stalled at k = 2.59 in
     the continuation (a switch inside an RK4 step at delta = 1e-3); the wide smoothing
     path reaches k = 4, and the certificate checks the solution independently."""
+    from tocontrol_ros.core.indirect.continuation import WIDE_DELTA
     from tocontrol_ros.core.robot.model import load_robot
-    from tocontrol_ros.core.solver import WIDE_DELTA
 
     model = load_robot(_planar_urdf(5))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -153,8 +154,8 @@ def test_planar_8r_single_start_reaches_k4():
     placed in between). Along the tangent on the continuation's mesh delta comes down to
     the final smoothing; the certificate checks the solution independently. (A time limit
     for a loaded machine: this is about robustness, the benchmark measures speed.)"""
+    from tocontrol_ros.core.indirect.continuation import WIDE_DELTA
     from tocontrol_ros.core.robot.model import load_robot
-    from tocontrol_ros.core.solver import WIDE_DELTA
 
     model = load_robot(_planar_urdf(8))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -199,7 +200,7 @@ class _FakeRun:
 
 
 def test_a_failed_smoothing_step_goes_through_intermediate_deltas():
-    from tocontrol_ros.core.solver import _smoothing_step
+    from tocontrol_ros.core.indirect.continuation import _smoothing_step
 
     run, tried = _FakeRun(1e-4), []
 
@@ -278,7 +279,7 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     problem is then solved as a B-spline path (method "direct") from the finer guess,
     certified, and the warnings say why. Without the fallback the shooting's failure is
     reported."""
-    from tocontrol_ros.core.direct.collocation import limited
+    from tocontrol_ros.core.direct import limited
     from tocontrol_ros.core.robot.model import load_robot
     from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
 
@@ -294,13 +295,13 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     monkeypatch.setattr(limited, "_uniform", uniform)
     from tocontrol_ros.core import solver
 
-    shot, solve_from_guess = [], solver._solve_from_guess
+    shot, solve_from_guess = [], solver.solve_from_guess
 
     def shoot(ctx, guess):
         shot.append(len(guess.t) - 1)
         return solve_from_guess(ctx, guess)
 
-    monkeypatch.setattr(solver, "_solve_from_guess", shoot)
+    monkeypatch.setattr(solver, "solve_from_guess", shoot)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
     assert started == [(FINE_GUESS_INTERVALS, True)]  # by continuation in k
     # The finer guess leads to the k = 1 solution the continuation stalled from: it is
@@ -341,8 +342,8 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
     0.466 -> 0.402 s), so the goal failed. Solved again from 1e-5 the step converges and
     the plan succeeds, certified; an independent Hermite-Simpson collocation on 192
     intervals, started from the motion, agrees on T."""
+    from tocontrol_ros.core.direct import flat as flat_mod
     from tocontrol_ros.core.direct.collocation import DirectCollocation
-    from tocontrol_ros.core.direct.collocation import flat as flat_mod
 
     modes = []
     original = flat_mod.FlatTranscription.solve

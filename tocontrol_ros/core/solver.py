@@ -12,9 +12,8 @@
    switching function ``S_i`` (switch nodes: the node's time is an unknown with
    ``S_i = 0`` there, and the RK4 steps next to it are graded towards it, see
    :class:`~tocontrol_ros.core.indirect.shooting.ShootingGrid`), drives ``delta`` down until
-   ``T`` no
-   longer changes, refines the mesh until every interval's RK4 error estimate is below
-   tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
+   ``T`` no longer changes, refines the mesh until every interval's RK4 error estimate is
+   below tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
    unchanged;
 5. certifies the result (:mod:`~tocontrol_ros.core.certificate`: residual, ``H``, the
    torques inside the set, re-integration of the nominal torques and of the canonical system).
@@ -47,43 +46,34 @@ Planner`` keeps working.
 
 from __future__ import annotations
 
-import copy
-import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-from scipy.sparse.linalg import splu
 
 from tocontrol_ros.core.certificate import certify
-from tocontrol_ros.core.context import Run, SolveContext, StopError, newton, trajectory
-from tocontrol_ros.core.direct.collocation import (
-    DirectCollocation,
-    DirectResult,
-    compile_direct,
-    initial_paths,
-)
-from tocontrol_ros.core.direct.flat import FlatTranscription, compile_flat
+from tocontrol_ros.core.context import Run, SolveContext, StopError, trajectory
+from tocontrol_ros.core.direct.collocation import initial_paths
 from tocontrol_ros.core.direct.limited import (
     FINE_GUESS_INTERVALS,
     PAD,
-    SPANS,
     finer_guess,
     plan_limited,
     plan_limited_warm,
     state_bounds,
     touches,
 )
-from tocontrol_ros.core.indirect.mesh import refine, switch_mesh
-from tocontrol_ros.core.indirect.pmp import CanonicalSystem
-from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid
+from tocontrol_ros.core.indirect.continuation import (
+    final_smoothing,
+    finish_warm,
+    solve_from_guess,
+    warm_run,
+)
 from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.prepared import PreparedModel
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status, WarmState
-from tocontrol_ros.core.robot import compiled
-from tocontrol_ros.core.robot.compiled import c_name
 from tocontrol_ros.core.seeding import (
     EXHAUSTIVE_CANDIDATES,
     distinct_basins,
@@ -95,20 +85,6 @@ from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
 __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "WarmState", "Planner",
            "plan", "verify"]
 
-#: Newton tolerance of the solves along the continuation in k (from the direct guess up to
-#: the requested k at the intermediate smoothing): each only starts the next, and the last
-#: is solved again to ``options.tol`` (on the switch mesh, or by the mesh refinement).
-CONTINUATION_TOL = 1e-6
-
-#: ...and of the last one when switch nodes follow: that solve only locates the switches of
-#: the control law, and the switch mesh solves the problem again from its interpolation
-#: (whose residual dwarfs this).
-PLACEMENT_TOL = 1e-5
-
-#: RK4 steps per interval of the k = 1 solve and the continuation in k when switch nodes
-#: follow (at most ``options.steps``): those solutions only lead to the switch mesh, which
-#: is solved with ``options.steps`` and refined, so fewer steps do the same job for less work.
-CONTINUATION_STEPS = 6
 
 #: A warm solution replaces the cold multistart's only when its ``T`` is lower by more than
 #: this (relative): within it both are the same basin, and the cold answer, which does not
@@ -132,198 +108,14 @@ GRAVITY_FREE = 1e-9
 #: StartRecord.status of a distinct direct solution left out by that rule.
 SKIPPED = "not continued: its direct T cannot beat the best"
 
-#: A failed step of the smoothing schedule is retried through the geometric mean of the two
-#: deltas while they are more than this factor apart (a decade is split twice at most).
-SMOOTHING_BISECT_RATIO = 3.0
 
-#: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
-#: may not resolve the steeper law); it only places the nodes.
-STALL_REFINE_TOL = 1e-4
-
-#: Smoothing of the second path of the continuation in k (:func:`_continue_smoothed`): wide
-#: enough that the law's transition at a switch spans several RK4 steps of the coarse mesh.
-WIDE_DELTA = 0.3
-#: ...then delta comes down at the requested k, first by this factor per step,
-DELTA_FACTOR = 2.0
-#: ...a failed step is bisected (geometrically) until it is less than this ratio,
-MIN_DELTA_RATIO = 1.1
-#: ...and a step's ratio grows by half (in log delta) after a step that took at most this
-#: many Newton iterations (the solution barely moved: a longer step will do), and shrinks
-#: by a third after one that took more than twice as many (close to the radius where
-#: Newton fails; a failure costs far more than a short step).
-EASY_NEWTON = 4
-#: Relative change of delta of the central differences of :func:`_predicted`.
-TANGENT_DIFFERENCE = 1e-6
-
-#: A continuation step in k that converged in at most this many Newton iterations doubles
-#: the next step (after a failure the step stays short until the solution moves easily
-#: again, instead of jumping back to the next doubling of k and failing there again).
-EASY_K_NEWTON = 6
-
-
-# ----------------------------------------------------------------- planner cache
-#: Bounded B-spline transcriptions a planner keeps, the least recently used dropped (one
-#: per number of spans, start mode and kinds; 4-17 MB each for the Panda at 64-192 spans
-#: before their first solve).
-FLAT_CACHE = 32
-
-
-class Planner:
-    """Holds the compiled functions of one model, reused across many solves.
+class Planner(PreparedModel):
+    """Holds the compiled functions of one model, reused across many solves; plans.
 
     Parameters
     ----------
     model : RobotModel
     """
-
-    def __init__(self, model) -> None:
-        self.model = model
-        #: Optimised libraries in the cache when this planner was made (see :meth:`stale`).
-        self.generation = compiled.generation()
-        self.system = CanonicalSystem(model)
-        self._direct: dict = {}
-        self._prepared: set = set()
-        self._lock = threading.Lock()
-
-    def stale(self) -> bool:
-        """Whether optimised libraries landed since this planner was made, none pending.
-
-        A planner keeps the compiled functions it loaded; when the first use of a model got
-        quick builds (:mod:`~tocontrol_ros.core.robot.compiled`), a new planner made once the
-        optimised ones are in the cache solves faster.
-        """
-        return compiled.generation() != self.generation and compiled.pending_builds() == 0
-
-    def prepare(self, problem: Problem, options: SolverOptions | None = None,
-                parallel: bool = True, shooting: bool = True) -> None:
-        """Build and compile what solving problems of ``problem``'s kinds needs.
-
-        First what every solve starts with: the direct transcription (the guesses) and,
-        when ``problem`` has joint limits, the bounded B-spline transcription; then, with
-        ``shooting``, what the maximum principle's solve needs (:meth:`prepare_shooting`),
-        which a plan whose joint limits bind never uses (:func:`plan` leaves it to the
-        first solve that gets there). With ``parallel``, the C sources are generated first
-        and compiled on every core at once
-        (:func:`~tocontrol_ros.core.robot.compiled.parallel_builds`), then loaded. Without
-        ``shooting`` the bounded transcription is only started: its library builds while
-        the guesses are solved, and the first bounded solve waits for it. (The
-        certificate's functions are built on their first use.)
-        """
-        options = options or SolverOptions()
-        key = ("guess", problem.start.kind, problem.target.kind, options.guess_intervals,
-               problem.torque_scale, problem.limits.active)
-        if key not in self._prepared:
-            model, kinds = self.model, (problem.start.kind, problem.target.kind)
-            if parallel:
-                with compiled.parallel_builds(wait=False):
-                    compile_direct(model, options.guess_intervals, *kinds)
-                    if problem.limits.active:
-                        compile_flat(model)
-            self.direct(problem, options.guess_intervals, tol=options.guess_tol)
-            self._prepared.add(key)
-        if shooting:
-            if problem.limits.active:
-                self.flat(problem, SPANS)
-            self.prepare_shooting(problem, options, parallel)
-
-    def prepare_shooting(self, problem: Problem, options: SolverOptions | None = None,
-                         parallel: bool = True) -> float:
-        """Build and compile the maximum principle's functions for ``problem``'s kinds.
-
-        The canonical system's compiled functions (the RK4 step's Jacobian, the plain step,
-        the pointwise evaluation, the switching functions) and the boundary conditions of
-        the start and target kinds: a solve that follows compiles nothing of these. With
-        ``parallel``, a first pass on a scratch copy of this planner only generates the C
-        sources and compiles them on every core at once; the second finds them in the
-        cache. (Skipped when the cache already holds a library of this model: generating
-        the sources twice costs seconds on a 7-joint arm.)
-
-        Returns
-        -------
-        float
-            Wall time spent here (s): 0 once prepared.
-        """
-        options = options or SolverOptions()
-        key = ("shooting", problem.start.kind, problem.target.kind, options.intervals,
-               options.steps)
-        if key in self._prepared:
-            return 0.0
-        t0 = time.perf_counter()
-        name = f"tocontrol_pointwise_{c_name(self.model.name)}_{self.model.n}_"
-        if parallel and not compiled.in_cache(name):
-            with compiled.parallel_builds():
-                self._scratch()._build_shooting(problem, options)
-        self._build_shooting(problem, options)
-        self._prepared.add(key)
-        return time.perf_counter() - t0
-
-    def _scratch(self) -> Planner:
-        """A planner sharing this one's symbolic system, with empty caches of functions."""
-        scratch = object.__new__(Planner)
-        scratch.model, scratch.generation = self.model, self.generation
-        scratch.system = copy.copy(self.system)
-        scratch.system._cache = {  # the symbolic entries only
-            key: value for key, value in self.system._cache.items()
-            if key in ("rhs", "stagewise") or (isinstance(key, tuple) and key[0] == "step_sx")}
-        scratch.system._sized = OrderedDict()
-        scratch.system._buffer_lock = threading.Lock()
-        scratch._direct, scratch._prepared, scratch._lock = {}, set(), threading.Lock()
-        return scratch
-
-    def _build_shooting(self, problem: Problem, options: SolverOptions) -> None:
-        """The builds of :meth:`prepare_shooting`, in this planner's caches."""
-        system = self.system
-        if system.stagewise:
-            system.rhs_jacobian_function()
-        else:
-            system.step_function(True)
-            for steps in sorted({min(options.steps, CONTINUATION_STEPS), options.steps}):
-                system.interval_function(steps, True)
-                system.interval_function(steps, False)
-        system.step_function(False)
-        system.pointwise()
-        grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
-                            options.steps, problem.start.kind, problem.target.kind)
-        grid.compile()
-
-    def direct(self, problem: Problem, intervals: int, box: bool = False,
-               tol: float = 1e-8) -> DirectCollocation:
-        """The direct transcription for this problem's kinds (built once, cached)."""
-        scale = problem.torque_scale
-        key = (intervals, problem.start.kind, problem.target.kind, box, scale, tol)
-        with self._lock:
-            if key not in self._direct:
-                self._direct[key] = DirectCollocation(
-                    self.model, intervals, problem.start.kind, problem.target.kind, box=box,
-                    torque_scale=scale, tol=tol)
-            return self._direct[key]
-
-    def flat(self, problem: Problem, spans: int | np.ndarray,
-             warm: bool | str | None = None) -> FlatTranscription:
-        """The bounded B-spline transcription for this problem's kinds.
-
-        ``spans``: a number of uniform spans, or breakpoints (the refined meshes). Built
-        once per number of spans (and kinds, torque scale, ``warm``), then reused on other
-        breakpoints with as many spans (:meth:`FlatTranscription.on`); the
-        :data:`FLAT_CACHE` most recently used are kept. ``warm`` (default:
-        for given breakpoints, which are only solved from the coarser mesh's solution):
-        ``FlatTranscription(warm=True)``; ``"resume"`` for re-solves with a wider set pad,
-        ``"dual"`` for warm re-solves from a solution and its multipliers.
-        """
-        warm = np.ndim(spans) != 0 if warm is None else warm
-        count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
-        key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
-               count, warm)
-        with self._lock:
-            base = self._direct.pop(key, None)
-            if base is None:
-                base = FlatTranscription(
-                    self.model, count, problem.start.kind, problem.target.kind,
-                    torque_scale=problem.torque_scale, warm=warm)
-            self._direct[key] = base  # the most recently used last
-            for old in [k for k in self._direct if k[0] == "flat"][:-FLAT_CACHE]:
-                del self._direct[old]
-        return base if np.ndim(spans) == 0 else base.on(spans)
 
     def plan(self, problem: Problem, options: SolverOptions | None = None,
              warm_start: PlanResult | None = None,
@@ -433,7 +225,7 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
         if warm_start is not None:
             # A planner made since (optimised libraries landed) loads the shooting's first.
             ctx.extend(planner.prepare_shooting(problem, options))
-            run, finished = _warm(ctx, warm_start)
+            run, finished = warm_run(ctx, warm_start)
             timings["shooting"] += time.perf_counter() - t_start
             if run is None:
                 timings["total"] = time.perf_counter() - t_start
@@ -466,7 +258,8 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
             run, idx = queue.pop(0)
             t0 = time.perf_counter()
             tried = list(notes)
-            tried += _finish_warm(ctx, run) if finished else _final_smoothing(ctx, run)
+            finish = finish_warm if finished else final_smoothing
+            tried += finish(ctx, run, _offer)
             timings["refine"] += time.perf_counter() - t0
             traj = trajectory(ctx, run)
             sample = fine_sample(traj)
@@ -738,7 +531,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
             # Sorted by direct T, so no later candidate can beat the best either.
             records[g[0]] = replace(records[g[0]], status=SKIPPED)
             continue
-        run, status, message = _solve_from_guess(ctx, g[3])
+        run, status, message = solve_from_guess(ctx, g[3])
         if status is Status.SUCCESS:
             records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
             succeeded.append((run, g[0]))
@@ -762,7 +555,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
             # stall again (the Panda without limits: 2.3 s), so only the fallback uses it.
             ctx.memo["finer"] = {g[0]: fine}
         elif fine.success:
-            run, status, message = _solve_from_guess(ctx, fine)
+            run, status, message = solve_from_guess(ctx, fine)
             if status is Status.SUCCESS:
                 records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
                 ctx.memo.setdefault("notes", []).append(
@@ -808,384 +601,3 @@ def _gravity_free(model, q: np.ndarray) -> bool:
     zero = np.zeros((model.n, len(q)))
     g = np.array(model.function("id")(q.T, zero, zero))
     return bool(np.max(np.abs(g) / model.tau_max[:, None]) <= GRAVITY_FREE)
-
-
-def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:
-    """The direct solution's states and costates interpolated at normalised times (N+1,)."""
-    tau_d = direct.t / direct.T
-    z = np.hstack([direct.x, direct.psi])
-    return np.stack([np.interp(tau_nodes, tau_d, z[:, i]) for i in range(z.shape[1])], axis=1)
-
-
-def _solve_from_guess(ctx: SolveContext, direct: DirectResult) -> tuple[Run, Status, str]:
-    """Shooting at k = 1 from a direct solution, then continuation in k.
-
-    When Newton does not converge on ``options.intervals`` intervals, it is tried once more
-    on twice as many (the direct solution interpolated anew): where the guess's costates are
-    rough, shorter intervals keep the initial residual small enough for Newton.
-    """
-    problem, options = ctx.problem, ctx.options
-    # The switch mesh (options.steps per interval) takes over after the continuation.
-    steps = min(options.steps, CONTINUATION_STEPS) if problem.k > 1 and options.switch_nodes \
-        else options.steps
-    for count in (options.intervals, 2 * options.intervals):
-        lengths = np.full(count, 1.0 / count)
-        grid = ShootingGrid(ctx.system, lengths, steps, problem.start.kind,
-                            problem.target.kind)
-        nodes = _nodes_from_direct(direct, grid.tau)
-        run = Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
-        rep = newton(ctx, run, 1.0, 0.0, max(options.tol, CONTINUATION_TOL))
-        if rep.converged:
-            break
-    else:
-        return run, Status.NEWTON_FAILED, rep.message
-    if not _continue_k(ctx, run):
-        return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
-    return run, Status.SUCCESS, ""
-
-
-def _k_schedule(k: float) -> list[float]:
-    """1, 2, 4, ... below ``k``, then ``k``."""
-    ks = [1.0]
-    while ks[-1] * 2 < k:
-        ks.append(ks[-1] * 2)
-    if k > 1:
-        ks.append(float(k))
-    return ks
-
-
-def _continue_k(ctx: SolveContext, run: Run) -> bool:
-    """Continue a converged k = 1 solution to the requested k.
-
-    First at ``options.smoothing_intermediate`` (:func:`_continue_in_k`); when that stalls,
-    again from the k = 1 solution along the smoothed path of :func:`_continue_smoothed`.
-    """
-    start = run.snapshot()
-    if _continue_in_k(ctx, run, ctx.options.smoothing_intermediate, stall_refine=True):
-        return True
-    stalled = run.snapshot()
-    run.restore(start)
-    if _continue_smoothed(ctx, run):
-        return True
-    run.restore(stalled)  # report where the first path stalled
-    return False
-
-
-def _continue_in_k(ctx: SolveContext, run: Run, delta: float, stall_refine: bool) -> bool:
-    """Continue in k at a fixed smoothing ``delta``.
-
-    Towards 2, 4, ... then the requested k; a failed step is halved, and the next step after
-    a success is doubled only when that one converged easily (:data:`EASY_K_NEWTON`).
-    With ``stall_refine``, a stall (a step below ``options.min_k_step``) refines the mesh
-    and goes on; a second stall at the same k ends the continuation (False, the run where
-    it stalled).
-    """
-    options = ctx.options
-    targets = _k_schedule(ctx.problem.k)[1:]
-    refined_at = None
-    for k_goal in targets:
-        last = k_goal == targets[-1] and options.switch_nodes
-        loose = max(options.tol, PLACEMENT_TOL if last else CONTINUATION_TOL)
-        step = k_goal - run.k
-        while run.k < k_goal:
-            k_try = min(run.k + step, k_goal)
-            rep = newton(ctx, run, k_try, delta, loose)
-            if rep.converged:
-                if rep.iterations <= EASY_K_NEWTON:
-                    step *= 2.0
-                continue
-            step *= 0.5
-            if step < options.min_k_step:
-                # The mesh may be too coarse for the steeper law: refine it at the
-                # current k, once per stall, and go on from the step that failed (a
-                # restart from the full step after each refinement cost the planar 8R
-                # tens of seconds of failing Newton solves on 65 intervals).
-                if not stall_refine or refined_at == run.k:
-                    return False
-                refined_at = run.k
-                saved = run.snapshot()
-                if refine(ctx, run, tol=max(options.integration_tol, STALL_REFINE_TOL)):
-                    run.restore(saved)
-                    return False
-                step *= 2.0
-    return True
-
-
-def _continue_smoothed(ctx: SolveContext, run: Run) -> bool:
-    """The other path to the requested k: in k at a wide smoothing, then delta down.
-
-    Why the path at a small delta stalls (planar 5R and 8R): where a switching function
-    crosses zero inside an RK4 step, the law's transition (``|S_i| < delta |S|``) is far
-    shorter than the step, so the discrete equations are nearly discontinuous there and
-    Newton stops at that cliff however short the step in k. At :data:`WIDE_DELTA` the
-    transition spans several steps and the continuation in k goes through; then, at the
-    requested k, delta comes down on the same mesh, by :data:`DELTA_FACTOR` at first, each
-    step from the tangent's prediction (:func:`_predicted`), its ratio adapted to how easily
-    Newton converged (:data:`EASY_NEWTON`) and bisected geometrically when Newton fails,
-    down to ``options.smoothing_intermediate``, where the usual final smoothing (and its
-    switch mesh) takes over.
-
-    No switch mesh on the way down: from a wide delta to a small one the switches of a
-    redundant arm appear, merge and vanish, and a node pinned to ``S_i = 0`` cannot follow
-    (planar 8R: the steps on a switch mesh failed from delta = 0.15 down to 0.07, where
-    the same steps on the continuation's uniform mesh converge in 5 to 10 iterations).
-    """
-    options = ctx.options
-    target = options.smoothing_intermediate
-    if target >= WIDE_DELTA or not _continue_in_k(ctx, run, WIDE_DELTA, stall_refine=False):
-        return False
-    k, delta = ctx.problem.k, WIDE_DELTA
-    log_step = float(np.log(DELTA_FACTOR))
-    while delta > target:
-        d_try = max(delta * float(np.exp(-log_step)), target)
-        before = run.w
-        run.w = _predicted(ctx, run, d_try)
-        rep = newton(ctx, run, k, d_try, CONTINUATION_TOL)
-        if rep.converged:
-            delta = d_try
-            if rep.iterations <= EASY_NEWTON:
-                log_step *= 1.5
-            elif rep.iterations > 2 * EASY_NEWTON:
-                log_step /= 1.5
-            continue
-        run.w = before
-        log_step = 0.5 * float(np.log(delta / d_try))
-        if log_step < np.log(MIN_DELTA_RATIO):
-            return False
-    return True
-
-
-def _predicted(ctx: SolveContext, run: Run, delta: float) -> np.ndarray:
-    """The run's unknowns moved along the tangent of its solution path to ``delta``.
-
-    First order in ``log delta``: ``dw = -J^-1 dG/dlog(delta)``, the derivative of the
-    equations by central differences. Along the smoothing path of a redundant arm the
-    solution moves far per step (planar 8R: ``T`` by 2 % from delta = 0.1 to 0.09), and from
-    the previous solution Newton fails where from this prediction it converges. The
-    Jacobian's factors are kept for Newton's first (chord) steps. The unknowns unchanged
-    when the Jacobian is singular.
-    """
-    grid, values = run.grid, ctx.problem.boundary_values
-    par = ctx.law(run.k, run.delta).array()
-    _, jac = grid.residual(run.w, values, par)
-    try:
-        lu = splu(jac)
-    except RuntimeError:
-        return run.w
-    run.factors = (grid, lu)
-    rel = TANGENT_DIFFERENCE
-    up = ctx.law(run.k, run.delta * np.exp(rel)).array()
-    down = ctx.law(run.k, run.delta * np.exp(-rel)).array()
-    slope = (grid.residual(run.w, values, up, jacobian=False)[0]
-             - grid.residual(run.w, values, down, jacobian=False)[0]) / (2 * rel)
-    dw = -lu.solve(slope) * float(np.log(delta / run.delta))
-    if not np.all(np.isfinite(dw)) or grid.admissible_step(run.w, dw) < 1.0:
-        return run.w
-    return run.w + dw
-
-
-# -------------------------------------------------------------------- warm start
-def _warm(ctx: SolveContext, warm: PlanResult) -> tuple[Run | None, bool]:
-    """Continue a previous solution to a new problem.
-
-    Returns
-    -------
-    (run, finished) or (None, False)
-        ``finished`` when the previous exponent and smoothing were kept, so only the mesh
-        check remains; None when it does not converge.
-    """
-    problem, options = ctx.problem, ctx.options
-    if not warm.can_warm_start(problem):
-        return None, False
-    st = warm.warm_state
-    grid = st.grid(ctx.system, problem.start.kind, problem.target.kind)
-    run = Run(grid=grid, w=st.w.copy(), k=warm.k, delta=warm.delta, factors=(grid, st.factors))
-    if warm.k == problem.k:
-        rep = newton(ctx, run, warm.k, warm.delta)
-        if rep.converged:
-            return run, True
-        # At a small delta the law is nearly singular and a moved problem can stall Newton:
-        # restart the smoothing schedule from the previous solution instead.
-        run = Run(grid=grid, w=st.w.copy(), k=warm.k, delta=warm.delta)
-        rep = newton(ctx, run, warm.k, options.smoothing[0])
-        return (run, False) if rep.converged else (None, False)
-    # Another exponent: move the boundary values at the old k (intermediate smoothing),
-    # then step k directly; the final smoothing schedule follows in the caller.
-    for k in (warm.k, problem.k):
-        rep = newton(ctx, run, k, max(warm.delta, options.smoothing_intermediate))
-        if not rep.converged:
-            return None, False
-    return run, False
-
-
-def _finish_warm(ctx: SolveContext, run: Run) -> list[str]:
-    """Check the mesh of a warm solution that kept its exponent and smoothing.
-
-    When it does not refine cleanly, the full smoothing schedule runs instead. Returns the
-    warnings.
-    """
-    saved = run.snapshot()
-    why = refine(ctx, run)
-    if not why and run.residual <= ctx.options.tol:
-        return []
-    run.restore(saved)
-    rep = newton(ctx, run, run.k, ctx.options.smoothing[0])
-    if rep.converged:
-        return _final_smoothing(ctx, run)
-    run.restore(saved)
-    return [why or "the warm solution did not reach tol"]
-
-
-# --------------------------------------------------------------------- smoothing
-def _final_smoothing(ctx: SolveContext, run: Run) -> list[str]:
-    """Drive delta down at the requested k until T stops changing; refine the mesh.
-
-    Returns the warnings (a smoothing kept above the schedule's end, a refinement that
-    stopped short).
-    """
-    problem, options = ctx.problem, ctx.options
-    notes = []
-    if problem.k == 1.0:
-        if run.delta != 0.0:
-            newton(ctx, run, 1.0, 0.0)
-        why = refine(ctx, run)
-        if why:
-            notes.append(why)
-        return notes
-    t_prev = None
-    changes: list[float] = []  # |change of T| from one delta to the next
-    converged = []  # snapshots after each delta, to fall back to a smoother law
-    switched = options.switch_nodes and switch_mesh(ctx, run)
-    for delta in options.smoothing:
-        saved = run.snapshot()
-        if delta == run.delta and run.k == problem.k and run.residual <= options.tol:
-            rep = NewtonReport(True, run.w, run.residual, 0, "converged")  # solved already
-        else:
-            rep = newton(ctx, run, problem.k, delta)
-        if not rep.converged:
-            # A coarse mesh may not resolve the steeper law: refine, then try again.
-            run.restore(saved)
-            if refine(ctx, run):
-                run.restore(saved)
-            t_prev = run.t_final
-            why = _smoothing_step(run, delta, lambda d: _newton_at(ctx, run, d))
-            if why:
-                notes.append(f"smoothing kept at delta = {run.delta:g}: Newton did not "
-                             f"converge at delta = {delta:g} ({why})")
-                break
-        if delta == options.smoothing[0] and not switched:
-            # Resolve the switches to the final tolerance while the law is still smooth:
-            # the smaller deltas then only move a fine-mesh solution a little. (Refining
-            # after delta is small can stall Newton: where a stage point lands near a
-            # switch the law's slope is ~delta^(-(2k-2)/(2k-1)), and the linear model
-            # holds only in a tiny neighbourhood.)
-            saved = run.snapshot()
-            if refine(ctx, run):
-                run.restore(saved)
-        converged.append(run.snapshot())
-        _offer(ctx, converged[-1])
-        t_now = run.t_final
-        if t_prev is not None:
-            changes.append(abs(t_now - t_prev))
-            if changes[-1] <= options.smoothing_tol * t_now:
-                break
-            if switched and _settled(changes, options.smoothing_tol * t_now):
-                break  # the next delta is tried on the refined mesh (_confirm_smoothing)
-        t_prev = t_now
-    why = refine(ctx, run)
-    if not why and switched:
-        # The smoothing loop above ran on the coarse switch mesh: confirm on the refined
-        # mesh that the next smaller delta no longer changes T (else keep going down).
-        notes += _confirm_smoothing(ctx, run)
-    if not why:
-        return notes
-    # Near-singular derivatives of the law at a small delta can stall Newton on the refined
-    # mesh: fall back to the previous, smoother deltas (T changed by little between them).
-    failed_delta = run.delta
-    for snap in reversed(converged[:-1]):
-        run.restore(snap)
-        if not refine(ctx, run):
-            # Go down again on the refined mesh, through intermediate deltas where needed.
-            more = _confirm_smoothing(ctx, run)
-            if run.delta > failed_delta:
-                notes.append(f"smoothing kept at delta = {run.delta:g}: mesh refinement at "
-                             f"delta = {failed_delta:g} failed ({why})")
-            return notes + more
-    if converged:
-        run.restore(converged[-1])
-    notes.append(why)
-    return notes
-
-
-def _settled(changes: list[float], tol: float) -> bool:
-    """Whether the changes of ``T`` from delta to delta have settled below ``tol``.
-
-    Settled: the last change is at most half the one before, and the geometric series it
-    starts (the changes still to come, extrapolated) sums to at most ``tol``.
-
-    ``T`` converges like ``delta^2`` on the paper's example (each decade of delta changes it
-    about a hundred times less than the one before), so the coarse mesh can stop one delta
-    early; the next delta is then solved on the refined mesh, where ``T`` must change by
-    less than ``smoothing_tol`` (:func:`_confirm_smoothing`).
-    """
-    if len(changes) < 2 or changes[-2] <= 0:
-        return False
-    ratio = changes[-1] / changes[-2]
-    return ratio <= 0.5 and changes[-1] * ratio / (1 - ratio) <= tol
-
-
-def _newton_at(ctx: SolveContext, run: Run, delta: float) -> str:
-    """Newton at the requested k and ``delta``: "" when it converged, else why not."""
-    rep = newton(ctx, run, ctx.problem.k, delta)
-    return "" if rep.converged else rep.message
-
-
-def _newton_refine_at(ctx: SolveContext, run: Run, delta: float) -> str:
-    """Newton at ``delta``, then the mesh refinement: "" when both worked, else why not."""
-    saved = run.snapshot()
-    rep = newton(ctx, run, ctx.problem.k, delta)
-    if not rep.converged:
-        return f"Newton did not converge at delta = {delta:g} on the final mesh ({rep.message})"
-    why = refine(ctx, run)
-    if why:
-        run.restore(saved)
-        return f"{why} at delta = {delta:g}"
-    return ""
-
-
-def _smoothing_step(run: Run, delta: float, step: Callable[[float], str]) -> str:
-    """Move ``run`` to ``delta`` by ``step``, through intermediate deltas when it fails.
-
-    A decade of delta can be too long a step where the law is nearly singular (a switching
-    function that nearly touches zero becomes two switches, or none, as delta shrinks): a
-    failed step is retried through the geometric mean of the two deltas while they are more
-    than :data:`SMOOTHING_BISECT_RATIO` apart. ``step(d)`` solves at ``d`` from the run and
-    returns "" on success (the run at ``d``), else why not (the run unchanged). Returns ""
-    when ``run`` reached ``delta``; else why not, with ``run`` at the smallest delta reached.
-    """
-    saved = run.snapshot()
-    why = step(delta)
-    if not why:
-        return ""
-    run.restore(saved)
-    if not (delta > 0 and run.delta > SMOOTHING_BISECT_RATIO * delta):
-        return why
-    mid = float(np.sqrt(run.delta * delta))
-    if _smoothing_step(run, mid, step):
-        return why
-    return _smoothing_step(run, delta, step)
-
-
-def _confirm_smoothing(ctx: SolveContext, run: Run) -> list[str]:
-    """Decrease delta on the final mesh until ``T`` changes by less than smoothing_tol."""
-    options = ctx.options
-    smaller = [d for d in options.smoothing if d < run.delta]
-    for delta in smaller:
-        t_prev = run.t_final
-        why = _smoothing_step(run, delta, lambda d: _newton_refine_at(ctx, run, d))
-        if why:
-            return [f"smoothing kept at delta = {run.delta:g}: {why}"]
-        t_now = run.t_final
-        if abs(t_now - t_prev) <= options.smoothing_tol * t_now:
-            break
-    return []

@@ -26,14 +26,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from tocontrol_ros.core.certificate import certify_open_loop
 from tocontrol_ros.core.context import SolveContext
-from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
+from tocontrol_ros.core.direct.collocation import DirectCollocation, DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import (
     SET_PAD,
     FlatResult,
@@ -51,8 +51,18 @@ from tocontrol_ros.core.seeding import (
 )
 from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
 
-if TYPE_CHECKING:
-    from tocontrol_ros.core.solver import Planner
+
+class Transcriptions(Protocol):
+    """A planner's transcriptions: an interface, so that this never imports the solver."""
+
+    def direct(self, problem: Problem, intervals: int, box: bool = False,
+               tol: float = 1e-8) -> DirectCollocation:
+        """The direct transcription for ``problem``'s kinds (built once, cached)."""
+
+    def flat(self, problem: Problem, spans: int | np.ndarray,
+             warm: bool | str | None = None) -> FlatTranscription:
+        """The bounded B-spline transcription for ``problem``'s kinds."""
+
 
 __all__ = ["FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "PAD", "REFINEMENTS", "SPANS", "TOUCH",
            "finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
@@ -125,7 +135,7 @@ FINE_GUESS_INTERVALS = 24
 FINE_GUESS_TOL = 1e-8
 
 
-def finer_guess(planner: Planner, problem: Problem, coarse: DirectResult) -> DirectResult:
+def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult) -> DirectResult:
     """A direct solution at k = 1 solved again, finer.
 
     On :data:`FINE_GUESS_INTERVALS` intervals to :data:`FINE_GUESS_TOL`, from itself
@@ -175,7 +185,7 @@ def state_bounds(problem: Problem, pad: float) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
+def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_start: float,
                  notes: list[str], reason: str | None = None,
                  only: frozenset[int] | None = None) -> PlanResult:
     """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
@@ -259,7 +269,7 @@ def plan_limited(planner: Planner, ctx: SolveContext, timings: dict, t_start: fl
     return _result(ctx, res, traj, records, notes, timings, t_start)
 
 
-def plan_limited_warm(planner: Planner, ctx: SolveContext, warm: PathWarmState,
+def plan_limited_warm(planner: Transcriptions, ctx: SolveContext, warm: PathWarmState,
                       timings: dict, t_start: float) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
@@ -376,7 +386,7 @@ def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
     return {"deadline": ctx.deadline, "should_stop": ctx.should_stop, "max_iter": max_iter}
 
 
-def _uniform(planner: Planner, ctx: SolveContext, bounds, guess: DirectResult,
+def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
              in_k: bool = False
              ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
     """The B-spline solve on :data:`SPANS` uniform spans from a direct guess.
@@ -424,7 +434,7 @@ def k_steps(k: float) -> list[float]:
     return ks
 
 
-def _continued_in_k(planner: Planner, ctx: SolveContext, bounds, T: float, P: np.ndarray
+def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float, P: np.ndarray
                     ) -> tuple[FlatResult, FlatTranscription]:
     """The uniform-mesh solve by continuation in ``k`` from the guess ``(T, P)``.
 
@@ -458,7 +468,7 @@ def _continued_in_k(planner: Planner, ctx: SolveContext, bounds, T: float, P: np
     return out, flat
 
 
-def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
+def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> list:
     """The uniform-mesh solutions refined level by level, the hopeless ones left behind.
 
     All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
@@ -512,7 +522,7 @@ def _race(planner: Planner, ctx: SolveContext, bounds, first: list) -> list:
             else (idx, entry[0], entry[1], False) for idx, entry in race.items()]
 
 
-def _inside_set(planner: Planner, ctx: SolveContext, bounds, out: FlatResult,
+def _inside_set(planner: Transcriptions, ctx: SolveContext, bounds, out: FlatResult,
                 traj: FlatTrajectory, flat: FlatTranscription
                 ) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.
