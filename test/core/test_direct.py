@@ -1,8 +1,9 @@
 """The direct transcription: its assembled derivatives against plain automatic differentiation.
 
 ``DirectCollocation`` assembles the constraint Jacobian and the Lagrangian's Hessian from
-per-point derivatives of the dynamics and per-interval chain rules (``direct._point_functions``,
-``_interval_functions``, ``_assembly_functions``). Here the same NLP is written as one CasADi SX
+per-point derivatives of the dynamics and per-interval chain rules
+(``collocation_nlp._point_functions``, ``_interval_functions``, ``_assembly_functions``).
+Here the same NLP is written as one CasADi SX
 expression, as a plain transcription would, and differentiated by CasADi: values must agree to
 rounding for every kind of boundary condition, the box and the smooth control set, several
 exponents; and IPOPT must reach the same solution and multipliers from the same guess with

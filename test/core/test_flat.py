@@ -11,8 +11,10 @@ from scipy.integrate import solve_ivp
 from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
+from tocontrol_ros.core.direct.bspline import basis, breakpoints
 from tocontrol_ros.core.direct.collocation import DirectCollocation
-from tocontrol_ros.core.direct.flat import _sample_functions, basis, breakpoints, refined_breaks
+from tocontrol_ros.core.direct.flat import _sample_functions
+from tocontrol_ros.core.direct.flat_trajectory import refined_breaks
 from tocontrol_ros.core.direct.limited import NEAR_MAX_ITER, PAD, SPANS, state_bounds
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.solver import SolverOptions, plan

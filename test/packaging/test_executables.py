@@ -37,19 +37,31 @@ def test_wrappers_are_executable_posix_sh(repo, executables):
 
 
 def test_modules_have_main_and_run_as_scripts(repo, executables):
+    """Each executable's module has a main() (defined, or imported from the subpackage that
+    holds the code: the thin entry modules of issue 31) and runs under ``python -m``: a
+    module by its ``__main__`` guard, a package by its ``__main__.py``."""
     for name, module in executables.items():
         assert module.startswith(PACKAGE + "."), f"{name}: {module} is outside the package"
-        path = repo.joinpath(*module.split(".")).with_suffix(".py")
+        path = repo.joinpath(*module.split("."))
+        package = path.is_dir()
+        if package:
+            assert (path / "__main__.py").is_file(), f"{name}: {module} has no __main__.py"
+            path = path / "__init__.py"
+        else:
+            path = path.with_suffix(".py")
         assert path.is_file(), f"{name}: no module file {path}"
         tree = ast.parse(path.read_text(), filename=str(path))
         functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+        functions |= {alias.asname or alias.name for n in tree.body
+                      if isinstance(n, ast.ImportFrom) for alias in n.names}
         assert "main" in functions, f"{module} has no top-level main()"
         guards = [
             n
             for n in tree.body
             if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test)
         ]
-        assert guards, f'{module} lacks `if __name__ == "__main__":` (python -m runs it)'
+        assert package or guards, (
+            f'{module} lacks `if __name__ == "__main__":` (python -m runs it)')
 
 
 def _fake_python(path, label):

@@ -378,8 +378,8 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     The nominal torques are integrated from ``x(0)`` by scipy's DOP853 (adaptive, error
     control at ``options.rtol``; a different method from the motion's own), through the
     sampling's times, or by the trajectory's own ``open_loop(rtol, atol)`` when it has one
-    (:meth:`~tocontrol_ros.core.direct.flat.FlatTrajectory.open_loop`: CVODES span by span); the
-    items are the end point, velocity (and position for a joint-state
+    (:meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop`: CVODES span
+    by span); the items are the end point, velocity (and position for a joint-state
     target), the torques inside the set, the joint limits along the sampling and the
     integration, and the solver's residual. There is no ``H``, boundary-of-costate or
     defect item: the motion carries no costates.
@@ -389,7 +389,7 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     problem : Problem
     trajectory : object
         With ``T``, ``t_grid``, ``evaluate``, ``state`` and ``control`` (e.g.
-        :class:`~tocontrol_ros.core.direct.flat.FlatTrajectory`).
+        :class:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory`).
     options : CertificateOptions, optional
     sample : TrajectorySample, optional
         Default: 2001 equally spaced times.

@@ -32,24 +32,21 @@ from __future__ import annotations
 
 import copy
 import time
-import weakref
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 from scipy import sparse
-from scipy.interpolate import BSpline, CubicHermiteSpline
+from scipy.interpolate import CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
-from tocontrol_ros.core.direct.collocation import _Scatter
-from tocontrol_ros.core.indirect.pmp import LawParams
+from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
+from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
-from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
 
-__all__ = ["FlatResult", "FlatTrajectory", "FlatTranscription", "REFINE_JUMP",
-           "RESTART_MAX_PERTURBATION", "RESUME_MU", "SET_PAD", "WARM_MU", "WARM_PUSH",
-           "compile_flat", "refined_breaks"]
+__all__ = ["FlatResult", "FlatTranscription", "REFINE_JUMP", "RESTART_MAX_PERTURBATION",
+           "RESUME_MU", "SET_PAD", "WARM_MU", "WARM_PUSH", "compile_flat"]
 
 #: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
 #: times, so that the torques between them stay inside the set.
@@ -92,43 +89,6 @@ RESUME_MU = 1e-5
 #: whose resumed re-solves all fail, still converges from the default start. A bound on
 #: work per iteration where a wall-time cap was before.
 RESTART_MAX_PERTURBATION = 1e4
-
-
-def breakpoints(spans: int | np.ndarray) -> np.ndarray:
-    """Breakpoints on [0, 1] (L + 1,): ``spans`` uniform spans, or given increasing ones."""
-    if np.ndim(spans) == 0:
-        return np.linspace(0.0, 1.0, int(spans) + 1)
-    br = np.asarray(spans, dtype=float)
-    if br[0] != 0.0 or br[-1] != 1.0 or np.any(np.diff(br) <= 0):
-        raise ValueError("breakpoints must increase from 0 to 1")
-    return br
-
-
-def knots(breaks: np.ndarray, degree: int) -> np.ndarray:
-    """Clamped knot vector (L + 2 degree + 1,) on breakpoints ``breaks`` (L + 1,)."""
-    return np.concatenate([np.zeros(degree), breaks, np.ones(degree)])
-
-
-def basis(breaks: np.ndarray, degree: int, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Basis values and derivatives at normalised times ``s`` (S,).
-
-    Returns
-    -------
-    span : ndarray of int, shape (S,)
-        First control point of each sample's support (``span ... span + degree``).
-    b : ndarray, shape (S, 3, degree + 1)
-        Values, first and second derivatives (in ``s``) of those ``degree + 1`` basis
-        functions.
-    """
-    s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, 1.0)
-    L = len(breaks) - 1
-    K = L + degree
-    spl = BSpline(knots(breaks, degree), np.eye(K), degree, extrapolate=False)
-    rows = [spl(s), spl.derivative(1)(s), spl.derivative(2)(s)]
-    span = np.clip(np.searchsorted(breaks, s, side="right") - 1, 0, L - 1)
-    idx = span[:, None] + np.arange(degree + 1)[None, :]
-    b = np.stack([np.take_along_axis(np.nan_to_num(r), idx, axis=1) for r in rows], axis=1)
-    return span, b
 
 
 def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
@@ -193,50 +153,6 @@ def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function],
     """
     return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
                          lambda: _sample_functions(model, degree))
-
-
-#: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
-OPEN_LOOP_POINTS = 8
-
-#: CVODES integrators of the open loop, per model, degree and tolerances.
-_OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
-                          stiff: bool = False) -> ca.Function:
-    """CVODES over one span: the model's forward dynamics under the span's torques.
-
-    The torques are the inverse dynamics of the span's path, a polynomial
-    ``q(sigma) = sum_j c_j sigma^j`` in the span's normalised time ``sigma`` in [0, 1]
-    (parameters ``(vec c, h)``, ``h`` the span's duration); the state is integrated with
-    ``dx/dsigma = h f(x, tau)`` (forward dynamics through the factorised mass matrix, not
-    the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
-    Adams with functional iteration (no Jacobians: the motion is not stiff), or BDF with
-    Newton iteration when ``stiff``.
-    """
-    key = (degree, rtol, atol, stiff)
-    cached = _OPEN_LOOP.setdefault(model, {})
-    if key in cached:
-        return cached[key]
-    n, d1 = model.n, degree + 1
-    x = ca.SX.sym("x", 2 * n)
-    c = ca.SX.sym("c", n, d1)
-    h = ca.SX.sym("h")
-    sig = ca.SX.sym("sigma")
-    pw = [sig ** j for j in range(d1)]
-    q = sum(c[:, j] * pw[j] for j in range(d1))
-    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
-    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
-    tau = model.rnea_sym(q, qd, qdd)
-    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
-    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
-    method = {} if stiff else {"linear_multistep_method": "adams",
-                               "nonlinear_solver_iteration": "functional"}
-    cached[key] = ca.integrator("flat_open_loop", "cvodes",
-                                {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode},
-                                0.0, grid.tolist(), {"reltol": rtol, "abstol": atol,
-                                                     "max_num_steps": 100000, **method})
-    return cached[key]
 
 
 class _Interrupt(ca.Callback):
@@ -440,7 +356,7 @@ class FlatTranscription:
 
         # Jacobian: the samples' gradients scattered, the linear rows, the boundary rows.
         cs, grads = set_grad.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
-        scat = _Scatter(ng, nw)
+        scat = Scatter(ng, nw)
         for r in range(S):
             scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
         jac_set = scat.apply(ca.vec(grads))
@@ -453,7 +369,7 @@ class FlatTranscription:
         lam_f = ca.MX.sym("lam_f")
         hs = set_hess.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc,
                              lam_g[:S].T)
-        sh = _Scatter(nw, nw, triu=True)
+        sh = Scatter(nw, nw, triu=True)
         ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
                                            strict=True))
         for r in range(S):
@@ -672,168 +588,3 @@ class FlatTranscription:
                          np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
 
 
-class FlatTrajectory:
-    """A bounded B-spline solution: states from the spline, torques its inverse dynamics.
-
-    Same interface as :class:`~tocontrol_ros.core.trajectory.Trajectory` for sampling and
-    verification; it has no costates (``psi``, ``S`` and ``H`` are NaN).
-
-    Parameters
-    ----------
-    transcription : FlatTranscription
-    result : FlatResult
-    k : float
-    """
-
-    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
-        # Only what evaluating needs: not the transcription (its NLP solver is large, and a
-        # refined mesh's transcription serves one motion).
-        model = transcription.model
-        self._model = model
-        self.n = model.n
-        self.joint_names = model.joint_names
-        self.law = LawParams(k, 0.0, transcription.torque_scale)
-        self.par = self.law.array()
-        self.breaks, self._degree = transcription.breaks, transcription.degree
-        self._id = transcription._id
-        self._scale = transcription.scale
-        self._set_result(result)
-
-    def with_result(self, result: FlatResult) -> FlatTrajectory:
-        """The same mesh and model with other control points and ``T`` (e.g. to test)."""
-        other = copy.copy(self)
-        other._set_result(result)
-        return other
-
-    def _set_result(self, result: FlatResult) -> None:
-        self.result = result
-        self.T = result.T
-        self._P = result.P
-        self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
-        self._d1 = self._spl.derivative(1)
-        self._d2 = self._spl.derivative(2)
-        self._maps: dict = {}
-        self.t_grid = self.breaks * self.T
-        x = self._path(self.t_grid)[:2]
-        self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
-
-    def control_points_on(self, breaks: np.ndarray) -> np.ndarray:
-        """The same path's control points (K', n) on finer breakpoints (exact).
-
-        ``breaks`` must hold this path's breakpoints: the new ones are inserted as knots
-        (Boehm), which keeps the path, its velocities and accelerations, and so its torques,
-        exactly, where a least-squares fit on a mesh with short spans changes the
-        accelerations (a fit's constraint violation was 425 at the start of a refined
-        Panda solve, and IPOPT then wandered off).
-        """
-        spl = self._spl
-        for x in np.setdiff1d(breaks, self.breaks):
-            spl = spl.insert_knot(float(x))
-        if len(spl.t) != len(breaks) + 2 * self._degree or not np.allclose(
-                spl.t, knots(breaks, self._degree), rtol=0.0, atol=1e-14):
-            raise ValueError("`breaks` must contain the path's own breakpoints")
-        return np.asarray(spl.c)
-
-    def _path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T) / self.T
-        return self._spl(s), self._d1(s) / self.T, self._d2(s) / self.T ** 2
-
-    def _controls(self, q, qd, qdd) -> np.ndarray:
-        if len(q) == 1:  # the integrators' path: one time per call
-            return np.array(self._id(q[0], qd[0], qdd[0], self._scale)).T
-        if len(q) not in self._maps:
-            self._maps[len(q)] = self._id.map(len(q))
-        return np.array(self._maps[len(q)](q.T, qd.T, qdd.T, self._scale)).T
-
-    def open_loop(self, rtol: float, atol: float, stiff: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray, bool]:
-        """The published torques integrated from ``x(0)``, span by span (CVODES).
-
-        Adams first; BDF (``stiff``) when Adams fails.
-
-        Returns
-        -------
-        t : ndarray, shape (L OPEN_LOOP_POINTS + 1,)
-            Times (s).
-        x : ndarray, shape (len(t), 2n)
-            Open-loop states.
-        success : bool
-        """
-        integ = _open_loop_integrator(self._model, self._degree, rtol, atol, stiff)
-        br = self.breaks
-        d1 = self._degree + 1
-        fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
-        x = self.state(0.0)[0, :2 * self.n]
-        ts, xs = [0.0], [x]
-        try:
-            for j in range(len(br) - 1):
-                ds = br[j + 1] - br[j]
-                # Taylor coefficients at the span's start (right-hand derivatives), in sigma.
-                derivs = np.stack([self._spl.derivative(i)(br[j]) if i else self._spl(br[j])
-                                   for i in range(d1)], axis=1)
-                coef = derivs * ds ** np.arange(d1) / fact
-                out = integ(x0=x, p=np.concatenate([coef.ravel(order="F"), [ds * self.T]]))
-                path = np.array(out["xf"]).T
-                xs.append(path)
-                ts.append(self.T * (br[j] + ds * np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]))
-                x = path[-1]
-        except RuntimeError:
-            if not stiff:
-                return self.open_loop(rtol, atol, stiff=True)
-            return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), False
-        return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
-
-    def set_values(self, points: int = 32) -> np.ndarray:
-        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
-        br = self.breaks
-        frac = (np.arange(points) + 0.5) / points
-        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
-        u = self.control_at(s * self.T)
-        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
-
-    def state(self, t) -> np.ndarray:
-        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
-        q, qd, _ = self._path(t)
-        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
-
-    def evaluate(self, t) -> TrajectorySample:
-        """All quantities at times ``t`` (s), scalar or shape (K,)."""
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
-        q, qd, qdd = self._path(t)
-        u = self._controls(q, qd, qdd)
-        nan = np.full((len(t), self.n), np.nan)
-        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
-                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
-
-    def sample(self, dt: float) -> TrajectorySample:
-        """Samples every ``dt`` seconds from 0, always including ``T``."""
-        return self.evaluate(sample_times(self.T, dt))
-
-    def control(self, t: float) -> np.ndarray:
-        """Normalised control at one time, shape (n,)."""
-        return self.control_at(np.atleast_1d(float(t)))[0]
-
-    def control_at(self, t: np.ndarray) -> np.ndarray:
-        """Normalised controls at times ``t`` (K,), shape (K, n)."""
-        return self._controls(*self._path(t))
-
-
-def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
-    """The breakpoints with every span halved where the motion changes its acceleration.
-
-    A span is halved when, for some joint, the acceleration at its two ends differs by more
-    than ``threshold`` times that joint's largest acceleration along the motion.
-
-    Returns
-    -------
-    ndarray, shape (L' + 1,)
-        New breakpoints on [0, 1] (the old ones when no span needs halving).
-    """
-    br = trajectory.breaks
-    T = trajectory.T
-    fine = trajectory._path(np.linspace(0.0, T, 20 * len(br)))[2]
-    scale = np.maximum(np.max(np.abs(fine), axis=0), 1e-9)
-    acc = trajectory._path(br * T)[2] / scale
-    jump = np.max(np.abs(np.diff(acc, axis=0)), axis=1)
-    split = jump > threshold
-    return np.union1d(br, 0.5 * (br[:-1] + br[1:])[split])

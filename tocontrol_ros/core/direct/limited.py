@@ -34,13 +34,8 @@ from scipy.interpolate import make_interp_spline
 from tocontrol_ros.core.certificate import certify_open_loop
 from tocontrol_ros.core.context import SolveContext
 from tocontrol_ros.core.direct.collocation import DirectCollocation, DirectResult, initial_path
-from tocontrol_ros.core.direct.flat import (
-    SET_PAD,
-    FlatResult,
-    FlatTrajectory,
-    FlatTranscription,
-    refined_breaks,
-)
+from tocontrol_ros.core.direct.flat import SET_PAD, FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status
 from tocontrol_ros.core.seeding import (
