@@ -13,7 +13,7 @@ from tocontrol_ros.nodes.params import (
     parse_locked_joints,
 )
 from tocontrol_ros.nodes.planner_config import PARAMETERS as PLANNER
-from tocontrol_ros.nodes.tracker import PARAMETERS as TRACKER
+from tocontrol_ros.nodes.tracker_config import PARAMETERS as TRACKER
 from tocontrol_ros.recording.recorder import PARAMETERS as RECORDER
 
 

@@ -31,13 +31,13 @@ from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.nodes.params import RobotDescriptionError
 from tocontrol_ros.nodes.tracker import (
-    PAPER_START_Q,
     QOS_STATUS,
     QOS_STREAM,
     QOS_TRAJECTORY,
     START_HISTORY,
     TrackerNode,
 )
+from tocontrol_ros.nodes.tracker_config import PAPER_START_Q
 
 pytestmark = pytest.mark.ros
 

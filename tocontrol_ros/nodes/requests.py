@@ -1,0 +1,191 @@
+"""A plan request and where it waits; the arm's newest joint state, taken on demand.
+
+:class:`LatestSlot` hands the newest request to the worker (a newer one supersedes it, so
+every call gets exactly one response); :class:`LatestMessage` keeps ``joint_states``
+subscribed by a helper node that no executor spins, and takes the newest message only when
+a request needs it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from nav_msgs.msg import Path
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+
+from tocontrol_ros.nodes.planner_config import (
+    PlannerConfig,
+)
+
+__all__ = ["LatestMessage", "LatestSlot", "PlanRequest"]
+
+#: Poll period (s) of a request waiting for a joint state newer than itself.
+STATE_POLL = 0.005
+
+
+@dataclass(eq=False)
+class PlanRequest:
+    """One request, from its acceptance to its outcome.
+
+    Attributes
+    ----------
+    id : int
+        Increasing per node, from 1 (``request_id`` in ``~/status``).
+    source : {"service", "goal"}
+    start : tuple
+        ``("point", p)`` with p of shape (m,) (m), or ``("state", q, qd)`` (rad, rad/s).
+    target : ndarray, shape (m,)
+        Task-space target point (m).
+    config : PlannerConfig
+        Parameters at acceptance (later changes apply to later requests).
+    """
+
+    id: int
+    source: str
+    start: tuple
+    target: np.ndarray
+    config: PlannerConfig
+    received: float = field(default_factory=time.monotonic)
+    done: threading.Event = field(default_factory=threading.Event)
+    cancelled: threading.Event = field(default_factory=threading.Event)
+    cancel_reason: tuple[str, str] = ("", "")
+    path: Path | None = None
+
+    def cancel(self, event: str, reason: str) -> None:
+        """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""
+        if not self.cancelled.is_set():
+            self.cancel_reason = (event, reason)
+            self.cancelled.set()
+
+
+class LatestSlot:
+    """Hand-over between the callbacks and the worker: one pending and one running item.
+
+    ``put`` replaces the pending item (newest wins) and reports what it replaced and what is
+    running, atomically, so that no request can slip between "taken" and "running".
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._pending = None
+        self._running = None
+        self._closed = False
+
+    def put(self, item):
+        """Make ``item`` the pending one; return ``(replaced pending, running)``."""
+        with self._cond:
+            if self._closed:
+                raise RuntimeError("the slot is closed (node shutting down)")
+            replaced, self._pending = self._pending, item
+            self._cond.notify_all()
+            return replaced, self._running
+
+    def take(self, timeout: float | None = None):
+        """Move the pending item to running and return it; None when closed (or timeout)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._pending is not None or self._closed, timeout)
+            if self._closed or self._pending is None:
+                return None
+            self._running, self._pending = self._pending, None
+            return self._running
+
+    def finished(self, item) -> None:
+        """The worker is done with ``item``."""
+        with self._cond:
+            if self._running is item:
+                self._running = None
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called."""
+        with self._cond:
+            return self._closed
+
+    def has_pending(self) -> bool:
+        """True while an item waits for the worker."""
+        with self._cond:
+            return self._pending is not None
+
+    def close(self):
+        """Refuse further items, wake the worker; return the pending item (or None)."""
+        with self._cond:
+            self._closed = True
+            leftover, self._pending = self._pending, None
+            self._cond.notify_all()
+            return leftover
+
+
+class LatestMessage:
+    """The newest message of a topic, taken from the middleware only when asked for.
+
+    The subscription belongs to a hidden helper node (name starting with ``_``) that no
+    executor spins: incoming messages never wake the planner's executor, the middleware keeps
+    only the newest (depth 1), and :meth:`newest` takes it when a request needs it. A
+    subscription with a callback would cost an executor iteration per message (most of a
+    core at 500 Hz with rclpy's executors).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The owner: its context and namespace are used, and it resolves the topic name (with
+        its remappings).
+    msg_type : type
+    topic : str
+    qos_profile : QoSProfile
+    """
+
+    def __init__(self, node: Node, msg_type, topic: str, qos_profile: QoSProfile) -> None:
+        self._msg_type = msg_type
+        # The owner resolves the name (its namespace and remappings); the helper takes no
+        # command-line arguments, so that a global `-r __node:=...` (as `ros2 launch` passes)
+        # does not give it the owner's name.
+        resolved = node.resolve_topic_name(topic)
+        self._helper = Node(f"_{node.get_name()}_{topic.strip('/').replace('/', '_')}",
+                            namespace=node.get_namespace(), context=node.context,
+                            use_global_arguments=False, start_parameter_services=False,
+                            enable_rosout=False)
+        self._sub = self._helper.create_subscription(msg_type, resolved, lambda _msg: None,
+                                                     qos_profile)
+        self._lock = threading.Lock()
+        self._latest = None  # (message, DDS receive time in ns)
+
+    def _take(self) -> None:
+        """Take everything queued; keep the newest. Holds ``self._lock``."""
+        while True:
+            try:
+                with self._sub.handle:
+                    taken = self._sub.handle.take_message(self._msg_type, False)
+            except Exception:  # noqa: BLE001  (subscription gone during shutdown)
+                return
+            if taken is None or taken[0] is None:
+                return
+            msg, info = taken
+            self._latest = (msg, int(info.get("received_timestamp", 0)) or time.time_ns())
+
+    def newest(self, since_ns: int, max_age: float, wait: float):
+        """The newest message not older than ``max_age`` s, or None.
+
+        When the newest one is recent but received before ``since_ns`` (``time.time_ns()``
+        scale), wait up to ``wait`` s for a newer one.
+        """
+        deadline = time.monotonic() + wait
+        with self._lock:
+            self._take()
+            while (self._latest is not None and self._latest[1] < since_ns
+                   and time.time_ns() - self._latest[1] <= max_age * 1e9
+                   and time.monotonic() < deadline):
+                time.sleep(STATE_POLL)
+                self._take()
+            latest = self._latest
+        if latest is None or time.time_ns() - latest[1] > max_age * 1e9:
+            return None
+        return latest[0]
+
+    def destroy(self) -> None:
+        """Destroy the helper node."""
+        with self._lock:
+            self._helper.destroy_node()
