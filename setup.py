@@ -99,7 +99,7 @@ setup(
             "toppra>=0.6",
             "ray>=2.9",
         ],
-        # `batch --ray`: only tocontrol_ros/batch_ray.py imports it, inside RayBackend.
+        # `batch --ray`: only tocontrol_ros/batch/ray_backend.py imports it, inside RayBackend.
         "ray": [
             "ray>=2.9",
         ],

@@ -161,4 +161,4 @@ def test_optional_imports_are_extras_imported_lazily(repo, setup_keywords):
             f"{pip_name} is optional: keep it out of install_requires"
         assert module not in eager, \
             f"{module} is optional: import it inside functions, not at the top of {eager[module]}"
-    assert "ray" in _third_party_imports(repo), "the scan no longer sees batch_ray's import"
+    assert "ray" in _third_party_imports(repo), "the scan no longer sees ray_backend's import"
