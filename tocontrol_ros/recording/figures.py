@@ -298,13 +298,11 @@ def main(argv=None):
         written either way).
     """
     args = build_parser().parse_args(argv)
-    from tocontrol_ros.demo import default_urdf_path
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
     urdf = args.urdf if args.urdf is not None else default_urdf_path()
     if not Path(urdf).is_file():
         raise SystemExit(f"figures: --urdf: no such file: {urdf}")
-
-    from tocontrol_ros.core.robot.model import load_robot
 
     model = load_robot(str(urdf))
     args.out.mkdir(parents=True, exist_ok=True)
