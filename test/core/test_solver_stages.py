@@ -240,10 +240,11 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
     """The candidate loop stops continuing direct solutions once their T (k = 1) times the
     bound on T_k / T_1 exceeds the best final T (bench/optimum.py's pair 2: two of six)."""
     from tocontrol_ros.core import solver
-    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED, _time_ratio_bound
+    from tocontrol_ros.core.seeding import time_ratio_bound
+    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED
 
-    assert _time_ratio_bound(3, 1.0) == 1.0
-    assert _time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
+    assert time_ratio_bound(3, 1.0) == 1.0
+    assert time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
     problem = Problem(galicki, point([-2.04309337, -1.14393561]),
                       point([-0.17558265, -3.76859332]), k=4.0)
     res = plan(problem, SolverOptions(verify=False))
@@ -251,7 +252,7 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
     skipped = [r for r in res.starts if r.status == SKIPPED]
     continued = [r for r in res.starts if np.isfinite(r.T)]
     assert skipped and continued
-    bound = _time_ratio_bound(3, 4.0)
+    bound = time_ratio_bound(3, 4.0)
     assert all(r.guess_T * bound > res.T * (1 + CANDIDATE_MARGIN) for r in skipped)
     assert max(r.guess_T for r in continued) < min(r.guess_T for r in skipped)
     # Continuing them too (the exhaustive mode does) finds nothing faster here.
@@ -265,12 +266,12 @@ def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
     plane; the same arm with gravity in its plane does not qualify."""
     from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-    from tocontrol_ros.core.solver import _gravity_free
+    from tocontrol_ros.core.seeding import gravity_free
 
     q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
-    assert _gravity_free(galicki, q)
+    assert gravity_free(galicki, q)
     upright = load_robot(str(default_urdf_path()), gravity=(0.0, -9.81, 0.0))
-    assert not _gravity_free(upright, q)
+    assert not gravity_free(upright, q)
 
 
 def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):

@@ -19,7 +19,7 @@ from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.robot.ik import ik_family
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
-           "branch_shifts",
+           "branch_shifts", "GRAVITY_FREE", "gravity_free", "time_ratio_bound",
            "EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "EXHAUSTIVE_CANDIDATES"]
 
 #: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
@@ -268,3 +268,26 @@ def _basin_distance(a: np.ndarray, b: np.ndarray, wrap: np.ndarray) -> float:
     n = len(wrap)
     diff[:n] = np.where(wrap, np.minimum(diff[:n], 2 * np.pi - diff[:n]), diff[:n])
     return float(np.max(diff))
+
+
+# ----------------------------------------------------- which candidates to continue
+#: Gravity torques below this (relative to tau_max) count as none for the rule of
+#: :func:`time_ratio_bound` (the solver's skip of candidates that cannot beat the best).
+GRAVITY_FREE = 1e-9
+
+
+def time_ratio_bound(n: int, k: float) -> float:
+    """A lower bound of ``T_k / T_1`` for a gravity- and friction-free arm: ``n^(-(k-1)/(4k))``.
+
+    ``sum u_i^(2k) <= 1`` lies inside the ball ``|u|_2 <= c`` with ``c = n^((k-1)/(2k))``,
+    and without gravity and friction scaling the torques by ``c`` scales the minimum time by
+    ``1 / sqrt(c)``; so no motion at ``k`` is faster than ``T_1 / sqrt(c)``.
+    """
+    return float(n ** (-(k - 1) / (4 * k)))
+
+
+def gravity_free(model, q: np.ndarray) -> bool:
+    """Whether gravity loads no joint at the configurations ``q`` (K, n) (rad, m)."""
+    zero = np.zeros((model.n, len(q)))
+    g = np.array(model.function("id")(q.T, zero, zero))
+    return bool(np.max(np.abs(g) / model.tau_max[:, None]) <= GRAVITY_FREE)

@@ -54,16 +54,14 @@ import numpy as np
 
 from tocontrol_ros.core.certificate import certify
 from tocontrol_ros.core.context import Run, SolveContext, StopError, trajectory
-from tocontrol_ros.core.direct.collocation import initial_paths
 from tocontrol_ros.core.direct.limited import (
     FINE_GUESS_INTERVALS,
-    PAD,
     finer_guess,
     plan_limited,
     plan_limited_warm,
-    state_bounds,
     touches,
 )
+from tocontrol_ros.core.guesses import solve_guesses
 from tocontrol_ros.core.indirect.continuation import (
     final_smoothing,
     finish_warm,
@@ -77,8 +75,10 @@ from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, St
 from tocontrol_ros.core.seeding import (
     EXHAUSTIVE_CANDIDATES,
     distinct_basins,
+    gravity_free,
     revolute_joints,
     seed_pairs,
+    time_ratio_bound,
 )
 from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict, verify
 
@@ -92,7 +92,8 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "WarmState", 
 WARM_GAIN = 1e-6
 
 #: A candidate is not continued when its direct ``T`` (k = 1) times
-#: :func:`_time_ratio_bound` exceeds the best final ``T`` so far by more than this (relative):
+#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` exceeds the best final ``T`` so far
+#: by more than this (relative):
 #: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
 #: mesh's, so it gets a margin.
 CANDIDATE_MARGIN = 0.02
@@ -102,8 +103,6 @@ CANDIDATE_MARGIN = 0.02
 #: certificates after the deadline.
 INCUMBENT_TRIES = 2
 
-#: Gravity torques below this (relative to tau_max) count as none for that rule.
-GRAVITY_FREE = 1e-9
 
 #: StartRecord.status of a distinct direct solution left out by that rule.
 SKIPPED = "not continued: its direct T cannot beat the best"
@@ -467,36 +466,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ctx.memo["pairs"] = pairs
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
-    direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
-    # When the first guess reaches the joint limits, it and the others are solved within
-    # them: the bounded solve then starts from these guesses (no second round). Otherwise
-    # they are solved without bounds, as on an arm without limits (bounds that never bind
-    # still move IPOPT's iterates, and with them which basin a guess lands in). The first
-    # is solved within the limits first: on a real arm it usually reaches them, and its
-    # solve without them (110 of 180 ms of a Panda's guess) is then not needed.
-    bounds = state_bounds(problem, PAD) if problem.limits.active else None
-    x_bounds = None
-    guesses = []
-    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
-                          np.array([p[1] for p in pairs]), options.guess_intervals,
-                          problem.torque_scale, problem.limits.plan_velocity)
-    for idx, (qa, qb) in enumerate(pairs):
-        ctx.check()
-        path = (paths[0][idx], paths[1][idx], paths[2][idx])
-        if idx == 0 and bounds is not None:
-            within = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
-                                  x_bounds=bounds)
-            if within.success and touches(problem, within.x):
-                x_bounds, res = bounds, within
-            else:
-                res = direct.solve(problem.start.value, problem.target.value, 1.0, *path)
-                if res.success and touches(problem, res.x):
-                    # Within the limits it kept off them, without them it reaches them.
-                    x_bounds, res = bounds, within
-        else:
-            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
-                               x_bounds=x_bounds)
-        guesses.append((idx, qa, qb, res))
+    guesses, x_bounds = solve_guesses(planner, ctx, pairs)
     if x_bounds is not None or not problem.limits.active:
         # Guesses a bounded solve can start from (no bounds: every one).
         ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
@@ -522,7 +492,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     # The bound needs an arm on which gravity does no work (with gravity the larger torque
     # set also frees more torque for acceleration): checked along the candidates' guesses.
-    ratio = _time_ratio_bound(problem.model.n, problem.k) if _gravity_free(
+    ratio = time_ratio_bound(problem.model.n, problem.k) if gravity_free(
         problem.model, np.vstack([g[3].x[:, :problem.model.n] for g in distinct[:count]])) \
         else 0.0
     for g in distinct[:count]:
@@ -545,30 +515,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
         # solved on a finer mesh and to a tight tolerance (on redundant arms Newton at
         # k = 1 and the continuation fail from the coarse one more often: the planar 5R
         # and 7R of bench/scaling.py, one start).
-        g = distinct[0]
-        fine = finer_guess(planner, problem, g[3])
-        stalled_from = _k1_time(failures[0][0]) \
-            if failures[0][1] is Status.CONTINUATION_FAILED else None
-        if fine.success and stalled_from is not None and \
-                abs(fine.T - stalled_from) <= SAME_K1 * stalled_from:
-            # It leads to the k = 1 solution the continuation stalled from: the same
-            # stall again (the Panda without limits: 2.3 s), so only the fallback uses it.
-            ctx.memo["finer"] = {g[0]: fine}
-        elif fine.success:
-            run, status, message = solve_from_guess(ctx, fine)
-            if status is Status.SUCCESS:
-                records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
-                ctx.memo.setdefault("notes", []).append(
-                    f"the shooting failed from every guess on {options.guess_intervals} "
-                    f"intervals ({failures[0][2]}); solved from the first one solved again "
-                    f"on {FINE_GUESS_INTERVALS}")
-                best = (run, g[0])
-                succeeded.append(best)
-            else:
-                failures.insert(0, (run, status, message))
-                # The fallback's B-spline solve starts from the finer guess too (the
-                # planar 8R's coarse one was 23 % faster than the k = 1 optimum).
-                ctx.memo["finer"] = {g[0]: fine}
+        best = _from_finer_guess(planner, ctx, distinct[0], failures, records, succeeded)
     timings["shooting"] += time.perf_counter() - t0
     if best is None:
         run, status, message = failures[0]
@@ -579,6 +526,41 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
 
 
+def _from_finer_guess(planner: Planner, ctx: SolveContext, g: tuple, failures: list,
+                      records: dict, succeeded: list):
+    """After every candidate failed: the first again from its guess solved on a finer mesh.
+
+    Updates ``records``, ``failures``, ``succeeded`` and ``ctx.memo`` (the finer guess for
+    the fallback); returns ``(run, index)`` when the shooting succeeded from it, else None.
+    """
+    problem, options = ctx.problem, ctx.options
+    best = None
+    fine = finer_guess(planner, problem, g[3])
+    stalled_from = _k1_time(failures[0][0]) \
+        if failures[0][1] is Status.CONTINUATION_FAILED else None
+    if fine.success and stalled_from is not None and \
+            abs(fine.T - stalled_from) <= SAME_K1 * stalled_from:
+        # It leads to the k = 1 solution the continuation stalled from: the same
+        # stall again (the Panda without limits: 2.3 s), so only the fallback uses it.
+        ctx.memo["finer"] = {g[0]: fine}
+    elif fine.success:
+        run, status, message = solve_from_guess(ctx, fine)
+        if status is Status.SUCCESS:
+            records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
+            ctx.memo.setdefault("notes", []).append(
+                f"the shooting failed from every guess on {options.guess_intervals} "
+                f"intervals ({failures[0][2]}); solved from the first one solved again "
+                f"on {FINE_GUESS_INTERVALS}")
+            best = (run, g[0])
+            succeeded.append(best)
+        else:
+            failures.insert(0, (run, status, message))
+            # The fallback's B-spline solve starts from the finer guess too (the
+            # planar 8R's coarse one was 23 % faster than the k = 1 optimum).
+            ctx.memo["finer"] = {g[0]: fine}
+    return best
+
+
 def _k1_time(run) -> float | None:
     """``T`` (s) of a run's converged solve at ``k = 1`` without smoothing, or None."""
     if run is None:
@@ -586,18 +568,3 @@ def _k1_time(run) -> float | None:
     return next((T for k, delta, T, *_ in run.log if k == 1.0 and delta == 0.0), None)
 
 
-def _time_ratio_bound(n: int, k: float) -> float:
-    """A lower bound of ``T_k / T_1`` for a gravity- and friction-free arm: ``n^(-(k-1)/(4k))``.
-
-    ``sum u_i^(2k) <= 1`` lies inside the ball ``|u|_2 <= c`` with ``c = n^((k-1)/(2k))``,
-    and without gravity and friction scaling the torques by ``c`` scales the minimum time by
-    ``1 / sqrt(c)``; so no motion at ``k`` is faster than ``T_1 / sqrt(c)``.
-    """
-    return float(n ** (-(k - 1) / (4 * k)))
-
-
-def _gravity_free(model, q: np.ndarray) -> bool:
-    """Whether gravity loads no joint at the configurations ``q`` (K, n) (rad, m)."""
-    zero = np.zeros((model.n, len(q)))
-    g = np.array(model.function("id")(q.T, zero, zero))
-    return bool(np.max(np.abs(g) / model.tau_max[:, None]) <= GRAVITY_FREE)
