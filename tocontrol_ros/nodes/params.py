@@ -10,6 +10,7 @@ them into a model with a one-line error for anything else. Nothing here needs a 
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from typing import Any
 
@@ -133,6 +134,14 @@ def declare_all(node, specs: tuple[ParameterSpec, ...]) -> dict[str, Any]:
 def parameters_help(specs: tuple[ParameterSpec, ...]) -> str:
     """One line per parameter, for a ``--help`` epilog."""
     return "\n".join(f"  {spec.name}: {spec.description}" for spec in specs)
+
+
+def parameters_parser(prog: str, description: str, specs: tuple[ParameterSpec, ...]
+                      ) -> argparse.ArgumentParser:
+    """A command line with only ``--help``, whose epilog lists the (read-only) parameters."""
+    return argparse.ArgumentParser(
+        prog=prog, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=description, epilog="parameters (all read-only):\n" + parameters_help(specs))
 
 
 _PYTHON_TYPES = {ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,

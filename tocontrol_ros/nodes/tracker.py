@@ -69,7 +69,7 @@ from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import (
     declare_all,
-    parameters_help,
+    parameters_parser,
 )
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
 
@@ -523,13 +523,12 @@ class TrackerNode(Node):
 
 def build_parser() -> argparse.ArgumentParser:
     """Command line of ``ros2 run tocontrol_ros tracker``: only ``--help`` (ROS parameters)."""
-    parameters = parameters_help(PARAMETERS)
-    return argparse.ArgumentParser(
-        prog="tracker", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Execute planned trajectories on a simulated arm: nominal torques plus "
+    return parameters_parser(
+        "tracker",
+        "Execute planned trajectories on a simulated arm: nominal torques plus "
         "PD feedback, saturated to |u_i| <= 1. Settings are ROS parameters "
         "(--ros-args -p name:=value or --params-file config/tracker.yaml).",
-        epilog="parameters (all read-only):\n" + parameters)
+        PARAMETERS)
 
 
 def main(args=None) -> int:

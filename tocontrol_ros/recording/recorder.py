@@ -49,7 +49,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros.nodes import qos
-from tocontrol_ros.nodes.params import ParameterSpec, declare_all, parameters_help
+from tocontrol_ros.nodes.params import ParameterSpec, declare_all, parameters_parser
 from tocontrol_ros.recording import mcap_io
 
 #: Everything the planner and the tracker publish, and their inputs.
@@ -267,13 +267,12 @@ def spin_until_stopped(executor, stop, drain_time=DRAIN_TIME):
 
 def build_parser() -> argparse.ArgumentParser:
     """Command line of ``ros2 run tocontrol_ros recorder``: only ``--help`` (ROS parameters)."""
-    parameters = parameters_help(PARAMETERS)
-    return argparse.ArgumentParser(
-        prog="recorder", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Record topics to a rosbag2-compatible MCAP file until SIGINT or "
+    return parameters_parser(
+        "recorder",
+        "Record topics to a rosbag2-compatible MCAP file until SIGINT or "
         "SIGTERM. Settings are ROS parameters (--ros-args -p name:=value or "
         "--params-file config/recorder.yaml).",
-        epilog="parameters (all read-only):\n" + parameters)
+        PARAMETERS)
 
 
 def main(args=None):
