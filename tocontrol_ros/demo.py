@@ -81,17 +81,9 @@ def build_parser():
 
 
 def main(argv=None):
-    """Run the demo.
+    """Run the demo (``tocontrol-demo``); returns the exit status, 0 on success.
 
-    Parameters
-    ----------
-    argv : list of str, optional
-        Command-line arguments without the program name; ``sys.argv[1:]`` if None.
-
-    Returns
-    -------
-    int
-        Process exit status (0 on success).
+    ``argv`` is the command line after the program name (``sys.argv[1:]`` if None).
     """
     args = build_parser().parse_args(argv)
     # Imported after argument parsing so that --help stays fast.

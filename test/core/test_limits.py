@@ -278,8 +278,8 @@ def test_a_uniform_solve_that_fails_at_k_is_continued_in_k(galicki, monkeypatch)
     def failing_at_k(self, start, target, k, *args, **kwargs):
         calls.append((self.spans, self.warm, k))
         if self.spans == SPANS and not self.warm and k == 4.0:
-            return FlatResult(False, "Maximum_Iterations_Exceeded", np.nan,
-                              np.full((self.K, 3), np.nan), np.inf, 300, 0.0)
+            return FlatResult(False, "Maximum_Iterations_Exceeded", np.nan, 300, 0.0,
+                              P=np.full((self.K, 3), np.nan), residual=np.inf)
         return solve(self, start, target, k, *args, **kwargs)
 
     monkeypatch.setattr(FlatTranscription, "solve", failing_at_k)
@@ -355,7 +355,7 @@ def test_repeats_of_one_bounded_solution_are_refined_once():
     P = np.linspace(0.0, 1.0, 12).reshape(4, 3)
 
     def sol(T, shift=0.0):
-        return (FlatResult(True, "ok", T, P + shift, 0.0, 10, 0.1), None, None)
+        return (FlatResult(True, "ok", T, 10, 0.1, P=P + shift, residual=0.0), None, None)
 
     first = [(0, sol(0.5)), (3, sol(0.5 * (1 + 1e-8), 1e-5)), (5, sol(0.5, 0.1)),
              (7, sol(0.6))]

@@ -306,14 +306,9 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
     max_h = float(np.max(np.abs(sample.H)))
     items.append(_item("max_abs_H", max_h, options.hamiltonian_tol, "",
                        "max |H| over the samples"))
-    if solver_residual is not None:
-        items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
-                           "the solver's max-norm of its BVP equations"))
-    if options.check_limits:
-        items += _limit_items(problem, sample, x_end, options)
-
-    figures = {i.name: i.value for i in items}
-    figures.update({
+    items += _solver_and_limit_items(problem, sample, x_end, solver_residual,
+                                     "the solver's max-norm of its BVP equations", options)
+    return _checked(items, {
         "point_error": point_err, "velocity_error": vel_err,
         "state_error": float(np.max(np.abs(x_T - z_grid[-1, :2 * n]))),
         "open_loop_deviation": float(np.max(np.abs(x_end - z_next[:, :2 * n]))),
@@ -321,9 +316,28 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
         "max_abs_H": max_h, "integrator_success": stats["finished"],
         "steps": stats["steps"], "rejected": stats["rejected"],
         "nfev": 6 * (stats["steps"] + stats["rejected"]) + len(lengths),
-        "segments": len(lengths), "rtol": options.rtol})
+        "segments": len(lengths), "rtol": options.rtol}, options, x_T)
+
+
+def _solver_and_limit_items(problem: Problem, sample: TrajectorySample, x_path: np.ndarray,
+                            solver_residual: float | None, meaning: str,
+                            options: CertificateOptions) -> list[CertificateItem]:
+    """The solver's own residual (when given, ``meaning`` says what it is) and the limits."""
+    items = []
+    if solver_residual is not None:
+        items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
+                           meaning))
+    if options.check_limits:
+        items += _limit_items(problem, sample, x_path, options)
+    return items
+
+
+def _checked(items: list[CertificateItem], figures: dict, options: CertificateOptions,
+             x_T: np.ndarray) -> Certificate:
+    """The certificate of ``items``: passed when all pass; their values, then ``figures``."""
     return Certificate(passed=all(i.passed for i in items), items=tuple(items),
-                       figures=figures, options=options, open_loop_end=x_T.copy())
+                       figures={**{i.name: i.value for i in items}, **figures},
+                       options=options, open_loop_end=x_T.copy())
 
 
 def _end_items(problem: Problem, x_T: np.ndarray, point_err: float, vel_err: float,
@@ -426,16 +440,11 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     items = _end_items(problem, x_T, point_err, vel_err, success, options)
     items += _torque_items(problem, sample.u, options)[1]
     max_u = float(np.max(np.abs(sample.u)))
-    if solver_residual is not None:
-        items.append(_item("solver_residual", solver_residual, options.residual_tol, "",
-                           "the solver's max-norm of its NLP's constraint violation"))
-    if options.check_limits:
-        items += _limit_items(problem, sample, x_path, options)
-    figures = {i.name: i.value for i in items}
-    figures.update({
+    items += _solver_and_limit_items(
+        problem, sample, x_path, solver_residual,
+        "the solver's max-norm of its NLP's constraint violation", options)
+    return _checked(items, {
         "point_error": point_err, "velocity_error": vel_err,
         "state_error": float(np.max(np.abs(x_T - trajectory.state(trajectory.T)[0, :2 * n]))),
         "max_abs_u": max_u, "integrator_success": success, "nfev": nfev,
-        "rtol": options.rtol})
-    return Certificate(passed=all(i.passed for i in items), items=tuple(items),
-                       figures=figures, options=options, open_loop_end=x_T.copy())
+        "rtol": options.rtol}, options, x_T)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import signal
 import sys
 from collections.abc import Callable
@@ -11,6 +12,7 @@ from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros.core.errors import TocontrolError
 
@@ -36,9 +38,13 @@ def spin_slice(executor: Executor, timeout_sec: float) -> None:
         pass
 
 
-def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
-             make_executor: Callable[[], Executor] = SingleThreadedExecutor) -> int:
+def run_node(prog: str, args: list[str] | None, make_node: Callable[[], Node],
+             make_executor: Callable[[], Executor] = SingleThreadedExecutor,
+             parser: argparse.ArgumentParser | None = None) -> int:
     """Initialise rclpy, build the node and spin it until SIGINT, SIGTERM or a shutdown.
+
+    The executables' ``main``: the non-ROS part of the command line goes to ``parser``
+    first (``--help`` prints it and exits; the settings are ROS parameters).
 
     SIGINT and SIGTERM only set a stop flag (rclpy's own handlers are not installed): the
     loop then ends, the node is destroyed (the planner stops its worker) and rclpy shut
@@ -50,18 +56,24 @@ def run_node(prog: str, argv: list[str], make_node: Callable[[], Node],
     ----------
     prog : str
         Program name for the start-up error message.
-    argv : list of str
-        The whole command line, ROS arguments included (passed to ``rclpy.init``).
+    args : list of str or None
+        The whole command line, program name first, ROS arguments included (passed to
+        ``rclpy.init``); ``sys.argv`` if None.
     make_node : callable
         Builds the node; a ``TocontrolError`` or ``ParameterException`` means it cannot start.
     make_executor : callable
         Builds the executor that spins the node.
+    parser : argparse.ArgumentParser, optional
+        The executable's command line without its ROS arguments.
 
     Returns
     -------
     int
         0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
     """
+    argv = list(sys.argv if args is None else args)
+    if parser is not None:
+        parser.parse_args(remove_ros_args(argv)[1:])
     stop: list[int] = []
 
     def on_signal(signum, _frame):

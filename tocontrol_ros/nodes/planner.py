@@ -36,8 +36,6 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -85,14 +83,10 @@ QOS_STATUS = qos.status_profile(100, latched=False)
 QOS_GOAL = qos.RELIABLE
 #: Joint states: best effort matches both reliable and best-effort publishers; the newest
 #: one is all the planner needs, so the middleware keeps one.
-QOS_JOINT_STATES = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                              reliability=ReliabilityPolicy.BEST_EFFORT,
-                              durability=DurabilityPolicy.VOLATILE)
+QOS_JOINT_STATES = qos.profile(1, reliable=False)
 #: Service requests: a burst of calls must not overflow the request queue before the
 #: executor takes them (each call gets exactly one response).
-QOS_SERVICE = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+QOS_SERVICE = qos.profile(1000)
 #: While optimised libraries are being built in the background (the first use of a model
 #: got quick builds), the idle worker looks this often (s) whether they landed, to load them.
 OPTIMISED_POLL = 1.0
@@ -568,23 +562,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(args=None) -> int:
-    """Run the planner node until Ctrl-C, SIGTERM or an external shutdown.
+    """``ros2 run tocontrol_ros planner``: the node on a multi-threaded executor.
 
     Parameters
     ----------
     args : list of str, optional
-        The whole command line, program name first, ROS arguments (``--ros-args ...``)
-        included; ``sys.argv`` if None.
-
-    Returns
-    -------
-    int
-        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+        The command line, as for :func:`~tocontrol_ros.nodes.node_main.run_node`, which
+        gives the exit status.
     """
-    argv = list(sys.argv if args is None else args)
-    build_parser().parse_args(remove_ros_args(argv)[1:])
-    return run_node("planner", argv, PlannerNode,
-                    lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS))
+    return run_node("planner", args, PlannerNode,
+                    lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS), build_parser())
 
 
 if __name__ == "__main__":

@@ -5,26 +5,29 @@ See msg_docs/ for which topic uses which.
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["LATCHED", "RELIABLE", "BEST_EFFORT", "status_profile"]
+__all__ = ["LATCHED", "RELIABLE", "BEST_EFFORT", "profile", "status_profile"]
+
+def profile(depth: int, reliable: bool = True, latched: bool = False) -> QoSProfile:
+    """A keep-last profile ``depth`` deep: reliable or best effort; latched or volatile.
+
+    Latched (transient local): late subscribers get the last ``depth`` messages.
+    """
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                      else DurabilityPolicy.VOLATILE)
+
 
 #: Plans and their views: late subscribers (a viewer, a tracker started after the plan)
 #: get the last one.
-LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED = profile(1, latched=True)
 #: Streams and commands: reliable publishers match reliable and best-effort subscribers.
-RELIABLE = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+RELIABLE = profile(10)
 #: Inputs from other people's publishers: best effort matches both kinds.
-BEST_EFFORT = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.BEST_EFFORT,
-                         durability=DurabilityPolicy.VOLATILE)
+BEST_EFFORT = profile(10, reliable=False)
 
 
 def status_profile(depth: int, latched: bool) -> QoSProfile:
     """Reliable status events, ``depth`` deep, kept for late subscribers when ``latched``."""
-    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                      else DurabilityPolicy.VOLATILE)
+    return profile(depth, latched=latched)

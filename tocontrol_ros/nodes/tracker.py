@@ -52,7 +52,6 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
-from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -532,22 +531,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(args=None) -> int:
-    """Run the tracker node until Ctrl-C, SIGTERM or an external shutdown.
+    """Spin a :class:`TrackerNode` (``ros2 run tocontrol_ros tracker``) until it is stopped.
 
-    Parameters
-    ----------
-    args : list of str, optional
-        The whole command line, program name first, ROS arguments included; ``sys.argv``
-        if None.
-
-    Returns
-    -------
-    int
-        0 after a clean shutdown, 1 when the node could not start (bad parameters or URDF).
+    ``args`` (the command line, program name first; ``sys.argv`` if None) and the exit
+    status are :func:`~tocontrol_ros.nodes.node_main.run_node`'s.
     """
-    argv = list(sys.argv if args is None else args)
-    build_parser().parse_args(remove_ros_args(argv)[1:])
-    return run_node("tracker", argv, TrackerNode)
+    return run_node("tracker", args, TrackerNode, parser=build_parser())
 
 
 if __name__ == "__main__":

@@ -21,22 +21,18 @@ import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.direct.collocation_nlp import Layout, compiled_functions, nlp_functions
+from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.robot.model import RobotModel
 
 __all__ = ["DirectResult", "DirectCollocation", "compile_direct", "initial_path", "initial_paths"]
 
 
-@dataclass(frozen=True)
-class DirectResult:
-    """Outcome of a direct solve.
+@dataclass(frozen=True, kw_only=True)
+class DirectResult(IpoptOutcome):
+    """Outcome of a direct solve: the fields of :class:`~.ipopt.IpoptOutcome`, then these.
 
     Attributes
     ----------
-    success : bool
-    message : str
-        IPOPT's return status.
-    T : float
-        Final time (s).
     t : ndarray, shape (N + 1,)
         Mesh times (s).
     x : ndarray, shape (N + 1, 2n)
@@ -45,20 +41,12 @@ class DirectResult:
         Normalised controls at the mesh points.
     psi : ndarray, shape (N + 1, 2n)
         Costate estimates from the defect multipliers.
-    iterations : int
-    solve_time : float
-        Wall time of the IPOPT call (s).
     """
 
-    success: bool
-    message: str
-    T: float
     t: np.ndarray
     x: np.ndarray
     u: np.ndarray
     psi: np.ndarray
-    iterations: int
-    solve_time: float
 
 
 #: :func:`initial_path` times the path so that the largest Euclidean norm of its normalised
@@ -194,10 +182,8 @@ class DirectCollocation:
         Use the original box ``|u_i| <= 1`` instead of ``sum u_i^(2k) <= 1``.
     torque_scale : float
         ``1 - reserve``.
-    tol : float
-        IPOPT tolerance.
-    max_iter : int
-        IPOPT iteration limit.
+    tol, max_iter : float, int
+        IPOPT's tolerance and iteration limit (:func:`~.ipopt.ipopt_options`).
 
     Attributes
     ----------
@@ -223,22 +209,11 @@ class DirectCollocation:
         w = ca.MX.sym("w", lay.nw)
         par = ca.MX.sym("p", lay.npar)
         nlp = {"x": w, "f": w[lay.iT], "g": funs["g"](w, par), "p": par}
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                "ipopt.tol": tol, "ipopt.max_iter": max_iter,
-                "ipopt.acceptable_tol": tol, "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
-                # MUMPS without its scaling and permutation (the NLP is well scaled: joint
-                # units and a normalised torque) and no iterative refinement unless a solve
-                # needs it: less time for the same iterations and T (IPOPT's own overhead,
-                # not MUMPS, dominates at this size).
-                "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
-                "ipopt.min_refinement_steps": 0,
-                # No residual check of each solve of the step's linear system: the same T,
-                # a little faster.
-                "ipopt.fast_step_computation": "yes",
-                "grad_f": funs["grad_f"], "jac_g": funs["jac_g"], "hess_lag": funs["hess_l"],
-                # The solution, f, g and the multipliers come from IPOPT: no Lagrangian
-                # gradient (it would differentiate the compiled constraints).
-                "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+        opts = ipopt_options(tol, max_iter, funs["grad_f"], funs["jac_g"], funs["hess_l"])
+        # No iterative refinement unless a solve needs it, and no residual check of each
+        # solve of the step's linear system: less time for the same iterations and T
+        # (IPOPT's own overhead, not MUMPS, dominates at this size).
+        opts.update({"ipopt.min_refinement_steps": 0, "ipopt.fast_step_computation": "yes"})
         self.solver = ca.nlpsol("direct", "ipopt", nlp, opts)
         self._nx = lay.nx
         self._nu = lay.nu

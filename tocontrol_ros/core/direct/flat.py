@@ -42,6 +42,7 @@ from scipy.sparse.linalg import spsolve
 
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
+from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -198,24 +199,16 @@ class _Interrupt(ca.Callback):
         return [1 if self.reason else 0]
 
 
-@dataclass(frozen=True)
-class FlatResult:
-    """Outcome of a bounded B-spline solve.
+@dataclass(frozen=True, kw_only=True)
+class FlatResult(IpoptOutcome):
+    """Outcome of a B-spline solve: the fields of :class:`~.ipopt.IpoptOutcome`, then these.
 
     Attributes
     ----------
-    success : bool
-    message : str
-        IPOPT's return status.
-    T : float
-        Final time (s).
     P : ndarray, shape (K, n)
         Control points (rad, m).
     residual : float
         Largest violation of the NLP's constraints (its bounds included).
-    iterations : int
-    solve_time : float
-        Wall time of the IPOPT call (s).
     lam_g : ndarray or None
         IPOPT's multipliers of the NLP's rows (constraints) at the result, shape (rows,):
         what a warm re-solve on the same mesh starts from (``warm="dual"``).
@@ -223,13 +216,8 @@ class FlatResult:
         Its multipliers of the variables' bounds, shape (K n + 1,).
     """
 
-    success: bool
-    message: str
-    T: float
     P: np.ndarray
     residual: float
-    iterations: int
-    solve_time: float
     lam_g: np.ndarray | None = field(default=None, repr=False)
     lam_x: np.ndarray | None = field(default=None, repr=False)
 
@@ -249,10 +237,8 @@ class FlatTranscription:
         Sample times per span for the control set and the limits.
     torque_scale : float
         ``1 - reserve``.
-    tol : float
-        IPOPT tolerance.
-    max_iter : int
-        IPOPT iteration limit.
+    tol, max_iter : float, int
+        IPOPT's tolerance and iteration limit (:func:`~.ipopt.ipopt_options`).
     warm : bool or "resume" or "dual" or "restart"
         True: every solve starts at a solution of a nearby problem (a refined mesh, solved
         from the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
@@ -379,17 +365,14 @@ class FlatTranscription:
         hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
         hess = hess + hb
         self._nw, self._iT, self._ng = nw, iT, ng
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                "ipopt.tol": tol, "ipopt.max_iter": max_iter, "ipopt.acceptable_tol": tol,
-                "ipopt.mu_strategy": "adaptive", "calc_lam_p": False,
-                "ipopt.mumps_scaling": 0, "ipopt.mumps_permuting_scaling": 0,
-                "grad_f": ca.Function("grad_f", [w, ca.vertcat(par, vpar, geo)], [
-                    T, ca.DM([0.0] * iT + [1.0])], ["x", "p"], ["f", "grad"]),
-                "jac_g": ca.Function("jac_g", [w, ca.vertcat(par, vpar, geo)], [g_eval, jac],
-                                     ["x", "p"], ["g", "jac"]),
-                "hess_lag": ca.Function("hess_l", [w, ca.vertcat(par, vpar, geo), lam_f, lam_g],
-                                        [hess], ["x", "p", "lam_f", "lam_g"], ["hess"]),
-                "no_nlp_grad": True, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+        allp = ca.vertcat(par, vpar, geo)
+        opts = ipopt_options(
+            tol, max_iter,
+            ca.Function("grad_f", [w, allp], [T, ca.DM([0.0] * iT + [1.0])], ["x", "p"],
+                        ["f", "grad"]),
+            ca.Function("jac_g", [w, allp], [g_eval, jac], ["x", "p"], ["g", "jac"]),
+            ca.Function("hess_l", [w, allp, lam_f, lam_g], [hess],
+                        ["x", "p", "lam_f", "lam_g"], ["hess"]))
         if warm == "dual":
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
                          "ipopt.warm_start_init_point": "yes"})
@@ -400,7 +383,6 @@ class FlatTranscription:
             opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
                 f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
                                                      "slack_bound_push", "slack_bound_frac")}})
-        allp = ca.vertcat(par, vpar, geo)
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
         self._g = ca.Function("g", [w, allp], [g])
