@@ -12,11 +12,11 @@ import numpy as np
 from tocontrol_ros.core.context import SolveContext
 from tocontrol_ros.core.direct.collocation import initial_paths
 from tocontrol_ros.core.direct.limited import (
-    PAD,
     Transcriptions,
     state_bounds,
     touches,
 )
+from tocontrol_ros.core.direct.tuning import PAD
 
 __all__ = ["solve_guesses"]
 

@@ -29,7 +29,7 @@ class SolverOptions:
         the graded intervals at a switch better (fewer intervals at the same accuracy, and
         cheaper warm re-solves). With switch nodes the k = 1 solve and the continuation in
         k, whose solutions only lead to the switch mesh, take at most
-        :data:`~tocontrol_ros.core.indirect.continuation.CONTINUATION_STEPS`.
+        :data:`~tocontrol_ros.core.indirect.tuning.CONTINUATION_STEPS`.
     guess_intervals : int
         Mesh intervals of the direct method that makes the initial guess. Its IPOPT solves
         are most of a plan's time; 10 finds the same best motions as 12 on the benchmark's

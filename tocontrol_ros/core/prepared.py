@@ -21,14 +21,10 @@ from tocontrol_ros.core.direct.collocation import (
     compile_direct,
 )
 from tocontrol_ros.core.direct.flat import FlatTranscription, compile_flat
-from tocontrol_ros.core.direct.limited import (
-    SPANS,
-)
-from tocontrol_ros.core.indirect.continuation import (
-    CONTINUATION_STEPS,
-)
+from tocontrol_ros.core.direct.tuning import SPANS
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
+from tocontrol_ros.core.indirect.tuning import CONTINUATION_STEPS
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.robot import compiled

@@ -12,18 +12,9 @@ from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.trajectory import Trajectory
+from tocontrol_ros.core.tuning import WARM_JOINT_RADIUS, WARM_RADIUS
 
-__all__ = ["Status", "StartRecord", "WarmState", "PathWarmState", "PlanResult",
-           "WARM_RADIUS", "WARM_JOINT_RADIUS"]
-
-#: A previous solution warm-starts a problem only when each end point moved by at most this
-#: (m): farther, the warm solution often lands in another (worse) basin than the multistart
-#: (measured on the paper's arm, bench/optimum.py and docs/seeding.md).
-WARM_RADIUS = 0.1
-
-#: ...and each joint-state end by at most this (max-norm of positions and velocities, rad
-#: and rad/s).
-WARM_JOINT_RADIUS = 0.05
+__all__ = ["Status", "StartRecord", "WarmState", "PathWarmState", "PlanResult"]
 
 
 class Status(enum.Enum):

@@ -17,31 +17,17 @@ import numpy as np
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.robot.ik import ik_family
+from tocontrol_ros.core.tuning import (
+    EXHAUSTIVE_IK_COUNT,
+    EXHAUSTIVE_STARTS,
+    GRAVITY_FREE,
+    MAX_BRANCH_JOINTS,
+    SAME_BASIN,
+    SEED_SPACING,
+)
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
-           "branch_shifts", "GRAVITY_FREE", "gravity_free", "time_ratio_bound",
-           "EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "EXHAUSTIVE_CANDIDATES"]
-
-#: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
-#: the ranked mode's); denser than any default, so the reference covers the manifold.
-EXHAUSTIVE_IK_COUNT = 24
-
-#: Seed pairs solved by the direct method in the exhaustive mode, spread evenly over the
-#: branches (the best-ranked of each branch in turn), so that the reference does not lean on
-#: the ranking's preference between branches.
-EXHAUSTIVE_STARTS = 216
-
-#: Ranked seeds closer than this to a better one at both ends (max-norm, rad) are tried only
-#: after every farther one.
-SEED_SPACING = 1.5
-
-#: Distinct direct solutions continued in the exhaustive mode, best direct ``T`` first.
-#: Measured on 15 random pairs with every one continued: the best final basin was the first
-#: to third of them by direct ``T``.
-EXHAUSTIVE_CANDIDATES = 12
-
-#: At most this many joints get branch variants at once (2^J or 3^J variants per pair).
-MAX_BRANCH_JOINTS = 7
+           "branch_shifts", "gravity_free", "time_ratio_bound"]
 
 
 def shiftable_joints(problem: Problem) -> np.ndarray:
@@ -224,11 +210,6 @@ def _spread(q_a: np.ndarray, q_b: np.ndarray, count: int) -> np.ndarray:
     return np.array((keep + skipped)[:count], dtype=int)
 
 
-#: Two direct solutions whose start and end configurations differ by less than this
-#: (max-norm, rad or m) are taken to be in the same basin.
-SAME_BASIN = 1e-3
-
-
 def distinct_basins(items: list, result, n: int, periodic: np.ndarray | None = None) -> list:
     """``items`` by increasing ``T``, one per basin.
 
@@ -271,11 +252,6 @@ def _basin_distance(a: np.ndarray, b: np.ndarray, wrap: np.ndarray) -> float:
 
 
 # ----------------------------------------------------- which candidates to continue
-#: Gravity torques below this (relative to tau_max) count as none for the rule of
-#: :func:`time_ratio_bound` (the solver's skip of candidates that cannot beat the best).
-GRAVITY_FREE = 1e-9
-
-
 def time_ratio_bound(n: int, k: float) -> float:
     """A lower bound of ``T_k / T_1`` for a gravity- and friction-free arm: ``n^(-(k-1)/(4k))``.
 

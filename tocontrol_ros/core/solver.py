@@ -55,12 +55,12 @@ import numpy as np
 from tocontrol_ros.core.certificate import certify
 from tocontrol_ros.core.context import Run, SolveContext, StopError, trajectory
 from tocontrol_ros.core.direct.limited import (
-    FINE_GUESS_INTERVALS,
     finer_guess,
     plan_limited,
     plan_limited_warm,
     touches,
 )
+from tocontrol_ros.core.direct.tuning import FINE_GUESS_INTERVALS
 from tocontrol_ros.core.guesses import solve_guesses
 from tocontrol_ros.core.indirect.continuation import (
     final_smoothing,
@@ -73,12 +73,18 @@ from tocontrol_ros.core.prepared import PreparedModel
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status, WarmState
 from tocontrol_ros.core.seeding import (
-    EXHAUSTIVE_CANDIDATES,
     distinct_basins,
     gravity_free,
     revolute_joints,
     seed_pairs,
     time_ratio_bound,
+)
+from tocontrol_ros.core.tuning import (
+    CANDIDATE_MARGIN,
+    EXHAUSTIVE_CANDIDATES,
+    INCUMBENT_TRIES,
+    SAME_K1,
+    WARM_GAIN,
 )
 from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict, verify
 
@@ -86,25 +92,8 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "WarmState", 
            "plan", "verify"]
 
 
-#: A warm solution replaces the cold multistart's only when its ``T`` is lower by more than
-#: this (relative): within it both are the same basin, and the cold answer, which does not
-#: depend on earlier requests, is kept.
-WARM_GAIN = 1e-6
-
-#: A candidate is not continued when its direct ``T`` (k = 1) times
-#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` exceeds the best final ``T`` so far
-#: by more than this (relative):
-#: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
-#: mesh's, so it gets a margin.
-CANDIDATE_MARGIN = 0.02
-
-#: At the caller's deadline at most this many motions found so far are checked (least ``T``
-#: first) for a ``TIME_LIMIT`` result that carries one: the result comes at most this many
-#: certificates after the deadline.
-INCUMBENT_TRIES = 2
-
-
-#: StartRecord.status of a distinct direct solution left out by that rule.
+#: StartRecord.status of a distinct direct solution left out by the rule of
+#: :data:`~tocontrol_ros.core.tuning.CANDIDATE_MARGIN`.
 SKIPPED = "not continued: its direct T cannot beat the best"
 
 
@@ -330,13 +319,6 @@ def _offer(ctx: SolveContext, snap: tuple) -> None:
 
     ctx.offer(frozen.t_final, build)
 
-
-#: The finer direct guess (:func:`~tocontrol_ros.core.direct.limited.finer_guess`) tried when the
-#: shooting failed from every coarse one is not shot from when the first candidate's
-#: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
-#: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
-#: its continuation's 19 Newton solves to the digit, 2.3 s).
-SAME_K1 = 1e-3
 
 #: Failures of the shooting after which ``options.direct_fallback`` solves directly.
 _SHOOTING_FAILURES = (Status.NEWTON_FAILED, Status.CONTINUATION_FAILED)

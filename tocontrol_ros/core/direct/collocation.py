@@ -22,6 +22,7 @@ import numpy as np
 
 from tocontrol_ros.core.direct.collocation_nlp import Layout, compiled_functions, nlp_functions
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
+from tocontrol_ros.core.direct.tuning import GUESS_LOAD
 from tocontrol_ros.core.robot.model import RobotModel
 
 __all__ = ["DirectResult", "DirectCollocation", "compile_direct", "initial_path", "initial_paths"]
@@ -47,11 +48,6 @@ class DirectResult(IpoptOutcome):
     x: np.ndarray
     u: np.ndarray
     psi: np.ndarray
-
-
-#: :func:`initial_path` times the path so that the largest Euclidean norm of its normalised
-#: torques is this: inside the k = 1 control set (the unit ball) with some room.
-GUESS_LOAD = 0.8
 
 
 def initial_path(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: int,

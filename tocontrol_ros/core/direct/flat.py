@@ -43,53 +43,17 @@ from scipy.sparse.linalg import spsolve
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
+from tocontrol_ros.core.direct.tuning import (
+    RESTART_MAX_PERTURBATION,
+    RESUME_MU,
+    SET_PAD,
+    WARM_MU,
+    WARM_PUSH,
+)
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["FlatResult", "FlatTranscription", "REFINE_JUMP", "RESTART_MAX_PERTURBATION",
-           "RESUME_MU", "SET_PAD", "WARM_MU", "WARM_PUSH", "compile_flat"]
-
-#: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
-#: times, so that the torques between them stay inside the set.
-SET_PAD = 1e-3
-
-#: A span is halved when some joint's acceleration changes across it by more than this
-#: fraction of that joint's largest acceleration (a junction of arcs: the cubic path ramps
-#: its acceleration over one span, which costs time in proportion to the span).
-REFINE_JUMP = 0.1
-
-#: IPOPT's first barrier parameter on a mesh whose solves start at a nearby solution
-#: (``FlatTranscription(warm=True)``), decreased monotonically, and how far (absolute and
-#: relative) the start is moved inside its bounds. With IPOPT's defaults (adaptive
-#: barrier from 0.1, 1 % inside the bounds) the first steps of a refined Panda solve left
-#: the solution (T 0.2756 -> 0.54 s) and then crawled (1.5 s per iteration at 132 spans);
-#: measured on 8 Panda problems with its limits (one start): 70 s in all and 33 s at most
-#: with the defaults, 14.6 s and 2.8 s from mu 1e-6 (1e-4: 48 s; 1e-5: 17 s); from 1e-7
-#: the refined solves took 716 IPOPT iterations in all instead of 867 (1e-8: 781), the
-#: same T on every problem.
-WARM_MU = 1e-7
-WARM_PUSH = 1e-6
-
-#: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
-#: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its
-#: bounds). From IPOPT's default start (1 % inside the bounds: on a 96-span Panda mesh the
-#: set's value at the start was 1e10) such re-solves crawled (0.5 s per iteration, MUMPS
-#: reallocating, 20 s without converging) on a Panda plan from a moving state; from this
-#: barrier they took 0.7 and 1.8 s there and 0.7 s on another Panda case (from 1e-3:
-#: 2.6-3.3 s; the adaptive barrier with the small push failed on one of the three; from
-#: :data:`WARM_MU` all three re-solves of a Panda case failed).
-RESUME_MU = 1e-5
-
-
-#: IPOPT's largest Hessian regularisation in a re-solve from its default start
-#: (``FlatTranscription(warm="restart")``); past it IPOPT skips to its restoration phase.
-#: Such re-solves (a wider set pad after the resumed one failed) can crawl with the
-#: regularisation at 1e8-1e12, each iteration factorising the KKT matrix over and over
-#: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
-#: here, the same 150 iterations took 2.2 s (1e6: 5.8 s), and bench/limits.py's case 29,
-#: whose resumed re-solves all fail, still converges from the default start. A bound on
-#: work per iteration where a wall-time cap was before.
-RESTART_MAX_PERTURBATION = 1e4
+__all__ = ["FlatResult", "FlatTranscription", "compile_flat"]
 
 
 def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:

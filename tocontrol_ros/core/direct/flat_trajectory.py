@@ -15,7 +15,8 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.direct.bspline import knots
-from tocontrol_ros.core.direct.flat import REFINE_JUMP, FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.tuning import REFINE_JUMP
 from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.trajectory import TrajectorySample, sample_times

@@ -34,16 +34,31 @@ from scipy.interpolate import make_interp_spline
 from tocontrol_ros.core.certificate import certify_open_loop
 from tocontrol_ros.core.context import SolveContext
 from tocontrol_ros.core.direct.collocation import DirectCollocation, DirectResult, initial_path
-from tocontrol_ros.core.direct.flat import SET_PAD, FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
+from tocontrol_ros.core.direct.tuning import (
+    FINE_GUESS_INTERVALS,
+    FINE_GUESS_TOL,
+    LEVEL_WINDOWS,
+    NEAR_MAX_ITER,
+    PAD,
+    PAD_ROUNDS,
+    REFINE_WINDOW,
+    REFINEMENTS,
+    RESIDUAL_TOL,
+    SAME_T,
+    SET_MARGIN,
+    SET_PAD,
+    SPAN_BUCKET,
+    SPANS,
+    STRETCHES,
+    T_SETTLED,
+    TOUCH,
+)
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status
-from tocontrol_ros.core.seeding import (
-    EXHAUSTIVE_CANDIDATES,
-    SAME_BASIN,
-    distinct_basins,
-    seed_pairs,
-)
+from tocontrol_ros.core.seeding import distinct_basins, seed_pairs
+from tocontrol_ros.core.tuning import EXHAUSTIVE_CANDIDATES, SAME_BASIN
 from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
 
 
@@ -59,75 +74,7 @@ class Transcriptions(Protocol):
         """The bounded B-spline transcription for ``problem``'s kinds."""
 
 
-__all__ = ["FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "PAD", "REFINEMENTS", "SPANS", "TOUCH",
-           "finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
-
-#: A direct guess within this fraction of a position range (or of a velocity limit) of the
-#: planning limits is taken to touch them.
-TOUCH = 0.02
-
-#: Uniform spans of the first B-spline solve.
-SPANS = 32
-
-#: The bounded solve keeps inside the planning limits by this fraction of each range (of
-#: each velocity limit), so that its certificate's re-integration, a different integrator,
-#: stays inside them.
-PAD = 3e-4
-
-#: The spans are halved at the junctions at most this many times.
-REFINEMENTS = 4
-
-#: Candidates whose first (uniform-mesh) ``T`` is within this fraction of the best one are
-#: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
-REFINE_WINDOW = 0.02
-
-#: After refinement level ``l`` (0-based), candidates more than ``LEVEL_WINDOWS[l]`` above
-#: the best ``T`` so far stop there: the refinement lowers ``T`` by up to 1.6 % in all, of
-#: which up to 0.2 % after the first level and 4e-5 after the second (the Panda's
-#: candidates; a candidate 0.2 % behind after the first level was the best in the end).
-LEVEL_WINDOWS = (5e-3, 1e-3, 5e-4)
-
-#: IPOPT iterations a solve from a nearby solution may take (a refinement level, a pad
-#: re-solve, a warm re-solve): they take 15-40, one that needs far more is crawling (a
-#: regularised Hessian, seen at 0.7 s per iteration on a UR5's 119 spans), and the coarser
-#: solution stands. A count, not a time: the same request takes the same path on an idle and
-#: on a loaded machine.
-NEAR_MAX_ITER = 150
-
-#: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
-#: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
-#: the level after a change this small would move ``T`` by about 5e-5, a twentieth of the
-#: benchmark's 1e-3 against the reference, at the cost of the finest and slowest solve
-#: (120-170 spans: 0.6-6 s, up to half of a Panda plan). On 8 Panda problems (one start)
-#: 2e-4 instead of 1e-4 left out 3 such levels and took 20 % less time in all, with T
-#: higher by 6e-5 at most (3e-4: 9e-5).
-T_SETTLED = 2e-4
-
-#: Two uniform-mesh solutions with ``T`` this close (relative) and the same control points
-#: are one.
-SAME_T = 1e-6
-
-#: The torques between the sample times keep this far inside the control set; the set's
-#: pad (:data:`~tocontrol_ros.core.direct.flat.SET_PAD` at first) is widened at most
-#: :data:`PAD_ROUNDS` times to get there.
-SET_MARGIN = 1e-7
-PAD_ROUNDS = 3
-
-#: Refined meshes have a multiple of this many spans (the longest halved to get there), so
-#: that their transcriptions, built once per number of spans, serve other motions.
-SPAN_BUCKET = 8
-
-#: Relative slow-downs of a path tried before widening the pad (:func:`_stretched`).
-STRETCHES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)
-
-#: Tolerance on the bounded NLP's constraint violation (its residual).
-RESIDUAL_TOL = 1e-6
-
-
-#: The finer direct guess: a guess solved again on this many intervals, to this tolerance
-#: (after a failed shooting, for the shooting's retry and for the fallback).
-FINE_GUESS_INTERVALS = 24
-FINE_GUESS_TOL = 1e-8
+__all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
 
 
 def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult) -> DirectResult:
@@ -365,7 +312,7 @@ def _distinct_solutions(first: list) -> list:
 
     Two guesses of different basins at ``k = 1`` can meet in one B-spline solution (same
     ``T`` to :data:`SAME_T`, control points within
-    :data:`~tocontrol_ros.core.seeding.SAME_BASIN`), which would be refined twice.
+    :data:`~tocontrol_ros.core.tuning.SAME_BASIN`), which would be refined twice.
     """
     out = []
     for idx, sol in first:
@@ -439,12 +386,13 @@ def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float
     creeping from 0.330 to 0.291 s: IPOPT regularising a Hessian that is not positive
     definite on the redundancy) after its shooting had stalled at k = 1.625; by
     continuation from the same guess, 202 + 220 + 53 + 59 iterations, T = 0.289712 s.
-    A step that fails from the last solution with the barrier at :data:`~tocontrol_ros.
-    core.flat.WARM_MU` is solved again from it with the barrier at :data:`~tocontrol_ros.
-    core.flat.RESUME_MU` (``warm="resume"``): the paper's arm from a moving state (the
-    planner node's CI run, one start) went from T 0.466 s at k = 1 to 0.402 s at k = 2 in
-    300 iterations without converging, where from 1e-5 it took 0.05 s (T 0.424 s); the
-    planar 8R's steps fail from 1e-5 and converge from 1e-7, so that order.
+    A step that fails from the last solution with the barrier at
+    :data:`~tocontrol_ros.core.direct.tuning.WARM_MU` is solved again from it with the barrier
+    at :data:`~tocontrol_ros.core.direct.tuning.RESUME_MU` (``warm="resume"``): the paper's
+    arm from a moving state (the planner node's CI run, one start) went from T 0.466 s at
+    k = 1 to 0.402 s at k = 2 in 300 iterations without converging, where from 1e-5 it took
+    0.05 s (T 0.424 s); the planar 8R's steps fail from 1e-5 and converge from 1e-7, so that
+    order.
     Returns the last solve (a failure stops there) and its transcription.
     """
     problem = ctx.problem
@@ -527,11 +475,12 @@ def _inside_set(planner: Transcriptions, ctx: SolveContext, bounds, out: FlatRes
     :data:`NEAR_MAX_ITER` iterations; a re-solve that fails (IPOPT's step computation, seen
     on the xArm7) is tried again with a wider pad. The wider pad makes the last solution
     infeasible at its samples: the re-solves start IPOPT's barrier at
-    :data:`~tocontrol_ros.core.direct.flat.RESUME_MU` (``warm="resume"``), not at the warm start's
-    ``1e-7`` (from which all three failed on a Panda case); one that fails is tried from
+    :data:`~tocontrol_ros.core.direct.tuning.RESUME_MU` (``warm="resume"``), not at the warm
+    start's ``1e-7`` (from which all three failed on a Panda case); one that fails is tried from
     IPOPT's default start (``warm="restart"``, whose 1 % push into the bounds changes the
     short spans' torques by orders of magnitude: it crawled on Panda cases until its
-    regularisation was capped, :data:`~tocontrol_ros.core.direct.flat.RESTART_MAX_PERTURBATION`;
+    regularisation was capped,
+    :data:`~tocontrol_ros.core.direct.tuning.RESTART_MAX_PERTURBATION`;
     on bench/limits.py's Panda case 29 the three resumed ones failed,
     Error_In_Step_Computation, and the plan failed its certificate before this).
     """

@@ -17,9 +17,10 @@ import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem, LawParams
+from tocontrol_ros.core.indirect.tuning import BUDGETS, MIN_STEP
 from tocontrol_ros.core.robot.compiled import c_name, compile_function
 
-__all__ = ["AdaptiveIntegrator", "integrator", "CHUNK", "BUDGETS", "MIN_STEP"]
+__all__ = ["AdaptiveIntegrator", "integrator", "CHUNK"]
 
 # Dormand-Prince 5(4) (Hairer, Norsett, Wanner, *Solving ODEs I*, Table 5.2): 5th-order
 # solution, FSAL (the last stage is the next step's first), error from the embedded 4th. The
@@ -39,12 +40,6 @@ _SAFETY, _SHRINK, _GROW, _BETA = 0.9, 0.2, 5.0, 0.04
 _ACC = 6
 #: Segments per compiled call (the last call padded with empty segments).
 CHUNK = 16
-#: Trial steps per segment in one call; a segment that has not reached its end after them
-#: is integrated again with the next budget (the whole chain: the open-loop state is
-#: carried through).
-BUDGETS = (256, 4096)
-#: Smallest step the integrator takes, relative to its segment: it gives up below.
-MIN_STEP = 1e-12
 
 
 class AdaptiveIntegrator:

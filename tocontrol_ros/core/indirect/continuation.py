@@ -23,54 +23,20 @@ from tocontrol_ros.core.direct.collocation import (
 )
 from tocontrol_ros.core.indirect.mesh import refine, switch_mesh
 from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid
+from tocontrol_ros.core.indirect.tuning import (
+    CONTINUATION_STEPS,
+    CONTINUATION_TOL,
+    DELTA_FACTOR,
+    EASY_K_NEWTON,
+    EASY_NEWTON,
+    MIN_DELTA_RATIO,
+    PLACEMENT_TOL,
+    SMOOTHING_BISECT_RATIO,
+    STALL_REFINE_TOL,
+    TANGENT_DIFFERENCE,
+    WIDE_DELTA,
+)
 from tocontrol_ros.core.result import PlanResult, Status
-
-#: Newton tolerance of the solves along the continuation in k (from the direct guess up to
-#: the requested k at the intermediate smoothing): each only starts the next, and the last
-#: is solved again to ``options.tol`` (on the switch mesh, or by the mesh refinement).
-CONTINUATION_TOL = 1e-6
-
-#: ...and of the last one when switch nodes follow: that solve only locates the switches of
-#: the control law, and the switch mesh solves the problem again from its interpolation
-#: (whose residual dwarfs this).
-PLACEMENT_TOL = 1e-5
-
-#: RK4 steps per interval of the k = 1 solve and the continuation in k when switch nodes
-#: follow (at most ``options.steps``): those solutions only lead to the switch mesh, which
-#: is solved with ``options.steps`` and refined, so fewer steps do the same job for less work.
-CONTINUATION_STEPS = 6
-
-#: A failed step of the smoothing schedule is retried through the geometric mean of the two
-#: deltas while they are more than this factor apart (a decade is split twice at most).
-SMOOTHING_BISECT_RATIO = 3.0
-
-#: Mesh tolerance of the refinement tried when the continuation in k stalls (a coarse mesh
-#: may not resolve the steeper law); it only places the nodes.
-STALL_REFINE_TOL = 1e-4
-
-#: Smoothing of the second path of the continuation in k (:func:`_continue_smoothed`): wide
-#: enough that the law's transition at a switch spans several RK4 steps of the coarse mesh.
-WIDE_DELTA = 0.3
-
-#: ...then delta comes down at the requested k, first by this factor per step,
-DELTA_FACTOR = 2.0
-
-#: ...a failed step is bisected (geometrically) until it is less than this ratio,
-MIN_DELTA_RATIO = 1.1
-
-#: ...and a step's ratio grows by half (in log delta) after a step that took at most this
-#: many Newton iterations (the solution barely moved: a longer step will do), and shrinks
-#: by a third after one that took more than twice as many (close to the radius where
-#: Newton fails; a failure costs far more than a short step).
-EASY_NEWTON = 4
-
-#: Relative change of delta of the central differences of :func:`_predicted`.
-TANGENT_DIFFERENCE = 1e-6
-
-#: A continuation step in k that converged in at most this many Newton iterations doubles
-#: the next step (after a failure the step stays short until the solution moves easily
-#: again, instead of jumping back to the next doubling of k and failing there again).
-EASY_K_NEWTON = 6
 
 
 def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:

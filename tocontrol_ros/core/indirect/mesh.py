@@ -23,26 +23,16 @@ import numpy as np
 from tocontrol_ros.core.context import Run, SolveContext, newton, trajectory
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid, integrate, step_fractions
+from tocontrol_ros.core.indirect.tuning import (
+    CASCADE_RATIO,
+    MERGE_MARGIN,
+    PLACING_TOL,
+    SPLIT_PASSES,
+)
 from tocontrol_ros.core.trajectory import Trajectory
 
-__all__ = ["CASCADE_RATIO", "MERGE_MARGIN", "Mesh", "find_switches", "graded_split",
-           "interval_errors", "merge_pairs", "part_kinds", "plan_splits", "refine", "split",
-           "switch_layout", "switch_mesh"]
-
-#: Two neighbouring intervals are merged when the estimate for the merged one is below
-#: the tolerance divided by this (so that the next check does not split them again).
-MERGE_MARGIN = 8.0
-
-#: Cascade of a split graded interval: each uniform part ends this many times farther from
-#: the switch than it starts (a uniform interval as long as its distance to the switch has
-#: a far smaller error than the graded one next to it).
-CASCADE_RATIO = 4.0
-
-#: Newton tolerance on the intermediate levels of :func:`refine`, which only place the nodes.
-PLACING_TOL = 1e-7
-
-#: Splitting passes on one solution before Newton runs on the new mesh.
-SPLIT_PASSES = 8
+__all__ = ["Mesh", "find_switches", "graded_split", "interval_errors", "merge_pairs",
+           "part_kinds", "plan_splits", "refine", "split", "switch_layout", "switch_mesh"]
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,21 +28,16 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem
+from tocontrol_ros.core.indirect.tuning import (
+    CHORD_CONTRACTION,
+    CHORD_MAX,
+    GRADING,
+    STALL_COUNT,
+    STALL_STEP,
+)
 from tocontrol_ros.core.robot.compiled import c_name, compile_function
 
 __all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
-
-#: Grading exponent of the RK4 steps next to a switch (:func:`step_fractions`).
-GRADING = 4.0
-#: Newton keeps its factorised Jacobian while each step shrinks max |G| at least this much
-#: (Broyden's updates keep the chord steps good for longer, so a loose bound pays).
-CHORD_CONTRACTION = 0.8
-#: ...and for at most this many chord steps per Jacobian (with Broyden's updates of the
-#: factors, :class:`_Broyden`).
-CHORD_MAX = 10
-#: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
-STALL_STEP = 0.05
-STALL_COUNT = 4
 
 
 def step_fractions(kinds: np.ndarray, steps: int, grading: float = GRADING) -> np.ndarray:

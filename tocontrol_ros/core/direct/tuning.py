@@ -1,0 +1,141 @@
+"""The tuning constants of the direct transcriptions, read together.
+
+The numeric knobs of the ``k = 1`` collocation guess and of the bounded direct solve (where
+joint limits bind: the B-spline transcription, its IPOPT starts, the set pad and the mesh
+refinement), each with why it has its value. The modules that use them import them by name
+(``from tocontrol_ros.core.direct.tuning import PAD, SPANS``), so a test that patches a knob
+patches it on the module that reads it (``monkeypatch.setattr(limited, "LEVEL_WINDOWS",
+...)``). This module imports nothing.
+"""
+
+__all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SAME_T",
+           "REFINEMENTS", "REFINE_JUMP", "REFINE_WINDOW", "LEVEL_WINDOWS", "T_SETTLED",
+           "SPAN_BUCKET", "SET_MARGIN", "PAD_ROUNDS", "STRETCHES", "NEAR_MAX_ITER", "WARM_MU",
+           "WARM_PUSH", "RESUME_MU", "RESTART_MAX_PERTURBATION", "FINE_GUESS_INTERVALS",
+           "FINE_GUESS_TOL"]
+
+
+# ---------------------------------------------- the k = 1 guess (collocation.py)
+#: :func:`~tocontrol_ros.core.direct.collocation.initial_path` times the path so that the
+#: largest Euclidean norm of its normalised torques is this: inside the k = 1 control set
+#: (the unit ball) with some room.
+GUESS_LOAD = 0.8
+
+
+# ------------------------------------------ whether the limits bind (limited.py)
+#: A direct guess within this fraction of a position range (or of a velocity limit) of the
+#: planning limits is taken to touch them.
+TOUCH = 0.02
+
+
+# ------------------------------------- the B-spline solves (limited.py, flat.py)
+#: Uniform spans of the first B-spline solve.
+SPANS = 32
+
+#: The bounded solve keeps inside the planning limits by this fraction of each range (of
+#: each velocity limit), so that its certificate's re-integration, a different integrator,
+#: stays inside them.
+PAD = 3e-4
+
+#: The control set is sampled: the NLP keeps ``sum u^(2k)`` this far below 1 at the sample
+#: times, so that the torques between them stay inside the set.
+SET_PAD = 1e-3
+
+#: Tolerance on the bounded NLP's constraint violation (its residual).
+RESIDUAL_TOL = 1e-6
+
+#: Two uniform-mesh solutions with ``T`` this close (relative) and the same control points
+#: are one.
+SAME_T = 1e-6
+
+
+# ------------------------------- the refinement (limited.py, flat_trajectory.py)
+#: The spans are halved at the junctions at most this many times.
+REFINEMENTS = 4
+
+#: A span is halved when some joint's acceleration changes across it by more than this
+#: fraction of that joint's largest acceleration (a junction of arcs: the cubic path ramps
+#: its acceleration over one span, which costs time in proportion to the span).
+REFINE_JUMP = 0.1
+
+#: Candidates whose first (uniform-mesh) ``T`` is within this fraction of the best one are
+#: refined: the refinement lowers ``T`` by up to about 1.6 % (the Panda).
+REFINE_WINDOW = 0.02
+
+#: After refinement level ``l`` (0-based), candidates more than ``LEVEL_WINDOWS[l]`` above
+#: the best ``T`` so far stop there: the refinement lowers ``T`` by up to 1.6 % in all, of
+#: which up to 0.2 % after the first level and 4e-5 after the second (the Panda's
+#: candidates; a candidate 0.2 % behind after the first level was the best in the end).
+LEVEL_WINDOWS = (5e-3, 1e-3, 5e-4)
+
+#: Refinement stops when ``T`` changes by less than this (relative). The changes shrink
+#: by 3-5x per level once the junctions are resolved (the Panda: 1.5e-4, 3e-5, 1.2e-5), so
+#: the level after a change this small would move ``T`` by about 5e-5, a twentieth of the
+#: benchmark's 1e-3 against the reference, at the cost of the finest and slowest solve
+#: (120-170 spans: 0.6-6 s, up to half of a Panda plan). On 8 Panda problems (one start)
+#: 2e-4 instead of 1e-4 left out 3 such levels and took 20 % less time in all, with T
+#: higher by 6e-5 at most (3e-4: 9e-5).
+T_SETTLED = 2e-4
+
+#: Refined meshes have a multiple of this many spans (the longest halved to get there), so
+#: that their transcriptions, built once per number of spans, serve other motions.
+SPAN_BUCKET = 8
+
+
+# ---------------------------------- the torques between the samples (limited.py)
+#: The torques between the sample times keep this far inside the control set; the set's
+#: pad (:data:`SET_PAD` at first) is widened at most :data:`PAD_ROUNDS` times to get there.
+SET_MARGIN = 1e-7
+PAD_ROUNDS = 3
+
+#: Relative slow-downs of a path tried before widening the pad
+#: (:func:`~tocontrol_ros.core.direct.limited._stretched`).
+STRETCHES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)
+
+
+# ---------------------------- IPOPT from a nearby solution (flat.py, limited.py)
+#: IPOPT iterations a solve from a nearby solution may take (a refinement level, a pad
+#: re-solve, a warm re-solve): they take 15-40, one that needs far more is crawling (a
+#: regularised Hessian, seen at 0.7 s per iteration on a UR5's 119 spans), and the coarser
+#: solution stands. A count, not a time: the same request takes the same path on an idle and
+#: on a loaded machine.
+NEAR_MAX_ITER = 150
+
+#: IPOPT's first barrier parameter on a mesh whose solves start at a nearby solution
+#: (``FlatTranscription(warm=True)``), decreased monotonically, and how far (absolute and
+#: relative) the start is moved inside its bounds. With IPOPT's defaults (adaptive
+#: barrier from 0.1, 1 % inside the bounds) the first steps of a refined Panda solve left
+#: the solution (T 0.2756 -> 0.54 s) and then crawled (1.5 s per iteration at 132 spans);
+#: measured on 8 Panda problems with its limits (one start): 70 s in all and 33 s at most
+#: with the defaults, 14.6 s and 2.8 s from mu 1e-6 (1e-4: 48 s; 1e-5: 17 s); from 1e-7
+#: the refined solves took 716 IPOPT iterations in all instead of 867 (1e-8: 781), the
+#: same T on every problem.
+WARM_MU = 1e-7
+WARM_PUSH = 1e-6
+
+#: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
+#: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its
+#: bounds). From IPOPT's default start (1 % inside the bounds: on a 96-span Panda mesh the
+#: set's value at the start was 1e10) such re-solves crawled (0.5 s per iteration, MUMPS
+#: reallocating, 20 s without converging) on a Panda plan from a moving state; from this
+#: barrier they took 0.7 and 1.8 s there and 0.7 s on another Panda case (from 1e-3:
+#: 2.6-3.3 s; the adaptive barrier with the small push failed on one of the three; from
+#: :data:`WARM_MU` all three re-solves of a Panda case failed).
+RESUME_MU = 1e-5
+
+#: IPOPT's largest Hessian regularisation in a re-solve from its default start
+#: (``FlatTranscription(warm="restart")``); past it IPOPT skips to its restoration phase.
+#: Such re-solves (a wider set pad after the resumed one failed) can crawl with the
+#: regularisation at 1e8-1e12, each iteration factorising the KKT matrix over and over
+#: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
+#: here, the same 150 iterations took 2.2 s (1e6: 5.8 s), and bench/limits.py's case 29,
+#: whose resumed re-solves all fail, still converges from the default start. A bound on
+#: work per iteration where a wall-time cap was before.
+RESTART_MAX_PERTURBATION = 1e4
+
+
+# -------------------------- the finer guess after a failed shooting (limited.py)
+#: The finer direct guess: a guess solved again on this many intervals, to this tolerance
+#: (after a failed shooting, for the shooting's retry and for the fallback).
+FINE_GUESS_INTERVALS = 24
+FINE_GUESS_TOL = 1e-8

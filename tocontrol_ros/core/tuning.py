@@ -1,0 +1,88 @@
+"""The tuning constants of the orchestration and its multistart, read together.
+
+The numeric knobs of the seeds (:mod:`~tocontrol_ros.core.seeding`), of the choice of the
+candidates that are continued, of the warm start (:mod:`~tocontrol_ros.core.result`,
+:mod:`~tocontrol_ros.core.solver`) and of the answer at the caller's deadline, each with why
+it has its value; the methods' own knobs are in :mod:`tocontrol_ros.core.indirect.tuning`
+and :mod:`tocontrol_ros.core.direct.tuning`. The modules that use them import them by name
+(``from tocontrol_ros.core.tuning import CANDIDATE_MARGIN``), so a test that patches a knob
+patches it on the module that reads it (``monkeypatch.setattr(solver, "CANDIDATE_MARGIN",
+...)``). This module imports nothing.
+"""
+
+__all__ = ["EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "SEED_SPACING", "MAX_BRANCH_JOINTS",
+           "EXHAUSTIVE_CANDIDATES", "SAME_BASIN", "CANDIDATE_MARGIN", "GRAVITY_FREE", "SAME_K1",
+           "WARM_RADIUS", "WARM_JOINT_RADIUS", "WARM_GAIN", "INCUMBENT_TRIES"]
+
+
+# -------------------------------------------------------- the seeds (seeding.py)
+#: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
+#: the ranked mode's); denser than any default, so the reference covers the manifold.
+EXHAUSTIVE_IK_COUNT = 24
+
+#: Seed pairs solved by the direct method in the exhaustive mode, spread evenly over the
+#: branches (the best-ranked of each branch in turn), so that the reference does not lean on
+#: the ranking's preference between branches.
+EXHAUSTIVE_STARTS = 216
+
+#: Ranked seeds closer than this to a better one at both ends (max-norm, rad) are tried only
+#: after every farther one.
+SEED_SPACING = 1.5
+
+#: At most this many joints get branch variants at once (2^J or 3^J variants per pair).
+MAX_BRANCH_JOINTS = 7
+
+
+# ------- which candidates to continue (seeding.py, solver.py, direct/limited.py)
+#: Distinct direct solutions continued in the exhaustive mode, best direct ``T`` first.
+#: Measured on 15 random pairs with every one continued: the best final basin was the first
+#: to third of them by direct ``T``.
+EXHAUSTIVE_CANDIDATES = 12
+
+#: Two direct solutions whose start and end configurations differ by less than this
+#: (max-norm, rad or m) are taken to be in the same basin.
+SAME_BASIN = 1e-3
+
+#: A candidate is not continued when its direct ``T`` (k = 1) times
+#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` exceeds the best final ``T`` so far
+#: by more than this (relative):
+#: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
+#: mesh's, so it gets a margin.
+CANDIDATE_MARGIN = 0.02
+
+#: Gravity torques below this (relative to tau_max) count as none for the rule of
+#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` (the solver's skip of candidates
+#: that cannot beat the best).
+GRAVITY_FREE = 1e-9
+
+
+# ----------------------------------------- after the shooting failed (solver.py)
+#: The finer direct guess (:func:`~tocontrol_ros.core.direct.limited.finer_guess`) tried when the
+#: shooting failed from every coarse one is not shot from when the first candidate's
+#: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
+#: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
+#: its continuation's 19 Newton solves to the digit, 2.3 s).
+SAME_K1 = 1e-3
+
+
+# ----------------------------------------- the warm start (result.py, solver.py)
+#: A previous solution warm-starts a problem only when each end point moved by at most this
+#: (m): farther, the warm solution often lands in another (worse) basin than the multistart
+#: (measured on the paper's arm, bench/optimum.py and docs/seeding.md).
+WARM_RADIUS = 0.1
+
+#: ...and each joint-state end by at most this (max-norm of positions and velocities, rad
+#: and rad/s).
+WARM_JOINT_RADIUS = 0.05
+
+#: A warm solution replaces the cold multistart's only when its ``T`` is lower by more than
+#: this (relative): within it both are the same basin, and the cold answer, which does not
+#: depend on earlier requests, is kept.
+WARM_GAIN = 1e-6
+
+
+# ------------------------------------------ at the caller's deadline (solver.py)
+#: At the caller's deadline at most this many motions found so far are checked (least ``T``
+#: first) for a ``TIME_LIMIT`` result that carries one: the result comes at most this many
+#: certificates after the deadline.
+INCUMBENT_TRIES = 2
