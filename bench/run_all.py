@@ -5,14 +5,16 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,optimum,optimum_panda,scaling,panda_peer,first_use,
+        [--only paper,peers,random,optimum,optimum_panda,profile_panda,scaling,panda_peer,
+                first_use,
                 verification,deployed,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
 ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default multistart against the
 exhaustive reference on 100 seeded pairs, about half an hour), ``optimum_panda`` (the same on the
-Panda with its joint limits), ``scaling`` (planar arms of 2 to 8 links, the Panda),
+Panda with its joint limits), ``profile_panda`` (where a default Panda plan's time goes, and
+the same plans with two worker processes), ``scaling`` (planar arms of 2 to 8 links, the Panda),
 ``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation), ``first_use``
 (the Panda's compile routes, each in a new process with an empty cache), ``verification`` (the
 certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
@@ -38,7 +40,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "scaling", "panda_peer",
+PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "profile_panda", "scaling",
+         "panda_peer",
          "first_use",
          "verification", "deployed", "batch", "limits")
 
@@ -118,6 +121,7 @@ def _run(args):
         panda_peer,
         paper,
         peers,
+        profile_panda,
         random_pairs,
         scaling,
         verification,
@@ -163,6 +167,9 @@ def _run(args):
             scaling.PLANAR_NS = (2, 3, 5)
         section(lambda: scaling.run(runs=3 if args.quick else 5,
                                     panda_runs=1 if args.quick else 2))
+    if "profile_panda" in args.only:
+        section(lambda: profile_panda.run(2 if args.quick else args.optimum_panda_cases))
+        section(lambda: profile_panda.run_cores(2 if args.quick else args.optimum_panda_cases))
     if "panda_peer" in args.only:
         section(lambda: panda_peer.run(runs=1 if args.quick else 3))
     if "first_use" in args.only:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -32,6 +32,9 @@ class StopError(Exception):
     def __init__(self, status: Status) -> None:
         super().__init__(status.value)
         self.status = status
+
+    def __reduce__(self):
+        return (StopError, (self.status,))  # from a worker process (core/pool.py)
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,18 @@ class SolveContext:
     deadline: float
     should_stop: Callable[[], bool] | None = None
     memo: dict = field(default_factory=dict)
+
+    def portable(self) -> SolveContext:
+        """A copy for another process (:mod:`~tocontrol_ros.core.pool`).
+
+        Without the compiled system (a worker has its own), the cancel callback (the pool
+        passes an event instead, :meth:`attached`) and the memo (incumbents stay here).
+        """
+        return replace(self, system=None, should_stop=None, memo={})
+
+    def attached(self, should_stop: Callable[[], bool] | None) -> SolveContext:
+        """A copy with ``should_stop`` as its cancel callback."""
+        return replace(self, should_stop=should_stop)
 
     def extend(self, seconds: float) -> None:
         """Move the deadline ``seconds`` later (time spent compiling, not solving)."""

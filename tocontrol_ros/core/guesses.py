@@ -45,10 +45,10 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
                           np.array([p[1] for p in pairs]), options.guess_intervals,
                           problem.torque_scale, problem.limits.plan_velocity)
-    for idx, (qa, qb) in enumerate(pairs):
+    for idx, (qa, qb) in enumerate(pairs[:1]):
         ctx.check()
         path = (paths[0][idx], paths[1][idx], paths[2][idx])
-        if idx == 0 and bounds is not None:
+        if bounds is not None:
             within = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
                                   x_bounds=bounds)
             if within.success and touches(problem, within.x):
@@ -59,7 +59,25 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
                     # Within the limits it kept off them, without them it reaches them.
                     x_bounds, res = bounds, within
         else:
-            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
-                               x_bounds=x_bounds)
+            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path)
         guesses.append((idx, qa, qb, res))
+    # The others, side by side (planner.map), within the bounds the first one chose.
+    rest = range(1, len(pairs))
+    solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), x_bounds)
+                                            for i in rest])
+    for idx, res in zip(rest, solved, strict=True):
+        guesses.append((idx, *pairs[idx], res))
     return guesses, x_bounds
+
+
+def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,
+                x_bounds: tuple[np.ndarray, np.ndarray] | None):
+    """One seed pair's direct guess at k = 1 from its initial ``path``.
+
+    A piece of :meth:`~tocontrol_ros.core.direct.limited.Transcriptions.map`.
+    """
+    ctx.check()
+    problem = ctx.problem
+    direct = planner.direct(problem, ctx.options.guess_intervals, tol=ctx.options.guess_tol)
+    return direct.solve(problem.start.value, problem.target.value, 1.0, *path,
+                        x_bounds=x_bounds)

@@ -103,6 +103,15 @@ class SolverOptions:
         quickest re-plan after a small move, in the previous motion's basin, which the
         multistart might beat. When it fails, the multistart runs as usual. Default False:
         the multistart always runs, and the warm solution is one more candidate.
+    workers : int
+        Processes that solve a plan's independent pieces side by side, the caller's
+        included: the bounded solve's candidates on the uniform mesh and each level of
+        their refinement (``docs/limits.md``). 1 (the default): all in the caller's
+        process; 0: one per core this process may use. The answer is the same for any
+        number (each piece is computed alike wherever it runs, and taken in its order);
+        more workers only make it sooner. Workers are started on first use and kept
+        (:mod:`~tocontrol_ros.core.pool`); a worker that dies is replaced by the caller's
+        process.
     """
 
     tol: float = 1e-10
@@ -129,6 +138,7 @@ class SolverOptions:
     certificate: CertificateOptions | None = None
     direct_fallback: bool = True
     warm_only: bool = False
+    workers: int = 1
 
     def __post_init__(self) -> None:
         positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",
@@ -143,6 +153,10 @@ class SolverOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ProblemError(f"`{name}` must be an integer >= 1, got {value!r}")
+        if not (isinstance(self.workers, (int, np.integer)) and not isinstance(self.workers, bool)
+                and self.workers >= 0):
+            raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "
+                               f"{self.workers!r}")
         sm = tuple(float(d) for d in self.smoothing)
         if not sm or any(d < 0 or not np.isfinite(d) for d in sm) or \
                 any(b >= a for a, b in zip(sm, sm[1:], strict=False)):

@@ -13,6 +13,7 @@ import copy
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.indirect.tuning import CONTINUATION_STEPS
 from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.pool import available_cores, shared_pool
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.robot.compiled import c_name
@@ -155,6 +157,22 @@ class PreparedModel:
         grid = ShootingGrid(system, np.full(options.intervals, 1.0 / options.intervals),
                             options.steps, problem.start.kind, problem.target.kind)
         grid.compile()
+
+    def map(self, fn: Callable, ctx, items: list) -> Iterator:
+        """``fn(self, ctx, *item)`` for each item, in order, on ``ctx.options.workers``.
+
+        With one worker (the default), each item is solved when the iterator reaches it.
+        With more, the items are shared out between this process and worker processes
+        (:class:`~tocontrol_ros.core.pool.WorkerPool`, one per number of workers) and the
+        iterator yields their results in the items' order once all have ended, the first
+        exception raised where its item stands: the same values either way.
+        """
+        workers = ctx.options.workers or available_cores()
+        if workers > 1 and len(items) > 1:
+            yield from shared_pool(workers, PreparedModel).map(fn, self, ctx, items)
+            return
+        for item in items:
+            yield fn(self, ctx, *item)
 
     def direct(self, problem: Problem, intervals: int, box: bool = False,
                tol: float = 1e-8) -> DirectCollocation:

@@ -80,6 +80,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "that runs out ends with status TIME_LIMIT; when it had found a motion that "
                   "passes its certificate, the best one is published with a WARN status "
                   "(not shown to be the optimum), else nothing is.", 0.1, 600.0),
+    ParameterSpec("workers", 0, "Processes that solve a plan's independent pieces side by "
+                  "side, the planner's own included (the multistart's direct guesses, the "
+                  "bounded solve's candidates and refinement levels): 0 = one per core the "
+                  "node may use, 1 = all in the planner's process. The plan is the same for "
+                  "any number; more only make it sooner. Worker processes start with the "
+                  "first request that uses them and stay until the node exits.", 0, 64),
     ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "
                   "torques re-integrated through the model by an independent adaptive "
                   "integrator must land on the target at rest, the torques stay inside the "
@@ -140,6 +146,7 @@ class PlannerConfig:
     starts: int
     candidates: int
     time_limit: float
+    workers: int
     verify: bool
     warm_start: bool
     warm_only: bool
@@ -236,4 +243,5 @@ def solver_options(config: PlannerConfig):
 
     return SolverOptions(tol=config.tol, max_newton=config.max_newton, starts=config.starts,
                          candidates=config.candidates, time_limit=config.time_limit,
-                         verify=config.verify, warm_only=config.warm_only)
+                         verify=config.verify, warm_only=config.warm_only,
+                         workers=config.workers)

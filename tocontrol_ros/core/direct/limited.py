@@ -25,6 +25,7 @@ limits itself.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from typing import Protocol
 
@@ -72,6 +73,9 @@ class Transcriptions(Protocol):
     def flat(self, problem: Problem, spans: int | np.ndarray,
              warm: bool | str | None = None) -> FlatTranscription:
         """The bounded B-spline transcription for ``problem``'s kinds."""
+
+    def map(self, fn: Callable, ctx: SolveContext, items: list) -> Iterator:
+        """``fn(self, ctx, *item)`` per item, in order, maybe on several processes."""
 
 
 __all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
@@ -177,23 +181,23 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     first = []
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     fallback = reason is not None
-    for idx, res in distinct_basins(solved, lambda g: g[1], problem.model.n):
-        if len(first) == count:
-            break
-        if fallback and len(res.t) - 1 != FINE_GUESS_INTERVALS:
-            # The fallback starts every candidate from its finer guess: the planar 8R's
-            # coarse guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at
-            # k = 1 (300 iterations, 9 s each: four starts and two candidates 50-60 s,
-            # at the time limit), from the finer ones 39-141 (14.7 s in all).
-            fine = finer_guess(planner, problem, res)
-            res = fine if fine.success else res
-        out = _uniform(planner, ctx, bounds, res, in_k=fallback)
-        records[idx] = replace(records[idx], T=out[0].T if out[0].success else np.nan,
-                               status="continued" if out[0].success else
-                               f"bounded solve failed: {out[0].message}")
-        if out[0].success:
-            first.append((idx, out))
-            _offer(ctx, bounds, *out, notes)
+    basins = distinct_basins(solved, lambda g: g[1], problem.model.n)
+    while len(first) < count and basins:
+        # As many as are still needed, side by side (planner.map); a failed one is
+        # replaced by the next basin, as one after the other would.
+        batch, basins = basins[:count - len(first)], basins[count - len(first):]
+        outs = planner.map(_uniform_item, ctx, [(bounds, res, fallback) for _, res in batch])
+        for (idx, _), res in zip(batch, outs, strict=True):
+            out = (res, None, None)
+            if res.success:
+                flat = planner.flat(problem, SPANS)
+                out = (res, FlatTrajectory(flat, res, problem.k), flat)
+            records[idx] = replace(records[idx], T=res.T if res.success else np.nan,
+                                   status="continued" if res.success else
+                                   f"bounded solve failed: {res.message}")
+            if res.success:
+                first.append((idx, out))
+                _offer(ctx, bounds, *out, notes)
     first = _distinct_solutions(first)
     best = None
     if first:
@@ -328,6 +332,22 @@ def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
     return {"deadline": ctx.deadline, "should_stop": ctx.should_stop, "max_iter": max_iter}
 
 
+def _uniform_item(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
+                  fallback: bool) -> FlatResult:
+    """One candidate's solve on the uniform mesh (:func:`_uniform`): its result only.
+
+    A piece of :meth:`Transcriptions.map` (the caller builds the trajectory). The fallback
+    of a failed shooting starts from the candidate's finer guess: the planar 8R's coarse
+    guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at k = 1 (300 iterations,
+    9 s each: four starts and two candidates 50-60 s, at the time limit), from the finer
+    ones 39-141 (14.7 s in all).
+    """
+    if fallback and len(guess.t) - 1 != FINE_GUESS_INTERVALS:
+        fine = finer_guess(planner, ctx.problem, guess)
+        guess = fine if fine.success else guess
+    return _uniform(planner, ctx, bounds, guess, in_k=fallback)[0]
+
+
 def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
              in_k: bool = False
              ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
@@ -427,11 +447,11 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
         is still a contender (within the last window, and held inside the control set).
     """
     problem = ctx.problem
-    values = (problem.start.value, problem.target.value, problem.k)
     cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
     # idx -> [result, trajectory, transcription, still refining]
     race = {idx: [*out, True] for idx, out in first if out[0].T <= cutoff}
     for level in range(REFINEMENTS):
+        level_items = []
         for entry in race.values():
             out, traj, flat, going = entry
             if not going:
@@ -441,16 +461,17 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
                 entry[3] = False
                 continue
             breaks = _bucketed(breaks)
-            finer = planner.flat(problem, breaks)
-            # A refinement that crawls is given up: the coarser one stands.
-            again = finer.solve(*values, out.T, traj.control_points_on(breaks), *bounds,
-                                **_budget(ctx, NEAR_MAX_ITER))
-            ctx.check()
-            if not again.success:
+            level_items.append((entry, breaks, traj.control_points_on(breaks)))
+        # The level's solves side by side (planner.map), taken in the candidates' order.
+        agains = planner.map(_refine_item, ctx, [(bounds, breaks, entry[0].T, P0)
+                                                 for entry, breaks, P0 in level_items])
+        for (entry, breaks, _), again in zip(level_items, agains, strict=True):
+            if not again.success:  # a refinement that crawls is given up: the coarser stands
                 entry[3] = False
                 continue
+            finer = planner.flat(problem, breaks)
             entry[:] = [again, FlatTrajectory(finer, again, problem.k), finer,
-                        abs(again.T - out.T) > T_SETTLED * again.T]
+                        abs(again.T - entry[0].T) > T_SETTLED * again.T]
             _offer(ctx, bounds, *entry[:3], [])
         best = min(entry[0].T for entry in race.values())
         window = LEVEL_WINDOWS[min(level, len(LEVEL_WINDOWS) - 1)]
@@ -463,6 +484,21 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
     return [(idx, *_inside_set(planner, ctx, bounds, *entry[:3]), True)
             if entry[0].T <= cutoff
             else (idx, entry[0], entry[1], False) for idx, entry in race.items()]
+
+
+def _refine_item(planner: Transcriptions, ctx: SolveContext, bounds, breaks: np.ndarray,
+                 T: float, P0: np.ndarray) -> FlatResult:
+    """One refinement solve of :func:`_race`, a piece of :meth:`Transcriptions.map`.
+
+    On ``breaks`` from ``(T, P0)`` (the coarser path's control points on them), within
+    :data:`NEAR_MAX_ITER` iterations.
+    """
+    problem = ctx.problem
+    finer = planner.flat(problem, breaks)
+    again = finer.solve(problem.start.value, problem.target.value, problem.k, T, P0, *bounds,
+                        **_budget(ctx, NEAR_MAX_ITER))
+    ctx.check()
+    return again
 
 
 def _inside_set(planner: Transcriptions, ctx: SolveContext, bounds, out: FlatResult,

@@ -18,7 +18,9 @@ Conventions: joint torques (N m) or forces (N) ``tau``; normalised controls
 
 from __future__ import annotations
 
+import hashlib
 import os
+import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 
@@ -100,6 +102,14 @@ class RobotModel(Chain):
     gravity: np.ndarray
     task_axes: tuple[int, ...]
     _functions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __reduce__(self):
+        """Pickled as its data, without its compiled functions.
+
+        A worker process builds its own (:mod:`~tocontrol_ros.core.pool`); the model is
+        unpickled once per process and content.
+        """
+        return (_restored, ({f.name: getattr(self, f.name) for f in fields(self) if f.init},))
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -465,6 +475,19 @@ def load_robot(
     model = RobotModel(**{f.name: getattr(chain, f.name) for f in fields(Chain)},
                        gravity=gravity_arr, task_axes=_task_axes(task_axes, list(chain.bodies)))
     _check_positive_definite(model)
+    return model
+
+
+#: Models unpickled in this process, by the digest of their data (see RobotModel.__reduce__).
+_RESTORED: dict[str, RobotModel] = {}
+
+
+def _restored(data: dict) -> RobotModel:
+    """The model with ``data`` (its init fields): the same object for the same data."""
+    key = hashlib.sha256(pickle.dumps(data, protocol=5)).hexdigest()
+    model = _RESTORED.get(key)
+    if model is None:
+        model = _RESTORED[key] = RobotModel(**data)
     return model
 
 

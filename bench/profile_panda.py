@@ -1,0 +1,273 @@
+"""Where a default Panda plan's time goes (issue 32: measure first).
+
+The best-motion section's Panda cases (:func:`bench.limits.draw_cases`, seed of
+:mod:`bench.optimum_panda`: even cases point to point, odd ones from a joint state, k = 4,
+the URDF limits enforced, so every plan takes the bounded B-spline path of docs/limits.md),
+each planned once with the default :class:`SolverOptions` after one warm-up plan (compile
+cache filled). Every IPOPT solve is recorded by wrapping ``DirectCollocation.solve`` (the
+multistart's k = 1 guesses) and ``FlatTranscription.solve`` (the bounded solves), with
+CasADi's own counters of that solve (``solver.stats()``): wall time in each kind of function
+evaluation (constraints, their Jacobian, the Lagrangian's Hessian, objective), in the
+Python iteration callback, and the rest (IPOPT's own work: the linear solves with MUMPS,
+the barrier update, the line search's bookkeeping). The builds of transcriptions
+(``FlatTranscription.__init__``, ``DirectCollocation.__init__``) are timed the same way,
+and the plan's own ``timings`` give the certificate; what is left of a plan's wall time is
+the orchestration in Python (seeding, inverse kinematics, fits, trajectories).
+
+Bounded solves are grouped by stage: *uniform* (the first solve of each candidate on
+:data:`~tocontrol_ros.core.direct.tuning.SPANS` spans, IPOPT's default start), *refined*
+(each refinement level, warm), *re-solves* (the pad's widening and the continuations in
+``k``, ``warm="resume"``/``"restart"``/``"dual"``).
+
+:func:`run_cores` then plans the same cases with one process and with two (``workers=2``,
+:mod:`tocontrol_ros.core.pool`), paired, and checks that both give the same plan.
+
+Run alone: ``scripts/dev run python -P bench/profile_panda.py [CASES] [--cores]`` (prints
+the section).
+"""
+
+from __future__ import annotations
+
+import collections
+import hashlib
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: see bench/common.py
+
+import numpy as np  # noqa: E402
+
+from bench.common import Section, log, table  # noqa: E402
+from bench.limits import draw_cases, robots  # noqa: E402
+from bench.optimum_panda import SEED, K  # noqa: E402
+from tocontrol_ros.core import Problem, SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.direct import collocation, flat  # noqa: E402
+from tocontrol_ros.core.direct.tuning import SPANS  # noqa: E402
+from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
+
+#: CasADi's per-solve wall-time counters (s), by what they time.
+EVALUATIONS = {"constraints": "t_wall_nlp_g", "Jacobian": "t_wall_nlp_jac_g",
+               "Hessian": "t_wall_nlp_hess_l", "objective": ("t_wall_nlp_f", "t_wall_nlp_grad_f"),
+               "callback": "t_wall_callback_fun"}
+STAGES = ("guesses (Hermite-Simpson, k = 1)", "bounded: uniform", "bounded: refined",
+          "bounded: re-solves")
+
+
+class Recorder:
+    """Wraps the transcriptions' ``solve`` and ``__init__`` and keeps what they cost."""
+
+    def __init__(self) -> None:
+        self.solves: list[dict] = []
+        self.builds: collections.Counter = collections.Counter()
+        self._undo = []
+
+    def __enter__(self) -> Recorder:
+        for cls, tag in ((collocation.DirectCollocation, "guess"),
+                         (flat.FlatTranscription, "flat")):
+            self._wrap_solve(cls, tag)
+            self._wrap_init(cls, tag)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for cls, name, orig in self._undo:
+            setattr(cls, name, orig)
+
+    def _wrap_solve(self, cls, tag) -> None:
+        orig = cls.solve
+
+        def solve(obj, *args, **kwargs):
+            t0 = time.perf_counter()
+            out = orig(obj, *args, **kwargs)
+            wall = time.perf_counter() - t0
+            st = obj.solver.stats()
+            rec = {"stage": _stage(tag, obj), "wall": wall, "iterations": out.iterations,
+                   "spans": getattr(obj, "spans", None)}
+            for name, keys in EVALUATIONS.items():
+                keys = keys if isinstance(keys, tuple) else (keys,)
+                rec[name] = sum(float(st.get(k, 0.0)) for k in keys)
+            self.solves.append(rec)
+            return out
+
+        self._undo.append((cls, "solve", orig))
+        cls.solve = solve
+
+    def _wrap_init(self, cls, tag) -> None:
+        orig = cls.__init__
+
+        def init(obj, *args, **kwargs):
+            t0 = time.perf_counter()
+            orig(obj, *args, **kwargs)
+            self.builds[tag] += time.perf_counter() - t0
+            self.builds[tag + " count"] += 1
+
+        self._undo.append((cls, "__init__", orig))
+        cls.__init__ = init
+
+
+def _stage(tag: str, obj) -> str:
+    if tag == "guess":
+        return STAGES[0]
+    if obj.warm is False and obj.spans == SPANS:
+        return STAGES[1]
+    if obj.warm is True and obj.spans != SPANS:
+        return STAGES[2]
+    return STAGES[3]
+
+
+def run(count: int) -> Section:
+    found = robots().get("Panda")
+    if found is None:
+        return Section("Where a Panda plan's time goes", [
+            "example-robot-data is not installed: section skipped."], [])
+    model, limits = found
+    options = SolverOptions(time_limit=600.0)
+    cases = draw_cases(model, limits, count, seed=SEED)
+    problems = [Problem(model, point(model.point(q0)) if i % 2 == 0 else joint_state(q0, qd0),
+                        point(target), k=K, limits=limits)
+                for i, (q0, qd0, target) in enumerate(cases)]
+    plan(problems[0], options)  # warm-up: compile cache, optimised libraries loaded
+    plans = []
+    with Recorder() as rec:
+        for i, problem in enumerate(problems):
+            first, builds = len(rec.solves), dict(rec.builds)
+            t0 = time.perf_counter()
+            res = plan(problem, options)
+            wall = time.perf_counter() - t0
+            solves = rec.solves[first:]
+            build = sum(rec.builds[k] - builds.get(k, 0.0) for k in ("guess", "flat"))
+            plans.append({"wall": wall, "solves": solves, "build": build,
+                          "verify": res.timings.get("verify", 0.0), "ok": res.success})
+            log(f"profile Panda {i + 1}/{count}: {res.status.name} T {res.T:.6f} in "
+                f"{wall:.2f} s, {len(solves)} IPOPT solves")
+    return _section(plans, options)
+
+
+def _section(plans: list, options: SolverOptions) -> Section:
+    total = sum(p["wall"] for p in plans)
+    solves = [s for p in plans for s in p["solves"]]
+    rows = []
+    for stage in STAGES:
+        group = [s for s in solves if s["stage"] == stage]
+        if not group:
+            continue
+        wall = sum(s["wall"] for s in group)
+        its = sum(s["iterations"] for s in group)
+        evals = {name: sum(s[name] for s in group) for name in EVALUATIONS}
+        own = wall - sum(evals.values())
+        other = evals["constraints"] + evals["Jacobian"] + evals["objective"]
+        spans = sorted({s["spans"] for s in group if s["spans"] is not None})
+        rows.append([stage, f"{len(group) / len(plans):.1f}", f"{its / len(group):.0f}",
+                     f"{spans[0]}-{spans[-1]}" if spans else "—",
+                     f"{100 * wall / total:.0f} %",
+                     f"{1e3 * wall / max(its, 1):.2f}",
+                     f"{100 * evals['Hessian'] / wall:.0f} %",
+                     f"{100 * other / wall:.0f} %",
+                     f"{100 * evals['callback'] / wall:.0f} %",
+                     f"{100 * own / wall:.0f} %"])
+    in_solves = sum(s["wall"] for s in solves)
+    build = sum(p["build"] for p in plans)
+    verify = sum(p["verify"] for p in plans)
+    rest = total - in_solves - build - verify
+    walls = [p["wall"] for p in plans]
+    lines = [
+        f"{len(plans)} Panda cases of the best-motion section (seed {SEED}; even ones point to "
+        f"point, odd ones from a joint state; k = {K:g}, URDF limits enforced), each planned "
+        f"once with the default `SolverOptions` (`starts={options.starts}, "
+        f"candidates={options.candidates}`, verified) after a warm-up plan. "
+        f"Plan time median {statistics.median(walls):.2f} s, min {min(walls):.2f} s, "
+        f"max {max(walls):.2f} s, {sum(p['ok'] for p in plans)}/{len(plans)} succeeded. "
+        "Per stage: IPOPT solves per plan, iterations per solve, the mesh's spans, the share "
+        "of all plan time, wall time per IPOPT iteration, and within the stage's solves the "
+        "shares of the Lagrangian's Hessian, of the other evaluations (constraints, their "
+        "Jacobian, objective), of the Python iteration callback and of IPOPT's own work "
+        "(MUMPS factorisations and solves, the adaptive barrier's extra solves, line search). "
+        "Command: `scripts/dev run python -P bench/profile_panda.py 20`.",
+        "",
+    ]
+    lines += table(["stage", "solves / plan", "iterations / solve", "spans", "of plan time",
+                    "ms / iteration", "Hessian", "other evaluations", "callback", "IPOPT own"],
+                   rows)
+    lines += ["", *table(["where", "of plan time"], [
+        ["all IPOPT solves", f"{100 * in_solves / total:.0f} %"],
+        ["building transcriptions (new span counts)", f"{100 * build / total:.0f} %"],
+        ["certificate (re-integration, checks)", f"{100 * verify / total:.0f} %"],
+        ["the rest (Python: seeding, IK, fits, trajectories)", f"{100 * rest / total:.0f} %"],
+    ])]
+    return Section("Where a Panda plan's time goes", lines, [])
+
+
+def _fingerprint(res) -> tuple:
+    """Status, every digit of T, the start records and the trajectory's bits."""
+    digest = None
+    if res.trajectory is not None:
+        s = res.trajectory.evaluate(np.linspace(0.0, res.T, 101))
+        digest = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes()
+                                         for a in (s.q, s.qd, s.u))).hexdigest()
+    return (res.status, repr(res.T), digest,
+            tuple((r.index, repr(r.guess_T), repr(r.T), r.status) for r in res.starts))
+
+
+def run_cores(count: int, workers: int = 2) -> Section:
+    """The default plan with ``workers`` processes against one, paired, same answer."""
+    found = robots().get("Panda")
+    if found is None:
+        return Section("The Panda on several cores", [
+            "example-robot-data is not installed: section skipped."], [])
+    model, limits = found
+    cases = draw_cases(model, limits, count, seed=SEED)
+    problems = [Problem(model, point(model.point(q0)) if i % 2 == 0 else joint_state(q0, qd0),
+                        point(target), k=K, limits=limits)
+                for i, (q0, qd0, target) in enumerate(cases)]
+    one, many = SolverOptions(time_limit=600.0), SolverOptions(time_limit=600.0,
+                                                               workers=workers)
+    plan(problems[0], many)  # warm-up: compile cache, the workers started and loaded
+    rows, ratios, same = [], [], 0
+    for i, problem in enumerate(problems):
+        order = (one, many) if i % 2 == 0 else (many, one)  # alternate who goes first
+        out = {}
+        for options in order:
+            t0 = time.perf_counter()
+            res = plan(problem, options)
+            out[options.workers] = (time.perf_counter() - t0, res)
+        (t1, r1), (tw, rw) = out[1], out[workers]
+        equal = _fingerprint(r1) == _fingerprint(rw)
+        same += equal
+        ratios.append(t1 / tw)
+        rows.append([str(i + 1), problem.start.kind, r1.status.name, f"{r1.T:.6f}",
+                     f"{t1:.2f}", f"{tw:.2f}", f"{t1 / tw:.2f}", "yes" if equal else "NO"])
+        log(f"cores Panda {i + 1}/{count}: 1 worker {t1:.2f} s, {workers} workers {tw:.2f} s, "
+            f"same plan: {equal}")
+    lines = [
+        f"The same {count} Panda cases as the profile above, each planned with the default "
+        f"`SolverOptions()` (one process) and with `workers={workers}` (this process and "
+        f"{workers - 1} worker process(es): the multistart's guesses after the first, the "
+        "bounded solve's candidates and each refinement level shared out, "
+        "`core/pool.py`), in alternating order, after a warm-up plan that started the "
+        "workers. *Same plan*: status, every digit of T, every start record and the "
+        "trajectory's bits at 101 times equal. Ratio: one process's time over the "
+        f"workers'. Median ratio {statistics.median(ratios):.2f} (min {min(ratios):.2f}, max "
+        f"{max(ratios):.2f}); the same plan in {same}/{count}. "
+        f"Command: `scripts/dev run python -P bench/profile_panda.py {count} --cores`.",
+        "",
+        *table(["case", "start", "status", "T (s)", "1 process (s)",
+                f"{workers} processes (s)", "ratio", "same plan"], rows),
+    ]
+    return Section("The Panda on several cores", lines, [])
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    count = int(argv[0]) if argv and argv[0].isdigit() else 4
+    section = run_cores(count) if "--cores" in argv else run(count)
+    print(f"## {section.title}\n")
+    print("\n".join(section.lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
