@@ -47,7 +47,7 @@ PROBE_TIMEOUT = 900.0
 CLOCK_SITES = {
     ("context.py", "check"): "the caller's deadline (between Newton iterations and stages)",
     ("flat.py", "eval"): "the caller's deadline (IPOPT's iteration callback)",
-    ("shooting.py", "newton_solve"): "the caller's deadline (between Newton iterations)",
+    ("newton.py", "_stopped"): "the caller's deadline (between Newton iterations)",
     ("solver.py", "_plan"): "timings; the deadline is set from time_limit",
     ("solver.py", "_plan_from"): "timings",
     ("solver.py", "_cold"): "timings",

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.indirect.newton import newton_solve
 from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.indirect.shooting import (
     ShootingGrid,
     integrate,
-    newton_solve,
     step_fractions,
 )
 from tocontrol_ros.core.problem import Problem, point
@@ -99,7 +99,7 @@ def test_broyden_chord_steps_match_the_explicit_update():
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    from tocontrol_ros.core.indirect.shooting import _Broyden
+    from tocontrol_ros.core.indirect.newton import _Broyden
 
     rng = np.random.default_rng(3)
     n = 12

@@ -43,7 +43,7 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
     (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
     on 24); a failure on both is reported as NEWTON_FAILED."""
     from tocontrol_ros.core import context, solver
-    from tocontrol_ros.core.indirect.shooting import NewtonReport
+    from tocontrol_ros.core.indirect.newton import NewtonReport
 
     sizes = []
     real = context.newton_solve

@@ -16,8 +16,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from tocontrol_ros.core.indirect.newton import NewtonReport, newton_solve
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem, LawParams
-from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid, newton_solve
+from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PlanResult, Status

@@ -262,14 +262,8 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
         Hessians side by side, ``FM``, ``AM`` the midpoints' ``f`` and ``da/dz``, ``J``, ``B``
         the intervals' blocks (:func:`_interval_functions`).
     """
-    n, m, N = lay.n, lay.m, lay.N
-    q_sym = ca.SX.sym("q", n)
-    nu_sym = ca.SX.sym("nu", m)
-    point = model.point_sym(q_sym)
-    fk = ca.Function("P", [q_sym], [point])
-    fk_jac = ca.Function("P_jac", [q_sym], [ca.densify(ca.jacobian(point, q_sym))])
-    fk_hess = ca.Function("P_hess", [q_sym, nu_sym],
-                          [ca.densify(ca.hessian(ca.dot(nu_sym, point), q_sym)[0])])
+    n, N = lay.n, lay.N
+    fk, fk_jac, fk_hess = _kinematics_functions(model, lay)
     d = 7 * n + 1
     upper_r, upper_c = (np.array(v) for v in zip(*[(r, c) for c in range(d)
                                                    for r in range(c + 1)], strict=True))
@@ -287,8 +281,84 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
     k = par[-1]
     h = T / N
     allu = ca.horzcat(U, UM)
-    bounds = ((lay.kinds[0], 0, 0, lay.sizes[0]), (lay.kinds[1], N, lay.sizes[0], lay.sizes[1]))
 
+    g, absu = _constraints(lay, par, X, allu, k, h, F, FM, fk)
+    asm_g = ca.Function("direct_asm_g", [w, par, F, FM], [g])
+    asm_jac = ca.Function("direct_asm_jac", [w, par, F, FM, J],
+                          [g, _constraint_jacobian(lay, X, allu, absu, k, J, fk_jac)])
+    wm, gm, wn = _adjoint_weights(lay, lam_g, AM, h)
+    asm_adj = ca.Function("direct_asm_adj", [w, lam_g, AM], [wm, gm, wn])
+    hess = _lagrangian_hessian(lay, X, absu, k, lam_g, B, Hn, (upper_r, upper_c), fk_hess)
+    asm_hess = ca.Function("direct_asm_hess", [w, par, lam_g, B, Hn], [hess])
+    return [asm_g, asm_jac, asm_adj, asm_hess]
+
+
+def _kinematics_functions(model: RobotModel, lay: Layout
+                          ) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """The point's forward kinematics and its derivatives (SX), for the point conditions.
+
+    Returns
+    -------
+    P : casadi.Function
+        ``q`` (n,), rad -> the point ``P(q)`` (m,), m.
+    P_jac : casadi.Function
+        ``q`` -> ``dP/dq`` (m, n), dense.
+    P_hess : casadi.Function
+        ``(q, nu)``, ``nu`` (m,) -> ``Hess_q(nu^T P)`` (n, n), dense.
+    """
+    n, m = lay.n, lay.m
+    q_sym = ca.SX.sym("q", n)
+    nu_sym = ca.SX.sym("nu", m)
+    point = model.point_sym(q_sym)
+    fk = ca.Function("P", [q_sym], [point])
+    fk_jac = ca.Function("P_jac", [q_sym], [ca.densify(ca.jacobian(point, q_sym))])
+    fk_hess = ca.Function("P_hess", [q_sym, nu_sym],
+                          [ca.densify(ca.hessian(ca.dot(nu_sym, point), q_sym)[0])])
+    return fk, fk_jac, fk_hess
+
+
+def _boundaries(lay: Layout) -> tuple[tuple[str, int, int, int], tuple[str, int, int, int]]:
+    """The start's and the target's ``(kind, node, offset, size)``.
+
+    ``kind`` is "point" or "state", ``node`` the column of ``X`` the condition holds at (0
+    or N), and ``p[offset:offset + size]`` its values in the NLP's parameters.
+    """
+    N = lay.N
+    return ((lay.kinds[0], 0, 0, lay.sizes[0]), (lay.kinds[1], N, lay.sizes[0], lay.sizes[1]))
+
+
+def _constraints(lay: Layout, par: ca.MX, X: ca.MX, allu: ca.MX, k: ca.MX, h: ca.MX,
+                 F: ca.MX, FM: ca.MX, fk: ca.Function) -> tuple[ca.MX, ca.MX]:
+    """The constraints ``g`` from the nodes' and the midpoints' dynamics (MX).
+
+    Parameters
+    ----------
+    lay : Layout
+    par : casadi.MX, shape (lay.npar, 1)
+        The NLP's parameters (boundary values, then ``k``).
+    X : casadi.MX, shape (2n, N + 1)
+        The states at the nodes.
+    allu : casadi.MX, shape (n, 2N + 1)
+        The controls ``(U, UM)``, nodes then midpoints.
+    k : casadi.MX
+        The control set's exponent (``par[-1]``).
+    h : casadi.MX
+        The interval length ``T / N``, s.
+    F : casadi.MX, shape (2n, N + 1)
+        ``f`` at the nodes.
+    FM : casadi.MX, shape (2n, N)
+        ``f`` at the midpoints.
+    fk : casadi.Function
+        The point's forward kinematics (:func:`_kinematics_functions`).
+
+    Returns
+    -------
+    g : casadi.MX, shape (lay.ng, 1)
+        Defects, the control set (unless box), start and target conditions.
+    absu : casadi.MX, shape (n, 2N + 1)
+        ``|allu|``, which the derivatives share.
+    """
+    n = lay.n
     # Constraints: the same expression as the plain transcription.
     defects = X[:, 1:] - X[:, :-1] - h / 6 * (F[:, :-1] + 4 * FM + F[:, 1:])
     g = [ca.vec(defects)]
@@ -296,14 +366,38 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
     absu = ca.fabs(allu)
     if not lay.box:
         g.append(ca.sum1(absu ** (2 * k)).T - 1)
-    for kind, col, offset, size in bounds:
+    for kind, col, offset, size in _boundaries(lay):
         xc = X[:, col]
         target = par[offset:offset + size]
         g += [fk(xc[:n]) - target, xc[n:]] if kind == "point" else [xc - target]
     g = ca.vertcat(*g)
-    asm_g = ca.Function("direct_asm_g", [w, par, F, FM], [g])
+    return g, absu
 
-    # Constraint Jacobian.
+
+def _constraint_jacobian(lay: Layout, X: ca.MX, allu: ca.MX, absu: ca.MX, k: ca.MX,
+                         J: ca.MX, fk_jac: ca.Function) -> ca.MX:
+    """The sparse constraint Jacobian: the intervals' blocks scattered, and the rest (MX).
+
+    Parameters
+    ----------
+    lay : Layout
+    X : casadi.MX, shape (2n, N + 1)
+        The states at the nodes.
+    allu, absu : casadi.MX, shape (n, 2N + 1)
+        The controls ``(U, UM)`` and their absolute values (:func:`_constraints`).
+    k : casadi.MX
+        The control set's exponent.
+    J : casadi.MX, shape (2n, (7n + 1) N)
+        The intervals' defect Jacobians side by side (``direct_jac_int``).
+    fk_jac : casadi.Function
+        ``dP/dq`` (:func:`_kinematics_functions`).
+
+    Returns
+    -------
+    casadi.MX, shape (lay.ng, lay.nw)
+        ``dg/dw``, sparse.
+    """
+    n, m, N = lay.n, lay.m, lay.N
     sc = Scatter(lay.ng, lay.nw)
     values = [ca.vec(J)]
     for j in range(N):
@@ -312,7 +406,7 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
         values.append(ca.vec(2 * k * ca.sign(allu) * absu ** (2 * k - 1)))
         for p in range(2 * N + 1):
             sc.add(lay.r_ctrl + p, lay.u(p))
-    for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):
+    for (kind, col, _, _), row in zip(_boundaries(lay), lay.r_bound, strict=True):
         xi = lay.x(col)
         if kind == "point":
             values += [ca.vec(fk_jac(X[:n, col])), ca.DM.ones(n)]
@@ -321,10 +415,38 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
         else:
             values.append(ca.DM.ones(2 * n))
             sc.add(row + np.arange(2 * n), xi)
-    asm_jac = ca.Function("direct_asm_jac", [w, par, F, FM, J],
-                          [g, sc.apply(ca.vertcat(*values))])
+    return sc.apply(ca.vertcat(*values))
 
-    # Adjoint weights of the accelerations.
+
+def _adjoint_weights(lay: Layout, lam_g: ca.MX, AM: ca.MX, h: ca.MX
+                     ) -> tuple[ca.MX, ca.MX, ca.MX]:
+    """The adjoints of the accelerations at the midpoints and the nodes (the chain rule, MX).
+
+    With ``s = h/6``, ``sigma = h/8`` and the defects' multipliers ``lambda`` (2n, N): the
+    midpoint of interval ``j`` weighs its ``a`` with ``-4 s lambda_v``; node ``j`` with
+    ``-s lambda_v - 4 s sigma gv`` from the interval it starts and ``-s lambda_v + 4 s sigma
+    gv`` from the one it ends, ``g = Fm^T lambda`` (see :func:`_interval_functions`).
+
+    Parameters
+    ----------
+    lay : Layout
+    lam_g : casadi.MX, shape (lay.ng, 1)
+        The constraints' multipliers (the defects' first).
+    AM : casadi.MX, shape (n, 3n N)
+        ``da/dz`` at the midpoints side by side.
+    h : casadi.MX
+        The interval length ``T / N``, s.
+
+    Returns
+    -------
+    wm : casadi.MX, shape (n, N)
+        The midpoints' weights.
+    gm : casadi.MX, shape (3n, N)
+        ``Fm^T lambda`` per interval.
+    wn : casadi.MX, shape (n, N + 1)
+        The nodes' weights, summed over their two intervals.
+    """
+    n, N = lay.n, lay.N
     lam = ca.reshape(lam_g[:2 * n * N], 2 * n, N)
     s = h / 6
     sigma = h / 8
@@ -339,9 +461,41 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
     zero = ca.MX.zeros(n, 1)
     wn = (ca.horzcat(-s * lam_v - 4 * s * sigma * gv, zero)
           + ca.horzcat(zero, -s * lam_v + 4 * s * sigma * gv))
-    asm_adj = ca.Function("direct_asm_adj", [w, lam_g, AM], [-4 * s * lam_v, gm, wn])
+    return -4 * s * lam_v, gm, wn
 
-    # Lagrangian Hessian (upper triangle).
+
+def _lagrangian_hessian(lay: Layout, X: ca.MX, absu: ca.MX, k: ca.MX, lam_g: ca.MX,
+                        B: ca.MX, Hn: ca.MX, upper: tuple[np.ndarray, np.ndarray],
+                        fk_hess: ca.Function) -> ca.MX:
+    """The upper triangle of the Lagrangian's Hessian, its blocks scattered (MX).
+
+    Parameters
+    ----------
+    lay : Layout
+    X : casadi.MX, shape (2n, N + 1)
+        The states at the nodes.
+    absu : casadi.MX, shape (n, 2N + 1)
+        ``|(U, UM)|`` (:func:`_constraints`).
+    k : casadi.MX
+        The control set's exponent.
+    lam_g : casadi.MX, shape (lay.ng, 1)
+        The constraints' multipliers.
+    B : casadi.MX, shape ((7n + 1)(7n + 2)/2, N)
+        The intervals' upper triangles (``direct_hess_int``), column by column.
+    Hn : casadi.MX, shape (3n, 3n (N + 1))
+        The nodes' weighted Hessians side by side.
+    upper : tuple of ndarray
+        Rows and columns of an interval block's upper triangle, in the order of ``B``.
+    fk_hess : casadi.Function
+        ``Hess_q(nu^T P)`` (:func:`_kinematics_functions`).
+
+    Returns
+    -------
+    casadi.MX, shape (lay.nw, lay.nw)
+        The Hessian's upper triangle, sparse.
+    """
+    n, m, N = lay.n, lay.m, lay.N
+    upper_r, upper_c = upper
     sh = Scatter(lay.nw, lay.nw, triu=True)
     values = [ca.vec(B), ca.vec(Hn)]
     for j in range(N):
@@ -354,14 +508,12 @@ def _assembly_functions(model: RobotModel, lay: Layout) -> list[ca.Function]:
         values.append(ca.vec(2 * k * (2 * k - 1) * absu ** (2 * k - 2) * ca.repmat(mu, n, 1)))
         for p in range(2 * N + 1):
             sh.add(lay.u(p), lay.u(p))
-    for (kind, col, _, _), row in zip(bounds, lay.r_bound, strict=True):
+    for (kind, col, _, _), row in zip(_boundaries(lay), lay.r_bound, strict=True):
         if kind == "point":
             qi = lay.x(col)[:n]
             values.append(ca.vec(fk_hess(X[:n, col], lam_g[row:row + m])))
             sh.block(qi, qi)
-    asm_hess = ca.Function("direct_asm_hess", [w, par, lam_g, B, Hn],
-                           [sh.apply(ca.vertcat(*values))])
-    return [asm_g, asm_jac, asm_adj, asm_hess]
+    return sh.apply(ca.vertcat(*values))
 
 
 def nlp_functions(lay: Layout, point: list[ca.Function], asm: list[ca.Function],

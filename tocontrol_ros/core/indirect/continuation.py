@@ -22,7 +22,8 @@ from tocontrol_ros.core.direct.collocation import (
     DirectResult,
 )
 from tocontrol_ros.core.indirect.mesh import refine, switch_mesh
-from tocontrol_ros.core.indirect.shooting import NewtonReport, ShootingGrid
+from tocontrol_ros.core.indirect.newton import NewtonReport
+from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.indirect.tuning import (
     CONTINUATION_STEPS,
     CONTINUATION_TOL,

@@ -1,4 +1,4 @@
-"""Multiple shooting with exact sensitivities and a damped Newton method.
+"""Multiple shooting with exact sensitivities (solved by :mod:`.newton`).
 
 Unknowns ``w = (z_0, ..., z_N, T, nu_0, nu_T)``: the canonical state ``z = (x, psi)`` at the
 ``N + 1`` nodes of a uniform grid in normalised time, the final time, and the multipliers of
@@ -19,25 +19,15 @@ void, as it should be). The system is square: ``4n(N+1) + 1 + 2m`` unknowns and 
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
-
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem
-from tocontrol_ros.core.indirect.tuning import (
-    CHORD_CONTRACTION,
-    CHORD_MAX,
-    GRADING,
-    STALL_COUNT,
-    STALL_STEP,
-)
+from tocontrol_ros.core.indirect.tuning import GRADING
 from tocontrol_ros.core.robot.compiled import c_name, compile_function
 
-__all__ = ["ShootingGrid", "NewtonReport", "newton_solve", "integrate", "step_fractions"]
+__all__ = ["ShootingGrid", "integrate", "step_fractions"]
 
 
 def step_fractions(kinds: np.ndarray, steps: int, grading: float = GRADING) -> np.ndarray:
@@ -121,32 +111,6 @@ def integrate(system: CanonicalSystem, starts: np.ndarray, lengths: np.ndarray, 
                 a_tot = a_s @ a_tot
                 b_tot = np.einsum("nij,nj->ni", a_s, b_tot) + db
     return z.T, a_tot, b_tot
-
-
-@dataclass(frozen=True)
-class NewtonReport:
-    """Outcome of one Newton solve.
-
-    Attributes
-    ----------
-    converged : bool
-    w : ndarray
-        Final unknowns.
-    residual : float
-        Max-norm of the equations at ``w``.
-    iterations : int
-    message : str
-    factors : scipy.sparse.linalg.SuperLU or None
-        LU factors of the last Jacobian evaluated (not necessarily at ``w``): a later solve
-        on the same grid (the next ``delta``, a warm start) can begin with chord steps.
-    """
-
-    converged: bool
-    w: np.ndarray
-    residual: float
-    iterations: int
-    message: str
-    factors: object = None
 
 
 class ShootingGrid:
@@ -412,154 +376,3 @@ class ShootingGrid:
             while lam > 1e-6 and np.any(self.lengths_of(w + lam * step) <= 0.2 * now):
                 lam *= 0.5
         return lam
-
-
-class _Broyden:
-    """Chord steps with Broyden's ("good") rank-one updates of the kept LU factors.
-
-    Along full steps ``s_0, s_1, ...`` from the factorised Jacobian ``B_0``, the update
-    ``B_(j+1) = B_j + G_(j+1) s_j^T / |s_j|^2`` gives the next step in product form, with one
-    solve with the factors and a few dot products (Kelley, *Iterative Methods for Linear and
-    Nonlinear Equations*, SIAM 1995, Alg. 7.3.1 ``brsol``): ``z = -B_0^-1 G``, then
-    ``z += s_(j+1) (s_j . z) / |s_j|^2`` for ``j < n``, and ``s_(n+1) = z / (1 - s_n . z /
-    |s_n|^2)``. Near a root the steps converge superlinearly, plain chord steps linearly.
-    """
-
-    def __init__(self, lu) -> None:
-        self.lu = lu
-        self.steps: list[np.ndarray] = []
-        self.norms2: list[float] = []
-
-    def step(self, g: np.ndarray) -> np.ndarray:
-        """The next step at the residual ``g`` (the previous steps all taken in full)."""
-        z = -self.lu.solve(g)
-        if not self.steps:  # the plain chord step
-            return z
-        for j in range(len(self.steps) - 1):
-            z += self.steps[j + 1] * ((self.steps[j] @ z) / self.norms2[j])
-        denom = 1.0 - (self.steps[-1] @ z) / self.norms2[-1]
-        return z / denom if abs(denom) > 1e-8 else z
-
-    def taken(self, step: np.ndarray) -> None:
-        """Record a step taken in full from the point of the last :meth:`step`."""
-        nrm2 = float(step @ step)
-        if nrm2 > 0:
-            self.steps.append(step)
-            self.norms2.append(nrm2)
-
-
-def newton_solve(grid: ShootingGrid, w0: np.ndarray, values: np.ndarray, par: np.ndarray,
-                 tol: float = 1e-10, max_iter: int = 40, deadline: float | None = None,
-                 should_stop=None, contraction: float = CHORD_CONTRACTION,
-                 factors=None) -> NewtonReport:
-    """Damped Newton on ``G(w) = 0`` with a backtracking line search on ``|G|^2 / 2``.
-
-    The factorised Jacobian is kept while it works (chord steps): after a full step that
-    shrank ``max |G|`` by at least ``contraction``, the next step reuses the old LU factors
-    with Broyden's rank-one updates along the steps taken (:class:`_Broyden`), and is
-    accepted only if it shrinks ``max |G|`` as much again, at most :data:`CHORD_MAX` times;
-    otherwise the Jacobian is evaluated anew at the current point and a damped Newton step
-    taken. The Jacobian (the RK4 sensitivities) costs about six residuals and its
-    factorisation two more, so near a solution (mesh refinement, warm starts, small
-    continuation steps) this saves most of the work; convergence is always judged on ``G``
-    itself.
-
-    Parameters
-    ----------
-    grid : ShootingGrid
-    w0 : ndarray, shape (grid.size,)
-    values : ndarray
-        Boundary values (start then target).
-    par : ndarray, shape (3,)
-        ``(k, delta, torque_scale)``.
-    tol : float
-        Convergence when ``max |G| <= tol``.
-    max_iter : int
-        Iterations, chord steps included.
-    deadline : float, optional
-        ``time.perf_counter()`` value after which to give up.
-    should_stop : callable, optional
-        Returns True to cancel (checked every iteration).
-    contraction : float
-        Required reduction factor of ``max |G|`` to keep (and to accept) chord steps; 0
-        gives plain Newton.
-    factors : scipy.sparse.linalg.SuperLU, optional
-        LU factors of a Jacobian of this grid near ``w0`` (e.g. the previous solve's
-        :attr:`NewtonReport.factors`): the first step is a chord step on them.
-
-    Returns
-    -------
-    NewtonReport
-    """
-    w = np.array(w0, dtype=float)
-    if contraction > 0 and factors is not None and factors.shape == (grid.size, grid.size):
-        lu = factors  # LU factors of a Jacobian; `jac` is None when they are not at `w`
-        g, jac = grid.residual(w, values, par, jacobian=False)
-    else:
-        g, jac = grid.residual(w, values, par)
-        lu = None
-    small = 0  # consecutive damped Newton steps shorter than STALL_STEP
-    chords = 0  # chord steps since the last Jacobian
-    # The factors with Broyden updates along the chord steps (None without factors).
-    inverse = _Broyden(lu) if lu is not None else None
-    for it in range(1, max_iter + 1):
-        if not np.all(np.isfinite(g)):
-            return NewtonReport(False, w, float("nan"), it - 1, "non-finite residual")
-        res = float(np.max(np.abs(g)))
-        if res <= tol:
-            return NewtonReport(True, w, res, it - 1, "converged", lu)
-        if should_stop is not None and should_stop():
-            return NewtonReport(False, w, res, it - 1, "cancelled")
-        if deadline is not None and time.perf_counter() > deadline:
-            return NewtonReport(False, w, res, it - 1, "time limit reached")
-        if jac is None and chords < CHORD_MAX:  # chord step with the kept factors
-            step = inverse.step(g)
-            lam = grid.admissible_step(w, step)
-            if lam == 1.0 and np.all(np.isfinite(step)):
-                g_new, _ = grid.residual(w + step, values, par, jacobian=False)
-                res_new = float(np.max(np.abs(g_new)))
-                if np.isfinite(res_new) and res_new <= contraction * res:
-                    inverse.taken(step)
-                    w, g = w + step, g_new
-                    chords += 1
-                    continue
-        if jac is None:  # the factors went stale or served long enough: a Newton step
-            g, jac = grid.residual(w, values, par)
-        chords = 0
-        try:
-            lu = splu(jac)
-            inverse = _Broyden(lu)
-            step = inverse.step(g)
-        except RuntimeError:
-            return NewtonReport(False, w, res, it - 1, "singular Newton matrix")
-        if not np.all(np.isfinite(step)):
-            return NewtonReport(False, w, res, it - 1, "singular Newton matrix")
-        merit = 0.5 * float(g @ g)
-        lam = grid.admissible_step(w, step)  # keeps T and the intervals positive
-        while True:
-            w_new = w + lam * step
-            g_new, _ = grid.residual(w_new, values, par, jacobian=False)
-            with np.errstate(over="ignore"):  # a huge residual: merit inf, step rejected
-                merit_new = 0.5 * float(g_new @ g_new) if np.all(np.isfinite(g_new)) \
-                    else np.inf
-            if merit_new <= (1 - 1e-4 * lam) * merit or lam < 1e-4:
-                break
-            lam *= 0.5
-        if not np.isfinite(merit_new):
-            return NewtonReport(False, w, res, it, "non-finite residual along the step")
-        # Damped steps that barely reduce the residual: Newton is stuck (a continuation
-        # step too long, a bad guess); say so now instead of using up max_iter.
-        small = small + 1 if lam < STALL_STEP else 0
-        if small >= STALL_COUNT:
-            return NewtonReport(False, w_new, float(np.max(np.abs(g_new))), it,
-                                f"stalled ({STALL_COUNT} damped steps below {STALL_STEP:g} "
-                                f"in a row)", lu)
-        w = w_new
-        if lam == 1.0 and float(np.max(np.abs(g_new))) <= contraction * res:
-            inverse.taken(step)
-            g, jac = g_new, None  # try the same factors next
-        else:
-            g, jac = grid.residual(w, values, par)
-    res = float(np.max(np.abs(g)))
-    return NewtonReport(res <= tol, w, res, max_iter,
-                        "converged" if res <= tol else "iteration limit reached", lu)

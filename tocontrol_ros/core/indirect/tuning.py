@@ -15,7 +15,7 @@ __all__ = ["GRADING", "CHORD_CONTRACTION", "CHORD_MAX", "STALL_STEP", "STALL_COU
            "PLACING_TOL", "SPLIT_PASSES", "BUDGETS", "MIN_STEP"]
 
 
-# ------------------------------------ multiple shooting and Newton (shooting.py)
+# ------------------------- multiple shooting and Newton (shooting.py, newton.py)
 #: Grading exponent of the RK4 steps next to a switch
 #: (:func:`~tocontrol_ros.core.indirect.shooting.step_fractions`).
 GRADING = 4.0
@@ -25,7 +25,7 @@ GRADING = 4.0
 CHORD_CONTRACTION = 0.8
 
 #: ...and for at most this many chord steps per Jacobian (with Broyden's updates of the
-#: factors, :class:`~tocontrol_ros.core.indirect.shooting._Broyden`).
+#: factors, :class:`~tocontrol_ros.core.indirect.newton._Broyden`).
 CHORD_MAX = 10
 
 #: Newton gives up after STALL_COUNT damped steps in a row shorter than STALL_STEP.
