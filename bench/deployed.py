@@ -75,22 +75,16 @@ class _Process:
         return self.proc.returncode
 
 
-class _Client:
-    """A client node in this process: ~/plan calls."""
+class RosClient:
+    """A node of its own context in this process, spun by a thread of its own."""
 
-    def __init__(self, planner: str) -> None:
+    def __init__(self, name: str) -> None:
         import rclpy
-        from nav_msgs.srv import GetPlan
         from rclpy.executors import SingleThreadedExecutor
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
-        self.node = rclpy.create_node(f"bench_deployed_{os.getpid()}", context=self.context)
-        self.plan = self.node.create_client(GetPlan, f"{planner}/plan")
-        self._request = GetPlan.Request()
-        self._request.start.header.frame_id = self._request.goal.header.frame_id = "base_link"
-        self._request.start.pose.position.x, self._request.start.pose.position.y = START
-        self._request.goal.pose.position.x, self._request.goal.pose.position.y = TARGET
+        self.node = rclpy.create_node(f"{name}_{os.getpid()}", context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -101,6 +95,27 @@ class _Client:
             self.executor.spin()
         except Exception:  # noqa: BLE001  (context shut down at close)
             pass
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown(timeout_sec=2.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class _Client(RosClient):
+    """A client node in this process: ~/plan calls."""
+
+    def __init__(self, planner: str) -> None:
+        from nav_msgs.srv import GetPlan
+
+        super().__init__("bench_deployed")
+        self.plan = self.node.create_client(GetPlan, f"{planner}/plan")
+        self._request = GetPlan.Request()
+        self._request.start.header.frame_id = self._request.goal.header.frame_id = "base_link"
+        self._request.start.pose.position.x, self._request.start.pose.position.y = START
+        self._request.goal.pose.position.x, self._request.goal.pose.position.y = TARGET
 
     def wait_ready(self, timeout: float = 180.0) -> None:
         """Service up and one call answered (after the warm-up's builds)."""
@@ -117,13 +132,6 @@ class _Client:
         if not done.wait(timeout):
             raise RuntimeError("~/plan did not answer")
         return time.perf_counter() - t0, len(future.result().plan.poses)
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown(timeout_sec=2.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def _in_process():

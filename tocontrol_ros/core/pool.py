@@ -39,6 +39,9 @@ __all__ = ["WorkerPool", "available_cores", "shared_pool"]
 #: How often (s) the caller's process, waiting for the workers' last items, looks whether
 #: a worker died. Only a liveness check: the results do not depend on it.
 LIVENESS_POLL = 0.05
+#: How often (s) an idle worker looks whether the caller's process is still there (a
+#: caller killed without closing its pool leaves no worker behind).
+PARENT_POLL = 1.0
 
 
 def available_cores() -> int:
@@ -92,8 +95,16 @@ class WorkerPool:
                                   args=(self._tasks, self._results, self._stop,
                                         self._generation, factory), daemon=True)
                        for i in range(self.workers - 1)]
-        for proc in self._procs:
-            proc.start()
+        # The workers start with SIGINT blocked (a signal mask survives the fork and the
+        # exec): Ctrl-C in a terminal, or ros2 launch's SIGINT to the process group, is the
+        # caller's to handle, also while a worker is still importing (where a handler set
+        # in the worker would come too late and print a KeyboardInterrupt traceback).
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            for proc in self._procs:
+                proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
     def map(self, fn: Callable, prepared, ctx, items: Sequence[tuple]) -> Iterator:
         """``fn(prepared, ctx, *item)`` for each item, the items shared out; in order.
@@ -206,14 +217,19 @@ class _StopWatcher:
 def _worker(tasks, results, stop, generation, factory) -> None:
     """A worker's loop: items until ``None``; one prepared model per model.
 
-    Ctrl-C in a terminal (SIGINT to the process group) is the caller's to handle: a worker
-    ignores it, and ends with the caller (a daemon process) or when :meth:`close` asks.
+    SIGINT stays blocked (see :class:`WorkerPool`): a worker ends with the caller (a
+    daemon process) or when :meth:`WorkerPool.close` asks.
     """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     prepared: dict[int, object] = {}
+    parent = os.getppid()
     while True:
-        task = tasks.get()
+        try:
+            task = tasks.get(timeout=PARENT_POLL)
+        except queue.Empty:
+            if os.getppid() != parent:  # the caller died without closing the pool
+                return
+            continue
         if task is None:
             return
         gen, i, payload = task
