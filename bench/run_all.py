@@ -6,7 +6,7 @@ Run from the repository root::
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
         [--only paper,peers,random,optimum,optimum_panda,profile_panda,scaling,panda_peer,
-                first_use,
+                first_use,deployed_panda,
                 verification,deployed,batch,limits]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -18,7 +18,9 @@ the same plans with two worker processes), ``scaling`` (planar arms of 2 to 8 li
 ``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation), ``first_use``
 (the Panda's compile routes, each in a new process with an empty cache), ``verification`` (the
 certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
-processes: idle CPU and ~/plan round trip against the same request in-process), ``batch`` (batch
+processes: idle CPU and ~/plan round trip against the same request in-process),
+``deployed_panda`` (the Panda through two planner nodes, one process against one per core),
+``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced). Every timing is taken in this one process, side by side; compiled functions go to a
 fresh temporary cache so that first-run costs are measured, not inherited.
@@ -43,7 +45,7 @@ from bench import common  # noqa: E402  (sets the thread variables before numpy)
 PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "profile_panda", "scaling",
          "panda_peer",
          "first_use",
-         "verification", "deployed", "batch", "limits")
+         "verification", "deployed", "deployed_panda", "batch", "limits")
 
 
 def _parse(argv):
@@ -114,6 +116,7 @@ def _run(args):
     from bench import (
         batch,
         deployed,
+        deployed_panda,
         first_use,
         limits,
         optimum,
@@ -179,6 +182,8 @@ def _run(args):
     if "deployed" in args.only:
         section(lambda: deployed.run(runs=5 if args.quick else 10,
                                      window=4.0 if args.quick else deployed.WINDOW))
+    if "deployed_panda" in args.only:
+        section(lambda: deployed_panda.run(2 if args.quick else args.optimum_panda_cases))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))

@@ -186,6 +186,21 @@ class FlatResult(IpoptOutcome):
     lam_x: np.ndarray | None = field(default=None, repr=False)
 
 
+def _warm_options(warm: bool | str) -> dict:
+    """IPOPT's options of a transcription's start mode (see :class:`FlatTranscription`)."""
+    if warm == "dual":
+        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
+                "ipopt.warm_start_init_point": "yes"}
+    if warm == "restart":
+        return {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
+    if warm:
+        mu = RESUME_MU if warm == "resume" else WARM_MU
+        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
+            f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
+                                                 "slack_bound_push", "slack_bound_frac")}}
+    return {}
+
+
 class FlatTranscription:
     """The bounded problem on one B-spline mesh, built once and reused for many solves.
 
@@ -267,67 +282,18 @@ class FlatTranscription:
         Ploc = Pm[:, cols.tolist()]
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
-        # Linear rows: the convex hull of the derivative's control points,
-        # c_j (P_j+1 - P_j), bounds that hold at every time, not only at the samples (the
-        # control points' own hull is bounds on the variables: no rows, see ``bounds``).
-        # Velocity rows c_j (P_j+1 - P_j) + v T >= 0 and c_j (P_j+1 - P_j) - v T <= 0: v is
-        # a parameter of the solve.
-        vpar = ca.MX.sym("v", n)
-        self._lin_kind = []
-        g_lin = []
-        for i in range(n):
-            diff = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
-            for sign, kind in ((+1, "v"), (-1, "V")):
-                g_lin.append(diff + sign * vpar[i] * T)
-                self._lin_kind.append((kind, i, K - 1))
-        g_lin = ca.vertcat(*g_lin)
-        r0 = g_lin.numel()
-
-        # Boundary rows.
-        sv, tv = par[:sizes[0]], par[sizes[0]:-1]
-        q_sym = ca.SX.sym("q", n)
-        fk = ca.Function("P", [q_sym], [model.point_sym(q_sym)])
-        g_b = []
-        for kind, value, pts, b_vel, q_end in (
-                (start_kind, sv, Pm[:, :p + 1], b_start_vel, Pm[:, 0]),
-                (target_kind, tv, Pm[:, K - p - 1:], b_end_vel, Pm[:, -1])):
-            vel = ca.mtimes(pts, b_vel)  # q'(s) at the end: T qd
-            if kind == "point":  # at rest, anywhere on the self-motion manifold
-                g_b += [fk(q_end) - value, vel]
-            else:
-                g_b += [q_end - value[:n], vel - T * value[n:]]
-        g_b = ca.vertcat(*g_b)
-
+        g_lin, vpar = self._velocity_rows(Pm, T, cvec)
+        g_b = self._boundary_rows(Pm, T, par, sizes, b_start_vel, b_end_vel)
         g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
-        ng_set, ng_lin, ng_b = S, r0, g_b.numel()
+        ng_set, ng_lin, ng_b = S, g_lin.numel(), g_b.numel()
         ng = ng_set + ng_lin + ng_b
         g = ca.vertcat(g_set, g_lin, g_b)
         self._rows = (ng_set, ng_lin, ng_b)
-
-        # Jacobian: the samples' gradients scattered, the linear rows, the boundary rows.
-        cs, grads = set_grad.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
-        scat = Scatter(ng, nw)
-        for r in range(S):
-            scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
-        jac_set = scat.apply(ca.vec(grads))
-        jac_lin = ca.jacobian(g_lin, w)
-        jac_b = ca.jacobian(g_b, w)
-        g_eval = ca.vertcat(ca.vec(cs), g_lin, g_b)  # the set's values come with its gradients
-        jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
-            + ca.vertcat(ca.MX(ng_set + ng_lin, nw), jac_b)
+        local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
+        g_eval, jac = self._constraint_jacobian(set_grad, local, zvars, w, g_lin, g_b)
         lam_g = ca.MX.sym("lam_g", ng)
         lam_f = ca.MX.sym("lam_f")
-        hs = set_hess.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc,
-                             lam_g[:S].T)
-        sh = Scatter(nw, nw, triu=True)
-        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
-                                           strict=True))
-        for r in range(S):
-            v = np.concatenate([zvars[r], [iT]])
-            sh.add(v[ur], v[uc])
-        hess = sh.apply(ca.vec(hs))
-        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
-        hess = hess + hb
+        hess = self._lagrangian_hessian(set_hess, local, zvars, w, g_b, lam_g)
         self._nw, self._iT, self._ng = nw, iT, ng
         allp = ca.vertcat(par, vpar, geo)
         opts = ipopt_options(
@@ -337,20 +303,92 @@ class FlatTranscription:
             ca.Function("jac_g", [w, allp], [g_eval, jac], ["x", "p"], ["g", "jac"]),
             ca.Function("hess_l", [w, allp, lam_f, lam_g], [hess],
                         ["x", "p", "lam_f", "lam_g"], ["hess"]))
-        if warm == "dual":
-            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
-                         "ipopt.warm_start_init_point": "yes"})
-        elif warm == "restart":
-            opts["ipopt.max_hessian_perturbation"] = RESTART_MAX_PERTURBATION
-        elif warm:
-            mu = RESUME_MU if warm == "resume" else WARM_MU
-            opts.update({"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
-                f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
-                                                     "slack_bound_push", "slack_bound_frac")}})
+        opts.update(_warm_options(warm))
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
         self._g = ca.Function("g", [w, allp], [g])
         self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
+
+    def _velocity_rows(self, Pm: ca.MX, T: ca.MX, cvec: ca.MX) -> tuple[ca.MX, ca.MX]:
+        """The linear rows and the velocity limits' parameter ``v`` (n,).
+
+        The convex hull of the derivative's control points, ``c_j (P_j+1 - P_j)``: bounds
+        that hold at every time, not only at the samples (the control points' own hull is
+        bounds on the variables: no rows, see :meth:`bounds`). Velocity rows
+        ``c_j (P_j+1 - P_j) + v T >= 0`` and ``c_j (P_j+1 - P_j) - v T <= 0``: ``v`` is a
+        parameter of the solve.
+        """
+        n, K = self.model.n, self.K
+        vpar = ca.MX.sym("v", n)
+        self._lin_kind = []
+        g_lin = []
+        for i in range(n):
+            diff = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
+            for sign, kind in ((+1, "v"), (-1, "V")):
+                g_lin.append(diff + sign * vpar[i] * T)
+                self._lin_kind.append((kind, i, K - 1))
+        return ca.vertcat(*g_lin), vpar
+
+    def _boundary_rows(self, Pm: ca.MX, T: ca.MX, par: ca.MX, sizes: list[int],
+                       b_start_vel: ca.MX, b_end_vel: ca.MX) -> ca.MX:
+        """The start's and the target's rows: a point at rest, or a joint state."""
+        n, K, p, model = self.model.n, self.K, self.degree, self.model
+        sv, tv = par[:sizes[0]], par[sizes[0]:-1]
+        q_sym = ca.SX.sym("q", n)
+        fk = ca.Function("P", [q_sym], [model.point_sym(q_sym)])
+        g_b = []
+        for kind, value, pts, b_vel, q_end in (
+                (self.start_kind, sv, Pm[:, :p + 1], b_start_vel, Pm[:, 0]),
+                (self.target_kind, tv, Pm[:, K - p - 1:], b_end_vel, Pm[:, -1])):
+            vel = ca.mtimes(pts, b_vel)  # q'(s) at the end: T qd
+            if kind == "point":  # at rest, anywhere on the self-motion manifold
+                g_b += [fk(q_end) - value, vel]
+            else:
+                g_b += [q_end - value[:n], vel - T * value[n:]]
+        return ca.vertcat(*g_b)
+
+    def _constraint_jacobian(self, set_grad: ca.Function, local: tuple, zvars: np.ndarray,
+                             w: ca.MX, g_lin: ca.MX, g_b: ca.MX) -> tuple[ca.MX, ca.MX]:
+        """The rows' values and Jacobian.
+
+        The samples' gradients scattered, the linear rows, the boundary rows. ``local``:
+        the samples' local control points (n, (p + 1) S), ``T``, their basis values, ``k``
+        and the torque scale; ``zvars`` (S, (p + 1) n): each sample's variables.
+        """
+        ng_set, ng_lin, ng_b = self._rows
+        ng, nw, iT = ng_set + ng_lin + ng_b, w.numel(), w.numel() - 1
+        cs, grads = set_grad.map(ng_set)(*local)
+        scat = Scatter(ng, nw)
+        for r in range(ng_set):
+            scat.block(np.array([r]), np.concatenate([zvars[r], [iT]]))
+        jac_set = scat.apply(ca.vec(grads))
+        jac_lin = ca.jacobian(g_lin, w)
+        jac_b = ca.jacobian(g_b, w)
+        g_eval = ca.vertcat(ca.vec(cs), g_lin, g_b)  # the set's values come with its gradients
+        jac = jac_set + ca.vertcat(ca.MX(ng_set, nw), jac_lin, ca.MX(ng_b, nw)) \
+            + ca.vertcat(ca.MX(ng_set + ng_lin, nw), jac_b)
+        return g_eval, jac
+
+    def _lagrangian_hessian(self, set_hess: ca.Function, local: tuple, zvars: np.ndarray,
+                            w: ca.MX, g_b: ca.MX, lam_g: ca.MX) -> ca.MX:
+        """The Lagrangian's Hessian (upper triangle).
+
+        Each sample's block in its span's variables and ``T``, scattered, plus the boundary
+        rows' (the linear rows have none).
+        """
+        ng_set, ng_lin, _ = self._rows
+        nw, iT = w.numel(), w.numel() - 1
+        d = zvars.shape[1] + 1
+        hs = set_hess.map(ng_set)(*local, lam_g[:ng_set].T)
+        sh = Scatter(nw, nw, triu=True)
+        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
+                                           strict=True))
+        for r in range(ng_set):
+            v = np.concatenate([zvars[r], [iT]])
+            sh.add(v[ur], v[uc])
+        hess = sh.apply(ca.vec(hs))
+        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
+        return hess + hb
 
     @property
     def rows(self) -> int:

@@ -334,11 +334,8 @@ def _line_search(grid: ShootingGrid, w: np.ndarray, g: np.ndarray, step: np.ndar
 
     Parameters
     ----------
-    grid : ShootingGrid
-    w : ndarray, shape (grid.size,)
-        The current point.
-    g : ndarray, shape (grid.size,)
-        ``G(w)``.
+    grid, w, g
+        As for :func:`_newton_step`.
     step : ndarray, shape (grid.size,)
         The full Newton step.
     values, par : ndarray
