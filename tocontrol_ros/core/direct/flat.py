@@ -195,7 +195,9 @@ def _warm_options(warm: bool | str) -> dict:
         return {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
     if warm:
         mu = RESUME_MU if warm == "resume" else WARM_MU
-        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **{
+        cap = {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION} \
+            if warm == "resume" else {}
+        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **cap, **{
             f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
                                                  "slack_bound_push", "slack_bound_frac")}}
     return {}
@@ -225,7 +227,8 @@ class FlatTranscription:
         instead of starting at ``mu = 0.1`` 1 % inside them, which first leaves the
         solution (see :data:`WARM_MU`). ``"resume"``: from a solution that tightened
         constraints make infeasible (a wider set pad): the same, the barrier from
-        :data:`RESUME_MU`. ``"dual"``: from a solution of this mesh and its multipliers
+        :data:`RESUME_MU`, its Hessian regularisation capped as ``"restart"``'s.
+        ``"dual"``: from a solution of this mesh and its multipliers
         (``lam_g0``, ``lam_x0`` of :meth:`solve`: a warm re-solve for a moved target),
         IPOPT's warm start (``warm_start_init_point``), the barrier from :data:`WARM_MU`:
         on the Panda's warm re-solves (80 spans, target moved 2 cm along x, y, z) 35, 24

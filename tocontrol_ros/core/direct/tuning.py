@@ -130,7 +130,12 @@ RESUME_MU = 1e-5
 #: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
 #: here, the same 150 iterations took 2.2 s (1e6: 5.8 s), and bench/limits.py's case 29,
 #: whose resumed re-solves all fail, still converges from the default start. A bound on
-#: work per iteration where a wall-time cap was before.
+#: work per iteration where a wall-time cap was before. The resumed re-solves
+#: (``warm="resume"``) are capped alike: on the profile's Panda case 12 (a moving start,
+#: 112 spans) the resumed one crawled at 270 ms per iteration to its 150-iteration limit
+#: (40.5 s) before the restart converged in 29 (0.3 s); capped, it gives up by its
+#: restoration phase in 0.97 s and the plan takes 6.2 s instead of 45.8 s, the same T (the
+#: 20 Panda cases of BENCHMARKS.md all end with the same T to 6 digits).
 RESTART_MAX_PERTURBATION = 1e4
 
 
