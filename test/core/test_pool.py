@@ -8,11 +8,12 @@ records and the trajectory's bits the same with two workers as with one.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import pickle
 import signal
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,9 @@ from tocontrol_ros.core.problem import Problem, point
 from tocontrol_ros.core.result import Status
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.solver import SolverOptions, plan
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from plan_probe import fingerprint  # noqa: E402
 
 #: Velocity limits (rad/s) that bind on the paper's example (as in test_limits.py).
 TIGHT = np.array([0.4, 1.0, 1.0])
@@ -129,14 +133,6 @@ def test_a_model_pickles_as_its_data_once_per_process(galicki):
     assert np.array_equal(again.mass_matrix(q), galicki.mass_matrix(q))
 
 
-def _fingerprint(res) -> tuple:
-    s = res.trajectory.evaluate(np.linspace(0.0, res.T, 101))
-    digest = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes()
-                                     for a in (s.q, s.qd, s.u))).hexdigest()
-    return (res.status, repr(res.T), res.method, digest,
-            tuple((r.index, repr(r.guess_T), repr(r.T), r.status) for r in res.starts))
-
-
 def test_two_workers_plan_what_one_plans(galicki):
     base = JointLimits.from_model(galicki)
     limits = JointLimits(base.names, base.lower, base.upper, TIGHT)
@@ -145,7 +141,7 @@ def test_two_workers_plan_what_one_plans(galicki):
     two = plan(problem, SolverOptions(starts=6, candidates=3, time_limit=SLOW_OK, workers=2))
     assert one.success and one.method == "direct", one.message
     assert sum(np.isfinite(r.T) for r in one.starts) >= 2  # more than one candidate solved
-    assert _fingerprint(two) == _fingerprint(one)
+    assert fingerprint(two) == fingerprint(one)
 
 
 SIGINT_SCRIPT = """
@@ -177,8 +173,6 @@ def test_ctrl_c_to_the_group_leaves_starting_workers_quiet(tmp_path):
     # A KeyboardInterrupt traceback from a worker importing its modules when ros2 launch
     # sent SIGINT to the group failed a loaded CI run: the workers start with SIGINT blocked.
     import subprocess
-    import sys
-    from pathlib import Path
 
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent))
     proc = subprocess.run([sys.executable, "-P", "-c", SIGINT_SCRIPT], env=env,

@@ -32,7 +32,6 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
         within (None: without bounds).
     """
     problem, options = ctx.problem, ctx.options
-    direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
     # When the first guess reaches the joint limits, it and the others are solved within
     # them: the bounded solve then starts from these guesses (no second round). Otherwise
     # they are solved without bounds, as on an arm without limits (bounds that never bind
@@ -45,22 +44,21 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
                           np.array([p[1] for p in pairs]), options.guess_intervals,
                           problem.torque_scale, problem.limits.plan_velocity)
-    for idx, (qa, qb) in enumerate(pairs[:1]):
+    if pairs:
         ctx.check()
-        path = (paths[0][idx], paths[1][idx], paths[2][idx])
+        path = (paths[0][0], paths[1][0], paths[2][0])
         if bounds is not None:
-            within = direct.solve(problem.start.value, problem.target.value, 1.0, *path,
-                                  x_bounds=bounds)
+            within = _guess(planner, ctx, path, bounds)
             if within.success and touches(problem, within.x):
                 x_bounds, res = bounds, within
             else:
-                res = direct.solve(problem.start.value, problem.target.value, 1.0, *path)
+                res = _guess(planner, ctx, path, None)
                 if res.success and touches(problem, res.x):
                     # Within the limits it kept off them, without them it reaches them.
                     x_bounds, res = bounds, within
         else:
-            res = direct.solve(problem.start.value, problem.target.value, 1.0, *path)
-        guesses.append((idx, qa, qb, res))
+            res = _guess(planner, ctx, path, None)
+        guesses.append((0, *pairs[0], res))
     # The others, side by side (planner.map), within the bounds the first one chose.
     rest = range(1, len(pairs))
     solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), x_bounds)
@@ -72,12 +70,21 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
 
 def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,
                 x_bounds: tuple[np.ndarray, np.ndarray] | None):
-    """One seed pair's direct guess at k = 1 from its initial ``path``.
+    """One seed pair's direct guess (:func:`_guess`) after the deadline's check.
 
     A piece of :meth:`~tocontrol_ros.core.direct.limited.Transcriptions.map`.
     """
     ctx.check()
-    problem = ctx.problem
-    direct = planner.direct(problem, ctx.options.guess_intervals, tol=ctx.options.guess_tol)
+    return _guess(planner, ctx, path, x_bounds)
+
+
+def _guess(planner: Transcriptions, ctx: SolveContext, path: tuple,
+           x_bounds: tuple[np.ndarray, np.ndarray] | None):
+    """The direct solve at k = 1 from an initial ``path``, within ``x_bounds`` (None: without).
+
+    ``path``: the states, controls and ``T`` of :func:`initial_paths` for one seed pair.
+    """
+    problem, options = ctx.problem, ctx.options
+    direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
     return direct.solve(problem.start.value, problem.target.value, 1.0, *path,
                         x_bounds=x_bounds)

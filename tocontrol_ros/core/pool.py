@@ -142,7 +142,7 @@ class WorkerPool:
                     if mine not in done:
                         done[mine] = _call(fn, prepared, ctx, items[mine])
                     continue
-                self._collect(generation, done, wait=True)
+                self._collect(generation, done)
                 if not all(proc.is_alive() for proc in self._procs):
                     # A worker died holding items: the caller's process solves what is
                     # missing (an item solved twice gives the same result), and the pool
@@ -165,9 +165,10 @@ class WorkerPool:
             if gen == generation:
                 return i
 
-    def _collect(self, generation: int, done: dict, wait: bool) -> None:
+    def _collect(self, generation: int, done: dict) -> None:
+        """One worker's result of this map into ``done``, if one comes within the poll."""
         try:
-            gen, i, ok, payload = self._results.get(timeout=LIVENESS_POLL if wait else 0)
+            gen, i, ok, payload = self._results.get(timeout=LIVENESS_POLL)
         except queue.Empty:
             return
         if gen == generation and i not in done:

@@ -188,16 +188,15 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
         batch, basins = basins[:count - len(first)], basins[count - len(first):]
         outs = planner.map(_uniform_item, ctx, [(bounds, res, fallback) for _, res in batch])
         for (idx, _), res in zip(batch, outs, strict=True):
-            out = (res, None, None)
-            if res.success:
-                flat = planner.flat(problem, SPANS)
-                out = (res, FlatTrajectory(flat, res, problem.k), flat)
-            records[idx] = replace(records[idx], T=res.T if res.success else np.nan,
-                                   status="continued" if res.success else
-                                   f"bounded solve failed: {res.message}")
-            if res.success:
-                first.append((idx, out))
-                _offer(ctx, bounds, *out, notes)
+            if not res.success:
+                records[idx] = replace(records[idx], T=np.nan,
+                                       status=f"bounded solve failed: {res.message}")
+                continue
+            records[idx] = replace(records[idx], T=res.T, status="continued")
+            flat = planner.flat(problem, SPANS)
+            out = (res, FlatTrajectory(flat, res, problem.k), flat)
+            first.append((idx, out))
+            _offer(ctx, bounds, *out, notes)
     first = _distinct_solutions(first)
     best = None
     if first:
@@ -345,12 +344,11 @@ def _uniform_item(planner: Transcriptions, ctx: SolveContext, bounds, guess: Dir
     if fallback and len(guess.t) - 1 != FINE_GUESS_INTERVALS:
         fine = finer_guess(planner, ctx.problem, guess)
         guess = fine if fine.success else guess
-    return _uniform(planner, ctx, bounds, guess, in_k=fallback)[0]
+    return _uniform(planner, ctx, bounds, guess, in_k=fallback)
 
 
 def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
-             in_k: bool = False
-             ) -> tuple[FlatResult, FlatTrajectory | None, FlatTranscription | None]:
+             in_k: bool = False) -> FlatResult:
     """The B-spline solve on :data:`SPANS` uniform spans from a direct guess.
 
     A solve that stops at its iteration limit is continued once from where it stopped,
@@ -368,21 +366,18 @@ def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectRe
     flat = planner.flat(problem, SPANS)
     P0 = flat.fit(guess.T, guess.t, guess.x[:, :n], guess.x[:, n:])
     if in_k and problem.k > 1.0:
-        out, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
-    else:
-        out = flat.solve(*values, guess.T, P0, *bounds, **_budget(ctx))
+        return _continued_in_k(planner, ctx, bounds, guess.T, P0)
+    out = flat.solve(*values, guess.T, P0, *bounds, **_budget(ctx))
+    ctx.check()
+    if not out.success and out.message == "Maximum_Iterations_Exceeded" \
+            and np.all(np.isfinite(out.P)) and np.isfinite(out.T):
+        warm = planner.flat(problem, SPANS, warm=True)
+        out = warm.solve(*values, out.T, out.P, *bounds, **_budget(ctx))
         ctx.check()
-        if not out.success and out.message == "Maximum_Iterations_Exceeded" \
-                and np.all(np.isfinite(out.P)) and np.isfinite(out.T):
-            flat = planner.flat(problem, SPANS, warm=True)
-            out = flat.solve(*values, out.T, out.P, *bounds, **_budget(ctx))
-            ctx.check()
-        if not out.success and problem.k > 1.0:
-            again, flat = _continued_in_k(planner, ctx, bounds, guess.T, P0)
-            out = again if again.success else out
-    if not out.success:
-        return out, None, None
-    return out, FlatTrajectory(flat, out, problem.k), flat
+    if not out.success and problem.k > 1.0:
+        again = _continued_in_k(planner, ctx, bounds, guess.T, P0)
+        out = again if again.success else out
+    return out
 
 
 def k_steps(k: float) -> list[float]:
@@ -397,7 +392,7 @@ def k_steps(k: float) -> list[float]:
 
 
 def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float, P: np.ndarray
-                    ) -> tuple[FlatResult, FlatTranscription]:
+                    ) -> FlatResult:
     """The uniform-mesh solve by continuation in ``k`` from the guess ``(T, P)``.
 
     At ``k = 1`` from the guess, then at each of :func:`k_steps` from the last solution
@@ -413,7 +408,7 @@ def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float
     k = 1 to 0.402 s at k = 2 in 300 iterations without converging, where from 1e-5 it took
     0.05 s (T 0.424 s); the planar 8R's steps fail from 1e-5 and converge from 1e-7, so that
     order.
-    Returns the last solve (a failure stops there) and its transcription.
+    Returns the last solve (a failure stops there).
     """
     problem = ctx.problem
     ends = (problem.start.value, problem.target.value)
@@ -428,7 +423,7 @@ def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float
         if not out.success:
             break
         T, P = out.T, out.P
-    return out, flat
+    return out
 
 
 def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> list:
