@@ -377,3 +377,41 @@ def test_bounded_solve_at_a_k_that_is_not_an_integer(galicki):
         assert res.method == "direct"
         fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 4001))
         assert np.max(np.sum(np.abs(fine.u) ** (2 * k), axis=1)) <= 1 + 1e-9
+
+
+def test_refined_candidates_are_held_inside_the_set_fastest_first_while_they_can_win(
+        monkeypatch):
+    """Only a candidate that can still beat the best one held inside the set is re-solved."""
+    from types import SimpleNamespace
+
+    from tocontrol_ros.core.direct import limited as lim
+    from tocontrol_ros.core.direct.flat import FlatResult
+
+    P = np.zeros((4, 3))
+    monkeypatch.setattr(lim, "refined_breaks", lambda traj: traj.breaks)  # no refinement
+    held = []
+
+    def hold(cost):
+        def inside(planner, ctx, bounds, out, traj, flat):
+            held.append(traj.idx)
+            return replace(out, T=out.T * (1 + cost)), traj
+        return inside
+
+    planner = SimpleNamespace(map=lambda fn, ctx, items: iter([fn(*i) for i in items]))
+
+    def race(Ts, cost):
+        held.clear()
+        monkeypatch.setattr(lim, "_inside_set", hold(cost))
+        first = [(idx, (FlatResult(True, "ok", T, 10, 0.1, P=P, residual=0.0),
+                        SimpleNamespace(breaks=np.linspace(0, 1, 5), idx=idx), None))
+                 for idx, T in Ts]
+        out = lim._race(planner, SimpleNamespace(problem=None), None, first)
+        return [(idx, round(res.T, 9), contender) for idx, res, _, contender in out]
+
+    # Holding costs 1e-5 of T: the second (1e-5 behind) cannot win by more than INSIDE_TIE.
+    assert race([(3, 0.500005), (1, 0.5), (2, 0.5001), (4, 0.505)], 1e-5) == [
+        (3, 0.500005, False), (1, 0.500005, True), (2, 0.5001, False), (4, 0.505, False)]
+    assert held == [1]
+    # Holding the first costs 2e-3: the second can still win, and is held too.
+    assert race([(1, 0.5), (3, 0.5002)], 2e-3) == [(1, 0.501, True), (3, 0.5012004, True)]
+    assert held == [1, 3]

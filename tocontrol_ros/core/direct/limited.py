@@ -40,6 +40,8 @@ from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_br
 from tocontrol_ros.core.direct.tuning import (
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
+    GUESS_WINDOW,
+    INSIDE_TIE,
     LEVEL_WINDOWS,
     NEAR_MAX_ITER,
     PAD,
@@ -182,10 +184,20 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     fallback = reason is not None
     basins = distinct_basins(solved, lambda g: g[1], problem.model.n)
-    while len(first) < count and basins:
+    if not (options.exhaustive or fallback) and basins:
+        # Those whose guess is far slower at k = 1 come only if the near ones all fail.
+        cutoff = (1 + GUESS_WINDOW) * basins[0][1].T
+        basins = ([b for b in basins if b[1].T <= cutoff]
+                  + [b for b in basins if b[1].T > cutoff])
+        near = sum(b[1].T <= cutoff for b in basins)
+    else:
+        near = len(basins)
+    while len(first) < count and basins and (near > 0 or not first):
         # As many as are still needed, side by side (planner.map); a failed one is
         # replaced by the next basin, as one after the other would.
-        batch, basins = basins[:count - len(first)], basins[count - len(first):]
+        size = min(count - len(first), near) if near > 0 else count - len(first)
+        batch, basins = basins[:size], basins[size:]
+        near -= len(batch)
         outs = planner.map(_uniform_item, ctx, [(bounds, res, fallback) for _, res in batch])
         for (idx, _), res in zip(batch, outs, strict=True):
             if not res.success:
@@ -432,14 +444,16 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
     All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
     (their spans halved at the junctions, at most :data:`REFINEMENTS` levels, until ``T``
     changes by less than :data:`T_SETTLED`); after level ``l`` those more than
-    ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Each one kept is then held
-    inside the control set between its samples (:func:`_inside_set`).
+    ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Those kept are then held
+    inside the control set between their samples (:func:`_inside_set`), fastest first, until
+    the next cannot beat the best so held by more than :data:`INSIDE_TIE`.
 
     Returns
     -------
     list of (int, FlatResult, FlatTrajectory, bool)
         The seed index, last solve and trajectory of every candidate refined, and whether it
-        is still a contender (within the last window, and held inside the control set).
+        is still a contender (within the last window, and held inside the control set), in
+        the order of ``first``.
     """
     problem = ctx.problem
     cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
@@ -476,9 +490,18 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
         if not any(entry[3] for entry in race.values()):
             break
     cutoff = (1 + LEVEL_WINDOWS[-1]) * min(entry[0].T for entry in race.values())
-    return [(idx, *_inside_set(planner, ctx, bounds, *entry[:3]), True)
-            if entry[0].T <= cutoff
-            else (idx, entry[0], entry[1], False) for idx, entry in race.items()]
+    # Held inside the set fastest first; one that cannot beat the best so held by more than
+    # INSIDE_TIE is left as it is (its re-solves would be spent on a motion not returned).
+    out, best = {}, np.inf
+    for _, idx in sorted((entry[0].T, idx) for idx, entry in race.items()):
+        entry = race[idx]
+        if entry[0].T > cutoff or entry[0].T >= (1 - INSIDE_TIE) * best:
+            out[idx] = (idx, entry[0], entry[1], False)
+            continue
+        res, traj = _inside_set(planner, ctx, bounds, *entry[:3])
+        out[idx] = (idx, res, traj, True)
+        best = min(best, res.T)
+    return [out[idx] for idx in race]
 
 
 def _refine_item(planner: Transcriptions, ctx: SolveContext, bounds, breaks: np.ndarray,
