@@ -415,3 +415,34 @@ def test_refined_candidates_are_held_inside_the_set_fastest_first_while_they_can
     # Holding the first costs 2e-3: the second can still win, and is held too.
     assert race([(1, 0.5), (3, 0.5002)], 2e-3) == [(1, 0.501, True), (3, 0.5012004, True)]
     assert held == [1, 3]
+
+
+def test_guesses_far_above_the_best_are_solved_only_when_those_near_it_fail(galicki,
+                                                                            monkeypatch):
+    """GUESS_WINDOW: the bounded candidates are the guesses near the best one's k = 1 T."""
+    from tocontrol_ros.core.direct import limited as lim
+
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0, limits=_tight(galicki))
+    options = SolverOptions(starts=4, candidates=4, time_limit=SLOW_OK)
+    original = lim._uniform_item
+    solved = []
+
+    def uniform(planner, ctx, bounds, guess, fallback, fail_first=False):
+        solved.append(guess.T)
+        out = original(planner, ctx, bounds, guess, fallback)
+        if fail_first and len(solved) == 1:
+            return replace(out, success=False, message="made to fail")
+        return out
+
+    monkeypatch.setattr(lim, "GUESS_WINDOW", 0.0)  # only the best guess is near
+    monkeypatch.setattr(lim, "_uniform_item", uniform)
+    res = plan(problem, options)
+    assert res.success, res.message
+    assert len(solved) == 1
+    monkeypatch.setattr(lim, "_uniform_item",
+                        lambda *a: uniform(*a, fail_first=True))
+    solved.clear()
+    again = plan(problem, options)
+    assert again.success, again.message
+    assert len(solved) > 1 and solved[0] == min(solved)  # the next ones, once it failed
+    assert any("made to fail" in s.status for s in again.starts)

@@ -8,13 +8,14 @@ bounds:
 1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
    from the initial path timed within the velocity limits (the multistart's own guesses
    when it solved them within the bounds at ``k = 1``; else at the requested ``k``);
-2. the best ``options.candidates`` (exhaustive mode: more) distinct ones are solved as
-   B-spline joint paths whose torques are their inverse dynamics
-   (:mod:`~tocontrol_ros.core.direct.flat`) on :data:`SPANS` uniform spans (a basin that fails is
-   replaced by the next, repeats dropped); those within :data:`REFINE_WINDOW` of the best
-   are solved again level by level (at most :data:`REFINEMENTS` levels) with the spans
-   halved where the acceleration changes (the junctions of arcs), each level leaving
-   behind those too far above the best (:data:`LEVEL_WINDOWS`);
+2. the best ``options.candidates`` (exhaustive mode: more) distinct ones whose ``T`` is
+   within :data:`GUESS_WINDOW` of the best guess's are solved as B-spline joint paths whose
+   torques are their inverse dynamics (:mod:`~tocontrol_ros.core.direct.flat`) on
+   :data:`SPANS` uniform spans (a basin that fails is replaced by the next, repeats
+   dropped); those within :data:`REFINE_WINDOW` of the best are solved again level by level
+   (at most :data:`REFINEMENTS` levels) with the spans halved where the acceleration
+   changes (the junctions of arcs), each level leaving behind those too far above the best
+   (:data:`LEVEL_WINDOWS`);
 3. the least ``T`` is verified (re-integration, limits included) and returned with
    ``method="direct"``.
 

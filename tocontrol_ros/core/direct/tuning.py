@@ -50,8 +50,12 @@ SAME_T = 1e-6
 
 
 #: Candidates whose guess's ``T`` at ``k = 1`` is more than this fraction above the best
-#: guess's are solved as B-spline paths only when all those within it fail.
-GUESS_WINDOW = float("inf")
+#: guess's are solved as B-spline paths only when all those within it fail (not in the
+#: exhaustive mode, nor in the fallback of a failed shooting). On the 20 Panda cases of
+#: BENCHMARKS.md (default options) the returned motion's guess was within 4 % of the best
+#: guess in every case; with this window the plans took 12 % less CPU time (63.3 s against
+#: 71.9 s in all, paired in one process) and returned the same ``T`` on 20 of 20.
+GUESS_WINDOW = 0.05
 
 
 # ------------------------------- the refinement (limited.py, flat_trajectory.py)
