@@ -171,11 +171,11 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
     status, message = verdict(options, cert, 0.0)
     timings["total"] = time.perf_counter() - t_start
     return PlanResult(
-        success=status is Status.SUCCESS, status=status, message=message, T=traj.T,
+        success=status is Status.SUCCESS, status=status, message=f"{message} ({note})", T=traj.T,
         k=problem.k, trajectory=traj, residual=0.0, iterations=passes, timings=timings,
         continuation=(), max_abs_u=float(np.max(np.abs(sample.u))), delta=0.0,
         intervals=len(traj.h), verification=dict(cert.figures) if cert else {},
-        certificate=cert, warnings=(note,) + limit_warnings(problem, sample),
+        certificate=cert, warnings=limit_warnings(problem, sample),
         problem=problem, method="first")
 
 
