@@ -218,3 +218,17 @@ def test_scaled_path_kinematics_are_exact(galicki):
     _, xs, ok = traj.open_loop(1e-12, 1e-13)
     assert ok
     np.testing.assert_allclose(xs[-1], traj.state(traj.T)[0, :6], atol=1e-8)
+
+
+def test_the_followed_target_is_reached_near_the_start(panda):
+    """A 2 cm move: the followed configuration reaches the target and moves little; the
+    self-motion families of the seed pairs end anywhere on the manifold."""
+    q0 = np.array([0.3, 0.2, -0.4, -1.9, 0.2, 1.8, 0.6])
+    target = panda.point(q0) + np.array([0.02, -0.01, 0.01])
+    problem = Problem(panda, joint_state(q0), point(target), k=4.0)
+    q = fm._followed(problem, q0)
+    assert q is not None
+    assert np.linalg.norm(panda.point(q) - target) <= 1e-9
+    assert np.max(np.abs(q - q0)) < 0.1
+    lim = problem.limits
+    assert np.all(q >= lim.plan_lower) and np.all(q <= lim.plan_upper)

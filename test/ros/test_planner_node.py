@@ -803,6 +803,10 @@ def first_mode_planner(suffix: str):
     try:
         client.wait_ready(30.0)
         assert running.node.ready.wait(HANG)
+        # Both subscriptions (the harness's and this one) matched before any request: a
+        # latched topic keeps only the last message for a late one.
+        client.wait_for(lambda: running.node._pub_trajectory.get_subscription_count() >= 2,
+                        30.0, "the trajectory subscriptions")
         yield running, client, trajectories
     finally:
         client.close()

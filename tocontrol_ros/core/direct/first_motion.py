@@ -8,11 +8,13 @@ sooner: a joint path between seed configurations of the planner
 problem), then certified like every other plan. :func:`first_motion`:
 
 1. chooses the end configurations ``(q_a, q_b)``: among the planner's seed pairs (the
-   multistart's own, best-ranked first) and the target's configuration that inverse
-   kinematics finds from the start, the :data:`CANDIDATES` with the least velocity-limited
-   bang-bang estimate are timed at rest along their straight joint line, and the fastest is
-   kept (the first seed pair is ranked without the velocity limits, which bind on real
-   arms: its line was up to 2.9 times slower). From rest, the path is that straight line
+   multistart's own, best-ranked first) and the target's configuration followed from the
+   start along the straight task-space line (:func:`_followed`), the :data:`CANDIDATES`
+   with the least velocity-limited bang-bang estimate are timed at rest along their
+   straight joint line, and the fastest is kept (the first seed pair alone is ranked
+   without the velocity limits, which bind on real arms, and its end is anywhere on the
+   self-motion manifold: its line was up to 4 times slower). From rest, the path is that
+   straight line
    (inside the position limits when both ends are: the box of the limits is convex); from a
    moving start state ``(q_0, qd_0)`` a straight line cannot take a velocity off its
    direction, so the path is the parabola ``q_0 + v s + (q_b - q_0 - v) s^2`` whose tangent
@@ -57,18 +59,21 @@ from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, ma
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
 from tocontrol_ros.core.result import PlanResult, Status
-from tocontrol_ros.core.robot.ik import solve_ik
-from tocontrol_ros.core.seeding import seed_pairs, shiftable_joints
+from tocontrol_ros.core.robot.ik import IK_TOL
+from tocontrol_ros.core.seeding import seed_pairs
 from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
 
 __all__ = ["first_motion", "GRIDPOINTS"]
 
 #: Candidate end configurations timed at rest before one is chosen (the planner's seed pairs
-#: and the target's configuration nearest the start, ranked by :func:`_estimates`). On 16
-#: cases of bench/limits.py (Panda, UR5, xArm7, limited 3R) the fastest straight path of all
-#: 17 was among the 3 best-estimated every time, and up to 2.9 times faster than the first
-#: seed pair's (xArm7).
+#: and the target followed from the start, ranked by :func:`_estimates`). On 40 cases drawn
+#: as bench/limits.py's (Panda, UR5, xArm7, limited 3R; 10 each, from rest) the chosen line
+#: was the fastest of all 17 candidates in 38 and within 6 % in the others; the first seed
+#: pair's alone was up to 4 times slower, and the followed target was the fastest in 30.
 CANDIDATES = 3
+#: Points of the straight task-space line along which the target's configuration is
+#: followed from the start (:func:`_followed`), and Newton steps at each.
+FOLLOW_STEPS, FOLLOW_ITERATIONS = 20, 3
 #: TOPP-RA segments along the path. T changes by well under 1 % from 100 to 400 segments
 #: on the Panda's straight paths, and each pass costs in proportion.
 GRIDPOINTS = 100
@@ -193,10 +198,10 @@ def _failure(problem: Problem, status: Status, why: str, timings: dict,
 def _chosen(problem: Problem, pairs: list):
     """The end configurations whose straight path is fastest at rest, and its time.
 
-    Candidates: the planner's seed pairs and, for a point target, the target's
-    configuration that inverse kinematics finds from the first pair's start (the nearest
-    end, often). The :data:`CANDIDATES` with the least velocity-limited bang-bang estimate
-    (:func:`_estimates`) are timed at rest by one TOPP-RA pass each.
+    Candidates: the planner's seed pairs and, for a point target, the target followed from
+    the first pair's start (:func:`_followed`). The :data:`CANDIDATES` with the least
+    velocity-limited bang-bang estimate (:func:`_estimates`) are timed at rest by one
+    TOPP-RA pass each.
 
     Returns
     -------
@@ -204,16 +209,13 @@ def _chosen(problem: Problem, pairs: list):
         ``T`` (s): the rest-to-rest time of the straight path in the cube (friction left
         out: it ranks, and sets a moving start's time scale).
     """
-    model, n = problem.model, problem.model.n
+    n = problem.model.n
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     cands = [(f"seed pair {i}", qa, qb) for i, (qa, qb) in enumerate(pairs)]
     if problem.target.kind == "point":
-        qa = pairs[0][0]
-        near = solve_ik(model, problem.target.value, q_seed=qa)
-        if near is not None:  # the short way round on the joints that turn freely
-            d = near - qa
-            cands.append(("the target's inverse kinematics from the start", qa,
-                          qa + np.where(shiftable_joints(problem), np.angle(np.exp(1j * d)), d)))
+        near = _followed(problem, pairs[0][0])
+        if near is not None:
+            cands.append(("the target followed from the start", pairs[0][0], near))
     cands = [c for c in cands if _inside(PolynomialPath.straight(c[1], c[2]), lo, hi)]
     if not cands:
         return Status.LIMITS_INFEASIBLE, "no seed pair is inside the position limits"
@@ -230,6 +232,56 @@ def _chosen(problem: Problem, pairs: list):
         return Status.SCALING_FAILED, f"no straight path between seed configurations could " \
             f"be timed at rest ({why})"
     return best
+
+
+def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
+    """The target's configuration reached from ``qa`` along the straight task-space line.
+
+    :data:`FOLLOW_STEPS` points of the line from ``P(qa)`` to the target, each with
+    :data:`FOLLOW_ITERATIONS` Newton steps of least norm weighted by the velocity limits
+    (``dq = W J^T (J W J^T)^-1 r``, ``W = diag(v^2)``: the least ``sum (dq_i / v_i)^2``), a
+    joint that would leave its position limits held where it is; then as many more at the
+    target. None unless it ends within ``IK_TOL`` of the target. Inverse kinematics from
+    random seeds, or the planner's self-motion families, end anywhere on the self-motion
+    manifold; this one ends near the start, where a short joint path is.
+    """
+    model, lim = problem.model, problem.limits
+    fk, jac = model.function("P"), model.function("J")
+    w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
+    target = problem.target.value
+    x0 = np.array(fk(qa)).ravel()
+    q = np.array(qa, dtype=float)
+    goals = [x0 + (target - x0) * (i / FOLLOW_STEPS) for i in range(1, FOLLOW_STEPS + 1)]
+    for goal in goals + [target]:
+        for _ in range(FOLLOW_ITERATIONS):
+            q = _limited_step(q, goal - np.array(fk(q)).ravel(), np.array(jac(q)), w,
+                              lim.plan_lower, lim.plan_upper)
+            if q is None:  # singular, or the free joints cannot move the tip there
+                return None
+    if not np.linalg.norm(np.array(fk(q)).ravel() - target) <= IK_TOL:
+        return None
+    return q
+
+
+def _limited_step(q, r, jac, w, lo, hi) -> np.ndarray | None:
+    """``q`` moved by the weighted least-norm step towards the task error ``r`` (m,).
+
+    Joints the step would take out of ``[lo, hi]`` are held and the step is taken again
+    with the others (an active set, at most n rounds); None when the rest cannot take it.
+    """
+    free = np.ones(len(q), dtype=bool)
+    for _ in range(len(q)):
+        wf = np.where(free, w, 0.0)
+        jw = jac * wf
+        try:
+            moved = q + wf * (jw.T @ np.linalg.solve(jw @ jw.T, r))
+        except np.linalg.LinAlgError:
+            return None
+        out = free & ((moved < lo) | (moved > hi))
+        if not out.any():
+            return moved
+        free &= ~out
+    return None
 
 
 def _estimates(problem: Problem, cands: list) -> np.ndarray:

@@ -27,12 +27,13 @@ import casadi as ca
 import numpy as np
 from numpy.polynomial import polynomial as poly
 
-from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS, _open_loop_integrator
+from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS
 from tocontrol_ros.core.indirect.pmp import LawParams
+from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
 
-__all__ = ["PolynomialPath", "ScaledPath", "mapped"]
+__all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES"]
 
 #: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
 _MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -50,6 +51,80 @@ def mapped(model: RobotModel, name: str, count: int,
     if key not in table:
         table[key] = (build() if build else model.function(name)).map(count)
     return table[key]
+
+
+#: Degrees in time of the segments' polynomials whose open-loop right-hand sides are
+#: compiled (one library per model): a straight path's (2) and a parabola's (4).
+COMPILED_DEGREES = (2, 4)
+#: model -> {(degree, rtol, atol, stiff): (right-hand side, its CVODES integrator)}.
+_INTEGRATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
+    """``dx/dsigma`` on a segment whose ``q(sigma)`` is a polynomial of ``degree``.
+
+    The model's forward dynamics under the inverse dynamics of the polynomial ``sum_j c_j
+    sigma^j`` (parameters ``(vec c, h)``, ``h`` the segment's duration), with CasADi's
+    dynamics signature (``t, x, z, p, u -> ode, alg, quad, zero``) so that a compiled copy
+    can drive CVODES.
+    """
+    n, d1 = model.n, degree + 1
+    x, c, h = ca.SX.sym("x", 2 * n), ca.SX.sym("c", n, d1), ca.SX.sym("h")
+    sig = ca.SX.sym("sigma")
+    pw = [sig ** j for j in range(d1)]
+    q = sum(c[:, j] * pw[j] for j in range(d1))
+    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
+    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
+    tau = model.rnea_sym(q, qd, qdd)
+    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    empty = ca.SX(0, 1)
+    return ca.Function(f"first_open_loop{degree}", [sig, x, ca.SX.sym("z", 0),
+                                                    ca.vertcat(ca.vec(c), h),
+                                                    ca.SX.sym("u", 0)],
+                       [ode, empty, empty, empty], ["t", "x", "z", "p", "u"],
+                       ["ode", "alg", "quad", "zero"])
+
+
+def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
+    """The right-hand sides of :data:`COMPILED_DEGREES` and their Jacobians, one library.
+
+    CVODES asks for the Jacobians at set-up, whichever iteration it uses.
+    """
+    out = []
+    for degree in COMPILED_DEGREES:
+        rhs = _open_loop_rhs(model, degree)
+        out += [rhs, rhs.jacobian()]
+    return out
+
+
+def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
+                         stiff: bool = False) -> ca.Function:
+    """CVODES over one segment of a :class:`ScaledPath`, output at ``OPEN_LOOP_POINTS``.
+
+    Its right-hand side (:func:`_open_loop_rhs`) compiled to C for the degrees of
+    :data:`COMPILED_DEGREES` (one library per model, cached on disk like the solver's: on
+    the Panda three times faster than CasADi's virtual machine, which it falls back to
+    without a compiler); Adams with functional iteration, or BDF with Newton iteration when
+    ``stiff``. Kept per model, and made again when the optimised build of the library lands.
+    """
+    if degree in COMPILED_DEGREES:
+        funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
+                                lambda: _compiled_rhs(model))
+        rhs = funs[2 * COMPILED_DEGREES.index(degree)]
+    else:
+        rhs = None
+    table = _INTEGRATORS.setdefault(model, {})
+    key = (degree, rtol, atol, stiff)
+    if key in table and (rhs is None or table[key][0] is rhs):
+        return table[key][1]
+    rhs = rhs if rhs is not None else _open_loop_rhs(model, degree)
+    method = {} if stiff else {"linear_multistep_method": "adams",
+                               "nonlinear_solver_iteration": "functional"}
+    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    integ = ca.integrator("scaled_open_loop", "cvodes", rhs, 0.0, grid.tolist(),
+                          {"reltol": rtol, "abstol": atol, "max_num_steps": 100000, **method})
+    table[key] = (rhs, integ)
+    return integ
 
 
 class PolynomialPath:
@@ -245,10 +320,9 @@ class ScaledPath:
                   ) -> tuple[np.ndarray, np.ndarray, bool]:
         """The nominal torques integrated from ``x(0)``, segment by segment (CVODES).
 
-        The same integrator as
-        :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop`: the
-        forward dynamics under the inverse dynamics of each segment's polynomial. Adams
-        first; BDF (``stiff``) when Adams fails.
+        As :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop` does
+        (:func:`open_loop_integrator`): the forward dynamics under the inverse dynamics of
+        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails.
 
         Returns
         -------
@@ -258,7 +332,7 @@ class ScaledPath:
             Open-loop states.
         success : bool
         """
-        integ = _open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
+        integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
         x = self.state(0.0)[0, :2 * self.n]
         ts, xs = [np.zeros(1)], [x[None, :]]
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
