@@ -232,3 +232,14 @@ def test_the_followed_target_is_reached_near_the_start(panda):
     assert np.max(np.abs(q - q0)) < 0.1
     lim = problem.limits
     assert np.all(q >= lim.plan_lower) and np.all(q <= lim.plan_upper)
+
+
+def test_joint_state_to_joint_state(galicki):
+    """A joint-state target: the path ends on it exactly (no inverse kinematics)."""
+    q0, q1 = np.array([0.3, 1.2, -0.9]), np.array([1.0, -0.4, 0.7])
+    problem = Problem(galicki, joint_state(q0), joint_state(q1), k=4.0,
+                      limits=_tight(galicki))
+    res = first_motion(problem)
+    _check_motion(problem, res)
+    np.testing.assert_allclose(res.trajectory.evaluate(res.T).q[0], q1, atol=1e-12)
+    assert res.certificate.item("end_position").passed

@@ -74,8 +74,9 @@ CANDIDATES = 3
 #: Points of the straight task-space line along which the target's configuration is
 #: followed from the start (:func:`_followed`), and Newton steps at each.
 FOLLOW_STEPS, FOLLOW_ITERATIONS = 20, 3
-#: TOPP-RA segments along the path. T changes by well under 1 % from 100 to 400 segments
-#: on the Panda's straight paths, and each pass costs in proportion.
+#: TOPP-RA segments along the path. On the Panda and the limited 3R (bench/limits.py cases)
+#: T fell by 1-3 % from 50 to 100 segments and by 0.1-1.2 % from 100 to 200; each pass, and
+#: the certificate's open loop, costs in proportion.
 GRIDPOINTS = 100
 #: Passes that adapt each gridpoint's box to the torques of the pass before (a second one
 #: gained under 0.1 % of T on the Panda and the limited 3R of bench/limits.py).
@@ -121,7 +122,7 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
 
     See the module. Fast (nothing iterative: a few TOPP-RA passes, each a small linear
     program per gridpoint, and the certificate), not the optimum: its ``T`` is the best
-    timing of one fixed path, never below the optimum's.
+    timing of one fixed path, never below the (global) optimum's.
 
     Parameters
     ----------
@@ -138,8 +139,9 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
     PlanResult
         ``method="first"``; ``iterations`` is the number of TOPP-RA passes, ``intervals``
         the segments, ``residual`` 0 (nothing is solved iteratively: the certificate checks
-        the ends). Timings: ``guess`` (the seed pair), ``scaling`` (TOPP-RA), ``verify``,
-        ``total`` (s). Never raises for a numerical failure.
+        the ends). Timings: ``guess`` (the seed pairs and the choice of the path),
+        ``scaling`` (TOPP-RA), ``verify`` (the certificate), ``total`` (s). Never raises for
+        a numerical failure.
     """
     options = options or SolverOptions()
     t_start = time.perf_counter()
