@@ -836,6 +836,7 @@ def test_first_then_optimum_publishes_both_in_order():
         assert first.values["published"] == "first" and first.values["method"] == "first"
         assert first.values["certified"] == "true" and "first motion published" in first.message
         assert first.received <= status.received
+        assert float(first.values["latency"]) <= float(status.values["latency"])
         client.wait_for(lambda: len(trajectories) >= 2, 30.0, "two trajectories")
         time.sleep(0.2)
         assert len(trajectories) == 2
@@ -877,9 +878,11 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
         assert status.event == "solved" and status.level == 1, status.message
         assert "the first motion stands" in status.message and "made to fail" in status.message
-        assert status.values["published"] == "first"
-        assert status.values["solver_status"] == "NEWTON_FAILED"
+        assert status.values["published"] == "first" and status.values["method"] == "first"
+        assert status.values["optimum_status"] == "NEWTON_FAILED"
+        assert status.values["certified"] == "true"  # the first motion's certificate
         client.wait_for(lambda: len(trajectories) >= 1, 30.0, "the first motion")
         time.sleep(0.2)
         assert len(trajectories) == 1
         assert _path_duration(path) == pytest.approx(_duration(trajectories[0]), abs=1e-8)
+        assert float(status.values["T"]) == pytest.approx(_duration(trajectories[0]), abs=1e-9)

@@ -469,7 +469,9 @@ class PlannerNode(Node):
             why = f"T = {result.T:.6g} s, not faster" if publishable else result.message
             self._finish(req, "WARN", "solved", f"the first motion stands (T = "
                          f"{first[0].T:.6g} s): the optimum was not published ({why})",
-                         {**extra, "samples": len(first[1].poses)}, path=first[1])
+                         {**extra, **conv.result_values(first[0]), "optimum_T": result.T,
+                          "optimum_status": result.status.name,
+                          "samples": len(first[1].poses)}, path=first[1])
             self._markers(first[0], first[1], config, start_point, req.target)
             return
         if not publishable:
@@ -505,7 +507,8 @@ class PlannerNode(Node):
         first = self.planner.first(problem, options)
         if first.status.name == "TRIVIAL" or req.cancelled.is_set() or self._stopping.is_set():
             return None
-        values = {"start": problem.start_point, **conv.result_values(first)}
+        values = {"start": problem.start_point, **conv.result_values(first),
+                  "latency": time.monotonic() - req.received}
         if not first.success:
             self._status(req, "WARN", "first", f"request {req.id}: no first motion "
                          f"({first.message}); the optimum follows",
