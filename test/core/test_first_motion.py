@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.direct import first_motion as fm
+from tocontrol_ros.core.direct import time_scaling as ts
 from tocontrol_ros.core.direct.first_motion import first_motion
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
@@ -69,7 +70,7 @@ def test_paper_example_first_motion_is_certified_and_slower_than_the_optimum(pap
     res = first_motion(problem)
     _check_motion(problem, res)
     assert optimum.T <= res.T <= FACTOR * optimum.T
-    assert res.timings["total"] > 0 and res.iterations >= 2 and res.intervals == fm.GRIDPOINTS
+    assert res.timings["total"] > 0 and res.iterations >= 2 and res.intervals == ts.GRIDPOINTS
     assert "first motion: the straight joint path" in res.message and not res.warnings
 
 
@@ -104,14 +105,14 @@ def test_friction_is_bounded_not_ignored(galicki):
     problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
     res = first_motion(problem)
     assert res.success
-    s = np.linspace(0.0, 1.0, fm.GRIDPOINTS + 1)
+    s = np.linspace(0.0, 1.0, ts.GRIDPOINTS + 1)
     traj = res.trajectory
-    coef = fm._Coefficients(problem, traj.path, s)
+    coef = ts._Coefficients(problem, traj.path, s)
     cube = np.full((len(s), 3), 3 ** (-1 / 8))
-    x, _ = fm._toppra(coef, s, 0.0, cube, None)  # friction left out
+    x, _ = ts._toppra(coef, s, 0.0, cube, None)  # friction left out
     careless = ScaledPath(galicki, traj.path, s, x, 4.0, 1.0)
     assert np.max(np.abs(careless.segment_samples(5)[1])) > 1.01 * cube[0, 0]
-    x, _ = fm._toppra(coef, s, 0.0, cube, x)  # friction bounded
+    x, _ = ts._toppra(coef, s, 0.0, cube, x)  # friction bounded
     bounded = ScaledPath(galicki, traj.path, s, x, 4.0, 1.0)
     assert np.max(np.abs(bounded.segment_samples(5)[1])) < 1.001 * cube[0, 0]
 
@@ -176,7 +177,7 @@ def test_boxes_have_their_corner_on_the_set():
     rng = np.random.default_rng(0)
     demand = rng.uniform(0, 1, (50, 7))
     for k in (1.0, 4.0, 16.0):
-        boxes = fm._boxes(demand, k)
+        boxes = ts._boxes(demand, k)
         np.testing.assert_allclose(np.sum(boxes ** (2 * k), axis=1), 1.0, rtol=1e-12)
         assert np.all(boxes > 0)
 
@@ -185,9 +186,9 @@ def test_friction_lines_bound_the_friction_torque(galicki):
     problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET))
     s = np.linspace(0.0, 1.0, 11)
     path = PolynomialPath.straight(np.array([0.1, 0.5, -2.0]), np.array([1.0, -0.5, 1.0]))
-    coef = fm._Coefficients(problem, path, s)
+    coef = ts._Coefficients(problem, path, s)
     x_prev = np.linspace(0.2, 3.0, 11)
-    u0, u1, l0, l1, cap = fm._friction_lines(coef, x_prev)
+    u0, u1, l0, l1, cap = ts._friction_lines(coef, x_prev)
     for x in np.linspace(0.0, cap[0], 50):
         true = coef.f * np.sqrt(x)
         assert np.all(l0 + l1 * x <= true + 1e-12) and np.all(true <= u0 + u1 * x + 1e-12)
