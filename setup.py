@@ -81,6 +81,8 @@ setup(
         "PyYAML>=6.0",
         "matplotlib>=3.6",
         "mcap>=1.1",
+        # The first motion (tocontrol_ros/core/direct/first_motion.py): TOPP-RA.
+        "toppra>=0.6",
         "ros-jazzy-rclpy>=7.1",
         "ros-jazzy-common-interfaces>=5.3",
         "ros-jazzy-rmw-fastrtps-cpp>=8.4",
@@ -96,7 +98,6 @@ setup(
             "ray>=2.9",
         ],
         "bench": [
-            "toppra>=0.6",
             "ray>=2.9",
         ],
         # `batch --ray`: only tocontrol_ros/batch/ray_backend.py imports it, inside RayBackend.

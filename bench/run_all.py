@@ -7,7 +7,7 @@ Run from the repository root::
     python bench/run_all.py [--quick] [--out FILE]
         [--only paper,peers,random,optimum,optimum_panda,profile_panda,scaling,panda_peer,
                 first_use,deployed_panda,
-                verification,deployed,batch,limits]
+                verification,deployed,batch,limits,first_motion]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -22,7 +22,8 @@ processes: idle CPU and ~/plan round trip against the same request in-process),
 ``deployed_panda`` (the Panda through two planner nodes, one process against one per core),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
-enforced). Every timing is taken in this one process, side by side; compiled functions go to a
+enforced), ``first_motion`` (the first motion's time and T against the full plan, the
+Panda). Every timing is taken in this one process, side by side; compiled functions go to a
 fresh temporary cache so that first-run costs are measured, not inherited.
 """
 
@@ -45,7 +46,7 @@ from bench import common  # noqa: E402  (sets the thread variables before numpy)
 PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "profile_panda", "scaling",
          "panda_peer",
          "first_use",
-         "verification", "deployed", "deployed_panda", "batch", "limits")
+         "verification", "deployed", "deployed_panda", "batch", "limits", "first_motion")
 
 
 def _parse(argv):
@@ -117,6 +118,7 @@ def _run(args):
         batch,
         deployed,
         deployed_panda,
+        first_motion,
         first_use,
         limits,
         optimum,
@@ -191,6 +193,9 @@ def _run(args):
         section(lambda: limits.run(3 if args.quick else args.limit_cases,
                                    limits.parse_robots(args.limit_robots,
                                                        3 if args.quick else args.limit_cases)))
+    if "first_motion" in args.only:
+        section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
+                                         count=3 if args.quick else 9))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
@@ -275,7 +280,10 @@ def _update(text: str, info: dict, sections) -> str:
                                       + [""])
         if "Targets" not in order:
             order.insert(0, "Targets")
-    return "\n## ".join([head] + [blocks[t] for t in order]) + "\n"
+    # Every block ends with one newline (the last one read lost it), so that a section
+    # added after it is set off by a blank line.
+    return "\n## ".join([head] + [blocks[t].rstrip("\n") + "\n" for t in order]
+                        ).rstrip("\n") + "\n"
 
 
 if __name__ == "__main__":

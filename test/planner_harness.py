@@ -58,6 +58,7 @@ PARAM_BAD = [
     ({"robot_description": "<robot/>"}, "read-only"),
     ({"frame_id": "map"}, "read-only"),
     ({"k": "four"}, "type"),
+    ({"publish": "sometimes"}, "`publish` must be one of optimum, first_then_optimum"),
 ]
 FINAL_EVENTS = ("solved", "failed", "superseded", "cancelled", "timed out")
 _counter = itertools.count()

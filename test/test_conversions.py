@@ -216,6 +216,7 @@ def test_descriptors_carry_ranges_and_read_only():
     ({"default_start": [1.0, float("nan")]}, r"`default_start` must be finite"),
     ({"gravity": [0.0, -9.8]}, r"`gravity` must have 3 entries"),
     ({"nonsense": 1}, r"unknown parameter"),
+    ({"publish": "first"}, r"`publish` must be one of optimum, first_then_optimum, got 'first'"),
 ])
 def test_config_rejects(values, match):
     with pytest.raises(ConfigError, match=match):
@@ -252,3 +253,25 @@ def test_yaml_and_docs_list_every_parameter():
     doc = (repo / "msg_docs" / "parameters.md").read_text()
     for spec in PARAMETERS:
         assert f"| `{spec.name}` |" in doc, spec.name
+
+
+def _result(method="indirect", warnings=(), certificate=None):
+    status = SimpleNamespace(name="SUCCESS")
+    return SimpleNamespace(T=0.73, k=4.0, iterations=3, timings={"total": 0.03, "verify": 0.01},
+                           residual=0.0, max_abs_u=0.99, warnings=warnings, method=method,
+                           certificate=certificate, status=status)
+
+
+@pytest.mark.parametrize("method, steps", [("first", "3 TOPP-RA passes"),
+                                           ("indirect", "3 Newton iterations")])
+def test_result_message_names_the_steps_of_the_method(method, steps):
+    level, message = conv.result_message(_result(method))
+    assert level == "OK" and steps in message and message.startswith("T = 0.73 s at k = 4")
+    assert conv.result_values(_result(method))["method"] == method
+
+
+def test_result_message_warns_on_warnings_but_not_on_routine_notes():
+    level, message = conv.result_message(_result(warnings=(conv.ROUTINE_NOTE + " (x)",)))
+    assert level == "OK" and conv.ROUTINE_NOTE in message
+    level, message = conv.result_message(_result(warnings=("joint 'j' violates ...",)))
+    assert level == "WARN" and message.endswith("warnings: joint 'j' violates ...")

@@ -181,3 +181,27 @@ def test_guess_tolerance_keeps_the_basins(galicki):
         its[0] += a.iterations
         its[1] += b.iterations
     assert its[1] < its[0], its
+
+
+def test_the_same_problem_asked_again_gets_the_last_pairs(galicki, monkeypatch):
+    """The planner node's first motion and its plan ask for one problem's pairs in turn: the
+    second call skips the inverse kinematics, and gets copies (changing them changes
+    nothing); another problem, or other options, are computed."""
+    from tocontrol_ros.core import seeding
+
+    calls = []
+    real = seeding.seed_grid
+    monkeypatch.setattr(seeding, "seed_grid", lambda *a: calls.append(1) or real(*a))
+    problem = Problem(galicki, point((1.0, 1.0)), point((2.2, 1.5)))
+    options = SolverOptions(starts=4)
+    first = seed_pairs(problem, options)
+    first[0][0][:] = 99.0
+    again = seed_pairs(problem, options)
+    assert len(calls) == 1 and not np.any(again[0][0] == 99.0)
+    fresh = seed_pairs(Problem(galicki, point((1.0, 1.0)), point((2.2, 1.5))), options)
+    assert len(calls) == 2
+    for (a, b), (c, d) in zip(again, fresh, strict=True):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, d)
+    seed_pairs(problem, SolverOptions(starts=2))
+    assert len(calls) == 3

@@ -41,6 +41,7 @@ MODULE_DEPENDENCIES = {
     # rosdistro has no key for `mcap` alone; the mcap-ros2-support key brings it in.
     "mcap": ("mcap-ros2-support", "mcap"),
     "mcap_ros2": ("mcap-ros2-support", "mcap-ros2-support"),
+    "toppra": ("python3-toppra-pip", "toppra"),
 }
 
 # Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of

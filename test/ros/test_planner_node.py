@@ -783,3 +783,106 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
         assert status.event == "failed" and status.level == 2, status.message
         assert status.values["solver_status"] == "TIME_LIMIT"
         assert len(path.poses) == 0
+
+
+@contextlib.contextmanager
+def first_mode_planner(suffix: str):
+    """A planner with ``publish: first_then_optimum``, a client, and every trajectory it
+    publishes in arrival order (a subscription of its own, deeper than the harness's)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from trajectory_msgs.msg import JointTrajectory
+
+    ns = f"{NAMESPACE}_{suffix}"
+    running = Running([Parameter("publish", value="first_then_optimum")], namespace=ns)
+    client = PlannerClient(f"{ns}/planner")
+    trajectories = []
+    client.node.create_subscription(
+        JointTrajectory, f"{ns}/planner/trajectory", trajectories.append,
+        QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    try:
+        client.wait_ready(30.0)
+        assert running.node.ready.wait(HANG)
+        # Both subscriptions (the harness's and this one) matched before any request: a
+        # latched topic keeps only the last message for a late one.
+        client.wait_for(lambda: running.node._pub_trajectory.get_subscription_count() >= 2,
+                        30.0, "the trajectory subscriptions")
+        yield running, client, trajectories
+    finally:
+        client.close()
+        running.stop()
+
+
+def _duration(msg) -> float:
+    return seconds(msg.points[-1].time_from_start)
+
+
+def _path_duration(path) -> float:
+    stamps = [p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in path.poses]
+    return (stamps[-1] - stamps[0]) * 1e-9
+
+
+def test_first_then_optimum_publishes_both_in_order():
+    """Issue 32: the first certified motion on ~/trajectory before the solve ends, then the
+    optimum; ~/status says which was published; ~/plan answers with the optimum."""
+    with first_mode_planner("first") as (running, client, trajectories):
+        since = len(client.status_list())
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "solved" and status.level == 0, status.message
+        assert status.values["published"] == "optimum" and status.values["method"] != "first"
+        firsts = [s for s in client.status_list()[since:] if s.event == "first"]
+        assert len(firsts) == 1, [s.message for s in firsts]
+        first = firsts[0]
+        assert first.values["published"] == "first" and first.values["method"] == "first"
+        assert first.values["certified"] == "true" and "first motion published" in first.message
+        assert first.received <= status.received
+        assert float(first.values["latency"]) <= float(status.values["latency"])
+        client.wait_for(lambda: len(trajectories) >= 2, 30.0, "two trajectories")
+        time.sleep(0.2)
+        assert len(trajectories) == 2
+        T_first, T_opt = float(first.values["T"]), float(status.values["T"])
+        assert _duration(trajectories[0]) == pytest.approx(T_first, abs=1e-9)
+        assert _duration(trajectories[1]) == pytest.approx(T_opt, abs=1e-9)
+        assert T_opt == pytest.approx(0.5070396, rel=1e-6)  # the default plan, as ever
+        assert T_first > T_opt
+        assert _path_duration(path) == pytest.approx(T_opt, abs=1e-8)
+        # Both start where the arm is and end on the target at rest.
+        model = running.node.model
+        for msg in trajectories:
+            np.testing.assert_allclose(model.point(np.array(msg.points[-1].positions)),
+                                       PAPER_TARGET, atol=1e-7)
+            np.testing.assert_allclose(model.point(np.array(msg.points[0].positions)),
+                                       PAPER_START, atol=1e-7)
+            np.testing.assert_allclose(msg.points[-1].velocities, 0.0, atol=1e-6)
+        assert running.node.last_result.method != "first"
+
+
+def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
+    """The optimum's solve fails: the first motion, already published, stays the answer (a
+    WARN status that says so, the ~/plan path is the first motion's)."""
+    from tocontrol_ros.core import solver as solver_module
+
+    real = solver_module.Planner.plan
+    serving = []  # set once the node is ready: its warm-up solves as ever
+
+    def failing(self, problem, options=None, warm_start=None, should_stop=None):
+        result = real(self, problem, options, warm_start, should_stop)
+        if not serving:
+            return result
+        return solver_module._failure(problem, solver_module.Status.NEWTON_FAILED,
+                                      "made to fail by the test", dict(result.timings))
+
+    monkeypatch.setattr(solver_module.Planner, "plan", failing)
+    with first_mode_planner("first_stands") as (_, client, trajectories):
+        serving.append(True)
+        path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+        assert status.event == "solved" and status.level == 1, status.message
+        assert "the first motion stands" in status.message and "made to fail" in status.message
+        assert status.values["published"] == "first" and status.values["method"] == "first"
+        assert status.values["optimum_status"] == "NEWTON_FAILED"
+        assert status.values["certified"] == "true"  # the first motion's certificate
+        client.wait_for(lambda: len(trajectories) >= 1, 30.0, "the first motion")
+        time.sleep(0.2)
+        assert len(trajectories) == 1
+        assert _path_duration(path) == pytest.approx(_duration(trajectories[0]), abs=1e-8)
+        assert float(status.values["T"]) == pytest.approx(_duration(trajectories[0]), abs=1e-9)

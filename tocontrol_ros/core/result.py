@@ -29,6 +29,7 @@ class Status(enum.Enum):
     CANCELLED = "cancelled by the caller (a newer request or a shutdown)"
     TIME_LIMIT = "the time limit ran out before the solve finished"
     LIMITS_INFEASIBLE = "no motion within the joint limits was found"
+    SCALING_FAILED = "the seed path could not be timed within the limits"
 
 
 @dataclass(frozen=True)
@@ -159,7 +160,10 @@ class PlanResult:
     method : str
         ``"indirect"``: the maximum principle (multiple shooting of the canonical system);
         ``"direct"``: the joint limits bind, and the bounded B-spline transcription solved
-        the problem (:mod:`~tocontrol_ros.core.direct.limited`, ``docs/limits.md``).
+        the problem (:mod:`~tocontrol_ros.core.direct.limited`, ``docs/limits.md``);
+        ``"first"``: not the optimum but the first motion, a seed path timed by TOPP-RA
+        (:mod:`~tocontrol_ros.core.direct.first_motion`; its timings are ``guess``,
+        ``scaling``, ``verify``, ``total``).
     certificate : Certificate or None
         Every check with its value, tolerance and verdict (None with ``verify=False`` or
         without a solution).

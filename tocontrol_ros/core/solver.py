@@ -54,6 +54,7 @@ import numpy as np
 
 from tocontrol_ros.core.certificate import certify
 from tocontrol_ros.core.context import Run, SolveContext, StopError, trajectory
+from tocontrol_ros.core.direct.first_motion import first_motion
 from tocontrol_ros.core.direct.limited import (
     finer_guess,
     plan_limited,
@@ -110,6 +111,15 @@ class Planner(PreparedModel):
              should_stop: Callable[[], bool] | None = None) -> PlanResult:
         """See :func:`plan`."""
         return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
+
+    def first(self, problem: Problem, options: SolverOptions | None = None) -> PlanResult:
+        """A certified motion inside every limit at once, slower than the optimum.
+
+        A seed configurations' joint path timed by TOPP-RA (``method="first"``,
+        :func:`~tocontrol_ros.core.direct.first_motion.first_motion`): tens of milliseconds
+        where :meth:`plan` takes up to seconds.
+        """
+        return first_motion(problem, options or SolverOptions())
 
 
 _PLANNERS: dict[int, Planner] = {}

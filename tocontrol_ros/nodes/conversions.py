@@ -36,7 +36,8 @@ __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
            "empty_path", "point_path", "markers_msg", "status_msg", "status_values",
-           "certificate_values", "LEVELS"]
+           "certificate_values", "result_values", "result_message", "ROUTINE_NOTE",
+           "LEVELS"]
 
 #: Non-task coordinates of a request must match the arm's constant value within this (m):
 #: loose enough for hand-typed numbers, tight enough to catch a point from another plane.
@@ -425,6 +426,50 @@ def certificate_values(certificate) -> dict[str, object]:
     out["cert_failed"] = ",".join(i.name for i in certificate.failures)
     out["cert_tolerances"] = ",".join(f"{i.name}={i.tol:.3g}" for i in certificate.items)
     return out
+
+
+#: A solver note that is routine, not a warning: the warm start was tried and the solve
+#: went on cold (the status stays OK and keeps the note).
+ROUTINE_NOTE = "warm start did not converge"
+
+
+def result_values(result) -> dict[str, object]:
+    """The ``~/status`` values of a plan (:class:`~tocontrol_ros.core.result.PlanResult`).
+
+    Returns
+    -------
+    dict
+        ``T`` (s), ``iterations``, ``solve_time`` (s), ``residual``, ``max_abs_u``,
+        ``solver_status``, ``method``, ``verify_time`` (s; None without a certificate) and
+        the certificate's (:func:`certificate_values`).
+    """
+    return {"T": result.T, "iterations": result.iterations,
+            "solve_time": result.timings.get("total"), "residual": result.residual,
+            "max_abs_u": result.max_abs_u, "solver_status": result.status.name,
+            "method": result.method,
+            "verify_time": result.timings.get("verify") if result.certificate else None,
+            **certificate_values(result.certificate)}
+
+
+def result_message(result) -> tuple[str, str]:
+    """Level (``"OK"``, or ``"WARN"`` with warnings) and summary of a published plan.
+
+    ``T``, ``k``, the iterations (TOPP-RA passes for a first motion), the solve time, the
+    residual, ``max |u|``, whether it is certified, and its warnings: routine ones
+    (:data:`ROUTINE_NOTE`) appended, any other makes it a ``WARN``.
+    """
+    verified = "certified" if result.certificate else "not certified (verify = false)"
+    steps = "TOPP-RA passes" if result.method == "first" else "Newton iterations"
+    message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} {steps}, "
+               f"{result.timings['total']:.3f} s, residual {result.residual:.2g}, max |u| = "
+               f"{result.max_abs_u:.4f}; {verified}")
+    routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
+    warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
+    if routine:
+        message += "; " + "; ".join(routine)
+    if warnings:
+        return "WARN", message + "; warnings: " + "; ".join(warnings)
+    return "OK", message
 
 
 def status_msg(level: str, name: str, message: str, hardware_id: str,

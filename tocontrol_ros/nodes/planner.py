@@ -8,7 +8,8 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
   answer is the end-effector path stamped with the planned times, empty on failure;
 - topic ``~/goal`` (``geometry_msgs/msg/PointStamped``): plan from the robot's current state
   (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
-- published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local),
+- published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local;
+  with ``publish: first_then_optimum`` first a certified motion at once, then the optimum),
   ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
   ``~/ee_path`` (``nav_msgs/msg/Path``), ``~/markers`` (``visualization_msgs/msg/MarkerArray``).
 
@@ -46,12 +47,15 @@ from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.node_main import run_node
-from tocontrol_ros.nodes.params import declare_all, load_model, parse_locked_joints
+from tocontrol_ros.nodes.params import declare_all
 from tocontrol_ros.nodes.planner_config import (
+    FIRST_THEN_OPTIMUM,
     PARAMETERS,
     ConfigError,
     PlannerConfig,
     config_from_values,
+    planner_limits,
+    planner_model,
     solver_options,
 )
 from tocontrol_ros.nodes.requests import LatestMessage, LatestSlot, PlanRequest
@@ -66,9 +70,6 @@ EXECUTOR_THREADS = 8
 #: used while the arm moves. Without joint states newer than that, the newest one within
 #: ``joint_state_timeout`` is used after the wait.
 FRESH_STATE_WAIT = 0.1
-#: A solver note that is routine, not a warning: the warm start was tried and the solve
-#: went on cold (the status stays OK and keeps the note).
-ROUTINE_NOTE = "warm start did not converge"
 #: How often a waiting service callback looks at the shutdown flag (s).
 WAIT_POLL = 0.05
 #: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
@@ -92,24 +93,6 @@ QOS_SERVICE = qos.profile(1000)
 OPTIMISED_POLL = 1.0
 
 
-def _load_model(config: PlannerConfig):
-    return load_model(config.robot_description, config.robot_description_file,
-                      base_link=config.base_link or None, tip_link=config.tip_link or None,
-                      gravity=config.gravity, task_axes=config.task_axes or None,
-                      locked_joints=parse_locked_joints(config.locked_joints))[0]
-
-
-def _joint_limits(config: PlannerConfig, model):
-    """The URDF's joint limits narrowed by the ``joint_limits`` file (no margin yet)."""
-    from tocontrol_ros.core.robot.limits import JointLimits, load_joint_limits_yaml
-
-    limits = JointLimits.from_model(model)
-    if config.joint_limits:
-        limits = limits.narrowed(load_joint_limits_yaml(config.joint_limits),
-                                 f"`joint_limits` file {config.joint_limits!r}")
-    return limits
-
-
 class PlannerNode(Node):
     """Serves time-optimal plans (see the module docstring and ``msg_docs/``).
 
@@ -130,8 +113,8 @@ class PlannerNode(Node):
     def __init__(self, node_name: str = "planner", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         config = config_from_values(declare_all(self, PARAMETERS))
-        self.model = _load_model(config)
-        self._limits = _joint_limits(config, self.model)
+        self.model = planner_model(config)
+        self._limits = planner_limits(config, self.model)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
         from tocontrol_ros.core.solver import Planner
@@ -429,6 +412,7 @@ class PlannerNode(Node):
                     return note
                 self.planner.prepare(problem, options)
             for problem in problems:
+                self.planner.first(problem, options)  # loads TOPP-RA, builds its integrator
                 result = self.planner.plan(
                     problem, options,
                     should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
@@ -458,19 +442,19 @@ class PlannerNode(Node):
             self._finish(req, "ERROR", "failed", str(exc))
             return
         start_point = problem.start_point
+        options = solver_options(config)
+        first = self._first(req, problem, options) \
+            if config.publish == FIRST_THEN_OPTIMUM else None
         last = self._last_result
         warm = last if config.warm_start and last is not None and \
             last.can_warm_start(problem) else None
-        result = self.planner.plan(problem, solver_options(config), warm_start=warm,
+        result = self.planner.plan(problem, options, warm_start=warm,
                                    should_stop=self._should_stop(req))
-        extra = {"start": start_point, "T": result.T, "iterations": result.iterations,
-                 "solve_time": result.timings.get("total"), "residual": result.residual,
-                 "max_abs_u": result.max_abs_u, "warm_start": warm is not None,
+        extra = {"start": start_point, **conv.result_values(result),
+                 "warm_start": warm is not None,
                  "warm_returned": any(r.index == -1 and r.status == "returned"
                                       for r in result.starts),
-                 "solver_status": result.status.name, "method": result.method,
-                 "verify_time": result.timings.get("verify") if result.certificate else None,
-                 **conv.certificate_values(result.certificate)}
+                 "published": "first" if first else "none"}
         if req.cancelled.is_set() or self._stopping.is_set():
             event, reason = req.cancel_reason if req.cancelled.is_set() else \
                 ("cancelled", "node shutting down")
@@ -480,7 +464,17 @@ class PlannerNode(Node):
         # found before the deadline (its warning, WARN, says it may not be the optimum).
         # Any other result is not, even with a trajectory (one that failed its certificate).
         time_limited = result.status.name == "TIME_LIMIT" and result.trajectory is not None
-        if not (result.success or time_limited):
+        publishable = result.success or time_limited
+        if first and not (publishable and result.T < first[0].T):
+            why = f"T = {result.T:.6g} s, not faster" if publishable else result.message
+            self._finish(req, "WARN", "solved", f"the first motion stands (T = "
+                         f"{first[0].T:.6g} s): the optimum was not published ({why})",
+                         {**extra, **conv.result_values(first[0]), "optimum_T": result.T,
+                          "optimum_status": result.status.name,
+                          "samples": len(first[1].poses)}, path=first[1])
+            self._markers(first[0], first[1], config, start_point, req.target)
+            return
+        if not publishable:
             self._finish(req, "ERROR", "failed", result.message, extra)
             return
         if result.status.name == "TRIVIAL":
@@ -494,39 +488,63 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        sample = result.trajectory.sample(config.sample_period)
-        stamp = self._now()
-        frame_id = self.frame.frame_id
-        path = conv.path_msg(self.model, sample, frame_id, stamp)
-        try:
-            self._pub_trajectory.publish(conv.trajectory_msg(sample, self.model.joint_names,
-                                                             frame_id, stamp))
-            self._pub_path.publish(path)
-        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+        path = self._publish(result, config)
+        if path is None:  # publishers gone during shutdown
             req.done.set()
             return
-        verified = "certified" if result.certificate else "not certified (verify = false)"
-        message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} "
-                   f"Newton iterations, {result.timings['total']:.3f} s, residual "
-                   f"{result.residual:.2g}, max |u| = {result.max_abs_u:.4f}; {verified}")
-        level = "OK"
-        routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
-        warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
-        if routine:
-            message += "; " + "; ".join(routine)
-        if warnings:
-            level = "WARN"
-            message += "; warnings: " + "; ".join(warnings)
-        self._finish(req, level, "solved", message, {**extra, "samples": len(sample.t)},
-                     path=path)
-        # The viewer's markers after the answer: the caller does not wait for them.
+        level, message = conv.result_message(result)
+        self._finish(req, level, "solved", message, {**extra, "published": "optimum",
+                                                     "samples": len(path.poses)}, path=path)
+        self._markers(result, path, config, start_point, req.target)
+
+    def _first(self, req: PlanRequest, problem, options) -> tuple | None:
+        """``publish: first_then_optimum``: the first motion, published at once.
+
+        Returns ``(result, path)`` when it was published (with a ``first`` status), else
+        None: nothing to move, cancelled meanwhile, or it failed (a ``first`` status says
+        why; the optimum follows either way).
+        """
+        first = self.planner.first(problem, options)
+        if first.status.name == "TRIVIAL" or req.cancelled.is_set() or self._stopping.is_set():
+            return None
+        values = {"start": problem.start_point, **conv.result_values(first),
+                  "latency": time.monotonic() - req.received}
+        if not first.success:
+            self._status(req, "WARN", "first", f"request {req.id}: no first motion "
+                         f"({first.message}); the optimum follows",
+                         {**values, "published": "none"})
+            return None
+        path = self._publish(first, req.config)
+        if path is None:
+            return None
+        level, message = conv.result_message(first)
+        self._status(req, level, "first", f"request {req.id} first motion published: "
+                     f"{message}; the optimum follows",
+                     {**values, "published": "first", "samples": len(path.poses)})
+        return first, path
+
+    def _publish(self, result, config: PlannerConfig) -> Path | None:
+        """``~/trajectory`` and ``~/ee_path`` of a result; the path, None during shutdown."""
+        sample = result.trajectory.sample(config.sample_period)
+        stamp = self._now()
+        path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
+        try:
+            self._pub_trajectory.publish(conv.trajectory_msg(
+                sample, self.model.joint_names, self.frame.frame_id, stamp))
+            self._pub_path.publish(path)
+        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+            return None
+        return path
+
+    def _markers(self, result, path: Path, config: PlannerConfig, start_point, target) -> None:
+        """The viewer's markers, after the answer: the caller does not wait for them."""
         snaps = result.trajectory.evaluate(
             np.linspace(0.0, result.T, config.marker_snapshots)).q
         ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
                        for p in path.poses])
         markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,
-                                   start_point), conv.embed_point(self.frame, req.target),
-                                   frame_id, stamp)
+                                   start_point), conv.embed_point(self.frame, target),
+                                   self.frame.frame_id, path.header.stamp)
         try:
             self._pub_markers.publish(markers)
         except Exception:  # noqa: BLE001  (publisher gone during shutdown)

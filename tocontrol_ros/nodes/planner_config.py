@@ -1,4 +1,4 @@
-"""Parameters of the planner node: declared in one table, read into a frozen config.
+"""Parameters of the planner node: one table, a frozen config, what the node builds from it.
 
 :data:`PARAMETERS` is the only place a parameter is defined (name, default, range,
 description, whether a change needs a restart). The node declares each one with the
@@ -24,10 +24,17 @@ from tocontrol_ros.nodes.params import (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
     ParameterSpec,
+    load_model,
+    parse_locked_joints,
 )
 
-__all__ = ["ConfigError", "PARAMETERS", "PlannerConfig",
-           "config_from_values", "solver_options", "default_values"]
+__all__ = ["ConfigError", "PARAMETERS", "PlannerConfig", "PUBLISH_MODES", "FIRST_THEN_OPTIMUM",
+           "config_from_values", "solver_options", "default_values", "planner_model",
+           "planner_limits"]
+
+#: ``publish``: the optimum only (the default), or first a certified motion at once.
+FIRST_THEN_OPTIMUM = "first_then_optimum"
+PUBLISH_MODES = ("optimum", FIRST_THEN_OPTIMUM)
 
 class ConfigError(TocontrolError, ValueError):
     """A parameter value that the planner cannot use; the message names the parameter."""
@@ -102,6 +109,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "limits: 0.2-0.5 s against seconds), in the previous motion's basin, which "
                   "the multistart might beat. A failed warm start falls back to the "
                   "multistart."),
+    ParameterSpec("publish", "optimum", "What ~/trajectory carries: 'optimum' (the plan, "
+                  "once solved) or 'first_then_optimum' (first a certified motion inside "
+                  "every limit, a seed path timed by TOPP-RA, as soon as it exists, tens of "
+                  "milliseconds; then the optimum when it comes and is faster). The ~/plan "
+                  "answer is the last motion published (msg_docs/parameters.md).",
+                  constraints="optimum or first_then_optimum"),
     ParameterSpec("sample_period", 0.01, "Sample period of ~/trajectory, ~/ee_path and the "
                   "~/plan response (s); the final time is always a sample.", 1e-4, 1.0),
     ParameterSpec("default_start", list(PAPER_START), "Start point (task coordinates in "
@@ -150,6 +163,7 @@ class PlannerConfig:
     verify: bool
     warm_start: bool
     warm_only: bool
+    publish: str
     sample_period: float
     default_start: tuple[float, ...]
     joint_state_timeout: float
@@ -228,6 +242,9 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
             out[spec.name] = _check_vector(spec.name, value, size)
         else:
             out[spec.name] = _check_scalar(spec, value)
+    if out["publish"] not in PUBLISH_MODES:
+        raise ConfigError(f"`publish` must be one of {', '.join(PUBLISH_MODES)}, got "
+                          f"{out['publish']!r}")
     if out["candidates"] > out["starts"]:
         raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
                           f"({out['starts']}): only the starts' direct solutions can be "
@@ -235,6 +252,25 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
     if not out["default_start"] and task_dim in (None, len(PAPER_START)):
         raise ConfigError("`default_start` must not be empty")
     return PlannerConfig(**{f.name: out[f.name] for f in fields(PlannerConfig)})
+
+
+def planner_model(config: PlannerConfig):
+    """The planner's :class:`~tocontrol_ros.core.robot.model.RobotModel` of a config."""
+    return load_model(config.robot_description, config.robot_description_file,
+                      base_link=config.base_link or None, tip_link=config.tip_link or None,
+                      gravity=config.gravity, task_axes=config.task_axes or None,
+                      locked_joints=parse_locked_joints(config.locked_joints))[0]
+
+
+def planner_limits(config: PlannerConfig, model):
+    """The URDF's joint limits narrowed by the ``joint_limits`` file (no margin yet)."""
+    from tocontrol_ros.core.robot.limits import JointLimits, load_joint_limits_yaml
+
+    limits = JointLimits.from_model(model)
+    if config.joint_limits:
+        limits = limits.narrowed(load_joint_limits_yaml(config.joint_limits),
+                                 f"`joint_limits` file {config.joint_limits!r}")
+    return limits
 
 
 def solver_options(config: PlannerConfig):

@@ -1,0 +1,246 @@
+"""The first motion (issue 32): a certified motion inside every limit, before the optimum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.direct import first_motion as fm
+from tocontrol_ros.core.direct import time_scaling as ts
+from tocontrol_ros.core.direct.first_motion import first_motion
+from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.robot.limits import JointLimits
+from tocontrol_ros.core.solver import Planner, SolverOptions, Status, plan
+
+#: Velocity limits (rad/s) that bind on the paper's example (as in test_limits.py).
+TIGHT = np.array([0.4, 1.0, 1.0])
+#: The first motion is one path's best timing: slower than the optimum, but not by more
+#: than this factor on these cases (measured 1.3-1.6 on the paper's arm, up to 3.7 on a
+#: 7-joint arm whose optimum picks its end configuration on the self-motion manifold).
+FACTOR = 4.0
+
+
+def _tight(model, margin=0.0):
+    base = JointLimits.from_model(model)
+    return JointLimits(base.names, base.lower, base.upper, TIGHT, margin)
+
+
+def _check_motion(problem: Problem, res) -> None:
+    """Certified, inside the set and the limits everywhere, from the start to the target."""
+    assert res.success, res.message
+    assert res.status is Status.SUCCESS and res.method == "first"
+    assert res.certificate is not None and res.certificate.passed, res.certificate.summary()
+    traj, model, n = res.trajectory, problem.model, problem.model.n
+    # Between the gridpoints too, on both sides of every acceleration jump.
+    _, u, qd = traj.segment_samples(9)
+    fine = traj.evaluate(np.linspace(0.0, res.T, 3001))
+    for us in (u, fine.u):
+        assert np.max(np.sum(np.abs(us) ** (2 * problem.k), axis=1)) <= 1.0 + 1e-12
+    lim = problem.limits
+    for q, v in ((fine.q, fine.qd), (fine.q, qd)):
+        assert lim.violations(q[: len(v)], v) == (0.0, 0.0)
+    ends = traj.evaluate(np.array([0.0, res.T]))
+    if problem.start.kind == "state":
+        np.testing.assert_allclose(ends.q[0], problem.start.value[:n], atol=1e-12)
+        np.testing.assert_allclose(ends.qd[0], problem.start.value[n:], atol=1e-12)
+    else:
+        np.testing.assert_allclose(model.point(ends.q[0]), problem.start_point, atol=1e-8)
+        np.testing.assert_allclose(ends.qd[0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(model.point(ends.q[1]), problem.target_point, atol=1e-8)
+    np.testing.assert_allclose(ends.qd[1], 0.0, atol=1e-9)
+    # The published effort is the inverse dynamics of the published motion.
+    tau = np.array([model.inverse_dynamics(q, v, a) for q, v, a in
+                    zip(fine.q[::300], fine.qd[::300], fine.qdd[::300], strict=True)])
+    np.testing.assert_allclose(fine.tau[::300], tau, rtol=1e-9, atol=1e-9)
+
+
+# ----------------------------------------------------------------- the paper's arm
+@pytest.fixture(scope="module")
+def paper_optimum(galicki):
+    """The paper's example as the planner node plans it (default multistart)."""
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
+    return problem, plan(problem)
+
+
+def test_paper_example_first_motion_is_certified_and_slower_than_the_optimum(paper_optimum):
+    problem, optimum = paper_optimum
+    assert optimum.success
+    res = first_motion(problem)
+    _check_motion(problem, res)
+    assert optimum.T <= res.T <= FACTOR * optimum.T
+    assert res.timings["total"] > 0 and res.iterations >= 2 and res.intervals == ts.GRIDPOINTS
+    assert "first motion: the straight joint path" in res.message and not res.warnings
+
+
+def test_the_planner_offers_the_first_motion(paper_optimum):
+    problem, _ = paper_optimum
+    res = Planner(problem.model).first(problem, SolverOptions())
+    assert res.method == "first" and res.success
+
+
+@pytest.mark.parametrize("moving", [False, True], ids=["rest", "moving"])
+def test_paper_arm_with_binding_velocity_limits(galicki, moving):
+    """From a joint state (at rest, or moving at 60 % of a velocity limit off the path)."""
+    q0 = np.array([0.3, 1.2, -0.9])
+    qd0 = np.array([0.0, -0.6, 0.6]) * TIGHT if moving else np.zeros(3)
+    problem = Problem(galicki, joint_state(q0, qd0), point(PAPER_TARGET), k=4.0,
+                      limits=_tight(galicki))
+    res = first_motion(problem)
+    _check_motion(problem, res)
+    assert ("parabola from the moving start" in res.message) == moving
+    optimum = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=600.0))
+    assert optimum.success, optimum.message
+    assert optimum.T <= res.T * (1 + 1e-9) <= FACTOR * optimum.T
+    # The limits bind: some joint runs at (nearly: the bound holds between the gridpoints
+    # too, so a curved path keeps a little below it) its velocity limit.
+    fine = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+    assert np.max(np.abs(fine.qd) / TIGHT) > 0.97
+
+
+def test_friction_is_bounded_not_ignored(galicki):
+    """The paper's arm has 1 N m s/rad of viscous friction against an 8 N m joint: timed as
+    if there were none, the torques leave the box TOPP-RA was given; bounded, they do not."""
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
+    res = first_motion(problem)
+    assert res.success
+    s = np.linspace(0.0, 1.0, ts.GRIDPOINTS + 1)
+    traj = res.trajectory
+    coef = ts._Coefficients(problem, traj.path, s)
+    cube = np.full((len(s), 3), 3 ** (-1 / 8))
+    x, _ = ts._toppra(coef, s, 0.0, cube, None)  # friction left out
+    careless = ScaledPath(galicki, traj.path, s, x, 4.0, 1.0)
+    assert np.max(np.abs(careless.segment_samples(5)[1])) > 1.01 * cube[0, 0]
+    x, _ = ts._toppra(coef, s, 0.0, cube, x)  # friction bounded
+    bounded = ScaledPath(galicki, traj.path, s, x, 4.0, 1.0)
+    assert np.max(np.abs(bounded.segment_samples(5)[1])) < 1.001 * cube[0, 0]
+
+
+# ----------------------------------------------------------------------- the Panda
+def _panda_problem(panda, moving: bool) -> Problem:
+    limits = JointLimits.from_model(panda)
+    rng = np.random.default_rng(32)
+    centre = 0.5 * (limits.lower + limits.upper)
+    half = 0.4 * (limits.upper - limits.lower)
+    q0, q1 = (centre + rng.uniform(-1, 1, 7) * half for _ in range(2))
+    qd0 = rng.uniform(-0.3, 0.3, 7) * limits.velocity if moving else np.zeros(7)
+    return Problem(panda, joint_state(q0, qd0), point(panda.point(q1)), k=4.0, limits=limits)
+
+
+@pytest.mark.parametrize("moving", [False, True], ids=["rest", "moving"])
+def test_panda_first_motion_is_certified_within_its_limits(panda, moving):
+    problem = _panda_problem(panda, moving)
+    res = first_motion(problem)
+    _check_motion(problem, res)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moving", [False, True], ids=["rest", "moving"])
+def test_panda_first_motion_is_slower_than_the_optimum(panda, moving):
+    problem = _panda_problem(panda, moving)
+    res = first_motion(problem)
+    optimum = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=600.0))
+    assert res.success and optimum.success, (res.message, optimum.message)
+    assert optimum.T <= res.T <= FACTOR * optimum.T
+
+
+# ----------------------------------------------------------------- what can go wrong
+def test_a_trivial_problem_is_nothing_to_move(galicki):
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_START), k=4.0)
+    res = first_motion(problem)
+    assert res.status is Status.TRIVIAL and res.T == 0.0 and res.trajectory is None
+
+
+def test_too_little_torque_to_hold_the_arm_is_a_named_failure(panda):
+    """With 95 % of the torque held in reserve the Panda cannot hold itself up."""
+    q0 = np.array([0.0, 0.5, 0.0, -1.5, 0.0, 1.5, 0.5])
+    problem = Problem(panda, joint_state(q0), point(panda.point(q0 + 0.2)), k=4.0,
+                      reserve=0.95)
+    res = first_motion(problem)
+    assert not res.success and res.status is Status.SCALING_FAILED
+    assert res.trajectory is None and np.isnan(res.T)
+    assert res.message.startswith(Status.SCALING_FAILED.value + ": the first motion")
+
+
+def test_a_certificate_that_fails_says_so(galicki):
+    """An impossible tolerance on the open loop's end velocity: the motion is reported, not
+    passed off as a success."""
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
+    res = first_motion(problem, SolverOptions(verify_velocity_tol=1e-15))
+    assert not res.success and res.status is Status.VERIFICATION_FAILED
+    assert "end_velocity" in res.message and res.trajectory is not None
+
+
+# -------------------------------------------------------------------- the pieces
+def test_boxes_have_their_corner_on_the_set():
+    rng = np.random.default_rng(0)
+    demand = rng.uniform(0, 1, (50, 7))
+    for k in (1.0, 4.0, 16.0):
+        boxes = ts._boxes(demand, k)
+        np.testing.assert_allclose(np.sum(boxes ** (2 * k), axis=1), 1.0, rtol=1e-12)
+        assert np.all(boxes > 0)
+
+
+def test_friction_lines_bound_the_friction_torque(galicki):
+    problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET))
+    s = np.linspace(0.0, 1.0, 11)
+    path = PolynomialPath.straight(np.array([0.1, 0.5, -2.0]), np.array([1.0, -0.5, 1.0]))
+    coef = ts._Coefficients(problem, path, s)
+    x_prev = np.linspace(0.2, 3.0, 11)
+    u0, u1, l0, l1, cap = ts._friction_lines(coef, x_prev)
+    for x in np.linspace(0.0, cap[0], 50):
+        true = coef.f * np.sqrt(x)
+        assert np.all(l0 + l1 * x <= true + 1e-12) and np.all(true <= u0 + u1 * x + 1e-12)
+
+
+def test_scaled_path_kinematics_are_exact(galicki):
+    """q(t) of a timed parabola: velocities and accelerations are its derivatives, the
+    segments join, and the open loop of its own torques follows it."""
+    path = PolynomialPath.parabola(np.zeros(3), np.array([1.0, -0.5, 0.3]),
+                                   np.array([0.2, 0.1, -0.4]))
+    s = np.linspace(0.0, 1.0, 21)
+    x = 4.0 * np.sin(np.pi * np.linspace(0.1, 1.0, 21)) ** 2
+    traj = ScaledPath(galicki, path, s, x, 1.0, 1.0)
+    assert traj.T == pytest.approx(np.sum(2 * np.diff(s) / np.add(*np.sqrt([x[:-1], x[1:]]))))
+    t = np.linspace(0.0, traj.T, 4001)[1:-1]
+    e = traj.evaluate(t)
+    h = 1e-6
+    ep, em = traj.evaluate(t + h), traj.evaluate(t - h)
+    inner = np.all(np.abs(traj.t_grid[:, None] - t[None, :]) > 2 * h, axis=0)
+    np.testing.assert_allclose(((ep.q - em.q) / (2 * h))[inner], e.qd[inner], atol=1e-6)
+    np.testing.assert_allclose(((ep.qd - em.qd) / (2 * h))[inner], e.qdd[inner], atol=1e-5)
+    polys = traj._segment_polynomials()
+    for j in (0, 7, 19):
+        sigma = np.array([0.0, 0.3, 1.0])
+        q = traj.evaluate(traj.t_grid[j] + sigma * traj.h[j]).q
+        want = np.array([np.polynomial.polynomial.polyval(sg, polys[j].T) for sg in sigma])
+        np.testing.assert_allclose(q, want, atol=1e-12)
+    _, xs, ok = traj.open_loop(1e-12, 1e-13)
+    assert ok
+    np.testing.assert_allclose(xs[-1], traj.state(traj.T)[0, :6], atol=1e-8)
+
+
+def test_the_followed_target_is_reached_near_the_start(panda):
+    """A 2 cm move: the followed configuration reaches the target and moves little; the
+    self-motion families of the seed pairs end anywhere on the manifold."""
+    q0 = np.array([0.3, 0.2, -0.4, -1.9, 0.2, 1.8, 0.6])
+    target = panda.point(q0) + np.array([0.02, -0.01, 0.01])
+    problem = Problem(panda, joint_state(q0), point(target), k=4.0)
+    q = fm._followed(problem, q0)
+    assert q is not None
+    assert np.linalg.norm(panda.point(q) - target) <= 1e-9
+    assert np.max(np.abs(q - q0)) < 0.1
+    lim = problem.limits
+    assert np.all(q >= lim.plan_lower) and np.all(q <= lim.plan_upper)
+
+
+def test_joint_state_to_joint_state(galicki):
+    """A joint-state target: the path ends on it exactly (no inverse kinematics)."""
+    q0, q1 = np.array([0.3, 1.2, -0.9]), np.array([1.0, -0.4, 0.7])
+    problem = Problem(galicki, joint_state(q0), joint_state(q1), k=4.0,
+                      limits=_tight(galicki))
+    res = first_motion(problem)
+    _check_motion(problem, res)
+    np.testing.assert_allclose(res.trajectory.evaluate(res.T).q[0], q1, atol=1e-12)
+    assert res.certificate.item("end_position").passed

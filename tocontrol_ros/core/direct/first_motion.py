@@ -1,0 +1,296 @@
+"""The first motion: a certified motion inside every limit, at once (issue 32).
+
+The planner's optimum takes from a fraction of a second (the paper's arm) to seconds (an arm
+whose joint limits bind). A motion that is slower but already executable is available far
+sooner: a joint path between seed configurations of the planner
+(:func:`~tocontrol_ros.core.seeding.seed_pairs`), timed optimally along that path by TOPP-RA
+(``toppra``: reachability analysis, one small linear program per gridpoint, a convex
+problem), then certified like every other plan. :func:`first_motion`:
+
+1. chooses the end configurations ``(q_a, q_b)``: among the planner's seed pairs (the
+   multistart's own, best-ranked first) and the target's configuration followed from the
+   start along the straight task-space line (:func:`_followed`), the :data:`CANDIDATES`
+   with the least velocity-limited bang-bang estimate are timed at rest along their
+   straight joint line, and the fastest is kept (the first seed pair alone is ranked
+   without the velocity limits, which bind on real arms, and its end is anywhere on the
+   self-motion manifold: its line was up to 4 times slower). From rest, the path is that
+   straight line
+   (inside the position limits when both ends are: the box of the limits is convex); from a
+   moving start state ``(q_0, qd_0)`` a straight line cannot take a velocity off its
+   direction, so the path is the parabola ``q_0 + v s + (q_b - q_0 - v) s^2`` whose tangent
+   ``v = qd_0 tau`` makes ``qd(0) = qd_0`` at the path speed ``sd(0) = 1 / tau``, for the
+   first time scale ``tau`` (:data:`TIME_SCALES` of the rest-to-rest time) whose parabola
+   stays inside the position limits and can be timed;
+2. times the path by TOPP-RA under the velocity limits and, at every gridpoint, a box
+   inside the convexified torque set ``sum_i u_i^(2k) <= 1`` (which is not a box: TOPP-RA
+   takes linear constraints), viscous friction bounded by lines in ``sd^2``
+   (:mod:`~tocontrol_ros.core.direct.time_scaling`);
+3. checks the torques between the gridpoints, and times the path again with smaller boxes
+   where they leave the set (the same module);
+4. certifies the motion open loop (:func:`~tocontrol_ros.core.certificate.certify_open_loop`,
+   as the bounded direct solve does): its nominal torques re-integrated from its start must
+   reach the target at rest, inside the set and within the joint limits.
+
+The result is a :class:`~tocontrol_ros.core.result.PlanResult` with ``method="first"``: a
+success only when certified; any failure says which step failed and why.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from tocontrol_ros.core.certificate import certify_open_loop
+from tocontrol_ros.core.direct.scaled_path import PolynomialPath, mapped
+from tocontrol_ros.core.direct.time_scaling import rest_time, time_scaling
+from tocontrol_ros.core.options import SolverOptions
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import PlanResult, Status
+from tocontrol_ros.core.robot.ik import IK_TOL
+from tocontrol_ros.core.seeding import seed_pairs
+from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
+
+__all__ = ["first_motion"]
+
+#: Candidate end configurations timed at rest before one is chosen (the planner's seed pairs
+#: and the target followed from the start, ranked by :func:`_estimates`). On 40 cases drawn
+#: as bench/limits.py's (Panda, UR5, xArm7, limited 3R; 10 each, from rest) the chosen line
+#: was the fastest of all 17 candidates in 38 and within 6 % in the others; the first seed
+#: pair's alone was up to 4 times slower, and the followed target was the fastest in 30.
+CANDIDATES = 3
+#: Points of the straight task-space line along which the target's configuration is
+#: followed from the start (:func:`_followed`), and Newton steps at each.
+FOLLOW_STEPS, FOLLOW_ITERATIONS = 20, 3
+#: A moving start's parabola is tried with these multiples of the straight path's
+#: rest-to-rest time as ``tau``, in turn, until one can be timed. A longer ``tau`` starts
+#: more slowly along the path (``qdd(0) = 2 (q_b - q_0 - v) / tau^2``, less force needed at
+#: the start); on the moving cases of bench/limits.py (Panda, limited 3R) the first was
+#: always the fastest, by 5-25 %.
+TIME_SCALES = (1.0, 2.0, 4.0)
+#: The certificate re-integrates the nominal torques open loop at these tolerances, tighter
+#: than the optimum's (1e-10): a first motion is slower, and an arm that is unstable open
+#: loop amplifies the integration error with time (a 1.8 s Panda motion: about e^(15 t),
+#: 3 mm at the target from 1e-10, 0.03 mm from 1e-12, at the same cost).
+OPEN_LOOP_RTOL, OPEN_LOOP_ATOL = 1e-12, 1e-13
+
+
+def first_motion(problem: Problem, options: SolverOptions | None = None,
+                 pairs: list | None = None) -> PlanResult:
+    """A certified motion inside every limit: a seed path, timed optimally along it.
+
+    See the module. Fast (nothing iterative: a few TOPP-RA passes, each a small linear
+    program per gridpoint, and the certificate), not the optimum: its ``T`` is the best
+    timing of one fixed path, never below the (global) optimum's.
+
+    Parameters
+    ----------
+    problem : Problem
+        Any start (point, or joint state at rest or moving) and target.
+    options : SolverOptions, optional
+        The seed pairs' options (``ik_count``), the certificate's tolerances and ``verify``.
+    pairs : list of (ndarray, ndarray), optional
+        The planner's seed pairs when already known (default:
+        ``seed_pairs(problem, options)``), best-ranked first; the candidates' ends.
+
+    Returns
+    -------
+    PlanResult
+        ``method="first"``; ``iterations`` is the number of TOPP-RA passes, ``intervals``
+        the segments, ``residual`` 0 (nothing is solved iteratively: the certificate checks
+        the ends). Timings: ``guess`` (the seed pairs and the choice of the path),
+        ``scaling`` (TOPP-RA), ``verify`` (the certificate), ``total`` (s). Never raises for
+        a numerical failure.
+    """
+    options = options or SolverOptions()
+    t_start = time.perf_counter()
+    timings = {"guess": 0.0, "scaling": 0.0, "verify": 0.0}
+    if problem.is_trivial():
+        timings["total"] = time.perf_counter() - t_start
+        return PlanResult(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value,
+                          T=0.0, k=problem.k, trajectory=None, residual=0.0, iterations=0,
+                          timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
+                          intervals=0, problem=problem, method="first")
+    if pairs is None:
+        pairs = seed_pairs(problem, options)
+    timings["guess"] = time.perf_counter() - t_start
+    if not pairs:
+        return _failure(problem, Status.NO_GUESS, "no inverse-kinematics seed", timings,
+                        t_start)
+    t0 = time.perf_counter()
+    found = _chosen(problem, pairs)
+    timings["guess"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if not isinstance(found[0], Status):
+        found = _timed(problem, *found)
+    timings["scaling"] = time.perf_counter() - t0
+    if isinstance(found[0], Status):
+        return _failure(problem, *found, timings, t_start)
+    traj, passes, note = found
+    sample = fine_sample(traj)
+    t0 = time.perf_counter()
+    cert_options = replace(options.certificate_options(1), rtol=OPEN_LOOP_RTOL,
+                           atol=OPEN_LOOP_ATOL)
+    cert = certify_open_loop(problem, traj, cert_options,
+                             sample=sample) if options.verify else None
+    timings["verify"] = time.perf_counter() - t0
+    status, message = verdict(options, cert, 0.0)
+    timings["total"] = time.perf_counter() - t_start
+    return PlanResult(
+        success=status is Status.SUCCESS, status=status, message=f"{message} ({note})", T=traj.T,
+        k=problem.k, trajectory=traj, residual=0.0, iterations=passes, timings=timings,
+        continuation=(), max_abs_u=float(np.max(np.abs(sample.u))), delta=0.0,
+        intervals=len(traj.h), verification=dict(cert.figures) if cert else {},
+        certificate=cert, warnings=limit_warnings(problem, sample),
+        problem=problem, method="first")
+
+
+def _failure(problem: Problem, status: Status, why: str, timings: dict,
+             t_start: float) -> PlanResult:
+    timings["total"] = time.perf_counter() - t_start
+    return PlanResult(success=False, status=status, message=f"{status.value}: the first "
+                      f"motion: {why}", T=float("nan"), k=problem.k, trajectory=None,
+                      residual=float("nan"), iterations=0, timings=timings, continuation=(),
+                      max_abs_u=float("nan"), delta=float("nan"), intervals=0,
+                      problem=problem, method="first")
+
+
+# ---------------------------------------------------------------------- the path
+def _chosen(problem: Problem, pairs: list):
+    """The end configurations whose straight path is fastest at rest, and its time.
+
+    Candidates: the planner's seed pairs and, for a point target, the target followed from
+    the first pair's start (:func:`_followed`). The :data:`CANDIDATES` with the least
+    velocity-limited bang-bang estimate (:func:`_estimates`) are timed at rest by one
+    TOPP-RA pass each.
+
+    Returns
+    -------
+    (qa, qb, T, label) or (Status, why)
+        ``T`` (s): the rest-to-rest time of the straight path in the cube (friction left
+        out: it ranks, and sets a moving start's time scale).
+    """
+    lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
+    cands = [(f"seed pair {i}", qa, qb) for i, (qa, qb) in enumerate(pairs)]
+    if problem.target.kind == "point":
+        near = _followed(problem, pairs[0][0])
+        if near is not None:
+            cands.append(("the target followed from the start", pairs[0][0], near))
+    cands = [c for c in cands if _inside(PolynomialPath.straight(c[1], c[2]), lo, hi)]
+    if not cands:
+        return Status.LIMITS_INFEASIBLE, "no seed pair is inside the position limits"
+    best, why = None, ""
+    for i in np.argsort(_estimates(problem, cands), kind="stable")[:CANDIDATES]:
+        label, qa, qb = cands[i]
+        T, why = rest_time(problem, PolynomialPath.straight(qa, qb))
+        if T is not None and (best is None or T < best[2]):
+            best = (qa, qb, T, label)
+    if best is None:
+        return Status.SCALING_FAILED, f"no straight path between seed configurations could " \
+            f"be timed at rest ({why})"
+    return best
+
+
+def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
+    """The target's configuration reached from ``qa`` along the straight task-space line.
+
+    :data:`FOLLOW_STEPS` points of the line from ``P(qa)`` to the target, each with
+    :data:`FOLLOW_ITERATIONS` Newton steps of least norm weighted by the velocity limits
+    (``dq = W J^T (J W J^T)^-1 r``, ``W = diag(v^2)``: the least ``sum (dq_i / v_i)^2``), a
+    joint that would leave its position limits held where it is; then as many more at the
+    target. None unless it ends within ``IK_TOL`` of the target. Inverse kinematics from
+    random seeds, or the planner's self-motion families, end anywhere on the self-motion
+    manifold; this one ends near the start, where a short joint path is.
+    """
+    model, lim = problem.model, problem.limits
+    fk, jac = model.function("P"), model.function("J")
+    w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
+    target = problem.target.value
+    x0 = np.array(fk(qa)).ravel()
+    q = np.array(qa, dtype=float)
+    goals = [x0 + (target - x0) * (i / FOLLOW_STEPS) for i in range(1, FOLLOW_STEPS + 1)]
+    for goal in goals + [target]:
+        for _ in range(FOLLOW_ITERATIONS):
+            q = _limited_step(q, goal - np.array(fk(q)).ravel(), np.array(jac(q)), w,
+                              lim.plan_lower, lim.plan_upper)
+            if q is None:  # singular, or the free joints cannot move the tip there
+                return None
+    if not np.linalg.norm(np.array(fk(q)).ravel() - target) <= IK_TOL:
+        return None
+    return q
+
+
+def _limited_step(q, r, jac, w, lo, hi) -> np.ndarray | None:
+    """``q`` moved by the weighted least-norm step towards the task error ``r`` (m,).
+
+    Joints the step would take out of ``[lo, hi]`` are held and the step is taken again
+    with the others (an active set, at most n rounds); None when the rest cannot take it.
+    """
+    free = np.ones(len(q), dtype=bool)
+    for _ in range(len(q)):
+        wf = np.where(free, w, 0.0)
+        jw = jac * wf
+        try:
+            moved = q + wf * (jw.T @ np.linalg.solve(jw @ jw.T, r))
+        except np.linalg.LinAlgError:
+            return None
+        out = free & ((moved < lo) | (moved > hi))
+        if not out.any():
+            return moved
+        free &= ~out
+    return None
+
+
+def _estimates(problem: Problem, cands: list) -> np.ndarray:
+    """Rest-to-rest time estimates (s) of the candidates' straight paths.
+
+    Per joint, bang-bang with the diagonal inertia at the start (as the seed ranking) capped
+    at the velocity limit (a trapezoid when the move is long enough to reach it); the
+    slowest joint's.
+    """
+    model = problem.model
+    qa = np.array([c[1] for c in cands])
+    d = np.abs(np.array([c[2] for c in cands]) - qa)
+    mass = np.array(mapped(model, "M", len(qa))(qa.T))
+    inertia = np.array([np.diag(mass[:, i * model.n:(i + 1) * model.n])
+                        for i in range(len(qa))])
+    acc = model.tau_max * problem.torque_scale / inertia
+    v = problem.limits.plan_velocity
+    with np.errstate(invalid="ignore"):
+        t = np.where(d * acc >= v ** 2, d / v + v / acc, 2.0 * np.sqrt(d / acc))
+    return np.max(t, axis=1)
+
+
+def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, label: str):
+    """The timed path between ``qa`` and ``qb``: ``(ScaledPath, passes, note)``.
+
+    Or ``(status, why)`` when there is none. ``rest_T`` (s) sets a moving start's time scale.
+    """
+    n = problem.model.n
+    lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
+    qd0 = problem.start.value[n:] if problem.start.kind == "state" else np.zeros(n)
+    if not np.any(qd0):
+        out = time_scaling(problem, PolynomialPath.straight(qa, qb), 0.0)
+        if isinstance(out[0], Status):
+            return out
+        return (*out, f"first motion: the straight joint path to {label}, timed by TOPP-RA")
+    why = []
+    for factor in TIME_SCALES:
+        tau = factor * rest_T
+        path = PolynomialPath.parabola(qa, qb, qd0 * tau)
+        if not _inside(path, lo, hi):
+            why.append(f"tau = {tau:.3g} s: leaves the position limits")
+            continue
+        out = time_scaling(problem, path, 1.0 / tau)
+        if not isinstance(out[0], Status):
+            return (*out, f"first motion: a parabola from the moving start along its "
+                    f"velocity to {label} (tau = {tau:.3g} s), timed by TOPP-RA")
+        why.append(f"tau = {tau:.3g} s: {out[1]}")
+    return Status.SCALING_FAILED, "no parabola from the moving start along its velocity " \
+        "could be timed: " + "; ".join(why)
+
+
+def _inside(path: PolynomialPath, lo: np.ndarray, hi: np.ndarray) -> bool:
+    low, high = path.position_range()
+    return bool(np.all(low >= lo - 1e-12) and np.all(high <= hi + 1e-12))

@@ -1,0 +1,351 @@
+"""A joint path with a time scaling: the first motion's trajectory.
+
+The path is a polynomial in the path parameter ``s`` in [0, 1] (a straight joint-space line,
+or a parabola that starts along a moving start's velocity); the time scaling is TOPP-RA's
+(:mod:`~tocontrol_ros.core.direct.first_motion`): squared path speeds ``x_i = sd_i^2`` at
+gridpoints ``s_i``, with the path acceleration ``sdd`` constant between two gridpoints. Each
+segment then takes ``h_i = 2 (s_{i+1} - s_i) / (sd_i + sd_{i+1})`` and ``s(t)`` is quadratic
+in time on it, so ``q(t)`` is a polynomial on each segment, evaluated exactly; the torques
+are the inverse dynamics of ``q, qd, qdd`` (viscous friction included). The path
+acceleration jumps at the gridpoints, so the accelerations and torques do too (they are
+taken from the segment that starts at a gridpoint).
+
+:class:`ScaledPath` has the interface of the other trajectories
+(:class:`~tocontrol_ros.core.trajectory.Trajectory`,
+:class:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory`): ``T``, ``t_grid``,
+``evaluate``, ``sample``, ``state``, ``control``, and ``open_loop`` for
+:func:`~tocontrol_ros.core.certificate.certify_open_loop`; it has no costates (``psi``,
+``S`` and ``H`` are NaN).
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Callable
+
+import casadi as ca
+import numpy as np
+from numpy.polynomial import polynomial as poly
+
+from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS
+from tocontrol_ros.core.indirect.pmp import LawParams
+from tocontrol_ros.core.robot.compiled import compile_owned
+from tocontrol_ros.core.robot.model import RobotModel
+from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
+
+__all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES"]
+
+#: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
+_MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def mapped(model: RobotModel, name: str, count: int,
+           build: Callable[[], ca.Function] | None = None) -> ca.Function:
+    """``model.function(name)`` (or ``build()``) mapped over ``count`` columns, per model.
+
+    Mapping a function builds a new one (a millisecond or more on a 7-joint arm); the first
+    motion evaluates the same few sizes on every request.
+    """
+    table = _MAPPED.setdefault(model, {})
+    key = (name, count)
+    if key not in table:
+        table[key] = (build() if build else model.function(name)).map(count)
+    return table[key]
+
+
+#: Degrees in time of the segments' polynomials whose open-loop right-hand sides are
+#: compiled (one library per model): a straight path's (2) and a parabola's (4).
+COMPILED_DEGREES = (2, 4)
+#: model -> {(degree, rtol, atol, stiff): (right-hand side, its CVODES integrator)}.
+_INTEGRATORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
+    """``dx/dsigma`` on a segment whose ``q(sigma)`` is a polynomial of ``degree``.
+
+    The model's forward dynamics under the inverse dynamics of the polynomial ``sum_j c_j
+    sigma^j`` (parameters ``(vec c, h)``, ``h`` the segment's duration), with CasADi's
+    dynamics signature (``t, x, z, p, u -> ode, alg, quad, zero``) so that a compiled copy
+    can drive CVODES.
+    """
+    n, d1 = model.n, degree + 1
+    x, c, h = ca.SX.sym("x", 2 * n), ca.SX.sym("c", n, d1), ca.SX.sym("h")
+    sig = ca.SX.sym("sigma")
+    pw = [sig ** j for j in range(d1)]
+    q = sum(c[:, j] * pw[j] for j in range(d1))
+    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
+    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
+    tau = model.rnea_sym(q, qd, qdd)
+    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    empty = ca.SX(0, 1)
+    return ca.Function(f"first_open_loop{degree}", [sig, x, ca.SX.sym("z", 0),
+                                                    ca.vertcat(ca.vec(c), h),
+                                                    ca.SX.sym("u", 0)],
+                       [ode, empty, empty, empty], ["t", "x", "z", "p", "u"],
+                       ["ode", "alg", "quad", "zero"])
+
+
+def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
+    """The right-hand sides of :data:`COMPILED_DEGREES` and their Jacobians, one library.
+
+    CVODES asks for the Jacobians at set-up, whichever iteration it uses.
+    """
+    out = []
+    for degree in COMPILED_DEGREES:
+        rhs = _open_loop_rhs(model, degree)
+        out += [rhs, rhs.jacobian()]
+    return out
+
+
+def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
+                         stiff: bool = False) -> ca.Function:
+    """CVODES over one segment of a :class:`ScaledPath`, output at ``OPEN_LOOP_POINTS``.
+
+    Its right-hand side (:func:`_open_loop_rhs`) compiled to C for the degrees of
+    :data:`COMPILED_DEGREES` (one library per model, cached on disk like the solver's: on
+    the Panda three times faster than CasADi's virtual machine, which it falls back to
+    without a compiler); Adams with functional iteration, or BDF with Newton iteration when
+    ``stiff``. Kept per model, and made again when the optimised build of the library lands.
+    """
+    if degree in COMPILED_DEGREES:
+        funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
+                                lambda: _compiled_rhs(model))
+        rhs = funs[2 * COMPILED_DEGREES.index(degree)]
+    else:
+        rhs = None
+    table = _INTEGRATORS.setdefault(model, {})
+    key = (degree, rtol, atol, stiff)
+    if key in table and (rhs is None or table[key][0] is rhs):
+        return table[key][1]
+    rhs = rhs if rhs is not None else _open_loop_rhs(model, degree)
+    method = {} if stiff else {"linear_multistep_method": "adams",
+                               "nonlinear_solver_iteration": "functional"}
+    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    integ = ca.integrator("scaled_open_loop", "cvodes", rhs, 0.0, grid.tolist(),
+                          {"reltol": rtol, "abstol": atol, "max_num_steps": 100000, **method})
+    table[key] = (rhs, integ)
+    return integ
+
+
+class PolynomialPath:
+    """A joint path ``q(s) = sum_j c_j s^j`` for ``s`` in [0, 1].
+
+    Parameters
+    ----------
+    coefficients : ndarray, shape (J + 1, n)
+        ``c_0 ... c_J`` (rad, m), lowest degree first.
+    """
+
+    def __init__(self, coefficients: np.ndarray) -> None:
+        self.c = np.atleast_2d(np.asarray(coefficients, dtype=float))
+        self.degree = self.c.shape[0] - 1
+        self.n = self.c.shape[1]
+
+    @classmethod
+    def straight(cls, qa: np.ndarray, qb: np.ndarray) -> PolynomialPath:
+        """The straight line from ``qa`` to ``qb`` (n,), ``q(s) = qa + s (qb - qa)``."""
+        qa = np.asarray(qa, dtype=float)
+        return cls(np.vstack([qa, np.asarray(qb, dtype=float) - qa]))
+
+    @classmethod
+    def parabola(cls, qa: np.ndarray, qb: np.ndarray, v: np.ndarray) -> PolynomialPath:
+        """From ``qa`` with tangent ``v`` to ``qb``: ``qa + v s + (qb - qa - v) s^2``."""
+        qa, v = np.asarray(qa, dtype=float), np.asarray(v, dtype=float)
+        return cls(np.vstack([qa, v, np.asarray(qb, dtype=float) - qa - v]))
+
+    def __call__(self, s, order: int = 0) -> np.ndarray:
+        """``d^order q / ds^order`` at ``s`` (K,), shape (K, n)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        c = poly.polyder(self.c, order, axis=0) if order else self.c
+        return poly.polyval(s, c).T
+
+    def position_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each joint's least and greatest position on [0, 1], shapes (n,) (rad, m)."""
+        cands = [np.zeros(self.n), np.ones(self.n)]  # one parameter value per joint
+        if self.degree == 2:  # the vertex of each joint's parabola, where inside (0, 1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vertex = -self.c[1] / (2.0 * self.c[2])
+            cands.append(np.where(np.isfinite(vertex), np.clip(vertex, 0.0, 1.0), 0.0))
+        elif self.degree > 2:
+            cands += [np.full(self.n, s) for s in np.linspace(0.0, 1.0, 201)]
+        powers = np.arange(self.degree + 1)[:, None]
+        values = np.array([np.sum(self.c * s[None, :] ** powers, axis=0) for s in cands])
+        return values.min(axis=0), values.max(axis=0)
+
+
+class ScaledPath:
+    """A :class:`PolynomialPath` timed by path speeds at gridpoints (see the module).
+
+    Parameters
+    ----------
+    model : RobotModel
+    path : PolynomialPath
+    s : ndarray, shape (N + 1,)
+        Gridpoints, increasing from 0 to 1.
+    x : ndarray, shape (N + 1,)
+        Squared path speeds ``sd^2`` at the gridpoints (1/s^2), >= 0, never two zeros in a
+        row.
+    k : float
+        Exponent of the control set (for ``law``).
+    torque_scale : float
+        Fraction of ``tau_max`` planned against (``1 - reserve``).
+
+    Attributes
+    ----------
+    T : float
+        Duration (s).
+    t_grid : ndarray, shape (N + 1,)
+        Times of the gridpoints (s).
+    """
+
+    def __init__(self, model: RobotModel, path: PolynomialPath, s: np.ndarray, x: np.ndarray,
+                 k: float, torque_scale: float) -> None:
+        self._model = model
+        self.path = path
+        self.n = model.n
+        self.joint_names = model.joint_names
+        self.law = LawParams(k, 0.0, torque_scale)
+        self.par = self.law.array()
+        self.s = np.asarray(s, dtype=float)
+        self.x = np.maximum(np.asarray(x, dtype=float), 0.0)
+        self.sd = np.sqrt(self.x)
+        ds = np.diff(self.s)
+        with np.errstate(divide="ignore"):
+            self.h = 2.0 * ds / (self.sd[:-1] + self.sd[1:])
+        if not np.all(np.isfinite(self.h)):
+            raise ValueError("`x` must not be zero at two gridpoints in a row")
+        self.sdd = (self.x[1:] - self.x[:-1]) / (2.0 * ds)  # constant on each segment
+        self.t_grid = np.concatenate([[0.0], np.cumsum(self.h)])
+        self.T = float(self.t_grid[-1])
+        self._scale = model.tau_max * torque_scale
+        self._id = model.function("id")
+        q, qd, _ = self._kinematics(self.t_grid)
+        self.z_grid = np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    # ------------------------------------------------------------------ evaluation
+    def _kinematics(self, t, left: bool = False):
+        """``q, qd, qdd`` (K, n) at times ``t`` (s).
+
+        At a gridpoint, those of the segment that starts there (``left``: that ends there).
+        """
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        side = "left" if left else "right"
+        seg = np.clip(np.searchsorted(self.t_grid, t, side=side) - 1, 0, len(self.h) - 1)
+        tau = t - self.t_grid[seg]
+        sdd = self.sdd[seg]
+        sd = self.sd[seg] + sdd * tau
+        s = self.s[seg] + self.sd[seg] * tau + 0.5 * sdd * tau ** 2
+        d1 = self.path(s, 1)
+        q = self.path(s)
+        qd = d1 * sd[:, None]
+        qdd = d1 * sdd[:, None] + self.path(s, 2) * (sd ** 2)[:, None]
+        return q, qd, qdd
+
+    def _controls(self, q, qd, qdd) -> np.ndarray:
+        """Normalised torques ``u = tau / (tau_max torque_scale)`` (K, n)."""
+        if len(q) == 1:
+            tau = np.array(self._id(q[0], qd[0], qdd[0])).T
+        else:
+            tau = np.array(mapped(self._model, "id", len(q))(q.T, qd.T, qdd.T)).T
+        return tau / self._scale
+
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
+        q, qd, _ = self._kinematics(t)
+        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    def evaluate(self, t) -> TrajectorySample:
+        """All quantities at times ``t`` (s), scalar or shape (K,)."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        q, qd, qdd = self._kinematics(t)
+        u = self._controls(q, qd, qdd)
+        nan = np.full((len(t), self.n), np.nan)
+        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
+                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
+
+    def sample(self, dt: float) -> TrajectorySample:
+        """Samples every ``dt`` seconds from 0, always including ``T``."""
+        return self.evaluate(sample_times(self.T, dt))
+
+    def control(self, t: float) -> np.ndarray:
+        """Normalised control at one time, shape (n,)."""
+        return self._controls(*self._kinematics(float(t)))[0]
+
+    def segment_samples(self, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``u`` and ``qd`` at ``points`` >= 2 equally spaced times on every segment.
+
+        Both ends included, each from its own segment: both sides of an acceleration jump.
+
+        Returns
+        -------
+        t : ndarray, shape (N points,)
+        u : ndarray, shape (N points, n)
+        qd : ndarray, shape (N points, n)
+        """
+        frac = np.linspace(0.0, 1.0, points)
+        t = (self.t_grid[:-1, None] + frac[None, :] * self.h[:, None]).ravel()
+        left = np.tile(frac == 1.0, len(self.h))
+        kin = [np.empty((len(t), self.n)) for _ in range(3)]
+        for mask, is_left in ((~left, False), (left, True)):
+            for out, part in zip(kin, self._kinematics(t[mask], left=is_left), strict=True):
+                out[mask] = part
+        return t, self._controls(*kin), kin[1]
+
+    # ------------------------------------------------------------------ open loop
+    def _segment_polynomials(self) -> np.ndarray:
+        """``q`` on each segment as a polynomial in ``sigma = (t - t_j) / h_j`` in [0, 1].
+
+        Returns
+        -------
+        ndarray, shape (N, n, 2 J + 1)
+            Coefficients, lowest degree first (``s(sigma)`` is quadratic: ``q(s(sigma))``
+            has twice the path's degree).
+        """
+        h = self.h
+        s_poly = np.column_stack([self.s[:-1], self.sd[:-1] * h, 0.5 * self.sdd * h ** 2])
+        size = 2 * self.path.degree + 1
+        power = np.zeros((len(h), size))
+        power[:, 0] = 1.0
+        out = np.zeros((len(h), self.n, size))
+        for j, cj in enumerate(self.path.c):  # sum_j c_j s(sigma)^j
+            out += cj[None, :, None] * power[:, None, :]
+            if j < self.path.degree:
+                nxt = np.zeros_like(power)
+                for b in range(3):
+                    nxt[:, b:] += power[:, :size - b] * s_poly[:, b:b + 1]
+                power = nxt
+        return out
+
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The nominal torques integrated from ``x(0)``, segment by segment (CVODES).
+
+        As :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop` does
+        (:func:`open_loop_integrator`): the forward dynamics under the inverse dynamics of
+        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails.
+
+        Returns
+        -------
+        t : ndarray, shape (N OPEN_LOOP_POINTS + 1,)
+            Times (s).
+        x : ndarray, shape (len(t), 2n)
+            Open-loop states.
+        success : bool
+        """
+        integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
+        x = self.state(0.0)[0, :2 * self.n]
+        ts, xs = [np.zeros(1)], [x[None, :]]
+        grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+        coefs = self._segment_polynomials()
+        try:
+            for j in range(len(self.h)):
+                out = integ(x0=x, p=np.concatenate([coefs[j].ravel(order="F"), [self.h[j]]]))
+                path = np.array(out["xf"]).T
+                xs.append(path)
+                ts.append(self.t_grid[j] + self.h[j] * grid)
+                x = path[-1]
+        except RuntimeError:
+            if not stiff:
+                return self.open_loop(rtol, atol, stiff=True)
+            return np.concatenate(ts), np.vstack(xs), False
+        return np.concatenate(ts), np.vstack(xs), True

@@ -1,0 +1,306 @@
+"""A joint path timed optimally along it by TOPP-RA, inside the convexified torque set.
+
+:func:`time_scaling` is step 2 and 3 of the first motion
+(:mod:`~tocontrol_ros.core.direct.first_motion`): TOPP-RA (``toppra``: reachability
+analysis, one small linear program per gridpoint) on :data:`GRIDPOINTS` segments with the
+interpolation discretisation (each segment's constant path acceleration meets the
+constraints at both its ends), under
+
+- the joint velocity limits (``problem.limits.plan_velocity``; ``sd^2`` at a gridpoint
+  bounded with the larger ``|q'|`` of its two segments, which keeps the speeds between the
+  gridpoints within them too, ``|q'|`` and ``sd^2`` being linear in ``s`` on a segment);
+- the torques inside the convexified set ``sum_i u_i^(2k) <= 1``,
+  ``u = tau / (tau_max torque_scale)``, which is not a box, where TOPP-RA takes linear
+  constraints: each gridpoint gets a box inside the set (:func:`_boxes`), first the
+  inscribed cube ``|u_i| <= n^(-1/(2k))`` (its corners on the set's boundary), then, for
+  :data:`ADAPT_PASSES` passes, the box whose corner lies on the boundary in the direction
+  of the last pass's torques there (a box inside the set wherever it is put; the one along
+  the torques the path needs lets the loaded joints nearer their limits). A polytope
+  closer to the set, e.g. the hull of the cube and the points ``+-e_i``, needs many more
+  rows (168 for 7 joints at k = 4, 840 at k = 1) and still keeps a loaded joint below its
+  limit unless the others are idle; the adapted box costs one more pass and no more rows;
+- viscous friction ``D qd = D q'(s) sd``, linear in ``sd``, which TOPP-RA's form
+  ``a sdd + b sd^2 + c`` cannot hold: it is bounded on each side by a line in ``sd^2`` (a
+  tangent of the concave ``sqrt`` above it, a chord below it, :func:`_friction_lines`), so
+  that the rows stay inside the true constraint.
+
+The torques between the gridpoints are then checked (:data:`CHECK_POINTS` per segment,
+both sides of each acceleration jump); where they leave the set, the path is timed again
+with the boxes shrunk (at most :data:`MARGIN_ROUNDS` times). Decided by work, never by the
+clock.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import casadi as ca
+import numpy as np
+
+from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, mapped
+from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.result import Status
+
+__all__ = ["GRIDPOINTS", "rest_time", "time_scaling"]
+
+#: TOPP-RA segments along the path. On the Panda and the limited 3R (bench/limits.py cases)
+#: T fell by 1-3 % from 50 to 100 segments and by 0.1-1.2 % from 100 to 200; each pass, and
+#: the certificate's open loop, costs in proportion.
+GRIDPOINTS = 100
+#: Passes that adapt each gridpoint's box to the torques of the pass before (a second one
+#: gained under 0.1 % of T on the Panda and the limited 3R of bench/limits.py).
+ADAPT_PASSES = 1
+#: Share of the corner direction given to every joint when a box is adapted, so that a
+#: joint the last pass hardly loaded keeps some room.
+ADAPT_FLOOR = 0.1
+#: The boxes are shrunk by this fraction at first: the torques between the gridpoints,
+#: which TOPP-RA does not see, stay inside the set.
+SET_MARGIN = 1e-3
+#: Times the path is timed again with wider margins when the torques between the
+#: gridpoints still leave the set.
+MARGIN_ROUNDS = 3
+#: Times per segment (both ends included) at which the torques are checked.
+CHECK_POINTS = 5
+#: The velocity limits are kept by this fraction (the open-loop re-integration of the
+#: certificate, a different integrator, must stay within them).
+VELOCITY_PAD = 1e-4
+#: Friction's tangent lines are taken at no less than this fraction of the largest squared
+#: path speed of the pass before (a tangent near zero would pin the path speed there).
+TANGENT_FLOOR = 1e-2
+#: The friction chords hold up to this multiple of the last pass's largest squared path
+#: speed, which bounds the path speed there.
+SPEED_CAP = 4.0
+#: Stands for "no bound" on a squared path speed (1/s^2): TOPP-RA's solvers take numbers.
+X_HUGE = 1e8
+
+def rest_time(problem: Problem, path: PolynomialPath) -> tuple[float | None, str]:
+    """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
+
+    What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
+    TOPP-RA finds no timing.
+    """
+    n = problem.model.n
+    s = np.linspace(0.0, 1.0, GRIDPOINTS + 1)
+    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None)
+    return (None, why) if x is None else (_duration(x, s), "")
+
+
+class _Coefficients:
+    """The torques along a path at the gridpoints: ``u = a sdd + b sd^2 + c + f sd``.
+
+    All in normalised torque (``tau / (tau_max torque_scale)``), shapes (N + 1, n); ``xv``
+    (N + 1,) bounds ``sd^2`` by the velocity limits.
+    """
+
+    def __init__(self, problem: Problem, path: PolynomialPath, s: np.ndarray) -> None:
+        model = problem.model
+        fn = mapped(model, "rigid_body", len(s), lambda: _rigid_body(model))
+        q, d1, d2 = path(s), path(s, 1), path(s, 2)
+        zero = np.zeros_like(q)
+        scale = model.tau_max * problem.torque_scale
+        c = np.array(fn(q.T, zero.T, zero.T)).T
+        self.a = (np.array(fn(q.T, zero.T, d1.T)).T - c) / scale
+        self.b = (np.array(fn(q.T, d1.T, d2.T)).T - c) / scale
+        self.c = c / scale
+        self.f = model.damping * d1 / scale
+        # |q'(s)| is linear on a segment and sd^2 too (sdd is constant there): bounding
+        # sd^2 at a gridpoint by the larger |q'| of its two segments keeps the speeds
+        # between the gridpoints within the limits as well.
+        speed = np.abs(d1)
+        seg = np.maximum(speed[:-1], speed[1:])
+        speed = np.maximum(np.vstack([seg, seg[-1:]]), np.vstack([seg[:1], seg]))
+        v = problem.limits.plan_velocity * (1.0 - VELOCITY_PAD)
+        with np.errstate(divide="ignore"):
+            self.xv = np.min((v / speed) ** 2, axis=1)
+
+    def torques(self, x: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """``|u|`` at every gridpoint, the larger of both sides' (N + 1, n), for ``x``."""
+        sdd = (x[1:] - x[:-1]) / (2.0 * np.diff(s))
+        base = self.b * x[:, None] + self.c + self.f * np.sqrt(x)[:, None]
+        after = np.abs(base[:-1] + self.a[:-1] * sdd[:, None])
+        before = np.abs(base[1:] + self.a[1:] * sdd[:, None])
+        return np.maximum(np.vstack([after, before[-1:]]), np.vstack([after[:1], before]))
+
+
+def _rigid_body(model) -> ca.Function:
+    """``(q, qd, qdd) -> tau`` without viscous friction (which enters linearly in sd)."""
+    q, qd, qdd = (ca.SX.sym(name, model.n) for name in ("q", "qd", "qdd"))
+    return ca.Function("rigid_body", [q, qd, qdd], [model.rnea_sym(q, qd, qdd, friction=False)])
+
+
+def time_scaling(problem: Problem, path: PolynomialPath, sd0: float):
+    """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
+
+    Returns
+    -------
+    (ScaledPath, int) or (Status, str)
+        The timed path and the TOPP-RA passes it took, or ``SCALING_FAILED`` and why.
+    """
+    s = np.linspace(0.0, 1.0, GRIDPOINTS + 1)
+    coef = _Coefficients(problem, path, s)
+    margin, passes = SET_MARGIN, 0
+    for _ in range(MARGIN_ROUNDS + 1):
+        x, count = _best_scaling(problem, coef, s, sd0, margin)
+        passes += count
+        if isinstance(x, str):
+            return Status.SCALING_FAILED, x
+        traj = ScaledPath(problem.model, path, s, x, problem.k, problem.torque_scale)
+        _, u, _ = traj.segment_samples(CHECK_POINTS)
+        excess = float(np.max(np.sum(np.abs(u) ** (2 * problem.k), axis=1))) - 1.0
+        if excess <= 0.0:
+            return traj, passes
+        margin += 2.0 * excess
+    return Status.SCALING_FAILED, f"the torques between the gridpoints leave the set by " \
+        f"{excess:.2g} after {MARGIN_ROUNDS} wider margins"
+
+
+def _best_scaling(problem: Problem, coef: _Coefficients, s: np.ndarray, sd0: float,
+                  margin: float):
+    """The fastest of the passes (squared path speeds (N + 1,)) and their count.
+
+    Or a message when the first pass fails.
+    """
+    n = problem.model.n
+    friction = bool(np.any(coef.f))
+    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    # Without friction the first pass is exact; with it, its speeds only place the lines.
+    x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), None)
+    passes = 1
+    if x is None:
+        return f"TOPP-RA found no timing inside the cube |u_i| <= n^(-1/(2k)) ({why})", passes
+    if friction:
+        x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), x)
+        passes += 1
+        if x is None:
+            return f"TOPP-RA found no timing with friction bounded ({why})", passes
+    best = x
+    for _ in range(ADAPT_PASSES):
+        boxes = _boxes(coef.torques(best, s), problem.k) * (1.0 - margin)
+        x, _ = _toppra(coef, s, sd0, boxes, best if friction else None)
+        passes += 1
+        if x is None or _duration(x, s) >= _duration(best, s):
+            break
+        best = x
+    return best, passes
+
+
+def _duration(x: np.ndarray, s: np.ndarray) -> float:
+    sd = np.sqrt(np.maximum(x, 0.0))
+    return float(np.sum(2.0 * np.diff(s) / (sd[:-1] + sd[1:])))
+
+
+def _boxes(demand: np.ndarray, k: float) -> np.ndarray:
+    """Boxes (N + 1, n) with their corner on the set's boundary along ``demand`` (N + 1, n).
+
+    ``demand + ADAPT_FLOOR max(demand)`` per gridpoint, scaled so that its ``2k``-norm is
+    1: then every ``u`` with ``|u_i| <= box_i`` has ``sum u_i^(2k) <= sum box_i^(2k) = 1``.
+    """
+    w = demand + ADAPT_FLOOR * np.max(demand, axis=1, keepdims=True) + 1e-12
+    return w / np.sum(w ** (2.0 * k), axis=1, keepdims=True) ** (1.0 / (2.0 * k))
+
+
+def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
+    """Lines in ``x = sd^2`` around ``f sqrt(x)``: ``(U0, U1, L0, L1, x_cap)``.
+
+    ``L0 + L1 x <= f sqrt(x) <= U0 + U1 x`` for ``0 <= x <= x_cap``: a tangent of the
+    concave ``sqrt`` at the last pass's ``x`` (floored) bounds it above, the chord from 0 to
+    ``x_cap`` below (for ``f < 0`` the two swap). Without ``x_prev``: no friction, no cap.
+    """
+    zero = np.zeros_like(coef.f)
+    if x_prev is None:
+        return zero, zero, zero, zero, np.full(len(coef.f), np.inf)
+    x_top = float(np.max(x_prev))
+    x0 = np.maximum(x_prev, TANGENT_FLOOR * x_top)[:, None]
+    cap = np.full(len(x_prev), SPEED_CAP * x_top)
+    tangent0, tangent1 = 0.5 * np.sqrt(x0), 0.5 / np.sqrt(x0)
+    chord1 = 1.0 / np.sqrt(cap)[:, None]
+    pos = coef.f >= 0.0
+    f = coef.f
+    upper0 = np.where(pos, f * tangent0, 0.0)
+    upper1 = np.where(pos, f * tangent1, f * chord1)
+    lower0 = np.where(pos, 0.0, f * tangent0)
+    lower1 = np.where(pos, f * chord1, f * tangent1)
+    return upper0, upper1, lower0, lower1, cap
+
+
+def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
+            x_prev: np.ndarray | None):
+    """One TOPP-RA pass: squared path speeds (N + 1,) to rest at ``s = 1``, or (None, why).
+
+    The torque rows ``-box_i <= u_i <= box_i`` (friction by :func:`_friction_lines`),
+    divided by the box so that TOPP-RA's ``F v <= g`` is the same at every gridpoint.
+    """
+    import toppra.algorithm
+
+    u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
+    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
+    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
+    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
+    x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
+    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)
+    algo = toppra.algorithm.TOPPRA([constraint], _path_class()(coef.a.shape[1]), gridpoints=s,
+                                   solver_wrapper="seidel")
+    _, sd, _ = algo.compute_parameterization(sd0, 0.0)
+    if sd is None or not np.all(np.isfinite(sd)):
+        return None, algo.problem_data.return_code.value
+    return np.asarray(sd, dtype=float) ** 2, ""
+
+
+_CLASSES: dict = {}
+
+
+def _constraint_class():
+    """A TOPP-RA linear constraint with given rows.
+
+    A class made on first use: toppra (and the matplotlib it imports) is loaded only when a
+    first motion is asked for.
+    """
+    if "constraint" not in _CLASSES:
+        from toppra.constraint import DiscretizationType, LinearConstraint
+        from toppra.constraint.linear_constraint import canlinear_colloc_to_interpolate
+
+        # Its failures are this module's results; its log lines would only repeat them.
+        logging.getLogger("toppra").setLevel(logging.ERROR)
+
+        class RowsConstraint(LinearConstraint):
+            """``a u + b x + c <= 1`` row by row, ``0 <= x <= x_max``, per gridpoint."""
+
+            def __init__(self, a, b, c, x_max):
+                super().__init__()
+                self.set_discretization_type(DiscretizationType.Interpolation)
+                self.identical = True
+                self.rows, self.x_max = (a, b, c), x_max
+
+            def compute_constraint_params(self, path, gridpoints):
+                a, b, c = self.rows
+                m = a.shape[1]
+                out = canlinear_colloc_to_interpolate(a, b, c, np.eye(m), np.ones(m), None,
+                                                      None, gridpoints, identical=True)
+                xbound = np.column_stack([np.zeros(len(gridpoints)), self.x_max])
+                return (*out[:5], None, xbound)
+
+        _CLASSES["constraint"] = RowsConstraint
+    return _CLASSES["constraint"]
+
+
+def _path_class():
+    """A stand-in geometric path for TOPP-RA (the rows carry the path already)."""
+    if "path" not in _CLASSES:
+        from toppra.interpolator import AbstractGeometricPath
+
+        class Unit(AbstractGeometricPath):
+            def __init__(self, dof: int) -> None:
+                self._dof = dof
+
+            @property
+            def dof(self) -> int:
+                return self._dof
+
+            @property
+            def path_interval(self) -> np.ndarray:
+                return np.array([0.0, 1.0])
+
+        _CLASSES["path"] = Unit
+    return _CLASSES["path"]
