@@ -69,6 +69,39 @@ class TrajectorySample:
     H: np.ndarray
 
 
+class InverseDynamicsTrajectory:
+    """What a joint path whose torques are its inverse dynamics answers: states, samples.
+
+    The bounded B-spline solutions and the first motions share it. A subclass sets ``T``
+    (s), ``n`` and ``_scale`` (``tau_max`` times the torque scale, (n,)) and defines
+    ``_path(t)`` (``q``, ``qd``, ``qdd`` at times ``t`` (K,), each (K, n)) and
+    ``_controls(q, qd, qdd)`` (the normalised torques, (K, n)). It has no costates
+    (``psi``, ``S`` and ``H`` are NaN).
+    """
+
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
+        q, qd, _ = self._path(np.atleast_1d(np.asarray(t, dtype=float)))
+        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    def evaluate(self, t) -> TrajectorySample:
+        """All quantities at times ``t`` (s), scalar or shape (K,)."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        q, qd, qdd = self._path(t)
+        u = self._controls(q, qd, qdd)
+        nan = np.full((len(t), self.n), np.nan)
+        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
+                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
+
+    def sample(self, dt: float) -> TrajectorySample:
+        """Samples every ``dt`` seconds from 0, always including ``T``."""
+        return self.evaluate(sample_times(self.T, dt))
+
+    def control(self, t: float) -> np.ndarray:
+        """Normalised control at one time, shape (n,)."""
+        return self._controls(*self._path(np.atleast_1d(float(t))))[0]
+
+
 class Trajectory:
     """A time-optimal trajectory: evaluate it at any time, or sample it.
 

@@ -19,9 +19,9 @@ from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.tuning import REFINE_JUMP
 from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.model import RobotModel
-from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
+from tocontrol_ros.core.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "refined_breaks"]
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "polynomial_segment_ode", "refined_breaks"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
@@ -29,6 +29,31 @@ OPEN_LOOP_POINTS = 8
 
 #: CVODES integrators of the open loop, per model, degree and tolerances.
 _OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def polynomial_segment_ode(model: RobotModel, degree: int
+                           ) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX]:
+    """The forward dynamics under the inverse dynamics of a polynomial path (SX).
+
+    On a segment of duration ``h`` whose path is ``q(sigma) = sum_j c_j sigma^j`` in its
+    normalised time ``sigma`` in [0, 1], the state ``x = (q, qd)`` (2n,) obeys
+    ``dx/dsigma = h f(x, tau)``, ``tau`` the inverse dynamics of the path (forward dynamics
+    through the factorised mass matrix, not the inverse dynamics that made the torques).
+
+    Returns
+    -------
+    sigma, x, c, h, ode
+        The symbols (``c`` of shape (n, degree + 1)) and ``dx/dsigma`` (2n,).
+    """
+    n, d1 = model.n, degree + 1
+    x, c, h = ca.SX.sym("x", 2 * n), ca.SX.sym("c", n, d1), ca.SX.sym("h")
+    sig = ca.SX.sym("sigma")
+    pw = [sig ** j for j in range(d1)]
+    q = sum(c[:, j] * pw[j] for j in range(d1))
+    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
+    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
+    tau = model.rnea_sym(q, qd, qdd)
+    return sig, x, c, h, h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
 
 
 def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
@@ -47,17 +72,7 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
     cached = _OPEN_LOOP.setdefault(model, {})
     if key in cached:
         return cached[key]
-    n, d1 = model.n, degree + 1
-    x = ca.SX.sym("x", 2 * n)
-    c = ca.SX.sym("c", n, d1)
-    h = ca.SX.sym("h")
-    sig = ca.SX.sym("sigma")
-    pw = [sig ** j for j in range(d1)]
-    q = sum(c[:, j] * pw[j] for j in range(d1))
-    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
-    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
-    tau = model.rnea_sym(q, qd, qdd)
-    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    sig, x, c, h, ode = polynomial_segment_ode(model, degree)
     grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
     method = {} if stiff else {"linear_multistep_method": "adams",
                                "nonlinear_solver_iteration": "functional"}
@@ -68,7 +83,7 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
     return cached[key]
 
 
-class FlatTrajectory:
+class FlatTrajectory(InverseDynamicsTrajectory):
     """A bounded B-spline solution: states from the spline, torques its inverse dynamics.
 
     Same interface as :class:`~tocontrol_ros.core.trajectory.Trajectory` for sampling and
@@ -186,28 +201,6 @@ class FlatTrajectory:
         s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
         u = self.control_at(s * self.T)
         return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
-
-    def state(self, t) -> np.ndarray:
-        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
-        q, qd, _ = self._path(t)
-        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
-
-    def evaluate(self, t) -> TrajectorySample:
-        """All quantities at times ``t`` (s), scalar or shape (K,)."""
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
-        q, qd, qdd = self._path(t)
-        u = self._controls(q, qd, qdd)
-        nan = np.full((len(t), self.n), np.nan)
-        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
-                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
-
-    def sample(self, dt: float) -> TrajectorySample:
-        """Samples every ``dt`` seconds from 0, always including ``T``."""
-        return self.evaluate(sample_times(self.T, dt))
-
-    def control(self, t: float) -> np.ndarray:
-        """Normalised control at one time, shape (n,)."""
-        return self.control_at(np.atleast_1d(float(t)))[0]
 
     def control_at(self, t: np.ndarray) -> np.ndarray:
         """Normalised controls at times ``t`` (K,), shape (K, n)."""

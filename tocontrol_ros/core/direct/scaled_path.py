@@ -27,11 +27,11 @@ import casadi as ca
 import numpy as np
 from numpy.polynomial import polynomial as poly
 
-from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS
+from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS, polynomial_segment_ode
 from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
-from tocontrol_ros.core.trajectory import TrajectorySample, sample_times
+from tocontrol_ros.core.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES"]
 
@@ -68,15 +68,7 @@ def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
     dynamics signature (``t, x, z, p, u -> ode, alg, quad, zero``) so that a compiled copy
     can drive CVODES.
     """
-    n, d1 = model.n, degree + 1
-    x, c, h = ca.SX.sym("x", 2 * n), ca.SX.sym("c", n, d1), ca.SX.sym("h")
-    sig = ca.SX.sym("sigma")
-    pw = [sig ** j for j in range(d1)]
-    q = sum(c[:, j] * pw[j] for j in range(d1))
-    qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
-    qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
-    tau = model.rnea_sym(q, qd, qdd)
-    ode = h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    sig, x, c, h, ode = polynomial_segment_ode(model, degree)
     empty = ca.SX(0, 1)
     return ca.Function(f"first_open_loop{degree}", [sig, x, ca.SX.sym("z", 0),
                                                     ca.vertcat(ca.vec(c), h),
@@ -173,7 +165,7 @@ class PolynomialPath:
         return values.min(axis=0), values.max(axis=0)
 
 
-class ScaledPath:
+class ScaledPath(InverseDynamicsTrajectory):
     """A :class:`PolynomialPath` timed by path speeds at gridpoints (see the module).
 
     Parameters
@@ -219,11 +211,11 @@ class ScaledPath:
         self.T = float(self.t_grid[-1])
         self._scale = model.tau_max * torque_scale
         self._id = model.function("id")
-        q, qd, _ = self._kinematics(self.t_grid)
+        q, qd, _ = self._path(self.t_grid)
         self.z_grid = np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
 
     # ------------------------------------------------------------------ evaluation
-    def _kinematics(self, t, left: bool = False):
+    def _path(self, t, left: bool = False):
         """``q, qd, qdd`` (K, n) at times ``t`` (s).
 
         At a gridpoint, those of the segment that starts there (``left``: that ends there).
@@ -249,28 +241,6 @@ class ScaledPath:
             tau = np.array(mapped(self._model, "id", len(q))(q.T, qd.T, qdd.T)).T
         return tau / self._scale
 
-    def state(self, t) -> np.ndarray:
-        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates)."""
-        q, qd, _ = self._kinematics(t)
-        return np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
-
-    def evaluate(self, t) -> TrajectorySample:
-        """All quantities at times ``t`` (s), scalar or shape (K,)."""
-        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
-        q, qd, qdd = self._kinematics(t)
-        u = self._controls(q, qd, qdd)
-        nan = np.full((len(t), self.n), np.nan)
-        return TrajectorySample(t=t, q=q, qd=qd, qdd=qdd, u=u, tau=u * self._scale,
-                                psi=np.hstack([nan, nan]), S=nan, H=np.full(len(t), np.nan))
-
-    def sample(self, dt: float) -> TrajectorySample:
-        """Samples every ``dt`` seconds from 0, always including ``T``."""
-        return self.evaluate(sample_times(self.T, dt))
-
-    def control(self, t: float) -> np.ndarray:
-        """Normalised control at one time, shape (n,)."""
-        return self._controls(*self._kinematics(float(t)))[0]
-
     def segment_samples(self, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``u`` and ``qd`` at ``points`` >= 2 equally spaced times on every segment.
 
@@ -287,7 +257,7 @@ class ScaledPath:
         left = np.tile(frac == 1.0, len(self.h))
         kin = [np.empty((len(t), self.n)) for _ in range(3)]
         for mask, is_left in ((~left, False), (left, True)):
-            for out, part in zip(kin, self._kinematics(t[mask], left=is_left), strict=True):
+            for out, part in zip(kin, self._path(t[mask], left=is_left), strict=True):
                 out[mask] = part
         return t, self._controls(*kin), kin[1]
 
