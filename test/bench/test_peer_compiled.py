@@ -2,8 +2,9 @@
 
 Not compiled here (CasADi's virtual machine evaluates the same NLP): one Panda case from a
 moving joint state, 50 intervals. Its torques, re-integrated through the model's numeric
-forward dynamics, must bring the tip to the target and the arm to rest, and its solution
-must keep the padded limits at its collocation points.
+forward dynamics, must bring the tip to the target and the arm to rest, and over one
+interval from its own state reach its next one; its solution must keep the padded limits at
+its collocation points.
 """
 
 import sys
@@ -48,3 +49,4 @@ def test_peer_reaches_the_target_through_the_forward_dynamics(panda):
     assert result["end"] < 3e-3  # m
     assert result["speed"] < 0.15  # rad/s
     assert result["bounds"] < 1e-7
+    assert result["q_step"] < 1e-3  # rad, one interval from the solution's own state
