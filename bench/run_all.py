@@ -250,7 +250,8 @@ def _stem(title: str) -> str:
 def _update(text: str, info: dict, sections) -> str:
     """``text`` (a report) with these sections and their target rows replaced or added."""
     head, *parts = text.rstrip("\n").split("\n## ")
-    blocks = {p.split("\n", 1)[0]: p for p in parts}
+    # Every block ends with a blank line (the file's last one lost it to the strip).
+    blocks = {p.split("\n", 1)[0]: p if p.endswith("\n") else p + "\n" for p in parts}
     order = [p.split("\n", 1)[0] for p in parts]
     stamp = f"regenerated alone by `run_all.py --update` on {info['commit']}, {info['date']}"
     for s in sections:
