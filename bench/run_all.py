@@ -6,7 +6,7 @@ Run from the repository root::
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
         [--only paper,peers,random,optimum,optimum_panda,profile_panda,scaling,panda_peer,
-                first_use,deployed_panda,
+                peer_compiled,first_use,deployed_panda,
                 verification,deployed,batch,limits,first_motion]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -15,7 +15,9 @@ Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multis
 exhaustive reference on 100 seeded pairs, about half an hour), ``optimum_panda`` (the same on the
 Panda with its joint limits), ``profile_panda`` (where a default Panda plan's time goes, and
 the same plans with two worker processes), ``scaling`` (planar arms of 2 to 8 links, the Panda),
-``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation), ``first_use``
+``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation),
+``peer_compiled`` (the default Panda plan on the 20 best-motion cases against an independent
+direct-collocation peer built once with parameters and compiled derivatives), ``first_use``
 (the Panda's compile routes, each in a new process with an empty cache), ``verification`` (the
 certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
 processes: idle CPU and ~/plan round trip against the same request in-process),
@@ -44,7 +46,7 @@ from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
 PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "profile_panda", "scaling",
-         "panda_peer",
+         "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "batch", "limits", "first_motion")
 
@@ -125,6 +127,7 @@ def _run(args):
         optimum_panda,
         panda_peer,
         paper,
+        peer_compiled,
         peers,
         profile_panda,
         random_pairs,
@@ -177,6 +180,8 @@ def _run(args):
         section(lambda: profile_panda.run_cores(2 if args.quick else args.optimum_panda_cases))
     if "panda_peer" in args.only:
         section(lambda: panda_peer.run(runs=1 if args.quick else 3))
+    if "peer_compiled" in args.only:
+        section(lambda: peer_compiled.run(2 if args.quick else args.optimum_panda_cases))
     if "first_use" in args.only:
         section(lambda: first_use.run(runs=1 if args.quick else 3))
     if "verification" in args.only:
@@ -250,7 +255,8 @@ def _stem(title: str) -> str:
 def _update(text: str, info: dict, sections) -> str:
     """``text`` (a report) with these sections and their target rows replaced or added."""
     head, *parts = text.rstrip("\n").split("\n## ")
-    blocks = {p.split("\n", 1)[0]: p for p in parts}
+    # Every block ends with a blank line (the file's last one lost it to the strip).
+    blocks = {p.split("\n", 1)[0]: p if p.endswith("\n") else p + "\n" for p in parts}
     order = [p.split("\n", 1)[0] for p in parts]
     stamp = f"regenerated alone by `run_all.py --update` on {info['commit']}, {info['date']}"
     for s in sections:
