@@ -25,7 +25,8 @@ k = 4, the URDF limits enforced), planned by
   its other options default) loads: a request builds nothing. The build (symbolic NLP,
   code generation, gcc) is timed apart. One start: the planner's own first seed pair
   (``seed_pairs(problem, SolverOptions())[0]``) joined by ``initial_path`` and timed within
-  the velocity limits; the peer's time is that guess plus the IPOPT solve.
+  the velocity limits; the peer's time is its IPOPT solve (the guess, seed pair and
+  initial path, is timed apart and left out: in the peer's favour).
 
 Accuracy in ``T``: every solution (ours, and the peer's at each ``N``) is measured in its
 own basin, ``|T - T_ref| / T_ref`` with ``T_ref`` the peer's NLP on
