@@ -265,3 +265,27 @@ def test_every_build_of_a_source_gives_the_same_bits(private_cache, galicki):
     reference = outputs[" ".join(compiled.CFLAGS)]
     differ = [flags for flags, out in outputs.items() if out != reference]
     assert not differ, f"other bits than {' '.join(compiled.CFLAGS)}: {differ}"
+
+
+def test_generating_c_never_changes_the_working_directory(tmp_path, monkeypatch):
+    """Another thread's files must not land in whatever directory this one moved to."""
+    import os
+
+    import casadi as ca
+
+    from tocontrol_ros.core.robot import compiled
+
+    def no_chdir(path):
+        raise AssertionError(f"os.chdir({path!r}) while generating C")
+
+    x = ca.SX.sym("x", 2)
+    fun = ca.Function("gen_probe", [x], [ca.sin(x) * x[0]])
+    out = tmp_path / "out"
+    out.mkdir()
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    monkeypatch.setattr(os, "chdir", no_chdir)
+    compiled._generate_one(fun, str(out))
+    assert [p.name for p in out.iterdir()] == ["gen_probe.c"]
+    assert list(here.iterdir()) == []

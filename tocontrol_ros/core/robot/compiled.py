@@ -332,12 +332,10 @@ def _defer(cc: str, name: str, write: Callable[[str], None],
 
 
 def _generate_one(fun: ca.Function, tmp: str) -> None:
-    cwd = os.getcwd()
-    try:
-        os.chdir(tmp)  # Function.generate writes into the working directory
-        fun.generate(f"{fun.name()}.c")
-    finally:
-        os.chdir(cwd)
+    # The same source as fun.generate(), written into ``tmp`` by its path: Function.generate
+    # writes into the working directory, and changing it from one thread made another
+    # thread's generated file land in the caller's directory.
+    _generate_many(fun.name(), [fun], tmp)
 
 
 def _generate_many(name: str, funs: Sequence[ca.Function], tmp: str) -> None:
