@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository: bench/
+# The repository, for bench/ (not installed), last: tocontrol_ros stays the installed one
+# (test/packaging/test_install_layout.py checks that).
+sys.path.append(str(Path(__file__).resolve().parents[2]))
 
 from bench import peer_compiled as pc  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
