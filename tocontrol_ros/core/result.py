@@ -190,6 +190,29 @@ class PlanResult:
     certificate: Certificate | None = None
     method: str = "indirect"
 
+    @classmethod
+    def failure(cls, problem: Problem, status: Status, message: str, timings: dict,
+                **fields) -> PlanResult:
+        """A failed result: no trajectory, NaN figures, ``"<status>: <message>"``.
+
+        ``fields`` set the others (``method``, ``starts``, the solve's ``iterations``...).
+        """
+        nan = float("nan")
+        return cls(**{"success": False, "status": status,
+                      "message": f"{status.value}: {message}", "T": nan, "k": problem.k,
+                      "trajectory": None, "residual": nan, "iterations": 0,
+                      "timings": timings, "continuation": (), "max_abs_u": nan,
+                      "delta": nan, "intervals": 0, "problem": problem, **fields})
+
+    @classmethod
+    def trivial(cls, problem: Problem, timings: dict, method: str = "indirect"
+                ) -> PlanResult:
+        """The result of a problem whose start is its target (``T = 0``, no trajectory)."""
+        return cls(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value, T=0.0,
+                   k=problem.k, trajectory=None, residual=0.0, iterations=0,
+                   timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
+                   intervals=0, problem=problem, method=method)
+
     def can_warm_start(self, problem: Problem) -> bool:
         """Whether :func:`~tocontrol_ros.core.solver.plan` continues this to ``problem``.
 

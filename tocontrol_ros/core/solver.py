@@ -209,10 +209,7 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
     timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
-        return PlanResult(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value,
-                          T=0.0, k=problem.k, trajectory=None, residual=0.0, iterations=0,
-                          timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
-                          intervals=0, problem=problem)
+        return PlanResult.trivial(problem, timings)
     notes: list[str] = []
     run = None
     records: list[StartRecord] = []
@@ -428,14 +425,13 @@ def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list
 
 def _failure(problem: Problem, status: Status, message: str, timings: dict, starts=(),
              run: Run | None = None) -> PlanResult:
-    return PlanResult(
-        success=False, status=status, message=f"{status.value}: {message}",
-        T=float("nan"), k=run.k if run else float("nan"), trajectory=None,
-        residual=run.residual if run else float("nan"),
-        iterations=run.iterations if run else 0, timings=timings,
-        continuation=tuple(run.log) if run else (), max_abs_u=float("nan"),
-        delta=run.delta if run else float("nan"), intervals=run.grid.N if run else 0,
-        starts=tuple(starts), problem=problem)
+    if run is None:
+        return PlanResult.failure(problem, status, message, timings, k=float("nan"),
+                                  starts=tuple(starts))
+    return PlanResult.failure(problem, status, message, timings, k=run.k,
+                              residual=run.residual, iterations=run.iterations,
+                              continuation=tuple(run.log), delta=run.delta,
+                              intervals=run.grid.N, starts=tuple(starts))
 
 
 # -------------------------------------------------------------------- cold start

@@ -108,10 +108,7 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
     timings = {"guess": 0.0, "scaling": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
-        return PlanResult(success=True, status=Status.TRIVIAL, message=Status.TRIVIAL.value,
-                          T=0.0, k=problem.k, trajectory=None, residual=0.0, iterations=0,
-                          timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
-                          intervals=0, problem=problem, method="first")
+        return PlanResult.trivial(problem, timings, method="first")
     if pairs is None:
         pairs = seed_pairs(problem, options)
     timings["guess"] = time.perf_counter() - t_start
@@ -149,11 +146,8 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
 def _failure(problem: Problem, status: Status, why: str, timings: dict,
              t_start: float) -> PlanResult:
     timings["total"] = time.perf_counter() - t_start
-    return PlanResult(success=False, status=status, message=f"{status.value}: the first "
-                      f"motion: {why}", T=float("nan"), k=problem.k, trajectory=None,
-                      residual=float("nan"), iterations=0, timings=timings, continuation=(),
-                      max_abs_u=float("nan"), delta=float("nan"), intervals=0,
-                      problem=problem, method="first")
+    return PlanResult.failure(problem, status, f"the first motion: {why}", timings,
+                              method="first")
 
 
 # ---------------------------------------------------------------------- the path

@@ -185,14 +185,12 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     count = EXHAUSTIVE_CANDIDATES if options.exhaustive else options.candidates
     fallback = reason is not None
     basins = distinct_basins(solved, lambda g: g[1], problem.model.n)
-    if not (options.exhaustive or fallback) and basins:
-        # Those whose guess is far slower at k = 1 come only if the near ones all fail.
+    near = len(basins)
+    if basins and not (options.exhaustive or fallback):
+        # By increasing T: those whose guess is far slower at k = 1 come last, and only if
+        # the near ones all fail.
         cutoff = (1 + GUESS_WINDOW) * basins[0][1].T
-        basins = ([b for b in basins if b[1].T <= cutoff]
-                  + [b for b in basins if b[1].T > cutoff])
         near = sum(b[1].T <= cutoff for b in basins)
-    else:
-        near = len(basins)
     while len(first) < count and basins and (near > 0 or not first):
         # As many as are still needed, side by side (planner.map); a failed one is
         # replaced by the next basin, as one after the other would.
@@ -268,13 +266,8 @@ def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,
                 **fields) -> PlanResult:
     """A failed bounded solve (``LIMITS_INFEASIBLE``), ``why`` in its message."""
     timings["total"] = time.perf_counter() - t_start
-    return PlanResult(**{
-        "success": False, "status": Status.LIMITS_INFEASIBLE,
-        "message": f"{Status.LIMITS_INFEASIBLE.value}: {why}", "T": float("nan"),
-        "k": problem.k, "trajectory": None, "residual": float("nan"), "iterations": 0,
-        "timings": timings, "continuation": (), "max_abs_u": float("nan"),
-        "delta": float("nan"), "intervals": 0, "problem": problem, "method": "direct",
-        **fields})
+    return PlanResult.failure(problem, Status.LIMITS_INFEASIBLE, why, timings, method="direct",
+                              **fields)
 
 
 def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: list,
