@@ -76,6 +76,17 @@ def test_mass_matrix(case):
         _close(ours.mass_matrix(q), mass)
 
 
+def test_diagonal_inertia_of_several_configurations(case):
+    """One mapped call gives each configuration's inertia diagonal (Pinocchio's CRBA)."""
+    ours, model, data, _, states = case
+    qs = np.array([q for q, _, _ in states])
+    diagonal = ours.diagonal_inertia(qs)
+    assert diagonal.shape == (len(qs), ours.n)
+    for q, row in zip(qs, diagonal, strict=True):
+        _close(row, np.diag(pin.crba(model, data, q)))
+    assert ours.diagonal_inertia(qs[0]).shape == (1, ours.n)  # one configuration: one row
+
+
 def test_bias(case):
     ours, model, data, _, states = case
     for q, qd, _ in states:

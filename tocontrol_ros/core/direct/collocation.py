@@ -83,8 +83,8 @@ def initial_paths(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: 
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`initial_path` for ``S`` seed pairs at once (the same values, seed by seed).
 
-    One call of the model's mass matrix and three of its inverse dynamics for all the seeds
-    (CasADi maps them over the columns), instead of four per seed.
+    One call of the diagonal of the model's mass matrix and three of its inverse dynamics for
+    all the seeds (CasADi maps them over the columns), instead of four per seed.
 
     Parameters
     ----------
@@ -106,8 +106,7 @@ def initial_paths(model: RobotModel, q0: np.ndarray, qT: np.ndarray, intervals: 
     q0 = np.asarray(q0, dtype=float)
     dq = np.asarray(qT, dtype=float) - q0                        # (S, n)
     count, n = dq.shape
-    mass = np.array(model.function("M").map(count)(q0.T))      # (n, S n), blocks per seed
-    inertia = np.array([np.diag(mass[:, i * n:(i + 1) * n]) for i in range(count)])
+    inertia = model.diagonal_inertia(q0)                         # (S, n)
     acc = model.tau_max * torque_scale / inertia
     t_final = np.maximum(1.5 * np.max(2 * np.sqrt(np.abs(dq) / acc), axis=1), 1e-2)
     t_vel = np.zeros(count) if velocity is None else \

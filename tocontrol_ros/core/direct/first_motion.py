@@ -43,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 
 from tocontrol_ros.core.certificate import certify_open_loop
-from tocontrol_ros.core.direct.scaled_path import PolynomialPath, mapped
+from tocontrol_ros.core.direct.scaled_path import PolynomialPath
 from tocontrol_ros.core.direct.time_scaling import rest_time, time_scaling
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
@@ -246,9 +246,7 @@ def _estimates(problem: Problem, cands: list) -> np.ndarray:
     model = problem.model
     qa = np.array([c[1] for c in cands])
     d = np.abs(np.array([c[2] for c in cands]) - qa)
-    mass = np.array(mapped(model, "M", len(qa))(qa.T))
-    inertia = np.array([np.diag(mass[:, i * model.n:(i + 1) * model.n])
-                        for i in range(len(qa))])
+    inertia = model.diagonal_inertia(qa)
     acc = model.tau_max * problem.torque_scale / inertia
     v = problem.limits.plan_velocity
     with np.errstate(invalid="ignore"):

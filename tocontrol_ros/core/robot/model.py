@@ -256,7 +256,8 @@ class RobotModel(Chain):
         Parameters
         ----------
         name : str
-            One of ``"M"`` (q -> M), ``"bias"`` ((q, qd) -> b), ``"fd"`` ((q, qd, tau) -> qdd),
+            One of ``"M"`` (q -> M), ``"M_diag"`` (q -> the diagonal of M, (n,)),
+            ``"bias"`` ((q, qd) -> b), ``"fd"`` ((q, qd, tau) -> qdd),
             ``"id"`` ((q, qd, qdd) -> tau), ``"P"`` (q -> P), ``"J"`` (q -> dP/dq, (m, n)),
             ``"f"`` ((x, u) -> xd), ``"energy"`` ((q, qd) -> (kinetic, potential), J).
 
@@ -273,6 +274,8 @@ class RobotModel(Chain):
         v = ca.SX.sym("v", n)
         builders = {
             "M": lambda: ca.Function("M", [q], [self.mass_matrix_sym(q)], ["q"], ["M"]),
+            "M_diag": lambda: ca.Function("M_diag", [q], [ca.diag(self.mass_matrix_sym(q))],
+                                          ["q"], ["M_diag"]),
             "bias": lambda: ca.Function("bias", [q, qd], [self.bias_sym(q, qd)],
                                         ["q", "qd"], ["b"]),
             "fd": lambda: ca.Function("fd", [q, qd, v],
@@ -323,6 +326,19 @@ class RobotModel(Chain):
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """Joint-space inertia matrix, shape (n, n) (kg m^2 for revolute joints)."""
         return np.array(self.function("M")(self._vec("q", q, self.n)))
+
+    def diagonal_inertia(self, q: np.ndarray) -> np.ndarray:
+        """The diagonals of the inertia matrices at configurations ``q`` (S, n): (S, n).
+
+        What the bang-bang time estimates with diagonal inertia use (the seed ranking, the
+        initial paths, the first motion's candidates): one call of the model's ``M_diag``
+        mapped over the ``S`` columns (the mapped function cached per ``S``).
+        """
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        key = ("M_diag", len(q))
+        if key not in self._functions:
+            self._functions[key] = self.function("M_diag").map(len(q))
+        return np.array(self._functions[key](q.T)).T.reshape(len(q), self.n)
 
     def bias(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Bias forces ``C qd + g + D qd``, shape (n,) (N m)."""
