@@ -46,6 +46,7 @@ from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.controller_client import ControllerClient
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all
 from tocontrol_ros.nodes.planner_config import (
@@ -143,6 +144,10 @@ class PlannerNode(Node):
                             callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
+        # Execution on a controller (controller_action): each published plan is sent there.
+        self._controller = ControllerClient(self, config.controller_action,
+                                            self._controller_status) \
+            if config.controller_action else None
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -292,6 +297,11 @@ class PlannerNode(Node):
     def _status(self, req: PlanRequest, level: str, event: str, message: str,
                 extra: dict | None = None) -> None:
         self._publish_status(level, message, self._values(req, event, extra))
+
+    def _controller_status(self, rid: int, level: str, event: str, message: str,
+                           values: dict) -> None:
+        self._publish_status(level, message, {"request_id": rid, "event": event,
+                                              "frame_id": self.frame.frame_id, **values})
 
     def _reject(self, rid: int, source: str, reason: str) -> None:
         self._publish_status("ERROR", f"request {rid} rejected: {reason}",
@@ -488,7 +498,7 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        path = self._publish(result, config)
+        path = self._publish(result, config, req.id)
         if path is None:  # publishers gone during shutdown
             req.done.set()
             return
@@ -514,7 +524,7 @@ class PlannerNode(Node):
                          f"({first.message}); the optimum follows",
                          {**values, "published": "none"})
             return None
-        path = self._publish(first, req.config)
+        path = self._publish(first, req.config, req.id)
         if path is None:
             return None
         level, message = conv.result_message(first)
@@ -523,17 +533,23 @@ class PlannerNode(Node):
                      {**values, "published": "first", "samples": len(path.poses)})
         return first, path
 
-    def _publish(self, result, config: PlannerConfig) -> Path | None:
-        """``~/trajectory`` and ``~/ee_path`` of a result; the path, None during shutdown."""
+    def _publish(self, result, config: PlannerConfig, rid: int = 0) -> Path | None:
+        """Publish ``~/trajectory`` and ``~/ee_path``, send the plan to ``controller_action``.
+
+        Returns the path, None during shutdown.
+        """
         sample = result.trajectory.sample(config.sample_period)
         stamp = self._now()
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
+        trajectory = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id,
+                                         stamp)
         try:
-            self._pub_trajectory.publish(conv.trajectory_msg(
-                sample, self.model.joint_names, self.frame.frame_id, stamp))
+            self._pub_trajectory.publish(trajectory)
             self._pub_path.publish(path)
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             return None
+        if self._controller is not None:
+            self._controller.send(rid, trajectory, config)
         return path
 
     def _markers(self, result, path: Path, config: PlannerConfig, start_point, target) -> None:
@@ -563,6 +579,8 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
+        if self._controller is not None:
+            self._controller.destroy()
         self._joint_states.destroy()
         super().destroy_node()
 
