@@ -48,7 +48,7 @@ from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.controller_client import ControllerClient
 from tocontrol_ros.nodes.node_main import run_node
-from tocontrol_ros.nodes.params import declare_all
+from tocontrol_ros.nodes.params import declare_all, robot_from_topic
 from tocontrol_ros.nodes.planner_config import (
     FIRST_THEN_OPTIMUM,
     PARAMETERS,
@@ -113,7 +113,7 @@ class PlannerNode(Node):
 
     def __init__(self, node_name: str = "planner", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        config = config_from_values(declare_all(self, PARAMETERS))
+        config = config_from_values(robot_from_topic(self, declare_all(self, PARAMETERS)))
         self.model = planner_model(config)
         self._limits = planner_limits(config, self.model)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)

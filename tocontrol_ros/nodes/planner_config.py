@@ -23,6 +23,8 @@ from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TIMEOUT,
+    ROBOT_DESCRIPTION_TOPIC,
     ParameterSpec,
     load_model,
     parse_locked_joints,
@@ -43,6 +45,8 @@ class ConfigError(TocontrolError, ValueError):
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TOPIC,
+    ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
                   "position and velocity limits (has_position_limits, min_position, "
@@ -185,6 +189,8 @@ class PlannerConfig:
     joint_state_timeout: float
     marker_snapshots: int
     service_timeout: float
+    robot_description_topic: str = ""
+    robot_description_timeout: float = 30.0
     controller_action: str = ""
     controller_effort: bool = False
     controller_goal_time_tolerance: float = 1.0

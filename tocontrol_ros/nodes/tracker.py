@@ -70,6 +70,7 @@ from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import (
     declare_all,
     parameters_parser,
+    robot_from_topic,
 )
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
 
@@ -262,7 +263,8 @@ class TrackerNode(Node):
 
     def __init__(self, node_name: str = "tracker", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        self.config = TrackerConfig.from_values(declare_all(self, PARAMETERS))
+        self.config = TrackerConfig.from_values(
+            robot_from_topic(self, declare_all(self, PARAMETERS)))
         self.model, bundled = self.config.load_model()
         self.joint_names = list(self.model.joint_names)
         q0 = self.config.start_configuration(self.model, bundled)

@@ -23,6 +23,8 @@ from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TIMEOUT,
+    ROBOT_DESCRIPTION_TOPIC,
     ParameterSpec,
     load_model,
     parse_locked_joints,
@@ -46,6 +48,8 @@ def _spec(name, default, description, low=None, high=None) -> ParameterSpec:
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TOPIC,
+    ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     _spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
     _spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
