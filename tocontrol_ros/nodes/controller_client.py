@@ -84,17 +84,24 @@ class ControllerClient:
     ----------
     node : rclpy.node.Node
     action_name : str
-        The controller's action.
-    report : callable
-        ``report(request_id, level, event, message, values)``: one ``~/status`` per event.
+        The controller's action; empty: none (:meth:`send` does nothing).
+    publish_status : callable
+        ``publish_status(level, message, values)``: the planner's ``~/status``; ``values``
+        carry ``request_id`` and ``event``.
     """
 
     def __init__(self, node, action_name: str,
-                 report: Callable[[int, str, str, str, dict], None]) -> None:
+                 publish_status: Callable[[str, str, dict], None]) -> None:
         self.action_name = action_name
-        self._client = ActionClient(node, FollowJointTrajectory, action_name)
-        self._report = report
+        self._client = ActionClient(node, FollowJointTrajectory, action_name) \
+            if action_name else None
+        self._publish_status = publish_status
         self._lock = threading.Lock()
+
+    def _report(self, request_id: int, level: str, event: str, message: str,
+                values: dict) -> None:
+        self._publish_status(level, message, {"request_id": request_id, "event": event,
+                                              **values})
 
     def send(self, request_id: int, trajectory: JointTrajectory, config) -> None:
         """Send one plan (from any thread); the outcome comes on ``~/status``.
@@ -107,6 +114,8 @@ class ControllerClient:
         config : PlannerConfig
             Its ``controller_*`` values.
         """
+        if self._client is None:
+            return
         goal = controller_goal(trajectory, config.controller_effort,
                                config.controller_goal_time_tolerance,
                                config.controller_goal_tolerance,
@@ -148,4 +157,5 @@ class ControllerClient:
 
     def destroy(self) -> None:
         """Destroy the action client."""
-        self._client.destroy()
+        if self._client is not None:
+            self._client.destroy()

@@ -144,10 +144,7 @@ class PlannerNode(Node):
                             callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
-        # Execution on a controller (controller_action): each published plan is sent there.
-        self._controller = ControllerClient(self, config.controller_action,
-                                            self._controller_status) \
-            if config.controller_action else None
+        self._controller = ControllerClient(self, config.controller_action, self._publish_status)
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -297,11 +294,6 @@ class PlannerNode(Node):
     def _status(self, req: PlanRequest, level: str, event: str, message: str,
                 extra: dict | None = None) -> None:
         self._publish_status(level, message, self._values(req, event, extra))
-
-    def _controller_status(self, rid: int, level: str, event: str, message: str,
-                           values: dict) -> None:
-        self._publish_status(level, message, {"request_id": rid, "event": event,
-                                              "frame_id": self.frame.frame_id, **values})
 
     def _reject(self, rid: int, source: str, reason: str) -> None:
         self._publish_status("ERROR", f"request {rid} rejected: {reason}",
@@ -534,22 +526,17 @@ class PlannerNode(Node):
         return first, path
 
     def _publish(self, result, config: PlannerConfig, rid: int = 0) -> Path | None:
-        """Publish ``~/trajectory`` and ``~/ee_path``, send the plan to ``controller_action``.
-
-        Returns the path, None during shutdown.
-        """
+        """``~/trajectory``, ``~/ee_path``, the controller's goal; the path, None in shutdown."""
         sample = result.trajectory.sample(config.sample_period)
         stamp = self._now()
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
-        trajectory = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id,
-                                         stamp)
+        msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)
         try:
-            self._pub_trajectory.publish(trajectory)
+            self._pub_trajectory.publish(msg)
             self._pub_path.publish(path)
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             return None
-        if self._controller is not None:
-            self._controller.send(rid, trajectory, config)
+        self._controller.send(rid, msg, config)
         return path
 
     def _markers(self, result, path: Path, config: PlannerConfig, start_point, target) -> None:
@@ -579,8 +566,7 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
-        if self._controller is not None:
-            self._controller.destroy()
+        self._controller.destroy()
         self._joint_states.destroy()
         super().destroy_node()
 
