@@ -9,6 +9,8 @@ import ast
 import re
 from pathlib import Path
 
+from launch_stubs import launched_nodes, load_launch_file
+
 ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / "launch" / "tocontrol.launch.py"
 
@@ -50,38 +52,13 @@ def test_package_xml_declares_launch_dependencies():
         assert f"<exec_depend>{pkg}</exec_depend>" in xml, pkg
 
 
-def _launch_module(monkeypatch):
-    """The launch file imported with stand-ins for `launch` and `launch_ros` (not installable
-    here): its Node calls recorded as dicts."""
-    import importlib.util
-    import types
-
-    stubs = {name: types.ModuleType(name) for name in (
-        "launch", "launch.actions", "launch_ros", "launch_ros.actions",
-        "launch_ros.substitutions")}
-    stubs["launch"].LaunchDescription = list
-    stubs["launch.actions"].DeclareLaunchArgument = lambda name, **kw: ("arg", name, kw)
-    stubs["launch.actions"].OpaqueFunction = lambda function: ("opaque", function)
-    stubs["launch_ros.actions"].Node = lambda **kw: kw
-    stubs["launch_ros.substitutions"].FindPackageShare = lambda pkg: types.SimpleNamespace(
-        perform=lambda context: f"/prefix/share/{pkg}")
-    for name, module in stubs.items():
-        monkeypatch.setitem(__import__("sys").modules, name, module)
-    spec = importlib.util.spec_from_file_location("tocontrol_launch", LAUNCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
 
 def _started(module, **arguments):
-    import types
-
-    context = types.SimpleNamespace(launch_configurations=dict(arguments))
-    return {node["executable"]: node["parameters"] for node in module._nodes(context)}
-
+    return {node["executable"]: node["parameters"]
+            for node in launched_nodes(module, **arguments)}
 
 def test_launch_arguments_reach_the_nodes(monkeypatch):
-    module = _launch_module(monkeypatch)
+    module = load_launch_file(monkeypatch)
     names = [entry[1] for entry in module.generate_launch_description()[:-1]]
     assert names == ["robot", "params_file", "use_sim_time", "controller_action", "simulate",
                      "record", "output"]
