@@ -19,6 +19,9 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   rejected, completed and preempted trajectories, with the run summary; a start event carries
   the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
   and ``/clock`` (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
+- served: ``~/follow_joint_trajectory`` (``control_msgs/action/FollowJointTrajectory``, a
+  joint_trajectory_controller's goal checks, tolerances, results, cancel and preemption) and
+  published ``~/controller_state``: :mod:`tocontrol_ros.nodes.follow_action`;
 - subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
   velocities): puts the plant at that state now and holds it, stopping a running trajectory
   (``replay --reexecute`` re-executes a recorded run from its recorded initial state); the
