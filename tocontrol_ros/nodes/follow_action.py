@@ -170,6 +170,9 @@ class FollowServer:
             record.start = self.node.tracker.t
             record.end = record.start + nominal.duration
             self.active = record
+            if record.handle.is_cancel_requested:  # cancelled while queued: never moves
+                self._hold()
+                self._finish(record, "canceled", jtc.SUCCESSFUL, "canceled by the client")
 
     def stopped(self, reason: str) -> None:
         """The trajectory was stopped (``~/reset``): abort the active goal."""
