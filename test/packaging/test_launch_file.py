@@ -9,6 +9,8 @@ import ast
 import re
 from pathlib import Path
 
+from launch_stubs import launched_nodes, load_launch_file
+
 ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / "launch" / "tocontrol.launch.py"
 
@@ -48,3 +50,37 @@ def test_package_xml_declares_launch_dependencies():
     assert roots == {"launch", "launch_ros"}
     for pkg in roots:
         assert f"<exec_depend>{pkg}</exec_depend>" in xml, pkg
+
+
+
+def _started(module, **arguments):
+    return {node["executable"]: node["parameters"]
+            for node in launched_nodes(module, **arguments)}
+
+def test_launch_arguments_reach_the_nodes(monkeypatch):
+    module = load_launch_file(monkeypatch)
+    names = [entry[1] for entry in module.generate_launch_description()[:-1]]
+    assert names == ["robot", "params_file", "use_sim_time", "controller_action", "simulate",
+                     "record", "output"]
+    nodes = _started(module)  # defaults: the robot from /robot_description, the topic route
+    assert list(nodes) == ["planner", "tracker", "recorder"]
+    planner, tracker = nodes["planner"][1], nodes["tracker"][1]
+    assert planner["robot_description_topic"] == tracker["robot_description_topic"] == \
+        "/robot_description"
+    assert planner["controller_action"] == "" and \
+        tracker["trajectory_topic"] == "/planner/trajectory"
+    assert nodes["planner"][0] == "/prefix/share/tocontrol_ros/config/planner.yaml"
+
+    nodes = _started(module, robot="/arm.urdf", params_file="/mine.yaml", use_sim_time="true",
+                     controller_action="/arm_controller/follow_joint_trajectory",
+                     simulate="false", record="false")
+    assert list(nodes) == ["planner"]
+    planner = nodes["planner"]
+    assert planner[1]["robot_description_file"] == "/arm.urdf"
+    assert "robot_description_topic" not in planner[1]
+    assert planner[1]["use_sim_time"] is True
+    assert planner[1]["controller_action"] == "/arm_controller/follow_joint_trajectory"
+    assert planner[-1] == "/mine.yaml"  # after the defaults: it wins
+
+    tracker = _started(module, controller_action="/tracker/follow_joint_trajectory")["tracker"]
+    assert tracker[1]["trajectory_topic"] == "~/unused"  # goals only, not the plan twice

@@ -44,6 +44,13 @@ MODULE_DEPENDENCIES = {
     "toppra": ("python3-toppra-pip", "toppra"),
 }
 
+# Interface packages with no wheel: top-level module -> rosdep key. The pip route builds them
+# from interfaces/<module>/ (scripts/dev); colcon must skip that folder (COLCON_IGNORE) and
+# take the distribution's package.
+BUILT_INTERFACES = {
+    "control_msgs": "control_msgs",
+}
+
 # Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of
 # setup.py's extras_require, not in install_requires nor package.xml (rosdistro has no key),
 # and imported only inside functions, so that the package works without them.
@@ -113,6 +120,11 @@ def test_every_import_is_declared(repo, package_xml, setup_keywords):
     for module, places in sorted(_third_party_imports(repo).items()):
         if module in OPTIONAL_DEPENDENCIES:
             continue
+        if module in BUILT_INTERFACES:
+            if BUILT_INTERFACES[module] not in rosdep_keys:
+                undeclared.append(f"package.xml lacks <exec_depend>{BUILT_INTERFACES[module]}"
+                                  f"</exec_depend> for {module}")
+            continue
         if module not in MODULE_DEPENDENCIES:
             unknown.append(f"{module} ({', '.join(places)})")
             continue
@@ -163,3 +175,11 @@ def test_optional_imports_are_extras_imported_lazily(repo, setup_keywords):
         assert module not in eager, \
             f"{module} is optional: import it inside functions, not at the top of {eager[module]}"
     assert "ray" in _third_party_imports(repo), "the scan no longer sees ray_backend's import"
+
+
+def test_built_interfaces_are_in_the_tree_and_skipped_by_colcon(repo):
+    for module in BUILT_INTERFACES:
+        folder = repo / "interfaces" / module
+        assert (folder / "package.xml").is_file() and (folder / "CMakeLists.txt").is_file()
+        assert (folder / "COLCON_IGNORE").is_file(), f"colcon would build {folder}"
+    assert "interfaces" in (repo / "scripts" / "dev").read_text()

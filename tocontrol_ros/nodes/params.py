@@ -27,7 +27,8 @@ from rclpy.parameter import Parameter
 from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["ParameterSpec", "descriptor", "declare_all", "ROBOT_DESCRIPTION",
-           "ROBOT_DESCRIPTION_FILE", "LOCKED_JOINTS", "RobotDescriptionError", "load_model",
+           "ROBOT_DESCRIPTION_FILE", "ROBOT_DESCRIPTION_TOPIC", "ROBOT_DESCRIPTION_TIMEOUT",
+           "robot_from_topic", "LOCKED_JOINTS", "RobotDescriptionError", "load_model",
            "parse_locked_joints", "parameters_help"]
 
 _RESTART = " Read-only: a change needs a restart."
@@ -159,6 +160,18 @@ ROBOT_DESCRIPTION = ParameterSpec(
 ROBOT_DESCRIPTION_FILE = ParameterSpec(
     "robot_description_file", "", "Path of a URDF file, used when robot_description is "
     "empty. Empty: the bundled arm.", read_only=True)
+#: The robot from a topic, as robot_state_publisher publishes it (and ros2_control's
+#: controller manager reads it since Jazzy): ``std_msgs/String``, transient local.
+ROBOT_DESCRIPTION_TOPIC = ParameterSpec(
+    "robot_description_topic", "", "Topic of a std_msgs/String with the URDF XML "
+    "(transient local, as robot_state_publisher publishes /robot_description), read once at "
+    "start-up when robot_description and robot_description_file are empty. Empty: not read "
+    "(the bundled arm).", read_only=True)
+#: How long a node waits at start-up for the robot on ``robot_description_topic`` (s).
+ROBOT_DESCRIPTION_TIMEOUT = ParameterSpec(
+    "robot_description_timeout", 30.0, "Longest wait (s) at start-up for the URDF on "
+    "robot_description_topic; then the node stops with an error.", 0.1, 3600.0,
+    read_only=True)
 #: Joints held fixed, on every node that loads the robot (planner and tracker must agree).
 LOCKED_JOINTS = ParameterSpec(
     "locked_joints", "", "Moving joints held fixed, as 'name=position' pairs separated by "
@@ -254,3 +267,65 @@ def load_model(description: str, description_file: str = "", **kwargs):
                                         f"URDF XML")
         return load_robot(xml, **kwargs), False
     return load_robot(default_urdf_path(), **kwargs), True
+
+
+def robot_from_topic(node, values: dict) -> dict:
+    """``values`` with ``robot_description`` read from ``robot_description_topic`` if due.
+
+    Reads the topic (``std_msgs/String``, reliable, transient local: the last message of a
+    ``robot_state_publisher`` started before or after this node) only when the topic is set
+    and neither ``robot_description`` nor ``robot_description_file`` is; spins ``node``
+    until the message arrives (at most ``robot_description_timeout`` s), before the node has
+    any other callbacks.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    values : dict
+        The node's parameter values (:func:`declare_all`).
+
+    Returns
+    -------
+    dict
+        A copy, ``robot_description`` filled in when it was read.
+
+    Raises
+    ------
+    RobotDescriptionError
+        Nothing arrived within the timeout (the message names the topic).
+    """
+    topic = str(values.get("robot_description_topic", "")).strip()
+    if not topic or str(values.get("robot_description", "")).strip() or \
+            str(values.get("robot_description_file", "")).strip():
+        return dict(values)
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.task import Future
+    from std_msgs.msg import String
+
+    received: Future = Future()
+
+    def on_message(msg: String) -> None:
+        if not received.done():
+            received.set_result(msg.data)
+
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    subscription = node.create_subscription(String, topic, on_message, qos)
+    executor = SingleThreadedExecutor(context=node.context)
+    timeout = float(values.get("robot_description_timeout", 30.0))
+    try:
+        executor.add_node(node)
+        executor.spin_until_future_complete(received, timeout_sec=timeout)
+    finally:
+        executor.remove_node(node)
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_subscription(subscription)
+    if not received.done():
+        raise RobotDescriptionError(
+            f"no robot description on `robot_description_topic` {topic!r} within "
+            f"{timeout:g} s (robot_description_timeout): start robot_state_publisher, or set "
+            f"robot_description or robot_description_file")
+    node.get_logger().info(f"robot description read from {topic} "
+                           f"({len(received.result())} characters)")
+    return {**values, "robot_description": received.result()}

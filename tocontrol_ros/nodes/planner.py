@@ -46,8 +46,9 @@ from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.controller_client import ControllerClient
 from tocontrol_ros.nodes.node_main import run_node
-from tocontrol_ros.nodes.params import declare_all
+from tocontrol_ros.nodes.params import declare_all, robot_from_topic
 from tocontrol_ros.nodes.planner_config import (
     FIRST_THEN_OPTIMUM,
     PARAMETERS,
@@ -112,7 +113,7 @@ class PlannerNode(Node):
 
     def __init__(self, node_name: str = "planner", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        config = config_from_values(declare_all(self, PARAMETERS))
+        config = config_from_values(robot_from_topic(self, declare_all(self, PARAMETERS)))
         self.model = planner_model(config)
         self._limits = planner_limits(config, self.model)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
@@ -143,6 +144,7 @@ class PlannerNode(Node):
                             callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
+        self._controller = ControllerClient(self, config.controller_action, self._publish_status)
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -488,7 +490,7 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        path = self._publish(result, config)
+        path = self._publish(result, config, req.id)
         if path is None:  # publishers gone during shutdown
             req.done.set()
             return
@@ -514,7 +516,7 @@ class PlannerNode(Node):
                          f"({first.message}); the optimum follows",
                          {**values, "published": "none"})
             return None
-        path = self._publish(first, req.config)
+        path = self._publish(first, req.config, req.id)
         if path is None:
             return None
         level, message = conv.result_message(first)
@@ -523,17 +525,18 @@ class PlannerNode(Node):
                      {**values, "published": "first", "samples": len(path.poses)})
         return first, path
 
-    def _publish(self, result, config: PlannerConfig) -> Path | None:
-        """``~/trajectory`` and ``~/ee_path`` of a result; the path, None during shutdown."""
+    def _publish(self, result, config: PlannerConfig, rid: int = 0) -> Path | None:
+        """``~/trajectory``, ``~/ee_path``, the controller's goal; the path, None in shutdown."""
         sample = result.trajectory.sample(config.sample_period)
         stamp = self._now()
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
+        msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)
         try:
-            self._pub_trajectory.publish(conv.trajectory_msg(
-                sample, self.model.joint_names, self.frame.frame_id, stamp))
+            self._pub_trajectory.publish(msg)
             self._pub_path.publish(path)
         except Exception:  # noqa: BLE001  (publishers gone during shutdown)
             return None
+        self._controller.send(rid, msg, config)
         return path
 
     def _markers(self, result, path: Path, config: PlannerConfig, start_point, target) -> None:
@@ -563,6 +566,7 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
+        self._controller.destroy()
         self._joint_states.destroy()
         super().destroy_node()
 

@@ -23,6 +23,8 @@ from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TIMEOUT,
+    ROBOT_DESCRIPTION_TOPIC,
     ParameterSpec,
     load_model,
     parse_locked_joints,
@@ -43,6 +45,8 @@ class ConfigError(TocontrolError, ValueError):
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TOPIC,
+    ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
                   "position and velocity limits (has_position_limits, min_position, "
@@ -128,6 +132,22 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "Figure 4).", 2, 200),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
                   "(s); then it returns an empty path.", 1.0, 3600.0),
+    # Execution on a controller (tocontrol_ros/nodes/controller_client.py).
+    ParameterSpec("controller_action", "", "A control_msgs/action/FollowJointTrajectory "
+                  "action (the tracker's /tracker/follow_joint_trajectory, or a "
+                  "joint_trajectory_controller's /<controller>/follow_joint_trajectory) that "
+                  "every published plan is sent to, the outcome on ~/status. Empty: none.",
+                  read_only=True),
+    ParameterSpec("controller_effort", False, "The controller takes effort (an effort "
+                  "command interface): goals carry the nominal torques. False: no effort "
+                  "(a default joint_trajectory_controller refuses goals with effort)."),
+    ParameterSpec("controller_goal_time_tolerance", 1.0, "goal_time_tolerance of the goals "
+                  "(s): how long after the motion's end the controller may take to reach the "
+                  "goal tolerance. 0: the controller's default.", 0.0, 3600.0),
+    ParameterSpec("controller_goal_tolerance", 0.0, "Position tolerance of every joint at "
+                  "the goal's end (rad, m). 0: the controller's default.", 0.0, 1000.0),
+    ParameterSpec("controller_path_tolerance", 0.0, "Position tolerance of every joint "
+                  "during the motion (rad, m). 0: the controller's default.", 0.0, 1000.0),
 )
 
 _SPECS = {spec.name: spec for spec in PARAMETERS}
@@ -169,6 +189,13 @@ class PlannerConfig:
     joint_state_timeout: float
     marker_snapshots: int
     service_timeout: float
+    robot_description_topic: str = ""
+    robot_description_timeout: float = 30.0
+    controller_action: str = ""
+    controller_effort: bool = False
+    controller_goal_time_tolerance: float = 1.0
+    controller_goal_tolerance: float = 0.0
+    controller_path_tolerance: float = 0.0
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:

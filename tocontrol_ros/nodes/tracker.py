@@ -19,6 +19,9 @@ publishes. Interfaces (one page each in ``msg_docs/``):
   rejected, completed and preempted trajectories, with the run summary; a start event carries
   the plant state it starts from, ``start_position.<joint>`` and ``start_velocity.<joint>``),
   and ``/clock`` (``rosgraph_msgs/msg/Clock``) when ``publish_clock`` is true;
+- served: ``~/follow_joint_trajectory`` (``control_msgs/action/FollowJointTrajectory``, a
+  joint_trajectory_controller's goal checks, tolerances, results, cancel and preemption) and
+  published ``~/controller_state``: :mod:`tocontrol_ros.nodes.follow_action`;
 - subscribed: ``~/reset`` (``sensor_msgs/msg/JointState``: names, positions, optional
   velocities): puts the plant at that state now and holds it, stopping a running trajectory
   (``replay --reexecute`` re-executes a recorded run from its recorded initial state); the
@@ -65,10 +68,12 @@ from tocontrol_ros.core.sim.tracking import (
 )
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.follow_action import FollowServer, GoalRecord
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import (
     declare_all,
     parameters_parser,
+    robot_from_topic,
 )
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
 
@@ -93,6 +98,13 @@ class TrajectoryRejectedError(ProblemError):
     """A trajectory message the tracker cannot execute; the message says why."""
 
 
+class _Goal(NamedTuple):
+    """An action goal's trajectory in the parsing queue: parsed (or refused) and its goal."""
+
+    item: Any
+    record: GoalRecord
+
+
 class _Reset(NamedTuple):
     """A parsed ``~/reset`` request, queued behind the trajectories received before it."""
 
@@ -103,12 +115,15 @@ class _Reset(NamedTuple):
 
 
 # ------------------------------------------------------------------- conversions
-def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> NominalTrajectory:
+def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str],
+                     inverse_dynamics=None) -> NominalTrajectory:
     """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
 
     Every point needs positions, velocities, accelerations and effort (the nominal torques,
     N m) for all joints; ``time_from_start`` must increase strictly. The joints may come in
-    any order.
+    any order. With ``inverse_dynamics`` (a callable ``(q, qd, qdd) -> tau``, each shape
+    (n,)), a trajectory whose points all lack effort (as sent to a controller without an
+    effort interface) gets the model's torques as its effort.
 
     Raises
     ------
@@ -128,7 +143,11 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> Nomina
     order = [names.index(j) for j in want]
     n, points = len(want), msg.points
     arrays = {}
-    for field in ("positions", "velocities", "accelerations", "effort"):
+    fields = ["positions", "velocities", "accelerations", "effort"]
+    computed = inverse_dynamics is not None and all(len(p.effort) == 0 for p in points)
+    if computed:
+        fields.remove("effort")
+    for field in fields:
         rows = [getattr(p, field) for p in points]
         short = [i for i, row in enumerate(rows) if len(row) != n]
         if short:
@@ -138,6 +157,11 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str]) -> Nomina
                 f"needs positions, velocities, accelerations and effort)")
         arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
     t = np.array([conv.seconds(p.time_from_start) for p in points])
+    if computed:
+        arrays["effort"] = np.array([
+            inverse_dynamics(q, qd, qdd) for q, qd, qdd in
+            zip(arrays["positions"], arrays["velocities"], arrays["accelerations"],
+                strict=True)]).reshape(len(points), n)
     try:
         return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
                                  arrays["accelerations"], arrays["effort"],
@@ -242,7 +266,8 @@ class TrackerNode(Node):
 
     def __init__(self, node_name: str = "tracker", **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        self.config = TrackerConfig.from_values(declare_all(self, PARAMETERS))
+        self.config = TrackerConfig.from_values(
+            robot_from_topic(self, declare_all(self, PARAMETERS)))
         self.model, bundled = self.config.load_model()
         self.joint_names = list(self.model.joint_names)
         q0 = self.config.start_configuration(self.model, bundled)
@@ -282,6 +307,8 @@ class TrackerNode(Node):
         # would not fire at all before the first /clock).
         self.create_timer(1.0 / self.config.update_rate, self._on_timer,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        # ~/follow_joint_trajectory and ~/controller_state, a joint_trajectory_controller's.
+        self._follow = FollowServer(self)
         self.get_logger().info(
             f"tracking on {self.model.name!r} ({self.model.n} joints) from "
             f"{self.config.trajectory_topic}; plant: {self._plant_text()}; "
@@ -323,19 +350,30 @@ class TrackerNode(Node):
         except RuntimeError:  # the node is shutting down
             return
 
-    def _parse(self, msg: JointTrajectory) -> None:
+    def submit_goal(self, msg: JointTrajectory, record: GoalRecord) -> None:
+        """Queue an accepted action goal's trajectory (parsed like the topic's)."""
         try:
-            nominal = nominal_from_msg(msg, self.joint_names)
+            self._parser.submit(self._parse, msg, record)
+        except RuntimeError:  # the node is shutting down
+            self._follow.rejected(record, "the tracker is shutting down")
+
+    def _parse(self, msg: JointTrajectory, record: GoalRecord | None = None) -> None:
+        try:
+            nominal = nominal_from_msg(msg, self.joint_names, self.model.inverse_dynamics)
             check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
             item = nominal
         except TrajectoryRejectedError as exc:
             item = exc
         except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)
             item = TrajectoryRejectedError(f"cannot be parsed: {exc!r}")
+        if record is not None:
+            item = _Goal(item, record)
         with self._parsed_lock:
             self._parsed.append(item)
 
-    def _reject(self, reason: str) -> None:
+    def _reject(self, reason: str, record: GoalRecord | None = None) -> None:
+        if record is not None:
+            self._follow.rejected(record, f"trajectory rejected: {reason}")
         running = "continuing the current trajectory" if self.tracker.running else "holding"
         self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
         self.get_logger().warning(f"trajectory rejected: {reason}")
@@ -345,8 +383,11 @@ class TrackerNode(Node):
         with self._parsed_lock:
             items, self._parsed = self._parsed, []
         for item in items:
+            record = None
+            if isinstance(item, _Goal):
+                item, record = item
             if isinstance(item, TrajectoryRejectedError):
-                self._reject(str(item))
+                self._reject(str(item), record)
                 continue
             if isinstance(item, _Reset):
                 self._apply_reset(item)
@@ -369,7 +410,7 @@ class TrackerNode(Node):
                 self._reject(f"its first point is {offset:.3g} rad from the current position "
                              f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
                              f"position of the last {START_HISTORY:g} s, more than "
-                             f"start_tolerance = {self.config.start_tolerance:g}")
+                             f"start_tolerance = {self.config.start_tolerance:g}", record)
                 continue
             # The state it starts from, for re-execution (the status is latched: a recorder
             # that subscribes late still gets it).
@@ -381,6 +422,7 @@ class TrackerNode(Node):
             preempted = self.tracker.start(nominal)
             if preempted is not None:
                 self._pub_status.publish(self._summary_status(preempted))
+            self._follow.started(record, nominal)
             self._status(DiagnosticStatus.OK,
                          f"executing trajectory: {len(nominal)} points, T = "
                          f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
@@ -419,6 +461,7 @@ class TrackerNode(Node):
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
+        self._follow.stopped("stopped by ~/reset")
         self._status(DiagnosticStatus.OK,
                      f"reset to positions {np.round(q, 6).tolist()}, velocities "
                      f"{np.round(qd, 6).tolist()}; holding",
@@ -441,6 +484,7 @@ class TrackerNode(Node):
     def destroy_node(self) -> None:
         """Stop the parsing thread, then destroy the node."""
         self._parser.shutdown(wait=False, cancel_futures=True)
+        self._follow.shutdown()
         super().destroy_node()
 
     def _summary_status(self, summary: TrackingSummary) -> DiagnosticStatus:
@@ -486,6 +530,7 @@ class TrackerNode(Node):
                 f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
         report = tracker.advance(target)
         log = report.log
+        rows = np.zeros(0, dtype=int)
         if len(log):
             # The first control instant at or after each publishing time.
             due = np.arange(self._next_publish, log.t[-1] + 1e-9, self._publish_period)
@@ -497,6 +542,7 @@ class TrackerNode(Node):
                     "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max,
                     "tau": log.tau[i]})
             self._next_publish += due.size * self._publish_period
+        self._follow.update(log, rows)
         # After the states: whoever acts on "completed" (e.g. sends the next goal, which the
         # planner plans from the latest joint state) has seen the final state by then.
         for summary in report.summaries:

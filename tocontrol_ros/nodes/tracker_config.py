@@ -23,6 +23,8 @@ from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TIMEOUT,
+    ROBOT_DESCRIPTION_TOPIC,
     ParameterSpec,
     load_model,
     parse_locked_joints,
@@ -46,6 +48,8 @@ def _spec(name, default, description, low=None, high=None) -> ParameterSpec:
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TOPIC,
+    ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     _spec("base_link", "", "Base link of the chain; empty: the URDF's root"),
     _spec("tip_link", "", "Tip link (end effector); empty: the only leaf"),
@@ -95,6 +99,18 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     _spec("max_points", 20000, "Largest number of points of a trajectory; more: rejected "
           "before it is parsed", 1, 10_000_000),
     _spec("max_duration", 600.0, "Longest trajectory (s); longer: rejected", 0.001, 1.0e6),
+    # ~/follow_joint_trajectory: a joint_trajectory_controller's defaults (its constraints).
+    _spec("path_tolerance", 0.0, "Default position tolerance of every joint during an action "
+          "goal's motion (rad, m; a goal's path_tolerance overrides it); 0: not checked",
+          0.0, 1.0e3),
+    _spec("goal_tolerance", 0.0, "Default position tolerance of every joint at an action "
+          "goal's end (rad, m; a goal's goal_tolerance overrides it); 0: not checked",
+          0.0, 1.0e3),
+    _spec("stopped_velocity_tolerance", 0.01, "Largest joint velocity (rad/s, m/s) at which "
+          "an action goal's end counts as reached", 0.0, 1.0e3),
+    _spec("goal_time", 0.0, "Default time (s) after an action goal's end within which the "
+          "goal tolerance must be met (a goal's goal_time_tolerance overrides it); 0: no "
+          "limit", 0.0, 1.0e6),
 )
 
 
@@ -119,6 +135,10 @@ class TrackerConfig:
     start_tolerance: float
     max_points: int
     max_duration: float
+    path_tolerance: float = 0.0
+    goal_tolerance: float = 0.0
+    stopped_velocity_tolerance: float = 0.01
+    goal_time: float = 0.0
 
     @classmethod
     def from_values(cls, values: Mapping[str, Any]) -> TrackerConfig:
@@ -148,7 +168,11 @@ class TrackerConfig:
             trajectory_topic=values["trajectory_topic"],
             start_at_first_trajectory=bool(values["start_at_first_trajectory"]),
             start_tolerance=float(values["start_tolerance"]),
-            max_points=int(values["max_points"]), max_duration=float(values["max_duration"]))
+            max_points=int(values["max_points"]), max_duration=float(values["max_duration"]),
+            path_tolerance=float(values.get("path_tolerance", 0.0)),
+            goal_tolerance=float(values.get("goal_tolerance", 0.0)),
+            stopped_velocity_tolerance=float(values.get("stopped_velocity_tolerance", 0.01)),
+            goal_time=float(values.get("goal_time", 0.0)))
 
     def load_model(self) -> tuple[RobotModel, bool]:
         """The robot model, and whether it is the bundled arm."""

@@ -351,6 +351,28 @@ class Tracker:
         self._rng = np.random.default_rng(self.plant.noise_seed)
         return preempted
 
+    def hold(self) -> TrackingSummary | None:
+        """Stop the running trajectory and hold the current position (a controller's stop).
+
+        The plant keeps its state; the desired state becomes the current position at rest,
+        with the static torque fed forward, as after :meth:`reset` but without moving the
+        plant.
+
+        Returns
+        -------
+        TrackingSummary or None
+            The summary of the trajectory it stops (outcome ``"preempted"``), if one was
+            running.
+        """
+        preempted = None
+        if self._stats is not None:
+            preempted = self._stats.summary("preempted", self.model)
+        self.nominal = None
+        self._stats = None
+        self._hold_q = self.q
+        self._hold_u = self._static_control(self._hold_q)
+        return preempted
+
     def advance(self, until: float) -> StepReport:
         """Simulate every control period that starts before ``until`` (s).
 

@@ -1,0 +1,161 @@
+"""The planner's plans, executed on a controller through ``FollowJointTrajectory``.
+
+With ``controller_action`` set, the planner sends every trajectory it publishes on
+``~/trajectory`` to that ``control_msgs/action/FollowJointTrajectory`` action (the tracker's,
+or a ros2_control ``joint_trajectory_controller``'s) and reports the outcome on ``~/status``
+(events ``sent``, ``rejected``, ``executed``; msg_docs/controller_execution.md).
+
+What is sent is what a default-configured Jazzy JTC accepts (:func:`controller_goal`):
+``header.stamp`` zero (start now), the last point's velocities and accelerations exactly zero,
+effort only with ``controller_effort``. A newer plan preempts the goal being executed (the
+controller cancels it, as a JTC does).
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from collections.abc import Callable
+
+from builtin_interfaces.msg import Time
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
+from rclpy.action import ActionClient
+from trajectory_msgs.msg import JointTrajectory
+
+from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes.jtc_checks import CODE_NAMES
+
+__all__ = ["controller_goal", "ControllerClient", "GOAL_STATUS_NAMES"]
+
+#: ``action_msgs/msg/GoalStatus`` codes -> names.
+GOAL_STATUS_NAMES = {0: "UNKNOWN", 1: "ACCEPTED", 2: "EXECUTING", 3: "CANCELING",
+                     4: "SUCCEEDED", 5: "CANCELED", 6: "ABORTED"}
+
+
+def controller_goal(trajectory: JointTrajectory, effort: bool = False,
+                    goal_time_tolerance: float = 0.0, goal_tolerance: float = 0.0,
+                    path_tolerance: float = 0.0) -> FollowJointTrajectory.Goal:
+    """A ``FollowJointTrajectory`` goal of a planned trajectory, as a Jazzy JTC accepts it.
+
+    Parameters
+    ----------
+    trajectory : trajectory_msgs.msg.JointTrajectory
+        The planner's ``~/trajectory`` (not modified).
+    effort : bool
+        Keep the nominal torques (a controller with an effort command interface).
+    goal_time_tolerance : float
+        s; 0 = the controller's default.
+    goal_tolerance, path_tolerance : float
+        Position tolerance of every joint (rad, m); 0 = the controller's default.
+
+    Returns
+    -------
+    FollowJointTrajectory.Goal
+        ``header.stamp`` zero (start when received), the last point's velocities and
+        accelerations exactly zero (the plan ends at rest to the solver's accuracy; a JTC
+        refuses a non-zero end velocity by default), no effort unless ``effort``.
+    """
+    msg = copy.deepcopy(trajectory)
+    msg.header.stamp = Time()
+    if not effort:
+        for point in msg.points:
+            point.effort = []
+    if msg.points:
+        last = msg.points[-1]
+        last.velocities = [0.0] * len(last.velocities)
+        last.accelerations = [0.0] * len(last.accelerations)
+
+    def tolerances(value: float) -> list[JointTolerance]:
+        if value <= 0.0:
+            return []
+        return [JointTolerance(name=name, position=value) for name in msg.joint_names]
+
+    return FollowJointTrajectory.Goal(
+        trajectory=msg, goal_tolerance=tolerances(goal_tolerance),
+        path_tolerance=tolerances(path_tolerance),
+        goal_time_tolerance=conv.duration_from_seconds(goal_time_tolerance))
+
+
+class ControllerClient:
+    """Sends plans to a ``FollowJointTrajectory`` action and reports what became of them.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    action_name : str
+        The controller's action; empty: none (:meth:`send` does nothing).
+    publish_status : callable
+        ``publish_status(level, message, values)``: the planner's ``~/status``; ``values``
+        carry ``request_id`` and ``event``.
+    """
+
+    def __init__(self, node, action_name: str,
+                 publish_status: Callable[[str, str, dict], None]) -> None:
+        self.action_name = action_name
+        self._client = ActionClient(node, FollowJointTrajectory, action_name) \
+            if action_name else None
+        self._publish_status = publish_status
+        self._lock = threading.Lock()
+
+    def _report(self, request_id: int, level: str, event: str, message: str,
+                values: dict) -> None:
+        self._publish_status(level, message, {"request_id": request_id, "event": event,
+                                              **values})
+
+    def send(self, request_id: int, trajectory: JointTrajectory, config) -> None:
+        """Send one plan (from any thread); the outcome comes on ``~/status``.
+
+        Parameters
+        ----------
+        request_id : int
+        trajectory : trajectory_msgs.msg.JointTrajectory
+            As published on ``~/trajectory``.
+        config : PlannerConfig
+            Its ``controller_*`` values.
+        """
+        if self._client is None:
+            return
+        goal = controller_goal(trajectory, config.controller_effort,
+                               config.controller_goal_time_tolerance,
+                               config.controller_goal_tolerance,
+                               config.controller_path_tolerance)
+        values = {"controller_action": self.action_name,
+                  "points": len(goal.trajectory.points)}
+        if not self._client.server_is_ready():
+            self._report(request_id, "ERROR", "rejected",
+                         f"request {request_id}: no FollowJointTrajectory server at "
+                         f"{self.action_name}; the plan was not executed", values)
+            return
+        with self._lock:
+            future = self._client.send_goal_async(goal)
+        future.add_done_callback(lambda f: self._on_response(request_id, f, values))
+        self._report(request_id, "OK", "sent", f"request {request_id}: plan sent to "
+                     f"{self.action_name}", values)
+
+    def _on_response(self, request_id: int, future, values: dict) -> None:
+        handle = future.result()
+        if handle is None or not handle.accepted:
+            self._report(request_id, "ERROR", "rejected",
+                         f"request {request_id}: the controller at {self.action_name} "
+                         f"rejected the plan (see its log for the reason)", values)
+            return
+        handle.get_result_async().add_done_callback(
+            lambda f: self._on_result(request_id, f, values))
+
+    def _on_result(self, request_id: int, future, values: dict) -> None:
+        response = future.result()
+        status = GOAL_STATUS_NAMES.get(response.status, str(response.status))
+        code = response.result.error_code
+        text = response.result.error_string
+        level = "OK" if status == "SUCCEEDED" and code == 0 else "WARN"
+        self._report(request_id, level, "executed",
+                     f"request {request_id}: execution {status.lower()} "
+                     f"({CODE_NAMES.get(code, str(code))})" + (f": {text}" if text else ""),
+                     {**values, "goal_status": status, "error_code": code,
+                      "error_string": text})
+
+    def destroy(self) -> None:
+        """Destroy the action client."""
+        if self._client is not None:
+            self._client.destroy()
