@@ -236,12 +236,15 @@ def run(count: int = 100, seeds: int = SEEDS) -> Section:
         f"| default gaps above {GAP_TOL:g} (largest first) | "
         + (", ".join(f"{100 * r['gap']:.2f} %" for r in misses) or "none") + " |",
     ]
+    met = {True: "**yes**: ", False: "**no**: "}
     targets = [
-        (f"default within {GAP_TOL:g} of the reference on >= {TARGET_HITS} of 100 pairs",
-         f"{len(hits)}/{count}"),
-        (f"default median plan time <= {TARGET_MEDIAN} s", f"{statistics.median(times):.2f} s"),
-        ("reference converged (no pair improved in the last doubling)",
-         f"{len(improved)} improved"),
+        (f"issue 35: default within {GAP_TOL:g} of the independent reference on >= "
+         f"{TARGET_HITS} of 100 pairs (paper's arm)",
+         met[len(hits) >= TARGET_HITS * count / 100] + f"{len(hits)}/{count}"),
+        (f"issue 35: default median plan time <= {TARGET_MEDIAN} s (paper's arm, the same run)",
+         met[statistics.median(times) <= TARGET_MEDIAN] + f"{statistics.median(times):.2f} s"),
+        (f"issue 35: the independent reference converged (pairs improved by > {GAP_TOL:g} "
+         f"from {half} to {last} seeds)", f"{len(improved)}/{count}"),
     ]
     return Section(f"The paper's arm against an independent reference ({count} pairs)",
                    lines, targets)

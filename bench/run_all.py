@@ -5,14 +5,17 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,optimum,optimum_panda,profile_panda,scaling,panda_peer,
+        [--only paper,peers,random,optimum,reference_paper,optimum_panda,profile_panda,scaling,
+                panda_peer,
                 peer_compiled,first_use,deployed_panda,
                 verification,deployed,batch,limits,first_motion]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
 ``random_pairs`` (seeded start/target pairs), ``optimum`` (the default multistart against the
-exhaustive reference on 100 seeded pairs, about half an hour), ``optimum_panda`` (the same on the
+exhaustive reference on 100 seeded pairs, about half an hour), ``reference_paper`` (the default
+on the same pairs against an independent direct-collocation reference and its convergence,
+about 40 minutes on 2 processes), ``optimum_panda`` (the same on the
 Panda with its joint limits), ``profile_panda`` (where a default Panda plan's time goes, and
 the same plans with two worker processes), ``scaling`` (planar arms of 2 to 8 links, the Panda),
 ``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation),
@@ -45,8 +48,8 @@ sys.path.append(str(Path(__file__).resolve().parents[1]))
 from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
-PARTS = ("paper", "peers", "random", "optimum", "optimum_panda", "profile_panda", "scaling",
-         "panda_peer", "peer_compiled",
+PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_panda",
+         "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "batch", "limits", "first_motion")
 
@@ -131,6 +134,7 @@ def _run(args):
         peers,
         profile_panda,
         random_pairs,
+        reference_paper,
         scaling,
         verification,
     )
@@ -168,6 +172,9 @@ def _run(args):
                                          args.pair_candidates))
     if "optimum" in args.only:
         section(lambda: optimum.run(model, args.optimum_pairs))
+    if "reference_paper" in args.only:
+        section(lambda: reference_paper.run(args.optimum_pairs or 100,
+                                             256 if args.quick else reference_paper.SEEDS))
     if "optimum_panda" in args.only:
         section(lambda: optimum_panda.run(2 if args.quick else args.optimum_panda_cases))
     if "scaling" in args.only:
