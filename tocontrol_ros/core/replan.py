@@ -32,6 +32,8 @@ TAIL_MIN_REMAINING = 0.02
 #: A cut this close (normalised time) to the next node drops that node: no interval is
 #: left that is much shorter than its neighbours (badly scaled Newton steps).
 TAIL_MERGE = 0.25
+#: The lead covers this quantile of the recent latencies (times the margin).
+HIGH_QUANTILE = 0.8
 
 
 def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
@@ -119,9 +121,10 @@ class LatencyEstimate:
     Parameters
     ----------
     margin : float
-        Factor on the largest recent latency (>= 1).
+        Factor on the recent latencies' :data:`HIGH_QUANTILE` (>= 1).
     floor : float
-        Smallest lead (s), > 0: delivery to the executor and its control period.
+        Lead added to it (s), > 0: delivery to the executor and its update period; a plan
+        published later than ``floor`` before its hand-off is late.
     window : int
         How many recent latencies count.
     initial : float
@@ -151,6 +154,8 @@ class LatencyEstimate:
 
     def lead(self) -> float:
         """How far ahead of now the next hand-off is put (s)."""
-        if not self._recent:
-            return max(self.initial, self.floor)
-        return max(self.floor, self.margin * max(self._recent))
+        # A high quantile, not the maximum: one slow solve (a page fault, a busy core)
+        # does not push every later hand-off back; a late plan is solved again anyway.
+        high = float(np.quantile(self._recent, HIGH_QUANTILE)) if self._recent \
+            else self.initial
+        return self.floor + self.margin * high

@@ -27,6 +27,7 @@ import itertools
 import sys
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -58,6 +59,7 @@ from tocontrol_ros.nodes.planner_config import (
     planner_model,
     solver_options,
 )
+from tocontrol_ros.nodes.replanning import REPLAN_TRIES, Replanner, align
 from tocontrol_ros.nodes.requests import LatestMessage, LatestSlot, PlanRequest
 
 __all__ = ["PlannerNode", "main", "QOS_LATCHED", "QOS_STATUS", "QOS_GOAL", "QOS_JOINT_STATES"]
@@ -130,6 +132,7 @@ class PlannerNode(Node):
         self._joint_states = LatestMessage(self, JointState, "joint_states",
                                            QOS_JOINT_STATES)
         self._last_result = None
+        self._replanner = Replanner()
         self.ready = threading.Event()
 
         self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory",
@@ -212,7 +215,7 @@ class PlannerNode(Node):
         except conv.ConversionError as exc:
             self._reject(rid, "goal", str(exc))
             return
-        self._submit(PlanRequest(rid, "goal", start, target, config))
+        self._submit(PlanRequest(rid, "goal", start, target, config, queue=config.replan))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
         since = time.time_ns()
@@ -250,14 +253,16 @@ class PlannerNode(Node):
     def _submit(self, req: PlanRequest) -> None:
         self._status(req, "OK", "accepted", f"request {req.id} accepted")
         try:
-            replaced, running = self._slot.put(req)
+            replaced, running = self._slot.put(req, req.config.goal_queue)
         except RuntimeError:
             self._finish(req, "WARN", "cancelled", "node shutting down")
             return
-        if replaced is not None:
-            self._finish(replaced, "WARN", "superseded",
+        for old in replaced:
+            self._finish(old, "WARN", "superseded",
                          f"superseded by request {req.id} before its solve started")
-        if running is not None:
+        # Replanning: a goal's solve in progress is not thrown away by the next goal (its
+        # result still serves: the next goal is planned from it).
+        if running is not None and not (req.queue and running.queue):
             running.cancel("superseded", f"superseded by request {req.id} during its solve")
 
     # ------------------------------------------------------------ status out
@@ -432,6 +437,8 @@ class PlannerNode(Node):
         if req.cancelled.is_set():
             self._finish(req, "WARN", *req.cancel_reason)
             return
+        if req.queue and self._serve_replan(req):
+            return
         try:
             start = point(req.start[1]) if req.start[0] == "point" else \
                 joint_state(req.start[1], req.start[2])
@@ -443,6 +450,11 @@ class PlannerNode(Node):
             return
         start_point = problem.start_point
         options = solver_options(config)
+        if req.queue and self._replanner.near(config, req.target):
+            # A goal near the last motion's target, that motion over: a quick replan (the
+            # previous solution continued when near enough, else one start), not the
+            # multistart of a new motion (parameters.md, "Replanning").
+            options = replace(options, warm_only=True, starts=1, candidates=1)
         first = self._first(req, problem, options) \
             if config.publish == FIRST_THEN_OPTIMUM else None
         last = self._last_result
@@ -488,7 +500,11 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        path = self._publish(result, config)
+        # A goal (replanning on): stamped a little ahead, on the tracker's control grid, so
+        # that a replan from it knows when it took over.
+        stamp_ns = self._handoff_stamp(config, time.time_ns() + int(
+            config.replan_min_lead * 1e9)) if req.queue else None
+        path = self._publish(result, config, stamp_ns)
         if path is None:  # publishers gone during shutdown
             req.done.set()
             return
@@ -496,6 +512,88 @@ class PlannerNode(Node):
         self._finish(req, level, "solved", message, {**extra, "published": "optimum",
                                                      "samples": len(path.poses)}, path=path)
         self._markers(result, path, config, start_point, req.target)
+
+    def _handoff_stamp(self, config: PlannerConfig, t_ns: int) -> int:
+        """``t_ns`` put on the tracker's control grid (after the latest joint state's stamp)."""
+        latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
+        origin = 0 if latest is None else \
+            latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+        return align(t_ns, origin or t_ns, config.handoff_grid)
+
+    def _serve_replan(self, req: PlanRequest) -> bool:
+        """A goal while a published motion runs: planned from the hand-off, stamped with it.
+
+        Returns False when no published motion runs at the hand-off (the goal is then
+        served as any other, from the arm's measured state). Solved again from a later
+        hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
+        """
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        config = req.config
+        replans = self._replanner
+        late = []
+        for attempt in range(1, REPLAN_TRIES + 1):
+            t0 = time.monotonic()
+            latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
+            origin = 0 if latest is None else \
+                latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+            handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
+                                      origin)
+            if handoff is None:
+                return False
+            try:
+                problem = Problem(self.model, joint_state(handoff.q, handoff.qd),
+                                  point(req.target), k=config.k, reserve=config.reserve,
+                                  limits=self._limits.with_margin(config.limit_margin))
+            except TocontrolError as exc:
+                self._finish(req, "ERROR", "failed", str(exc))
+                return True
+            options = solver_options(config)
+            warm = handoff.warm
+            if replans.near(config, req.target):
+                # Near: the running motion's tail continued (or the last solution, when it
+                # started near this start); should that fail, one start, no multistart.
+                options = replace(options, warm_only=True, starts=1, candidates=1)
+                last = self._last_result
+                if warm is None and last is not None and last.can_warm_start(problem):
+                    warm = last
+            result = self.planner.plan(problem, options, warm_start=warm,
+                                       should_stop=self._should_stop(req))
+            extra = {"start": problem.start_point, **conv.result_values(result),
+                     "replan": handoff.kind, "attempts": attempt,
+                     "handoff": handoff.stamp_ns * 1e-9, "warm_start": warm is not None,
+                     "published": "none"}
+            if req.cancelled.is_set() or self._stopping.is_set():
+                event, reason = req.cancel_reason if req.cancelled.is_set() else \
+                    ("cancelled", "node shutting down")
+                self._finish(req, "WARN", event, reason, extra)
+                return True
+            if not result.success or result.trajectory is None:
+                self._finish(req, "ERROR", "failed", result.message, extra)
+                return True
+            estimate = replans.estimate(config, handoff.kind)
+            now = self.get_clock().now().nanoseconds
+            if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
+                estimate.late()
+                late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
+                continue
+            self._last_result = result
+            path = self._publish(result, config, handoff.stamp_ns)
+            if path is None:
+                req.done.set()
+                return True
+            estimate.record(time.monotonic() - t0)
+            level, message = conv.result_message(result)
+            note = f" (after {len(late)} late solve(s))" if late else ""
+            self._finish(req, level, "solved", f"replan ({handoff.kind}) taking over at "
+                         f"{handoff.stamp_ns * 1e-9:.3f}: {message}{note}",
+                         {**extra, "published": "optimum", "samples": len(path.poses)},
+                         path=path)
+            return True
+        self._finish(req, "ERROR", "failed", f"each of {REPLAN_TRIES} replans would have "
+                     f"arrived after its hand-off (published - hand-off: {', '.join(late)})",
+                     {"replan": "late", "attempts": REPLAN_TRIES})
+        return True
 
     def _first(self, req: PlanRequest, problem, options) -> tuple | None:
         """``publish: first_then_optimum``: the first motion, published at once.
@@ -523,10 +621,18 @@ class PlannerNode(Node):
                      {**values, "published": "first", "samples": len(path.poses)})
         return first, path
 
-    def _publish(self, result, config: PlannerConfig) -> Path | None:
-        """``~/trajectory`` and ``~/ee_path`` of a result; the path, None during shutdown."""
+    def _publish(self, result, config: PlannerConfig, stamp_ns: int | None = None
+                 ) -> Path | None:
+        """``~/trajectory`` and ``~/ee_path`` of a result; the path, None during shutdown.
+
+        ``stamp_ns``: when the motion takes over (a replan's hand-off, ns); default now.
+        """
         sample = result.trajectory.sample(config.sample_period)
-        stamp = self._now()
+        if stamp_ns is None:
+            stamp_ns = self.get_clock().now().nanoseconds
+        stamp = conv.time_from_seconds(0.0)
+        stamp.sec, stamp.nanosec = divmod(int(stamp_ns), 10**9)
+        self._replanner.published(result, stamp_ns, sample)
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
         try:
             self._pub_trajectory.publish(conv.trajectory_msg(
@@ -554,8 +660,7 @@ class PlannerNode(Node):
     def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:
         """Stop the worker: cancel the running solve, answer the pending request, join."""
         self._stopping.set()
-        leftover = self._slot.close()
-        if leftover is not None:
+        for leftover in self._slot.close():
             self._finish(leftover, "WARN", "cancelled", "node shutting down")
         if self._worker.is_alive() and threading.current_thread() is not self._worker:
             self._worker.join(timeout)

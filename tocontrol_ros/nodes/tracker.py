@@ -70,6 +70,7 @@ from tocontrol_ros.nodes.params import (
     declare_all,
     parameters_parser,
 )
+from tocontrol_ros.nodes.splice import Splice, jumps, schedule, splice_instant
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
 
 __all__ = ["TrackerNode", "TrajectoryRejectedError",
@@ -273,6 +274,7 @@ class TrackerNode(Node):
         self._parsed_lock = threading.Lock()
         # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
         self._parsed: list = []
+        self._splices: list[Splice] = []  # stamped trajectories waiting for their instant
         self._history: collections.deque = collections.deque()  # (wall time, q) published
         # Until the first motion or reset: the next trajectory places the arm at its start.
         self._place_at_start = self.config.start_at_first_trajectory
@@ -327,7 +329,7 @@ class TrackerNode(Node):
         try:
             nominal = nominal_from_msg(msg, self.joint_names)
             check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
-            item = nominal
+            item = (nominal, conv.seconds(msg.header.stamp))
         except TrajectoryRejectedError as exc:
             item = exc
         except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)
@@ -351,9 +353,11 @@ class TrackerNode(Node):
             if isinstance(item, _Reset):
                 self._apply_reset(item)
                 continue
-            nominal = item
+            nominal, stamp = item
             if self._sim_time:
                 self._follow_clock()  # a trajectory right after the first /clock: stamp with it
+            if self._schedule_splice(nominal, stamp):
+                continue
             placed = self._place_at_start
             if placed:
                 self._place_at(nominal)
@@ -390,6 +394,45 @@ class TrackerNode(Node):
                           "start_offset": f"{offset:.9g}",
                           "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
 
+    def _schedule_splice(self, nominal: NominalTrajectory, stamp: float) -> bool:
+        """A stamp ahead of now: queue the trajectory for that instant (True), else False."""
+        now = self._target_time()
+        instant = None if now is None or self._place_at_start else splice_instant(
+            stamp, self._epoch, max(now, self.tracker.t), self.tracker.h)
+        if instant is None:
+            return False
+        self._splices, dropped = schedule(self._splices,
+                                          Splice(nominal, instant[0], instant[1], stamp))
+        for old in dropped:
+            self._status(DiagnosticStatus.WARN, f"trajectory stamped {old.stamp:.6f} replaced "
+                         f"before it took over by one stamped {stamp:.6f}",
+                         {"event": "splice_replaced", "stamp": f"{old.stamp:.9f}"})
+        return True
+
+    def _splice(self, splice: Splice) -> None:
+        """The stamped trajectory takes over now (the tracker is at its instant)."""
+        tracker = self.tracker
+        old = tracker.commanded(tracker.t)
+        des = splice.nominal.evaluate(splice.elapsed)
+        dq, dqd = jumps(old, (des.q[0], des.qd[0]))
+        if dq > self.config.start_tolerance:
+            self._reject(f"stamped {splice.stamp:.6f}: at its take-over its position is "
+                         f"{dq:.3g} rad from the commanded one, more than start_tolerance = "
+                         f"{self.config.start_tolerance:g}")
+            return
+        preempted = tracker.start(splice.nominal, splice.elapsed)
+        if preempted is not None:
+            self._pub_status.publish(self._summary_status(preempted))
+        self._status(DiagnosticStatus.OK,
+                     f"executing trajectory spliced in at its stamp: {len(splice.nominal)} "
+                     f"points, T = {splice.nominal.duration:.4f} s; command jumps {dq:.3g} "
+                     f"rad, {dqd:.3g} rad/s",
+                     {"event": "spliced", "points": str(len(splice.nominal)),
+                      "duration": f"{splice.nominal.duration:.9g}",
+                      "stamp": f"{splice.stamp:.9f}",
+                      "start_time": f"{self._epoch + tracker.t:.9f}",
+                      "position_jump": f"{dq:.9g}", "velocity_jump": f"{dqd:.9g}"})
+
     def _on_reset(self, msg: JointState) -> None:
         # Through the parsing thread's queue: a reset takes effect after the trajectories
         # received before it, never before (the timer applies both in arrival order).
@@ -416,6 +459,7 @@ class TrackerNode(Node):
             return
         q, qd = item.q, item.qd
         self._place_at_start = False
+        self._splices = []
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
@@ -484,7 +528,17 @@ class TrackerNode(Node):
             self.get_logger().warning(
                 f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
                 f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
-        report = tracker.advance(target)
+        while self._splices and self._splices[0].at <= target + 1e-9:
+            splice = self._splices.pop(0)
+            self._publish_report(tracker.advance(splice.at))
+            self._splice(splice)
+        self._publish_report(tracker.advance(target))
+        if self._pub_clock is not None:
+            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
+
+    def _publish_report(self, report) -> None:
+        """The states and run summaries of one stretch of simulation."""
+        tracker = self.tracker
         log = report.log
         if len(log):
             # The first control instant at or after each publishing time.
@@ -501,8 +555,6 @@ class TrackerNode(Node):
         # planner plans from the latest joint state) has seen the final state by then.
         for summary in report.summaries:
             self._pub_status.publish(self._summary_status(summary))
-        if self._pub_clock is not None:
-            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
 
     def _publish_state(self, row: Mapping[str, Any]) -> None:
         now = time.monotonic()
