@@ -123,6 +123,9 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
     jumps_q = [float(s["position_jump"]) for s in splices]
     jumps_qd = [float(s["velocity_jump"]) for s in splices]
     print(f"largest jumps {max(jumps_q):.2e} rad, {max(jumps_qd):.2e} rad/s")
+    for s in splices:
+        if float(s["velocity_jump"]) > 1e-3 or float(s["position_jump"]) > 1e-4:
+            print("large splice", s["message"], s["stamp"])
     assert max(jumps_q) < 1e-3 and max(jumps_qd) < 1e-2
     # Inside the torque set throughout: every published plan's largest |u_i| below 1.
     assert max(float(s.values["max_abs_u"]) for s in published) < 1.0

@@ -16,15 +16,17 @@ from __future__ import annotations
 
 import collections
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.problem import Problem, joint_state
-from tocontrol_ros.core.result import PlanResult, WarmState
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.result import PlanResult, Status, WarmState
 
-__all__ = ["tail_warm_start", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE"]
+__all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE",
+           "TARGET_STEPS"]
 
 #: A tail shorter than this fraction of the motion is no warm start (the motion has nearly
 #: ended: the arm is about to stop at the old target and a plan from rest is as good).
@@ -159,3 +161,65 @@ class LatencyEstimate:
         high = float(np.quantile(self._recent, HIGH_QUANTILE)) if self._recent \
             else self.initial
         return self.floor + self.margin * high
+
+
+#: Target continuation of a warm replan whose direct warm solve fails: the fractions of the
+#: way from the old target to the new one solved in turn (each warm from the previous).
+TARGET_STEPS = ((1.0,), (0.5, 1.0), (0.25, 0.5, 0.75, 1.0))
+
+
+def warm_replan(planner, problem: Problem, warm: PlanResult, options=None,
+                should_stop=None) -> PlanResult:
+    """Re-solve ``problem`` warm from ``warm`` alone: no guess, no multistart.
+
+    The warm start is continued to the new target directly; when that does not converge,
+    in two, then four steps along the segment from the warm start's target to the new one
+    (a homotopy in the target, each step warm from the last). Bounded by work: at most
+    :data:`TARGET_STEPS` solves, each a warm Newton solve.
+
+    Parameters
+    ----------
+    planner : Planner
+    problem : Problem
+        The new problem; its start and target kinds must be the warm start's.
+    warm : PlanResult
+        E.g. :func:`tail_warm_start`'s, or a previous solution from a start nearby.
+    options : SolverOptions, optional
+    should_stop : callable, optional
+        Polled between Newton iterations; True cancels.
+
+    Returns
+    -------
+    PlanResult
+        The first success, else the last failure (the caller decides on a cold solve).
+    """
+    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.solver import _plan_from
+
+    options = options or SolverOptions()
+    t_start = time.perf_counter()
+    deadline = t_start + options.time_limit
+    old = warm.problem.target_point
+    new = problem.target_point
+    result = None
+    for fractions in TARGET_STEPS:
+        source = warm
+        for f in fractions:
+            step = problem if f == 1.0 else replace(
+                problem, target=point(old + f * (new - old)))
+            if not source.can_warm_start(step):
+                break
+            result = _plan_from(planner, step, options, source, should_stop, deadline)
+            if not result.success:
+                break
+            source = result
+        if result is not None and result.success and result.problem is problem:
+            result.timings["total"] = time.perf_counter() - t_start
+            return result
+        if should_stop is not None and should_stop():
+            break
+    if result is None:
+        return PlanResult.failure(problem, Status.NEWTON_FAILED,
+                                  "the warm start does not apply to this problem",
+                                  {"total": time.perf_counter() - t_start})
+    return result

@@ -44,6 +44,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
+from tocontrol_ros.core.replan import warm_replan
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
@@ -532,13 +533,14 @@ class PlannerNode(Node):
         config = req.config
         replans = self._replanner
         late = []
+        min_lead = 0.0
         for attempt in range(1, REPLAN_TRIES + 1):
             t0 = time.monotonic()
             latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
             origin = 0 if latest is None else \
                 latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
             handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
-                                      origin)
+                                      origin, min_lead)
             if handoff is None:
                 return False
             try:
@@ -551,14 +553,17 @@ class PlannerNode(Node):
             options = solver_options(config)
             warm = handoff.warm
             if replans.near(config, req.target):
-                # Near: the running motion's tail continued (or the last solution, when it
-                # started near this start); should that fail, one start, no multistart.
+                # Near: the running motion's tail continued, or from rest the last motion
+                # that started at rest nearby; should that fail, one start, no multistart.
                 options = replace(options, warm_only=True, starts=1, candidates=1)
-                last = self._last_result
-                if warm is None and last is not None and last.can_warm_start(problem):
-                    warm = last
-            result = self.planner.plan(problem, options, warm_start=warm,
-                                       should_stop=self._should_stop(req))
+                warm = warm or replans.rest_warm_start(problem)
+            result = None
+            if warm is not None:
+                result = warm_replan(self.planner, problem, warm, options,
+                                     self._should_stop(req))
+            if result is None or not (result.success or req.cancelled.is_set()):
+                result = self.planner.plan(problem, options,
+                                           should_stop=self._should_stop(req))
             extra = {"start": problem.start_point, **conv.result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
                      "handoff": handoff.stamp_ns * 1e-9, "warm_start": warm is not None,
@@ -576,6 +581,8 @@ class PlannerNode(Node):
             if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
                 estimate.late()
                 late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
+                # Again, with at least twice this solve's time plus the delivery lead.
+                min_lead = config.replan_min_lead + 2.0 * (time.monotonic() - t0)
                 continue
             self._last_result = result
             path = self._publish(result, config, handoff.stamp_ns)

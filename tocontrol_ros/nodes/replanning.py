@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tocontrol_ros.core.problem import REST_SPEED
 from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.nodes.planner_config import PlannerConfig
@@ -25,8 +26,8 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 __all__ = ["Handoff", "Replanner", "align", "REPLAN_TRIES", "WARM", "COLD", "REST"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
-#: from a later one (with the lead grown by the late latency), then given up.
-REPLAN_TRIES = 3
+#: from a later one (the lead at least twice the late solve's time), then given up.
+REPLAN_TRIES = 4
 #: Kinds of replan: the running motion's tail continued; a multistart from the hand-off
 #: state; from the end of a motion that is over by the hand-off (the arm at rest there).
 WARM, COLD, REST = "warm", "cold", "rest"
@@ -66,7 +67,8 @@ class Replanner:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._executing = None  # (PlanResult, stamp_ns)
+        self._executing = None  # (PlanResult, stamp_ns, NominalTrajectory or None)
+        self._from_rest = None  # the last published PlanResult that started at rest
         self._latency: dict[str, LatencyEstimate] = {}
 
     def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
@@ -92,6 +94,21 @@ class Replanner:
         with self._lock:
             self._executing = (result, int(stamp_ns), nominal) \
                 if result.trajectory is not None else None
+            problem = result.problem
+            if result.warm_state is not None and problem is not None and \
+                    problem.start.kind == "state" and \
+                    np.max(np.abs(problem.start.value[problem.model.n:])) <= REST_SPEED:
+                self._from_rest = result
+
+    def rest_warm_start(self, problem):
+        """The last published motion that started at rest, if it warm-starts ``problem``.
+
+        A target that moves slowly is caught: each replan then starts at rest at the last
+        target, and the last such motion (a similar short move from nearby) is its warm start.
+        """
+        with self._lock:
+            last = self._from_rest
+        return last if last is not None and last.can_warm_start(problem) else None
 
     def near(self, config: PlannerConfig, target: np.ndarray) -> bool:
         """Whether ``target`` is within ``replan_radius`` of the last published motion's."""
@@ -105,10 +122,10 @@ class Replanner:
     def forget(self) -> None:
         """Nothing runs any more that a replan could continue (e.g. the model changed)."""
         with self._lock:
-            self._executing = None
+            self._executing = self._from_rest = None
 
     def handoff(self, config: PlannerConfig, target: np.ndarray, now_ns: int,
-                origin_ns: int) -> Handoff | None:
+                origin_ns: int, min_lead: float = 0.0) -> Handoff | None:
         """The hand-off of a replan to ``target`` decided now, or None.
 
         Parameters
@@ -120,6 +137,8 @@ class Replanner:
             Now (ns, the clock of the stamps).
         origin_ns : int
             A time on the tracker's control grid (the latest joint state's stamp), or 0.
+        min_lead : float
+            Lead at least this (s): a solve again after a late one.
 
         Returns
         -------
@@ -138,13 +157,16 @@ class Replanner:
         # A near goal is re-solved warm, with the warm lead, when the running motion still
         # has a tail then; otherwise (or farther) the multistart's lead applies.
         for kind in (WARM, REST) if near else (COLD,):
-            lead = self.estimate(config, kind).lead()
+            lead = max(self.estimate(config, kind).lead(), min_lead)
             stamp = max(now_ns + int(lead * 1e9), start_ns + 1)
             stamp = align(stamp, origin_ns or start_ns, config.handoff_grid)
             t = (stamp - start_ns) * 1e-9
             n = result.problem.model.n
             if t >= result.T * (1.0 - TAIL_MIN_REMAINING):
-                # The motion is over by then: the arm holds its end at rest.
+                # The motion is over by then (a tail too short to continue is waited out:
+                # the command is at rest only after the end): the arm holds its end.
+                end = start_ns + math.ceil(result.T * 1e9)
+                stamp = align(max(stamp, end), origin_ns or start_ns, config.handoff_grid)
                 q_end = result.trajectory.state(result.T)[0][:n]
                 return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
             warm = tail_warm_start(result, t) if kind == WARM else None
