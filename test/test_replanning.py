@@ -70,19 +70,23 @@ def test_handoff_kinds(motion):
     config = config_from_values({})
     replans = Replanner()
     target = np.asarray(PAPER_TARGET)
-    assert replans.handoff(config, target, 10**9, 0) is None  # nothing published
     start = 10**9
+    at_start = (motion.trajectory.state(0.0)[0][:3], start)
+    assert replans.handoff(config, target, start, 0, measured=at_start) is None  # nothing yet
     replans.published(motion, start, motion.trajectory.sample(0.01))
     near = target + np.array([0.02, 0.0])
-    h = replans.handoff(config, near, start, 0)
+    # Not followed (no executor, a reset): planned from the measured state as before.
+    assert replans.handoff(config, near, start, 0, measured=(at_start[0] + 0.1, start)) is None
+    assert replans.handoff(config, near, start, 0) is None
+    h = replans.handoff(config, near, start, 0, measured=at_start)
     assert h.kind == WARM and h.warm is not None and h.stamp_ns > start
     assert h.stamp_ns % 10**6 == 0  # on the 1 ms grid from 0
     z = motion.trajectory.state((h.stamp_ns - start) * 1e-9)[0]
     np.testing.assert_allclose(h.q, z[:3], atol=1e-6)
     far = np.asarray(PAPER_START)
     replans.estimate(config, COLD).record(0.01)  # a lead shorter than the motion
-    assert replans.handoff(config, far, start, 0).kind == COLD
+    assert replans.handoff(config, far, start, 0, measured=at_start).kind == COLD
     after = start + int(2 * motion.T * 1e9)
-    h = replans.handoff(config, near, after, 0)
+    h = replans.handoff(config, near, after, 0, measured=at_start)
     assert h.kind == REST and not np.any(h.qd)
     np.testing.assert_allclose(h.q, motion.trajectory.state(motion.T)[0][:3])

@@ -182,7 +182,8 @@ class PlannerNode(Node):
             return self._config
 
     # -------------------------------------------------------------- callbacks
-    def _current_start(self, config: PlannerConfig, since_ns: int) -> tuple:
+    def _current_start(self, config: PlannerConfig, since_ns: int,
+                       wait: float = FRESH_STATE_WAIT) -> tuple:
         """The robot's current state if a recent joint state is there, else default_start.
 
         Parameters
@@ -193,8 +194,7 @@ class PlannerNode(Node):
             recent joint state, wait up to :data:`FRESH_STATE_WAIT` for one received after
             this, so that a state still queued when the request came is not used.
         """
-        latest = self._joint_states.newest(since_ns, config.joint_state_timeout,
-                                           FRESH_STATE_WAIT)
+        latest = self._joint_states.newest(since_ns, config.joint_state_timeout, wait)
         if latest is not None:
             q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
             return ("state", q, qd)
@@ -207,16 +207,21 @@ class PlannerNode(Node):
         return ("point", np.array(config.default_start))
 
     def _on_goal(self, msg: PointStamped, info) -> None:
+        received = time.monotonic()
         since = int(info.get("received_timestamp", 0)) or time.time_ns()
         rid = next(self._ids)
         config = self.config
+        # A replan starts from the published motion, not from the measured state: no wait
+        # for a fresh one (the measured state is the fallback when the arm does not follow).
+        wait = 0.0 if config.replan and self._replanner.has_motion() else FRESH_STATE_WAIT
         try:
             target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
-            start = self._current_start(config, since)
+            start = self._current_start(config, since, wait)
         except conv.ConversionError as exc:
             self._reject(rid, "goal", str(exc))
             return
-        self._submit(PlanRequest(rid, "goal", start, target, config, queue=config.replan))
+        self._submit(PlanRequest(rid, "goal", start, target, config, received=received,
+                                 queue=config.replan))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
         since = time.time_ns()
@@ -451,11 +456,6 @@ class PlannerNode(Node):
             return
         start_point = problem.start_point
         options = solver_options(config)
-        if req.queue and self._replanner.near(config, req.target):
-            # A goal near the last motion's target, that motion over: a quick replan (the
-            # previous solution continued when near enough, else one start), not the
-            # multistart of a new motion (parameters.md, "Replanning").
-            options = replace(options, warm_only=True, starts=1, candidates=1)
         first = self._first(req, problem, options) \
             if config.publish == FIRST_THEN_OPTIMUM else None
         last = self._last_result
@@ -537,10 +537,16 @@ class PlannerNode(Node):
         for attempt in range(1, REPLAN_TRIES + 1):
             t0 = time.monotonic()
             latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
-            origin = 0 if latest is None else \
-                latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+            origin, measured = 0, None
+            if latest is not None:
+                origin = latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+                try:
+                    q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
+                    measured = (q, origin)
+                except conv.ConversionError:
+                    pass  # not this arm's joints: no replan
             handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
-                                      origin, min_lead)
+                                      origin, min_lead, measured)
             if handoff is None:
                 return False
             try:
@@ -563,6 +569,10 @@ class PlannerNode(Node):
                                      self._should_stop(req))
             if result is None or not (result.success or req.cancelled.is_set()):
                 result = self.planner.plan(problem, options,
+                                           should_stop=self._should_stop(req))
+            if not (result.success or req.cancelled.is_set()) and options.starts == 1:
+                # The one start failed: the multistart (its time counts as this solve's).
+                result = self.planner.plan(problem, solver_options(config),
                                            should_stop=self._should_stop(req))
             extra = {"start": problem.start_point, **conv.result_values(result),
                      "replan": handoff.kind, "attempts": attempt,

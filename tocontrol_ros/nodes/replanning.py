@@ -31,6 +31,9 @@ REPLAN_TRIES = 4
 #: Kinds of replan: the running motion's tail continued; a multistart from the hand-off
 #: state; from the end of a motion that is over by the hand-off (the arm at rest there).
 WARM, COLD, REST = "warm", "cold", "rest"
+#: The arm follows a published motion when its measured positions are this close (rad, m;
+#: any joint) to the command at their stamp: tracking error plus a control period's motion.
+FOLLOWING = 0.05
 #: Lead before any latency was measured (s).
 INITIAL_LATENCY = {WARM: 0.05, COLD: 0.5, REST: 0.1}
 
@@ -110,6 +113,11 @@ class Replanner:
             last = self._from_rest
         return last if last is not None and last.can_warm_start(problem) else None
 
+    def has_motion(self) -> bool:
+        """Whether a motion was published that a replan could continue."""
+        with self._lock:
+            return self._executing is not None
+
     def near(self, config: PlannerConfig, target: np.ndarray) -> bool:
         """Whether ``target`` is within ``replan_radius`` of the last published motion's."""
         with self._lock:
@@ -119,13 +127,29 @@ class Replanner:
         gap = np.linalg.norm(np.asarray(target) - executing[0].problem.target_point)
         return bool(gap <= config.replan_radius)
 
+    @staticmethod
+    def _followed(result, start_ns: int, nominal, measured) -> bool:
+        """Whether the measured arm is where the published motion commands it."""
+        if measured is None:
+            return False
+        q, stamp_ns = measured
+        t = (stamp_ns - start_ns) * 1e-9
+        if t < 0.0:  # before the motion takes over: the previous command (not kept) runs
+            return True
+        n = result.problem.model.n
+        if nominal is not None:
+            q_cmd = nominal.evaluate(t).q[0]
+        else:
+            q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
+        return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
+
     def forget(self) -> None:
         """Nothing runs any more that a replan could continue (e.g. the model changed)."""
         with self._lock:
             self._executing = self._from_rest = None
 
     def handoff(self, config: PlannerConfig, target: np.ndarray, now_ns: int,
-                origin_ns: int, min_lead: float = 0.0) -> Handoff | None:
+                origin_ns: int, min_lead: float = 0.0, measured=None) -> Handoff | None:
         """The hand-off of a replan to ``target`` decided now, or None.
 
         Parameters
@@ -139,19 +163,25 @@ class Replanner:
             A time on the tracker's control grid (the latest joint state's stamp), or 0.
         min_lead : float
             Lead at least this (s): a solve again after a late one.
+        measured : (ndarray, int), optional
+            The arm's latest measured positions (rad) and their stamp (ns): the published
+            motion counts as executing only when they are within :data:`FOLLOWING` of its
+            command then (no executor, a rejected trajectory or a reset: not followed).
 
         Returns
         -------
         Handoff or None
-            None when nothing was published (the goal is then planned from the arm's
-            measured state). A motion over by the hand-off gives kind ``"rest"``: from its
-            end, at rest.
+            None when nothing was published, or the arm does not follow it (the goal is
+            then planned from the arm's measured state). A motion over by the hand-off
+            gives kind ``"rest"``: from its end, at rest.
         """
         with self._lock:
             executing = self._executing
         if executing is None:
             return None
         result, start_ns, nominal = executing
+        if not self._followed(result, start_ns, nominal, measured):
+            return None
         near = float(np.linalg.norm(np.asarray(target) - result.problem.target_point)) \
             <= config.replan_radius
         # A near goal is re-solved warm, with the warm lead, when the running motion still
