@@ -6,7 +6,8 @@ For each robot (the paper's arm; the Panda of example-robot-data with its URDF l
 parameters but the robot's) run in a namespace of their own. A client in this process sends
 one goal at the circle's first point (the first motion from rest: a cold multistart, not
 counted) and waits until the arm is there, then sends goals along a circle through it at
-``RATE`` Hz for ``DURATION`` s (once around), without waiting for answers.
+``RATE`` Hz for ``DURATION`` s (once around, about the arm's initial end-effector point),
+without waiting for answers.
 
 Measured, per robot: the share of goals that got a trajectory (their own ``solved`` status
 with ``published: optimum``); the replan latency, goal received -> trajectory published (the
@@ -112,22 +113,26 @@ def _robot(name: str):
         return None
     model = load_robot(str(urdf), tip_link="panda_hand",
                        locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0})
-    lo, hi = np.asarray(model.q_lower), np.asarray(model.q_upper)
-    q0 = 0.5 * (lo + hi)
+    # Inside the limits, away from the singular mid-range (joints 1 and 3 coaxial at
+    # q2 = 0, where the held arm oscillates in the self-motion).
+    q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
     robot = ["-p", f"robot_description_file:={urdf}", "-p", "tip_link:=panda_hand"]
     q_text = "[" + ",".join(f"{v:.6f}" for v in q0) + "]"
-    tracker = ["-p", f"initial_positions:={q_text}", "-p", "kp:=[100.0]", "-p", "kd:=[10.0]"]
+    # Gains of test/e2e/test_your_own_arm.py (the README's Panda).
+    tracker = ["-p", f"initial_positions:={q_text}",
+               "-p", "kp:=[10.0,20.0,13.0,10.0,2.4,4.0,0.5]",
+               "-p", "kd:=[0.47,0.91,0.6,0.49,0.11,0.19,0.023]"]
     return model, robot, tracker, "panda_link0", model.point(q0), 0.1, q0
 
 
-def _circle(start, radius: float, count: int) -> list:
-    """``count`` points once around a circle in the first two task axes, starting at
-    ``start`` (the circle's centre is ``start - (radius, 0, ...)``)."""
+def _circle(centre, radius: float, count: int) -> list:
+    """``count`` points once around a circle about ``centre`` in the first two task axes,
+    from ``centre + (radius, 0, ...)`` on."""
     out = []
     for i in range(count):
         a = 2 * math.pi * i / count
-        p = np.array(start, dtype=float)
-        p[0] += radius * math.cos(a) - radius
+        p = np.array(centre, dtype=float)
+        p[0] += radius * math.cos(a)
         p[1] += radius * math.sin(a)
         out.append(p)
     return out

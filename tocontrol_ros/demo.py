@@ -493,6 +493,7 @@ def _moving_leg(listener: _Listener, at, frame: str, moving: tuple, children) ->
         since = len(listener.planner_status)
         runs = sum(s.message.startswith("trajectory ") and "outcome" in _values(s)
                    for s in listener.tracker_status)
+        first_status = len(listener.tracker_status)
     t_next = time.monotonic()
     for goal in goals:
         t_next += 1.0 / rate
@@ -512,8 +513,13 @@ def _moving_leg(listener: _Listener, at, frame: str, moving: tuple, children) ->
              for kind in ("warm", "rest", "cold")}
 
     def last_done():
+        # Every published trajectory taken over (a splice waits for its stamp), the last
+        # one run to its end.
+        started = sum(s.message.startswith("executing trajectory")
+                      for s in listener.tracker_status[first_status:])
         done = [s for s in listener.tracker_status if "outcome" in _values(s)]
-        return len(done) > runs and _values(done[-1]).get("outcome") == "completed"
+        return (started >= len(published) and len(done) > runs
+                and _values(done[-1]).get("outcome") == "completed")
 
     if not listener.wait_for(last_done, RUN_TIMEOUT, children):
         raise RuntimeError("moving target: the tracker did not complete the last motion")
