@@ -27,7 +27,6 @@ import itertools
 import sys
 import threading
 import time
-from dataclasses import replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -44,7 +43,6 @@ from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.problem import MIN_MOVE
-from tocontrol_ros.core.replan import warm_replan
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
@@ -60,7 +58,8 @@ from tocontrol_ros.nodes.planner_config import (
     planner_model,
     solver_options,
 )
-from tocontrol_ros.nodes.replanning import REPLAN_TRIES, Replanner, align
+from tocontrol_ros.nodes.replan_serving import ReplanServing
+from tocontrol_ros.nodes.replanning import Replanner
 from tocontrol_ros.nodes.requests import LatestMessage, LatestSlot, PlanRequest
 
 __all__ = ["PlannerNode", "main", "QOS_LATCHED", "QOS_STATUS", "QOS_GOAL", "QOS_JOINT_STATES"]
@@ -96,7 +95,7 @@ QOS_SERVICE = qos.profile(1000)
 OPTIMISED_POLL = 1.0
 
 
-class PlannerNode(Node):
+class PlannerNode(ReplanServing, Node):
     """Serves time-optimal plans (see the module docstring and ``msg_docs/``).
 
     Parameters
@@ -182,8 +181,8 @@ class PlannerNode(Node):
             return self._config
 
     # -------------------------------------------------------------- callbacks
-    def _current_start(self, config: PlannerConfig, since_ns: int,
-                       wait: float = FRESH_STATE_WAIT) -> tuple:
+    def _current_start(self, config: PlannerConfig, since_ns: int, fresh: bool = True
+                       ) -> tuple:
         """The robot's current state if a recent joint state is there, else default_start.
 
         Parameters
@@ -194,7 +193,8 @@ class PlannerNode(Node):
             recent joint state, wait up to :data:`FRESH_STATE_WAIT` for one received after
             this, so that a state still queued when the request came is not used.
         """
-        latest = self._joint_states.newest(since_ns, config.joint_state_timeout, wait)
+        latest = self._joint_states.newest(since_ns, config.joint_state_timeout,
+                                           FRESH_STATE_WAIT if fresh else 0.0)
         if latest is not None:
             q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
             return ("state", q, qd)
@@ -205,23 +205,6 @@ class PlannerNode(Node):
                 f"`default_start` for this arm: publish its joint states, set default_start "
                 f"({self.model.m} values) or give the start in the request")
         return ("point", np.array(config.default_start))
-
-    def _on_goal(self, msg: PointStamped, info) -> None:
-        received = time.monotonic()
-        since = int(info.get("received_timestamp", 0)) or time.time_ns()
-        rid = next(self._ids)
-        config = self.config
-        # A replan starts from the published motion, not from the measured state: no wait
-        # for a fresh one (the measured state is the fallback when the arm does not follow).
-        wait = 0.0 if config.replan and self._replanner.has_motion() else FRESH_STATE_WAIT
-        try:
-            target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
-            start = self._current_start(config, since, wait)
-        except conv.ConversionError as exc:
-            self._reject(rid, "goal", str(exc))
-            return
-        self._submit(PlanRequest(rid, "goal", start, target, config, received=received,
-                                 queue=config.replan))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
         since = time.time_ns()
@@ -501,11 +484,7 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        # A goal (replanning on): stamped a little ahead, on the tracker's control grid, so
-        # that a replan from it knows when it took over.
-        stamp_ns = self._handoff_stamp(config, time.time_ns() + int(
-            config.replan_min_lead * 1e9)) if req.queue else None
-        path = self._publish(result, config, stamp_ns)
+        path = self._publish(result, config, self._goal_stamp(req))
         if path is None:  # publishers gone during shutdown
             req.done.set()
             return
@@ -513,104 +492,6 @@ class PlannerNode(Node):
         self._finish(req, level, "solved", message, {**extra, "published": "optimum",
                                                      "samples": len(path.poses)}, path=path)
         self._markers(result, path, config, start_point, req.target)
-
-    def _handoff_stamp(self, config: PlannerConfig, t_ns: int) -> int:
-        """``t_ns`` put on the tracker's control grid (after the latest joint state's stamp)."""
-        latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
-        origin = 0 if latest is None else \
-            latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
-        return align(t_ns, origin or t_ns, config.handoff_grid)
-
-    def _serve_replan(self, req: PlanRequest) -> bool:
-        """A goal while a published motion runs: planned from the hand-off, stamped with it.
-
-        Returns False when no published motion runs at the hand-off (the goal is then
-        served as any other, from the arm's measured state). Solved again from a later
-        hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
-        """
-        from tocontrol_ros.core.problem import Problem, joint_state, point
-
-        config = req.config
-        replans = self._replanner
-        late = []
-        min_lead = 0.0
-        for attempt in range(1, REPLAN_TRIES + 1):
-            t0 = time.monotonic()
-            latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
-            origin, measured = 0, None
-            if latest is not None:
-                origin = latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
-                try:
-                    q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
-                    measured = (q, origin)
-                except conv.ConversionError:
-                    pass  # not this arm's joints: no replan
-            handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
-                                      origin, min_lead, measured)
-            if handoff is None:
-                return False
-            try:
-                problem = Problem(self.model, joint_state(handoff.q, handoff.qd),
-                                  point(req.target), k=config.k, reserve=config.reserve,
-                                  limits=self._limits.with_margin(config.limit_margin))
-            except TocontrolError as exc:
-                self._finish(req, "ERROR", "failed", str(exc))
-                return True
-            options = solver_options(config)
-            warm = handoff.warm
-            if replans.near(config, req.target):
-                # Near: the running motion's tail continued, or from rest the last motion
-                # that started at rest nearby; should that fail, one start, no multistart.
-                options = replace(options, warm_only=True, starts=1, candidates=1)
-                warm = warm or replans.rest_warm_start(problem)
-            result = None
-            if warm is not None:
-                result = warm_replan(self.planner, problem, warm, options,
-                                     self._should_stop(req))
-            if result is None or not (result.success or req.cancelled.is_set()):
-                result = self.planner.plan(problem, options,
-                                           should_stop=self._should_stop(req))
-            if not (result.success or req.cancelled.is_set()) and options.starts == 1:
-                # The one start failed: the multistart (its time counts as this solve's).
-                result = self.planner.plan(problem, solver_options(config),
-                                           should_stop=self._should_stop(req))
-            extra = {"start": problem.start_point, **conv.result_values(result),
-                     "replan": handoff.kind, "attempts": attempt,
-                     "handoff": handoff.stamp_ns * 1e-9, "warm_start": warm is not None,
-                     "published": "none"}
-            if req.cancelled.is_set() or self._stopping.is_set():
-                event, reason = req.cancel_reason if req.cancelled.is_set() else \
-                    ("cancelled", "node shutting down")
-                self._finish(req, "WARN", event, reason, extra)
-                return True
-            if not result.success or result.trajectory is None:
-                self._finish(req, "ERROR", "failed", result.message, extra)
-                return True
-            estimate = replans.estimate(config, handoff.kind)
-            now = self.get_clock().now().nanoseconds
-            if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
-                estimate.late()
-                late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
-                # Again, with at least twice this solve's time plus the delivery lead.
-                min_lead = config.replan_min_lead + 2.0 * (time.monotonic() - t0)
-                continue
-            self._last_result = result
-            path = self._publish(result, config, handoff.stamp_ns)
-            if path is None:
-                req.done.set()
-                return True
-            estimate.record(time.monotonic() - t0)
-            level, message = conv.result_message(result)
-            note = f" (after {len(late)} late solve(s))" if late else ""
-            self._finish(req, level, "solved", f"replan ({handoff.kind}) taking over at "
-                         f"{handoff.stamp_ns * 1e-9:.3f}: {message}{note}",
-                         {**extra, "published": "optimum", "samples": len(path.poses)},
-                         path=path)
-            return True
-        self._finish(req, "ERROR", "failed", f"each of {REPLAN_TRIES} replans would have "
-                     f"arrived after its hand-off (published - hand-off: {', '.join(late)})",
-                     {"replan": "late", "attempts": REPLAN_TRIES})
-        return True
 
     def _first(self, req: PlanRequest, problem, options) -> tuple | None:
         """``publish: first_then_optimum``: the first motion, published at once.

@@ -17,9 +17,10 @@ import numpy as np
 __all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "jumps", "schedule"]
 
 #: A stamp at most this far (s) ahead of the tracker's time is a splice instant; farther,
-#: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock)
-#: and the trajectory starts at once.
-SPLICE_HORIZON = 5.0
+#: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock:
+#: decades apart) and the trajectory starts at once. Generous: a slow replan (seconds, the
+#: Panda's bounded solve) is stamped that far ahead.
+SPLICE_HORIZON = 60.0
 #: Stamps within this (s) of a control instant are on it (float rounding of ns stamps).
 GRID_SLACK = 1e-6
 

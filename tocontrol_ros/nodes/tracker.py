@@ -413,14 +413,17 @@ class TrackerNode(Node):
         """The stamped trajectory takes over now (the tracker is at its instant)."""
         tracker = self.tracker
         old = tracker.commanded(tracker.t)
-        des = splice.nominal.evaluate(splice.elapsed)
+        # Joining a running trajectory: the new one as far along as its stamp says. Holding
+        # (nothing to join): it starts from its beginning at this control instant.
+        elapsed = splice.elapsed if tracker.running else 0.0
+        des = splice.nominal.evaluate(elapsed)
         dq, dqd = jumps(old, (des.q[0], des.qd[0]))
         if dq > self.config.start_tolerance:
             self._reject(f"stamped {splice.stamp:.6f}: at its take-over its position is "
                          f"{dq:.3g} rad from the commanded one, more than start_tolerance = "
                          f"{self.config.start_tolerance:g}")
             return
-        preempted = tracker.start(splice.nominal, splice.elapsed)
+        preempted = tracker.start(splice.nominal, elapsed)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
         self._status(DiagnosticStatus.OK,
