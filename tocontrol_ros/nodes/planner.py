@@ -16,8 +16,8 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
 Concurrency: callbacks only convert and queue. One worker thread solves; it is fed by a
 slot that holds the newest request (newest wins: a request that arrives while another is
 pending or being solved supersedes it, and a running solve is stopped through the solver's
-``should_stop``). Service callbacks run in a reentrant group and wait for their request's
-outcome; everything else stays served meanwhile.
+``should_stop``; goals with ``replan`` queue instead, :mod:`.replan_serving`). Service
+callbacks wait for their outcome in a reentrant group; everything else stays served.
 """
 
 from __future__ import annotations
