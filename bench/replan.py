@@ -180,6 +180,7 @@ def measure(name: str, workdir: Path) -> dict | None:
                                 for s in client.snapshot("tracker")), SETTLE_TIMEOUT,
                     "the first motion's end")
         since = len(client.snapshot("planner"))
+        tracker0 = len(client.snapshot("tracker"))
         splices0 = len([s for s in client.snapshot("tracker") if s.get("event") == "spliced"])
         t_next = time.monotonic()
         for goal in goals[1:] + goals[:1]:  # once around, ending where it started
@@ -192,10 +193,19 @@ def measure(name: str, workdir: Path) -> dict | None:
                 [s for s in client.snapshot("planner")[since:] if s.get("event") in final]),
             ANSWER_TIMEOUT, "an outcome for every goal")
 
+        published = sum(s.get("published") == "optimum" for s in outcomes)
+
         def settled():
+            # Every published trajectory taken over (a splice waits for its stamp) or
+            # dropped for a later one, the last run to its end, the arm at rest.
             states = client.snapshot("states")
-            done = [s for s in client.snapshot("tracker") if "outcome" in s]
-            return (len(states) > 10 and done and done[-1].get("outcome") == "completed"
+            status = client.snapshot("tracker")[tracker0:]
+            taken = [i for i, s in enumerate(status)
+                     if s["message"].startswith("executing") or "rejected" in s["message"]
+                     or s.get("event") == "splice_replaced"]
+            done = [i for i, s in enumerate(status) if s.get("outcome") == "completed"]
+            return (len(taken) >= published and done and done[-1] > taken[-1]
+                    and len(states) > 10
                     and np.max(np.abs(np.subtract(states[-1], states[-10]))) < 1e-9)
         client.wait(settled, SETTLE_TIMEOUT, "the arm at rest after the last goal")
         states = client.snapshot("states")

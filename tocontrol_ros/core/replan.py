@@ -149,11 +149,6 @@ class LatencyEstimate:
         if math.isfinite(seconds) and seconds >= 0:
             self._recent.append(float(seconds))
 
-    def late(self) -> None:
-        """A replan was late: the next lead doubles the worst recent latency."""
-        worst = max(self._recent, default=self.initial)
-        self._recent.append(2.0 * worst)
-
     def lead(self) -> float:
         """How far ahead of now the next hand-off is put (s)."""
         # A high quantile, not the maximum: one slow solve (a page fault, a busy core)

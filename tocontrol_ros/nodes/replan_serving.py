@@ -133,9 +133,9 @@ class ReplanServing:
                 self._finish(req, "ERROR", "failed", result.message, extra)
                 return True
             estimate = replans.estimate(config, handoff.kind)
+            estimate.record(time.monotonic() - t0)  # late or not: what a solve takes now
             now = self.get_clock().now().nanoseconds
             if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
-                estimate.late()
                 late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
                 # Again, with at least twice this solve's time plus the delivery lead.
                 min_lead = config.replan_min_lead + 2.0 * (time.monotonic() - t0)
@@ -145,7 +145,6 @@ class ReplanServing:
             if path is None:
                 req.done.set()
                 return True
-            estimate.record(time.monotonic() - t0)
             level, message = conv.result_message(result)
             note = f" (after {len(late)} late solve(s))" if late else ""
             self._finish(req, level, "solved", f"replan ({handoff.kind}) taking over at "
