@@ -137,9 +137,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "motion's target is re-solved warm from that motion (its basin continued, "
                   "no multistart); farther, the cold multistart plans it from the hand-off "
                   "state. At most the core's warm-start radius, 0.1 m.", 0.0, 0.1),
-    ParameterSpec("replan_margin", 2.0, "The hand-off lead is this factor times the "
-                  "largest of the last 10 replan latencies (solve start to publication).",
-                  1.0, 10.0),
+    ParameterSpec("replan_margin", 2.0, "The hand-off lead is replan_min_lead plus this "
+                  "factor times the 80th percentile of the last 10 replan latencies of the "
+                  "same kind (solve start to publication).", 1.0, 10.0),
     ParameterSpec("replan_min_lead", 0.02, "Smallest hand-off lead (s): delivery to the "
                   "tracker and its update period.", 0.001, 1.0),
     ParameterSpec("handoff_grid", 0.001, "Hand-off times are the latest joint state's stamp "
