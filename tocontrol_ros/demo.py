@@ -41,6 +41,9 @@ READY_TIMEOUT = 240.0
 PLAN_TIMEOUT = 120.0
 RUN_TIMEOUT = 60.0
 STOP_TIMEOUT = 20.0
+#: --moving-target: goals per second, for how long (s), on a circle of this radius (m),
+#: once around.
+MOVING_RATE, MOVING_DURATION, MOVING_RADIUS = 10.0, 5.0, 0.15
 
 
 def default_urdf_path():
@@ -77,6 +80,19 @@ def build_parser():
                         "k, starts, ...) take precedence")
     parser.add_argument("--core-only", action="store_true",
                         help="no ROS: check the model and plan in this process")
+    parser.add_argument("--moving-target", action="store_true",
+                        help="after the first leg, a target moving along a circle through "
+                        "the arm's position (goals at --rate Hz for --duration s); the arm "
+                        "follows with replans spliced into the running motion; the report "
+                        "draws the target's path against the end effector's")
+    parser.add_argument("--rate", type=float, default=MOVING_RATE, metavar="HZ",
+                        help=f"goals per second with --moving-target (default {MOVING_RATE:g})")
+    parser.add_argument("--duration", type=float, default=MOVING_DURATION, metavar="S",
+                        help="how long the target moves with --moving-target (default "
+                        f"{MOVING_DURATION:g} s)")
+    parser.add_argument("--radius", type=float, default=MOVING_RADIUS, metavar="M",
+                        help="radius of the target's circle with --moving-target (default "
+                        f"{MOVING_RADIUS:g} m)")
     return parser
 
 
@@ -104,7 +120,13 @@ def main(argv=None):
                          "nodes' own robot parameter)")
     if args.params_file is not None and not args.params_file.is_file():
         raise SystemExit(f"demo: --params-file: no such file: {args.params_file}")
-    return _pipeline(start, target, args.k, args.starts, args.out, args.params_file)
+    moving = None
+    if args.moving_target:
+        if not (args.rate > 0 and args.duration > 0 and args.radius > 0):
+            raise SystemExit(f"demo: --rate, --duration and --radius must be > 0, got "
+                             f"{args.rate:g}, {args.duration:g}, {args.radius:g}")
+        moving = (args.rate, args.duration, args.radius)
+    return _pipeline(start, target, args.k, args.starts, args.out, args.params_file, moving)
 
 
 # --------------------------------------------------------------------- core only
@@ -355,7 +377,8 @@ def _await_recorder(listener: _Listener, recorder: _Child, children) -> None:
                            f"{recorder.tail()}")
 
 
-def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None = None) -> int:
+def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None = None,
+              moving: tuple | None = None) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out_dir.mkdir(parents=True, exist_ok=True)
     recording = out_dir / f"demo-{stamp}.mcap"
@@ -405,21 +428,19 @@ def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None 
         if not listener.wait_for(lambda: listener.trajectories, 10.0, children):
             raise RuntimeError("no trajectory on /planner/trajectory")
         legs.append(_await_leg(listener, "leg 1 (service, free start)", 1, children))
-        print(f"leg 2: ~/goal topic back to {list(start)}, from the arm's measured state")
-        n_plans = len(listener.trajectories)
-        # The goal is volatile: every subscription (the planner's, the recorder's) must have
-        # been matched by our publisher, else it never gets the goal.
-        if not listener.wait_for(lambda: 0 < listener.goal_matches()[1]
-                                 <= listener.goal_matches()[0], STOP_TIMEOUT, children):
-            matched, wanted = listener.goal_matches()
-            raise RuntimeError(f"the goal publisher matched {matched} of the {wanted} "
-                               f"subscriptions of /planner/goal in {STOP_TIMEOUT:g} s")
-        listener.send_goal(start, frame)
-        if not listener.wait_for(lambda: len(listener.trajectories) > n_plans, PLAN_TIMEOUT,
-                                 children):
-            raise RuntimeError("no new trajectory after the goal")
-        legs.append(_await_leg(listener, "leg 2 (goal topic, from joint_states)", 2,
-                               children))
+        if moving is not None:
+            _await_goal_subscribers(listener, children)
+            legs.append(_moving_leg(listener, target, frame, moving, children))
+        else:
+            print(f"leg 2: ~/goal topic back to {list(start)}, from the arm's measured state")
+            n_plans = len(listener.trajectories)
+            _await_goal_subscribers(listener, children)
+            listener.send_goal(start, frame)
+            if not listener.wait_for(lambda: len(listener.trajectories) > n_plans, PLAN_TIMEOUT,
+                                     children):
+                raise RuntimeError("no new trajectory after the goal")
+            legs.append(_await_leg(listener, "leg 2 (goal topic, from joint_states)", 2,
+                                   children))
     except RuntimeError as exc:
         print(f"demo: {exc}", file=sys.stderr)
         for child in reversed(children):
@@ -439,6 +460,84 @@ def _pipeline(start, target, k, starts, out_dir: Path, params_file: Path | None 
     _print_table(legs, recording, js_count)
     print(f"report page: {report_dir / 'index.html'}")
     return 0 if status == 0 and all(c == 0 for c in codes.values()) else 1
+
+
+def _await_goal_subscribers(listener: _Listener, children) -> None:
+    """Every subscription of the goal topic (planner, recorder) matched by our publisher.
+
+    The goal is volatile: a subscription not yet matched never gets it.
+    """
+    if not listener.wait_for(lambda: 0 < listener.goal_matches()[1]
+                             <= listener.goal_matches()[0], STOP_TIMEOUT, children):
+        matched, wanted = listener.goal_matches()
+        raise RuntimeError(f"the goal publisher matched {matched} of the {wanted} "
+                           f"subscriptions of /planner/goal in {STOP_TIMEOUT:g} s")
+
+
+def moving_goals(centre, radius: float, count: int) -> list[tuple[float, float]]:
+    """``count`` goals once around a circle (m), starting at ``centre + (radius, 0)``."""
+    import math
+
+    return [(centre[0] + radius * math.cos(2 * math.pi * i / count),
+             centre[1] + radius * math.sin(2 * math.pi * i / count)) for i in range(count)]
+
+
+def _moving_leg(listener: _Listener, at, frame: str, moving: tuple, children) -> dict:
+    """Goals along a circle through ``at`` (the arm's end point), sent at a fixed rate."""
+    rate, duration, radius = moving
+    count = max(int(round(rate * duration)), 1)
+    goals = moving_goals((at[0] - radius, at[1]), radius, count)
+    print(f"moving target: {count} goals at {rate:g} Hz on a circle of radius {radius:g} m "
+          f"through {list(at)}")
+    with listener.lock:
+        since = len(listener.planner_status)
+        runs = sum(s.message.startswith("trajectory ") and "outcome" in _values(s)
+                   for s in listener.tracker_status)
+        first_status = len(listener.tracker_status)
+    t_next = time.monotonic()
+    for goal in goals:
+        t_next += 1.0 / rate
+        listener.send_goal(goal, frame)
+        time.sleep(max(0.0, t_next - time.monotonic()))
+    final = ("solved", "failed", "superseded", "cancelled")
+
+    def outcomes():
+        return [s for s in listener.planner_status[since:] if _values(s).get("event") in final]
+
+    if not listener.wait_for(lambda: len(outcomes()) >= count, PLAN_TIMEOUT, children):
+        raise RuntimeError(f"moving target: {len(outcomes())} of {count} goals answered")
+    with listener.lock:
+        answered = [_values(s) for s in outcomes()]
+    published = [v for v in answered if v.get("published") == "optimum"]
+    kinds = {kind: sum(v.get("replan") == kind for v in published)
+             for kind in ("warm", "rest", "cold")}
+
+    def last_done():
+        # Every published trajectory taken over (a splice waits for its stamp), the last
+        # one run to its end.
+        started = sum(s.message.startswith("executing trajectory")
+                      for s in listener.tracker_status[first_status:])
+        done = [s for s in listener.tracker_status if "outcome" in _values(s)]
+        return (started >= len(published) and len(done) > runs
+                and _values(done[-1]).get("outcome") == "completed")
+
+    if not listener.wait_for(last_done, RUN_TIMEOUT, children):
+        raise RuntimeError("moving target: the tracker did not complete the last motion")
+    with listener.lock:
+        splices = [_values(s) for s in listener.tracker_status
+                   if _values(s).get("event") == "spliced"]
+        run = [s for s in listener.tracker_status if "outcome" in _values(s)][-1]
+    jumps = (max((float(v["position_jump"]) for v in splices), default=0.0),
+             max((float(v["velocity_jump"]) for v in splices), default=0.0))
+    latency = sorted(float(v["latency"]) for v in published if "latency" in v)
+    median = latency[len(latency) // 2] if latency else float("nan")
+    print(f"  {len(published)} of {count} goals got a trajectory (replans: {kinds}); "
+          f"{len(splices)} splices, largest command jump {jumps[0]:.2e} rad, "
+          f"{jumps[1]:.2e} rad/s; goal -> trajectory median {1e3 * median:.1f} ms")
+    print(f"  last motion: {run.message}")
+    plan_values = published[-1] if published else {}
+    return {"label": "moving target (goal topic, replans)", "plan": plan_values,
+            "run": _values(run)}
 
 
 def _await_leg(listener: _Listener, label: str, count: int, children) -> dict:

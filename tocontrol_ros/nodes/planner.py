@@ -13,11 +13,11 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
   ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
   ``~/ee_path`` (``nav_msgs/msg/Path``), ``~/markers`` (``visualization_msgs/msg/MarkerArray``).
 
-Concurrency: callbacks only convert and queue. One worker thread solves; it is fed by a
-slot that holds the newest request (newest wins: a request that arrives while another is
-pending or being solved supersedes it, and a running solve is stopped through the solver's
-``should_stop``). Service callbacks run in a reentrant group and wait for their request's
-outcome; everything else stays served meanwhile.
+Concurrency: callbacks only convert and queue. One worker thread solves; it is fed by a slot
+that holds the newest request (newest wins: a request that arrives while another is pending
+or being solved supersedes it, and a running solve is stopped through the solver's
+``should_stop``; goals with ``replan`` queue instead, :mod:`.replan_serving`). Service callbacks
+wait for their outcome in a reentrant group; everything else stays served.
 """
 
 from __future__ import annotations
@@ -59,22 +59,23 @@ from tocontrol_ros.nodes.planner_config import (
     planner_model,
     solver_options,
 )
+from tocontrol_ros.nodes.replan_serving import ReplanServing
+from tocontrol_ros.nodes.replanning import Replanner
 from tocontrol_ros.nodes.requests import LatestMessage, LatestSlot, PlanRequest
 
 __all__ = ["PlannerNode", "main", "QOS_LATCHED", "QOS_STATUS", "QOS_GOAL", "QOS_JOINT_STATES"]
 
 #: Threads of the executor: service calls each hold one while they wait for their outcome.
 EXECUTOR_THREADS = 8
-#: A request that starts from the robot's current state waits up to this long (s) for a
-#: joint state that arrived after it (a goal: received after the goal; a service request:
-#: processed after the request), so that a state still queued when the request came is not
-#: used while the arm moves. Without joint states newer than that, the newest one within
-#: ``joint_state_timeout`` is used after the wait.
+#: A request that starts from the robot's current state waits up to this long (s) for a joint
+#: state that arrived after it (a goal: received after the goal; a service request: processed
+#: after the request), so that a state still queued when the request came is not used while
+#: the arm moves. Else the newest one within ``joint_state_timeout`` is used after the wait.
 FRESH_STATE_WAIT = 0.1
 #: How often a waiting service callback looks at the shutdown flag (s).
 WAIT_POLL = 0.05
-#: How long destroy_node waits for the worker (s); it is a daemon thread beyond that (e.g.
-#: while the C compiler of the first-ever solve runs).
+#: How long destroy_node waits for the worker (s); a daemon thread beyond that (e.g. while the
+#: C compiler of the first-ever solve runs).
 JOIN_TIMEOUT = 3.0
 
 #: Outputs for late subscribers (a viewer, a tracker started after the plan): the last one.
@@ -94,7 +95,7 @@ QOS_SERVICE = qos.profile(1000)
 OPTIMISED_POLL = 1.0
 
 
-class PlannerNode(Node):
+class PlannerNode(ReplanServing, Node):
     """Serves time-optimal plans (see the module docstring and ``msg_docs/``).
 
     Parameters
@@ -128,13 +129,12 @@ class PlannerNode(Node):
         self._status_lock = threading.Lock()
         self._stopping = threading.Event()
         self._slot = LatestSlot()
-        self._joint_states = LatestMessage(self, JointState, "joint_states",
-                                           QOS_JOINT_STATES)
+        self._joint_states = LatestMessage(self, JointState, "joint_states", QOS_JOINT_STATES)
         self._last_result = None
+        self._replanner = Replanner()
         self.ready = threading.Event()
 
-        self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory",
-                                                     QOS_LATCHED)
+        self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory", QOS_LATCHED)
         self._pub_path = self.create_publisher(Path, "~/ee_path", QOS_LATCHED)
         self._pub_markers = self.create_publisher(MarkerArray, "~/markers", QOS_LATCHED)
         self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
@@ -180,7 +180,8 @@ class PlannerNode(Node):
             return self._config
 
     # -------------------------------------------------------------- callbacks
-    def _current_start(self, config: PlannerConfig, since_ns: int) -> tuple:
+    def _current_start(self, config: PlannerConfig, since_ns: int, fresh: bool = True
+                       ) -> tuple:
         """The robot's current state if a recent joint state is there, else default_start.
 
         Parameters
@@ -192,7 +193,7 @@ class PlannerNode(Node):
             this, so that a state still queued when the request came is not used.
         """
         latest = self._joint_states.newest(since_ns, config.joint_state_timeout,
-                                           FRESH_STATE_WAIT)
+                                           FRESH_STATE_WAIT if fresh else 0.0)
         if latest is not None:
             q, qd = conv.joint_state_from_msg(latest, self.model.joint_names)
             return ("state", q, qd)
@@ -203,18 +204,6 @@ class PlannerNode(Node):
                 f"`default_start` for this arm: publish its joint states, set default_start "
                 f"({self.model.m} values) or give the start in the request")
         return ("point", np.array(config.default_start))
-
-    def _on_goal(self, msg: PointStamped, info) -> None:
-        since = int(info.get("received_timestamp", 0)) or time.time_ns()
-        rid = next(self._ids)
-        config = self.config
-        try:
-            target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
-            start = self._current_start(config, since)
-        except conv.ConversionError as exc:
-            self._reject(rid, "goal", str(exc))
-            return
-        self._submit(PlanRequest(rid, "goal", start, target, config))
 
     def _on_plan(self, request: GetPlan.Request, response: GetPlan.Response):
         since = time.time_ns()
@@ -252,14 +241,16 @@ class PlannerNode(Node):
     def _submit(self, req: PlanRequest) -> None:
         self._status(req, "OK", "accepted", f"request {req.id} accepted")
         try:
-            replaced, running = self._slot.put(req)
+            replaced, running = self._slot.put(req, req.config.goal_queue)
         except RuntimeError:
             self._finish(req, "WARN", "cancelled", "node shutting down")
             return
-        if replaced is not None:
-            self._finish(replaced, "WARN", "superseded",
+        for old in replaced:
+            self._finish(old, "WARN", "superseded",
                          f"superseded by request {req.id} before its solve started")
-        if running is not None:
+        # Replanning: a goal's solve in progress is not thrown away by the next goal (its
+        # result still serves: the next goal is planned from it).
+        if running is not None and not (req.queue and running.queue):
             running.cancel("superseded", f"superseded by request {req.id} during its solve")
 
     # ------------------------------------------------------------ status out
@@ -434,6 +425,8 @@ class PlannerNode(Node):
         if req.cancelled.is_set():
             self._finish(req, "WARN", *req.cancel_reason)
             return
+        if req.queue and self._serve_replan(req):
+            return
         try:
             start = point(req.start[1]) if req.start[0] == "point" else \
                 joint_state(req.start[1], req.start[2])
@@ -490,7 +483,7 @@ class PlannerNode(Node):
                          {**extra, "samples": 1}, path=path)
             return
         self._last_result = result
-        path = self._publish(result, config, req.id)
+        path = self._publish(result, config, req.id, self._goal_stamp(req))
         if path is None:  # publishers gone during shutdown
             req.done.set()
             return
@@ -525,10 +518,18 @@ class PlannerNode(Node):
                      {**values, "published": "first", "samples": len(path.poses)})
         return first, path
 
-    def _publish(self, result, config: PlannerConfig, rid: int = 0) -> Path | None:
-        """``~/trajectory``, ``~/ee_path``, the controller's goal; the path, None in shutdown."""
+    def _publish(self, result, config: PlannerConfig, rid: int = 0,
+                 stamp_ns: int | None = None) -> Path | None:
+        """``~/trajectory``, ``~/ee_path``, the controller's goal; the path, None in shutdown.
+
+        ``stamp_ns``: when the motion takes over (a replan's hand-off, ns); default now.
+        """
         sample = result.trajectory.sample(config.sample_period)
-        stamp = self._now()
+        if stamp_ns is None:
+            stamp_ns = self.get_clock().now().nanoseconds
+        stamp = conv.time_from_seconds(0.0)
+        stamp.sec, stamp.nanosec = divmod(int(stamp_ns), 10**9)
+        self._replanner.published(result, stamp_ns, sample)
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
         msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)
         try:
@@ -557,8 +558,7 @@ class PlannerNode(Node):
     def stop_worker(self, timeout: float = JOIN_TIMEOUT) -> None:
         """Stop the worker: cancel the running solve, answer the pending request, join."""
         self._stopping.set()
-        leftover = self._slot.close()
-        if leftover is not None:
+        for leftover in self._slot.close():
             self._finish(leftover, "WARN", "cancelled", "node shutting down")
         if self._worker.is_alive() and threading.current_thread() is not self._worker:
             self._worker.join(timeout)

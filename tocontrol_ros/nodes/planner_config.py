@@ -130,6 +130,29 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "'recent': goals then start from default_start.", 0.0, 3600.0),
     ParameterSpec("marker_snapshots", 15, "Arm snapshots in ~/markers (as in the paper's "
                   "Figure 4).", 2, 200),
+    ParameterSpec("replan", True, "A goal that arrives while a published motion runs is "
+                  "planned from the state the motion will be in at the hand-off (now plus the "
+                  "measured replan latency times replan_margin), stamped with that time, so "
+                  "that the tracker splices it in there; a goal within replan_radius of the "
+                  "running motion's target is re-solved warm from that motion's rest "
+                  "(msg_docs/parameters.md, 'Replanning'). False: every goal is planned from "
+                  "the latest joint state and starts on receipt."),
+    ParameterSpec("replan_radius", 0.1, "A goal within this distance (m) of the running "
+                  "motion's target is re-solved warm from that motion (its basin continued, "
+                  "no multistart); farther, the cold multistart plans it from the hand-off "
+                  "state. At most the core's warm-start radius, 0.1 m.", 0.0, 0.1),
+    ParameterSpec("replan_margin", 2.0, "The hand-off lead is replan_min_lead plus this "
+                  "factor times the 80th percentile of the last 10 replan latencies of the "
+                  "same kind (solve start to publication).", 1.0, 10.0),
+    ParameterSpec("replan_min_lead", 0.02, "Smallest hand-off lead (s): delivery to the "
+                  "tracker and its update period.", 0.001, 1.0),
+    ParameterSpec("handoff_grid", 0.001, "Hand-off times are the latest joint state's stamp "
+                  "plus a multiple of this (s): a multiple of the tracker's control period "
+                  "puts the splice on a control instant.", 1e-4, 0.1),
+    ParameterSpec("goal_queue", 50, "Goals that wait behind each other while the worker "
+                  "solves (replanning): each is solved in turn, none is dropped unless more "
+                  "than this many wait (then the oldest is superseded). 1: newest wins.",
+                  1, 1000),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
                   "(s); then it returns an empty path.", 1.0, 3600.0),
     # Execution on a controller (tocontrol_ros/nodes/controller_client.py).
@@ -196,6 +219,12 @@ class PlannerConfig:
     controller_goal_time_tolerance: float = 1.0
     controller_goal_tolerance: float = 0.0
     controller_path_tolerance: float = 0.0
+    replan: bool = True
+    replan_radius: float = 0.1
+    replan_margin: float = 2.0
+    replan_min_lead: float = 0.02
+    handoff_grid: float = 0.001
+    goal_queue: int = 50
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:

@@ -1,7 +1,8 @@
 """A plan request and where it waits; the arm's newest joint state, taken on demand.
 
 :class:`LatestSlot` hands the newest request to the worker (a newer one supersedes it, so
-every call gets exactly one response); :class:`LatestMessage` keeps ``joint_states``
+every call gets exactly one response; goals may queue behind each other, see
+:meth:`LatestSlot.put`); :class:`LatestMessage` keeps ``joint_states``
 subscribed by a helper node that no executor spins, and takes the newest message only when
 a request needs it.
 """
@@ -54,6 +55,11 @@ class PlanRequest:
     cancelled: threading.Event = field(default_factory=threading.Event)
     cancel_reason: tuple[str, str] = ("", "")
     path: Path | None = None
+    #: A goal that queues behind pending goals instead of replacing them (replanning).
+    queue: bool = False
+    #: A goal whose start was taken without waiting for a fresh joint state: its DDS receive
+    #: time (ns), to take a fresh one if it is not a replan after all; else 0.
+    since_ns: int = 0
 
     def cancel(self, event: str, reason: str) -> None:
         """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""
@@ -63,34 +69,51 @@ class PlanRequest:
 
 
 class LatestSlot:
-    """Hand-over between the callbacks and the worker: one pending and one running item.
+    """Hand-over between the callbacks and the worker: pending items and one running item.
 
-    ``put`` replaces the pending item (newest wins) and reports what it replaced and what is
-    running, atomically, so that no request can slip between "taken" and "running".
+    ``put`` replaces the pending items (newest wins), or queues behind them (goals while a
+    target moves), and reports what it replaced and what is running, atomically, so that no
+    request can slip between "taken" and "running".
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._pending = None
+        self._pending: list = []
         self._running = None
         self._closed = False
 
-    def put(self, item):
-        """Make ``item`` the pending one; return ``(replaced pending, running)``."""
+    def put(self, item, queue: int = 1) -> tuple[list, object]:
+        """Add ``item``; return ``(replaced pending items, running item or None)``.
+
+        Parameters
+        ----------
+        item
+        queue : int
+            With 1, ``item`` replaces every pending item (newest wins). With more, ``item``
+            queues behind the pending items when they all queue too (``item.queue`` true),
+            and only the oldest beyond ``queue`` pending items are replaced.
+        """
         with self._cond:
             if self._closed:
                 raise RuntimeError("the slot is closed (node shutting down)")
-            replaced, self._pending = self._pending, item
+            queues = getattr(item, "queue", False) and queue > 1 and \
+                all(getattr(p, "queue", False) for p in self._pending)
+            if queues:
+                self._pending.append(item)
+                replaced = self._pending[:-queue] if len(self._pending) > queue else []
+                self._pending = self._pending[len(replaced):]
+            else:
+                replaced, self._pending = self._pending, [item]
             self._cond.notify_all()
             return replaced, self._running
 
     def take(self, timeout: float | None = None):
-        """Move the pending item to running and return it; None when closed (or timeout)."""
+        """The oldest pending item, now running; None when closed (or on timeout)."""
         with self._cond:
-            self._cond.wait_for(lambda: self._pending is not None or self._closed, timeout)
-            if self._closed or self._pending is None:
+            self._cond.wait_for(lambda: bool(self._pending) or self._closed, timeout)
+            if self._closed or not self._pending:
                 return None
-            self._running, self._pending = self._pending, None
+            self._running = self._pending.pop(0)
             return self._running
 
     def finished(self, item) -> None:
@@ -108,13 +131,13 @@ class LatestSlot:
     def has_pending(self) -> bool:
         """True while an item waits for the worker."""
         with self._cond:
-            return self._pending is not None
+            return bool(self._pending)
 
-    def close(self):
-        """Refuse further items, wake the worker; return the pending item (or None)."""
+    def close(self) -> list:
+        """Refuse further items, wake the worker; return the pending items."""
         with self._cond:
             self._closed = True
-            leftover, self._pending = self._pending, None
+            leftover, self._pending = self._pending, []
             self._cond.notify_all()
             return leftover
 

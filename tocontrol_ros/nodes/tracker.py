@@ -8,8 +8,10 @@ publishes. Interfaces (one page each in ``msg_docs/``):
 
 - subscribed: the planner's ``trajectory_msgs/msg/JointTrajectory`` (parameter
   ``trajectory_topic``, default ``/planner/trajectory``; reliable, transient local, so the
-  planner's latched last plan arrives on start-up). A trajectory starts when it is received
-  (``header.stamp`` is not used) and replaces the running one from the current plant state;
+  planner's latched last plan arrives on start-up). A trajectory stamped ahead of the
+  tracker's time (at most 60 s) is spliced in at that control instant (a replan,
+  :mod:`tocontrol_ros.nodes.splice`); otherwise it starts when it is received and replaces
+  the running one from the current plant state;
   with ``start_at_first_trajectory`` the first one puts the arm at its first point (a
   free-start plan, whose start configuration the planner chooses);
 - published: ``joint_states`` (``sensor_msgs/msg/JointState``: position, velocity,
@@ -46,7 +48,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
@@ -75,7 +77,15 @@ from tocontrol_ros.nodes.params import (
     parameters_parser,
     robot_from_topic,
 )
+from tocontrol_ros.nodes.splice import Splice, jumps, schedule, splice_instant
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
+from tocontrol_ros.nodes.tracker_messages import (
+    TrajectoryRejectedError,
+    check_limits,
+    nominal_from_msg,
+    reset_state_from_msg,
+    summary_status,
+)
 
 __all__ = ["TrackerNode", "TrajectoryRejectedError",
            "nominal_from_msg", "check_limits", "reset_state_from_msg", "summary_status",
@@ -94,10 +104,6 @@ QOS_STATUS = qos.status_profile(20, latched=True)
 MAX_TICK_PERIODS = 10_000
 
 
-class TrajectoryRejectedError(ProblemError):
-    """A trajectory message the tracker cannot execute; the message says why."""
-
-
 class _Goal(NamedTuple):
     """An action goal's trajectory in the parsing queue: parsed (or refused) and its goal."""
 
@@ -114,144 +120,10 @@ class _Reset(NamedTuple):
     error: str | None
 
 
-# ------------------------------------------------------------------- conversions
-def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str],
-                     inverse_dynamics=None) -> NominalTrajectory:
-    """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
-
-    Every point needs positions, velocities, accelerations and effort (the nominal torques,
-    N m) for all joints; ``time_from_start`` must increase strictly. The joints may come in
-    any order. With ``inverse_dynamics`` (a callable ``(q, qd, qdd) -> tau``, each shape
-    (n,)), a trajectory whose points all lack effort (as sent to a controller without an
-    effort interface) gets the model's torques as its effort.
-
-    Raises
-    ------
-    TrajectoryRejectedError
-        Names that are not the model's joints, missing or short fields, NaN, times that do
-        not increase; the message names the point and the field.
-    """
-    names = list(msg.joint_names)
-    want = list(joint_names)
-    if len(set(names)) != len(names):
-        raise TrajectoryRejectedError(f"joint_names has duplicates: {names}")
-    if sorted(names) != sorted(want):
-        raise TrajectoryRejectedError(f"joint_names {names} do not match the robot's joints "
-                                      f"{want}")
-    if not msg.points:
-        raise TrajectoryRejectedError("the trajectory has no points")
-    order = [names.index(j) for j in want]
-    n, points = len(want), msg.points
-    arrays = {}
-    fields = ["positions", "velocities", "accelerations", "effort"]
-    computed = inverse_dynamics is not None and all(len(p.effort) == 0 for p in points)
-    if computed:
-        fields.remove("effort")
-    for field in fields:
-        rows = [getattr(p, field) for p in points]
-        short = [i for i, row in enumerate(rows) if len(row) != n]
-        if short:
-            i = short[0]
-            raise TrajectoryRejectedError(
-                f"point {i}: {field} has {len(rows[i])} values for {n} joints (the tracker "
-                f"needs positions, velocities, accelerations and effort)")
-        arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
-    t = np.array([conv.seconds(p.time_from_start) for p in points])
-    if computed:
-        arrays["effort"] = np.array([
-            inverse_dynamics(q, qd, qdd) for q, qd, qdd in
-            zip(arrays["positions"], arrays["velocities"], arrays["accelerations"],
-                strict=True)]).reshape(len(points), n)
-    try:
-        return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
-                                 arrays["accelerations"], arrays["effort"],
-                                 joint_names=want)
-    except ProblemError as exc:
-        text = str(exc).replace("`t`", "time_from_start").replace(
-            "`q`", "positions").replace("`qd`", "velocities").replace(
-            "`qdd`", "accelerations").replace("`effort`", "effort")
-        raise TrajectoryRejectedError(text) from exc
-
-
 #: A trajectory may start from any position the arm had (as published on joint_states) in
 #: this many wall-clock seconds: a plan made from a state of a moving arm arrives after the
 #: arm has moved on (the planner uses joint states up to joint_state_timeout = 1 s old).
 START_HISTORY = 2.0
-#: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
-EFFORT_MARGIN = 1e-6
-
-
-def check_limits(nominal: NominalTrajectory, tau_max, max_duration: float) -> None:
-    """Reject a trajectory whose effort exceeds the torque limits or that lasts too long.
-
-    Parameters
-    ----------
-    nominal : NominalTrajectory
-    tau_max : array_like, shape (n,)
-        Torque limits (N m, N).
-    max_duration : float
-        Longest duration (s).
-
-    Raises
-    ------
-    TrajectoryRejectedError
-        Naming the first point and joint over its limit, or the duration.
-    """
-    if nominal.duration > max_duration:
-        raise TrajectoryRejectedError(f"it lasts {nominal.duration:.6g} s, more than "
-                                      f"max_duration = {max_duration:g} s")
-    limit = np.asarray(tau_max, dtype=float) * (1.0 + EFFORT_MARGIN)
-    over = np.abs(nominal.effort) > limit
-    if np.any(over):
-        i, j = (int(v) for v in np.argwhere(over)[0])
-        name = nominal.joint_names[j] if nominal.joint_names else f"joint {j}"
-        raise TrajectoryRejectedError(
-            f"point {i}: effort {nominal.effort[i, j]:.6g} of {name} exceeds its torque "
-            f"limit {float(np.asarray(tau_max)[j]):.6g}")
-
-
-def reset_state_from_msg(msg: JointState,
-                         joint_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Positions and velocities (zero if none given) of a ``~/reset`` request, model order.
-
-    Raises
-    ------
-    TrajectoryRejectedError
-        Names that are not the model's joints, a position or velocity count that does not
-        match them, a value that is not finite.
-    """
-    names, want = list(msg.name), list(joint_names)
-    if len(set(names)) != len(names) or sorted(names) != sorted(want):
-        raise TrajectoryRejectedError(f"name {names} does not match the robot's joints {want}")
-    order = [names.index(j) for j in want]
-    fields = {}
-    for field in ("position", "velocity"):
-        values = np.asarray(getattr(msg, field), dtype=float)
-        if field == "velocity" and values.size == 0:
-            values = np.zeros(len(want))
-        elif values.size != len(want):
-            raise TrajectoryRejectedError(f"{field} has {values.size} values for {len(want)} "
-                                          f"joints")
-        if not np.all(np.isfinite(values)):
-            raise TrajectoryRejectedError(f"{field} is not finite: {values.tolist()}")
-        fields[field] = values[order]
-    return fields["position"], fields["velocity"]
-
-
-def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
-                   joint_names: Sequence[str]) -> DiagnosticStatus:
-    """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
-    worst = int(np.argmax(summary.max_error))
-    verb = "completed" if summary.outcome == "completed" else (
-        f"preempted after {summary.elapsed:.3f} s of {summary.duration:.3f} s")
-    message = (f"trajectory {verb}: final end-effector error {summary.final_point_error:.3g} "
-               f"m, max tracking error {summary.max_error[worst]:.3g} rad "
-               f"({joint_names[worst]}), saturated {100 * summary.saturated_fraction:.1f} % "
-               f"of the time, largest feedback share {summary.max_feedback:.3g}")
-    values = [KeyValue(key=key, value=value if isinstance(value, str) else f"{value:.9g}")
-              for key, value in summary.as_dict(joint_names).items()]
-    return DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=message,
-                            hardware_id=hardware_id, values=values)
 
 
 # -------------------------------------------------------------------------- node
@@ -298,6 +170,7 @@ class TrackerNode(Node):
         self._parsed_lock = threading.Lock()
         # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
         self._parsed: list = []
+        self._splices: list[Splice] = []  # stamped trajectories waiting for their instant
         self._history: collections.deque = collections.deque()  # (wall time, q) published
         # Until the first motion or reset: the next trajectory places the arm at its start.
         self._place_at_start = self.config.start_at_first_trajectory
@@ -361,7 +234,7 @@ class TrackerNode(Node):
         try:
             nominal = nominal_from_msg(msg, self.joint_names, self.model.inverse_dynamics)
             check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
-            item = nominal
+            item = (nominal, conv.seconds(msg.header.stamp))
         except TrajectoryRejectedError as exc:
             item = exc
         except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)
@@ -392,9 +265,11 @@ class TrackerNode(Node):
             if isinstance(item, _Reset):
                 self._apply_reset(item)
                 continue
-            nominal = item
+            nominal, stamp = item
             if self._sim_time:
                 self._follow_clock()  # a trajectory right after the first /clock: stamp with it
+            if self._schedule_splice(nominal, stamp):
+                continue
             placed = self._place_at_start
             if placed:
                 self._place_at(nominal)
@@ -432,6 +307,48 @@ class TrackerNode(Node):
                           "start_offset": f"{offset:.9g}",
                           "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
 
+    def _schedule_splice(self, nominal: NominalTrajectory, stamp: float) -> bool:
+        """A stamp ahead of now: queue the trajectory for that instant (True), else False."""
+        now = self._target_time()
+        instant = None if now is None or self._place_at_start else splice_instant(
+            stamp, self._epoch, max(now, self.tracker.t), self.tracker.h)
+        if instant is None:
+            return False
+        self._splices, dropped = schedule(self._splices,
+                                          Splice(nominal, instant[0], instant[1], stamp))
+        for old in dropped:
+            self._status(DiagnosticStatus.WARN, f"trajectory stamped {old.stamp:.6f} replaced "
+                         f"before it took over by one stamped {stamp:.6f}",
+                         {"event": "splice_replaced", "stamp": f"{old.stamp:.9f}"})
+        return True
+
+    def _splice(self, splice: Splice) -> None:
+        """The stamped trajectory takes over now (the tracker is at its instant)."""
+        tracker = self.tracker
+        old = tracker.commanded(tracker.t)
+        # Joining a running trajectory: the new one as far along as its stamp says. Holding
+        # (nothing to join): it starts from its beginning at this control instant.
+        elapsed = splice.elapsed if tracker.running else 0.0
+        des = splice.nominal.evaluate(elapsed)
+        dq, dqd = jumps(old, (des.q[0], des.qd[0]))
+        if dq > self.config.start_tolerance:
+            self._reject(f"stamped {splice.stamp:.6f}: at its take-over its position is "
+                         f"{dq:.3g} rad from the commanded one, more than start_tolerance = "
+                         f"{self.config.start_tolerance:g}")
+            return
+        preempted = tracker.start(splice.nominal, elapsed)
+        if preempted is not None:
+            self._pub_status.publish(self._summary_status(preempted))
+        self._status(DiagnosticStatus.OK,
+                     f"executing trajectory spliced in at its stamp: {len(splice.nominal)} "
+                     f"points, T = {splice.nominal.duration:.4f} s; command jumps {dq:.3g} "
+                     f"rad, {dqd:.3g} rad/s",
+                     {"event": "spliced", "points": str(len(splice.nominal)),
+                      "duration": f"{splice.nominal.duration:.9g}",
+                      "stamp": f"{splice.stamp:.9f}",
+                      "start_time": f"{self._epoch + tracker.t:.9f}",
+                      "position_jump": f"{dq:.9g}", "velocity_jump": f"{dqd:.9g}"})
+
     def _on_reset(self, msg: JointState) -> None:
         # Through the parsing thread's queue: a reset takes effect after the trajectories
         # received before it, never before (the timer applies both in arrival order).
@@ -458,6 +375,7 @@ class TrackerNode(Node):
             return
         q, qd = item.q, item.qd
         self._place_at_start = False
+        self._splices = []
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
             self._pub_status.publish(self._summary_status(preempted))
@@ -528,7 +446,17 @@ class TrackerNode(Node):
             self.get_logger().warning(
                 f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
                 f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
-        report = tracker.advance(target)
+        while self._splices and self._splices[0].at <= target + 1e-9:
+            splice = self._splices.pop(0)
+            self._publish_report(tracker.advance(splice.at))
+            self._splice(splice)
+        self._publish_report(tracker.advance(target))
+        if self._pub_clock is not None:
+            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
+
+    def _publish_report(self, report) -> None:
+        """The states and run summaries of one stretch of simulation."""
+        tracker = self.tracker
         log = report.log
         rows = np.zeros(0, dtype=int)
         if len(log):
@@ -547,8 +475,6 @@ class TrackerNode(Node):
         # planner plans from the latest joint state) has seen the final state by then.
         for summary in report.summaries:
             self._pub_status.publish(self._summary_status(summary))
-        if self._pub_clock is not None:
-            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
 
     def _publish_state(self, row: Mapping[str, Any]) -> None:
         now = time.monotonic()

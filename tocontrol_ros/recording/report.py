@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from tocontrol_ros.core.robot.kinematics import link_positions
-from tocontrol_ros.recording import mcap_io
+from tocontrol_ros.recording import mcap_io, target_path
 
 TRAJECTORY = "/planner/trajectory"
 PLANNER_STATUS = "/planner/status"
@@ -61,6 +61,7 @@ class Run:
     planner_status: list = field(default_factory=list)  # DiagnosticStatus messages
     tracker_status: list = field(default_factory=list)  # (log time ns, DiagnosticStatus)
     goal: object = None  # the last PointStamped
+    goals: list = field(default_factory=list)  # every goal point (x, y, z), in order
     js_t: list = field(default_factory=list)  # stamp (s)
     js_q: list = field(default_factory=list)
     js_effort: list = field(default_factory=list)
@@ -132,6 +133,7 @@ def load_run(path, joint_names=None):
             run.tracker_status.append((record.log_time, msg))
         elif record.topic == GOAL:
             run.goal = msg
+            run.goals.append((msg.point.x, msg.point.y, msg.point.z))
         elif record.topic == JOINT_STATES:
             if not run.joint_names:
                 run.joint_names = list(msg.name)
@@ -397,8 +399,11 @@ def plot_motion(plt, run, motion, row, model, tau_max, names, path):
     return path
 
 
-def write_html(path, recording, figures, rows, summary_lines):
-    """``index.html``: the table, then every figure (relative links, no script)."""
+def write_html(path, recording, figures, rows, summary_lines, extra=()):
+    """``index.html``: the table, then every figure (relative links, no script).
+
+    ``extra``: figures shown before the motions' (the moving target's path).
+    """
     head = "".join(f"<th>{html.escape(h)}</th>" for h in TABLE_HEADER)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _cells(r))
                    + "</tr>\n" for r in rows)
@@ -408,6 +413,9 @@ def write_html(path, recording, figures, rows, summary_lines):
         f'width="{FIGSIZE[0] * DPI}" height="{FIGSIZE[1] * DPI}">'
         f'<figcaption>Motion {r.index}</figcaption></figure>\n'
         for f, r in zip(figures, rows, strict=True))
+    images = "".join(f'<figure id="{html.escape(f.stem)}"><img src="{html.escape(f.name)}" '
+                     f'alt="{html.escape(f.stem)}"><figcaption>the goals and the end '
+                     f'effector</figcaption></figure>\n' for f in extra) + images
     details = html.escape("\n".join(summary_lines[:summary_lines.index("")]
                                     if "" in summary_lines else summary_lines))
     title = html.escape(f"Report: {Path(recording).name}")
@@ -458,10 +466,17 @@ def write_report(path, out_dir, model):
                            out_dir / f"motion_{m.index}.png")
                for m, r in zip(found, rows, strict=True)]
     lines = summarise(run, model, tau_max, rows)
+    extra = []
+    if len(run.goals) >= target_path.MIN_GOALS and len(names) == model.n:
+        order = [names.index(n) for n in model.joint_names] if set(names) == \
+            set(model.joint_names) else list(range(model.n))
+        js = np.asarray(run.js_q, dtype=float)[:, order] if run.js_q else []
+        extra.append(target_path.plot_target_path(plt, model, run.goals, js,
+                                                  out_dir / "moving_target.png"))
     summary = out_dir / "summary.txt"
     summary.write_text(f"recording: {path}\n" + "\n".join(lines) + "\n")
-    page = write_html(out_dir / "index.html", path, figures, rows, lines)
-    return [*figures, summary, page]
+    page = write_html(out_dir / "index.html", path, figures, rows, lines, extra)
+    return [*extra, *figures, summary, page]
 
 
 def build_parser():

@@ -177,6 +177,7 @@ class Tracker:
         self.step_index = 0
         self.nominal: NominalTrajectory | None = None
         self._start_index = 0
+        self._start_elapsed = 0.0
         self._stats: RunStats | None = None
         self._hold_q = q0.copy()
         self._hold_u = self._static_control(q0)
@@ -207,7 +208,17 @@ class Tracker:
         """Time since the current trajectory started (s); NaN without one."""
         if self.nominal is None:
             return float("nan")
-        return (self.step_index - self._start_index) * self.h
+        return (self.step_index - self._start_index) * self.h + self._start_elapsed
+
+    def commanded(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The commanded position and velocity at simulation time ``t`` (s), shape (n,) each.
+
+        The running nominal's (its hold after the end), or the held configuration at rest.
+        """
+        if self.nominal is None:
+            return self._hold_q.copy(), np.zeros(self.model.n)
+        des = self.nominal.evaluate(t - self._start_index * self.h + self._start_elapsed)
+        return des.q[0], des.qd[0]
 
     def _static_control(self, q: np.ndarray) -> np.ndarray:
         """Normalised torque that holds ``q`` at rest in the planning model (gravity)."""
@@ -284,13 +295,17 @@ class Tracker:
         self._chunk_function(1)
 
     # ---------------------------------------------------------------- commands
-    def start(self, nominal: NominalTrajectory) -> TrackingSummary | None:
+    def start(self, nominal: NominalTrajectory, elapsed: float = 0.0
+              ) -> TrackingSummary | None:
         """Execute ``nominal`` from now, from the current plant state.
 
         Parameters
         ----------
         nominal : NominalTrajectory
             With ``n`` joints in the model's order.
+        elapsed : float
+            The nominal's own time at the current instant (s, >= 0): a trajectory that took
+            over between two control instants (a splice at its stamp) is this far along.
 
         Returns
         -------
@@ -303,12 +318,15 @@ class Tracker:
         if nominal.n != self.model.n:
             raise ProblemError(f"`nominal` has {nominal.n} joints; the model has "
                                f"{self.model.n}")
+        if not (math.isfinite(elapsed) and elapsed >= 0.0):
+            raise ProblemError(f"`elapsed` must be a finite time >= 0 (s), got {elapsed!r}")
         preempted = None
         if self._stats is not None:
             preempted = self._stats.summary("preempted", self.model)
         q_end = nominal.q[-1]
         self.nominal = nominal.with_hold_effort(self._static_control(q_end) * self.tau_max)
         self._start_index = self.step_index
+        self._start_elapsed = float(elapsed)
         self._stats = RunStats(self.model.n, nominal.duration, self.t)
         return preempted
 
@@ -397,7 +415,7 @@ class Tracker:
             u_nom = np.tile(self._hold_u, (count, 1))
             tau_traj = np.full(count, np.inf)
         else:
-            tau_traj = (idx - self._start_index) * self.h
+            tau_traj = (idx - self._start_index) * self.h + self._start_elapsed
             des = self.nominal.evaluate(tau_traj)
             mid = self.nominal.evaluate(tau_traj + 0.5 * self.h)
             q_des, qd_des = des.q, des.qd

@@ -1,0 +1,293 @@
+"""On-line replanning as deployed (issue 33): a target moving at 10 Hz, planner and tracker as
+processes, joint states flowing.
+
+For each robot (the paper's arm; the Panda of example-robot-data with its URDF limits, tip
+``panda_hand``), a planner and a tracker (``python -P -m tocontrol_ros.<node>``, default
+parameters but the robot's) run in a namespace of their own. A client in this process sends
+one goal at the circle's first point (the first motion from rest: a cold multistart, not
+counted) and waits until the arm is there, then sends goals along a circle through it at
+``RATE`` Hz for ``DURATION`` s (once around, about the arm's initial end-effector point),
+without waiting for answers.
+
+Measured, per robot: the share of goals that got a trajectory (their own ``solved`` status
+with ``published: optimum``); the replan latency, goal received -> trajectory published (the
+``latency`` of each solved status: from the goal's callback to the publication), median and
+p95, over all answered goals and per kind (``warm`` from the running motion's tail, ``rest``
+from the end of a motion that was over, ``cold``); the share published within one 100 ms
+period; the tracker's splices and their largest command jumps; the end-effector error after
+the target stopped (the last joint state against the last goal).
+
+Usage: ``scripts/dev run python -P bench/replan.py [paper|panda|both]`` (default both).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __name__ == "__main__":
+    sys.path.append(str(Path(__file__).resolve().parents[1]))
+
+from bench.common import Section, log, panda_urdf, table  # noqa: E402
+from bench.deployed import RosClient, _Process  # noqa: E402
+
+#: The issue's moving target: goals per second, for how long (s).
+RATE, DURATION = 10.0, 5.0
+#: One control period of the goal stream (s): a replan published within it kept up.
+PERIOD = 0.1
+#: Targets (issue 33): median replan latency (s).
+TARGET_PAPER, TARGET_PANDA = 0.010, 0.020
+#: Waits (s).
+READY_TIMEOUT, ANSWER_TIMEOUT, SETTLE_TIMEOUT = 400.0, 300.0, 120.0
+
+
+class _Client(RosClient):
+    """Goals out; planner and tracker status, joint states in."""
+
+    def __init__(self, ns: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from geometry_msgs.msg import PointStamped
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+
+        super().__init__("bench_replan")
+        self.lock = threading.Lock()
+        self.planner, self.tracker, self.states = [], [], []
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(DiagnosticStatus, f"{ns}/planner/status",
+                                      lambda m: self._add(self.planner, m), reliable)
+        self.node.create_subscription(DiagnosticStatus, f"{ns}/tracker/status",
+                                      lambda m: self._add(self.tracker, m), latched)
+        self.node.create_subscription(JointState, f"{ns}/joint_states",
+                                      lambda m: self._add(self.states, m), 10)
+        self.goals = self.node.create_publisher(PointStamped, f"{ns}/planner/goal", 10)
+        self._Point = PointStamped
+
+    def _add(self, bucket: list, msg) -> None:
+        if hasattr(msg, "values"):
+            msg = {"message": msg.message, **{kv.key: kv.value for kv in msg.values}}
+        else:
+            msg = list(msg.position)
+        with self.lock:
+            bucket.append(msg)
+
+    def snapshot(self, name: str) -> list:
+        with self.lock:
+            return list(getattr(self, name))
+
+    def wait(self, predicate, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = predicate()
+            if value:
+                return value
+            time.sleep(0.02)
+        raise RuntimeError(f"timed out after {timeout:g} s waiting for {what}")
+
+    def send(self, point, frame: str) -> None:
+        msg = self._Point()
+        msg.header.frame_id = frame
+        msg.point.x, msg.point.y, msg.point.z = (float(v) for v in (list(point) + [0.0])[:3])
+        self.goals.publish(msg)
+
+
+def _robot(name: str):
+    """(model, planner/tracker arguments, frame, circle centre, radius, initial q) or None."""
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+
+    if name == "paper":
+        model = load_robot(default_urdf_path())
+        q0 = np.array([0.3, 0.9, 0.6])
+        return model, [], [], "base_link", model.point(q0), 0.15, q0
+    urdf = panda_urdf()
+    if urdf is None:
+        return None
+    model = load_robot(str(urdf), tip_link="panda_hand",
+                       locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0})
+    # Inside the limits, away from the singular mid-range (joints 1 and 3 coaxial at
+    # q2 = 0, where the held arm oscillates in the self-motion).
+    q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
+    robot = ["-p", f"robot_description_file:={urdf}", "-p", "tip_link:=panda_hand"]
+    q_text = "[" + ",".join(f"{v:.6f}" for v in q0) + "]"
+    # Gains of test/e2e/test_your_own_arm.py (the README's Panda).
+    tracker = ["-p", f"initial_positions:={q_text}",
+               "-p", "kp:=[10.0,20.0,13.0,10.0,2.4,4.0,0.5]",
+               "-p", "kd:=[0.47,0.91,0.6,0.49,0.11,0.19,0.023]"]
+    return model, robot, tracker, "panda_link0", model.point(q0), 0.1, q0
+
+
+def _circle(centre, radius: float, count: int) -> list:
+    """``count`` points once around a circle about ``centre`` in the first two task axes,
+    from ``centre + (radius, 0, ...)`` on."""
+    out = []
+    for i in range(count):
+        a = 2 * math.pi * i / count
+        p = np.array(centre, dtype=float)
+        p[0] += radius * math.cos(a)
+        p[1] += radius * math.sin(a)
+        out.append(p)
+    return out
+
+
+def _embed(model, p) -> list:
+    """A task point as x, y, z (the task axes' coordinates; the others 0)."""
+    out = [0.0, 0.0, 0.0]
+    for axis, v in zip(model.task_axes, p, strict=True):
+        out[axis] = float(v)
+    return out
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.quantile(values, q)) if values else float("nan")
+
+
+def measure(name: str, workdir: Path) -> dict | None:
+    """One robot's moving-target run; the figures, or None when the robot is missing."""
+    found = _robot(name)
+    if found is None:
+        return None
+    model, robot_args, tracker_args, frame, p0, radius, q0 = found
+    ns = f"/bench_replan_{name}_{os.getpid()}"
+    base = ["--ros-args", "-r", f"__ns:={ns}", *robot_args]
+    procs = [_Process("tocontrol_ros.planner", base, workdir / f"{name}_planner.log"),
+             _Process("tocontrol_ros.tracker", [*base, *tracker_args, "-p",
+                                                f"trajectory_topic:={ns}/planner/trajectory"],
+                      workdir / f"{name}_tracker.log")]
+    client = _Client(ns)
+    count = int(RATE * DURATION)
+    goals = _circle(p0, radius, count)
+    try:
+        # "ready" is a volatile status event, lost when discovery completes after it: its
+        # log line says it too.
+        log = workdir / f"{name}_planner.log"
+        client.wait(lambda: any(s.get("event") == "ready" for s in client.snapshot("planner"))
+                    or "ready after" in log.read_text(), READY_TIMEOUT,
+                    f"the {name} planner's warm-up")
+        client.wait(lambda: client.goals.get_subscription_count() > 0 and
+                    client.snapshot("states"), 30.0, "the goal subscription, joint states")
+        # The first motion from rest to the circle (cold multistart): not counted.
+        first = len(client.snapshot("planner"))
+        client.send(_embed(model, goals[0]), frame)
+        client.wait(lambda: [s for s in client.snapshot("planner")[first:]
+                             if s.get("event") in ("solved", "failed")], ANSWER_TIMEOUT,
+                    "the first motion's plan")
+        client.wait(lambda: any(s.get("outcome") == "completed"
+                                for s in client.snapshot("tracker")), SETTLE_TIMEOUT,
+                    "the first motion's end")
+        since = len(client.snapshot("planner"))
+        tracker0 = len(client.snapshot("tracker"))
+        splices0 = len([s for s in client.snapshot("tracker") if s.get("event") == "spliced"])
+        t_next = time.monotonic()
+        for goal in goals[1:] + goals[:1]:  # once around, ending where it started
+            t_next += 1.0 / RATE
+            client.send(_embed(model, goal), frame)
+            time.sleep(max(0.0, t_next - time.monotonic()))
+        final = ("solved", "failed", "superseded", "cancelled")
+        outcomes = client.wait(
+            lambda: (lambda f: f if len(f) >= count else None)(
+                [s for s in client.snapshot("planner")[since:] if s.get("event") in final]),
+            ANSWER_TIMEOUT, "an outcome for every goal")
+
+        published = sum(s.get("published") == "optimum" for s in outcomes)
+
+        def settled():
+            # Every published trajectory taken over (a splice waits for its stamp) or
+            # dropped for a later one, the last run to its end, the arm at rest.
+            states = client.snapshot("states")
+            status = client.snapshot("tracker")[tracker0:]
+            taken = [i for i, s in enumerate(status)
+                     if s["message"].startswith("executing") or "rejected" in s["message"]
+                     or s.get("event") == "splice_replaced"]
+            done = [i for i, s in enumerate(status) if s.get("outcome") == "completed"]
+            return (len(taken) >= published and done and done[-1] > taken[-1]
+                    and len(states) > 10
+                    and np.max(np.abs(np.subtract(states[-1], states[-10]))) < 1e-9)
+        client.wait(settled, SETTLE_TIMEOUT, "the arm at rest after the last goal")
+        states = client.snapshot("states")
+        splices = [s for s in client.snapshot("tracker")
+                   if s.get("event") == "spliced"][splices0:]
+    finally:
+        client.close()
+        for proc in procs:
+            proc.stop()
+    published = [s for s in outcomes if s.get("event") == "solved"
+                 and s.get("published") == "optimum"]
+    latency = [float(s["latency"]) for s in published]
+    kinds = {}
+    for s in published:
+        kinds.setdefault(s.get("replan", "none"), []).append(float(s["latency"]))
+    ee = np.asarray(model.point(np.asarray(states[-1])), dtype=float)
+    return {
+        "robot": name, "goals": count, "answered": len(published),
+        "failed": sum(s.get("event") == "failed" for s in outcomes),
+        "superseded": sum(s.get("event") == "superseded" for s in outcomes),
+        "median": _pct(latency, 0.5), "p95": _pct(latency, 0.95),
+        "within": sum(v <= PERIOD for v in latency) / count,
+        "kinds": {k: (len(v), _pct(v, 0.5), _pct(v, 0.95)) for k, v in kinds.items()},
+        "splices": len(splices),
+        "jump_q": max((float(s["position_jump"]) for s in splices), default=float("nan")),
+        "jump_qd": max((float(s["velocity_jump"]) for s in splices), default=float("nan")),
+        "final_error": float(np.linalg.norm(ee - goals[0])),
+    }
+
+
+def run(which: str = "both") -> Section:
+    title = "Replanning: a target moving at 10 Hz, nodes as deployed (issue 33)"
+    workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-replan-"))
+    names = ("paper", "panda") if which == "both" else (which,)
+    results = []
+    for name in names:
+        log(f"replan: {name} ...")
+        out = measure(name, workdir)
+        if out is None:
+            log(f"replan: {name} skipped (example-robot-data is not installed)")
+            continue
+        results.append(out)
+        log(f"replan {name}: {out}")
+    rows = []
+    for r in results:
+        kinds = "; ".join(f"{k} {n}: {1e3 * m:.1f} / {1e3 * p:.1f} ms"
+                          for k, (n, m, p) in sorted(r["kinds"].items()))
+        rows.append([r["robot"], f"{r['answered']}/{r['goals']}", f"{1e3 * r['median']:.1f}",
+                     f"{1e3 * r['p95']:.1f}", f"{100 * r['within']:.0f} %", kinds,
+                     f"{r['splices']}", f"{r['jump_q']:.1e} / {r['jump_qd']:.1e}",
+                     f"{r['final_error']:.1e}"])
+    lines = [
+        f"Planner and tracker as processes (default parameters but the robot's; the Panda "
+        f"with its URDF limits), a client sending goals along a circle at {RATE:g} Hz for "
+        f"{DURATION:g} s after a first, uncounted motion onto it. Latency: goal received by "
+        f"the planner -> trajectory published (its status's `latency`), over the goals "
+        f"answered; within one period: published within {1e3 * PERIOD:.0f} ms, share of all "
+        f"goals. Per kind: count, median / p95. Jumps: the tracker's largest command jump at "
+        f"a splice (rad / rad/s). Final error: end effector at rest against the last goal (m)."
+        f" Command: `scripts/dev run python -P bench/replan.py {which}`.",
+        "",
+        *table(["robot", "answered", "median ms", "p95 ms", "within 100 ms", "per kind",
+                "splices", "jumps", "final error m"], rows),
+    ]
+    targets = []
+    for r in results:
+        goal = TARGET_PAPER if r["robot"] == "paper" else TARGET_PANDA
+        targets.append((f"{r['robot']}: median replan latency <= {1e3 * goal:.0f} ms",
+                        ("**yes**" if r["median"] <= goal else "**no**")
+                        + f": {1e3 * r['median']:.1f} ms"))
+    return Section(title, lines, targets)
+
+
+if __name__ == "__main__":
+    which = sys.argv[1] if len(sys.argv) > 1 else "both"
+    if which not in ("paper", "panda", "both"):
+        raise SystemExit(f"usage: bench/replan.py [paper|panda|both], got {which!r}")
+    section = run(which)
+    print("\n".join(section.lines))
+    for target, verdict in section.targets:
+        print(f"- {target}: {verdict}")

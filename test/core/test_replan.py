@@ -1,0 +1,83 @@
+"""The executing solution's tail as a warm start, the warm replan and the hand-off lead."""
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.problem import point
+from tocontrol_ros.core.replan import (
+    TAIL_MIN_REMAINING,
+    LatencyEstimate,
+    tail_warm_start,
+    warm_replan,
+)
+from tocontrol_ros.core.solver import Planner, SolverOptions
+
+
+@pytest.fixture(scope="module")
+def planner(galicki):
+    return Planner(galicki)
+
+
+@pytest.mark.parametrize("key", ["nodes", "uniform"])
+def test_tail_to_the_same_target_is_the_rest_of_the_motion(solved, planner, key):
+    # Principle of optimality: from x(t) the rest of the motion is optimal, with the same
+    # costates; the cut mesh (switch nodes included) is already a solution.
+    result = solved[key]
+    t = 0.3 * result.T
+    tail = tail_warm_start(result, t)
+    z = result.trajectory.state(t)[0]
+    n = result.problem.model.n
+    assert tail.problem.start.kind == "state"
+    np.testing.assert_allclose(tail.problem.start.value, z[:2 * n], atol=1e-12)
+    again = warm_replan(planner, tail.problem, tail, SolverOptions())
+    assert again.success, again.message
+    assert again.T == pytest.approx(result.T - t, rel=1e-6)
+    assert again.iterations < result.iterations  # no guess, no continuation
+
+
+def test_tail_warm_replan_to_a_moved_target(solved, planner):
+    result = solved["nodes"]
+    tail = tail_warm_start(result, 0.2 * result.T)
+    moved = result.problem.target_point + np.array([0.01, -0.01])
+    problem = tail.problem.__class__(tail.problem.model, tail.problem.start, point(moved),
+                                     k=tail.problem.k)
+    again = warm_replan(planner, problem, tail, SolverOptions())
+    assert again.success, again.message
+    end = again.trajectory.evaluate(again.T)
+    np.testing.assert_allclose(result.problem.model.point(end.q[0]), moved, atol=1e-6)
+    np.testing.assert_allclose(end.qd[0], 0.0, atol=1e-6)
+
+
+def test_no_tail_near_the_end_or_without_a_shooting_solution(solved):
+    result = solved["nodes"]
+    assert tail_warm_start(result, result.T * (1 - TAIL_MIN_REMAINING / 2)) is None
+    from dataclasses import replace
+    assert tail_warm_start(replace(result, warm_state=None), 0.1) is None
+
+
+@pytest.mark.parametrize("t", [-0.1, float("nan"), float("inf")])
+def test_tail_rejects_a_bad_time(solved, t):
+    with pytest.raises(ProblemError, match="`t` must be a finite time >= 0"):
+        tail_warm_start(solved["nodes"], t)
+
+
+def test_latency_estimate_lead():
+    est = LatencyEstimate(2.0, 0.02, window=5, initial=0.1)
+    assert est.lead() == pytest.approx(0.02 + 2 * 0.1)
+    for v in (0.01, 0.01, 0.01, 0.01, 0.5):  # one slow solve does not set the lead
+        est.record(v)
+    assert est.lead() < 0.02 + 2 * 0.5
+    est.record(0.5)
+    est.record(0.5)  # slow solves that persist do
+    assert est.lead() > 0.02 + 2 * 0.4
+
+
+@pytest.mark.parametrize("args, match", [
+    ((0.5, 0.02), "`margin` must be a finite number >= 1"),
+    ((2.0, 0.0), "`floor` must be a finite time > 0"),
+    ((2.0, 0.02, 0), "`window` must be an integer >= 1"),
+])
+def test_latency_estimate_rejects_bad_arguments(args, match):
+    with pytest.raises(ProblemError, match=match):
+        LatencyEstimate(*args)

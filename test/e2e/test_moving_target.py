@@ -1,0 +1,144 @@
+"""On-line replanning end to end (issue 33): a target moving at 10 Hz, planner and tracker as
+deployed (separate processes, joint states flowing), the arm following with spliced replans.
+
+Nothing here asserts on elapsed time or on how many messages arrived in real time beyond
+what the issue asks: every goal is counted as answered when a trajectory was published for
+it (its own ``solved`` status with ``published: optimum``), which the planner guarantees by
+construction (goals queue behind a running solve instead of superseding it, and a replan that
+would arrive late is solved again from a later hand-off). Waits are bounded.
+"""
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from planner_harness import PlannerClient
+
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+
+pytestmark = pytest.mark.ros
+REPO = Path(__file__).resolve().parents[2]
+#: The issue's target: 10 Hz for 5 s, along a circle (centre, radius in m), once around.
+RATE, DURATION = 10.0, 5.0
+CENTRE, RADIUS = (1.8, 1.2), 0.15
+
+
+def _command(name: str) -> tuple[list[str], dict]:
+    exe = Path(sys.prefix) / "lib" / "tocontrol_ros" / name
+    if exe.is_file():
+        return [str(exe)], {}
+    return [sys.executable, "-m", f"tocontrol_ros.{name}"], {"PYTHONPATH": str(REPO)}
+
+
+def circle(i: int, count: int) -> tuple[float, float]:
+    """Goal ``i`` of ``count`` on the circle (m)."""
+    a = 2 * math.pi * i / count
+    return CENTRE[0] + RADIUS * math.cos(a), CENTRE[1] + RADIUS * math.sin(a)
+
+
+def test_moving_target_followed_with_spliced_replans(tmp_path):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    ns = f"/replan_{os.getpid()}"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    args = ["--ros-args", "-r", f"__ns:={ns}"]
+    logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
+    procs = []
+    for (name, extra), log in zip((("planner", []), ("tracker", [
+            "-p", f"trajectory_topic:={ns}/planner/trajectory"])), logs, strict=True):
+        cmd, extra_env = _command(name)
+        procs.append(subprocess.Popen(cmd + args + extra, env={**env, **extra_env},
+                                      stdout=log, stderr=subprocess.STDOUT))
+    client = PlannerClient(f"{ns}/planner")
+    tracker_status, states = [], []
+    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    client.node.create_subscription(
+        DiagnosticStatus, f"{ns}/tracker/status",
+        lambda m: tracker_status.append({kv.key: kv.value for kv in m.values}
+                                        | {"message": m.message}), reliable)
+    client.node.create_subscription(JointState, f"{ns}/joint_states",
+                                    lambda m: states.append(list(m.position)), 10)
+    count = int(RATE * DURATION)
+    goals = [circle(i, count) for i in range(count)]
+    try:
+        client.wait_ready(180.0)
+        # "ready" is a volatile status event, lost when discovery completes after it: its log
+        # line says it too.
+        client.wait_for(lambda: any(s.event == "ready" for s in client.status_list())
+                        or "ready after" in (tmp_path / "planner.log").read_text(), 180.0,
+                        "the planner's warm-up")
+        client.wait_subscribed(client.goal_pub)
+        client.wait_for(lambda: states, 30.0, "joint states")
+        since = len(client.status_list())
+        t_next = time.monotonic()
+        for goal in goals:  # 10 Hz: the next goal does not wait for an answer
+            t_next += 1.0 / RATE
+            client.send_goal(goal)
+            time.sleep(max(0.0, t_next - time.monotonic()))
+
+        def answered():
+            finals = [s for s in client.status_list()[since:]
+                      if s.event in ("solved", "failed", "superseded", "cancelled")]
+            return finals if len(finals) >= count else None
+        finals = client.wait_for(answered, 120.0, "an outcome for every goal")
+        last = goals[-1]
+
+        published = sum(s.values.get("published") == "optimum" for s in finals)
+
+        def settled():
+            # Every published trajectory taken over (a splice waits for its stamp) or
+            # dropped for a later one, the last run to its end, the arm at rest.
+            taken = [i for i, s in enumerate(tracker_status)
+                     if "executing" in s["message"] or s.get("event") == "splice_replaced"
+                     or "rejected" in s["message"]]
+            done = [i for i, s in enumerate(tracker_status) if s.get("outcome") == "completed"]
+            if len(taken) < published or not done or done[-1] < taken[-1]:
+                return False
+            return len(states) > 5 and \
+                np.max(np.abs(np.subtract(states[-1], states[-5]))) < 1e-9
+        client.wait_for(settled, 60.0, "the arm at rest after the last motion")
+        time.sleep(0.5)  # a few more joint states at rest
+    finally:
+        client.close()
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        codes = [proc.wait(30.0) for proc in procs]
+        for log in logs:
+            log.close()
+    events = [s.event for s in finals]
+    published = [s for s in finals if s.event == "solved"
+                 and s.values.get("published") == "optimum"]
+    replans = [s for s in published if s.values.get("replan") in ("warm", "cold")]
+    splices = [s for s in tracker_status if s.get("event") == "spliced"]
+    print(f"{len(published)}/{count} goals answered ({len(replans)} replans, "
+          f"{sum(s.values.get('replan') == 'warm' for s in replans)} warm); events "
+          f"{ {e: events.count(e) for e in set(events)} }; {len(splices)} splices")
+    assert len(published) >= 0.8 * count, [s.message for s in finals if s not in published]
+    # None rejected (a goal the planner refused, a trajectory the tracker refused); a solve
+    # that fails numerically or stays late counts against the 80 %.
+    assert not [s.message for s in finals if "rejected" in s.message]
+    assert not [s["message"] for s in tracker_status if "rejected" in s["message"]]
+    assert replans and splices
+    jumps_q = [float(s["position_jump"]) for s in splices]
+    jumps_qd = [float(s["velocity_jump"]) for s in splices]
+    print(f"largest jumps {max(jumps_q):.2e} rad, {max(jumps_qd):.2e} rad/s")
+    for s in splices:
+        if float(s["velocity_jump"]) > 1e-3 or float(s["position_jump"]) > 1e-4:
+            print("large splice", s["message"], s["stamp"])
+    assert max(jumps_q) < 1e-3 and max(jumps_qd) < 1e-2
+    # Inside the torque set throughout: every published plan's largest |u_i| below 1.
+    assert max(float(s.values["max_abs_u"]) for s in published) < 1.0
+    model = load_robot(default_urdf_path())
+    error = float(np.linalg.norm(model.point(np.array(states[-1])) - np.array(last)))
+    print(f"final end-effector error {error:.2e} m")
+    assert error < 1e-4
+    assert codes == [0, 0]

@@ -1,0 +1,92 @@
+"""Replanning in the nodes without spinning: splice instants, the goal queue, hand-offs."""
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.nodes.planner_config import config_from_values
+from tocontrol_ros.nodes.replanning import COLD, REST, WARM, Replanner, align
+from tocontrol_ros.nodes.requests import LatestSlot
+from tocontrol_ros.nodes.splice import SPLICE_HORIZON, Splice, jumps, schedule, splice_instant
+
+
+def test_splice_instant_on_the_control_grid():
+    h = 1e-3
+    assert splice_instant(0.0, 100.0, 5.0, h) is None  # stamp 0: now
+    assert splice_instant(104.0, 100.0, 5.0, h) is None  # past: now
+    assert splice_instant(100.0 + 5.0 + SPLICE_HORIZON + 1, 100.0, 5.0, h) is None
+    at, elapsed = splice_instant(100.0 + 5.0105, 100.0, 5.0, h)
+    assert at == pytest.approx(5.011) and elapsed == pytest.approx(0.0005)
+    at, elapsed = splice_instant(100.0 + 5.02, 100.0, 5.0, h)
+    assert at == pytest.approx(5.02) and elapsed == pytest.approx(0.0, abs=1e-6)
+
+
+def test_schedule_replaces_later_pending_splices():
+    a, b, c = (Splice(None, t, 0.0, t) for t in (1.0, 2.0, 1.5))
+    pending, dropped = schedule([a, b], c)
+    assert pending == [a, c] and dropped == [b]
+    assert jumps((np.zeros(2), np.zeros(2)), (np.array([0.0, -2e-3]), np.ones(2))) == \
+        pytest.approx((2e-3, 1.0))
+
+
+class _Item:
+    def __init__(self, queue):
+        self.queue = queue
+
+
+def test_goals_queue_and_services_supersede():
+    slot = LatestSlot()
+    goals = [_Item(True) for _ in range(4)]
+    for g in goals[:3]:
+        assert slot.put(g, 3) == ([], None)
+    replaced, _ = slot.put(goals[3], 3)
+    assert replaced == [goals[0]]  # the oldest beyond the queue
+    assert slot.take(0.0) is goals[1]
+    service = _Item(False)
+    replaced, running = slot.put(service, 3)
+    assert replaced == goals[2:] and running is goals[1]
+    assert slot.close() == [service]
+
+
+def test_align():
+    assert align(1_000_400, 0, 1e-3) == 2_000_000
+    assert align(1_000_400, 400, 1e-3) == 1_000_400
+    assert align(1_000_401, 400, 1e-3) == 2_000_400
+    assert align(999_999, 0, 1e-3) == 1_000_000
+
+
+@pytest.fixture(scope="module")
+def motion():
+    model = load_robot(default_urdf_path())
+    q0 = np.array([0.3, 0.9, 0.6])
+    problem = Problem(model, joint_state(q0), point(PAPER_TARGET), k=4.0)
+    return plan(problem, SolverOptions(starts=1, candidates=1))
+
+
+def test_handoff_kinds(motion):
+    config = config_from_values({})
+    replans = Replanner()
+    target = np.asarray(PAPER_TARGET)
+    start = 10**9
+    at_start = (motion.trajectory.state(0.0)[0][:3], start)
+    assert replans.handoff(config, target, start, 0, measured=at_start) is None  # nothing yet
+    replans.published(motion, start, motion.trajectory.sample(0.01))
+    near = target + np.array([0.02, 0.0])
+    # Not followed (no executor, a reset): planned from the measured state as before.
+    assert replans.handoff(config, near, start, 0, measured=(at_start[0] + 0.1, start)) is None
+    assert replans.handoff(config, near, start, 0) is None
+    h = replans.handoff(config, near, start, 0, measured=at_start)
+    assert h.kind == WARM and h.warm is not None and h.stamp_ns > start
+    assert h.stamp_ns % 10**6 == 0  # on the 1 ms grid from 0
+    z = motion.trajectory.state((h.stamp_ns - start) * 1e-9)[0]
+    np.testing.assert_allclose(h.q, z[:3], atol=1e-6)
+    far = np.asarray(PAPER_START)
+    replans.estimate(config, COLD).record(0.01)  # a lead shorter than the motion
+    assert replans.handoff(config, far, start, 0, measured=at_start).kind == COLD
+    after = start + int(2 * motion.T * 1e9)
+    h = replans.handoff(config, near, after, 0, measured=at_start)
+    assert h.kind == REST and not np.any(h.qd)
+    np.testing.assert_allclose(h.q, motion.trajectory.state(motion.T)[0][:3])

@@ -1,0 +1,220 @@
+"""On-line replanning: the executing motion's tail as a warm start, the hand-off lead.
+
+A motion that is being executed and a new target near its own: the rest of the executing
+motion from the hand-off time ``t_h`` on is, by the principle of optimality, the
+time-optimal motion from the state ``x(t_h)`` to the old target, with the same costates.
+:func:`tail_warm_start` cuts the executing solution's shooting mesh at ``t_h`` and returns
+it as a warm start of the problem "from ``x(t_h)`` (a joint state) to the old target", so
+that a replan to a target nearby is a few Newton steps from a converged solution (no guess,
+no continuation), whatever the executing motion started from.
+
+:class:`LatencyEstimate` keeps the recent replan latencies and gives the lead (how far
+ahead of now the hand-off is put) with a margin. No ROS here.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.result import PlanResult, Status, WarmState
+
+__all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE",
+           "TARGET_STEPS"]
+
+#: A tail shorter than this fraction of the motion is no warm start (the motion has nearly
+#: ended: the arm is about to stop at the old target and a plan from rest is as good).
+TAIL_MIN_REMAINING = 0.02
+#: A cut this close (normalised time) to the next node drops that node: no interval is
+#: left that is much shorter than its neighbours (badly scaled Newton steps).
+TAIL_MERGE = 0.25
+#: The lead covers this quantile of the recent latencies (times the margin).
+HIGH_QUANTILE = 0.8
+
+
+def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
+    """The executing solution from time ``t`` on, as a warm start from its state at ``t``.
+
+    Parameters
+    ----------
+    result : PlanResult
+        A successful maximum-principle solve (``warm_state`` a :class:`WarmState`).
+    t : float
+        Hand-off time on the motion's own clock (s), ``0 <= t < T``.
+
+    Returns
+    -------
+    PlanResult or None
+        A result whose ``problem`` is "from the joint state ``x(t)`` to the old target"
+        (same model, target, ``k`` and reserve), ``T`` the time left and ``warm_state`` the
+        cut mesh: pass it as ``warm_start`` to
+        :meth:`~tocontrol_ros.core.solver.Planner.plan` for a new target near the old one.
+        None when there is nothing to continue: no shooting solution (a B-spline or first
+        motion), or less than :data:`TAIL_MIN_REMAINING` of the motion left.
+
+    Raises
+    ------
+    ProblemError
+        ``t`` not finite or negative.
+    """
+    if not (isinstance(t, (int, float)) and math.isfinite(t) and t >= 0.0):
+        raise ProblemError(f"`t` must be a finite time >= 0 (s), got {t!r}")
+    st, traj, prev = result.warm_state, result.trajectory, result.problem
+    if not isinstance(st, WarmState) or traj is None or prev is None or \
+            not math.isfinite(result.T) or result.T <= 0:
+        return None
+    T = float(result.T)
+    if t >= T * (1.0 - TAIL_MIN_REMAINING):
+        return None
+    n = prev.model.n
+    m = prev.model.m
+    nz = 4 * n
+    N = len(st.lengths)
+    n_nu0 = m if prev.start.kind == "point" else 0
+    n_nuT = m if prev.target.kind == "point" else 0
+    B = len(st.breaks)
+    w = np.asarray(st.w, dtype=float)
+    nodes = w[:nz * (N + 1)].reshape(N + 1, nz)
+    col_T = nz * (N + 1)
+    nuT = w[col_T + 1 + n_nu0: col_T + 1 + n_nu0 + n_nuT]
+    # Node times in normalised time at the solution (the breaks move the mesh).
+    lengths = np.asarray(st.lengths, dtype=float)
+    if B:
+        bounds_nodes = np.array([0] + [j for j, _ in st.breaks] + [N])
+        t_breaks = w[col_T + 1 + n_nu0 + n_nuT:]
+        bounds = np.concatenate([[0.0], t_breaks, [1.0]])
+        segment = np.searchsorted(bounds_nodes, np.arange(N), side="right") - 1
+        seg_len = np.add.reduceat(lengths, bounds_nodes[:-1])
+        lengths = lengths / seg_len[segment] * np.diff(bounds)[segment]
+    tau = np.concatenate([[0.0], np.cumsum(lengths)])
+    tau_h = t / T
+    # First kept node: the first one after the cut, unless the cut is very near it.
+    first = int(np.searchsorted(tau, tau_h, side="right"))
+    if first < N and tau[first] - tau_h < TAIL_MERGE * lengths[first - 1]:
+        first += 1
+    z_h = traj.state(t)[0]
+    kept = nodes[first:]
+    new_tau = np.concatenate([[tau_h], tau[first:]])
+    new_tau = (new_tau - tau_h) / (1.0 - tau_h)
+    new_lengths = np.diff(new_tau)
+    new_nodes = np.vstack([z_h[None, :], kept])
+    kinds = np.concatenate([[st.kinds[first - 1]], st.kinds[first:]]).astype(int)
+    shift = first - 1
+    breaks = [(j - shift, i) for j, i in st.breaks if j - shift > 0]
+    new_breaks_t = np.array([new_tau[j] for j, _ in breaks])
+    new_w = np.concatenate([new_nodes.ravel(), [T - t], nuT, new_breaks_t])
+    warm = WarmState(lengths=new_lengths / new_lengths.sum(), w=new_w, steps=st.steps,
+                     kinds=kinds, breaks=breaks, factors=None)
+    q_h, qd_h = z_h[:n], z_h[n:2 * n]
+    problem = Problem(prev.model, joint_state(q_h, qd_h), prev.target, k=prev.k,
+                      reserve=prev.reserve, limits=prev.limits)
+    return replace(result, problem=problem, warm_state=warm, T=T - t, starts=())
+
+
+class LatencyEstimate:
+    """Recent replan latencies (s) and the lead they call for.
+
+    Parameters
+    ----------
+    margin : float
+        Factor on the recent latencies' :data:`HIGH_QUANTILE` (>= 1).
+    floor : float
+        Lead added to it (s), > 0: delivery to the executor and its update period; a plan
+        published later than ``floor`` before its hand-off is late.
+    window : int
+        How many recent latencies count.
+    initial : float
+        Lead before any latency was measured (s).
+    """
+
+    def __init__(self, margin: float, floor: float, window: int = 10,
+                 initial: float = 0.2) -> None:
+        if not (math.isfinite(margin) and margin >= 1.0):
+            raise ProblemError(f"`margin` must be a finite number >= 1, got {margin!r}")
+        if not (math.isfinite(floor) and floor > 0.0):
+            raise ProblemError(f"`floor` must be a finite time > 0 (s), got {floor!r}")
+        if not (isinstance(window, int) and window >= 1):
+            raise ProblemError(f"`window` must be an integer >= 1, got {window!r}")
+        self.margin, self.floor, self.initial = float(margin), float(floor), float(initial)
+        self._recent: collections.deque = collections.deque(maxlen=window)
+
+    def record(self, seconds: float) -> None:
+        """One measured latency (s): solve start to trajectory published."""
+        if math.isfinite(seconds) and seconds >= 0:
+            self._recent.append(float(seconds))
+
+    def lead(self) -> float:
+        """How far ahead of now the next hand-off is put (s)."""
+        # A high quantile, not the maximum: one slow solve (a page fault, a busy core)
+        # does not push every later hand-off back; a late plan is solved again anyway.
+        high = float(np.quantile(self._recent, HIGH_QUANTILE)) if self._recent \
+            else self.initial
+        return self.floor + self.margin * high
+
+
+#: Target continuation of a warm replan whose direct warm solve fails: the fractions of the
+#: way from the old target to the new one solved in turn (each warm from the previous).
+TARGET_STEPS = ((1.0,), (0.5, 1.0), (0.25, 0.5, 0.75, 1.0))
+
+
+def warm_replan(planner, problem: Problem, warm: PlanResult, options=None,
+                should_stop=None) -> PlanResult:
+    """Re-solve ``problem`` warm from ``warm`` alone: no guess, no multistart.
+
+    The warm start is continued to the new target directly; when that does not converge,
+    in two, then four steps along the segment from the warm start's target to the new one
+    (a homotopy in the target, each step warm from the last). Bounded by work: at most
+    :data:`TARGET_STEPS` solves, each a warm Newton solve.
+
+    Parameters
+    ----------
+    planner : Planner
+    problem : Problem
+        The new problem; its start and target kinds must be the warm start's.
+    warm : PlanResult
+        E.g. :func:`tail_warm_start`'s, or a previous solution from a start nearby.
+    options : SolverOptions, optional
+    should_stop : callable, optional
+        Polled between Newton iterations; True cancels.
+
+    Returns
+    -------
+    PlanResult
+        The first success, else the last failure (the caller decides on a cold solve).
+    """
+    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.solver import _plan_from
+
+    options = options or SolverOptions()
+    t_start = time.perf_counter()
+    deadline = t_start + options.time_limit
+    old = warm.problem.target_point
+    new = problem.target_point
+    result = None
+    for fractions in TARGET_STEPS:
+        source = warm
+        for f in fractions:
+            step = problem if f == 1.0 else replace(
+                problem, target=point(old + f * (new - old)))
+            if not source.can_warm_start(step):
+                break
+            result = _plan_from(planner, step, options, source, should_stop, deadline)
+            if not result.success:
+                break
+            source = result
+        if result is not None and result.success and result.problem is problem:
+            result.timings["total"] = time.perf_counter() - t_start
+            return result
+        if should_stop is not None and should_stop():
+            break
+    if result is None:
+        return PlanResult.failure(problem, Status.NEWTON_FAILED,
+                                  "the warm start does not apply to this problem",
+                                  {"total": time.perf_counter() - t_start})
+    return result

@@ -1,0 +1,170 @@
+"""The planner node's replans: a goal while a published motion runs, solved and stamped.
+
+:class:`ReplanServing` is a part of :class:`~tocontrol_ros.nodes.planner.PlannerNode` (a
+mixin: it uses the node's model, planner, limits, joint states and status helpers), kept
+apart so that the node's module stays about requests in general. The policy (hand-off,
+latencies, which warm start) is :mod:`tocontrol_ros.nodes.replanning`'s and
+:mod:`tocontrol_ros.core.replan`'s; see ``msg_docs/parameters.md``, "Replanning".
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+from geometry_msgs.msg import PointStamped
+
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.replan import warm_replan
+from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
+from tocontrol_ros.nodes.replanning import REPLAN_TRIES, align
+from tocontrol_ros.nodes.requests import PlanRequest
+
+__all__ = ["ReplanServing"]
+
+
+def replanning(config: PlannerConfig) -> bool:
+    """Whether goals are replanned from the hand-off (``replan``, and no ``controller_action``).
+
+    A plan sent to a FollowJointTrajectory controller starts there on receipt (stamp zero,
+    msg_docs/controller_execution.md), so a replan stamped at its hand-off would not be
+    spliced there: with ``controller_action`` set, goals are planned from the latest joint
+    state and start on receipt, as with ``replan: false``.
+    """
+    return bool(config.replan and not config.controller_action)
+
+
+class ReplanServing:
+    """Goals and replans of :class:`~tocontrol_ros.nodes.planner.PlannerNode`."""
+
+    def _on_goal(self, msg: PointStamped, info) -> None:
+        received = time.monotonic()
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
+        rid = next(self._ids)
+        config = self.config
+        # A replan starts from the published motion, not from the measured state: no wait
+        # for a fresh one here (_serve_replan waits when the arm does not follow).
+        replan = replanning(config)
+        fresh = not (replan and self._replanner.has_motion())
+        try:
+            target = conv.point_from_msg(msg.point, msg.header.frame_id, self.frame, "goal.point")
+            start = self._current_start(config, since, fresh)
+        except conv.ConversionError as exc:
+            self._reject(rid, "goal", str(exc))
+            return
+        self._submit(PlanRequest(rid, "goal", start, target, config, received=received,
+                                 queue=replan, since_ns=0 if fresh else since))
+
+    def _goal_stamp(self, req: PlanRequest) -> int | None:
+        """The stamp of a goal's plan (ns), or None (now).
+
+        With replanning, a little ahead on the tracker's control grid, so that a replan from
+        it knows when it took over.
+        """
+        if not req.queue:
+            return None
+        config = req.config
+        return self._handoff_stamp(config, time.time_ns() + int(config.replan_min_lead * 1e9))
+
+    def _handoff_stamp(self, config: PlannerConfig, t_ns: int) -> int:
+        """``t_ns`` put on the tracker's control grid (after the latest joint state's stamp)."""
+        latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
+        origin = 0 if latest is None else \
+            latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+        return align(t_ns, origin or t_ns, config.handoff_grid)
+
+    def _serve_replan(self, req: PlanRequest) -> bool:
+        """A goal while a published motion runs: planned from the hand-off, stamped with it.
+
+        Returns False when no published motion runs at the hand-off (the goal is then
+        served as any other, from the arm's measured state). Solved again from a later
+        hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
+        """
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        config = req.config
+        replans = self._replanner
+        late = []
+        min_lead = 0.0
+        for attempt in range(1, REPLAN_TRIES + 1):
+            t0 = time.monotonic()
+            latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
+            origin, measured = 0, None
+            if latest is not None:
+                origin = latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+                try:
+                    q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
+                    measured = (q, origin)
+                except conv.ConversionError:
+                    pass  # not this arm's joints: no replan
+            handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
+                                      origin, min_lead, measured)
+            if handoff is None:
+                if req.since_ns:  # as any goal: a joint state received after it
+                    try:
+                        req.start = self._current_start(config, req.since_ns)
+                    except conv.ConversionError:
+                        pass  # keep the state taken at its arrival
+                return False
+            try:
+                problem = Problem(self.model, joint_state(handoff.q, handoff.qd),
+                                  point(req.target), k=config.k, reserve=config.reserve,
+                                  limits=self._limits.with_margin(config.limit_margin))
+            except TocontrolError as exc:
+                self._finish(req, "ERROR", "failed", str(exc))
+                return True
+            options = solver_options(config)
+            warm = handoff.warm
+            if replans.near(config, req.target):
+                # Near: the running motion's tail continued, or from rest the last motion
+                # that started at rest nearby; should that fail, one start, no multistart.
+                options = replace(options, warm_only=True, starts=1, candidates=1)
+                warm = warm or replans.rest_warm_start(problem)
+            result = None
+            if warm is not None:
+                result = warm_replan(self.planner, problem, warm, options,
+                                     self._should_stop(req))
+            if result is None or not (result.success or req.cancelled.is_set()):
+                result = self.planner.plan(problem, options,
+                                           should_stop=self._should_stop(req))
+            if not (result.success or req.cancelled.is_set()) and options.starts == 1:
+                # The one start failed: the multistart (its time counts as this solve's).
+                result = self.planner.plan(problem, solver_options(config),
+                                           should_stop=self._should_stop(req))
+            extra = {"start": problem.start_point, **conv.result_values(result),
+                     "replan": handoff.kind, "attempts": attempt,
+                     "handoff": handoff.stamp_ns * 1e-9, "warm_start": warm is not None,
+                     "published": "none"}
+            if req.cancelled.is_set() or self._stopping.is_set():
+                event, reason = req.cancel_reason if req.cancelled.is_set() else \
+                    ("cancelled", "node shutting down")
+                self._finish(req, "WARN", event, reason, extra)
+                return True
+            if not result.success or result.trajectory is None:
+                self._finish(req, "ERROR", "failed", result.message, extra)
+                return True
+            estimate = replans.estimate(config, handoff.kind)
+            estimate.record(time.monotonic() - t0)  # late or not: what a solve takes now
+            now = self.get_clock().now().nanoseconds
+            if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
+                late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
+                # Again, with at least twice this solve's time plus the delivery lead.
+                min_lead = config.replan_min_lead + 2.0 * (time.monotonic() - t0)
+                continue
+            self._last_result = result
+            path = self._publish(result, config, req.id, handoff.stamp_ns)
+            if path is None:
+                req.done.set()
+                return True
+            level, message = conv.result_message(result)
+            note = f" (after {len(late)} late solve(s))" if late else ""
+            self._finish(req, level, "solved", f"replan ({handoff.kind}) taking over at "
+                         f"{handoff.stamp_ns * 1e-9:.3f}: {message}{note}",
+                         {**extra, "published": "optimum", "samples": len(path.poses)},
+                         path=path)
+            return True
+        self._finish(req, "ERROR", "failed", f"each of {REPLAN_TRIES} replans would have "
+                     f"arrived after its hand-off (published - hand-off: {', '.join(late)})",
+                     {"replan": "late", "attempts": REPLAN_TRIES})
+        return True

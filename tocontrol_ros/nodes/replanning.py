@@ -1,0 +1,211 @@
+"""The planner's replanning state: what it published last, where a new plan takes over.
+
+A goal that arrives while a published motion runs is planned from the state that motion
+will be in at the hand-off: now plus the expected latency (:class:`LatencyEstimate`, per
+kind of solve, with ``replan_margin`` and ``replan_min_lead``), put on the tracker's control
+grid (the latest joint state's stamp plus a multiple of ``handoff_grid``). The published
+trajectory is stamped with that time; the tracker splices it in there
+(:mod:`tocontrol_ros.nodes.splice`). A goal within ``replan_radius`` of the running motion's
+target is re-solved warm from the running motion's tail
+(:func:`~tocontrol_ros.core.replan.tail_warm_start`). No ROS here.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import NamedTuple
+
+import numpy as np
+
+from tocontrol_ros.core.problem import REST_SPEED
+from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
+from tocontrol_ros.core.sim.nominal import NominalTrajectory
+from tocontrol_ros.nodes.planner_config import PlannerConfig
+
+__all__ = ["Handoff", "Replanner", "align", "REPLAN_TRIES", "WARM", "COLD", "REST"]
+
+#: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
+#: from a later one (the lead at least twice the late solve's time), then given up.
+REPLAN_TRIES = 4
+#: Kinds of replan: the running motion's tail continued; a multistart from the hand-off
+#: state; from the end of a motion that is over by the hand-off (the arm at rest there).
+WARM, COLD, REST = "warm", "cold", "rest"
+#: The arm follows a published motion when its measured positions are this close (rad, m;
+#: any joint) to the command at their stamp: tracking error plus a control period's motion.
+FOLLOWING = 0.05
+#: Lead before any latency was measured (s).
+INITIAL_LATENCY = {WARM: 0.05, COLD: 0.5, REST: 0.1}
+
+
+class Handoff(NamedTuple):
+    """Where a replan takes over the running motion.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        The take-over time (ns, the trajectory's ``header.stamp``).
+    q, qd : ndarray, shape (n,)
+        The running motion's state then (rad, rad/s).
+    warm : PlanResult or None
+        Its tail from then on, as a warm start (a goal within ``replan_radius``), or None.
+    kind : {"warm", "cold"}
+    """
+
+    stamp_ns: int
+    q: np.ndarray
+    qd: np.ndarray
+    warm: object
+    kind: str
+
+
+def align(t_ns: int, origin_ns: int, grid: float) -> int:
+    """The first time at or after ``t_ns`` that is ``origin_ns`` plus a multiple of ``grid``."""
+    step = max(int(round(grid * 1e9)), 1)
+    return origin_ns + math.ceil((t_ns - origin_ns) / step) * step
+
+
+class Replanner:
+    """The last published motion and the latencies of replans (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._executing = None  # (PlanResult, stamp_ns, NominalTrajectory or None)
+        self._from_rest = None  # the last published PlanResult that started at rest
+        self._latency: dict[str, LatencyEstimate] = {}
+
+    def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
+        """The latency estimate of one kind of solve (made with the config's margins)."""
+        with self._lock:
+            est = self._latency.get(kind)
+            if est is None or (est.margin, est.floor) != (config.replan_margin,
+                                                          config.replan_min_lead):
+                est = LatencyEstimate(config.replan_margin, config.replan_min_lead,
+                                      initial=INITIAL_LATENCY[kind])
+                self._latency[kind] = est
+            return est
+
+    def published(self, result, stamp_ns: int, sample=None) -> None:
+        """``result`` was published, taking over at ``stamp_ns`` (ns), as ``sample``.
+
+        The hand-off state is the published samples' interpolant (what the tracker
+        commands), so that the splice does not jump by the interpolation error.
+        """
+        nominal = None
+        if sample is not None:
+            nominal = NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
+        with self._lock:
+            self._executing = (result, int(stamp_ns), nominal) \
+                if result.trajectory is not None else None
+            problem = result.problem
+            if result.warm_state is not None and problem is not None and \
+                    problem.start.kind == "state" and \
+                    np.max(np.abs(problem.start.value[problem.model.n:])) <= REST_SPEED:
+                self._from_rest = result
+
+    def rest_warm_start(self, problem):
+        """The last published motion that started at rest, if it warm-starts ``problem``.
+
+        A target that moves slowly is caught: each replan then starts at rest at the last
+        target, and the last such motion (a similar short move from nearby) is its warm start.
+        """
+        with self._lock:
+            last = self._from_rest
+        return last if last is not None and last.can_warm_start(problem) else None
+
+    def has_motion(self) -> bool:
+        """Whether a motion was published that a replan could continue."""
+        with self._lock:
+            return self._executing is not None
+
+    def near(self, config: PlannerConfig, target: np.ndarray) -> bool:
+        """Whether ``target`` is within ``replan_radius`` of the last published motion's."""
+        with self._lock:
+            executing = self._executing
+        if executing is None or executing[0].problem is None:
+            return False
+        gap = np.linalg.norm(np.asarray(target) - executing[0].problem.target_point)
+        return bool(gap <= config.replan_radius)
+
+    @staticmethod
+    def _followed(result, start_ns: int, nominal, measured) -> bool:
+        """Whether the measured arm is where the published motion commands it."""
+        if measured is None:
+            return False
+        q, stamp_ns = measured
+        t = (stamp_ns - start_ns) * 1e-9
+        if t < 0.0:  # before the motion takes over: the previous command (not kept) runs
+            return True
+        n = result.problem.model.n
+        if nominal is not None:
+            q_cmd = nominal.evaluate(t).q[0]
+        else:
+            q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
+        return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
+
+    def forget(self) -> None:
+        """Nothing runs any more that a replan could continue (e.g. the model changed)."""
+        with self._lock:
+            self._executing = self._from_rest = None
+
+    def handoff(self, config: PlannerConfig, target: np.ndarray, now_ns: int,
+                origin_ns: int, min_lead: float = 0.0, measured=None) -> Handoff | None:
+        """The hand-off of a replan to ``target`` decided now, or None.
+
+        Parameters
+        ----------
+        config : PlannerConfig
+        target : ndarray, shape (m,)
+            The goal (m).
+        now_ns : int
+            Now (ns, the clock of the stamps).
+        origin_ns : int
+            A time on the tracker's control grid (the latest joint state's stamp), or 0.
+        min_lead : float
+            Lead at least this (s): a solve again after a late one.
+        measured : (ndarray, int), optional
+            The arm's latest measured positions (rad) and their stamp (ns): the published
+            motion counts as executing only when they are within :data:`FOLLOWING` of its
+            command then (no executor, a rejected trajectory or a reset: not followed).
+
+        Returns
+        -------
+        Handoff or None
+            None when nothing was published, or the arm does not follow it (the goal is
+            then planned from the arm's measured state). A motion over by the hand-off
+            gives kind ``"rest"``: from its end, at rest.
+        """
+        with self._lock:
+            executing = self._executing
+        if executing is None:
+            return None
+        result, start_ns, nominal = executing
+        if not self._followed(result, start_ns, nominal, measured):
+            return None
+        near = float(np.linalg.norm(np.asarray(target) - result.problem.target_point)) \
+            <= config.replan_radius
+        # A near goal is re-solved warm, with the warm lead, when the running motion still
+        # has a tail then; otherwise (or farther) the multistart's lead applies.
+        for kind in (WARM, REST) if near else (COLD,):
+            lead = max(self.estimate(config, kind).lead(), min_lead)
+            stamp = max(now_ns + int(lead * 1e9), start_ns + 1)
+            stamp = align(stamp, origin_ns or start_ns, config.handoff_grid)
+            t = (stamp - start_ns) * 1e-9
+            n = result.problem.model.n
+            if t >= result.T * (1.0 - TAIL_MIN_REMAINING):
+                # The motion is over by then (a tail too short to continue is waited out:
+                # the command is at rest only after the end): the arm holds its end.
+                end = start_ns + math.ceil(result.T * 1e9)
+                stamp = align(max(stamp, end), origin_ns or start_ns, config.handoff_grid)
+                q_end = result.trajectory.state(result.T)[0][:n]
+                return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
+            warm = tail_warm_start(result, t) if kind == WARM else None
+            if kind == WARM and warm is None:
+                continue
+            z = result.trajectory.state(t)[0]
+            q, qd = z[:n].copy(), z[n:2 * n].copy()
+            if nominal is not None:
+                des = nominal.evaluate(t)
+                q, qd = des.q[0], des.qd[0]
+            return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD)
+        return None

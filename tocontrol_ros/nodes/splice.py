@@ -1,0 +1,93 @@
+"""When a stamped trajectory takes over in the tracker, and how far the command jumps there.
+
+A ``trajectory_msgs/JointTrajectory`` whose ``header.stamp`` lies ahead of the tracker's
+clock (by at most :data:`SPLICE_HORIZON`) is a splice: the running trajectory goes on up to
+that instant and the new one takes over there (a replan from where the arm will be, see
+``msg_docs/tracker_trajectory_input.md``). A stamp at or before the tracker's time, zero, or
+farther ahead (another clock) starts the trajectory at once, as before. No ROS here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "jumps", "schedule"]
+
+#: A stamp at most this far (s) ahead of the tracker's time is a splice instant; farther,
+#: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock:
+#: decades apart) and the trajectory starts at once. Generous: a slow replan (seconds, the
+#: Panda's bounded solve) is stamped that far ahead.
+SPLICE_HORIZON = 60.0
+#: Stamps within this (s) of a control instant are on it (float rounding of ns stamps).
+GRID_SLACK = 1e-6
+
+
+class Splice(NamedTuple):
+    """A parsed trajectory waiting for its take-over instant.
+
+    Attributes
+    ----------
+    nominal : NominalTrajectory
+    at : float
+        Simulation time of the first control instant at or after the stamp (s).
+    elapsed : float
+        The trajectory's own time at that instant (s, >= 0: ``at`` minus the stamp).
+    stamp : float
+        The take-over time as stamped (s, the tracker's clock).
+    """
+
+    nominal: object
+    at: float
+    elapsed: float
+    stamp: float
+
+
+def splice_instant(stamp: float, epoch: float, now: float, h: float
+                   ) -> tuple[float, float] | None:
+    """The control instant at which a trajectory stamped ``stamp`` takes over, or None.
+
+    Parameters
+    ----------
+    stamp : float
+        The trajectory's ``header.stamp`` (s); 0 means "start now".
+    epoch : float
+        The tracker's stamp of simulation time 0 (s).
+    now : float
+        The tracker's simulation time (s).
+    h : float
+        Control period (s).
+
+    Returns
+    -------
+    (at, elapsed) or None
+        Simulation time of the take-over and the trajectory's own time then; None when the
+        trajectory starts at once (stamp 0, not ahead of ``now``, or beyond the horizon).
+    """
+    if stamp <= 0.0 or not math.isfinite(stamp):
+        return None
+    t = stamp - epoch
+    if t <= now + GRID_SLACK or t > now + SPLICE_HORIZON:
+        return None
+    at = math.ceil(t / h - GRID_SLACK / h) * h
+    return at, max(at - t, 0.0)
+
+
+def jumps(old: tuple[np.ndarray, np.ndarray], new: tuple[np.ndarray, np.ndarray]
+          ) -> tuple[float, float]:
+    """Largest position (rad, m) and velocity (rad/s, m/s) jump between two commands."""
+    return (float(np.max(np.abs(np.asarray(new[0]) - np.asarray(old[0])))),
+            float(np.max(np.abs(np.asarray(new[1]) - np.asarray(old[1])))))
+
+
+def schedule(pending: list[Splice], splice: Splice) -> tuple[list[Splice], list[Splice]]:
+    """Add ``splice`` to the pending ones; return ``(pending, dropped)``.
+
+    A new trajectory replaces the pending ones that would take over at or after its own
+    instant (they were planned before it); earlier ones stay and take over first.
+    """
+    keep = [s for s in pending if s.at < splice.at]
+    dropped = [s for s in pending if s.at >= splice.at]
+    return keep + [splice], dropped

@@ -1,0 +1,162 @@
+"""The tracker's message conversions and checks (pure functions, no node).
+
+A planned ``trajectory_msgs/JointTrajectory`` to the simulation's nominal trajectory, its
+torque and duration limits, a ``~/reset`` request, and a run summary as a
+``diagnostic_msgs/DiagnosticStatus``. :mod:`tocontrol_ros.nodes.tracker` uses them (and
+re-exports them under its own name).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.sim.tracking import NominalTrajectory, TrackingSummary
+from tocontrol_ros.nodes import conversions as conv
+
+__all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "check_limits",
+           "reset_state_from_msg", "summary_status"]
+
+
+class TrajectoryRejectedError(ProblemError):
+    """A trajectory message the tracker cannot execute; the message says why."""
+
+
+def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str],
+                     inverse_dynamics=None) -> NominalTrajectory:
+    """The nominal trajectory of a ``trajectory_msgs/JointTrajectory``, in the model's order.
+
+    Every point needs positions, velocities, accelerations and effort (the nominal torques,
+    N m) for all joints; ``time_from_start`` must increase strictly. The joints may come in
+    any order. With ``inverse_dynamics`` (a callable ``(q, qd, qdd) -> tau``, each shape
+    (n,)), a trajectory whose points all lack effort (as sent to a controller without an
+    effort interface) gets the model's torques as its effort.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, missing or short fields, NaN, times that do
+        not increase; the message names the point and the field.
+    """
+    names = list(msg.joint_names)
+    want = list(joint_names)
+    if len(set(names)) != len(names):
+        raise TrajectoryRejectedError(f"joint_names has duplicates: {names}")
+    if sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"joint_names {names} do not match the robot's joints "
+                                      f"{want}")
+    if not msg.points:
+        raise TrajectoryRejectedError("the trajectory has no points")
+    order = [names.index(j) for j in want]
+    n, points = len(want), msg.points
+    arrays = {}
+    fields = ["positions", "velocities", "accelerations", "effort"]
+    computed = inverse_dynamics is not None and all(len(p.effort) == 0 for p in points)
+    if computed:
+        fields.remove("effort")
+    for field in fields:
+        rows = [getattr(p, field) for p in points]
+        short = [i for i, row in enumerate(rows) if len(row) != n]
+        if short:
+            i = short[0]
+            raise TrajectoryRejectedError(
+                f"point {i}: {field} has {len(rows[i])} values for {n} joints (the tracker "
+                f"needs positions, velocities, accelerations and effort)")
+        arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
+    t = np.array([conv.seconds(p.time_from_start) for p in points])
+    if computed:
+        arrays["effort"] = np.array([
+            inverse_dynamics(q, qd, qdd) for q, qd, qdd in
+            zip(arrays["positions"], arrays["velocities"], arrays["accelerations"],
+                strict=True)]).reshape(len(points), n)
+    try:
+        return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
+                                 arrays["accelerations"], arrays["effort"],
+                                 joint_names=want)
+    except ProblemError as exc:
+        text = str(exc).replace("`t`", "time_from_start").replace(
+            "`q`", "positions").replace("`qd`", "velocities").replace(
+            "`qdd`", "accelerations").replace("`effort`", "effort")
+        raise TrajectoryRejectedError(text) from exc
+
+
+#: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
+EFFORT_MARGIN = 1e-6
+
+
+def check_limits(nominal: NominalTrajectory, tau_max, max_duration: float) -> None:
+    """Reject a trajectory whose effort exceeds the torque limits or that lasts too long.
+
+    Parameters
+    ----------
+    nominal : NominalTrajectory
+    tau_max : array_like, shape (n,)
+        Torque limits (N m, N).
+    max_duration : float
+        Longest duration (s).
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Naming the first point and joint over its limit, or the duration.
+    """
+    if nominal.duration > max_duration:
+        raise TrajectoryRejectedError(f"it lasts {nominal.duration:.6g} s, more than "
+                                      f"max_duration = {max_duration:g} s")
+    limit = np.asarray(tau_max, dtype=float) * (1.0 + EFFORT_MARGIN)
+    over = np.abs(nominal.effort) > limit
+    if np.any(over):
+        i, j = (int(v) for v in np.argwhere(over)[0])
+        name = nominal.joint_names[j] if nominal.joint_names else f"joint {j}"
+        raise TrajectoryRejectedError(
+            f"point {i}: effort {nominal.effort[i, j]:.6g} of {name} exceeds its torque "
+            f"limit {float(np.asarray(tau_max)[j]):.6g}")
+
+
+def reset_state_from_msg(msg: JointState,
+                         joint_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (zero if none given) of a ``~/reset`` request, model order.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        Names that are not the model's joints, a position or velocity count that does not
+        match them, a value that is not finite.
+    """
+    names, want = list(msg.name), list(joint_names)
+    if len(set(names)) != len(names) or sorted(names) != sorted(want):
+        raise TrajectoryRejectedError(f"name {names} does not match the robot's joints {want}")
+    order = [names.index(j) for j in want]
+    fields = {}
+    for field in ("position", "velocity"):
+        values = np.asarray(getattr(msg, field), dtype=float)
+        if field == "velocity" and values.size == 0:
+            values = np.zeros(len(want))
+        elif values.size != len(want):
+            raise TrajectoryRejectedError(f"{field} has {values.size} values for {len(want)} "
+                                          f"joints")
+        if not np.all(np.isfinite(values)):
+            raise TrajectoryRejectedError(f"{field} is not finite: {values.tolist()}")
+        fields[field] = values[order]
+    return fields["position"], fields["velocity"]
+
+
+def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
+                   joint_names: Sequence[str]) -> DiagnosticStatus:
+    """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
+    worst = int(np.argmax(summary.max_error))
+    verb = "completed" if summary.outcome == "completed" else (
+        f"preempted after {summary.elapsed:.3f} s of {summary.duration:.3f} s")
+    message = (f"trajectory {verb}: final end-effector error {summary.final_point_error:.3g} "
+               f"m, max tracking error {summary.max_error[worst]:.3g} rad "
+               f"({joint_names[worst]}), saturated {100 * summary.saturated_fraction:.1f} % "
+               f"of the time, largest feedback share {summary.max_feedback:.3g}")
+    values = [KeyValue(key=key, value=value if isinstance(value, str) else f"{value:.9g}")
+              for key, value in summary.as_dict(joint_names).items()]
+    return DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=message,
+                            hardware_id=hardware_id, values=values)
