@@ -220,6 +220,7 @@ def _wait_for_entries(journal, count, proc, timeout=120.0):
     return False
 
 
+@pytest.mark.slow
 def test_interrupted_and_killed_runs_resume_with_no_task_twice_and_none_lost(tmp_path):
     path = write_tasks(tmp_path / "cell.yaml", motions=[{"all_pairs": "all"}])  # 12
     paths = library_paths(tmp_path / "cell.mcap")

@@ -474,6 +474,7 @@ def test_other_arms_from_rest_keep_their_limits(request, robot, q0, q1):
     assert max(res.verification["position_limits"], res.verification["velocity_limits"]) <= 1e-6
 
 
+@pytest.mark.slow
 def test_leaving_candidates_behind_keeps_the_best_motion(panda, monkeypatch):
     """The race ends on the T of refining every candidate to the end; a window leaves some.
 

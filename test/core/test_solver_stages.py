@@ -321,6 +321,8 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     assert res.T <= 1.05 * 0.3112
 
 
+# Slow (20 s under load): the fallback's own test above covers the failed shooting's path.
+@pytest.mark.slow
 def test_a_finer_guess_when_the_shooting_fails_from_the_coarse_one():
     """The planar 7R, one start: Newton at k = 1 stalls from the 10-interval guess; from
     the same guess solved on 24 intervals to 1e-8 it converges and the continuation reaches

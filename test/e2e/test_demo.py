@@ -158,7 +158,9 @@ def _completed_runs(context, count, timeout, prefix="trajectory completed"):
     return done()
 
 
-@pytest.mark.parametrize("sim_time", [False, True], ids=["wall_clock", "sim_time"])
+# The wall-clock re-execution is the slow one (sim time covers the clock-following path).
+@pytest.mark.parametrize("sim_time", [pytest.param(False, marks=pytest.mark.slow), True],
+                         ids=["wall_clock", "sim_time"])
 def test_reexecution_reproduces_the_demo(demo, tmp_path, sim_time):
     """`replay --reexecute` on a fresh tracker (which starts elsewhere: the paper's start
     branch): the tracker goes to the recorded initial state, runs both recorded plans, and

@@ -236,7 +236,10 @@ def test_goal_storm(client, process):
         client.set_parameters(joint_state_timeout=1.0, goal_queue=50)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+# SIGTERM takes the same path as SIGINT (node_main): slow, to keep the default run short.
+@pytest.mark.parametrize("sig", [signal.SIGINT,
+                                 pytest.param(signal.SIGTERM, marks=pytest.mark.slow)],
+                         ids=["SIGINT", "SIGTERM"])
 def test_shutdown_during_solve(tmp_path, sig):
     ns = f"/e2e_{os.getpid()}_{sig.name}"
     # A slow solve (a multistart of 128 direct guesses, well over a second), surely running
@@ -334,6 +337,8 @@ def GetPlanRequest(start, goal):  # noqa: N802  (reads like the message construc
     return req
 
 
+# Slow: test_moving_target covers goals while the arm moves through both processes (replans).
+@pytest.mark.slow
 def test_goals_while_the_arm_moves_are_solved_and_executed(tmp_path):
     # Issue 14, defect 1 as a user saw it: with the tracker running, goals sent while the arm
     # moved were each superseded mid-solve (1 of 13 solved in 14 s).

@@ -28,6 +28,12 @@ from tocontrol_ros.nodes.jtc_checks import CODE_NAMES
 
 __all__ = ["controller_goal", "ControllerClient", "GOAL_STATUS_NAMES"]
 
+#: How long (s) a plan waits for the controller's action server to be discovered before it
+#: is reported ``rejected``: a controller started with the planner (or on a loaded machine)
+#: may not be discovered when the first plan is ready (seen in CI: the planner's first plan
+#: found no server though the test's own client had found it). The planner's worker waits
+#: only while the server is not yet known.
+SERVER_WAIT = 10.0
 #: ``action_msgs/msg/GoalStatus`` codes -> names.
 GOAL_STATUS_NAMES = {0: "UNKNOWN", 1: "ACCEPTED", 2: "EXECUTING", 3: "CANCELING",
                      4: "SUCCEEDED", 5: "CANCELED", 6: "ABORTED"}
@@ -122,10 +128,12 @@ class ControllerClient:
                                config.controller_path_tolerance)
         values = {"controller_action": self.action_name,
                   "points": len(goal.trajectory.points)}
-        if not self._client.server_is_ready():
+        if not self._client.server_is_ready() and \
+                not self._client.wait_for_server(timeout_sec=SERVER_WAIT):
             self._report(request_id, "ERROR", "rejected",
                          f"request {request_id}: no FollowJointTrajectory server at "
-                         f"{self.action_name}; the plan was not executed", values)
+                         f"{self.action_name} within {SERVER_WAIT:g} s; the plan was not "
+                         f"executed", values)
             return
         with self._lock:
             future = self._client.send_goal_async(goal)
