@@ -8,7 +8,7 @@ Run from the repository root::
         [--only paper,peers,random,optimum,reference_paper,optimum_panda,profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,batch,limits,first_motion]
+                verification,deployed,replan,batch,limits,first_motion]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -25,6 +25,8 @@ direct-collocation peer built once with parameters and compiled derivatives), ``
 certificate's cost against the solve, the 3R and the Panda), ``deployed`` (planner and tracker as
 processes: idle CPU and ~/plan round trip against the same request in-process),
 ``deployed_panda`` (the Panda through two planner nodes, one process against one per core),
+``replan`` (a target moving at 10 Hz through planner and tracker processes: replan latency,
+splices, the paper's arm and the Panda),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
@@ -51,7 +53,8 @@ from bench import common  # noqa: E402  (sets the thread variables before numpy)
 PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_panda",
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
-         "verification", "deployed", "deployed_panda", "batch", "limits", "first_motion")
+         "verification", "deployed", "deployed_panda", "replan", "batch", "limits",
+         "first_motion")
 
 
 def _parse(argv):
@@ -135,6 +138,7 @@ def _run(args):
         profile_panda,
         random_pairs,
         reference_paper,
+        replan,
         scaling,
         verification,
     )
@@ -198,6 +202,8 @@ def _run(args):
                                      window=4.0 if args.quick else deployed.WINDOW))
     if "deployed_panda" in args.only:
         section(lambda: deployed_panda.run(2 if args.quick else args.optimum_panda_cases))
+    if "replan" in args.only:
+        section(lambda: replan.run())
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))
