@@ -512,17 +512,29 @@ def _moving_leg(listener: _Listener, at, frame: str, moving: tuple, children) ->
     kinds = {kind: sum(v.get("replan") == kind for v in published)
              for kind in ("warm", "rest", "cold")}
 
+    def taken():
+        # Published trajectories taken over, or replaced while waiting for their stamp by a
+        # newer one stamped earlier (the tracker's event splice_replaced).
+        return sum(s.message.startswith("executing trajectory")
+                   or _values(s).get("event") == "splice_replaced"
+                   for s in listener.tracker_status[first_status:])
+
     def last_done():
-        # Every published trajectory taken over (a splice waits for its stamp), the last
-        # one run to its end.
-        started = sum(s.message.startswith("executing trajectory")
-                      for s in listener.tracker_status[first_status:])
+        # Every published trajectory taken over or replaced (a splice waits for its stamp),
+        # the last one run to its end.
+        started = taken()
         done = [s for s in listener.tracker_status if "outcome" in _values(s)]
         return (started >= len(published) and len(done) > runs
                 and _values(done[-1]).get("outcome") == "completed")
 
     if not listener.wait_for(last_done, RUN_TIMEOUT, children):
-        raise RuntimeError("moving target: the tracker did not complete the last motion")
+        with listener.lock:
+            started = taken()
+            done = [_values(s).get("outcome") for s in listener.tracker_status
+                    if "outcome" in _values(s)]
+        raise RuntimeError(f"moving target: the tracker did not complete the last motion "
+                           f"({started} of {len(published)} published trajectories taken over "
+                           f"or replaced, run outcomes {done[runs:]})")
     with listener.lock:
         splices = [_values(s) for s in listener.tracker_status
                    if _values(s).get("event") == "spliced"]

@@ -260,3 +260,15 @@ def test_readme_replay_command_reaches_a_running_tracker(demo, tmp_path):
     finally:
         rclpy.try_shutdown(context=context)
         assert tracker.stop() == 0, tracker.log.read_text()
+
+
+@pytest.mark.slow
+def test_demo_moving_target_follows_with_replans(tmp_path):
+    """`demo --moving-target`: every goal answered, the replans spliced in, the report draws the
+    target's path against the end effector's (the README's command)."""
+    out_dir, code, out = run_demo(tmp_path, "--moving-target")
+    assert code == 0, out
+    assert "moving target (goal topic, replans)" in out, out
+    assert "of 50 goals got a trajectory" in out, out
+    assert list(out_dir.glob("*_report/moving_target.png")), sorted(p.name for p in
+                                                                    out_dir.iterdir())
