@@ -128,8 +128,7 @@ class ControllerClient:
                                config.controller_path_tolerance)
         values = {"controller_action": self.action_name,
                   "points": len(goal.trajectory.points)}
-        if not self._client.server_is_ready() and \
-                not self._client.wait_for_server(timeout_sec=SERVER_WAIT):
+        if not self._client.wait_for_server(timeout_sec=SERVER_WAIT):  # at once when known
             self._report(request_id, "ERROR", "rejected",
                          f"request {request_id}: no FollowJointTrajectory server at "
                          f"{self.action_name} within {SERVER_WAIT:g} s; the plan was not "

@@ -21,7 +21,8 @@ from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "polynomial_segment_ode", "refined_breaks"]
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "integrate_segments", "polynomial_segment_ode",
+           "refined_breaks"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
@@ -54,6 +55,46 @@ def polynomial_segment_ode(model: RobotModel, degree: int
     qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
     tau = model.rnea_sym(q, qd, qdd)
     return sig, x, c, h, h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+
+
+def integrate_segments(integ: ca.Function, x0: np.ndarray, segments
+                       ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """An open loop integrated segment after segment, each from where the last one ended.
+
+    Parameters
+    ----------
+    integ : casadi.Function
+        ``(x0, p) -> xf`` over one segment, ``p = (vec c, h)`` (the integrators of
+        :func:`polynomial_segment_ode`'s right-hand side), ``xf`` at :data:`OPEN_LOOP_POINTS`
+        times.
+    x0 : ndarray, shape (2n,)
+        State at the first segment's start.
+    segments : iterable of (ndarray, float, ndarray)
+        Per segment: its path's coefficients ``c`` (n, degree + 1), its duration ``h`` (s)
+        and the times (s) of its :data:`OPEN_LOOP_POINTS` outputs.
+
+    Returns
+    -------
+    t : ndarray, shape (1 + outputs,)
+        Times (s), 0 first.
+    x : ndarray, shape (len(t), 2n)
+        States.
+    success : bool
+        False when CVODES failed on a segment (the states up to the last segment that
+        ended).
+    """
+    ts, xs = [np.zeros(1)], [np.asarray(x0)[None, :]]
+    x = x0
+    try:
+        for coef, h, times in segments:
+            out = integ(x0=x, p=np.concatenate([coef.ravel(order="F"), [h]]))
+            path = np.array(out["xf"]).T
+            xs.append(path)
+            ts.append(times)
+            x = path[-1]
+    except RuntimeError:
+        return np.concatenate(ts), np.vstack(xs), False
+    return np.concatenate(ts), np.vstack(xs), True
 
 
 def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
@@ -174,25 +215,21 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         br = self.breaks
         d1 = self._degree + 1
         fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
-        x = self.state(0.0)[0, :2 * self.n]
-        ts, xs = [0.0], [x]
-        try:
+        grid = np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]
+
+        def spans():
             for j in range(len(br) - 1):
                 ds = br[j + 1] - br[j]
                 # Taylor coefficients at the span's start (right-hand derivatives), in sigma.
                 derivs = np.stack([self._spl.derivative(i)(br[j]) if i else self._spl(br[j])
                                    for i in range(d1)], axis=1)
-                coef = derivs * ds ** np.arange(d1) / fact
-                out = integ(x0=x, p=np.concatenate([coef.ravel(order="F"), [ds * self.T]]))
-                path = np.array(out["xf"]).T
-                xs.append(path)
-                ts.append(self.T * (br[j] + ds * np.linspace(0, 1, OPEN_LOOP_POINTS + 1)[1:]))
-                x = path[-1]
-        except RuntimeError:
-            if not stiff:
-                return self.open_loop(rtol, atol, stiff=True)
-            return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), False
-        return np.hstack([np.ravel(v) for v in ts]), np.vstack(xs), True
+                yield derivs * ds ** np.arange(d1) / fact, ds * self.T, \
+                    self.T * (br[j] + ds * grid)
+
+        t, x, success = integrate_segments(integ, self.state(0.0)[0, :2 * self.n], spans())
+        if not success and not stiff:
+            return self.open_loop(rtol, atol, stiff=True)
+        return t, x, success
 
     def set_values(self, points: int = 32) -> np.ndarray:
         """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""

@@ -27,7 +27,11 @@ import casadi as ca
 import numpy as np
 from numpy.polynomial import polynomial as poly
 
-from tocontrol_ros.core.direct.flat_trajectory import OPEN_LOOP_POINTS, polynomial_segment_ode
+from tocontrol_ros.core.direct.flat_trajectory import (
+    OPEN_LOOP_POINTS,
+    integrate_segments,
+    polynomial_segment_ode,
+)
 from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
@@ -303,19 +307,11 @@ class ScaledPath(InverseDynamicsTrajectory):
         success : bool
         """
         integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
-        x = self.state(0.0)[0, :2 * self.n]
-        ts, xs = [np.zeros(1)], [x[None, :]]
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
-        try:
-            for j in range(len(self.h)):
-                out = integ(x0=x, p=np.concatenate([coefs[j].ravel(order="F"), [self.h[j]]]))
-                path = np.array(out["xf"]).T
-                xs.append(path)
-                ts.append(self.t_grid[j] + self.h[j] * grid)
-                x = path[-1]
-        except RuntimeError:
-            if not stiff:
-                return self.open_loop(rtol, atol, stiff=True)
-            return np.concatenate(ts), np.vstack(xs), False
-        return np.concatenate(ts), np.vstack(xs), True
+        segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)
+                    for j in range(len(self.h)))
+        t, x, success = integrate_segments(integ, self.state(0.0)[0, :2 * self.n], segments)
+        if not success and not stiff:
+            return self.open_loop(rtol, atol, stiff=True)
+        return t, x, success
