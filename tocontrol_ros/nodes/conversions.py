@@ -33,7 +33,8 @@ from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.robot.kinematics import link_positions, tip_pose, tip_poses
 
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
-           "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_seconds",
+           "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_ns", "nanoseconds",
+           "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
            "empty_path", "point_path", "markers_msg", "status_msg", "status_values",
            "certificate_values", "result_values", "result_message", "ROUTINE_NOTE",
@@ -239,10 +240,19 @@ def joint_state_from_msg(msg, joint_names: Sequence[str]) -> tuple[np.ndarray, n
 
 
 # ------------------------------------------------------------------ time
+def time_from_ns(ns: int) -> Time:
+    """A ``builtin_interfaces/Time`` from integer nanoseconds (ns >= 0)."""
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def nanoseconds(stamp) -> int:
+    """Integer nanoseconds of a ``Time`` (or ``Duration``)."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
 def time_from_seconds(t: float) -> Time:
     """A ``builtin_interfaces/Time`` from seconds (t >= 0)."""
-    ns = int(round(t * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return time_from_ns(int(round(t * 1e9)))
 
 
 def duration_from_seconds(t: float) -> Duration:
@@ -258,8 +268,7 @@ def seconds(stamp) -> float:
 
 def add_seconds(stamp: Time, dt: float) -> Time:
     """``stamp + dt`` (dt >= 0 s), exact to the nanosecond."""
-    ns = stamp.sec * 1_000_000_000 + stamp.nanosec + int(round(dt * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    return time_from_ns(nanoseconds(stamp) + int(round(dt * 1e9)))
 
 
 # ----------------------------------------------------------- results out

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tocontrol_ros.nodes import conversions as conv
+
 __all__ = ["SUCCESSFUL", "INVALID_GOAL", "INVALID_JOINTS", "OLD_HEADER_TIMESTAMP",
            "PATH_TOLERANCE_VIOLATED", "GOAL_TOLERANCE_VIOLATED", "CODE_NAMES", "GoalCheck",
            "ControllerOptions", "Tolerances", "check_goal", "resolve_tolerances",
@@ -110,10 +112,6 @@ class Tolerances:
     goal_time: float
 
 
-def _seconds(duration) -> float:
-    return duration.sec + duration.nanosec * 1e-9
-
-
 def _check_joint_names(names: list[str], joints: Sequence[str],
                        options: ControllerOptions) -> GoalCheck | None:
     if not names:
@@ -137,7 +135,7 @@ def _check_points(points, n: int, options: ControllerOptions) -> GoalCheck | Non
         return GoalCheck(INVALID_GOAL, "the trajectory has no points")
     previous = -math.inf
     for i, point in enumerate(points):
-        t = _seconds(point.time_from_start)
+        t = conv.seconds(point.time_from_start)
         if t <= previous:
             return GoalCheck(INVALID_GOAL, f"time_from_start is not strictly increasing: "
                                            f"point {i} at {t:.9g} s follows {previous:.9g} s")
@@ -200,8 +198,8 @@ def check_goal(trajectory, joints: Sequence[str], now: float,
         failed = _check_points(trajectory.points, len(names), options)
     if failed is not None:
         return failed
-    stamp = _seconds(trajectory.header.stamp)
-    end = stamp + _seconds(trajectory.points[-1].time_from_start)
+    stamp = conv.seconds(trajectory.header.stamp)
+    end = stamp + conv.seconds(trajectory.points[-1].time_from_start)
     if stamp > 0.0 and end < now:
         return GoalCheck(OLD_HEADER_TIMESTAMP, f"the trajectory starts at {stamp:.9f} s and "
                                                f"ends at {end:.9f} s, before now ({now:.9f} "
@@ -254,7 +252,7 @@ def resolve_tolerances(goal, joints: Sequence[str],
     path = _table((options.path_tolerance, 0.0, 0.0), goal.path_tolerance, joints)
     goal_table = _table((options.goal_tolerance, options.stopped_velocity_tolerance, 0.0),
                         goal.goal_tolerance, joints)
-    goal_time = _seconds(goal.goal_time_tolerance) or options.goal_time
+    goal_time = conv.seconds(goal.goal_time_tolerance) or options.goal_time
     return Tolerances(path=path, goal=goal_table,
                       goal_time=goal_time if goal_time > 0.0 else math.inf)
 

@@ -527,8 +527,7 @@ class PlannerNode(ReplanServing, Node):
         sample = result.trajectory.sample(config.sample_period)
         if stamp_ns is None:
             stamp_ns = self.get_clock().now().nanoseconds
-        stamp = conv.time_from_seconds(0.0)
-        stamp.sec, stamp.nanosec = divmod(int(stamp_ns), 10**9)
+        stamp = conv.time_from_ns(int(stamp_ns))
         self._replanner.published(result, stamp_ns, sample)
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
         msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)

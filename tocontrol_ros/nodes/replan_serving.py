@@ -70,8 +70,7 @@ class ReplanServing:
     def _handoff_stamp(self, config: PlannerConfig, t_ns: int) -> int:
         """``t_ns`` put on the tracker's control grid (after the latest joint state's stamp)."""
         latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
-        origin = 0 if latest is None else \
-            latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+        origin = 0 if latest is None else conv.nanoseconds(latest.header.stamp)
         return align(t_ns, origin or t_ns, config.handoff_grid)
 
     def _serve_replan(self, req: PlanRequest) -> bool:
@@ -92,7 +91,7 @@ class ReplanServing:
             latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
             origin, measured = 0, None
             if latest is not None:
-                origin = latest.header.stamp.sec * 10**9 + latest.header.stamp.nanosec
+                origin = conv.nanoseconds(latest.header.stamp)
                 try:
                     q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
                     measured = (q, origin)
