@@ -81,3 +81,70 @@ def test_latency_estimate_lead():
 def test_latency_estimate_rejects_bad_arguments(args, match):
     with pytest.raises(ProblemError, match=match):
         LatencyEstimate(*args)
+
+
+def _rest_stream(planner, q_from, targets, options):
+    """Rest-to-rest problems along ``targets``, each from the last one's end (cold, one start)."""
+    from tocontrol_ros.core.problem import Problem, joint_state
+
+    model = planner.model
+    out, q = [], np.asarray(q_from, dtype=float)
+    for p in targets:
+        problem = Problem(model, joint_state(q), point(p), k=4.0)
+        result = planner.plan(problem, options)
+        assert result.success, result.message
+        out.append(result)
+        q = result.trajectory.state(result.T)[0][:model.n]
+    return out
+
+
+def test_wider_joint_radius_warm_starts_the_next_goal_of_a_stream(planner):
+    # A stream of goals 1.9 cm apart (bench/replan.py's circle): the next rest-to-rest
+    # problem starts where the last ended; its joint-state start is beyond the core's
+    # warm-start radius, within the replans' one, and the warm solve lands on the motion a
+    # cold solve finds (an independent check: T and the reached point).
+    from tocontrol_ros.core.problem import Problem, joint_state
+    from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS
+
+    model = planner.model
+    q0 = np.array([0.3, 0.9, 0.6])
+    p0 = np.asarray(model.point(q0))
+    a = np.linspace(0.0, 0.5, 6)
+    circle = p0 + 0.15 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    one = SolverOptions(starts=1, candidates=1)
+    stream = _rest_stream(planner, q0, circle[:2], one)
+    last = stream[-1]
+    q = last.trajectory.state(last.T)[0][:model.n]
+    problem = Problem(model, joint_state(q), point(circle[2]), k=4.0)
+    assert not last.can_warm_start(problem)
+    assert last.can_warm_start(problem, REPLAN_JOINT_RADIUS)
+    narrow = warm_replan(planner, problem, last, SolverOptions(warm_only=True))
+    assert not narrow.success and "does not apply" in narrow.message
+    wide = SolverOptions(warm_only=True, warm_joint_radius=REPLAN_JOINT_RADIUS)
+    warm = warm_replan(planner, problem, [None, last], wide)
+    assert warm.success, warm.message
+    cold = planner.plan(problem, SolverOptions())
+    assert warm.T == pytest.approx(cold.T, rel=1e-6)
+    end = warm.trajectory.evaluate(warm.T)
+    np.testing.assert_allclose(model.point(end.q[0]), circle[2], atol=1e-6)
+
+
+def test_warm_replan_tries_its_warm_starts_in_turn(solved, planner):
+    # The first warm start does not apply (another kind of start); the second does.
+    result = solved["nodes"]
+    tail = tail_warm_start(result, 0.2 * result.T)
+    moved = result.problem.target_point + np.array([0.01, -0.01])
+    problem = tail.problem.__class__(tail.problem.model, tail.problem.start, point(moved),
+                                     k=tail.problem.k)
+    assert not result.can_warm_start(problem)
+    again = warm_replan(planner, problem, [result, tail], SolverOptions())
+    assert again.success, again.message
+    alone = warm_replan(planner, problem, tail, SolverOptions())
+    assert again.T == pytest.approx(alone.T, rel=1e-12)
+    failed = warm_replan(planner, problem, [result], SolverOptions())
+    assert not failed.success and "does not apply" in failed.message
+
+
+def test_warm_joint_radius_is_validated():
+    with pytest.raises(ProblemError, match="warm_joint_radius"):
+        SolverOptions(warm_joint_radius=0.0)

@@ -130,3 +130,23 @@ def test_status_values_are_distinct_readable_strings():
     values = [status.value for status in Status]
     assert all(isinstance(v, str) and v for v in values)
     assert len(set(values)) == len(values)
+
+
+def test_a_reachable_point_is_checked_once_per_model(galicki, monkeypatch):
+    # Problems of a replan share their target: the reachability IK runs once per point and
+    # model; an unreachable point is refused every time.
+    import tocontrol_ros.core.robot.ik as ik
+
+    calls = []
+    real = ik.solve_ik
+    monkeypatch.setattr(ik, "solve_ik", lambda *a, **k: calls.append(1) or real(*a, **k))
+    start, target = point((1.013, 0.987)), point((1.913, 1.371))  # in no other test
+    Problem(galicki, start, target)
+    first = len(calls)
+    assert first >= 2  # start and target
+    Problem(galicki, start, target)
+    assert len(calls) == first
+    for _ in range(2):
+        with pytest.raises(ProblemError, match="not reachable"):
+            Problem(galicki, start, point((10.0, 0.0)))
+    assert len(calls) > first + 1

@@ -8,6 +8,7 @@ import numpy as np
 
 from tocontrol_ros.core.certificate import CertificateOptions
 from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.tuning import WARM_JOINT_RADIUS
 
 __all__ = ["SolverOptions"]
 
@@ -103,6 +104,13 @@ class SolverOptions:
         quickest re-plan after a small move, in the previous motion's basin, which the
         multistart might beat. When it fails, the multistart runs as usual. Default False:
         the multistart always runs, and the warm solution is one more candidate.
+    warm_joint_radius : float
+        A warm start applies to a problem whose joint-state ends are within this of its own
+        (max-norm of positions and velocities, rad and rad/s; its end points within
+        ``WARM_RADIUS`` too: :meth:`PlanResult.can_warm_start`). The default keeps a warm
+        start in the multistart's basin; the planner node's replans allow more
+        (:data:`~tocontrol_ros.core.replan.REPLAN_JOINT_RADIUS`): along a stream of goals
+        each start moves by a few centimetres, and the warm solve still converges.
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -138,12 +146,13 @@ class SolverOptions:
     certificate: CertificateOptions | None = None
     direct_fallback: bool = True
     warm_only: bool = False
+    warm_joint_radius: float = WARM_JOINT_RADIUS
     workers: int = 1
 
     def __post_init__(self) -> None:
         positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",
                     "verify_point_tol", "verify_velocity_tol", "time_limit",
-                    "smoothing_intermediate")
+                    "smoothing_intermediate", "warm_joint_radius")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):

@@ -7,6 +7,8 @@ a target joint state is always at rest).
 
 from __future__ import annotations
 
+import collections
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -184,12 +186,36 @@ class Problem:
         return bool(np.linalg.norm(self.start_point - self.target_point) <= tol)
 
 
+#: Points of a model found reachable (:func:`_check_reachable`), newest last: a replan makes
+#: several problems with the same target (the running motion's tail, target steps), each
+#: check an IK solve from 8 seeds (about 2-3 ms on the paper's arm). The check's IK is
+#: seeded, so a remembered answer is the one it would give again.
+_REACHABLE: collections.OrderedDict = collections.OrderedDict()
+_REACHABLE_SIZE = 256
+_REACHABLE_LOCK = threading.Lock()
+
+
 def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
     """Reject points that no configuration reaches, or only singular ones reach.
 
     Unreachable: numerical IK from a few starts fails. On the workspace boundary: every
-    configuration found (three IK runs) is singular.
+    configuration found (three IK runs) is singular. A point found reachable before for the
+    same model object is not solved again.
     """
+    key = (id(model), p.dtype.str, p.tobytes())
+    with _REACHABLE_LOCK:
+        if _REACHABLE.get(key) is model:
+            _REACHABLE.move_to_end(key)
+            return
+    _solve_reachable(model, name, p)
+    with _REACHABLE_LOCK:
+        _REACHABLE[key] = model  # the model kept: its id is not reused while remembered
+        while len(_REACHABLE) > _REACHABLE_SIZE:
+            _REACHABLE.popitem(last=False)
+
+
+def _solve_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
+    """:func:`_check_reachable`'s IK solves."""
     from tocontrol_ros.core.robot.ik import solve_ik
 
     q = solve_ik(model, p)

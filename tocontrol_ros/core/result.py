@@ -213,12 +213,15 @@ class PlanResult:
                    timings=timings, continuation=(), max_abs_u=0.0, delta=0.0,
                    intervals=0, problem=problem, method=method)
 
-    def can_warm_start(self, problem: Problem) -> bool:
+    def can_warm_start(self, problem: Problem,
+                       joint_radius: float = WARM_JOINT_RADIUS) -> bool:
         """Whether :func:`~tocontrol_ros.core.solver.plan` continues this to ``problem``.
 
         It does from a warm state with the same model, start and target kinds and reserve,
         when ``problem`` is near this one: each end point within :data:`WARM_RADIUS` of
-        the previous one, and each joint-state end within :data:`WARM_JOINT_RADIUS`. The
+        the previous one, and each joint-state end within ``joint_radius`` (max-norm of
+        positions and velocities, rad and rad/s; by default :data:`WARM_JOINT_RADIUS`,
+        ``SolverOptions.warm_joint_radius`` in a solve). The
         exponent may differ (the solve then steps ``k``). The one rule: ``plan`` applies it
         to any ``warm_start`` it is given (and then solves the warm start as one more
         candidate next to the multistart, never instead of it), so callers may pass their
@@ -230,13 +233,14 @@ class PlanResult:
                 and prev.target.kind == problem.target.kind
                 and prev.reserve == problem.reserve):
             return False
-        return self.warm_distance(problem) <= 1.0
+        return self.warm_distance(problem, joint_radius) <= 1.0
 
-    def warm_distance(self, problem: Problem) -> float:
+    def warm_distance(self, problem: Problem,
+                      joint_radius: float = WARM_JOINT_RADIUS) -> float:
         """How near ``problem`` is to the one solved, in units of the warm-start radii.
 
         The largest of ``|p - p_prev| / WARM_RADIUS`` over both end points and, for
-        joint-state ends, ``max |x - x_prev| / WARM_JOINT_RADIUS``; ``inf`` without a
+        joint-state ends, ``max |x - x_prev| / joint_radius``; ``inf`` without a
         previous problem or when the kinds differ. At most 1 means near.
         """
         prev = self.problem
@@ -250,5 +254,5 @@ class PlanResult:
         for new, old in ((problem.start, prev.start), (problem.target, prev.target)):
             if new.kind == "state":
                 dist = max(dist, float(np.max(np.abs(new.value - old.value)))
-                           / WARM_JOINT_RADIUS)
+                           / joint_radius)
         return dist

@@ -173,7 +173,8 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         raise ValueError("`problem.model` is not the planner's model")
     deadline = t_start + options.time_limit
     warm = None
-    if warm_start is not None and warm_start.can_warm_start(problem) \
+    if warm_start is not None and \
+            warm_start.can_warm_start(problem, options.warm_joint_radius) \
             and not problem.is_trivial():
         warm = _plan_from(planner, problem, options, warm_start, should_stop, deadline)
     if warm is not None:

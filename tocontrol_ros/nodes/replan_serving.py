@@ -15,7 +15,7 @@ from dataclasses import replace
 from geometry_msgs.msg import PointStamped
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.replan import warm_replan
+from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS, warm_replan
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
 from tocontrol_ros.nodes.replanning import REPLAN_TRIES, align
@@ -86,17 +86,10 @@ class ReplanServing:
         replans = self._replanner
         late = []
         min_lead = 0.0
+        late_result = None
         for attempt in range(1, REPLAN_TRIES + 1):
             t0 = time.monotonic()
-            latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
-            origin, measured = 0, None
-            if latest is not None:
-                origin = conv.nanoseconds(latest.header.stamp)
-                try:
-                    q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
-                    measured = (q, origin)
-                except conv.ConversionError:
-                    pass  # not this arm's joints: no replan
+            origin, measured = self._measured(config)
             handoff = replans.handoff(config, req.target, self.get_clock().now().nanoseconds,
                                       origin, min_lead, measured)
             if handoff is None:
@@ -114,26 +107,33 @@ class ReplanServing:
                 self._finish(req, "ERROR", "failed", str(exc))
                 return True
             options = solver_options(config)
-            warm = handoff.warm
+            warm = [handoff.warm]
             if replans.near(config, req.target):
-                # Near: the running motion's tail continued, or from rest the last motion
-                # that started at rest nearby; should that fail, one start, no multistart.
-                options = replace(options, warm_only=True, starts=1, candidates=1)
-                warm = warm or replans.rest_warm_start(problem)
+                # Near: the running motion's tail continued, or the last motions published
+                # (replanning.Replanner.warm_starts); should they fail, one start, no
+                # multistart.
+                options = replace(options, warm_only=True, starts=1, candidates=1,
+                                  warm_joint_radius=REPLAN_JOINT_RADIUS)
+                # A late solve's result first: the same goal from a little earlier.
+                warm = [late_result, *replans.warm_starts(handoff.warm)]
             result = None
-            if warm is not None:
+            if any(w is not None for w in warm):
                 result = warm_replan(self.planner, problem, warm, options,
                                      self._should_stop(req))
             if result is None or not (result.success or req.cancelled.is_set()):
                 result = self.planner.plan(problem, options,
                                            should_stop=self._should_stop(req))
-            if not (result.success or req.cancelled.is_set()) and options.starts == 1:
-                # The one start failed: the multistart (its time counts as this solve's).
+            if not (result.success or req.cancelled.is_set()) and options.starts == 1 \
+                    and not self._slot.has_pending():
+                # The one start failed: the multistart (its time counts as this solve's),
+                # unless goals wait (a stream: seconds of multistart would hold them all up;
+                # the next goal is solved instead).
                 result = self.planner.plan(problem, solver_options(config),
                                            should_stop=self._should_stop(req))
             extra = {"start": problem.start_point, **conv.result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
-                     "handoff": handoff.stamp_ns * 1e-9, "warm_start": warm is not None,
+                     "handoff": handoff.stamp_ns * 1e-9,
+                     "warm_start": any(w is not None for w in warm),
                      "published": "none"}
             if req.cancelled.is_set() or self._stopping.is_set():
                 event, reason = req.cancel_reason if req.cancelled.is_set() else \
@@ -150,6 +150,7 @@ class ReplanServing:
                 late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
                 # Again, with at least twice this solve's time plus the delivery lead.
                 min_lead = config.replan_min_lead + 2.0 * (time.monotonic() - t0)
+                late_result = result
                 continue
             self._last_result = result
             path = self._publish(result, config, req.id, handoff.stamp_ns)
@@ -167,3 +168,15 @@ class ReplanServing:
                      f"arrived after its hand-off (published - hand-off: {', '.join(late)})",
                      {"replan": "late", "attempts": REPLAN_TRIES})
         return True
+
+    def _measured(self, config: PlannerConfig) -> tuple[int, tuple | None]:
+        """The latest joint state's stamp (ns, 0: none) and (positions, stamp) or None."""
+        latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
+        if latest is None:
+            return 0, None
+        origin = conv.nanoseconds(latest.header.stamp)
+        try:
+            q, _ = conv.joint_state_from_msg(latest, self.model.joint_names)
+        except conv.ConversionError:
+            return origin, None  # not this arm's joints: no replan
+        return origin, (q, origin)

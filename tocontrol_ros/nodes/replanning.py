@@ -103,15 +103,21 @@ class Replanner:
                     np.max(np.abs(problem.start.value[problem.model.n:])) <= REST_SPEED:
                 self._from_rest = result
 
-    def rest_warm_start(self, problem):
-        """The last published motion that started at rest, if it warm-starts ``problem``.
+    def warm_starts(self, tail=None) -> list:
+        """The warm starts of a near goal's replan, in the order to try them.
 
-        A target that moves slowly is caught: each replan then starts at rest at the last
-        target, and the last such motion (a similar short move from nearby) is its warm start.
+        The running motion's ``tail`` (:func:`~tocontrol_ros.core.replan.tail_warm_start`),
+        when there is one; the last published motion itself (along a stream of goals the
+        next problem is much like the last: a similar move from a start nearby); the last
+        published motion that started at rest (a target that moves slowly is caught: each
+        replan then starts at rest at the last target). Which apply is
+        :func:`~tocontrol_ros.core.replan.warm_replan`'s to say.
         """
         with self._lock:
-            last = self._from_rest
-        return last if last is not None and last.can_warm_start(problem) else None
+            executing, from_rest = self._executing, self._from_rest
+        last = executing[0] if executing is not None else None
+        return [w for w in (tail, last, from_rest)
+                if w is not None and w.warm_state is not None]
 
     def has_motion(self) -> bool:
         """Whether a motion was published that a replan could continue."""

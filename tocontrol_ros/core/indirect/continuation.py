@@ -384,7 +384,7 @@ def warm_run(ctx: SolveContext, warm: PlanResult) -> tuple[Run | None, bool]:
         check remains; None when it does not converge.
     """
     problem, options = ctx.problem, ctx.options
-    if not warm.can_warm_start(problem):
+    if not warm.can_warm_start(problem, options.warm_joint_radius):
         return None, False
     st = warm.warm_state
     grid = st.grid(ctx.system, problem.start.kind, problem.target.kind)
