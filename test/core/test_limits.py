@@ -121,6 +121,23 @@ def test_start_outside_limits_is_rejected_naming_the_joint(panda):
         Problem(panda, joint_state(q, np.full(7, 3.0)), target)
 
 
+def test_a_small_overshoot_of_a_velocity_limit_is_taken_back(panda):
+    lim = JointLimits.from_model(panda, margin=0.1)
+    v = lim.plan_velocity
+    qd = np.zeros(7)
+    qd[0], qd[1], qd[2], qd[3] = 1.05 * v[0], -1.0 * v[1], 0.5 * v[2], -1.2 * v[3]
+    out = lim.admissible_velocity(qd)
+    assert out[0] == pytest.approx(v[0]) and out[0] < v[0]
+    assert out[1] == pytest.approx(-v[1]) and out[1] > -v[1]
+    assert out[2] == qd[2] and out[3] == qd[3]  # inside; too far over (refused by the check)
+    q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.7])
+    ok = out.copy()
+    ok[3] = 0.0
+    lim.check_state("start", q, ok)
+    with pytest.raises(ProblemError, match="panda_joint4"):
+        lim.check_state("start", q, out)
+
+
 def test_limits_of_another_model_are_rejected(galicki, panda):
     with pytest.raises(ProblemError, match="`limits` must be a JointLimits"):
         Problem(galicki, point(P_START), point(P_TARGET), limits=JointLimits.from_model(panda))

@@ -427,12 +427,12 @@ class PlannerNode(ReplanServing, Node):
             return
         if req.queue and self._serve_replan(req):
             return
-        try:
+        limits = self._limits.with_margin(config.limit_margin)
+        try:  # a measured start's small overshoot of a velocity limit is taken back to it
             start = point(req.start[1]) if req.start[0] == "point" else \
-                joint_state(req.start[1], req.start[2])
+                joint_state(req.start[1], limits.admissible_velocity(req.start[2]))
             problem = Problem(self.model, start, point(req.target), k=config.k,
-                              reserve=config.reserve,
-                              limits=self._limits.with_margin(config.limit_margin))
+                              reserve=config.reserve, limits=limits)
         except TocontrolError as exc:
             self._finish(req, "ERROR", "failed", str(exc))
             return

@@ -24,7 +24,13 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 
-__all__ = ["JointLimits", "load_joint_limits_yaml", "parse_joint_limits_yaml"]
+__all__ = ["JointLimits", "load_joint_limits_yaml", "parse_joint_limits_yaml", "VELOCITY_SLACK"]
+
+#: A measured joint velocity at most this fraction above its planning limit is a tracking
+#: overshoot (a simulated or real arm driven at its limit passes it by a little): a plan from
+#: that state starts at the limit (:meth:`JointLimits.admissible_velocity`). Farther above,
+#: the start is refused, naming the joint.
+VELOCITY_SLACK = 0.1
 
 
 @dataclass(frozen=True)
@@ -150,6 +156,27 @@ class JointLimits:
         """Whether any joint has a finite position or velocity limit."""
         return bool(np.any(np.isfinite(self.lower) | np.isfinite(self.upper))
                     or np.any(np.isfinite(self.velocity)))
+
+    def admissible_velocity(self, qd: np.ndarray, slack: float = VELOCITY_SLACK) -> np.ndarray:
+        """A measured velocity with its small overshoots of the limits taken back to them.
+
+        Parameters
+        ----------
+        qd : ndarray, shape (n,)
+            Joint velocities (rad/s, m/s), e.g. of the latest joint state.
+        slack : float
+            Components at or above the planning limit (:attr:`plan_velocity`) by at most this
+            fraction of it are put just inside it (the sign kept); larger ones are returned
+            unchanged, for :meth:`check_state` to refuse.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        qd = np.asarray(qd, dtype=float)
+        v = self.plan_velocity
+        over = (np.abs(qd) >= v) & (np.abs(qd) <= (1.0 + slack) * v)
+        return np.where(over, np.sign(qd) * v * (1.0 - 1e-9), qd)
 
     # ---------------------------------------------------------------- checks
     def check_state(self, name: str, q: np.ndarray, qd: np.ndarray | None = None) -> None:
