@@ -162,9 +162,10 @@ class LatencyEstimate:
 #: way from the old target to the new one solved in turn (each warm from the previous).
 TARGET_STEPS = ((1.0,), (0.5, 1.0), (0.25, 0.5, 0.75, 1.0))
 #: ``SolverOptions.warm_joint_radius`` of the node's replans (rad, rad/s). Along a stream
-#: of goals 1.9 cm apart on the paper's arm (bench/replan.py's circle, each replan warm
-#: from the last, from rest), 48 of 49 warm solves applied and converged at 0.2, 32 of 49
-#: at the default 0.05 (the others had to be solved cold, 5-10 times dearer).
+#: of goals 1.9 cm apart on the paper's arm at k = 4 (bench/replan.py's circle, each replan
+#: from rest at the last goal, warm from the last solution), 36 of 49 warm solves applied
+#: and converged at 0.2, 25 of 49 at the default 0.05 (the others were solved cold, 2-5
+#: times dearer); the warm solves that fail change the number of switches of the control.
 REPLAN_JOINT_RADIUS = 0.2
 
 
