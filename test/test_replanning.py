@@ -90,3 +90,27 @@ def test_handoff_kinds(motion):
     h = replans.handoff(config, near, after, 0, measured=at_start)
     assert h.kind == REST and not np.any(h.qd)
     np.testing.assert_allclose(h.q, motion.trajectory.state(motion.T)[0][:3])
+
+
+def test_a_rest_replan_is_never_late(motion):
+    # The running motion is over by the hand-off: the replan starts at its end, at rest,
+    # stamped with that end (no lead); published after it, it is stamped replan_min_lead
+    # after its publication on the control grid, from the same state.
+    config = config_from_values({})
+    replans = Replanner()
+    start = 10**9
+    at_start = (motion.trajectory.state(0.0)[0][:3], start)
+    replans.published(motion, start, motion.trajectory.sample(0.01))
+    near = np.asarray(PAPER_TARGET) + np.array([0.02, 0.0])
+    end = start + int(np.ceil(motion.T * 1e9))
+    before_end = end - 10**6  # 1 ms before the end, with a lead of 50 ms or more
+    h = replans.handoff(config, near, before_end, 0, measured=at_start)
+    assert h.kind == REST and h.stamp_ns == align(end, 0, config.handoff_grid)
+    in_time = h.stamp_ns - 5 * 10**7  # published 50 ms before it: as is
+    assert replans.rest_stamp(config, h, in_time, 0) == h.stamp_ns
+    soon = replans.rest_stamp(config, h, before_end, 0)  # 1 ms before it: the delivery lead
+    assert soon == align(before_end + int(config.replan_min_lead * 1e9), 0, config.handoff_grid)
+    late = h.stamp_ns + 3 * 10**8  # published 0.3 s after the hand-off
+    stamp = replans.rest_stamp(config, h, late, 0)
+    assert stamp == late + int(config.replan_min_lead * 1e9)
+    assert stamp % int(config.handoff_grid * 1e9) == 0

@@ -18,7 +18,7 @@ from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS, warm_replan
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
-from tocontrol_ros.nodes.replanning import REPLAN_TRIES, align
+from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align
 from tocontrol_ros.nodes.requests import PlanRequest
 
 __all__ = ["ReplanServing"]
@@ -146,6 +146,10 @@ class ReplanServing:
             estimate = replans.estimate(config, handoff.kind)
             estimate.record(time.monotonic() - t0)  # late or not: what a solve takes now
             now = self.get_clock().now().nanoseconds
+            if handoff.kind == REST:  # the arm rests there from the hand-off on: not late
+                handoff = handoff._replace(stamp_ns=replans.rest_stamp(config, handoff, now,
+                                                                       origin))
+                extra["handoff"] = handoff.stamp_ns * 1e-9
             if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
                 late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
                 # Again, with at least twice this solve's time plus the delivery lead.

@@ -149,6 +149,18 @@ class Replanner:
             q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
         return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
 
+    @staticmethod
+    def rest_stamp(config: PlannerConfig, handoff: Handoff, now_ns: int, origin_ns: int) -> int:
+        """The stamp of a ``"rest"`` replan published at ``now_ns`` (ns).
+
+        Its hand-off or, when that is less than ``replan_min_lead`` ahead, ``now_ns`` plus
+        that lead, on the control grid: the arm rests at the running motion's end from the
+        hand-off on, so a later take-over starts from the same state (a rest replan is
+        never late, however long its solve took).
+        """
+        stamp = max(handoff.stamp_ns, now_ns + int(config.replan_min_lead * 1e9))
+        return align(stamp, origin_ns or handoff.stamp_ns, config.handoff_grid)
+
     def forget(self) -> None:
         """Nothing runs any more that a replan could continue (e.g. the model changed)."""
         with self._lock:
@@ -179,7 +191,9 @@ class Replanner:
         Handoff or None
             None when nothing was published, or the arm does not follow it (the goal is
             then planned from the arm's measured state). A motion over by the hand-off
-            gives kind ``"rest"``: from its end, at rest.
+            gives kind ``"rest"``: from its end, at rest, stamped with that end or ``now_ns``
+            (the later): the arm rests there from then on, so the publication may stamp it
+            later (:meth:`rest_stamp`).
         """
         with self._lock:
             executing = self._executing
@@ -200,9 +214,11 @@ class Replanner:
             n = result.problem.model.n
             if t >= result.T * (1.0 - TAIL_MIN_REMAINING):
                 # The motion is over by then (a tail too short to continue is waited out:
-                # the command is at rest only after the end): the arm holds its end.
+                # the command is at rest only after the end): the arm holds its end. Any
+                # instant from the end on serves, so no lead: the end, or now (the
+                # publication puts it replan_min_lead after itself: never late).
                 end = start_ns + math.ceil(result.T * 1e9)
-                stamp = align(max(stamp, end), origin_ns or start_ns, config.handoff_grid)
+                stamp = align(max(now_ns, end), origin_ns or start_ns, config.handoff_grid)
                 q_end = result.trajectory.state(result.T)[0][:n]
                 return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
             warm = tail_warm_start(result, t) if kind == WARM else None
