@@ -23,7 +23,7 @@ class Status(enum.Enum):
     SUCCESS = "solved and verified"
     TRIVIAL = "start at rest within MIN_MOVE of the target: nothing to move"
     NO_GUESS = "the direct method found no feasible initial guess"
-    NEWTON_FAILED = "Newton's method did not converge at k = 1"
+    NEWTON_FAILED = "Newton's method did not converge"
     CONTINUATION_FAILED = "continuation in k stalled before the requested k"
     VERIFICATION_FAILED = "converged, but the verification failed"
     CANCELLED = "cancelled by the caller (a newer request or a shutdown)"

@@ -68,7 +68,7 @@ def solve_from_guess(ctx: SolveContext, direct: DirectResult) -> tuple[Run, Stat
         if rep.converged:
             break
     else:
-        return run, Status.NEWTON_FAILED, rep.message
+        return run, Status.NEWTON_FAILED, f"at k = 1 from the guess: {rep.message}"
     if not _continue_k(ctx, run):
         return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
     return run, Status.SUCCESS, ""
