@@ -106,11 +106,36 @@ def test_a_rest_replan_is_never_late(motion):
     before_end = end - 10**6  # 1 ms before the end, with a lead of 50 ms or more
     h = replans.handoff(config, near, before_end, 0, measured=at_start)
     assert h.kind == REST and h.stamp_ns == align(end, 0, config.handoff_grid)
-    in_time = h.stamp_ns - 5 * 10**7  # published 50 ms before it: as is
+    lead = replans.estimate(config, REST).lead()  # the delivery reserve of rest replans
+    assert lead >= config.replan_min_lead
+    in_time = h.stamp_ns - int(lead * 1e9) - 10**6  # published before it by more: as is
     assert replans.rest_stamp(config, h, in_time, 0) == h.stamp_ns
-    soon = replans.rest_stamp(config, h, before_end, 0)  # 1 ms before it: the delivery lead
-    assert soon == align(before_end + int(config.replan_min_lead * 1e9), 0, config.handoff_grid)
+    soon = replans.rest_stamp(config, h, before_end, 0)  # 1 ms before it: the lead
+    assert soon == align(before_end + int(lead * 1e9), 0, config.handoff_grid)
     late = h.stamp_ns + 3 * 10**8  # published 0.3 s after the hand-off
     stamp = replans.rest_stamp(config, h, late, 0)
-    assert stamp == late + int(config.replan_min_lead * 1e9)
+    assert stamp == align(late + int(lead * 1e9), 0, config.handoff_grid) > late
     assert stamp % int(config.handoff_grid * 1e9) == 0
+
+
+def test_goal_stream_predicts_a_steady_stream_only():
+    from tocontrol_ros.nodes.replanning import GoalStream
+
+    stream = GoalStream()
+    centre, r, period = np.array([1.5, 1.2]), 0.15, 0.1
+    a = 2 * np.pi * np.arange(4) / 50  # bench/replan.py's circle at 10 Hz
+
+    def on_circle(i):
+        return centre + r * np.array([np.cos(a[i]), np.sin(a[i])])
+
+    for i in range(2):
+        stream.record(on_circle(i), 10.0 + i * period)
+        assert stream.predict(0.1) is None  # fewer than three
+    stream.record(on_circle(2), 10.0 + 2 * period)
+    target, due = stream.predict(0.1)
+    assert due == pytest.approx(10.0 + 3 * period)
+    # The quadratic through three points of a circle, one step on: r * step^3 off.
+    assert np.linalg.norm(target - on_circle(3)) < r * (a[1] ** 3)
+    assert stream.predict(0.01) is None  # goals farther apart than the radius
+    stream.record(on_circle(3), 10.0 + 3 * period + 0.5)  # an irregular interval
+    assert stream.predict(0.1) is None

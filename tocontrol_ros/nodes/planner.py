@@ -318,6 +318,7 @@ class PlannerNode(ReplanServing, Node):
                     self._finish(req, "ERROR", "failed", f"internal error: {exc!r}")
             finally:
                 self._slot.finished(req)
+            self._solve_ahead()
 
     def _problems(self, config) -> list:
         """One problem of each kind the node serves, inside the limits (for the warm-up)."""

@@ -144,11 +144,15 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("replan_margin", 2.0, "The hand-off lead is replan_min_lead plus this "
                   "factor times the 80th percentile of the last 10 replan latencies of the "
                   "same kind (solve start to publication).", 1.0, 10.0),
-    ParameterSpec("replan_min_lead", 0.02, "Smallest hand-off lead (s): delivery to the "
+    ParameterSpec("replan_min_lead", 0.05, "Smallest hand-off lead (s): delivery to the "
                   "tracker and its update period.", 0.001, 1.0),
     ParameterSpec("handoff_grid", 0.001, "Hand-off times are the latest joint state's stamp "
                   "plus a multiple of this (s): a multiple of the tracker's control period "
                   "puts the splice on a control instant.", 1e-4, 0.1),
+    ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
+                  "smooth path, the worker solves the goal they predict (the quadratic "
+                  "through the last three) between goals, as the real goal's first warm start "
+                  "(msg_docs/parameters.md, 'Replanning')."),
     ParameterSpec("goal_queue", 50, "Goals that wait behind each other while the worker "
                   "solves (replanning): each is solved in turn, none is dropped unless more "
                   "than this many wait (then the oldest is superseded). 1: newest wins.",
@@ -222,8 +226,9 @@ class PlannerConfig:
     replan: bool = True
     replan_radius: float = 0.1
     replan_margin: float = 2.0
-    replan_min_lead: float = 0.02
+    replan_min_lead: float = 0.05
     handoff_grid: float = 0.001
+    replan_predict: bool = True
     goal_queue: int = 50
 
 

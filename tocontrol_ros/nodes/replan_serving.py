@@ -16,6 +16,7 @@ from geometry_msgs.msg import PointStamped
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS, warm_replan
+from tocontrol_ros.core.result import WarmState
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
 from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align
@@ -53,6 +54,8 @@ class ReplanServing:
         except conv.ConversionError as exc:
             self._reject(rid, "goal", str(exc))
             return
+        if replan:
+            self._replanner.goals.record(target, received)
         self._submit(PlanRequest(rid, "goal", start, target, config, received=received,
                                  queue=replan, since_ns=0 if fresh else since))
 
@@ -184,3 +187,46 @@ class ReplanServing:
         except conv.ConversionError:
             return origin, None  # not this arm's joints: no replan
         return origin, (q, origin)
+
+    def _solve_ahead(self) -> None:
+        """While the worker waits: the goal a steady stream predicts, solved ahead.
+
+        With ``replan_predict``, when the recent goals form a stream
+        (:class:`~tocontrol_ros.nodes.replanning.GoalStream`) whose next goal is near the
+        running motion's target, that goal is replanned now, from the hand-off it would get
+        when due, and kept: the real goal's first warm start
+        (:meth:`~tocontrol_ros.nodes.replanning.Replanner.warm_starts`), a prediction error
+        away. Nothing is published; a request that arrives stops it.
+        """
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        config = self.config
+        replans = self._replanner
+        if not (replanning(config) and config.replan_predict) or self._slot.has_pending():
+            return
+        predicted = replans.goals.predict(config.replan_radius)
+        running = replans.running()
+        # Shooting solutions only: a bounded B-spline solve (seconds, IPOPT) would hold up
+        # the real goal, whose arrival stops a solve only between Newton iterations.
+        if predicted is None or not isinstance(getattr(running, "warm_state", None),
+                                               WarmState) \
+                or not replans.near(config, predicted[0]):
+            return
+        target, due = predicted
+        due_ns = self.get_clock().now().nanoseconds + int(max(due - time.monotonic(), 0) * 1e9)
+        origin, measured = self._measured(config)
+        handoff = replans.handoff(config, target, due_ns, origin, 0.0, measured)
+        if handoff is None:
+            return
+        try:
+            problem = Problem(self.model, joint_state(handoff.q, handoff.qd), point(target),
+                              k=config.k, reserve=config.reserve,
+                              limits=self._limits.with_margin(config.limit_margin))
+        except TocontrolError:
+            return  # e.g. a predicted target out of reach: the real goal will say so
+        options = replace(solver_options(config), warm_only=True, starts=1, candidates=1,
+                          warm_joint_radius=REPLAN_JOINT_RADIUS)
+        result = warm_replan(self.planner, problem, replans.warm_starts(handoff.warm), options,
+                             lambda: self._slot.has_pending() or self._stopping.is_set())
+        if result.success and result.trajectory is not None:
+            replans.solved_ahead(result, running)

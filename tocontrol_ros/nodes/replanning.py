@@ -23,7 +23,7 @@ from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 
-__all__ = ["Handoff", "Replanner", "align", "REPLAN_TRIES", "WARM", "COLD", "REST"]
+__all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -65,6 +65,51 @@ def align(t_ns: int, origin_ns: int, grid: float) -> int:
     return origin_ns + math.ceil((t_ns - origin_ns) / step) * step
 
 
+#: A stream of goals: the last three arrived at intervals within this factor of each other,
+#: each at most :data:`STREAM_PERIOD` s after the one before.
+STREAM_RATIO, STREAM_PERIOD = 1.5, 1.0
+
+
+class GoalStream:
+    """The recent goals (targets and arrival times) and the next one they predict.
+
+    A target that moves smoothly and is sent at a steady rate (a tracked object, a
+    teleoperation device) is predicted by the quadratic through its last three goals
+    (:meth:`predict`): the planner solves that goal ahead while it waits for the real one
+    (``replan_predict``). Thread-safe.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._recent: list[tuple[np.ndarray, float]] = []
+
+    def record(self, target: np.ndarray, t: float) -> None:
+        """A goal ``target`` (m, shape (m,)) arrived at ``t`` (s, monotonic)."""
+        with self._lock:
+            self._recent = (self._recent + [(np.array(target, dtype=float), float(t))])[-3:]
+
+    def predict(self, radius: float) -> tuple[np.ndarray, float] | None:
+        """The next goal (m) and when it is due (s, monotonic), or None: no steady stream.
+
+        Parameters
+        ----------
+        radius : float
+            The last three goals lie within this of each other (m), as replans do.
+        """
+        with self._lock:
+            recent = list(self._recent)
+        if len(recent) < 3:
+            return None
+        (p1, t1), (p2, t2), (p3, t3) = recent
+        d1, d2 = t2 - t1, t3 - t2
+        if not (0 < d1 <= STREAM_PERIOD and 0 < d2 <= STREAM_PERIOD
+                and max(d1, d2) <= STREAM_RATIO * min(d1, d2)):
+            return None
+        if max(np.linalg.norm(p3 - p2), np.linalg.norm(p2 - p1)) > radius:
+            return None
+        return 3.0 * p3 - 3.0 * p2 + p1, t3 + d2  # the quadratic, one interval on
+
+
 class Replanner:
     """The last published motion and the latencies of replans (thread-safe)."""
 
@@ -72,7 +117,19 @@ class Replanner:
         self._lock = threading.Lock()
         self._executing = None  # (PlanResult, stamp_ns, NominalTrajectory or None)
         self._from_rest = None  # the last published PlanResult that started at rest
+        self._ahead = None  # (PlanResult solved ahead, the running PlanResult it continues)
         self._latency: dict[str, LatencyEstimate] = {}
+        self.goals = GoalStream()
+
+    def solved_ahead(self, result, running) -> None:
+        """``result`` was solved ahead for a predicted goal, from the ``running`` motion."""
+        with self._lock:
+            self._ahead = (result, running)
+
+    def running(self):
+        """The last published motion (a PlanResult), or None."""
+        with self._lock:
+            return self._executing[0] if self._executing is not None else None
 
     def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
         """The latency estimate of one kind of solve (made with the config's margins)."""
@@ -106,17 +163,22 @@ class Replanner:
     def warm_starts(self, tail=None) -> list:
         """The warm starts of a near goal's replan, in the order to try them.
 
-        The running motion's ``tail`` (:func:`~tocontrol_ros.core.replan.tail_warm_start`),
-        when there is one; the last published motion itself (along a stream of goals the
+        The plan solved ahead for the goal a stream predicted
+        (:class:`GoalStream`), when it continues the motion that still runs; the running
+        motion's ``tail`` (:func:`~tocontrol_ros.core.replan.tail_warm_start`), when there
+        is one; the last published motion itself (along a stream of goals the
         next problem is much like the last: a similar move from a start nearby); the last
         published motion that started at rest (a target that moves slowly is caught: each
         replan then starts at rest at the last target). Which apply is
         :func:`~tocontrol_ros.core.replan.warm_replan`'s to say.
         """
         with self._lock:
-            executing, from_rest = self._executing, self._from_rest
+            executing, from_rest, ahead = self._executing, self._from_rest, self._ahead
         last = executing[0] if executing is not None else None
-        return [w for w in (tail, last, from_rest)
+        # Solved ahead from the motion that still runs: a prediction error from this goal.
+        first = ahead[0] if ahead is not None and last is not None and ahead[1] is last \
+            else None
+        return [w for w in (first, tail, last, from_rest)
                 if w is not None and w.warm_state is not None]
 
     def has_motion(self) -> bool:
@@ -149,16 +211,18 @@ class Replanner:
             q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
         return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
 
-    @staticmethod
-    def rest_stamp(config: PlannerConfig, handoff: Handoff, now_ns: int, origin_ns: int) -> int:
+    def rest_stamp(self, config: PlannerConfig, handoff: Handoff, now_ns: int,
+                   origin_ns: int) -> int:
         """The stamp of a ``"rest"`` replan published at ``now_ns`` (ns).
 
-        Its hand-off or, when that is less than ``replan_min_lead`` ahead, ``now_ns`` plus
-        that lead, on the control grid: the arm rests at the running motion's end from the
-        hand-off on, so a later take-over starts from the same state (a rest replan is
-        never late, however long its solve took).
+        Its hand-off or, when that is nearer, ``now_ns`` plus the lead of rest replans
+        (``replan_min_lead`` plus ``replan_margin`` times their recent latencies: a delivery
+        reserve that grows with a loaded machine), on the control grid. The arm rests at the
+        running motion's end from the hand-off on, so a later take-over starts from the same
+        state: a rest replan is never late, however long its solve took.
         """
-        stamp = max(handoff.stamp_ns, now_ns + int(config.replan_min_lead * 1e9))
+        lead = self.estimate(config, REST).lead()
+        stamp = max(handoff.stamp_ns, now_ns + int(lead * 1e9))
         return align(stamp, origin_ns or handoff.stamp_ns, config.handoff_grid)
 
     def forget(self) -> None:
