@@ -182,3 +182,33 @@ def test_a_stream_of_replans_stays_warm_when_its_switches_change(planner):
             assert result.success, result.message
         prev = result
     assert warm_ones >= 5
+
+
+def test_a_smoothed_replan_continues_a_finer_solution_at_its_smoothing(planner):
+    # replan_options(smoothing=1e-3): the warm solve of the stream's next goal stays at that
+    # delta (a few Newton iterations), is certified with the Hamiltonian tolerance raised to
+    # it, and lands within 1e-4 (relative T) of the unsmoothed default plan (independent).
+    from tocontrol_ros.core.problem import Problem, joint_state
+    from tocontrol_ros.core.replan import replan_options
+
+    model = planner.model
+    q0 = np.array([0.3, 0.9, 0.6])
+    p0 = np.asarray(model.point(q0))
+    a = 2 * np.pi * np.arange(3) / 50
+    circle = p0 + 0.15 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    fine = replan_options(SolverOptions())
+    assert fine.smoothing == SolverOptions().smoothing and fine.starts == 1
+    prev = _rest_stream(planner, q0, circle[:2], fine)[-1]
+    assert prev.delta < 1e-5
+    q = prev.trajectory.state(prev.T)[0][:model.n]
+    problem = Problem(model, joint_state(q), point(circle[2]), k=4.0)
+    smoothed = replan_options(SolverOptions(), 1e-3)
+    assert smoothed.certificate.hamiltonian_tol == 1e-3
+    result = warm_replan(planner, problem, prev, smoothed)
+    assert result.success, result.message
+    assert result.delta == 1e-3
+    assert result.verification["max_abs_H"] <= 1e-3
+    cold = planner.plan(problem, SolverOptions())
+    assert abs(result.T / cold.T - 1) < 1e-4
+    again = warm_replan(planner, problem, result, smoothed)  # the same problem: at once
+    assert again.success and again.iterations <= 2

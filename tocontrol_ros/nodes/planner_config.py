@@ -149,6 +149,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("handoff_grid", 0.001, "Hand-off times are the latest joint state's stamp "
                   "plus a multiple of this (s): a multiple of the tracker's control period "
                   "puts the splice on a control instant.", 1e-4, 0.1),
+    ParameterSpec("replan_smoothing", 1e-3, "Final smoothing delta of the control law of a "
+                  "replan near the running motion (and of the goal solved ahead): T within "
+                  "about 1e-4 (relative) of the unsmoothed optimum, a few Newton iterations "
+                  "warm; the certificate's Hamiltonian tolerance is raised to it. 0: the full "
+                  "schedule down to 0, as for new motions (msg_docs/parameters.md, "
+                  "'Replanning').", 0.0, 0.01),
     ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
                   "smooth path, the worker solves the goal they predict (the quadratic "
                   "through the last three) between goals, as the real goal's first warm start "
@@ -228,6 +234,7 @@ class PlannerConfig:
     replan_margin: float = 2.0
     replan_min_lead: float = 0.05
     handoff_grid: float = 0.001
+    replan_smoothing: float = 1e-3
     replan_predict: bool = True
     goal_queue: int = 50
 

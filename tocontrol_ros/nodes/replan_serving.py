@@ -10,12 +10,11 @@ latencies, which warm start) is :mod:`tocontrol_ros.nodes.replanning`'s and
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 from geometry_msgs.msg import PointStamped
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS, warm_replan
+from tocontrol_ros.core.replan import replan_options, warm_replan
 from tocontrol_ros.core.result import WarmState
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
@@ -115,8 +114,7 @@ class ReplanServing:
                 # Near: the running motion's tail continued, or the last motions published
                 # (replanning.Replanner.warm_starts); should they fail, one start, no
                 # multistart.
-                options = replace(options, warm_only=True, starts=1, candidates=1,
-                                  warm_joint_radius=REPLAN_JOINT_RADIUS)
+                options = replan_options(options, config.replan_smoothing)
                 # A late solve's result first: the same goal from a little earlier.
                 warm = [late_result, *replans.warm_starts(handoff.warm)]
             result = None
@@ -224,8 +222,7 @@ class ReplanServing:
                               limits=self._limits.with_margin(config.limit_margin))
         except TocontrolError:
             return  # e.g. a predicted target out of reach: the real goal will say so
-        options = replace(solver_options(config), warm_only=True, starts=1, candidates=1,
-                          warm_joint_radius=REPLAN_JOINT_RADIUS)
+        options = replan_options(solver_options(config), config.replan_smoothing)
         result = warm_replan(self.planner, problem, replans.warm_starts(handoff.warm), options,
                              lambda: self._slot.has_pending() or self._stopping.is_set())
         if result.success and result.trajectory is not None:

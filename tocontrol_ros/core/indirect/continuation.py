@@ -390,7 +390,10 @@ def warm_run(ctx: SolveContext, warm: PlanResult) -> tuple[Run | None, bool]:
     grid = st.grid(ctx.system, problem.start.kind, problem.target.kind)
     run = Run(grid=grid, w=st.w.copy(), k=warm.k, delta=warm.delta, factors=(grid, st.factors))
     if warm.k == problem.k:
-        rep = newton(ctx, run, warm.k, warm.delta)
+        # At the warm start's smoothing, or the coarser one the options end at (a replan
+        # smoothed for speed continues a finer solution there).
+        delta = max(warm.delta, options.smoothing[-1])
+        rep = newton(ctx, run, warm.k, delta)
         if rep.converged:
             return run, True
         # At a small delta the law is nearly singular and a moved problem can stall Newton:
