@@ -18,7 +18,7 @@ from tocontrol_ros.core.direct.limited import (
 )
 from tocontrol_ros.core.direct.tuning import PAD
 
-__all__ = ["solve_guesses"]
+__all__ = ["solve_guesses", "solve_more_guesses"]
 
 
 def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
@@ -66,6 +66,27 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     for idx, res in zip(rest, solved, strict=True):
         guesses.append((idx, *pairs[idx], res))
     return guesses, x_bounds
+
+
+def solve_more_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list, first: int
+                       ) -> list:
+    """Direct guesses (k = 1, without bounds) of more seed pairs, side by side.
+
+    For seeds added after :func:`solve_guesses` solved its own without bounds (the
+    recombined ones, :func:`~tocontrol_ros.core.seeding.recombined_pairs`).
+
+    Returns
+    -------
+    list
+        ``(index, qa, qb, DirectResult)`` per pair, the indices from ``first`` on.
+    """
+    problem, options = ctx.problem, ctx.options
+    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
+                          np.array([p[1] for p in pairs]), options.guess_intervals,
+                          problem.torque_scale, problem.limits.plan_velocity)
+    solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), None)
+                                            for i in range(len(pairs))])
+    return [(first + i, *pairs[i], res) for i, res in enumerate(solved)]
 
 
 def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,
