@@ -31,7 +31,7 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
         ``(index, qa, qb, DirectResult)`` per pair, and the state bounds they were solved
         within (None: without bounds).
     """
-    problem, options = ctx.problem, ctx.options
+    problem = ctx.problem
     # When the first guess reaches the joint limits, it and the others are solved within
     # them: the bounded solve then starts from these guesses (no second round). Otherwise
     # they are solved without bounds, as on an arm without limits (bounds that never bind
@@ -41,9 +41,7 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     bounds = state_bounds(problem, PAD) if problem.limits.active else None
     x_bounds = None
     guesses = []
-    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
-                          np.array([p[1] for p in pairs]), options.guess_intervals,
-                          problem.torque_scale, problem.limits.plan_velocity)
+    paths = _initial_paths(ctx, pairs)
     if pairs:
         ctx.check()
         path = (paths[0][0], paths[1][0], paths[2][0])
@@ -80,13 +78,18 @@ def solve_more_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list, 
     list
         ``(index, qa, qb, DirectResult)`` per pair, the indices from ``first`` on.
     """
-    problem, options = ctx.problem, ctx.options
-    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
-                          np.array([p[1] for p in pairs]), options.guess_intervals,
-                          problem.torque_scale, problem.limits.plan_velocity)
+    paths = _initial_paths(ctx, pairs)
     solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), None)
                                             for i in range(len(pairs))])
     return [(first + i, *pairs[i], res) for i, res in enumerate(solved)]
+
+
+def _initial_paths(ctx: SolveContext, pairs: list) -> tuple:
+    """:func:`initial_paths` of the seed pairs (their direct solves' starting paths)."""
+    problem = ctx.problem
+    return initial_paths(problem.model, np.array([p[0] for p in pairs]),
+                         np.array([p[1] for p in pairs]), ctx.options.guess_intervals,
+                         problem.torque_scale, problem.limits.plan_velocity)
 
 
 def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,

@@ -87,6 +87,21 @@ def branch_shifts(shiftable: np.ndarray) -> np.ndarray:
     return out
 
 
+def _bang_bang_estimate(d: np.ndarray, inertia: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """The ranking's time estimate (s): ``max_i 2 sqrt(|d_i| M_ii / tau_i)``, last axis.
+
+    Parameters
+    ----------
+    d : ndarray, shape (..., n)
+        Displacements (rad, m).
+    inertia : ndarray, shape broadcastable to ``d``
+        Diagonals of the inertia matrix at the start.
+    acc : ndarray, shape (n,)
+        Torque limits (N·m, N) times the problem's torque scale.
+    """
+    return np.max(2 * np.sqrt(np.abs(d) * inertia / acc), axis=-1)
+
+
 def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False):
     """Every (start, target, branch) seed with its time estimate, unranked.
 
@@ -120,7 +135,7 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
     d = np.where(shiftable, np.angle(np.exp(1j * d)), d)
     dv = d[:, :, None, :] + branch_shifts(shiftable)        # (S, G, V, n)
-    est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
+    est = _bang_bang_estimate(dv, inertia[:, None, None, :], acc)
     q_end = qa[:, None, None, :] + dv
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     inside = np.all((q_end >= lo - 1e-12) & (q_end <= hi + 1e-12), axis=-1)
@@ -283,7 +298,7 @@ def recombined_pairs(problem: Problem, parents: list, tried: list, count: int
             turns = np.where(shiftable, np.round((moves[parent] - d) / (2 * np.pi)), 0.0)
             dv = d + 2 * np.pi * turns
             # The faster parent's turns first; ties broken by the bang-bang estimate.
-            est = np.max(2 * np.sqrt(np.abs(dv) * inertia[a] / acc))
+            est = _bang_bang_estimate(dv, inertia[a], acc)
             key = (max(parents[a].T, parents[b].T), min(parents[a].T, parents[b].T),
                    parents[parent].T, est)
             ranked.append((key, a, dv))
