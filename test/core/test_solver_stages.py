@@ -434,20 +434,20 @@ def _moving_start_problem(galicki):
 def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(galicki,
                                                                             monkeypatch):
     """The default multistart on that state: the best guess (k = 1, T 0.466 s) stalls in
-    the continuation; with its direct solve at k failing too (forced here), another basin
-    is continued to T = 0.916 s; the failed basin's k = 1 motion is faster than that, so it
-    is solved as a B-spline path (T 0.406 s) and returned, certified, the records saying
-    which was slower. Unforced, the shooting at k from the direct solve at k finds the
-    same motion (the two methods' T within 1e-3)."""
+    the continuation; with its direct solve at k failing too and no recombined seeds (both
+    forced here), another basin is continued to T = 0.916 s; the failed basin's k = 1
+    motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
+    returned, certified, the records saying which was slower. Unforced, the shooting finds
+    the same motion (the two methods' T within 1e-3)."""
     from tocontrol_ros.core import solver
 
     problem = _moving_start_problem(galicki)
-    at_k = plan(problem, SolverOptions())
-    assert at_k.success and at_k.method == "indirect", at_k.message
-    assert at_k.continuation[0][0] == 4.0
+    shot = plan(problem, SolverOptions())
+    assert shot.success and shot.method == "indirect", shot.message
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
+    monkeypatch.setattr(solver, "RECOMBINED_STARTS", 0)
     res = plan(problem, SolverOptions())
-    assert at_k.T == pytest.approx(res.T, rel=1e-3)
+    assert shot.T == pytest.approx(res.T, rel=1e-3)
     assert res.success, res.message
     assert res.method == "direct" and res.certificate.passed
     assert res.T < 0.45
@@ -465,10 +465,11 @@ def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(ga
 def test_a_slower_direct_solution_leaves_the_shooting_result(galicki, monkeypatch):
     """When the B-spline path of the failed candidates is not faster, the multistart's
     solution is returned, and its warnings say what was tried (the direct solve at k of
-    the failed candidate forced to fail)."""
+    the failed candidate forced to fail, no recombined seeds)."""
     from tocontrol_ros.core import solver
 
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
+    monkeypatch.setattr(solver, "RECOMBINED_STARTS", 0)
 
     original = solver.plan_limited
 
