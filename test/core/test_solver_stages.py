@@ -439,13 +439,13 @@ def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(ga
     motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
     returned, certified, the records saying which was slower. Unforced, the shooting finds
     the same motion (the two methods' T within 1e-3)."""
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core import guesses, solver
 
     problem = _moving_start_problem(galicki)
     shot = plan(problem, SolverOptions())
     assert shot.success and shot.method == "indirect", shot.message
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
-    monkeypatch.setattr(solver, "RECOMBINED_STARTS", 0)
+    monkeypatch.setattr(guesses, "RECOMBINED_STARTS", 0)
     res = plan(problem, SolverOptions())
     assert shot.T == pytest.approx(res.T, rel=1e-3)
     assert res.success, res.message
@@ -466,10 +466,10 @@ def test_a_slower_direct_solution_leaves_the_shooting_result(galicki, monkeypatc
     """When the B-spline path of the failed candidates is not faster, the multistart's
     solution is returned, and its warnings say what was tried (the direct solve at k of
     the failed candidate forced to fail, no recombined seeds)."""
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core import guesses, solver
 
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
-    monkeypatch.setattr(solver, "RECOMBINED_STARTS", 0)
+    monkeypatch.setattr(guesses, "RECOMBINED_STARTS", 0)
 
     original = solver.plan_limited
 

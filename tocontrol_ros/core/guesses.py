@@ -17,8 +17,10 @@ from tocontrol_ros.core.direct.limited import (
     touches,
 )
 from tocontrol_ros.core.direct.tuning import PAD
+from tocontrol_ros.core.seeding import distinct_basins, recombined_pairs, revolute_joints
+from tocontrol_ros.core.tuning import RECOMBINED_PARENTS, RECOMBINED_STARTS
 
-__all__ = ["solve_guesses", "solve_more_guesses"]
+__all__ = ["solve_guesses", "recombined_guesses"]
 
 
 def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
@@ -66,22 +68,33 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     return guesses, x_bounds
 
 
-def solve_more_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list, first: int
-                       ) -> list:
-    """Direct guesses (k = 1, without bounds) of more seed pairs, side by side.
+def recombined_guesses(planner: Transcriptions, ctx: SolveContext, guesses: list,
+                       pairs: list) -> tuple[list, list]:
+    """The guesses and seed pairs with those of the recombined seeds added.
 
-    For seeds added after :func:`solve_guesses` solved its own without bounds (the
-    recombined ones, :func:`~tocontrol_ros.core.seeding.recombined_pairs`).
+    Seeds that cross the ends of the :data:`RECOMBINED_PARENTS` best distinct guesses
+    (:func:`~tocontrol_ros.core.seeding.recombined_pairs`), at most
+    :data:`RECOMBINED_STARTS` and ``options.starts // 2``, solved like the others (k = 1,
+    without bounds: only after :func:`solve_guesses` solved its own without them), side by
+    side; their indices follow the pairs'.
 
     Returns
     -------
-    list
-        ``(index, qa, qb, DirectResult)`` per pair, the indices from ``first`` on.
+    (guesses, pairs)
+        ``(index, qa, qb, DirectResult)`` per pair, and the pairs, both extended (new lists).
     """
-    paths = _initial_paths(ctx, pairs)
+    problem = ctx.problem
+    parents = distinct_basins([g for g in guesses if g[3].success], lambda g: g[3],
+                              problem.model.n, revolute_joints(problem.model))
+    more = recombined_pairs(problem, [g[3] for g in parents[:RECOMBINED_PARENTS]], pairs,
+                            min(RECOMBINED_STARTS, ctx.options.starts // 2))
+    if not more:
+        return guesses, pairs
+    paths = _initial_paths(ctx, more)
     solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), None)
-                                            for i in range(len(pairs))])
-    return [(first + i, *pairs[i], res) for i, res in enumerate(solved)]
+                                            for i in range(len(more))])
+    added = [(len(pairs) + i, *more[i], res) for i, res in enumerate(solved)]
+    return guesses + added, pairs + more
 
 
 def _initial_paths(ctx: SolveContext, pairs: list) -> tuple:

@@ -64,7 +64,7 @@ from tocontrol_ros.core.direct.limited import (
     touches,
 )
 from tocontrol_ros.core.direct.tuning import FINE_GUESS_INTERVALS
-from tocontrol_ros.core.guesses import solve_guesses, solve_more_guesses
+from tocontrol_ros.core.guesses import recombined_guesses, solve_guesses
 from tocontrol_ros.core.indirect.continuation import (
     final_smoothing,
     finish_warm,
@@ -79,7 +79,6 @@ from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, St
 from tocontrol_ros.core.seeding import (
     distinct_basins,
     gravity_free,
-    recombined_pairs,
     revolute_joints,
     seed_pairs,
     time_ratio_bound,
@@ -89,8 +88,6 @@ from tocontrol_ros.core.tuning import (
     CANDIDATE_MARGIN,
     EXHAUSTIVE_CANDIDATES,
     INCUMBENT_TRIES,
-    RECOMBINED_PARENTS,
-    RECOMBINED_STARTS,
     SAME_K1,
     WARM_GAIN,
 )
@@ -450,11 +447,9 @@ _LIMITS_BIND = object()
 def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     """Multistart: direct guesses from seed pairs, the best distinct ones continued.
 
-    The seed pairs: the ranked ones (:func:`~tocontrol_ros.core.seeding.seed_pairs`), then
-    those that cross the ends of the best direct solutions
-    (:func:`~tocontrol_ros.core.seeding.recombined_pairs`). A candidate whose shooting
-    fails is solved at the requested k directly (:func:`_direct_at_k`) while none
-    succeeded, or when its direct T is within :data:`AT_K_MARGIN` of the first that did.
+    Ranked seeds, then recombined ones (:func:`~.guesses.recombined_guesses`); a candidate
+    whose shooting fails is solved at k directly (:func:`_direct_at_k`) by the rule of
+    :data:`AT_K_MARGIN`.
 
     Returns
     -------
@@ -469,17 +464,9 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     guesses, x_bounds = solve_guesses(planner, ctx, pairs)
-    if x_bounds is None and not options.exhaustive:
-        # More seeds from the ends of the best direct solutions (not where the guesses
-        # were solved within the joint limits: those go to the bounded solve).
-        parents = distinct_basins([g for g in guesses if g[3].success], lambda g: g[3],
-                                  problem.model.n, revolute_joints(problem.model))
-        more = recombined_pairs(problem, [g[3] for g in parents[:RECOMBINED_PARENTS]],
-                                pairs, min(RECOMBINED_STARTS, options.starts // 2))
-        if more:
-            guesses += solve_more_guesses(planner, ctx, more, len(pairs))
-            pairs = pairs + more
-            ctx.memo["pairs"] = pairs
+    if x_bounds is None and not options.exhaustive:  # within limits: the bounded solve's
+        guesses, pairs = recombined_guesses(planner, ctx, guesses, pairs)
+        ctx.memo["pairs"] = pairs
     if x_bounds is not None or not problem.limits.active:
         # Guesses a bounded solve can start from (no bounds: every one).
         ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
@@ -556,12 +543,9 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
 def _direct_at_k(planner: Planner, ctx: SolveContext, guess) -> Run | None:
     """A candidate whose shooting failed from its guess, solved at the requested k directly.
 
-    The direct method at ``problem.k`` from the guess (on a finer mesh,
-    :func:`~tocontrol_ros.core.direct.limited.finer_guess`), then the shooting at that k
-    from its solution (:func:`~tocontrol_ros.core.indirect.continuation.solve_at_k`), no
-    continuation in k. Where the continuation from k = 1 stalls, the basin the guess
-    proposes can still hold the best motion. Returns the converged run, or None when the
-    direct solve or the shooting failed.
+    The direct method at ``problem.k`` from the guess (finer, :func:`finer_guess`), then
+    the shooting at that k from it (:func:`solve_at_k`), no continuation in k: the basin a
+    stalled guess proposes can still hold the best motion. None when either fails.
     """
     problem = ctx.problem
     direct = finer_guess(planner, problem, guess, problem.k)
