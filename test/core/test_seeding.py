@@ -205,3 +205,63 @@ def test_the_same_problem_asked_again_gets_the_last_pairs(galicki, monkeypatch):
         np.testing.assert_array_equal(b, d)
     seed_pairs(problem, SolverOptions(starts=2))
     assert len(calls) == 3
+
+
+class _Direct:
+    """What :func:`recombined_pairs` reads of a direct solution: ``T`` and the states."""
+
+    def __init__(self, T, q0, q1):
+        self.T = T
+        self.x = np.vstack([np.concatenate([q0, np.zeros(3)]),
+                            np.concatenate([q1, np.zeros(3)])])
+
+
+def test_recombined_seeds_join_one_parent_start_to_another_end(galicki):
+    """Each recombined seed starts where a parent starts and ends where a parent ends
+    (modulo full turns), each joint turning by the full turns nearest to one parent's own
+    displacement; a parent's own basin, a seed tried before and repeats are left out, the
+    slower parent's T decides the order, and at most ``count`` come back."""
+    from tocontrol_ros.core.seeding import recombined_pairs
+
+    problem = _problem(galicki)
+    fast = _Direct(1.0, np.array([0.1, 1.2, -0.4]), np.array([0.9, -3.6, 5.5]))
+    slow = _Direct(1.2, np.array([2.0, -0.7, 1.0]), np.array([1.1, 2.9, -2.3]))
+    tried = [(fast.x[0, :3], fast.x[-1, :3] + np.array([0.0, 2 * np.pi, 0.0]))]
+    pairs = recombined_pairs(problem, [fast, slow], tried, count=100)
+    assert pairs
+    starts = [fast.x[0, :3], slow.x[0, :3]]
+    ends = [fast.x[-1, :3], slow.x[-1, :3]]
+    moves = [e - s for s, e in zip(starts, ends, strict=True)]
+
+    def wrapped(d):
+        return np.angle(np.exp(1j * d))
+
+    for qa, qb in pairs:
+        a = next(i for i, s in enumerate(starts) if np.allclose(qa, s))
+        b = next(i for i, e in enumerate(ends) if np.allclose(wrapped(qb - e), 0.0, atol=1e-9))
+        d = wrapped(ends[b] - starts[a])
+        assert any(np.allclose(qb - qa, d + 2 * np.pi * np.round((moves[p] - d) / (2 * np.pi)))
+                   for p in (a, b))
+        # Not a parent's own motion, not the seed tried before.
+        assert not any(np.allclose(qa, s) and np.allclose(qb - qa, m)
+                       for s, m in zip(starts, moves, strict=True))
+        assert not np.allclose(np.concatenate([qa, qb]), np.concatenate(tried[0]))
+    flat = [np.concatenate(p) for p in pairs]
+    assert all(np.max(np.abs(f - g)) > 1e-3 for i, f in enumerate(flat) for g in flat[:i])
+    # Both crossings are there; the fast parent's own pair (its basin again) is not, so
+    # the first seed is a crossing with the fast parent's turns.
+    def ends_of(qa, qb):
+        return (next(i for i, s in enumerate(starts) if np.allclose(qa, s)),
+                next(i for i, e in enumerate(ends)
+                     if np.allclose(wrapped(qb - e), 0.0, atol=1e-9)))
+
+    assert {ends_of(qa, qb) for qa, qb in pairs} >= {(0, 1), (1, 0)}
+    a, b = ends_of(*pairs[0])
+    assert a != b
+    d = wrapped(ends[b] - starts[a])
+    assert np.allclose(pairs[0][1] - pairs[0][0],
+                       d + 2 * np.pi * np.round((moves[0] - d) / (2 * np.pi)))
+    two = recombined_pairs(problem, [fast, slow], tried, count=2)
+    assert len(two) == 2
+    assert all(np.array_equal(x, y) for p, q in zip(two, pairs, strict=False)
+               for x, y in zip(p, q, strict=True))

@@ -168,13 +168,17 @@ def test_planar_8r_single_start_reaches_k4():
 
 
 @pytest.mark.slow
-def test_planar_8r_single_start_reaches_k4_by_the_direct_fallback():
+def test_planar_8r_single_start_reaches_k4_by_the_direct_fallback(monkeypatch):
     """Issue 18: the planar 8R of the scaling benchmark, one start, with the default
-    fallback. Its shooting stalls (the test above); the B-spline solve at k = 4 from the
+    fallback. Its shooting stalls (the test above; the shooting at k from a direct solve at
+    k forced to fail here); the B-spline solve at k = 4 from the
     guess stopped at 300 iterations twice, T creeping, and the plan failed; by continuation
     in k on the uniform mesh it converges (docs/limits.md), and the certificate checks the
     motion independently. (A time limit for a loaded machine: this is about robustness.)"""
+    from tocontrol_ros.core import solver
     from tocontrol_ros.core.robot.model import load_robot
+
+    monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
 
     model = load_robot(_planar_urdf(8))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -274,12 +278,45 @@ def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     assert not gravity_free(upright, q)
 
 
+def test_a_stalled_continuation_is_solved_at_k_directly():
+    """The planar 5R, one start, default guess: the continuation in k stalls (at k = 1.56)
+    from the coarse guess; the guess is solved by the direct method at k = 4 and the
+    shooting converges at k = 4 from that (no continuation in k): the maximum principle's
+    motion, certified, whose T the direct solve at k (another method) bounds from above
+    to within its mesh's error."""
+    from tocontrol_ros.core.direct.collocation import initial_path
+    from tocontrol_ros.core.direct.limited import finer_guess
+    from tocontrol_ros.core.robot.model import load_robot
+    from tocontrol_ros.core.seeding import seed_pairs
+    from tocontrol_ros.core.solver import _PLANNERS, Status
+
+    model = load_robot(_planar_urdf(5))
+    problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
+    res = plan(problem, SolverOptions(starts=1, candidates=1))
+    assert res.success, res.message
+    assert res.method == "indirect" and res.certificate.passed
+    assert res.continuation[0][0] == 4.0  # no continuation in k: it started at k = 4
+    assert not res.warnings
+    # The direct method at k = 4 from the same guess (the rescue's first step, redone).
+    planner = _PLANNERS[id(model)]
+    defaults = SolverOptions()
+    guess = planner.direct(problem, defaults.guess_intervals, tol=defaults.guess_tol)
+    (qa, qb), = seed_pairs(problem, SolverOptions(starts=1, candidates=1))
+    k1 = guess.solve(problem.start.value, problem.target.value, 1.0,
+                     *initial_path(model, qa, qb, guess.N)[:3])
+    direct = finer_guess(planner, problem, k1, problem.k)
+    assert direct.success
+    assert res.T <= direct.T * (1 + 1e-3) and res.T >= direct.T * 0.97
+    bare = plan(problem, SolverOptions(starts=1, candidates=1, direct_fallback=False))
+    assert bare.status is Status.SUCCESS and bare.T == pytest.approx(res.T, rel=1e-9)
+
+
 def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     """The planar 5R, one start, default guess: the continuation in k stalls (at k = 1.56)
-    from the coarse guess, whose k = 1 solution the finer one leads to as well; the same
-    problem is then solved as a B-spline path (method "direct") from the finer guess,
-    certified, and the warnings say why. Without the fallback the shooting's failure is
-    reported."""
+    from the coarse guess, whose k = 1 solution the finer one leads to as well; with the
+    direct solve at k failing too (forced here), the same problem is then solved as a
+    B-spline path (method "direct") from the finer guess, certified, and the warnings say
+    why. Without the fallback the shooting's failure is reported."""
     from tocontrol_ros.core.direct import limited
     from tocontrol_ros.core.robot.model import load_robot
     from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
@@ -303,6 +340,7 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
         return solve_from_guess(ctx, guess)
 
     monkeypatch.setattr(solver, "solve_from_guess", shoot)
+    monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
     assert started == [(FINE_GUESS_INTERVALS, True)]  # by continuation in k
     # The finer guess leads to the k = 1 solution the continuation stalled from: it is
@@ -363,6 +401,11 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
         return out
 
     monkeypatch.setattr(flat_mod.FlatTranscription, "solve", solve)
+    from tocontrol_ros.core import solver
+
+    # The shooting at k from a direct solve at k solves this start (the test of the
+    # failed candidate faster than the solution found): forced to fail, for the fallback.
+    monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
     problem = _moving_start_problem(galicki)
     res = plan(problem, SolverOptions(starts=1, candidates=1))
     assert res.success, res.message
@@ -388,13 +431,23 @@ def _moving_start_problem(galicki):
     return Problem(galicki, start, point((1.0, 1.0)), k=4.0)
 
 
-def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(galicki):
+def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(galicki,
+                                                                            monkeypatch):
     """The default multistart on that state: the best guess (k = 1, T 0.466 s) stalls in
-    the continuation and another basin is continued to T = 0.916 s; the failed basin's
-    k = 1 motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
-    returned, certified, the records saying which was slower."""
+    the continuation; with its direct solve at k failing too and no recombined seeds (both
+    forced here), another basin is continued to T = 0.916 s; the failed basin's k = 1
+    motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
+    returned, certified, the records saying which was slower. Unforced, the shooting finds
+    the same motion (the two methods' T within 1e-3)."""
+    from tocontrol_ros.core import guesses, solver
+
     problem = _moving_start_problem(galicki)
+    shot = plan(problem, SolverOptions())
+    assert shot.success and shot.method == "indirect", shot.message
+    monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
+    monkeypatch.setattr(guesses, "RECOMBINED_STARTS", 0)
     res = plan(problem, SolverOptions())
+    assert shot.T == pytest.approx(res.T, rel=1e-3)
     assert res.success, res.message
     assert res.method == "direct" and res.certificate.passed
     assert res.T < 0.45
@@ -411,8 +464,12 @@ def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(ga
 
 def test_a_slower_direct_solution_leaves_the_shooting_result(galicki, monkeypatch):
     """When the B-spline path of the failed candidates is not faster, the multistart's
-    solution is returned, and its warnings say what was tried."""
-    from tocontrol_ros.core import solver
+    solution is returned, and its warnings say what was tried (the direct solve at k of
+    the failed candidate forced to fail, no recombined seeds)."""
+    from tocontrol_ros.core import guesses, solver
+
+    monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
+    monkeypatch.setattr(guesses, "RECOMBINED_STARTS", 0)
 
     original = solver.plan_limited
 

@@ -17,8 +17,10 @@ from tocontrol_ros.core.direct.limited import (
     touches,
 )
 from tocontrol_ros.core.direct.tuning import PAD
+from tocontrol_ros.core.seeding import distinct_basins, recombined_pairs, revolute_joints
+from tocontrol_ros.core.tuning import RECOMBINED_PARENTS, RECOMBINED_STARTS
 
-__all__ = ["solve_guesses"]
+__all__ = ["solve_guesses", "recombined_guesses"]
 
 
 def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
@@ -31,7 +33,7 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
         ``(index, qa, qb, DirectResult)`` per pair, and the state bounds they were solved
         within (None: without bounds).
     """
-    problem, options = ctx.problem, ctx.options
+    problem = ctx.problem
     # When the first guess reaches the joint limits, it and the others are solved within
     # them: the bounded solve then starts from these guesses (no second round). Otherwise
     # they are solved without bounds, as on an arm without limits (bounds that never bind
@@ -41,9 +43,7 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     bounds = state_bounds(problem, PAD) if problem.limits.active else None
     x_bounds = None
     guesses = []
-    paths = initial_paths(problem.model, np.array([p[0] for p in pairs]),
-                          np.array([p[1] for p in pairs]), options.guess_intervals,
-                          problem.torque_scale, problem.limits.plan_velocity)
+    paths = _initial_paths(ctx, pairs)
     if pairs:
         ctx.check()
         path = (paths[0][0], paths[1][0], paths[2][0])
@@ -66,6 +66,43 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     for idx, res in zip(rest, solved, strict=True):
         guesses.append((idx, *pairs[idx], res))
     return guesses, x_bounds
+
+
+def recombined_guesses(planner: Transcriptions, ctx: SolveContext, guesses: list,
+                       pairs: list) -> tuple[list, list]:
+    """The guesses and seed pairs with those of the recombined seeds added.
+
+    Seeds that cross the ends of the :data:`RECOMBINED_PARENTS` best distinct guesses
+    (:func:`~tocontrol_ros.core.seeding.recombined_pairs`), at most
+    :data:`RECOMBINED_STARTS` and ``options.starts // 2``, solved like the others (k = 1,
+    without bounds: only after :func:`solve_guesses` solved its own without them), side by
+    side; their indices follow the pairs'.
+
+    Returns
+    -------
+    (guesses, pairs)
+        ``(index, qa, qb, DirectResult)`` per pair, and the pairs, both extended (new lists).
+    """
+    problem = ctx.problem
+    parents = distinct_basins([g for g in guesses if g[3].success], lambda g: g[3],
+                              problem.model.n, revolute_joints(problem.model))
+    more = recombined_pairs(problem, [g[3] for g in parents[:RECOMBINED_PARENTS]], pairs,
+                            min(RECOMBINED_STARTS, ctx.options.starts // 2))
+    if not more:
+        return guesses, pairs
+    paths = _initial_paths(ctx, more)
+    solved = planner.map(_guess_item, ctx, [((paths[0][i], paths[1][i], paths[2][i]), None)
+                                            for i in range(len(more))])
+    added = [(len(pairs) + i, *more[i], res) for i, res in enumerate(solved)]
+    return guesses + added, pairs + more
+
+
+def _initial_paths(ctx: SolveContext, pairs: list) -> tuple:
+    """:func:`initial_paths` of the seed pairs (their direct solves' starting paths)."""
+    problem = ctx.problem
+    return initial_paths(problem.model, np.array([p[0] for p in pairs]),
+                         np.array([p[1] for p in pairs]), ctx.options.guess_intervals,
+                         problem.torque_scale, problem.limits.plan_velocity)
 
 
 def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,

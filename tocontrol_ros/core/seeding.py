@@ -23,12 +23,13 @@ from tocontrol_ros.core.tuning import (
     EXHAUSTIVE_STARTS,
     GRAVITY_FREE,
     MAX_BRANCH_JOINTS,
+    RECOMBINED_NEAR,
     SAME_BASIN,
     SEED_SPACING,
 )
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
-           "branch_shifts", "gravity_free", "time_ratio_bound"]
+           "branch_shifts", "recombined_pairs", "gravity_free", "time_ratio_bound"]
 
 
 def shiftable_joints(problem: Problem) -> np.ndarray:
@@ -86,6 +87,21 @@ def branch_shifts(shiftable: np.ndarray) -> np.ndarray:
     return out
 
 
+def _bang_bang_estimate(d: np.ndarray, inertia: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """The ranking's time estimate (s): ``max_i 2 sqrt(|d_i| M_ii / tau_i)``, last axis.
+
+    Parameters
+    ----------
+    d : ndarray, shape (..., n)
+        Displacements (rad, m).
+    inertia : ndarray, shape broadcastable to ``d``
+        Diagonals of the inertia matrix at the start.
+    acc : ndarray, shape (n,)
+        Torque limits (N·m, N) times the problem's torque scale.
+    """
+    return np.max(2 * np.sqrt(np.abs(d) * inertia / acc), axis=-1)
+
+
 def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False):
     """Every (start, target, branch) seed with its time estimate, unranked.
 
@@ -119,7 +135,7 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     d = np.array(targets)[None, :, :] - qa[:, None, :]      # (S, G, n)
     d = np.where(shiftable, np.angle(np.exp(1j * d)), d)
     dv = d[:, :, None, :] + branch_shifts(shiftable)        # (S, G, V, n)
-    est = np.max(2 * np.sqrt(np.abs(dv) * inertia[:, None, None, :] / acc), axis=-1)
+    est = _bang_bang_estimate(dv, inertia[:, None, None, :], acc)
     q_end = qa[:, None, None, :] + dv
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     inside = np.all((q_end >= lo - 1e-12) & (q_end <= hi + 1e-12), axis=-1)
@@ -230,6 +246,79 @@ def _spread(q_a: np.ndarray, q_b: np.ndarray, count: int) -> np.ndarray:
                 continue
         keep.append(i)
     return np.array((keep + skipped)[:count], dtype=int)
+
+
+def recombined_pairs(problem: Problem, parents: list, tried: list, count: int
+                     ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Seed pairs that join the start of one direct solution to the end of another.
+
+    The direct method frees both ends on their self-motion manifolds, so the ends of its
+    solutions are better placed than the inverse-kinematics grid's; the best motion often
+    starts where one of them starts and ends where another ends (on the paper's arm, in
+    four of the six pairs of the reference the ranked seeds missed). Each ordered pair of
+    parents ``(a, b)`` (``a == b`` included) gives the straight path from ``a``'s start to
+    ``b``'s end with the turns of each parent in turn: per shiftable joint the displacement
+    (wrapped to the short way, :func:`shiftable_joints`) plus the multiple of 2 pi nearest
+    to that parent's own displacement. Seeds that are a parent's own basin again (start
+    modulo 2 pi and displacement within :data:`RECOMBINED_NEAR`), repeat one tried before
+    or leave the position limits are dropped; the others come by their parents' ``T``
+    (the slower parent's, then the faster's; then the faster parent's turns first).
+
+    Parameters
+    ----------
+    problem : Problem
+    parents : list of DirectResult
+        Distinct direct solutions, with ``T`` and states ``x`` (N + 1, 2n).
+    tried : list of (ndarray, ndarray)
+        Seed pairs already solved (rad, m).
+    count : int
+        At most this many pairs.
+
+    Returns
+    -------
+    list of (ndarray, ndarray), each shape (n,)
+        ``(q_start, q_target)`` (rad, m), most promising first.
+    """
+    model = problem.model
+    n = model.n
+    shiftable = shiftable_joints(problem)
+    revolute = revolute_joints(model)
+    lo, hi = np.tile(problem.limits.plan_lower, 2), np.tile(problem.limits.plan_upper, 2)
+    starts = [p.x[0, :n] for p in parents]
+    moves = [p.x[-1, :n] - p.x[0, :n] for p in parents]
+    own = [np.concatenate([np.where(revolute, np.mod(q, 2 * np.pi), q), m])
+           for q, m in zip(starts, moves, strict=True)]
+    inertia = model.diagonal_inertia(np.array(starts)) if parents else np.zeros((0, n))
+    acc = model.tau_max * problem.torque_scale
+    ranked = []
+    for a, b in itertools.product(range(len(parents)), repeat=2):
+        d = starts[b] + moves[b] - starts[a]
+        d = np.where(shiftable, np.angle(np.exp(1j * d)), d)
+        for parent in (a, b):
+            turns = np.where(shiftable, np.round((moves[parent] - d) / (2 * np.pi)), 0.0)
+            dv = d + 2 * np.pi * turns
+            # The faster parent's turns first; ties broken by the bang-bang estimate.
+            est = _bang_bang_estimate(dv, inertia[a], acc)
+            key = (max(parents[a].T, parents[b].T), min(parents[a].T, parents[b].T),
+                   parents[parent].T, est)
+            ranked.append((key, a, dv))
+    ranked.sort(key=lambda r: r[0])
+    seen = [np.concatenate(pair) for pair in tried]
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    for _, a, dv in ranked:
+        if len(out) >= count:
+            break
+        qa = starts[a]
+        row = np.concatenate([np.where(revolute, np.mod(qa, 2 * np.pi), qa), dv])
+        if any(_basin_distance(row, other, revolute) <= RECOMBINED_NEAR for other in own):
+            continue
+        pair = np.concatenate([qa, qa + dv])
+        if any(np.max(np.abs(pair - other)) <= SAME_BASIN for other in seen) or \
+                np.any(pair < lo - 1e-12) or np.any(pair > hi + 1e-12):
+            continue
+        seen.append(pair)
+        out.append((qa.copy(), qa + dv))
+    return out
 
 
 def distinct_basins(items: list, result, n: int, periodic: np.ndarray | None = None) -> list:

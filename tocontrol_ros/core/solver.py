@@ -23,10 +23,12 @@ also across the solves of one mesh and into a warm start). Because the switch no
 with the switches, a warm start after a small move usually keeps the previous mesh: a few
 Newton iterations and one error estimate.
 
-Multistart runs step 1 from several seed pairs spread over the self-motion manifolds,
-groups the direct solutions by basin and continues the most promising ones; the best is
-returned and the others listed. A warm start skips the guess and continues from a previous
-solution (e.g. after the target moved).
+Multistart runs step 1 from several seed pairs spread over the self-motion manifolds (then
+from more that cross the ends of the best direct solutions), groups the direct solutions by
+basin and continues the most promising ones; the best is returned and the others listed.
+A promising candidate whose shooting fails in steps 2-3 is solved by the direct method at
+the requested ``k`` and shot from there, without continuation in ``k``. A warm start skips
+the guess and continues from a previous solution (e.g. after the target moved).
 
 This module is the orchestration; the pieces live next to it:
 
@@ -62,10 +64,11 @@ from tocontrol_ros.core.direct.limited import (
     touches,
 )
 from tocontrol_ros.core.direct.tuning import FINE_GUESS_INTERVALS
-from tocontrol_ros.core.guesses import solve_guesses
+from tocontrol_ros.core.guesses import recombined_guesses, solve_guesses
 from tocontrol_ros.core.indirect.continuation import (
     final_smoothing,
     finish_warm,
+    solve_at_k,
     solve_from_guess,
     warm_run,
 )
@@ -81,6 +84,7 @@ from tocontrol_ros.core.seeding import (
     time_ratio_bound,
 )
 from tocontrol_ros.core.tuning import (
+    AT_K_MARGIN,
     CANDIDATE_MARGIN,
     EXHAUSTIVE_CANDIDATES,
     INCUMBENT_TRIES,
@@ -443,6 +447,10 @@ _LIMITS_BIND = object()
 def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     """Multistart: direct guesses from seed pairs, the best distinct ones continued.
 
+    Ranked seeds, then recombined ones (:func:`~.guesses.recombined_guesses`); a candidate
+    whose shooting fails is solved at k directly (:func:`_direct_at_k`) by the rule of
+    :data:`AT_K_MARGIN`.
+
     Returns
     -------
     (run, records, status, message)
@@ -456,6 +464,9 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     if not pairs:
         return None, [], Status.NO_GUESS, "no inverse-kinematics seed"
     guesses, x_bounds = solve_guesses(planner, ctx, pairs)
+    if x_bounds is None and not options.exhaustive:  # within limits: the bounded solve's
+        guesses, pairs = recombined_guesses(planner, ctx, guesses, pairs)
+        ctx.memo["pairs"] = pairs
     if x_bounds is not None or not problem.limits.active:
         # Guesses a bounded solve can start from (no bounds: every one).
         ctx.memo["guesses"] = [(g[0], g[3]) for g in guesses]
@@ -484,6 +495,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ratio = time_ratio_bound(problem.model.n, problem.k) if gravity_free(
         problem.model, np.vstack([g[3].x[:, :problem.model.n] for g in distinct[:count]])) \
         else 0.0
+    first_direct = np.inf  # the least direct T (k = 1) among the candidates that succeeded
     for g in distinct[:count]:
         if best is not None and not options.exhaustive and \
                 g[3].T * ratio > best[0].t_final * (1 + CANDIDATE_MARGIN):
@@ -491,8 +503,21 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
             records[g[0]] = replace(records[g[0]], status=SKIPPED)
             continue
         run, status, message = solve_from_guess(ctx, g[3])
+        done = "continued"
+        if status in _SHOOTING_FAILURES and problem.k > 1 and \
+                g[3].T <= first_direct * (1 + AT_K_MARGIN):
+            # The continuation in k is one path to the basin at k, a direct solve at k
+            # another: taken while no candidate succeeded, or when this one's k = 1 T is
+            # within AT_K_MARGIN of the first that did (they come by that T). A slower
+            # failure is left to the rule of _faster_failures.
+            at_k = _direct_at_k(planner, ctx, g[3])
+            if at_k is not None:
+                done = (f"continued from a direct solve at k = {problem.k:g} (from k = 1: "
+                        f"{status.value}: {message})")
+                run, status, message = at_k, Status.SUCCESS, ""
         if status is Status.SUCCESS:
-            records[g[0]] = replace(records[g[0]], T=run.t_final, status="continued")
+            records[g[0]] = replace(records[g[0]], T=run.t_final, status=done)
+            first_direct = min(first_direct, g[3].T)
             succeeded.append((run, g[0]))
             if best is None or run.t_final < best[0].t_final:
                 best = (run, g[0])
@@ -513,6 +538,21 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     ctx.memo["others"] = sorted(((r, i) for r, i in succeeded if i != best[1]),
                                 key=lambda ri: ri[0].t_final)
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
+
+
+def _direct_at_k(planner: Planner, ctx: SolveContext, guess) -> Run | None:
+    """A candidate whose shooting failed from its guess, solved at the requested k directly.
+
+    The direct method at ``problem.k`` from the guess (finer, :func:`finer_guess`), then
+    the shooting at that k from it (:func:`solve_at_k`), no continuation in k: the basin a
+    stalled guess proposes can still hold the best motion. None when either fails.
+    """
+    problem = ctx.problem
+    direct = finer_guess(planner, problem, guess, problem.k)
+    if not direct.success:
+        return None
+    run, status, _ = solve_at_k(ctx, direct)
+    return run if status is Status.SUCCESS else None
 
 
 def _from_finer_guess(planner: Planner, ctx: SolveContext, g: tuple, failures: list,

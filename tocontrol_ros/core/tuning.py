@@ -11,6 +11,7 @@ patches it on the module that reads it (``monkeypatch.setattr(solver, "CANDIDATE
 """
 
 __all__ = ["EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "SEED_SPACING", "MAX_BRANCH_JOINTS",
+           "RECOMBINED_PARENTS", "RECOMBINED_STARTS", "RECOMBINED_NEAR", "AT_K_MARGIN",
            "EXHAUSTIVE_CANDIDATES", "SAME_BASIN", "CANDIDATE_MARGIN", "GRAVITY_FREE", "SAME_K1",
            "WARM_RADIUS", "WARM_JOINT_RADIUS", "WARM_GAIN", "INCUMBENT_TRIES"]
 
@@ -31,6 +32,19 @@ SEED_SPACING = 1.5
 
 #: At most this many joints get branch variants at once (2^J or 3^J variants per pair).
 MAX_BRANCH_JOINTS = 7
+
+#: The ends of this many distinct direct solutions (fastest first) are recombined into
+#: more seeds (:func:`~tocontrol_ros.core.seeding.recombined_pairs`): on the paper's arm the
+#: best motion's start often lies in one of the first four and its end in another.
+RECOMBINED_PARENTS = 4
+
+#: Recombined seeds solved by the direct method after the ranked ones (at most half as many
+#: as those; not in the exhaustive mode): the first by their parents' direct ``T``.
+RECOMBINED_STARTS = 7
+
+#: A recombined seed whose start (modulo 2 pi) and displacement are within this of a
+#: parent's (max-norm, rad or m) is that parent's basin again, and is not solved.
+RECOMBINED_NEAR = 0.5
 
 
 # ------- which candidates to continue (seeding.py, solver.py, direct/limited.py)
@@ -63,6 +77,13 @@ GRAVITY_FREE = 1e-9
 #: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
 #: its continuation's 19 Newton solves to the digit, 2.3 s).
 SAME_K1 = 1e-3
+
+#: A candidate whose shooting failed from its guess is solved by the direct method at the
+#: requested k (then shot from there) when its direct ``T`` (k = 1) is within this
+#: (relative) of the first candidate that succeeded, or none succeeded yet: within a few
+#: percent the k = 1 order of two basins often reverses at k = 4 on the paper's arm
+#: (0.6 % and 1.5 % apart at k = 1 in two of the reference's pairs).
+AT_K_MARGIN = 0.02
 
 
 # ----------------------------------------- the warm start (result.py, solver.py)

@@ -84,8 +84,9 @@ class Transcriptions(Protocol):
 __all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
 
 
-def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult) -> DirectResult:
-    """A direct solution at k = 1 solved again, finer.
+def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult,
+                k: float = 1.0) -> DirectResult:
+    """A direct solution solved again, finer, at the exponent ``k`` (default: 1, as a guess).
 
     On :data:`FINE_GUESS_INTERVALS` intervals to :data:`FINE_GUESS_TOL`, from itself
     interpolated.
@@ -95,7 +96,7 @@ def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult)
     linear = make_interp_spline(coarse.t, np.hstack([coarse.x, coarse.u]), k=1)
     xu = linear(np.linspace(0.0, coarse.T, FINE_GUESS_INTERVALS + 1))
     n2 = coarse.x.shape[1]
-    return direct.solve(problem.start.value, problem.target.value, 1.0, coarse.T,
+    return direct.solve(problem.start.value, problem.target.value, k, coarse.T,
                         xu[:, :n2], xu[:, n2:])
 
 

@@ -54,6 +54,39 @@ def solve_from_guess(ctx: SolveContext, direct: DirectResult) -> tuple[Run, Stat
     on twice as many (the direct solution interpolated anew): where the guess's costates are
     rough, shorter intervals keep the initial residual small enough for Newton.
     """
+    run, rep = _shoot(ctx, direct, 1.0, 0.0, max(ctx.options.tol, CONTINUATION_TOL))
+    if not rep.converged:
+        return run, Status.NEWTON_FAILED, f"at k = 1 from the guess: {rep.message}"
+    if not _continue_k(ctx, run):
+        return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
+    return run, Status.SUCCESS, ""
+
+
+def solve_at_k(ctx: SolveContext, direct: DirectResult) -> tuple[Run, Status, str]:
+    """Shooting at the requested k from a direct solution at that k: no continuation in k.
+
+    For a basin whose continuation from k = 1 failed (:func:`solve_from_guess`): the
+    direct method went to the requested k instead, and its multipliers give the costates
+    there. Newton solves at ``options.smoothing_intermediate``, where the continuation in k
+    would have arrived, to its placement tolerance; :func:`final_smoothing` follows.
+    """
+    options = ctx.options
+    loose = max(options.tol, PLACEMENT_TOL if options.switch_nodes else CONTINUATION_TOL)
+    run, rep = _shoot(ctx, direct, ctx.problem.k, options.smoothing_intermediate, loose)
+    if not rep.converged:
+        return run, Status.NEWTON_FAILED, f"at k = {ctx.problem.k:g} from the direct " \
+            f"solution at k: {rep.message}"
+    return run, Status.SUCCESS, ""
+
+
+def _shoot(ctx: SolveContext, direct: DirectResult, k: float, delta: float, tol: float
+           ) -> tuple[Run, NewtonReport]:
+    """Newton on a uniform shooting mesh from a direct solution at ``(k, delta)``.
+
+    On ``options.intervals`` intervals, then (when Newton does not converge) on twice as
+    many, the direct solution interpolated anew. Returns the run (at the solution when the
+    last report converged) and the last Newton report.
+    """
     problem, options = ctx.problem, ctx.options
     # The switch mesh (options.steps per interval) takes over after the continuation.
     steps = min(options.steps, CONTINUATION_STEPS) if problem.k > 1 and options.switch_nodes \
@@ -63,15 +96,11 @@ def solve_from_guess(ctx: SolveContext, direct: DirectResult) -> tuple[Run, Stat
         grid = ShootingGrid(ctx.system, lengths, steps, problem.start.kind,
                             problem.target.kind)
         nodes = _nodes_from_direct(direct, grid.tau)
-        run = Run(grid=grid, w=grid.pack(nodes, direct.T), k=1.0, delta=0.0)
-        rep = newton(ctx, run, 1.0, 0.0, max(options.tol, CONTINUATION_TOL))
+        run = Run(grid=grid, w=grid.pack(nodes, direct.T), k=k, delta=delta)
+        rep = newton(ctx, run, k, delta, tol)
         if rep.converged:
             break
-    else:
-        return run, Status.NEWTON_FAILED, f"at k = 1 from the guess: {rep.message}"
-    if not _continue_k(ctx, run):
-        return run, Status.CONTINUATION_FAILED, f"stalled at k = {run.k:g}"
-    return run, Status.SUCCESS, ""
+    return run, rep
 
 
 def _k_schedule(k: float) -> list[float]:
