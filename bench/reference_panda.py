@@ -38,6 +38,7 @@ Run alone: ``scripts/dev run python -P bench/reference_panda.py [CASES] [SEEDS] 
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing
 import os
 import statistics
@@ -73,7 +74,7 @@ from tocontrol_ros.core.robot.model import RobotModel  # noqa: E402
 from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
 
 #: Seeds per case.
-SEEDS = 64
+SEEDS = 32
 #: Intervals of the seeds' solves.
 COARSE = 25
 #: Intervals of the refined solves.
@@ -260,6 +261,10 @@ def run(count: int = 50, seeds: int = SEEDS, cache: Path | None = None) -> Secti
     model, limits = found
     cache = Path(cache) if cache else Path(tempfile.gettempdir()) / "tocontrol-reference-panda"
     problems = _problems(model, limits, count)
+    cache.mkdir(parents=True, exist_ok=True)
+    record = cache / f"reference_panda_{count}_{seeds}.jsonl"
+    record.write_text("")
+    log(f"reference Panda: each case's figures are appended to {record}")
     t0 = time.perf_counter()
     items = [(i, count, seeds, cache) for i in range(count)]
     ctx = multiprocessing.get_context("spawn")
@@ -272,7 +277,8 @@ def run(count: int = 50, seeds: int = SEEDS, cache: Path | None = None) -> Secti
                 f"rank {ref['rank']} ({ref['solved']}/{seeds} solved, {ref['distinct']} "
                 f"distinct, {ref['seconds']:.1f} s CPU); check end "
                 f"{1e3 * c.get('end', np.nan):.3g} mm, q step {c.get('q_step', np.nan):.1e}, "
-                f"bounds {c.get('bounds', np.nan):.0e}")
+                f"bounds {c.get('bounds', np.nan):.0e}; best by seeds {ref['curve']}")
+            _append(record, {"case": i + 1, **{k: v for k, v in ref.items() if k != "sol"}})
     t_refs = time.perf_counter() - t0
     default = SolverOptions(time_limit=TIME_LIMIT)
     plan(problems[0], default)  # warm-up
@@ -285,7 +291,15 @@ def run(count: int = 50, seeds: int = SEEDS, cache: Path | None = None) -> Secti
                      "kind": problem.start.kind})
         log(f"reference Panda {i + 1}/{count}: default {res.status.name} {res.T:.6f} in "
             f"{elapsed:.2f} s, gap {gap:+.2e}")
+        _append(record, {"case": i + 1, "default_T": res.T if res.success else None,
+                         "default_status": res.status.name, "default_seconds": elapsed})
     return _section(title, recs, seeds, t_refs)
+
+
+def _append(path: Path, record: dict) -> None:
+    """One JSON line of figures (so that a run cut short leaves what it measured)."""
+    with path.open("a") as f:
+        f.write(json.dumps(record, default=float) + "\n")
 
 
 def _section(title: str, recs: list, seeds: int, t_refs: float) -> Section:
