@@ -5,7 +5,8 @@ Run from the repository root::
     scripts/dev bench                      # the full run (about an hour on 2 cores)
     scripts/dev bench run_all.py --quick   # fewer runs and pairs, for development
     python bench/run_all.py [--quick] [--out FILE]
-        [--only paper,peers,random,optimum,reference_paper,optimum_panda,profile_panda,scaling,
+        [--only paper,peers,random,optimum,reference_paper,optimum_panda,reference_panda,
+                profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
                 verification,deployed,replan,batch,limits,first_motion]
@@ -16,8 +17,11 @@ Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multis
 exhaustive reference on 100 seeded pairs, about half an hour), ``reference_paper`` (the default
 on the same pairs against an independent direct-collocation reference and its convergence,
 about 40 minutes on 2 processes), ``optimum_panda`` (the same on the
-Panda with its joint limits), ``profile_panda`` (where a default Panda plan's time goes, and
-the same plans with two worker processes), ``scaling`` (planar arms of 2 to 8 links, the Panda),
+Panda with its joint limits), ``reference_panda`` (the default on 50 Panda cases with
+its limits against an independent reference, the compiled collocation peer from many seeds,
+and its convergence, about 40 minutes on 2 processes), ``profile_panda`` (where a default
+Panda plan's time goes, and the same plans with two worker processes), ``scaling`` (planar
+arms of 2 to 8 links, the Panda),
 ``panda_peer`` (the Panda with its limits against Hermite-Simpson collocation),
 ``peer_compiled`` (the default Panda plan on the 20 best-motion cases against an independent
 direct-collocation peer built once with parameters and compiled derivatives), ``first_use``
@@ -51,6 +55,7 @@ from bench import common  # noqa: E402  (sets the thread variables before numpy)
 
 #: The parts, in the order they run (``--only`` picks some).
 PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_panda",
+         "reference_panda",
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "batch", "limits",
@@ -137,6 +142,7 @@ def _run(args):
         peers,
         profile_panda,
         random_pairs,
+        reference_panda,
         reference_paper,
         replan,
         scaling,
@@ -181,6 +187,9 @@ def _run(args):
                                              256 if args.quick else reference_paper.SEEDS))
     if "optimum_panda" in args.only:
         section(lambda: optimum_panda.run(2 if args.quick else args.optimum_panda_cases))
+    if "reference_panda" in args.only:
+        section(lambda: reference_panda.run(2 if args.quick else 50,
+                                            16 if args.quick else reference_panda.SEEDS))
     if "scaling" in args.only:
         if args.quick:
             scaling.PLANAR_NS = (2, 3, 5)
