@@ -360,3 +360,10 @@ class Section:
     seconds: float = float("nan")
     steal: str = "unknown"  # CPU steal during the section (see cpu_ticks)
     speed: str = "unknown"  # speed_probe() just before the section
+
+    def print(self) -> None:
+        """The section as markdown on stdout (a script run alone), its verdicts after it."""
+        print(f"## {self.title}\n")
+        print("\n".join(self.lines))
+        for target, verdict in self.targets:
+            print(f"- {target}: {verdict}")

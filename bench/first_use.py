@@ -196,7 +196,4 @@ def run(runs=3):
 
 if __name__ == "__main__":
     section = run(runs=int(sys.argv[1]) if len(sys.argv) > 1 else 3)
-    print(f"## {section.title}\n")
-    print("\n".join(section.lines))
-    for target, verdict in section.targets:
-        print(f"- {target}: {verdict}")
+    section.print()

@@ -770,10 +770,7 @@ def main(argv=None) -> int:
                              "directory, removed afterwards)")
     args = parser.parse_args(argv)
     section = run(args.count, args.cache)
-    print(f"## {section.title}\n")
-    print("\n".join(section.lines))
-    for target, verdict in section.targets:
-        print(f"\n{target}: {verdict}")
+    section.print()
     return 0
 
 

@@ -264,8 +264,7 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     count = int(argv[0]) if argv and argv[0].isdigit() else 4
     section = run_cores(count) if "--cores" in argv else run(count)
-    print(f"## {section.title}\n")
-    print("\n".join(section.lines))
+    section.print()
     return 0
 
 

@@ -415,10 +415,7 @@ def main(argv=None) -> int:
                         help="keep the compiled peers here")
     args = parser.parse_args(argv)
     section = run(args.count, args.seeds, args.cache)
-    print(f"## {section.title}\n")
-    print("\n".join(section.lines))
-    for target, verdict in section.targets:
-        print(f"\n{target}: {verdict}")
+    section.print()
     return 0
 
 

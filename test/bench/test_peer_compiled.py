@@ -11,26 +11,17 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 # The repository, for bench/ (not installed), last: tocontrol_ros stays the installed one
 # (test/packaging/test_install_layout.py checks that).
 sys.path.append(str(Path(__file__).resolve().parents[2]))
 
 from bench import peer_compiled as pc  # noqa: E402
-from bench.limits import draw_cases, robots  # noqa: E402
+from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core import Problem, SolverOptions  # noqa: E402
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
 from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def panda():
-    found = robots().get("Panda")
-    if found is None:
-        pytest.skip("example-robot-data is not installed")
-    return found
 
 
 def test_peer_reaches_the_target_through_the_forward_dynamics(panda):

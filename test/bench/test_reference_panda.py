@@ -15,19 +15,11 @@ import pytest
 sys.path.append(str(Path(__file__).resolve().parents[2]))
 
 from bench import reference_panda as rp  # noqa: E402
-from bench.limits import draw_cases, robots  # noqa: E402
+from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core import Problem  # noqa: E402
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
 from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def panda():
-    found = robots().get("Panda")
-    if found is None:
-        pytest.skip("example-robot-data is not installed")
-    return found
 
 
 def test_seeds_reach_both_points_inside_the_bounds_and_spread(panda):
