@@ -150,6 +150,7 @@ def test_warm_joint_radius_is_validated():
         SolverOptions(warm_joint_radius=0.0)
 
 
+@pytest.mark.slow  # the default run keeps the stream's first warm step (wider radius)
 def test_a_stream_of_replans_stays_warm_when_its_switches_change(planner):
     # Goals 1.9 cm apart along bench/replan.py's circle, each replan from rest at the last
     # goal, warm from the last solution (cold, one start, when that fails, as the node

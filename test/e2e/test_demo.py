@@ -109,6 +109,7 @@ def test_demo_runs_the_whole_pipeline(demo):
     assert float(rows[0][4]) < 1e-3
 
 
+@pytest.mark.slow  # the default run keeps test_demo_runs_the_whole_pipeline's recording
 def test_demo_records_the_first_motion_whatever_the_recorder_delay(tmp_path):
     """A recorder slow to find the tracker (it looks for new publishers every 2 s instead of
     0.2) still records the whole first motion: the demo starts no motion before the recorder
