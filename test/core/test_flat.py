@@ -110,6 +110,7 @@ def test_panda_from_rest_keeps_its_urdf_limits(panda_limited):
     assert res.intervals > SPANS
 
 
+@pytest.mark.slow  # 12 s loaded; the default run keeps the Panda's other flat-path checks
 def test_panda_time_agrees_with_hermite_simpson_on_192_intervals(panda, panda_limited):
     """Another transcription of the same bounded problem, started from the solution."""
     res = panda_limited
