@@ -27,10 +27,13 @@ def command(name: str = "demo") -> tuple[list[str], dict]:
 
 
 class NodeProcess:
-    """Executable ``name`` with ``args`` in a subprocess, its output in ``log_dir/<name>.log``."""
+    """Executable ``name`` with ``args`` in a subprocess, its output in ``log_dir/<name>.log``;
+    ``env``: variables set on top of the executable's environment."""
 
-    def __init__(self, name: str, args: list[str], log_dir: Path) -> None:
-        cmd, env = command(name)
+    def __init__(self, name: str, args: list[str], log_dir: Path,
+                 env: dict | None = None) -> None:
+        cmd, base = command(name)
+        env = {**base, **(env or {})}
         self.log = log_dir / f"{name}.log"
         with open(self.log, "w") as log:
             self.proc = subprocess.Popen(cmd + args, env=env, stdout=log,

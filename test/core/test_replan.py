@@ -83,6 +83,14 @@ def test_latency_estimate_rejects_bad_arguments(args, match):
         LatencyEstimate(*args)
 
 
+def _circle(model, angles):
+    """bench/replan.py's circle (0.15 m about the arm's point at ``q0``) at ``angles`` (rad):
+    ``q0`` and the points, shape (len(angles), 2)."""
+    q0 = np.array([0.3, 0.9, 0.6])
+    p0 = np.asarray(model.point(q0))
+    return q0, p0 + 0.15 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+
+
 def _rest_stream(planner, q_from, targets, options):
     """Rest-to-rest problems along ``targets``, each from the last one's end (cold, one start)."""
     from tocontrol_ros.core.problem import Problem, joint_state
@@ -107,10 +115,7 @@ def test_wider_joint_radius_warm_starts_the_next_goal_of_a_stream(planner):
     from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS
 
     model = planner.model
-    q0 = np.array([0.3, 0.9, 0.6])
-    p0 = np.asarray(model.point(q0))
-    a = np.linspace(0.0, 0.5, 6)
-    circle = p0 + 0.15 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    q0, circle = _circle(model, np.linspace(0.0, 0.5, 6))
     one = SolverOptions(starts=1, candidates=1)
     stream = _rest_stream(planner, q0, circle[:2], one)
     last = stream[-1]
@@ -159,15 +164,11 @@ def test_a_stream_of_replans_stays_warm_when_its_switches_change(planner):
     # with the warm motion resampled on a uniform mesh and smoothed again. Each warm one
     # lands where the default multistart from the same start lands (an independent check).
     from tocontrol_ros.core.problem import Problem, joint_state
-    from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS
+    from tocontrol_ros.core.replan import replan_options
 
     model = planner.model
-    q0 = np.array([0.3, 0.9, 0.6])
-    p0 = np.asarray(model.point(q0))
-    a = 2 * np.pi * np.arange(8) / 50
-    circle = p0 + 0.15 * np.stack([np.cos(a), np.sin(a)], axis=1)
-    wide = SolverOptions(warm_only=True, starts=1, candidates=1,
-                         warm_joint_radius=REPLAN_JOINT_RADIUS)
+    q0, circle = _circle(model, 2 * np.pi * np.arange(8) / 50)
+    wide = replan_options(SolverOptions())
     prev = _rest_stream(planner, q0, circle[:2], wide)[-1]
     warm_ones = 0
     for p in circle[2:]:
@@ -193,10 +194,7 @@ def test_a_smoothed_replan_continues_a_finer_solution_at_its_smoothing(planner):
     from tocontrol_ros.core.replan import replan_options
 
     model = planner.model
-    q0 = np.array([0.3, 0.9, 0.6])
-    p0 = np.asarray(model.point(q0))
-    a = 2 * np.pi * np.arange(3) / 50
-    circle = p0 + 0.15 * np.stack([np.cos(a), np.sin(a)], axis=1)
+    q0, circle = _circle(model, 2 * np.pi * np.arange(3) / 50)
     fine = replan_options(SolverOptions())
     assert fine.smoothing == SolverOptions().smoothing and fine.starts == 1
     prev = _rest_stream(planner, q0, circle[:2], fine)[-1]

@@ -13,32 +13,21 @@ splice into a moving motion.
 
 import math
 import os
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from node_process import NodeProcess
 from planner_harness import PlannerClient
 
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
 pytestmark = pytest.mark.ros
-REPO = Path(__file__).resolve().parents[2]
 #: The issue's target: 10 Hz for 5 s, along a circle (centre, radius in m), once around.
 RATE, DURATION = 10.0, 5.0
 CENTRE, RADIUS = (1.8, 1.2), 0.15
 #: A goal far from the circle (a motion of 1.2 s from it), then one near it.
 FAR, NEAR = (-3.0, -1.0), (-2.97, -0.98)
-
-
-def _command(name: str) -> tuple[list[str], dict]:
-    exe = Path(sys.prefix) / "lib" / "tocontrol_ros" / name
-    if exe.is_file():
-        return [str(exe)], {}
-    return [sys.executable, "-m", f"tocontrol_ros.{name}"], {"PYTHONPATH": str(REPO)}
 
 
 def circle(i: int, count: int) -> tuple[float, float]:
@@ -53,15 +42,10 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
     from sensor_msgs.msg import JointState
 
     ns = f"/replan_{os.getpid()}"
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     args = ["--ros-args", "-r", f"__ns:={ns}"]
-    logs = [open(tmp_path / f"{name}.log", "w+") for name in ("planner", "tracker")]  # noqa: SIM115
-    procs = []
-    for (name, extra), log in zip((("planner", []), ("tracker", [
-            "-p", f"trajectory_topic:={ns}/planner/trajectory"])), logs, strict=True):
-        cmd, extra_env = _command(name)
-        procs.append(subprocess.Popen(cmd + args + extra, env={**env, **extra_env},
-                                      stdout=log, stderr=subprocess.STDOUT))
+    procs = [NodeProcess(name, args + extra, tmp_path, env={"OPENBLAS_NUM_THREADS": "1"})
+             for name, extra in (("planner", []), ("tracker", [
+                 "-p", f"trajectory_topic:={ns}/planner/trajectory"]))]
     client = PlannerClient(f"{ns}/planner")
     tracker_status, states = [], []
     reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
@@ -137,11 +121,7 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
         time.sleep(0.5)
     finally:
         client.close()
-        for proc in procs:
-            proc.send_signal(signal.SIGINT)
-        codes = [proc.wait(30.0) for proc in procs]
-        for log in logs:
-            log.close()
+        codes = [proc.stop() for proc in procs]
     events = [s.event for s in finals]
     published = [s for s in finals if s.event == "solved"
                  and s.values.get("published") == "optimum"]
