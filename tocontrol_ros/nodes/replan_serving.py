@@ -82,8 +82,6 @@ class ReplanServing:
         served as any other, from the arm's measured state). Solved again from a later
         hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
         """
-        from tocontrol_ros.core.problem import Problem, joint_state, point
-
         config = req.config
         replans = self._replanner
         late = []
@@ -102,9 +100,7 @@ class ReplanServing:
                         pass  # keep the state taken at its arrival
                 return False
             try:
-                problem = Problem(self.model, joint_state(handoff.q, handoff.qd),
-                                  point(req.target), k=config.k, reserve=config.reserve,
-                                  limits=self._limits.with_margin(config.limit_margin))
+                problem = self._handoff_problem(config, handoff, req.target)
             except TocontrolError as exc:
                 self._finish(req, "ERROR", "failed", str(exc))
                 return True
@@ -174,6 +170,14 @@ class ReplanServing:
                      {"replan": "late", "attempts": REPLAN_TRIES})
         return True
 
+    def _handoff_problem(self, config: PlannerConfig, handoff, target):
+        """The problem from a hand-off's state to ``target`` (m); raises TocontrolError."""
+        from tocontrol_ros.core.problem import Problem, joint_state, point
+
+        return Problem(self.model, joint_state(handoff.q, handoff.qd), point(target),
+                       k=config.k, reserve=config.reserve,
+                       limits=self._limits.with_margin(config.limit_margin))
+
     def _measured(self, config: PlannerConfig) -> tuple[int, tuple | None]:
         """The latest joint state's stamp (ns, 0: none) and (positions, stamp) or None."""
         latest = self._joint_states.newest(0, config.joint_state_timeout, 0.0)
@@ -196,8 +200,6 @@ class ReplanServing:
         (:meth:`~tocontrol_ros.nodes.replanning.Replanner.warm_starts`), a prediction error
         away. Nothing is published; a request that arrives stops it.
         """
-        from tocontrol_ros.core.problem import Problem, joint_state, point
-
         config = self.config
         replans = self._replanner
         if not (replanning(config) and config.replan_predict) or self._slot.has_pending():
@@ -217,9 +219,7 @@ class ReplanServing:
         if handoff is None:
             return
         try:
-            problem = Problem(self.model, joint_state(handoff.q, handoff.qd), point(target),
-                              k=config.k, reserve=config.reserve,
-                              limits=self._limits.with_margin(config.limit_margin))
+            problem = self._handoff_problem(config, handoff, target)
         except TocontrolError:
             return  # e.g. a predicted target out of reach: the real goal will say so
         options = replan_options(solver_options(config), config.replan_smoothing)
