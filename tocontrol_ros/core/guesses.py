@@ -74,7 +74,7 @@ def recombined_guesses(planner: Transcriptions, ctx: SolveContext, guesses: list
 
     Seeds that cross the ends of the :data:`RECOMBINED_PARENTS` best distinct guesses
     (:func:`~tocontrol_ros.core.seeding.recombined_pairs`), at most
-    :data:`RECOMBINED_STARTS` and ``options.starts // 2``, solved like the others (k = 1,
+    :data:`RECOMBINED_STARTS` and ``3 * options.starts // 4``, solved like the others (k = 1,
     without bounds: only after :func:`solve_guesses` solved its own without them), side by
     side; their indices follow the pairs'.
 
@@ -87,7 +87,7 @@ def recombined_guesses(planner: Transcriptions, ctx: SolveContext, guesses: list
     parents = distinct_basins([g for g in guesses if g[3].success], lambda g: g[3],
                               problem.model.n, revolute_joints(problem.model))
     more = recombined_pairs(problem, [g[3] for g in parents[:RECOMBINED_PARENTS]], pairs,
-                            min(RECOMBINED_STARTS, ctx.options.starts // 2))
+                            min(RECOMBINED_STARTS, 3 * ctx.options.starts // 4))
     if not more:
         return guesses, pairs
     paths = _initial_paths(ctx, more)

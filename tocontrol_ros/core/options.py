@@ -61,7 +61,7 @@ class SolverOptions:
         Seed pairs tried by the direct method (1 = single start): the best-ranked of the
         self-motion grids and their full-turn branches (``docs/seeding.md``). The paper's arm
         has dozens of local optima and the first seed pair is seldom in the best basin. Up to
-        ``starts // 2`` more (at most 7) cross the ends of the best direct solutions.
+        ``3 * starts // 4`` more (at most 12) cross the ends of the best direct solutions.
     candidates : int
         At most this many distinct direct solutions (best ``T`` at k = 1 first) continued to
         the requested ``k`` by shooting; the best final ``T`` is returned. The best motion's
