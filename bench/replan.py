@@ -22,6 +22,7 @@ Usage: ``scripts/dev run python -P bench/replan.py [paper|panda|both]`` (default
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -222,6 +223,10 @@ def measure(name: str, workdir: Path) -> dict | None:
     published = [s for s in outcomes if s.get("event") == "solved"
                  and s.get("published") == "optimum"]
     latency = [float(s["latency"]) for s in published]
+    # The solve itself (the published result's, last attempt) and the rest of the latency:
+    # waiting for the worker (goals before it, a solve ahead), earlier attempts, publication.
+    solve = [float(s["solve_time"]) for s in published if s.get("solve_time") is not None]
+    (workdir / f"{name}_outcomes.json").write_text(json.dumps(outcomes, default=str))
     kinds = {}
     for s in published:
         kinds.setdefault(s.get("replan", "none"), []).append(float(s["latency"]))
@@ -231,6 +236,8 @@ def measure(name: str, workdir: Path) -> dict | None:
         "failed": sum(s.get("event") == "failed" for s in outcomes),
         "superseded": sum(s.get("event") == "superseded" for s in outcomes),
         "median": _pct(latency, 0.5), "p95": _pct(latency, 0.95),
+        "solve_median": _pct(solve, 0.5),
+        "iterations_median": _pct([float(s["iterations"]) for s in published], 0.5),
         "within": sum(v <= PERIOD for v in latency) / count,
         "kinds": {k: (len(v), _pct(v, 0.5), _pct(v, 0.95)) for k, v in kinds.items()},
         "splices": len(splices),
@@ -258,7 +265,8 @@ def run(which: str = "both") -> Section:
         kinds = "; ".join(f"{k} {n}: {1e3 * m:.1f} / {1e3 * p:.1f} ms"
                           for k, (n, m, p) in sorted(r["kinds"].items()))
         rows.append([r["robot"], f"{r['answered']}/{r['goals']}", f"{1e3 * r['median']:.1f}",
-                     f"{1e3 * r['p95']:.1f}", f"{100 * r['within']:.0f} %", kinds,
+                     f"{1e3 * r['p95']:.1f}", f"{100 * r['within']:.0f} %",
+                     f"{1e3 * r['solve_median']:.1f}", f"{r['iterations_median']:.0f}", kinds,
                      f"{r['splices']}", f"{r['jump_q']:.1e} / {r['jump_qd']:.1e}",
                      f"{r['final_error']:.1e}"])
     lines = [
@@ -267,11 +275,15 @@ def run(which: str = "both") -> Section:
         f"{DURATION:g} s after a first, uncounted motion onto it. Latency: goal received by "
         f"the planner -> trajectory published (its status's `latency`), over the goals "
         f"answered; within one period: published within {1e3 * PERIOD:.0f} ms, share of all "
-        f"goals. Per kind: count, median / p95. Jumps: the tracker's largest command jump at "
-        f"a splice (rad / rad/s). Final error: end effector at rest against the last goal (m)."
+        f"goals. Solve ms, iterations: the published result's own solve time and Newton "
+        f"iterations, median (the rest of a latency is waiting for the worker and "
+        f"publication). Per kind: count, median / p95. Jumps: the tracker's largest "
+        f"command jump at a splice (rad / rad/s). Final error: end effector at rest "
+        f"against the last goal (m)."
         f" Command: `scripts/dev run python -P bench/replan.py {which}`.",
         "",
-        *table(["robot", "answered", "median ms", "p95 ms", "within 100 ms", "per kind",
+        *table(["robot", "answered", "median ms", "p95 ms", "within 100 ms", "solve ms",
+                "iterations", "per kind",
                 "splices", "jumps", "final error m"], rows),
     ]
     targets = []
