@@ -118,6 +118,55 @@ def test_a_rest_replan_is_never_late(motion):
     assert stamp % int(config.handoff_grid * 1e9) == 0
 
 
+def test_a_slow_solve_does_not_push_a_rest_replan_far_ahead(motion):
+    # Rest replans whose solves took 35 s each (the Panda's queued goals): their delivery
+    # reserve stays replan_min_lead + REST_RESERVE after publication, not 70 s.
+    from tocontrol_ros.nodes.replanning import REST_RESERVE
+
+    config = config_from_values({})
+    replans = Replanner()
+    start = 10**9
+    replans.published(motion, start, motion.trajectory.sample(0.01))
+    near = np.asarray(PAPER_TARGET) + np.array([0.02, 0.0])
+    end = start + int(np.ceil(motion.T * 1e9))
+    h = replans.handoff(config, near, end, 0,
+                        measured=(motion.trajectory.state(0.0)[0][:3], start))
+    assert h.kind == REST
+    for _ in range(5):
+        replans.estimate(config, REST).record(35.0)
+    assert replans.estimate(config, REST).lead() > 35.0  # the estimate itself is kept
+    now = end + 10**8
+    stamp = replans.rest_stamp(config, h, now, 0)
+    cap = config.replan_min_lead + REST_RESERVE
+    assert now + int(config.replan_min_lead * 1e9) < stamp
+    assert stamp == align(now + int(cap * 1e9), 0, config.handoff_grid)
+
+
+def test_a_handoff_velocity_a_little_over_a_limit_is_planned_from_the_limit():
+    # The published samples' interpolant can pass a velocity limit between samples; a replan
+    # from that hand-off starts at the limit (up to 10 % over), beyond that it is refused.
+    from types import SimpleNamespace
+
+    from tocontrol_ros.core.errors import ProblemError
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.nodes.replan_serving import ReplanServing
+    from tocontrol_ros.nodes.replanning import Handoff
+
+    model = load_robot(default_urdf_path())
+    limits = JointLimits(tuple(model.joint_names), np.full(3, -10.0), np.full(3, 10.0),
+                         np.array([2.0, 2.0, 2.0]))
+    node = SimpleNamespace(model=model, _limits=limits)
+    config = config_from_values({})
+    q = np.array([0.3, 0.9, 0.6])
+    over = Handoff(0, q, np.array([2.1, -0.5, 0.0]), None, WARM)
+    problem = ReplanServing._handoff_problem(node, config, over, PAPER_TARGET)
+    qd = problem.start.value[3:]
+    assert qd[0] == pytest.approx(2.0) and qd[0] < 2.0 and qd[1] == -0.5
+    far = Handoff(0, q, np.array([2.5, 0.0, 0.0]), None, WARM)
+    with pytest.raises(ProblemError, match="velocity 2.5 is not below its limit 2"):
+        ReplanServing._handoff_problem(node, config, far, PAPER_TARGET)
+
+
 def test_goal_stream_predicts_a_steady_stream_only():
     from tocontrol_ros.nodes.replanning import GoalStream
 

@@ -171,12 +171,18 @@ class ReplanServing:
         return True
 
     def _handoff_problem(self, config: PlannerConfig, handoff, target):
-        """The problem from a hand-off's state to ``target`` (m); raises TocontrolError."""
+        """The problem from a hand-off's state to ``target`` (m); raises TocontrolError.
+
+        The hand-off velocity is the published samples' interpolant's (what the tracker
+        commands), which can pass a velocity limit a little between samples where the
+        motion runs at it: taken back to the limit as a measured start's is
+        (:meth:`~tocontrol_ros.core.robot.limits.JointLimits.admissible_velocity`).
+        """
         from tocontrol_ros.core.problem import Problem, joint_state, point
 
-        return Problem(self.model, joint_state(handoff.q, handoff.qd), point(target),
-                       k=config.k, reserve=config.reserve,
-                       limits=self._limits.with_margin(config.limit_margin))
+        limits = self._limits.with_margin(config.limit_margin)
+        return Problem(self.model, joint_state(handoff.q, limits.admissible_velocity(handoff.qd)),
+                       point(target), k=config.k, reserve=config.reserve, limits=limits)
 
     def _measured(self, config: PlannerConfig) -> tuple[int, tuple | None]:
         """The latest joint state's stamp (ns, 0: none) and (positions, stamp) or None."""

@@ -23,7 +23,8 @@ from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 
-__all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST"]
+__all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
+           "REST_RESERVE"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -36,6 +37,12 @@ WARM, COLD, REST = "warm", "cold", "rest"
 FOLLOWING = 0.05
 #: Lead before any latency was measured (s).
 INITIAL_LATENCY = {WARM: 0.05, COLD: 0.5, REST: 0.1}
+#: The delivery reserve of a rest replan after its publication is at most ``replan_min_lead``
+#: plus this (s). It grows with the recent rest solves' latencies (a loaded machine), but a
+#: published trajectory's delivery does not take as long as a slow solve: on the Panda with
+#: its limits (1-35 s per queued goal) the uncapped reserve stamped replans up to 70 s after
+#: their publication, and every later replan was chained behind them.
+REST_RESERVE = 0.2
 
 
 class Handoff(NamedTuple):
@@ -217,11 +224,12 @@ class Replanner:
 
         Its hand-off or, when that is nearer, ``now_ns`` plus the lead of rest replans
         (``replan_min_lead`` plus ``replan_margin`` times their recent latencies: a delivery
-        reserve that grows with a loaded machine), on the control grid. The arm rests at the
+        reserve that grows with a loaded machine, at most :data:`REST_RESERVE` more than
+        ``replan_min_lead``), on the control grid. The arm rests at the
         running motion's end from the hand-off on, so a later take-over starts from the same
         state: a rest replan is never late, however long its solve took.
         """
-        lead = self.estimate(config, REST).lead()
+        lead = min(self.estimate(config, REST).lead(), config.replan_min_lead + REST_RESERVE)
         stamp = max(handoff.stamp_ns, now_ns + int(lead * 1e9))
         return align(stamp, origin_ns or handoff.stamp_ns, config.handoff_grid)
 
