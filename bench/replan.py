@@ -48,7 +48,7 @@ TARGET_PAPER, TARGET_PANDA = 0.010, 0.020
 #: At rest: the last 10 joint states within this of each other (rad). The tracked Panda
 #: holds its last point with a small limit cycle of its PD feedback (5e-5 rad measured), so
 #: not to rounding; the final error is the mean of those states' against the last goal.
-SETTLED = 1e-3
+SETTLED = 1e-4
 #: Waits (s).
 READY_TIMEOUT, ANSWER_TIMEOUT, SETTLE_TIMEOUT = 400.0, 300.0, 120.0
 
@@ -216,7 +216,11 @@ def measure(name: str, workdir: Path) -> dict | None:
             return (len(taken) >= published and done and done[-1] > taken[-1]
                     and len(states) > 10
                     and np.ptp(np.asarray(states[-10:]), axis=0).max() < SETTLED)
-        client.wait(settled, SETTLE_TIMEOUT, "the arm at rest after the last goal")
+        try:
+            client.wait(settled, SETTLE_TIMEOUT, "the arm at rest after the last goal")
+            at_rest = True
+        except RuntimeError:  # reported (the final error then is not at rest), not fatal
+            at_rest = False
         states = client.snapshot("states")
         splices = [s for s in client.snapshot("tracker")
                    if s.get("event") == "spliced"][splices0:]
@@ -247,7 +251,7 @@ def measure(name: str, workdir: Path) -> dict | None:
         "splices": len(splices),
         "jump_q": max((float(s["position_jump"]) for s in splices), default=float("nan")),
         "jump_qd": max((float(s["velocity_jump"]) for s in splices), default=float("nan")),
-        "final_error": float(np.linalg.norm(ee - goals[0])),
+        "final_error": float(np.linalg.norm(ee - goals[0])), "at_rest": at_rest,
     }
 
 
@@ -272,7 +276,8 @@ def run(which: str = "both") -> Section:
                      f"{1e3 * r['p95']:.1f}", f"{100 * r['within']:.0f} %",
                      f"{1e3 * r['solve_median']:.1f}", f"{r['iterations_median']:.0f}", kinds,
                      f"{r['splices']}", f"{r['jump_q']:.1e} / {r['jump_qd']:.1e}",
-                     f"{r['final_error']:.1e}"])
+                     f"{r['final_error']:.1e}" + ("" if r["at_rest"] else
+                                                    f" (not at rest after {SETTLE_TIMEOUT:g} s)")])
     lines = [
         f"Planner and tracker as processes (default parameters but the robot's; the Panda "
         f"with its URDF limits), a client sending goals along a circle at {RATE:g} Hz for "
