@@ -45,10 +45,11 @@ RATE, DURATION = 10.0, 5.0
 PERIOD = 0.1
 #: Targets (issue 33): median replan latency (s).
 TARGET_PAPER, TARGET_PANDA = 0.010, 0.020
-#: At rest: the last 10 joint states within this of each other (rad). The tracked Panda
-#: holds its last point with a small limit cycle of its PD feedback (5e-5 rad measured), so
-#: not to rounding; the final error is the mean of those states' against the last goal.
-SETTLED = 1e-4
+#: At rest: the last 10 joint states within 1e-9 rad of each other, or when that does not
+#: come within STILL_TIMEOUT s, within SETTLED (rad): the tracked Panda holds its last point
+#: with a small limit cycle of its PD feedback (5e-5 rad measured). The final error is the
+#: mean of those states' against the last goal.
+SETTLED, STILL_TIMEOUT = 1e-4, 30.0
 #: Waits (s).
 READY_TIMEOUT, ANSWER_TIMEOUT, SETTLE_TIMEOUT = 400.0, 300.0, 120.0
 
@@ -204,7 +205,7 @@ def measure(name: str, workdir: Path) -> dict | None:
 
         published = sum(s.get("published") == "optimum" for s in outcomes)
 
-        def settled():
+        def settled(spread: float):
             # Every published trajectory taken over (a splice waits for its stamp) or
             # dropped for a later one, the last run to its end, the arm at rest.
             states = client.snapshot("states")
@@ -215,12 +216,18 @@ def measure(name: str, workdir: Path) -> dict | None:
             done = [i for i, s in enumerate(status) if s.get("outcome") == "completed"]
             return (len(taken) >= published and done and done[-1] > taken[-1]
                     and len(states) > 10
-                    and np.ptp(np.asarray(states[-10:]), axis=0).max() < SETTLED)
+                    and np.ptp(np.asarray(states[-10:]), axis=0).max() < spread)
+        # At rest to rounding, or else (a limit cycle of the tracker's feedback) within
+        # SETTLED; an arm that is neither is reported, not fatal.
+        at_rest = True
         try:
-            client.wait(settled, SETTLE_TIMEOUT, "the arm at rest after the last goal")
-            at_rest = True
-        except RuntimeError:  # reported (the final error then is not at rest), not fatal
-            at_rest = False
+            client.wait(lambda: settled(1e-9), STILL_TIMEOUT, "the arm still")
+        except RuntimeError:
+            try:
+                client.wait(lambda: settled(SETTLED), SETTLE_TIMEOUT,
+                            "the arm at rest after the last goal")
+            except RuntimeError:
+                at_rest = False
         states = client.snapshot("states")
         splices = [s for s in client.snapshot("tracker")
                    if s.get("event") == "spliced"][splices0:]
@@ -288,8 +295,9 @@ def run(which: str = "both") -> Section:
         f"iterations, median (the rest of a latency is waiting for the worker and "
         f"publication). Per kind: count, median / p95. Jumps: the tracker's largest "
         f"command jump at a splice (rad / rad/s). Final error: end effector at rest (the "
-        f"mean of the last 10 joint states, within {SETTLED:g} rad of each other) against "
-        f"the last goal (m)."
+        f"mean of the last 10 joint states, within 1e-9 rad of each other, or within "
+        f"{SETTLED:g} rad when that did not come in {STILL_TIMEOUT:g} s) against the last "
+        f"goal (m)."
         f" Command: `scripts/dev run python -P bench/replan.py {which}`.",
         "",
         *table(["robot", "answered", "median ms", "p95 ms", "within 100 ms", "solve ms",
