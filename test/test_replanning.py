@@ -159,12 +159,12 @@ def test_a_handoff_velocity_a_little_over_a_limit_is_planned_from_the_limit():
     config = config_from_values({})
     q = np.array([0.3, 0.9, 0.6])
     over = Handoff(0, q, np.array([2.1, -0.5, 0.0]), None, WARM)
-    problem = ReplanServing._handoff_problem(node, config, over, PAPER_TARGET)
+    problem = ReplanServing._problem(node, config, ("state", over.q, over.qd), PAPER_TARGET)
     qd = problem.start.value[3:]
     assert qd[0] == pytest.approx(2.0) and qd[0] < 2.0 and qd[1] == -0.5
     far = Handoff(0, q, np.array([2.5, 0.0, 0.0]), None, WARM)
     with pytest.raises(ProblemError, match="velocity 2.5 is not below its limit 2"):
-        ReplanServing._handoff_problem(node, config, far, PAPER_TARGET)
+        ReplanServing._problem(node, config, ("state", far.q, far.qd), PAPER_TARGET)
 
 
 def test_goal_stream_predicts_a_steady_stream_only():

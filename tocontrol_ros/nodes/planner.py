@@ -420,20 +420,14 @@ class PlannerNode(ReplanServing, Node):
         return lambda: req.cancelled.is_set() or self._stopping.is_set()
 
     def _serve(self, req: PlanRequest) -> None:
-        from tocontrol_ros.core.problem import Problem, joint_state, point
-
         config = req.config
         if req.cancelled.is_set():
             self._finish(req, "WARN", *req.cancel_reason)
             return
         if req.queue and self._serve_replan(req):
             return
-        limits = self._limits.with_margin(config.limit_margin)
-        try:  # a measured start's small overshoot of a velocity limit is taken back to it
-            start = point(req.start[1]) if req.start[0] == "point" else \
-                joint_state(req.start[1], limits.admissible_velocity(req.start[2]))
-            problem = Problem(self.model, start, point(req.target), k=config.k,
-                              reserve=config.reserve, limits=limits)
+        try:
+            problem = self._problem(config, req.start, req.target)
         except TocontrolError as exc:
             self._finish(req, "ERROR", "failed", str(exc))
             return

@@ -100,7 +100,7 @@ class ReplanServing:
                         pass  # keep the state taken at its arrival
                 return False
             try:
-                problem = self._handoff_problem(config, handoff, req.target)
+                problem = self._problem(config, ("state", handoff.q, handoff.qd), req.target)
             except TocontrolError as exc:
                 self._finish(req, "ERROR", "failed", str(exc))
                 return True
@@ -170,19 +170,22 @@ class ReplanServing:
                      {"replan": "late", "attempts": REPLAN_TRIES})
         return True
 
-    def _handoff_problem(self, config: PlannerConfig, handoff, target):
-        """The problem from a hand-off's state to ``target`` (m); raises TocontrolError.
+    def _problem(self, config: PlannerConfig, start: tuple, target):
+        """The problem from ``start`` to ``target`` (m); raises TocontrolError.
 
-        The hand-off velocity is the published samples' interpolant's (what the tracker
-        commands), which can pass a velocity limit a little between samples where the
-        motion runs at it: taken back to the limit as a measured start's is
+        ``start``: ``("point", p)`` or ``("state", q, qd)`` (a request's start, or a
+        hand-off's state). A joint-state velocity a little over a planning limit (a measured
+        arm's tracking overshoot, or the published samples' interpolant at a hand-off where
+        the motion runs at the limit) is planned from the limit
         (:meth:`~tocontrol_ros.core.robot.limits.JointLimits.admissible_velocity`).
         """
         from tocontrol_ros.core.problem import Problem, joint_state, point
 
         limits = self._limits.with_margin(config.limit_margin)
-        return Problem(self.model, joint_state(handoff.q, limits.admissible_velocity(handoff.qd)),
-                       point(target), k=config.k, reserve=config.reserve, limits=limits)
+        begin = point(start[1]) if start[0] == "point" else \
+            joint_state(start[1], limits.admissible_velocity(start[2]))
+        return Problem(self.model, begin, point(target), k=config.k, reserve=config.reserve,
+                       limits=limits)
 
     def _measured(self, config: PlannerConfig) -> tuple[int, tuple | None]:
         """The latest joint state's stamp (ns, 0: none) and (positions, stamp) or None."""
@@ -225,7 +228,7 @@ class ReplanServing:
         if handoff is None:
             return
         try:
-            problem = self._handoff_problem(config, handoff, target)
+            problem = self._problem(config, ("state", handoff.q, handoff.qd), target)
         except TocontrolError:
             return  # e.g. a predicted target out of reach: the real goal will say so
         options = replan_options(solver_options(config), config.replan_smoothing)
