@@ -170,6 +170,22 @@ class PlannerClient:
                                      f"statuses: {[s.message for s in self.status_list()[-8:]]}")
             time.sleep(0.01)
 
+    def wait_motion_over(self, timeout: float = 30.0) -> None:
+        """Wait until the last motion on ``~/trajectory`` has ended (its stamp plus its
+        duration, on the node's clock): a goal then is not a replan of it."""
+        def over():
+            with self._lock:
+                if not self.trajectories:
+                    return True
+                last = self.trajectories[-1]
+            if not last.points:
+                return True
+            d = last.points[-1].time_from_start
+            end = (last.header.stamp.sec + d.sec) * 10**9 + last.header.stamp.nanosec \
+                + d.nanosec
+            return self.node.get_clock().now().nanoseconds > end
+        self.wait_for(over, timeout, "the last published motion to end")
+
     def status_list(self) -> list[Status]:
         with self._lock:
             return list(self.statuses)

@@ -187,6 +187,17 @@ def test_certificate_values(model):
     assert conv.certificate_values(None) == {"certified": False}
 
 
+def test_a_stamp_in_the_status_keeps_its_nanoseconds():
+    # "%.9g" of a stamp since the epoch keeps whole seconds; the text is exact.
+    ns = 1_796_411_759_578_123_456
+    kv = {k.key: k.value for k in conv.status_values({"handoff": conv.stamp_text(ns),
+                                                       "plain": ns * 1e-9})}
+    assert kv["handoff"] == "1796411759.578123456"
+    assert kv["plain"] == "1.79641176e+09"  # why stamps are not passed as floats
+    assert conv.stamp_text(-1_500_000_000) == "-1.500000000"
+    assert conv.stamp_text(7) == "0.000000007"
+
+
 # ------------------------------------------------------------------ parameters
 def test_parameter_table_defaults_are_valid():
     config = config_from_values(default_values(), task_dim=2)

@@ -115,6 +115,13 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
         near = client.wait_for(lambda: next((s for s in client.status_list()[since_near:]
                                              if s.event in ("solved", "failed")), None),
                                120.0, "the near goal's replan")
+        # Its status's start is the hand-off state: the first point of its motion.
+        near_motion = near.event == "solved" and client.wait_for(
+            lambda: next(
+                (m for m in reversed(client.trajectories)
+                 if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+                        - float(near.values["handoff"])) < 1e-6), None),
+            10.0, "the near replan's trajectory")
         last = NEAR
         published = sum(s.values.get("published") == "optimum" for s in finals) + 2
         client.wait_for(settled, 60.0, "the arm at rest after the near goal's motion")
@@ -137,6 +144,9 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
     assert far.event == "solved", far.message
     assert near.event == "solved" and near.values.get("replan"), near.message
     print(f"far: {far.message}\nnear: {near.message}")
+    # (~/status writes floats with 9 significant digits)
+    np.testing.assert_allclose(near_motion.points[0].positions, near.vector("start_q"),
+                               atol=1e-8)
     assert len(splices) > splices_before
     assert len(published) >= 0.8 * count, [s.message for s in finals if s not in published]
     # None rejected (a goal the planner refused, a trajectory the tracker refused); a solve

@@ -160,6 +160,7 @@ def test_goal_topic_from_joint_state(planner, client):
     qd = np.array([0.3, -0.2, 0.1])
     client.wait_subscribed(client.joint_pub)
     client.wait_subscribed(client.goal_pub)
+    client.wait_motion_over()  # a goal while a motion runs is a replan of it
     # Model joints in another order, plus a joint of another part of the robot.
     names = ["gripper", "joint3", "joint1", "joint2"]
     for _ in range(5):
@@ -191,6 +192,8 @@ def test_goal_plans_from_a_joint_state_received_after_it(planner, client):
     qd = np.array([0.5, -0.5, 0.5])
     client.wait_subscribed(client.joint_pub)
     client.wait_subscribed(client.goal_pub)
+    # The previous test's motion (from old_q) over: this goal is not a replan of it.
+    client.wait_motion_over()
     for _ in range(5):
         client.send_joint_state(names, old_q, qd)
         time.sleep(0.02)
@@ -257,6 +260,7 @@ def test_goal_at_the_arms_own_position_is_nothing_to_plan(planner, client):
     # "internal error: AttributeError('NoneType' object has no attribute 'sample')".
     model = planner.node.model
     q = np.array([-0.5487769600, 2.2111963800, 1.1613502200])
+    client.wait_motion_over()  # a goal while a motion runs is a replan of it
     with JointStateStream(client, q, [5e-10, -5e-10, 5e-10]):
         for _ in range(2):  # the same goal twice, as in the report
             since = len(client.status_list())
@@ -668,6 +672,7 @@ def test_joint_states_do_not_wake_the_executor(planner, client):
     try:
         q = np.array([-0.5487769600, 2.2111963800, 1.1613502200])
         client.wait_subscribed(client.joint_pub)
+        client.wait_motion_over()  # a goal while a motion runs is a replan of it
         for _ in range(200):
             client.send_joint_state(JOINTS, q, [0.0, 0.0, 0.0])
             time.sleep(0.002)

@@ -37,7 +37,7 @@ __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_
            "time_from_seconds",
            "duration_from_seconds", "seconds", "add_seconds", "trajectory_msg", "path_msg",
            "empty_path", "point_path", "markers_msg", "status_msg", "status_values",
-           "certificate_values", "result_values", "result_message", "ROUTINE_NOTE",
+           "certificate_values", "result_values", "result_message", "ROUTINE_NOTE", "stamp_text",
            "LEVELS"]
 
 #: Non-task coordinates of a request must match the arm's constant value within this (m):
@@ -395,6 +395,17 @@ def markers_msg(model, q_snapshots, ee_points, start, target, frame_id: str,
     ends.scale.x = ends.scale.y = ends.scale.z = 0.12
     out += [path, ends]
     return MarkerArray(markers=out)
+
+
+def stamp_text(ns: int) -> str:
+    """A stamp (ns) as a ``~/status`` value: seconds with all nine decimals.
+
+    ``"%.9g"``, the status's float format, would keep whole seconds of a stamp since the
+    epoch.
+    """
+    ns = int(ns)
+    sign, ns = ("-", -ns) if ns < 0 else ("", ns)
+    return f"{sign}{ns // 10**9}.{ns % 10**9:09d}"
 
 
 def _format(value) -> str:

@@ -127,9 +127,12 @@ class ReplanServing:
                 # the next goal is solved instead).
                 result = self.planner.plan(problem, solver_options(config),
                                            should_stop=self._should_stop(req))
-            extra = {"start": problem.start_point, **conv.result_values(result),
+            # The status says where the replan starts: the hand-off state, not the state
+            # measured when the goal came.
+            extra = {"start": problem.start_point, "start_q": handoff.q,
+                     "start_qd": handoff.qd, **conv.result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
-                     "handoff": handoff.stamp_ns * 1e-9,
+                     "handoff": conv.stamp_text(handoff.stamp_ns),
                      "warm_start": any(w is not None for w in warm),
                      "published": "none"}
             if req.cancelled.is_set() or self._stopping.is_set():
@@ -146,7 +149,7 @@ class ReplanServing:
             if handoff.kind == REST:  # the arm rests there from the hand-off on: not late
                 handoff = handoff._replace(stamp_ns=replans.rest_stamp(config, handoff, now,
                                                                        origin))
-                extra["handoff"] = handoff.stamp_ns * 1e-9
+                extra["handoff"] = conv.stamp_text(handoff.stamp_ns)
             if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
                 late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
                 # Again, with at least twice this solve's time plus the delivery lead.
