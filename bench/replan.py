@@ -15,7 +15,10 @@ with ``published: optimum``); the replan latency, goal received -> trajectory pu
 p95, over all answered goals and per kind (``warm`` from the running motion's tail, ``rest``
 from the end of a motion that was over, ``cold``); the share published within one 100 ms
 period; the tracker's splices and their largest command jumps; the end-effector error after
-the target stopped (the last joint state against the last goal).
+the target stopped (the last joint state against the last goal). Goals superseded by a newer
+one while they waited (``goal_queue``) are counted apart. In this process, for the paper's
+arm: what the replans' smoothing (``replan_smoothing``) costs in ``T`` on a circle's chain of
+rest replans (:func:`smoothing_cost`).
 
 Usage: ``scripts/dev run python -P bench/replan.py [paper|panda|both]`` (default both).
 """
@@ -156,25 +159,32 @@ def _pct(values: list[float], q: float) -> float:
     return float(np.quantile(values, q)) if values else float("nan")
 
 
-def measure(name: str, workdir: Path) -> dict | None:
-    """One robot's moving-target run; the figures, or None when the robot is missing."""
+def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = ""
+            ) -> dict | None:
+    """One robot's moving-target run; the figures, or None when the robot is missing.
+
+    ``planner_args``: more ``-p name:=value`` arguments of the planner; ``label`` names
+    them in the report and the run's files.
+    """
     found = _robot(name)
     if found is None:
         return None
     model, robot_args, tracker_args, frame, p0, radius, q0 = found
     ns = f"/bench_replan_{name}_{os.getpid()}"
     base = ["--ros-args", "-r", f"__ns:={ns}", *robot_args]
-    procs = [_Process("tocontrol_ros.planner", base, workdir / f"{name}_planner.log"),
+    tag = name + (f"_{label.replace(' ', '_')}" if label else "")
+    procs = [_Process("tocontrol_ros.planner", [*base, *planner_args],
+                      workdir / f"{tag}_planner.log"),
              _Process("tocontrol_ros.tracker", [*base, *tracker_args, "-p",
                                                 f"trajectory_topic:={ns}/planner/trajectory"],
-                      workdir / f"{name}_tracker.log")]
+                      workdir / f"{tag}_tracker.log")]
     client = _Client(ns)
     count = int(RATE * DURATION)
     goals = _circle(p0, radius, count)
     try:
         # "ready" is a volatile status event, lost when discovery completes after it: its
         # log line says it too.
-        log = workdir / f"{name}_planner.log"
+        log = workdir / f"{tag}_planner.log"
         client.wait(lambda: any(s.get("event") == "ready" for s in client.snapshot("planner"))
                     or "ready after" in log.read_text(), READY_TIMEOUT,
                     f"the {name} planner's warm-up")
@@ -241,13 +251,14 @@ def measure(name: str, workdir: Path) -> dict | None:
     # The solve itself (the published result's, last attempt) and the rest of the latency:
     # waiting for the worker (goals before it, a solve ahead), earlier attempts, publication.
     solve = [float(s["solve_time"]) for s in published if s.get("solve_time") is not None]
-    (workdir / f"{name}_outcomes.json").write_text(json.dumps(outcomes, default=str))
+    (workdir / f"{tag}_outcomes.json").write_text(json.dumps(outcomes, default=str))
     kinds = {}
     for s in published:
         kinds.setdefault(s.get("replan", "none"), []).append(float(s["latency"]))
     ee = np.asarray(model.point(np.mean(np.asarray(states[-10:]), axis=0)), dtype=float)
     return {
-        "robot": name, "goals": count, "answered": len(published),
+        "robot": name + (f" ({label})" if label else ""), "goals": count,
+        "answered": len(published),
         "failed": sum(s.get("event") == "failed" for s in outcomes),
         "superseded": sum(s.get("event") == "superseded" for s in outcomes),
         "median": _pct(latency, 0.5), "p95": _pct(latency, 0.95),
@@ -262,24 +273,83 @@ def measure(name: str, workdir: Path) -> dict | None:
     }
 
 
+#: Final smoothings of replans compared in :func:`smoothing_cost` (0: the full schedule).
+SMOOTHINGS = (1e-2, 3e-3, 1e-3, 0.0)
+
+
+def smoothing_cost(goals_count: int = 50, radius: float = 0.15) -> list[str]:
+    """What ``replan_smoothing`` costs in ``T``, in this process: the paper's arm at k = 4.
+
+    The rest chain of a circle of ``goals_count`` goals (each problem from rest at the last
+    goal's end, as the node's rest replans), each replanned warm from the same last default
+    plan at every smoothing of :data:`SMOOTHINGS`; ``T`` against the full schedule's (0).
+    Markdown lines.
+    """
+    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.problem import Problem, joint_state, point
+    from tocontrol_ros.core.replan import replan_options, warm_replan
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+    from tocontrol_ros.core.solver import Planner
+
+    model = load_robot(default_urdf_path())
+    planner = Planner(model)
+    q = np.array([0.3, 0.9, 0.6])
+    p0 = np.asarray(model.point(q))
+    angles = np.linspace(0.0, 2.0 * math.pi, goals_count + 1)[:-1]
+    goals = [p0 + radius * np.array([math.cos(a), math.sin(a)]) for a in angles]
+    options = {d: replan_options(SolverOptions(), d) for d in SMOOTHINGS}
+    last = planner.plan(Problem(model, joint_state(q, np.zeros(3)), point(goals[0]), k=4),
+                        SolverOptions())
+    rows = []
+    for goal in goals[1:]:
+        q = last.trajectory.state(last.T)[0][:3]
+        problem = Problem(model, joint_state(q, np.zeros(3)), point(goal), k=4)
+        out = {}
+        for d, opts in options.items():
+            r = warm_replan(planner, problem, [last], opts)
+            certified = r.success and r.certificate is not None and r.certificate.passed
+            out[d] = (certified, r.T if certified else float("nan"), r.iterations)
+        rows.append(out)
+        last = planner.plan(problem, SolverOptions())  # the chain goes on from the optimum
+    table_rows = []
+    for d in SMOOTHINGS:
+        both = [r for r in rows if r[d][0] and r[0.0][0]]
+        excess = [(r[d][1] - r[0.0][1]) / r[0.0][1] for r in both]
+        table_rows.append([f"{d:g}", f"{sum(r[d][0] for r in rows)}/{len(rows)}",
+                           f"{np.median(excess):.1e}" if excess else "-",
+                           f"{np.max(excess):.1e}" if excess else "-",
+                           f"{np.median([r[d][2] for r in rows if r[d][0]]):.0f}"])
+    return ["", f"What the replans' smoothing costs (`replan_smoothing`, in one process): "
+            f"the paper's arm at k = 4, the rest chain of a circle of {goals_count} goals "
+            f"({radius:g} m radius), each problem replanned warm from the last default plan "
+            f"at each smoothing; `T` above the full schedule's (0), relative.", "",
+            *table(["replan_smoothing", "certified", "T excess median", "T excess max",
+                    "Newton iterations median"], table_rows)]
+
+
 def run(which: str = "both") -> Section:
     title = "Replanning: a target moving at 10 Hz, nodes as deployed (issue 33)"
     workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-replan-"))
     names = ("paper", "panda") if which == "both" else (which,)
     results = []
-    for name in names:
-        log(f"replan: {name} ...")
-        out = measure(name, workdir)
+    # The paper's arm also with newest wins (goal_queue 1; the default queues every goal).
+    runs = [(name, (), "") for name in names]
+    if "paper" in names:
+        runs.insert(1, ("paper", ("-p", "goal_queue:=1"), "goal_queue 1"))
+    for name, planner_args, label in runs:
+        log(f"replan: {name} {label} ...")
+        out = measure(name, workdir, planner_args, label)
         if out is None:
             log(f"replan: {name} skipped (example-robot-data is not installed)")
             continue
         results.append(out)
-        log(f"replan {name}: {out}")
+        log(f"replan {name} {label}: {out}")
     rows = []
     for r in results:
         kinds = "; ".join(f"{k} {n}: {1e3 * m:.1f} / {1e3 * p:.1f} ms"
                           for k, (n, m, p) in sorted(r["kinds"].items()))
-        rows.append([r["robot"], f"{r['answered']}/{r['goals']}", f"{1e3 * r['median']:.1f}",
+        rows.append([r["robot"], f"{r['answered']}/{r['goals']} ({r['superseded']} "
+                     f"superseded)", f"{1e3 * r['median']:.1f}",
                      f"{1e3 * r['p95']:.1f}", f"{100 * r['within']:.0f} %",
                      f"{1e3 * r['solve_median']:.1f}", f"{r['iterations_median']:.0f}", kinds,
                      f"{r['splices']}", f"{r['jump_q']:.1e} / {r['jump_qd']:.1e}",
@@ -304,9 +374,12 @@ def run(which: str = "both") -> Section:
                 "iterations", "per kind",
                 "splices", "jumps", "final error m"], rows),
     ]
+    if "paper" in names:
+        log("replan: the smoothing's cost in T ...")
+        lines += smoothing_cost()
     targets = []
     for r in results:
-        goal = TARGET_PAPER if r["robot"] == "paper" else TARGET_PANDA
+        goal = TARGET_PAPER if r["robot"].startswith("paper") else TARGET_PANDA
         targets.append((f"{r['robot']}: median replan latency <= {1e3 * goal:.0f} ms",
                         ("**yes**" if r["median"] <= goal else "**no**")
                         + f": {1e3 * r['median']:.1f} ms"))

@@ -188,3 +188,23 @@ def test_goal_stream_predicts_a_steady_stream_only():
     assert stream.predict(0.01) is None  # goals farther apart than the radius
     stream.record(on_circle(3), 10.0 + 3 * period + 0.5)  # an irregular interval
     assert stream.predict(0.1) is None
+
+
+def test_a_solve_ahead_goes_on_for_the_goal_it_predicted_only():
+    from types import SimpleNamespace
+
+    from tocontrol_ros.nodes.replanning import AHEAD_KEEP, keeps_ahead
+
+    predicted, step = np.array([1.0, 2.0]), 0.04
+
+    def goal(offset, queue=True):
+        return SimpleNamespace(target=predicted + np.array([offset, 0.0]), queue=queue)
+
+    assert keeps_ahead([], predicted, step)  # nothing waits
+    # The goal predicted, a prediction error away: its best warm start goes on.
+    assert keeps_ahead([goal(1e-4)], predicted, step)
+    assert keeps_ahead([goal(0.99 * AHEAD_KEEP * step)], predicted, step)
+    # Another goal, a service request (it does not queue), or one more goal behind: stop.
+    assert not keeps_ahead([goal(1.01 * AHEAD_KEEP * step)], predicted, step)
+    assert not keeps_ahead([goal(1e-4, queue=False)], predicted, step)
+    assert not keeps_ahead([goal(1e-4), goal(step)], predicted, step)

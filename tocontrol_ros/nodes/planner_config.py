@@ -149,10 +149,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("handoff_grid", 0.001, "Hand-off times are the latest joint state's stamp "
                   "plus a multiple of this (s): a multiple of the tracker's control period "
                   "puts the splice on a control instant.", 1e-4, 0.1),
-    ParameterSpec("replan_smoothing", 1e-3, "Final smoothing delta of the control law of a "
+    ParameterSpec("replan_smoothing", 1e-2, "Final smoothing delta of the control law of a "
                   "replan near the running motion (and of the goal solved ahead): T within "
-                  "about 1e-4 (relative) of the unsmoothed optimum, a few Newton iterations "
-                  "warm; the certificate's Hamiltonian tolerance is raised to it. 0: the full "
+                  "about 1.4e-3 (relative) of the unsmoothed optimum (1e-3: 7e-5), a few "
+                  "Newton iterations warm; the certificate's Hamiltonian tolerance is raised "
+                  "to it. 0: the full "
                   "schedule down to 0, as for new motions (msg_docs/parameters.md, "
                   "'Replanning').", 0.0, 0.01),
     ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
@@ -161,7 +162,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "(msg_docs/parameters.md, 'Replanning')."),
     ParameterSpec("goal_queue", 50, "Goals that wait behind each other while the worker "
                   "solves (replanning): each is solved in turn, none is dropped unless more "
-                  "than this many wait (then the oldest is superseded). 1: newest wins.",
+                  "than this many wait (then the oldest is superseded). 1: newest wins "
+                  "(lower latency on an idle machine, fewer goals answered on a busy one).",
                   1, 1000),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
                   "(s); then it returns an empty path.", 1.0, 3600.0),
@@ -234,7 +236,7 @@ class PlannerConfig:
     replan_margin: float = 2.0
     replan_min_lead: float = 0.05
     handoff_grid: float = 0.001
-    replan_smoothing: float = 1e-3
+    replan_smoothing: float = 1e-2
     replan_predict: bool = True
     goal_queue: int = 50
 

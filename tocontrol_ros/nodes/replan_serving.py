@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from geometry_msgs.msg import PointStamped
 
 from tocontrol_ros.core.errors import TocontrolError
@@ -18,7 +19,7 @@ from tocontrol_ros.core.replan import replan_options, warm_replan
 from tocontrol_ros.core.result import WarmState
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
-from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align
+from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align, keeps_ahead
 from tocontrol_ros.nodes.requests import PlanRequest
 
 __all__ = ["ReplanServing"]
@@ -235,7 +236,13 @@ class ReplanServing:
         except TocontrolError:
             return  # e.g. a predicted target out of reach: the real goal will say so
         options = replan_options(solver_options(config), config.replan_smoothing)
+        step = float(np.linalg.norm(target - running.problem.target_point))
+
+        def stop() -> bool:  # any request but the goal predicted stops it
+            return self._stopping.is_set() or not keeps_ahead(self._slot.pending(), target,
+                                                              step)
+
         result = warm_replan(self.planner, problem, replans.warm_starts(handoff.warm), options,
-                             lambda: self._slot.has_pending() or self._stopping.is_set())
+                             stop)
         if result.success and result.trajectory is not None:
             replans.solved_ahead(result, running)

@@ -128,6 +128,11 @@ class LatestSlot:
         with self._cond:
             return self._closed
 
+    def pending(self) -> list:
+        """The items that wait for the worker, oldest first (a copy)."""
+        with self._cond:
+            return list(self._pending)
+
     def has_pending(self) -> bool:
         """True while an item waits for the worker."""
         with self._cond:
