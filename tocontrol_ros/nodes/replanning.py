@@ -35,8 +35,12 @@ WARM, COLD, REST = "warm", "cold", "rest"
 #: The arm follows a published motion when its measured positions are this close (rad, m;
 #: any joint) to the command at their stamp: tracking error plus a control period's motion.
 FOLLOWING = 0.05
-#: Lead before any latency was measured (s).
-INITIAL_LATENCY = {WARM: 0.05, COLD: 0.5, REST: 0.1}
+#: Latency assumed before any was measured (s). A warm replan at 0.05 was often late at a
+#: stream's first goals (its solve and publication took 60-180 ms): solved again from a later
+#: hand-off, it held up the goals behind it, and the backlog kept the goal solved ahead from
+#: running for 20-30 goals (paper's arm, 10 Hz circle, bench/replan.py: median latency 57-299
+#: ms in five runs; with 0.1, 12-39 ms in eight).
+INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1}
 #: The delivery reserve of a rest replan after its publication is at most ``replan_min_lead``
 #: plus this (s). It grows with the recent rest solves' latencies (a loaded machine), but a
 #: published trajectory's delivery does not take as long as a slow solve: on the Panda with
