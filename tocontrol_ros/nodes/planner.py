@@ -267,7 +267,14 @@ class PlannerNode(ReplanServing, Node):
         values.update(extra or {})
         return values
 
-    def _publish_status(self, level: str, message: str, values: dict) -> None:
+    def _publish_status(self, level: str, message: str, values: dict,
+                        routine: bool = False) -> None:
+        """``~/status`` and the log.
+
+        ``routine`` (an OK event on the way to an outcome, e.g. ``accepted``) is logged at
+        DEBUG: rclpy's logger looks up its caller's source file for every message it emits,
+        about 1 ms, which a goal would otherwise wait for.
+        """
         msg = conv.status_msg(level, self.get_fully_qualified_name(), message,
                               self.model.name, values)
         with self._status_lock:
@@ -279,12 +286,15 @@ class PlannerNode(ReplanServing, Node):
             self.get_logger().error(message)
         elif level == "WARN":
             self.get_logger().warning(message)
+        elif routine:
+            self.get_logger().debug(message)
         else:
             self.get_logger().info(message)
 
     def _status(self, req: PlanRequest, level: str, event: str, message: str,
                 extra: dict | None = None) -> None:
-        self._publish_status(level, message, self._values(req, event, extra))
+        self._publish_status(level, message, self._values(req, event, extra),
+                             routine=event == "accepted")
 
     def _reject(self, rid: int, source: str, reason: str) -> None:
         self._publish_status("ERROR", f"request {rid} rejected: {reason}",
