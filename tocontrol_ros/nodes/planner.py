@@ -269,12 +269,8 @@ class PlannerNode(ReplanServing, Node):
 
     def _publish_status(self, level: str, message: str, values: dict,
                         routine: bool = False) -> None:
-        """``~/status`` and the log.
-
-        ``routine`` (an OK event on the way to an outcome, e.g. ``accepted``) is logged at
-        DEBUG: rclpy's logger looks up its caller's source file for every message it emits,
-        about 1 ms, which a goal would otherwise wait for.
-        """
+        """``~/status`` and the log (a ``routine`` event, e.g. ``accepted``, at DEBUG)."""
+        # rclpy's logger reads its caller's source file, about 1 ms a message: a goal waited.
         msg = conv.status_msg(level, self.get_fully_qualified_name(), message,
                               self.model.name, values)
         with self._status_lock:
