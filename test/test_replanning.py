@@ -92,6 +92,27 @@ def test_handoff_kinds(motion):
     np.testing.assert_allclose(h.q, motion.trajectory.state(motion.T)[0][:3])
 
 
+def test_a_near_goal_waits_out_a_short_tail(motion):
+    """Less than REST_TAIL of the motion left at the warm hand-off: a rest replan from its
+    end; more: the tail continued (warm). A far goal is not affected."""
+    from tocontrol_ros.nodes.replanning import INITIAL_LATENCY, REST_TAIL
+
+    config = config_from_values({})
+    start = 10**9
+    at_start = (motion.trajectory.state(0.0)[0][:3], start)
+    near = np.asarray(PAPER_TARGET) + np.array([0.02, 0.0])
+    lead = config.replan_min_lead + config.replan_margin * INITIAL_LATENCY[WARM]
+    assert motion.T > lead + REST_TAIL + 0.05  # the premise: a tail either side of it
+    for left, kind in ((REST_TAIL + 0.02, WARM), (REST_TAIL - 0.02, REST)):
+        replans = Replanner()
+        replans.published(motion, start, motion.trajectory.sample(0.01))
+        now = start + int((motion.T - left - lead) * 1e9)
+        h = replans.handoff(config, near, now, 0, measured=at_start)
+        assert h.kind == kind, (left, h.kind)
+        if kind == REST:
+            assert h.stamp_ns >= start + int(motion.T * 1e9) and not np.any(h.qd)
+
+
 def test_a_rest_replan_is_never_late(motion):
     # The running motion is over by the hand-off: the replan starts at its end, at rest,
     # stamped with that end (no lead); published after it, it is stamped replan_min_lead
