@@ -24,7 +24,7 @@ from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
-           "REST_RESERVE", "AHEAD_KEEP", "keeps_ahead"]
+           "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -84,8 +84,7 @@ def keeps_ahead(pending: list, predicted: np.ndarray, step: float) -> bool:
         ``* step`` of ``predicted``: the goal it predicted, which it serves best.
     """
     tol = AHEAD_KEEP * step
-    return all(getattr(r, "queue", False)
-               and float(np.linalg.norm(np.asarray(r.target) - predicted)) <= tol
+    return all(r.queue and float(np.linalg.norm(np.asarray(r.target) - predicted)) <= tol
                for r in pending)
 
 
