@@ -33,8 +33,9 @@ def test_schedule_replaces_later_pending_splices():
 
 
 class _Item:
-    def __init__(self, queue):
+    def __init__(self, queue, received=0.0):
         self.queue = queue
+        self.received = received
 
 
 def test_goals_queue_and_services_supersede():
@@ -44,11 +45,33 @@ def test_goals_queue_and_services_supersede():
         assert slot.put(g, 3) == ([], None)
     replaced, _ = slot.put(goals[3], 3)
     assert replaced == [goals[0]]  # the oldest beyond the queue
-    assert slot.take(0.0) is goals[1]
+    assert slot.take(0.0) == (goals[1], [])
     service = _Item(False)
     replaced, running = slot.put(service, 3)
     assert replaced == goals[2:] and running is goals[1]
     assert slot.close() == [service]
+
+
+def test_goals_behind_a_backlog_too_long_to_solve_are_superseded():
+    slot = LatestSlot()
+    goals = [_Item(True, received=0.1 * i) for i in range(4)]  # a 10 Hz stream
+    for g in goals:
+        slot.put(g, 50)
+    # Solves of 0.2 s fall behind goals 0.1 s apart: 4 waiting (0.8 s) over a 0.5 s backlog,
+    # the two oldest give way, the two left (0.4 s) are taken in turn.
+    assert slot.take(0.0, 0.5, 0.2) == (goals[2], [(goals[0], goals[1]),
+                                                    (goals[1], goals[2])])
+    assert slot.take(0.0, 0.0, 9.0) == (goals[3], [])  # the newest is never dropped
+    slot.finished(goals[3])
+    for g in goals:
+        slot.put(g, 50)
+    assert slot.take(0.0, 0.5, 0.0) == (goals[0], [])  # no solve time measured yet
+    # Solves of 0.09 s keep up with the stream: 3 waiting (0.27 s) over a 0.1 s backlog
+    # drain by themselves, none is dropped.
+    assert slot.take(0.0, 0.1, 0.09) == (goals[1], [])
+    service = _Item(False)
+    slot.put(service, 50)  # a service request replaces the pending goals; never stale
+    assert slot.take(0.0, 0.0, 5.0) == (service, [])
 
 
 def test_align():

@@ -149,6 +149,10 @@ class LatencyEstimate:
         if math.isfinite(seconds) and seconds >= 0:
             self._recent.append(float(seconds))
 
+    def typical(self) -> float:
+        """The median of the recent latencies (s); 0 before any was measured."""
+        return float(np.median(self._recent)) if self._recent else 0.0
+
     def lead(self) -> float:
         """How far ahead of now the next hand-off is put (s)."""
         # A high quantile, not the maximum: one slow solve (a page fault, a busy core)

@@ -310,7 +310,12 @@ class PlannerNode(ReplanServing, Node):
         self._warm_up()
         while not self._stopping.is_set():
             waiting = compiled.pending_builds() > 0 or self.planner.stale()
-            req = self._slot.take(OPTIMISED_POLL if waiting else None)
+            req, stale = self._slot.take(OPTIMISED_POLL if waiting else None,
+                                         self.config.goal_max_backlog,
+                                         self._replanner.replan_time())
+            for old, by in stale:  # solves fell behind the stream: newest wins
+                self._finish(old, "WARN", "superseded", f"superseded by request {by.id}: "
+                             "the goals waiting exceed goal_max_backlog")
             if req is None:
                 if self._slot.closed:
                     break
@@ -333,8 +338,7 @@ class PlannerNode(ReplanServing, Node):
         lo, hi = self._limits.plan_lower, self._limits.plan_upper
         bounded = np.isfinite(lo) & np.isfinite(hi)
         lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
-        # Inside the limits, and a generic move (alternating signs: not along a singular
-        # direction) that stays inside them.
+        # Inside the limits: a generic move (alternating signs: not along a singular one).
         qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
         qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
                       qa + 0.5 * (-1.0) ** np.arange(model.n))
@@ -413,9 +417,8 @@ class PlannerNode(ReplanServing, Node):
                 self.planner.prepare(problem, options)
             for problem in problems:
                 self.planner.first(problem, options)  # loads TOPP-RA, builds its integrator
-                result = self.planner.plan(
-                    problem, options,
-                    should_stop=lambda: self._stopping.is_set() or self._slot.has_pending())
+                result = self.planner.plan(problem, options, should_stop=lambda:
+                                           self._stopping.is_set() or self._slot.has_pending())
                 if not result.success and not note:
                     note = f" (warm-up solve: {result.message})"
         except TocontrolError as exc:
@@ -586,11 +589,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(args=None) -> int:
     """``ros2 run tocontrol_ros planner``: the node on a multi-threaded executor.
 
-    Parameters
-    ----------
-    args : list of str, optional
-        The command line, as for :func:`~tocontrol_ros.nodes.node_main.run_node`, which
-        gives the exit status.
+    ``args``: the command line (list of str), as for
+    :func:`~tocontrol_ros.nodes.node_main.run_node`, which gives the exit status.
     """
     return run_node("planner", args, PlannerNode,
                     lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS), build_parser())

@@ -165,6 +165,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "than this many wait (then the oldest is superseded). 1: newest wins "
                   "(lower latency on an idle machine, fewer goals answered on a busy one).",
                   1, 1000),
+    ParameterSpec("goal_max_backlog", 1.0, "Once replans take longer than the interval "
+                  "between goals (the worker falls behind the stream), the oldest waiting "
+                  "goals are superseded while solving those waiting would take longer than "
+                  "this (s; their count times the recent replans' median solve time): newest "
+                  "wins. Solves that keep up answer every goal.", 0.0, 3600.0),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
                   "(s); then it returns an empty path.", 1.0, 3600.0),
     # Execution on a controller (tocontrol_ros/nodes/controller_client.py).
@@ -239,6 +244,7 @@ class PlannerConfig:
     replan_smoothing: float = 1e-2
     replan_predict: bool = True
     goal_queue: int = 50
+    goal_max_backlog: float = 1.0
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:

@@ -192,6 +192,15 @@ class Replanner:
                 self._latency[kind] = est
             return est
 
+    def replan_time(self) -> float:
+        """The near replans' recent median solve time (s), the warm or the rest one's.
+
+        Solve start to publication; the larger of the two kinds; 0 before any.
+        """
+        with self._lock:
+            return max((self._latency[kind].typical() for kind in (WARM, REST)
+                        if kind in self._latency), default=0.0)
+
     def published(self, result, stamp_ns: int, sample=None) -> None:
         """``result`` was published, taking over at ``stamp_ns`` (ns), as ``sample``.
 

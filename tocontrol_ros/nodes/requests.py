@@ -9,6 +9,7 @@ a request needs it.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -107,14 +108,49 @@ class LatestSlot:
             self._cond.notify_all()
             return replaced, self._running
 
-    def take(self, timeout: float | None = None):
-        """The oldest pending item, now running; None when closed (or on timeout)."""
+    def take(self, timeout: float | None = None, max_backlog: float = math.inf,
+             per_item: float = 0.0) -> tuple[object, list]:
+        """The oldest pending item that is not stale, now running, and the stale ones.
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Longest wait for an item (s); None: until one comes or the slot closes.
+        max_backlog : float
+            Goals fall behind when the worker takes longer per queued item (``per_item``)
+            than the interval at which the waiting ones arrived (their ``received``); then,
+            while more than one waits and their count times ``per_item`` exceeds this (s),
+            the oldest is stale: dropped, the next one behind it in its place (newest wins).
+            A backlog that the worker drains faster than it grows (after one slow solve) is
+            kept whole. The newest item is never stale.
+        per_item : float
+            The recent time the worker took per queued item (s); 0: not known yet (nothing
+            is stale).
+
+        Returns
+        -------
+        (item or None, list of (stale item, the item behind it))
+            None when closed or on timeout.
+        """
         with self._cond:
             self._cond.wait_for(lambda: bool(self._pending) or self._closed, timeout)
             if self._closed or not self._pending:
-                return None
+                return None, []
+            stale = []
+            while len(self._pending) > 1 and all(getattr(p, "queue", False)
+                                                 for p in self._pending[:2]) \
+                    and len(self._pending) * per_item > max_backlog \
+                    and per_item > self._interval():
+                stale.append((self._pending.pop(0), self._pending[0]))
             self._running = self._pending.pop(0)
-            return self._running
+            return self._running, stale
+
+    def _interval(self) -> float:
+        """The mean interval at which the pending items arrived (s; inf for fewer than 2)."""
+        times = [getattr(p, "received", None) for p in self._pending]
+        if len(times) < 2 or None in times:
+            return math.inf
+        return (times[-1] - times[0]) / (len(times) - 1)
 
     def finished(self, item) -> None:
         """The worker is done with ``item``."""
