@@ -150,3 +150,29 @@ def test_a_reachable_point_is_checked_once_per_model(galicki, monkeypatch):
         with pytest.raises(ProblemError, match="not reachable"):
             Problem(galicki, start, point((10.0, 0.0)))
     assert len(calls) > first + 1
+
+
+def test_a_point_near_a_known_configuration_is_shown_reachable_without_ik(galicki,
+                                                                          monkeypatch):
+    # A replan's target, a fraction of a millimetre from where the motion it continues
+    # ends: Gauss-Newton from that end shows it reachable and the problem runs no IK.
+    import tocontrol_ros.core.robot.ik as ik
+    from tocontrol_ros.core.problem import note_reachable
+
+    calls = []
+    real = ik.solve_ik
+    monkeypatch.setattr(ik, "solve_ik", lambda *a, **k: calls.append(1) or real(*a, **k))
+    q = np.array([0.41, 0.77, -0.9])
+    p = galicki.point(q) + np.array([3e-4, -2e-4])  # in no other test
+    assert note_reachable(galicki, p, q)
+    Problem(galicki, joint_state(q), point(p))
+    assert calls == []
+    # Not shown: a point out of reach, a fully stretched arm (singular), bad input; the
+    # problem's own check then decides.
+    assert not note_reachable(galicki, (10.0, 0.0), q)
+    stretched = np.zeros(3)
+    assert not note_reachable(galicki, galicki.point(stretched), stretched)
+    assert not note_reachable(galicki, (np.nan, 0.0), q)
+    assert not note_reachable(galicki, p, q[:2])
+    with pytest.raises(ProblemError, match="not reachable"):
+        Problem(galicki, point(p), point((10.0, 0.0)))

@@ -100,6 +100,9 @@ class ReplanServing:
                     except conv.ConversionError:
                         pass  # keep the state taken at its arrival
                 return False
+            near = replans.near(config, req.target)
+            if near:  # its problem's reachability check from the nearest motion's end
+                replans.note_reachable(self.model, req.target)
             try:
                 problem = self._problem(config, ("state", handoff.q, handoff.qd), req.target)
             except TocontrolError as exc:
@@ -107,7 +110,7 @@ class ReplanServing:
                 return True
             options = solver_options(config)
             warm = [handoff.warm]
-            if replans.near(config, req.target):
+            if near:
                 # Near: the running motion's tail continued, or the last motions published
                 # (replanning.Replanner.warm_starts); should they fail, one start, no
                 # multistart.
@@ -231,6 +234,7 @@ class ReplanServing:
         handoff = replans.handoff(config, target, due_ns, origin, 0.0, measured)
         if handoff is None:
             return
+        replans.note_reachable(self.model, target)
         try:
             problem = self._problem(config, ("state", handoff.q, handoff.qd), target)
         except TocontrolError:

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tocontrol_ros.core.problem import REST_SPEED
+from tocontrol_ros.core.problem import REST_SPEED, note_reachable
 from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.nodes.planner_config import PlannerConfig
@@ -239,6 +239,23 @@ class Replanner:
             else None
         return [w for w in (first, tail, last, from_rest)
                 if w is not None and w.warm_state is not None]
+
+    def note_reachable(self, model, target: np.ndarray) -> bool:
+        """Show ``target`` (m) reachable from the end of the motion that ends nearest it.
+
+        The motion solved ahead or the last published one
+        (:func:`~tocontrol_ros.core.problem.note_reachable`): a goal of a stream is then not
+        checked by a full inverse kinematics when its problem is made. Returns whether it
+        was shown.
+        """
+        with self._lock:
+            ends = [r for r in (self._ahead[0] if self._ahead else None,
+                                self._executing[0] if self._executing else None)
+                    if r is not None and r.trajectory is not None and r.problem is not None]
+        if not ends:
+            return False
+        r = min(ends, key=lambda r: float(np.linalg.norm(r.problem.target_point - target)))
+        return note_reachable(model, target, r.trajectory.state(r.T)[0][:model.n])
 
     def has_motion(self) -> bool:
         """Whether a motion was published that a replan could continue."""
