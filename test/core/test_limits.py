@@ -255,6 +255,39 @@ def test_a_bounded_warm_re_solve_starts_from_the_previous_multipliers(limited):
     assert misfit.iterations == path_only.iterations
 
 
+def test_a_replan_keeps_bounded_solves_on_a_coarse_uniform_mesh(limited):
+    """``replan_spans``: the warm start (on its refined mesh) is solved again on that many
+    uniform spans from its path fitted there, certified, ``T`` within 4e-3 of the warm
+    re-solve on its own mesh; the next replan continues on that mesh; a replan without a
+    warm start keeps the uniform mesh of the multistart, unrefined."""
+    from tocontrol_ros.core.direct.tuning import SPANS
+
+    moved = _moved(limited)
+    fine = plan(moved, SolverOptions(warm_only=True, time_limit=SLOW_OK), warm_start=limited)
+    options = SolverOptions(warm_only=True, replan_spans=24, time_limit=SLOW_OK)
+    coarse = plan(moved, options, warm_start=limited)
+    assert fine.success and coarse.success, (fine.message, coarse.message)
+    assert coarse.method == "direct" and coarse.certificate.passed
+    assert coarse.starts[0].index == -1 and coarse.intervals == 24 != limited.intervals
+    assert any("uniform mesh of 24 spans" in w for w in coarse.warnings)
+    assert fine.T <= coarse.T <= (1 + 4e-3) * fine.T  # 2.7e-3 here (a 0.66 s motion)
+    again = plan(_moved(limited, (0.02, 0.02)), options, warm_start=coarse)
+    assert again.success and again.intervals == 24, again.message
+    assert any("its mesh of 24 spans" in w for w in again.warnings)
+    cold_options = replace(options, warm_only=False, starts=4, candidates=1)
+    cold = plan(moved, cold_options)
+    full = plan(moved, replace(cold_options, replan_spans=0))
+    assert cold.success and full.success, (cold.message, full.message)
+    assert cold.intervals == SPANS < full.intervals
+    assert full.T <= cold.T <= full.T * (1 + 5e-3)
+
+
+@pytest.mark.parametrize("spans", [-1, 2, 1.5, True])
+def test_replan_spans_is_validated(spans):
+    with pytest.raises(ProblemError, match="replan_spans"):
+        SolverOptions(replan_spans=spans)
+
+
 def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
     moved = _moved(limited)
     options = SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK)
@@ -270,7 +303,7 @@ def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
 def test_a_failed_warm_start_falls_back_to_the_multistart(limited, monkeypatch):
     from tocontrol_ros.core import solver
 
-    def failing(planner, ctx, warm, timings, t_start):
+    def failing(planner, ctx, warm, timings, t_start, trajectory=None):
         return replace(limited, success=False, status=Status.LIMITS_INFEASIBLE,
                        message="the warm bounded solve failed (test)", problem=ctx.problem)
 

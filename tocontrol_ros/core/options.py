@@ -10,6 +10,9 @@ from tocontrol_ros.core.certificate import CertificateOptions
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.tuning import WARM_JOINT_RADIUS
 
+#: Fewest spans of ``SolverOptions.replan_spans`` (a cubic spline on fewer barely bends).
+MIN_REPLAN_SPANS = 4
+
 __all__ = ["SolverOptions"]
 
 
@@ -112,6 +115,15 @@ class SolverOptions:
         start in the multistart's basin; the planner node's replans allow more
         (:data:`~tocontrol_ros.core.replan.REPLAN_JOINT_RADIUS`): along a stream of goals
         each start moves by a few centimetres, and the warm solve still converges.
+    replan_spans : int
+        Bounded solves (``docs/limits.md``) of a replan stay on a coarse mesh: a warm start
+        (a ``"direct"`` solution) is solved again on this many uniform spans, from its path
+        fitted there when its own mesh has another number, and a solve without one keeps
+        its uniform mesh, unrefined. 0 (the default): full accuracy (a warm start on its own
+        mesh, from its path and multipliers; every candidate refined). The planner node's
+        replans use :data:`~tocontrol_ros.core.replan.REPLAN_SPANS`: a replan's motion is
+        short, IPOPT's iterations on a refined mesh of 56-128 spans cost 3-4 times more, and
+        ``T`` stays within about 1e-3 (BENCHMARKS.md "Replanning").
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -148,6 +160,7 @@ class SolverOptions:
     direct_fallback: bool = True
     warm_only: bool = False
     warm_joint_radius: float = WARM_JOINT_RADIUS
+    replan_spans: int = 0
     workers: int = 1
 
     def __post_init__(self) -> None:
@@ -163,6 +176,11 @@ class SolverOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and value >= 1):
                 raise ProblemError(f"`{name}` must be an integer >= 1, got {value!r}")
+        if not (isinstance(self.replan_spans, (int, np.integer))
+                and not isinstance(self.replan_spans, bool)
+                and (self.replan_spans == 0 or self.replan_spans >= MIN_REPLAN_SPANS)):
+            raise ProblemError(f"`replan_spans` must be 0 or an integer >= "
+                               f"{MIN_REPLAN_SPANS}, got {self.replan_spans!r}")
         if not (isinstance(self.workers, (int, np.integer)) and not isinstance(self.workers, bool)
                 and self.workers >= 0):
             raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "

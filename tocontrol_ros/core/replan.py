@@ -26,7 +26,7 @@ from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.result import PlanResult, Status, WarmState
 
 __all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE",
-           "TARGET_STEPS", "REPLAN_JOINT_RADIUS", "replan_options"]
+           "TARGET_STEPS", "REPLAN_JOINT_RADIUS", "REPLAN_SPANS", "replan_options"]
 
 #: A tail shorter than this fraction of the motion is no warm start (the motion has nearly
 #: ended: the arm is about to stop at the old target and a plan from rest is as good).
@@ -173,7 +173,20 @@ TARGET_STEPS = ((1.0,), (0.5, 1.0), (0.25, 0.5, 0.75, 1.0))
 REPLAN_JOINT_RADIUS = 0.2
 
 
-def replan_options(options, smoothing: float = 0.0):
+#: ``SolverOptions.replan_spans`` of the node's replans of an arm whose limits bind (bounded
+#: B-spline solves). On the Panda with its URDF limits, along a stream of rest replans 1.3 cm
+#: apart (bench/replan.py's circle, each warm from the last), against each replan on the
+#: refined mesh it inherits (56-88 spans), solved side by side in one process: 16 spans
+#: median 43 ms and T up to 2.5e-3 above, 24 spans 60 ms and up to 1e-3, 32 spans 86 ms
+#: and up to 7e-4, the refined mesh 311 ms (2 of 14 failed there after 15 s of IPOPT). A
+#: cold replan left unrefined (one start, from the end of a first motion to circle goals
+#: 1.3-38 cm away): T 4.5e-4 to 2.2e-3 above the refined one's, 0.17-0.41 s against
+#: 0.64-0.74 s, but 1.8 s against 2.2 s for the 1.3 cm one (IPOPT's 280 iterations from the
+#: guess on the uniform mesh).
+REPLAN_SPANS = 24
+
+
+def replan_options(options, smoothing: float = 0.0, spans: int = REPLAN_SPANS):
     """The options of a replan near the running motion: warm alone, one start if not.
 
     Parameters
@@ -190,16 +203,20 @@ def replan_options(options, smoothing: float = 0.0):
         predicted goal's solution in a median 5 Newton iterations (14 at the default
         schedule's 1e-6..1e-7). 0: the options' schedule.
 
+    spans : int
+        ``SolverOptions.replan_spans``: a bounded warm start is solved on this many uniform
+        spans (0: on its own mesh).
+
     Returns
     -------
     SolverOptions
         ``warm_only``, ``starts = candidates = 1``, ``warm_joint_radius =``
-        :data:`REPLAN_JOINT_RADIUS`, and the smoothing above.
+        :data:`REPLAN_JOINT_RADIUS`, ``replan_spans = spans``, and the smoothing above.
     """
     from tocontrol_ros.core.certificate import CertificateOptions
 
     out = replace(options, warm_only=True, starts=1, candidates=1,
-                  warm_joint_radius=REPLAN_JOINT_RADIUS)
+                  warm_joint_radius=REPLAN_JOINT_RADIUS, replan_spans=int(spans))
     if smoothing > 0.0:
         cert = options.certificate or CertificateOptions()
         out = replace(out, smoothing=(float(smoothing),),

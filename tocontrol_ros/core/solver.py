@@ -221,7 +221,8 @@ def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
     try:
         finished = False
         if warm_start is not None and isinstance(warm_start.warm_state, PathWarmState):
-            return plan_limited_warm(planner, ctx, warm_start.warm_state, timings, t_start)
+            return plan_limited_warm(planner, ctx, warm_start.warm_state, timings, t_start,
+                                     warm_start.trajectory)
         if warm_start is not None:
             # A planner made since (optimised libraries landed) loads the shooting's first.
             ctx.extend(planner.prepare_shooting(problem, options))

@@ -314,6 +314,7 @@ class PlannerNode(ReplanServing, Node):
                                          self.config.goal_max_backlog,
                                          self._replanner.replan_time())
             for old, by in stale:  # solves fell behind the stream: newest wins
+                by.behind = True
                 self._finish(old, "WARN", "superseded", f"superseded by request {by.id}: "
                              "the goals waiting exceed goal_max_backlog")
             if req is None:
@@ -545,8 +546,7 @@ class PlannerNode(ReplanServing, Node):
 
     def _markers(self, result, path: Path, config: PlannerConfig, start_point, target) -> None:
         """The viewer's markers, after the answer: the caller does not wait for them."""
-        snaps = result.trajectory.evaluate(
-            np.linspace(0.0, result.T, config.marker_snapshots)).q
+        snaps = result.trajectory.evaluate(np.linspace(0.0, result.T, config.marker_snapshots)).q
         ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
                        for p in path.poses])
         markers = conv.markers_msg(self.model, snaps, ee, conv.embed_point(self.frame,

@@ -110,11 +110,13 @@ class ReplanServing:
                 return True
             options = solver_options(config)
             warm = [handoff.warm]
-            if near:
+            if near or req.behind:
                 # Near: the running motion's tail continued, or the last motions published
                 # (replanning.Replanner.warm_starts); should they fail, one start, no
-                # multistart.
-                options = replan_options(options, config.replan_smoothing)
+                # multistart. So too a far goal after the worker fell behind the stream (it
+                # moves on: a quick answer serves it better than the multistart's basin).
+                options = replan_options(options, config.replan_smoothing,
+                                         config.replan_spans)
                 # A late solve's result first: the same goal from a little earlier.
                 warm = [late_result, *replans.warm_starts(handoff.warm)]
             result = None
@@ -239,7 +241,8 @@ class ReplanServing:
             problem = self._problem(config, ("state", handoff.q, handoff.qd), target)
         except TocontrolError:
             return  # e.g. a predicted target out of reach: the real goal will say so
-        options = replan_options(solver_options(config), config.replan_smoothing)
+        options = replan_options(solver_options(config), config.replan_smoothing,
+                                 config.replan_spans)
         step = float(np.linalg.norm(target - running.problem.target_point))
 
         def stop() -> bool:  # any request but the goal predicted stops it

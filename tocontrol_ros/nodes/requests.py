@@ -58,6 +58,8 @@ class PlanRequest:
     path: Path | None = None
     #: A goal that queues behind pending goals instead of replacing them (replanning).
     queue: bool = False
+    #: A goal that superseded waiting goals: the worker fell behind the stream.
+    behind: bool = False
     #: A goal whose start was taken without waiting for a fresh joint state: its DDS receive
     #: time (ns), to take a fresh one if it is not a replan after all; else 0.
     since_ns: int = 0

@@ -16,8 +16,7 @@ bounds:
    (at most :data:`REFINEMENTS` levels) with the spans halved where the acceleration
    changes (the junctions of arcs), each level leaving behind those too far above the best
    (:data:`LEVEL_WINDOWS`);
-3. the least ``T`` is verified (re-integration, limits included) and returned with
-   ``method="direct"``.
+3. the least ``T`` is verified (re-integration, limits included), ``method="direct"``.
 
 See ``docs/limits.md`` for the formulation and why the maximum principle does not carry the
 limits itself.
@@ -212,7 +211,8 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     first = _distinct_solutions(first)
     best = None
     if first:
-        for idx, res, traj, contender in _race(planner, ctx, bounds, first):
+        levels = 0 if options.replan_spans else REFINEMENTS  # a replan stays coarse
+        for idx, res, traj, contender in _race(planner, ctx, bounds, first, levels):
             records[idx] = replace(records[idx], T=res.T)
             if contender and (best is None or res.T < best[1].T):
                 best = (idx, res, traj)
@@ -227,27 +227,33 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
 
 
 def plan_limited_warm(planner: Transcriptions, ctx: SolveContext, warm: PathWarmState,
-                      timings: dict, t_start: float) -> PlanResult:
+                      timings: dict, t_start: float, trajectory=None) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
-    On that solution's mesh, from its path and ``T`` and, where they fit this problem's
-    NLP (same kinds of start and target), its multipliers (``FlatTranscription(warm="dual")``;
-    otherwise ``warm=True``, the path alone), within :data:`NEAR_MAX_ITER`, then held inside
-    the control set between the samples and verified as :func:`plan_limited` does. A
-    failure is reported (the caller then solves cold).
+    On its mesh, from its path, ``T`` and, where they fit this NLP (same kinds of start and
+    target), multipliers (``FlatTranscription(warm="dual")``, else ``warm=True``); with
+    ``ctx.options.replan_spans`` and its ``trajectory``, on that many uniform spans when its
+    mesh has another number, from its path fitted there (``warm=True``). Within
+    :data:`NEAR_MAX_ITER`, then held inside the control set between the samples and verified
+    as :func:`plan_limited` does. A failure is reported (the caller then solves cold).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
-    flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
-    duals = {}
-    if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
-            and len(warm.lam_x) == flat.K * flat.model.n + 1):
-        flat = planner.flat(problem, warm.breaks, warm="dual")
-        duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
+    spans, P, duals, mesh = ctx.options.replan_spans, warm.P, {}, "its mesh"
+    if spans and trajectory is not None and len(warm.breaks) - 1 != spans:
+        flat, mesh = planner.flat(problem, spans, warm=True), "a uniform mesh"
+        path = trajectory.evaluate(np.linspace(0.0, warm.T, 4 * flat.K))
+        P = flat.fit(warm.T, path.t, path.q, path.qd)
+    else:
+        flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
+        if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
+                and len(warm.lam_x) == flat.K * flat.model.n + 1):
+            flat = planner.flat(problem, warm.breaks, warm="dual")
+            duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
-    out = flat.solve(*values, warm.T, warm.P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
+    out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
     ctx.check()
     traj = None
     if out.success:
@@ -259,7 +265,7 @@ def plan_limited_warm(planner: Transcriptions, ctx: SolveContext, warm: PathWarm
                            timings, t_start, residual=out.residual,
                            iterations=out.iterations, intervals=flat.spans)
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
-             f"previous solution on its mesh of {flat.spans} spans"]
+             f"previous solution on {mesh} of {flat.spans} spans"]
     return _result(ctx, out, traj, [], notes, timings, t_start)
 
 
@@ -433,13 +439,14 @@ def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float
     return out
 
 
-def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> list:
+def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list,
+          levels: int = REFINEMENTS) -> list:
     """The uniform-mesh solutions refined level by level, the hopeless ones left behind.
 
     All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
-    (their spans halved at the junctions, at most :data:`REFINEMENTS` levels, until ``T``
-    changes by less than :data:`T_SETTLED`); after level ``l`` those more than
-    ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Those kept are then held
+    (spans halved at the junctions, at most ``levels``, until ``T`` changes by less than
+    :data:`T_SETTLED`); after level ``l`` those more than ``LEVEL_WINDOWS[l]`` above the best
+    ``T`` so far stop there. Those kept are then held
     inside the control set between their samples (:func:`_inside_set`), fastest first, until
     the next cannot beat the best so held by more than :data:`INSIDE_TIE`.
 
@@ -454,7 +461,7 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list) -> li
     cutoff = (1 + REFINE_WINDOW) * min(out[0].T for _, out in first)
     # idx -> [result, trajectory, transcription, still refining]
     race = {idx: [*out, True] for idx, out in first if out[0].T <= cutoff}
-    for level in range(REFINEMENTS):
+    for level in range(levels):
         level_items = []
         for entry in race.values():
             out, traj, flat, going = entry
