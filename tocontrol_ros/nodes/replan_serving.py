@@ -110,11 +110,11 @@ class ReplanServing:
                 return True
             options = solver_options(config)
             warm = [handoff.warm]
-            if near or req.behind:
+            if near or (req.behind and problem.limits.active):
                 # Near: the running motion's tail continued, or the last motions published
                 # (replanning.Replanner.warm_starts); should they fail, one start, no
-                # multistart. So too a far goal after the worker fell behind the stream (it
-                # moves on: a quick answer serves it better than the multistart's basin).
+                # multistart. So too a far goal after the worker fell behind the stream on an
+                # arm whose limits bind (its multistart takes seconds: the stream moves on).
                 options = replan_options(options, config.replan_smoothing,
                                          config.replan_spans)
                 # A late solve's result first: the same goal from a little earlier.
