@@ -327,6 +327,69 @@ def smoothing_cost(goals_count: int = 50, radius: float = 0.15) -> list[str]:
                     "Newton iterations median"], table_rows)]
 
 
+#: ``replan_spans`` compared by :func:`spans_cost` (0: the warm start's own refined mesh).
+SPAN_COUNTS = (0, 16, 24, 32)
+
+
+def spans_cost(count: int = 12) -> list[str] | None:
+    """What ``replan_spans`` costs and saves, in this process: the Panda with its limits.
+
+    The rest chain of the moving-target circle's first ``count`` + 1 goals (each problem
+    from rest at the last goal's end, as the node's rest replans): each problem planned
+    with the default options (the reference, and the next problem's warm start), and
+    replanned warm from the last reference at each of :data:`SPAN_COUNTS`, timed one after
+    the other. Markdown lines, or None without example-robot-data.
+    """
+    import time
+
+    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.problem import Problem, joint_state, point
+    from tocontrol_ros.core.replan import replan_options, warm_replan
+    from tocontrol_ros.core.solver import Planner
+
+    found = _robot("panda")
+    if found is None:
+        return None
+    model, _, _, _, p0, radius, q = found
+    planner = Planner(model)
+    goals = _circle(p0, radius, int(RATE * DURATION))[:count + 1]
+    # (The smoothing is the maximum principle's: bounded solves have none.)
+    options = {s: replan_options(SolverOptions(), 0.0, s) for s in SPAN_COUNTS}
+    last = planner.plan(Problem(model, joint_state(q, np.zeros(model.n)), point(goals[0]),
+                                k=4), SolverOptions())
+    rows = []
+    for goal in goals[1:]:
+        q = last.trajectory.state(last.T)[0][:model.n]
+        problem = Problem(model, joint_state(q, np.zeros(model.n)), point(goal), k=4)
+        ref = planner.plan(problem, SolverOptions())
+        out = {}
+        for spans, opts in options.items():
+            t0 = time.perf_counter()
+            r = warm_replan(planner, problem, [last], opts)
+            elapsed = time.perf_counter() - t0
+            certified = r.success and r.certificate is not None and r.certificate.passed
+            out[spans] = (certified, r.T if certified else float("nan"), elapsed)
+        rows.append((ref.T if ref.success else float("nan"), out))
+        last = ref
+    table_rows = []
+    for spans in SPAN_COUNTS:
+        ok = [(t_ref, o[spans]) for t_ref, o in rows if o[spans][0] and np.isfinite(t_ref)]
+        excess = [(r[1] - t_ref) / t_ref for t_ref, r in ok]
+        times = [o[spans][2] for _, o in rows]
+        table_rows.append([f"{spans}" + (" (the warm start's mesh)" if spans == 0 else ""),
+                           f"{sum(o[spans][0] for _, o in rows)}/{len(rows)}",
+                           f"{np.median(excess):+.1e}" if excess else "-",
+                           f"{np.max(excess):+.1e}" if excess else "-",
+                           f"{1e3 * np.median(times):.0f} / {1e3 * np.max(times):.0f}"])
+    return ["", f"What `replan_spans` costs and saves (in one process): the Panda with its "
+            f"limits, the rest chain of the circle's first {count + 1} goals (1.3 cm apart), "
+            f"each problem planned with the default options (the reference) and replanned "
+            f"warm from the last reference (its refined mesh) at each `replan_spans`; `T` "
+            f"against the reference's, relative; time of the warm replan, median / max.", "",
+            *table(["replan_spans", "certified", "T excess median", "T excess max",
+                    "ms median / max"], table_rows)]
+
+
 def run(which: str = "both") -> Section:
     title = "Replanning: a target moving at 10 Hz, nodes as deployed (issue 33)"
     workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-replan-"))
@@ -377,6 +440,9 @@ def run(which: str = "both") -> Section:
     if "paper" in names:
         log("replan: the smoothing's cost in T ...")
         lines += smoothing_cost()
+    if "panda" in names:
+        log("replan: the Panda's replan_spans ...")
+        lines += spans_cost() or []
     targets = []
     for r in results:
         goal = TARGET_PAPER if r["robot"].startswith("paper") else TARGET_PANDA

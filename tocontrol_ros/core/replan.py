@@ -174,15 +174,14 @@ REPLAN_JOINT_RADIUS = 0.2
 
 
 #: ``SolverOptions.replan_spans`` of the node's replans of an arm whose limits bind (bounded
-#: B-spline solves). On the Panda with its URDF limits, along a stream of rest replans 1.3 cm
-#: apart (bench/replan.py's circle, each warm from the last), against each replan on the
-#: refined mesh it inherits (56-88 spans), solved side by side in one process: 16 spans
-#: median 43 ms and T up to 2.5e-3 above, 24 spans 60 ms and up to 1e-3, 32 spans 86 ms
-#: and up to 7e-4, the refined mesh 311 ms (2 of 14 failed there after 15 s of IPOPT). A
-#: cold replan left unrefined (one start, from the end of a first motion to circle goals
-#: 1.3-38 cm away): T 4.5e-4 to 2.2e-3 above the refined one's, 0.17-0.41 s against
-#: 0.64-0.74 s, but 1.8 s against 2.2 s for the 1.3 cm one (IPOPT's 280 iterations from the
-#: guess on the uniform mesh).
+#: B-spline solves). The Panda with its URDF limits, the rest chain of the moving-target
+#: circle (goals 1.3 cm apart), each problem replanned warm from the default plan of the one
+#: before (its refined mesh; bench/replan.py, BENCHMARKS.md "Replanning"): at 24 spans
+#: T 7.6e-4 (median) and at most 9.8e-4 above the default plan's, 109 ms median, 11/12
+#: certified; on the refined mesh itself 314 ms median, 13 s at worst, 10/12 (16 spans:
+#: 2.0e-3, 79 ms; 32: 4.2e-4, 134 ms). The node's next replan continues on the coarse mesh
+#: from its multipliers (a stream's replans: 60-130 ms each). A cold replan is left on its
+#: uniform mesh, unrefined.
 REPLAN_SPANS = 24
 
 
