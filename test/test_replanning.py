@@ -74,6 +74,22 @@ def test_goals_behind_a_backlog_too_long_to_solve_are_superseded():
     assert slot.take(0.0, 0.0, 5.0) == (service, [])
 
 
+def test_replan_time_is_the_slower_kind_s_recent_median():
+    # What a queued goal costs the worker (LatestSlot.take's per_item): unknown (0) before
+    # any near replan was timed, then the larger of the warm and rest replans' medians.
+    replans = Replanner()
+    config = config_from_values({})
+    assert replans.replan_time() == 0.0
+    for seconds in (0.01, 0.02, 0.5):  # one slow solve does not set it
+        replans.estimate(config, REST).record(seconds)
+    assert replans.replan_time() == pytest.approx(0.02)
+    for seconds in (0.04, 0.05):
+        replans.estimate(config, WARM).record(seconds)
+    assert replans.replan_time() == pytest.approx(0.045)
+    replans.estimate(config, COLD).record(9.0)  # new motions are not replans
+    assert replans.replan_time() == pytest.approx(0.045)
+
+
 def test_align():
     assert align(1_000_400, 0, 1e-3) == 2_000_000
     assert align(1_000_400, 400, 1e-3) == 1_000_400
