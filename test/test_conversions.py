@@ -227,6 +227,7 @@ def test_descriptors_carry_ranges_and_read_only():
     ({"default_start": [1.0, float("nan")]}, r"`default_start` must be finite"),
     ({"gravity": [0.0, -9.8]}, r"`gravity` must have 3 entries"),
     ({"nonsense": 1}, r"unknown parameter"),
+    ({"replan_spans": 2}, r"`replan_spans` must be 0 or at least 4, got 2"),
     ({"publish": "first"}, r"`publish` must be one of optimum, first_then_optimum, got 'first'"),
 ])
 def test_config_rejects(values, match):

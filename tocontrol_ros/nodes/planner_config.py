@@ -18,6 +18,7 @@ from typing import Any
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
+from tocontrol_ros.core.options import MIN_REPLAN_SPANS
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
 from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
@@ -157,9 +158,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "schedule down to 0, as for new motions (msg_docs/parameters.md, "
                   "'Replanning').", 0.0, 0.01),
     ParameterSpec("replan_spans", 24, "An arm whose limits bind: a replan near the running "
-                  "motion is solved on this many uniform B-spline spans (a coarse mesh: T "
-                  "within about 1e-3 of the refined one's, 3-5 times faster on the Panda). 0: "
-                  "on the running motion's own mesh (msg_docs/parameters.md, 'Replanning').",
+                  "motion is solved on this many uniform B-spline spans, at least 4 (a coarse "
+                  "mesh: T within about 1e-3, about 3 times faster on the Panda). 0: on the "
+                  "running motion's own mesh (msg_docs/parameters.md, 'Replanning').",
                   0, 256),
     ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
                   "smooth path, the worker solves the goal they predict (the quadratic "
@@ -331,6 +332,9 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
         raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
                           f"({out['starts']}): only the starts' direct solutions can be "
                           f"continued")
+    if 0 < out["replan_spans"] < MIN_REPLAN_SPANS:
+        raise ConfigError(f"`replan_spans` must be 0 or at least {MIN_REPLAN_SPANS}, got "
+                          f"{out['replan_spans']}")
     if not out["default_start"] and task_dim in (None, len(PAPER_START)):
         raise ConfigError("`default_start` must not be empty")
     return PlannerConfig(**{f.name: out[f.name] for f in fields(PlannerConfig)})
