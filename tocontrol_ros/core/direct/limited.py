@@ -351,13 +351,12 @@ def _uniform_item(planner: Transcriptions, ctx: SolveContext, bounds, guess: Dir
     A piece of :meth:`Transcriptions.map` (the caller builds the trajectory). The fallback
     of a failed shooting starts from the candidate's finer guess: the planar 8R's coarse
     guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at k = 1 (300 iterations,
-    9 s each: four starts and two candidates 50-60 s, at the time limit), from the finer
-    ones 39-141 (14.7 s in all).
+    9 s each: 50-60 s in all, at the time limit), from the finer ones 39-141 (14.7 s).
     """
     if fallback and len(guess.t) - 1 != FINE_GUESS_INTERVALS:
         fine = finer_guess(planner, ctx.problem, guess)
         guess = fine if fine.success else guess
-    return _uniform(planner, ctx, bounds, guess, in_k=fallback)
+    return _uniform(planner, ctx, bounds, guess, in_k=fallback or bool(ctx.options.replan_spans))
 
 
 def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
@@ -369,9 +368,10 @@ def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectRe
     solution's ``T`` with its residual at 1e-5, which the warm start finished. One that
     still fails is solved again by continuation in ``k`` (:func:`_continued_in_k`). With
     ``in_k`` (the fallback of a failed shooting) the continuation in ``k`` is the only
-    solve: on the planar 8R (bench/scaling.py, k = 4, one start) the solve at ``k = 4``
-    took 600 iterations (12 s) to fail before the continuation converged (14.5 s for the
-    plan instead of 31 s); the planar 5R, the same ``T`` in 2.0 s instead of 2.6 s.
+    solve (the planar 8R of bench/scaling.py, k = 4, one start: 14.5 s instead of 31 s, the
+    solve at ``k = 4`` failing after 600 iterations; the planar 5R 2.0 s instead of 2.6 s).
+    A replan (``replan_spans``) too: the Panda's one-start replans from rest to 9 goals
+    1.3-19 cm away took 0.31-0.50 s each instead of 0.16-1.8 s, the same ``T``.
     """
     problem = ctx.problem
     n = problem.model.n
