@@ -171,7 +171,7 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "than this many wait (then the oldest is superseded). 1: newest wins "
                   "(lower latency on an idle machine, fewer goals answered on a busy one).",
                   1, 1000),
-    ParameterSpec("goal_max_backlog", 1.0, "Once replans take longer than the interval "
+    ParameterSpec("goal_max_backlog", 3.0, "Once replans take longer than the interval "
                   "between goals (the worker falls behind the stream), the oldest waiting "
                   "goals are superseded while solving those waiting would take longer than "
                   "this (s; their count times the recent replans' median solve time): newest "
@@ -251,7 +251,7 @@ class PlannerConfig:
     replan_spans: int = 24
     replan_predict: bool = True
     goal_queue: int = 50
-    goal_max_backlog: float = 1.0
+    goal_max_backlog: float = 3.0
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:
