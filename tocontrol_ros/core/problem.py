@@ -203,14 +203,30 @@ def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
     configuration found (three IK runs) is singular. A point found reachable before for the
     same model object is not solved again.
     """
-    key = (id(model), p.dtype.str, p.tobytes())
+    if _known_reachable(model, p):
+        return
+    _solve_reachable(model, name, p)
+    _remember_reachable(model, p)
+
+
+def _reachable_key(model: RobotModel, p: np.ndarray) -> tuple:
+    return id(model), p.dtype.str, p.tobytes()
+
+
+def _known_reachable(model: RobotModel, p: np.ndarray) -> bool:
+    """Whether ``p`` was found reachable for this model object (refreshed if so)."""
+    key = _reachable_key(model, p)
     with _REACHABLE_LOCK:
         if _REACHABLE.get(key) is model:
             _REACHABLE.move_to_end(key)
-            return
-    _solve_reachable(model, name, p)
+            return True
+    return False
+
+
+def _remember_reachable(model: RobotModel, p: np.ndarray) -> None:
     with _REACHABLE_LOCK:
-        _REACHABLE[key] = model  # the model kept: its id is not reused while remembered
+        # The model kept: its id is not reused while remembered.
+        _REACHABLE[_reachable_key(model, p)] = model
         while len(_REACHABLE) > _REACHABLE_SIZE:
             _REACHABLE.popitem(last=False)
 
@@ -242,7 +258,8 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
     """Show ``p`` reachable from a configuration that reaches a point nearby, if it is.
 
     A few Gauss-Newton steps from ``q_near`` (about 0.25 ms on the paper's arm, where the
-    check of a :class:`Problem` runs its IK from 8 seeds: 1.3-3 ms). When they reach ``p``
+    check of a :class:`Problem` runs its IK from 8 seeds: 1.3-3 ms, and
+    :func:`~tocontrol_ros.core.robot.ik.solve_ik` from that one seed 0.7 ms). When they reach ``p``
     within the IK's tolerance at a configuration that is not singular, ``p`` is remembered
     as reachable and a :class:`Problem` with it as an end skips its own check (whose
     verdict this is, or a reachable point that check's seeds missed). Otherwise nothing is
@@ -269,6 +286,8 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
         q = _finite("q_near", q_near, (model.n,)).copy()
     except ProblemError:
         return False
+    if _known_reachable(model, p):  # e.g. a replan solved again from a later hand-off
+        return True
     for _ in range(NEAR_STEPS):
         e = model.point(q) - p
         if np.linalg.norm(e) < 1e-3 * IK_TOL:
@@ -277,10 +296,7 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
     if not (np.linalg.norm(model.point(q) - p) < IK_TOL and np.all(np.isfinite(q))) \
             or _singular(model, q):
         return False
-    with _REACHABLE_LOCK:
-        _REACHABLE[(id(model), p.dtype.str, p.tobytes())] = model
-        while len(_REACHABLE) > _REACHABLE_SIZE:
-            _REACHABLE.popitem(last=False)
+    _remember_reachable(model, p)
     return True
 
 
