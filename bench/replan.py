@@ -138,8 +138,7 @@ def _circle(centre, radius: float, count: int) -> list:
     """``count`` points once around a circle about ``centre`` in the first two task axes,
     from ``centre + (radius, 0, ...)`` on."""
     out = []
-    for i in range(count):
-        a = 2 * math.pi * i / count
+    for a in np.linspace(0.0, 2.0 * math.pi, count + 1)[:-1]:
         p = np.array(centre, dtype=float)
         p[0] += radius * math.cos(a)
         p[1] += radius * math.sin(a)
@@ -273,44 +272,69 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = ""
     }
 
 
+def _rest_chain(name: str, count: int, variants: dict) -> tuple[float, list] | None:
+    """The moving-target circle's rest chain, replanned in this process.
+
+    ``name``'s circle (:func:`_robot`, :func:`_circle`), its first ``count`` + 1 goals:
+    each problem from rest at the last goal's end (as the node's rest replans) is planned
+    with the default options (the reference, and the next problem's warm start), and
+    replanned warm from the last reference with each of ``variants`` (key -> options),
+    timed one after the other.
+
+    Returns
+    -------
+    (float, list) or None
+        The circle's radius (m) and, per replan, ``(reference T or nan, {key: (certified,
+        T or nan, iterations, seconds)})``; None when the robot is missing.
+    """
+    import time
+
+    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.problem import Problem, joint_state, point
+    from tocontrol_ros.core.replan import warm_replan
+    from tocontrol_ros.core.solver import Planner
+
+    found = _robot(name)
+    if found is None:
+        return None
+    model, _, _, _, p0, radius, q = found
+    planner = Planner(model)
+    goals = _circle(p0, radius, int(RATE * DURATION))[:count + 1]
+    last = planner.plan(Problem(model, joint_state(q, np.zeros(model.n)), point(goals[0]),
+                                k=4), SolverOptions())
+    rows = []
+    for goal in goals[1:]:
+        q = last.trajectory.state(last.T)[0][:model.n]
+        problem = Problem(model, joint_state(q, np.zeros(model.n)), point(goal), k=4)
+        ref = planner.plan(problem, SolverOptions())
+        out = {}
+        for key, opts in variants.items():
+            t0 = time.perf_counter()
+            r = warm_replan(planner, problem, [last], opts)
+            elapsed = time.perf_counter() - t0
+            certified = r.success and r.certificate is not None and r.certificate.passed
+            out[key] = (certified, r.T if certified else float("nan"), r.iterations, elapsed)
+        rows.append((ref.T if ref.success else float("nan"), out))
+        last = ref  # the chain goes on from the reference
+    return radius, rows
+
+
 #: Final smoothings of replans compared in :func:`smoothing_cost` (0: the full schedule).
 SMOOTHINGS = (1e-2, 3e-3, 1e-3, 0.0)
 
 
-def smoothing_cost(goals_count: int = 50, radius: float = 0.15) -> list[str]:
+def smoothing_cost(count: int = 49) -> list[str]:
     """What ``replan_smoothing`` costs in ``T``, in this process: the paper's arm at k = 4.
 
-    The rest chain of a circle of ``goals_count`` goals (each problem from rest at the last
-    goal's end, as the node's rest replans), each replanned warm from the same last default
-    plan at every smoothing of :data:`SMOOTHINGS`; ``T`` against the full schedule's (0).
-    Markdown lines.
+    :func:`_rest_chain` of ``count`` replans at every smoothing of :data:`SMOOTHINGS`;
+    ``T`` against the full schedule's (0). Markdown lines.
     """
     from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.problem import Problem, joint_state, point
-    from tocontrol_ros.core.replan import replan_options, warm_replan
-    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-    from tocontrol_ros.core.solver import Planner
+    from tocontrol_ros.core.replan import replan_options
 
-    model = load_robot(default_urdf_path())
-    planner = Planner(model)
-    q = np.array([0.3, 0.9, 0.6])
-    p0 = np.asarray(model.point(q))
-    angles = np.linspace(0.0, 2.0 * math.pi, goals_count + 1)[:-1]
-    goals = [p0 + radius * np.array([math.cos(a), math.sin(a)]) for a in angles]
-    options = {d: replan_options(SolverOptions(), d) for d in SMOOTHINGS}
-    last = planner.plan(Problem(model, joint_state(q, np.zeros(3)), point(goals[0]), k=4),
-                        SolverOptions())
-    rows = []
-    for goal in goals[1:]:
-        q = last.trajectory.state(last.T)[0][:3]
-        problem = Problem(model, joint_state(q, np.zeros(3)), point(goal), k=4)
-        out = {}
-        for d, opts in options.items():
-            r = warm_replan(planner, problem, [last], opts)
-            certified = r.success and r.certificate is not None and r.certificate.passed
-            out[d] = (certified, r.T if certified else float("nan"), r.iterations)
-        rows.append(out)
-        last = planner.plan(problem, SolverOptions())  # the chain goes on from the optimum
+    radius, rows = _rest_chain("paper", count, {d: replan_options(SolverOptions(), d)
+                                                for d in SMOOTHINGS})
+    rows = [out for _, out in rows]
     table_rows = []
     for d in SMOOTHINGS:
         both = [r for r in rows if r[d][0] and r[0.0][0]]
@@ -320,7 +344,7 @@ def smoothing_cost(goals_count: int = 50, radius: float = 0.15) -> list[str]:
                            f"{np.max(excess):.1e}" if excess else "-",
                            f"{np.median([r[d][2] for r in rows if r[d][0]]):.0f}"])
     return ["", f"What the replans' smoothing costs (`replan_smoothing`, in one process): "
-            f"the paper's arm at k = 4, the rest chain of a circle of {goals_count} goals "
+            f"the paper's arm at k = 4, the rest chain of a circle of {count + 1} goals "
             f"({radius:g} m radius), each problem replanned warm from the last default plan "
             f"at each smoothing; `T` above the full schedule's (0), relative.", "",
             *table(["replan_smoothing", "certified", "T excess median", "T excess max",
@@ -334,48 +358,24 @@ SPAN_COUNTS = (0, 16, 24, 32)
 def spans_cost(count: int = 12) -> list[str] | None:
     """What ``replan_spans`` costs and saves, in this process: the Panda with its limits.
 
-    The rest chain of the moving-target circle's first ``count`` + 1 goals (each problem
-    from rest at the last goal's end, as the node's rest replans): each problem planned
-    with the default options (the reference, and the next problem's warm start), and
-    replanned warm from the last reference at each of :data:`SPAN_COUNTS`, timed one after
-    the other. Markdown lines, or None without example-robot-data.
+    :func:`_rest_chain` of ``count`` replans at each of :data:`SPAN_COUNTS`; ``T`` against
+    the default plan's, and the time of the warm replan. Markdown lines, or None without
+    example-robot-data.
     """
-    import time
-
     from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.problem import Problem, joint_state, point
-    from tocontrol_ros.core.replan import replan_options, warm_replan
-    from tocontrol_ros.core.solver import Planner
+    from tocontrol_ros.core.replan import replan_options
 
-    found = _robot("panda")
-    if found is None:
-        return None
-    model, _, _, _, p0, radius, q = found
-    planner = Planner(model)
-    goals = _circle(p0, radius, int(RATE * DURATION))[:count + 1]
     # (The smoothing is the maximum principle's: bounded solves have none.)
-    options = {s: replan_options(SolverOptions(), 0.0, s) for s in SPAN_COUNTS}
-    last = planner.plan(Problem(model, joint_state(q, np.zeros(model.n)), point(goals[0]),
-                                k=4), SolverOptions())
-    rows = []
-    for goal in goals[1:]:
-        q = last.trajectory.state(last.T)[0][:model.n]
-        problem = Problem(model, joint_state(q, np.zeros(model.n)), point(goal), k=4)
-        ref = planner.plan(problem, SolverOptions())
-        out = {}
-        for spans, opts in options.items():
-            t0 = time.perf_counter()
-            r = warm_replan(planner, problem, [last], opts)
-            elapsed = time.perf_counter() - t0
-            certified = r.success and r.certificate is not None and r.certificate.passed
-            out[spans] = (certified, r.T if certified else float("nan"), elapsed)
-        rows.append((ref.T if ref.success else float("nan"), out))
-        last = ref
+    chain = _rest_chain("panda", count, {s: replan_options(SolverOptions(), 0.0, s)
+                                         for s in SPAN_COUNTS})
+    if chain is None:
+        return None
+    rows = chain[1]
     table_rows = []
     for spans in SPAN_COUNTS:
         ok = [(t_ref, o[spans]) for t_ref, o in rows if o[spans][0] and np.isfinite(t_ref)]
         excess = [(r[1] - t_ref) / t_ref for t_ref, r in ok]
-        times = [o[spans][2] for _, o in rows]
+        times = [o[spans][3] for _, o in rows]
         table_rows.append([f"{spans}" + (" (the warm start's mesh)" if spans == 0 else ""),
                            f"{sum(o[spans][0] for _, o in rows)}/{len(rows)}",
                            f"{np.median(excess):+.1e}" if excess else "-",

@@ -177,9 +177,9 @@ REPLAN_JOINT_RADIUS = 0.2
 #: B-spline solves). The Panda with its URDF limits, the rest chain of the moving-target
 #: circle (goals 1.3 cm apart), each problem replanned warm from the default plan of the one
 #: before (its refined mesh; bench/replan.py, BENCHMARKS.md "Replanning"): at 24 spans
-#: T 7.6e-4 (median) and at most 9.8e-4 above the default plan's, 109 ms median, 11/12
-#: certified; on the refined mesh itself 314 ms median, 13 s at worst, 10/12 (16 spans:
-#: 2.0e-3, 79 ms; 32: 4.2e-4, 134 ms). The node's next replan continues on the coarse mesh
+#: T 7.6e-4 (median) and at most 9.8e-4 above the default plan's, 111 ms median, 11/12
+#: certified; on the refined mesh itself 325 ms median, 25 s at worst, 8/12 (16 spans:
+#: 2.0e-3, 73 ms; 32: 4.5e-4, 131 ms). The node's next replan continues on the coarse mesh
 #: from its multipliers (a stream's replans: 60-130 ms each). A cold replan is left on its
 #: uniform mesh, unrefined.
 REPLAN_SPANS = 24
