@@ -124,6 +124,8 @@ def test_service_round_trip_paper_example(planner, client):
                 "start", "target"):
         assert key in status.values, key
     assert float(status.values["max_abs_u"]) < 1.0
+    # The trajectory is published before the status that reports it.
+    assert 0.0 < float(status.values["publish_latency"]) <= float(status.values["latency"])
 
 
 def test_trajectory_matches_solver_result(planner, client):
@@ -845,6 +847,10 @@ def test_first_then_optimum_publishes_both_in_order():
         assert first.values["certified"] == "true" and "first motion published" in first.message
         assert first.received <= status.received
         assert float(first.values["latency"]) <= float(status.values["latency"])
+        # Each published a trajectory: goal -> publication, before its status was sent.
+        assert float(first.values["publish_latency"]) == float(first.values["latency"])
+        assert 0.0 < float(status.values["publish_latency"]) <= float(status.values["latency"])
+        assert float(first.values["publish_latency"]) < float(status.values["publish_latency"])
         client.wait_for(lambda: len(trajectories) >= 2, 30.0, "two trajectories")
         time.sleep(0.2)
         assert len(trajectories) == 2

@@ -58,6 +58,7 @@ from tocontrol_ros.nodes.planner_config import (
     planner_limits,
     planner_model,
     solver_options,
+    warm_up_problems,
 )
 from tocontrol_ros.nodes.replan_serving import ReplanServing
 from tocontrol_ros.nodes.replanning import Replanner
@@ -131,6 +132,7 @@ class PlannerNode(ReplanServing, Node):
         self._slot = LatestSlot()
         self._joint_states = LatestMessage(self, JointState, "joint_states", QOS_JOINT_STATES)
         self._last_result = None
+        self._published_at = 0.0  # time.monotonic() of the last ~/trajectory
         self._replanner = Replanner()
         self.ready = threading.Event()
 
@@ -299,9 +301,11 @@ class PlannerNode(ReplanServing, Node):
 
     def _finish(self, req: PlanRequest, level: str, event: str, message: str,
                 extra: dict | None = None, path: Path | None = None) -> None:
-        latency = time.monotonic() - req.received
+        latency = {"latency": time.monotonic() - req.received}
+        if path is not None:  # the issue's replan latency: to the trajectory's publication
+            latency["publish_latency"] = self._published_at - req.received
         self._status(req, level, event, f"request {req.id} {event}: {message}",
-                     {"latency": latency, **(extra or {})})
+                     {**latency, **(extra or {})})
         req.path = path
         req.done.set()
 
@@ -332,22 +336,6 @@ class PlannerNode(ReplanServing, Node):
                 self._slot.finished(req)
             self._solve_ahead()
 
-    def _problems(self, config) -> list:
-        """One problem of each kind the node serves, inside the limits (for the warm-up)."""
-        from tocontrol_ros.core.problem import Problem, joint_state, point
-        model = self.model
-        lo, hi = self._limits.plan_lower, self._limits.plan_upper
-        bounded = np.isfinite(lo) & np.isfinite(hi)
-        lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
-        # Inside the limits: a generic move (alternating signs: not along a singular one).
-        qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
-        qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
-                      qa + 0.5 * (-1.0) ** np.arange(model.n))
-        limits = self._limits.with_margin(config.limit_margin)
-        return [Problem(model, start, point(model.point(qb)), k=config.k,
-                        reserve=config.reserve, limits=limits)
-                for start in (point(model.point(qa)), joint_state(qa))]
-
     def _compile_progress(self, event: str, name: str, info: dict) -> None:
         """Compile listener of the warm-up: one ``~/status`` per build started and ended."""
         if event not in ("compiling", "compiled"):
@@ -373,7 +361,7 @@ class PlannerNode(ReplanServing, Node):
         planner = Planner(self.model)
         options = solver_options(self.config)
         try:
-            for problem in self._problems(self.config):
+            for problem in warm_up_problems(self.config, self.model, self._limits):
                 planner.prepare(problem, options)
         except TocontrolError:
             return
@@ -411,7 +399,7 @@ class PlannerNode(ReplanServing, Node):
         note = ""
         try:
             options = solver_options(config)  # verify as configured: compiles the certificate
-            problems = self._problems(config)
+            problems = warm_up_problems(config, self.model, self._limits)
             for problem in problems:
                 if self._stopping.is_set():
                     return note
@@ -520,7 +508,9 @@ class PlannerNode(ReplanServing, Node):
         level, message = conv.result_message(first)
         self._status(req, level, "first", f"request {req.id} first motion published: "
                      f"{message}; the optimum follows",
-                     {**values, "published": "first", "samples": len(path.poses)})
+                     {**values, "published": "first", "samples": len(path.poses),
+                      "latency": self._published_at - req.received,
+                      "publish_latency": self._published_at - req.received})
         return first, path
 
     def _publish(self, result, config: PlannerConfig, rid: int = 0,
@@ -533,13 +523,17 @@ class PlannerNode(ReplanServing, Node):
         if stamp_ns is None:
             stamp_ns = self.get_clock().now().nanoseconds
         stamp = conv.time_from_ns(int(stamp_ns))
+        msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)
+        try:  # the trajectory first: the path and the rest do not hold it up
+            self._pub_trajectory.publish(msg)
+            self._published_at = time.monotonic()
+        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+            return None
         self._replanner.published(result, stamp_ns, sample)
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
-        msg = conv.trajectory_msg(sample, self.model.joint_names, self.frame.frame_id, stamp)
         try:
-            self._pub_trajectory.publish(msg)
             self._pub_path.publish(path)
-        except Exception:  # noqa: BLE001  (publishers gone during shutdown)
+        except Exception:  # noqa: BLE001
             return None
         self._controller.send(rid, msg, config)
         return path

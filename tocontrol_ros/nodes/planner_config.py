@@ -16,6 +16,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+import numpy as np
+
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.options import MIN_REPLAN_SPANS
@@ -33,7 +35,7 @@ from tocontrol_ros.nodes.params import (
 
 __all__ = ["ConfigError", "PARAMETERS", "PlannerConfig", "PUBLISH_MODES", "FIRST_THEN_OPTIMUM",
            "config_from_values", "solver_options", "default_values", "planner_model",
-           "planner_limits"]
+           "planner_limits", "warm_up_problems"]
 
 #: ``publish``: the optimum only (the default), or first a certified motion at once.
 FIRST_THEN_OPTIMUM = "first_then_optimum"
@@ -367,3 +369,23 @@ def solver_options(config: PlannerConfig):
                          candidates=config.candidates, time_limit=config.time_limit,
                          verify=config.verify, warm_only=config.warm_only,
                          workers=config.workers)
+
+
+def warm_up_problems(config: PlannerConfig, model, limits) -> list:
+    """One problem of each kind the node serves, inside ``limits``: the warm-up's.
+
+    A point start and a joint-state start, both to a point target, on a generic move
+    (alternating signs: not along a singular one) inside the position limits.
+    """
+    from tocontrol_ros.core.problem import Problem, joint_state, point
+
+    lo, hi = limits.plan_lower, limits.plan_upper
+    bounded = np.isfinite(lo) & np.isfinite(hi)
+    lo, hi = np.where(bounded, lo, 0.0), np.where(bounded, hi, 0.0)
+    qa = np.where(bounded, lo + 0.4 * (hi - lo), 0.3)
+    qb = np.where(bounded, qa + 0.2 * (hi - lo) * (-1.0) ** np.arange(model.n),
+                  qa + 0.5 * (-1.0) ** np.arange(model.n))
+    limits = limits.with_margin(config.limit_margin)
+    return [Problem(model, start, point(model.point(qb)), k=config.k,
+                    reserve=config.reserve, limits=limits)
+            for start in (point(model.point(qa)), joint_state(qa))]
