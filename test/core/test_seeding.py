@@ -265,3 +265,40 @@ def test_recombined_seeds_join_one_parent_start_to_another_end(galicki):
     assert len(two) == 2
     assert all(np.array_equal(x, y) for p, q in zip(two, pairs, strict=False)
                for x, y in zip(p, q, strict=True))
+
+
+def test_random_ik_families_get_more_seeds_where_limits_cut_the_manifold(panda, galicki,
+                                                                         monkeypatch):
+    """RANDOM_IK_FACTOR: an arm with joint limits whose family is random IK seeds draws
+    ``ik_count`` times the factor of them per end point; without limits, or with the planar
+    arm's angles (each with both elbows), ``ik_count``."""
+    import tocontrol_ros.core.seeding as seeding
+    from tocontrol_ros.core.robot.ik import angle_family
+    from tocontrol_ros.core.robot.limits import JointLimits
+
+    assert angle_family(galicki) and not angle_family(panda)
+    counts = []
+    real = seeding.ik_family
+
+    def counted(model, p, count, *args, **kwargs):
+        counts.append(count)
+        return real(model, p, count, *args, **kwargs)
+
+    monkeypatch.setattr(seeding, "ik_family", counted)
+    q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
+    target = panda.point(q0 + 0.3)
+    limited = Problem(panda, joint_state(q0), point(target), k=4)
+    assert limited.limits.active
+    n = panda.n
+    free = JointLimits(limited.limits.names, np.full(n, -np.inf), np.full(n, np.inf),
+                       np.full(n, np.inf))
+    options = SolverOptions(ik_count=5)
+    _, dv, _ = seed_grid(limited, options)
+    assert counts == [5 * seeding.RANDOM_IK_FACTOR] and seeding.RANDOM_IK_FACTOR > 1
+    assert dv.shape[1] > 5  # more target configurations than ik_count seeds give
+    counts.clear()
+    seed_grid(Problem(panda, joint_state(q0), point(target), k=4, limits=free), options)
+    assert counts == [5]
+    counts.clear()
+    seed_grid(_problem(galicki), options)  # limited or not, the angles are ik_count
+    assert counts == [5, 5]

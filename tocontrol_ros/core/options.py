@@ -72,8 +72,11 @@ class SolverOptions:
         benchmark's pairs), hence 6; those that cannot beat the best found are not continued
         (``docs/seeding.md``).
     ik_count : int
-        Angles of the self-motion family per end point (see
-        :func:`~tocontrol_ros.core.robot.ik.ik_family`).
+        Angles of the self-motion family per end point, each with both elbows (see
+        :func:`~tocontrol_ros.core.robot.ik.ik_family`); an arm whose family is random
+        inverse-kinematics seeds instead (a spatial arm) gets ``ik_count`` seeds, or
+        ``RANDOM_IK_FACTOR`` (2) times as many when the problem has joint limits
+        (:mod:`~tocontrol_ros.core.tuning`).
     exhaustive : bool
         Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
         a dense self-motion grid, every full-turn branch, many seed pairs solved by the

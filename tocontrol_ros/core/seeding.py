@@ -17,12 +17,13 @@ import numpy as np
 
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.robot.ik import ik_family
+from tocontrol_ros.core.robot.ik import angle_family, ik_family
 from tocontrol_ros.core.tuning import (
     EXHAUSTIVE_IK_COUNT,
     EXHAUSTIVE_STARTS,
     GRAVITY_FREE,
     MAX_BRANCH_JOINTS,
+    RANDOM_IK_FACTOR,
     RECOMBINED_NEAR,
     SAME_BASIN,
     SEED_SPACING,
@@ -118,6 +119,8 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     model = problem.model
     n = model.n
     count = max(options.ik_count, EXHAUSTIVE_IK_COUNT) if exhaustive else options.ik_count
+    if problem.limits.active and not angle_family(model):
+        count *= RANDOM_IK_FACTOR  # random seeds, as many configurations as angles give
     if problem.start.kind == "state":
         starts = [problem.start.value[:n]]
     else:

@@ -10,16 +10,27 @@ patches it on the module that reads it (``monkeypatch.setattr(solver, "CANDIDATE
 ...)``). This module imports nothing.
 """
 
-__all__ = ["EXHAUSTIVE_IK_COUNT", "EXHAUSTIVE_STARTS", "SEED_SPACING", "MAX_BRANCH_JOINTS",
-           "RECOMBINED_PARENTS", "RECOMBINED_STARTS", "RECOMBINED_NEAR", "AT_K_MARGIN",
-           "EXHAUSTIVE_CANDIDATES", "SAME_BASIN", "CANDIDATE_MARGIN", "GRAVITY_FREE", "SAME_K1",
-           "WARM_RADIUS", "WARM_JOINT_RADIUS", "WARM_GAIN", "INCUMBENT_TRIES"]
+__all__ = ["EXHAUSTIVE_IK_COUNT", "RANDOM_IK_FACTOR", "EXHAUSTIVE_STARTS", "SEED_SPACING",
+           "MAX_BRANCH_JOINTS", "RECOMBINED_PARENTS", "RECOMBINED_STARTS", "RECOMBINED_NEAR",
+           "AT_K_MARGIN", "EXHAUSTIVE_CANDIDATES", "SAME_BASIN", "CANDIDATE_MARGIN",
+           "GRAVITY_FREE", "SAME_K1", "WARM_RADIUS", "WARM_JOINT_RADIUS", "WARM_GAIN",
+           "INCUMBENT_TRIES"]
 
 
 # -------------------------------------------------------- the seeds (seeding.py)
 #: Self-motion angles per end point in the exhaustive mode (the default's ``ik_count`` is
 #: the ranked mode's); denser than any default, so the reference covers the manifold.
 EXHAUSTIVE_IK_COUNT = 24
+
+#: A problem with joint limits on an arm whose self-motion family is random seeds (not the
+#: planar arms' angles, each with both elbows: :func:`~tocontrol_ros.core.robot.ik.
+#: angle_family`) gets ``ik_count`` times this many seeds per end point: as many
+#: configurations as a planar arm gets. The limits cut the self-motion manifold into
+#: pieces, each a basin of its own. On the 50 Panda cases of BENCHMARKS.md ("against an
+#: independent reference"), with GUESS_WINDOW 0.15, 16 seeds found the best basin in 47
+#: (24 seeds: 47, missing three others, in 10 % more time); 8 seeds with the window of
+#: 0.05 in 43 (in one case 16 seeds were needed, in another the wider window).
+RANDOM_IK_FACTOR = 2
 
 #: Seed pairs solved by the direct method in the exhaustive mode, spread evenly over the
 #: branches (the best-ranked of each branch in turn), so that the reference does not lean on

@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["solve_ik", "ik_family", "wrap_angles"]
+__all__ = ["angle_family", "solve_ik", "ik_family", "wrap_angles"]
 
 #: A configuration counts as reaching a point when ``|P(q) - p|`` is below this (m).
 IK_TOL = 1e-9
@@ -250,9 +250,7 @@ def ik_family(model: RobotModel, p, count: int = 12,
     phis = np.linspace(-np.pi, np.pi, count, endpoint=False)
     if _planar3r_lengths(model) is not None:
         return _distinct_solutions(model, p, list(_planar3r(model, p, phis)))
-    planar = model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and \
-        model.n >= 3 and _axes_parallel(model)
-    if planar:
+    if angle_family(model):
         seeds = np.repeat([[0.3], [-0.3]], model.n, axis=1)
         q, err = _lm_batch(model, p, np.tile(seeds, (count, 1)), np.repeat(phis, 2))
         return _distinct_solutions(model, p, list(q[err < IK_TOL]))
@@ -260,6 +258,17 @@ def ik_family(model: RobotModel, p, count: int = 12,
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
     q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
     return _distinct_solutions(model, p, list(q[err < IK_TOL]))
+
+
+def angle_family(model: RobotModel) -> bool:
+    """Whether :func:`ik_family` spreads angles of the last link (each with both elbows).
+
+    True for planar arms of revolute joints with parallel axes (``m = 2``, ``n >= 3``);
+    for other arms its ``count`` is the number of random seeds, one configuration each.
+    """
+    return _planar3r_lengths(model) is not None or (
+        model.m == 2 and all(b.kind == "revolute" for b in model.bodies) and model.n >= 3
+        and _axes_parallel(model))
 
 
 def _distinct_solutions(model: RobotModel, p: np.ndarray, cands: list) -> list[np.ndarray]:
