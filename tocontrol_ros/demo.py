@@ -541,7 +541,9 @@ def _moving_leg(listener: _Listener, at, frame: str, moving: tuple, children) ->
         run = [s for s in listener.tracker_status if "outcome" in _values(s)][-1]
     jumps = (max((float(v["position_jump"]) for v in splices), default=0.0),
              max((float(v["velocity_jump"]) for v in splices), default=0.0))
-    latency = sorted(float(v["latency"]) for v in published if "latency" in v)
+    # Goal received -> trajectory published (the status's publish_latency; its latency
+    # runs on to the status itself), as bench/replan.py reports it.
+    latency = sorted(float(v["publish_latency"]) for v in published if "publish_latency" in v)
     median = latency[len(latency) // 2] if latency else float("nan")
     print(f"  {len(published)} of {count} goals got a trajectory (replans: {kinds}); "
           f"{len(splices)} splices, largest command jump {jumps[0]:.2e} rad, "

@@ -533,7 +533,7 @@ class PlannerNode(ReplanServing, Node):
         path = conv.path_msg(self.model, sample, self.frame.frame_id, stamp)
         try:
             self._pub_path.publish(path)
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001  (publisher gone during shutdown)
             return None
         self._controller.send(rid, msg, config)
         return path
