@@ -18,6 +18,7 @@ import pytest
 import rclpy
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.duration import Duration as RclpyDuration
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -30,6 +31,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.nodes.params import RobotDescriptionError
+from tocontrol_ros.nodes.qos import LATCHED as QOS_LATCHED
 from tocontrol_ros.nodes.tracker import (
     QOS_STATUS,
     QOS_STREAM,
@@ -77,7 +79,7 @@ def motion_msg(model, q0, dq, duration, dt=0.01, names=JOINTS) -> JointTrajector
 class Harness:
     """Tracker + probe in a private context, spun in a thread."""
 
-    def __init__(self, overrides=(), js_qos=QOS_STREAM):
+    def __init__(self, overrides=(), js_qos=QOS_STREAM, spin=True):
         self.ns = f"/tt{next(_ids)}"
         self.topic = f"{self.ns}/trajectory"
         self.context = rclpy.Context()
@@ -106,8 +108,13 @@ class Harness:
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        if spin:
+            self.start()
         self.wait(lambda: self.pub.get_subscription_count() > 0, "tracker subscription")
+
+    def start(self):
+        """Spin the executor (a harness made with ``spin=False``: nothing taken until now)."""
+        self.thread.start()
 
     def _keep(self, store):
         def callback(msg):
@@ -134,7 +141,8 @@ class Harness:
 
     def stop(self):
         self.executor.shutdown(timeout_sec=2.0)
-        self.thread.join(timeout=2.0)
+        if self.thread.is_alive():
+            self.thread.join(timeout=2.0)
         self.node.destroy_node()
         self.probe.destroy_node()
         rclpy.try_shutdown(context=self.context)
@@ -260,6 +268,31 @@ def test_a_new_trajectory_preempts_from_the_current_state(harness, model):
     with harness.lock:
         executing = [s for s in harness.statuses if "executing" in s.message]
     assert len(executing) == 2
+
+
+def test_trajectories_published_between_two_takes_are_all_executed(model):
+    """Replans published faster than the tracker takes them (its executor busy on a loaded
+    machine) are all parsed and started in order, not only the newest: the planner's
+    publisher keeps one (latched), the tracker's subscription up to 10."""
+    h = Harness(spin=False)
+    try:
+        pub = h.probe.create_publisher(JointTrajectory, h.topic, QOS_LATCHED)  # the planner's
+        h.wait(lambda: pub.get_subscription_count() > 0, "tracker subscription")
+        q0 = np.array(PAPER_START_Q)
+        durations = [0.5, 0.6, 0.7]
+        for i, duration in enumerate(durations):
+            pub.publish(motion_msg(model, q0, [0.01 * (i + 1), 0.0, 0.0], duration))
+            # In the tracker's subscription (acknowledged), not taken: nothing spins yet.
+            assert pub.wait_for_all_acked(RclpyDuration(seconds=10.0))
+        h.start()
+        h.wait(lambda: sum("executing" in s.message for s in h.statuses) >= len(durations),
+               "every trajectory executing")
+        with h.lock:
+            executing = [_values(s) for s in h.statuses if "executing" in s.message]
+        assert [float(v["duration"]) for v in executing] == pytest.approx(durations)
+        assert all(v["stamp"] == "0.000000000" for v in executing)
+    finally:
+        h.stop()
 
 
 def test_clock_is_published_with_simulated_time():

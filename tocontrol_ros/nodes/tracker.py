@@ -92,8 +92,11 @@ __all__ = ["TrackerNode", "TrajectoryRejectedError",
            "build_parser", "main"]
 
 
-#: The planner's trajectory is latched: late subscribers get the last plan.
-QOS_TRAJECTORY = qos.LATCHED
+#: The planner's trajectory is latched (its publisher keeps the last plan for a tracker that
+#: starts late). The subscription keeps up to 10 unread ones: replans 100 ms apart that
+#: arrive while a timer tick runs (a loaded machine) are all parsed, not only the newest (a
+#: replan dropped here breaks the chain of splices planned from each other).
+QOS_TRAJECTORY = qos.profile(10, latched=True)
 #: Streams: reliable publishers match both reliable and best-effort subscribers.
 QOS_STREAM = qos.RELIABLE
 #: Status events; the last few are kept for late subscribers.
@@ -304,7 +307,7 @@ class TrackerNode(Node):
                          f"position" + (" (the arm placed there: start_at_first_trajectory)"
                                         if placed else ""),
                          {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
-                          "start_offset": f"{offset:.9g}",
+                          "stamp": f"{stamp:.9f}", "start_offset": f"{offset:.9g}",
                           "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
 
     def _schedule_splice(self, nominal: NominalTrajectory, stamp: float) -> bool:
