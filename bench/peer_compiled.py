@@ -177,7 +177,34 @@ def _stage_functions(model: RobotModel, k: float, scale: np.ndarray):
     return dyn, cset, defect
 
 
-def _nlp(model: RobotModel, intervals: int, start_kind: str, k: float, scale: np.ndarray):
+def between_fractions(between: int) -> list[float]:
+    """Fractions of an interval at which :class:`Peer` bounds the speeds besides its points.
+
+    ``between`` evenly spaced fractions ``j / (between + 1)``, without 1/2 (a collocation
+    point, bounded already).
+    """
+    return [j / (between + 1) for j in range(1, between + 1) if 2 * j != between + 1]
+
+
+def _speeds_between(n: int, between: int) -> ca.Function:
+    """(z_a, z_m, z_b, h) -> the interval's joint speeds at :func:`between_fractions`, (n f,).
+
+    Hermite-Simpson's velocity on an interval is the integral of the quadratic through the
+    accelerations at its ends and midpoint (its two defects say so at the midpoint and the
+    end): ``qd(s h) = qd_a + h (c_a(s) qdd_a + c_m(s) qdd_m + c_b(s) qdd_b)``.
+    """
+    za, zm, zb = (ca.SX.sym(s, 4 * n) for s in ("za", "zm", "zb"))
+    h = ca.SX.sym("h")
+    qdd = [z[2 * n:3 * n] for z in (za, zm, zb)]
+    speeds = []
+    for s in between_fractions(between):
+        c = (2 * s**3 / 3 - 1.5 * s**2 + s, 2 * s**2 - 4 * s**3 / 3, 2 * s**3 / 3 - s**2 / 2)
+        speeds.append(za[n:2 * n] + h * (c[0] * qdd[0] + c[1] * qdd[1] + c[2] * qdd[2]))
+    return ca.Function("between", [za, zm, zb, h], [ca.vertcat(*speeds)])
+
+
+def _nlp(model: RobotModel, intervals: int, start_kind: str, k: float, scale: np.ndarray,
+         between: int = 0):
     """The peer's NLP as CasADi MX expressions: ``{x, p, f, g}`` and the sizes of ``g``."""
     n, N = model.n, intervals
     points = 2 * N + 1
@@ -200,8 +227,14 @@ def _nlp(model: RobotModel, intervals: int, start_kind: str, k: float, scale: np
     g_def = defect.map(N)(z[:, 0:-1:2], z[:, 1::2], z[:, 2::2], h)
     g_set = cset.map(points)(z)
     g = ca.vertcat(ca.vec(g_dyn), ca.vec(g_def), ca.vec(g_set), start, end)
+    n_between = 0
+    if between:
+        g_between = _speeds_between(n, between).map(N)(z[:, 0:-1:2], z[:, 1::2], z[:, 2::2], h)
+        g = ca.vertcat(g, ca.vec(g_between))
+        n_between = g_between.numel()
     nlp = {"x": ca.vertcat(ca.vec(z), T), "p": ca.vertcat(p0, pT), "f": T, "g": g}
-    return nlp, g_dyn.numel() + g_def.numel(), g_set.numel(), start.numel() + end.numel()
+    return (nlp, g_dyn.numel() + g_def.numel(), g_set.numel(), start.numel() + end.numel(),
+            n_between)
 
 
 class Peer:
@@ -222,11 +255,14 @@ class Peer:
         it the NLP is not compiled (CasADi's virtual machine evaluates it: for tests).
     options : dict, optional
         IPOPT options over :data:`IPOPT` (the reference solves' warm start).
+    between : int
+        Also bound the joint speeds at this many evenly spaced instants inside every
+        interval (:func:`between_fractions`; 0: at the collocation points only).
     """
 
     def __init__(self, model: RobotModel, intervals: int, start_kind: str, k: float,
                  torque_scale: float = 1.0, cache: Path | None = None,
-                 options: dict | None = None) -> None:
+                 options: dict | None = None, between: int = 0) -> None:
         if start_kind not in ("point", "state"):
             raise ValueError(f"`start_kind` must be 'point' or 'state', got {start_kind!r}")
         if float(k) != int(k) or k < 1:
@@ -234,7 +270,8 @@ class Peer:
         t0 = time.perf_counter()
         self.model, self.intervals, self.start_kind = model, intervals, start_kind
         self.scale = model.tau_max * torque_scale
-        nlp, n_eq, n_set, n_bc = _nlp(model, intervals, start_kind, k, self.scale)
+        nlp, n_eq, n_set, n_bc, self.n_between = _nlp(model, intervals, start_kind, k,
+                                                      self.scale, between)
         self.lbg = np.concatenate([np.zeros(n_eq), np.full(n_set, -np.inf), np.zeros(n_bc)])
         self.ubg = np.concatenate([np.zeros(n_eq), np.ones(n_set), np.zeros(n_bc)])
         self.options = dict(IPOPT, **(options or {}))
@@ -298,9 +335,13 @@ class Peer:
         if z.shape != (points, 4 * n):
             raise ValueError(f"`z` must have shape {(points, 4 * n)}, got {z.shape}")
         lbx, ubx = self.bounds(lower, upper)
+        # The speeds between the points: the state bounds' velocity part, per instant.
+        reps = self.n_between // n
+        lbg = np.concatenate([self.lbg, np.tile(lower[n:], reps)])
+        ubg = np.concatenate([self.ubg, np.tile(upper[n:], reps)])
         t0 = time.perf_counter()
         out = self.solver(x0=np.concatenate([z.ravel(), [T]]), p=np.concatenate([start, target]),
-                          lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+                          lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         seconds = time.perf_counter() - t0
         stats = self.solver.stats()
         w = np.array(out["x"]).ravel()

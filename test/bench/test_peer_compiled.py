@@ -43,3 +43,26 @@ def test_peer_reaches_the_target_through_the_forward_dynamics(panda):
     assert result["speed"] < 0.15  # rad/s
     assert result["bounds"] < 1e-7
     assert result["q_step"] < 1e-3  # rad, one interval from the solution's own state
+
+
+def test_speeds_bounded_between_the_points_keep_the_limits_when_re_integrated(panda):
+    """With ``between``, the peer (the Panda's reference) keeps the velocity limits between
+    its collocation points too: its torques re-integrated over each interval stay within
+    them (bounded at the points only, this case passes a limit by about a third there)."""
+    model, limits = panda
+    q0, qd0, target = draw_cases(model, limits, 2, seed=pc.SEED)[1]
+    problem = Problem(model, joint_state(q0, qd0), point(target), k=pc.K, limits=limits)
+    bounds = state_bounds(problem, PAD)
+    T, z = pc.guess(model, problem, pc.seed_pairs(problem, SolverOptions())[0], 50)
+    assert pc.between_fractions(7) == [1 / 8, 2 / 8, 3 / 8, 5 / 8, 6 / 8, 7 / 8]
+    results = {}
+    for between in (0, 7):
+        peer = pc.Peer(model, 50, "state", pc.K, problem.torque_scale, between=between)
+        sol = peer.solve(problem.start.value, target, *bounds, T, z)
+        assert sol.success, sol.status
+        results[between] = (sol.T, pc.check(model, problem, sol, bounds))
+    assert results[0][1]["velocity"] > 0.1
+    assert results[7][1]["velocity"] < 0.01
+    assert results[7][1]["bounds"] < 1e-7
+    # Bounding more can only slow the motion down (the same basin here).
+    assert results[0][0] <= results[7][0] < 1.01 * results[0][0]
