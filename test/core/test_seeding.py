@@ -302,3 +302,24 @@ def test_random_ik_families_get_more_seeds_where_limits_cut_the_manifold(panda, 
     counts.clear()
     seed_grid(_problem(galicki), options)  # limited or not, the angles are ik_count
     assert counts == [5, 5]
+
+
+def test_limited_random_families_also_get_the_target_near_each_start(panda, monkeypatch):
+    """NEAR_TARGETS: on an arm with random IK seeds and joint limits, the target point's
+    configuration reached by Levenberg-Marquardt from each start configuration is a seed
+    too (first), besides the random family; it moves the joints less than the family's."""
+    import tocontrol_ros.core.seeding as seeding
+    from tocontrol_ros.core.robot.ik import ik_near
+
+    q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
+    target = panda.point(q0 + 0.3)
+    options = SolverOptions(ik_count=5)
+    _, dv, est = seed_grid(Problem(panda, joint_state(q0), point(target), k=4), options)
+    near = ik_near(panda, target, q0[None, :])
+    assert len(near) == 1 and np.linalg.norm(panda.point(near[0]) - target) < 1e-9
+    np.testing.assert_allclose(q0 + dv[0, 0, 0], near[0], atol=1e-12)
+    assert np.max(np.abs(dv[0, 0, 0])) < np.min(np.max(np.abs(dv[0, 1:, 0]), axis=-1))
+    monkeypatch.setattr(seeding, "NEAR_TARGETS", False)
+    _, dv_off, _ = seed_grid(Problem(panda, joint_state(q0), point(target), k=4), options)
+    assert dv_off.shape[1] == dv.shape[1] - 1
+    np.testing.assert_allclose(dv_off, dv[:, 1:])

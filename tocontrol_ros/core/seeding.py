@@ -17,12 +17,13 @@ import numpy as np
 
 from tocontrol_ros.core.options import SolverOptions
 from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.robot.ik import angle_family, ik_family
+from tocontrol_ros.core.robot.ik import angle_family, ik_family, ik_near
 from tocontrol_ros.core.tuning import (
     EXHAUSTIVE_IK_COUNT,
     EXHAUSTIVE_STARTS,
     GRAVITY_FREE,
     MAX_BRANCH_JOINTS,
+    NEAR_TARGETS,
     RANDOM_IK_FACTOR,
     RECOMBINED_NEAR,
     SAME_BASIN,
@@ -119,8 +120,11 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     model = problem.model
     n = model.n
     count = max(options.ik_count, EXHAUSTIVE_IK_COUNT) if exhaustive else options.ik_count
-    if problem.limits.active and not angle_family(model):
-        count *= RANDOM_IK_FACTOR  # random seeds, as many configurations as angles give
+    # Random seeds on an arm whose limits cut its self-motion manifold into pieces (each a
+    # basin): as many configurations as angles give, and the target's near each start.
+    cut = problem.limits.active and not angle_family(model)
+    if cut:
+        count *= RANDOM_IK_FACTOR
     if problem.start.kind == "state":
         starts = [problem.start.value[:n]]
     else:
@@ -129,6 +133,8 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
         targets = [problem.target.value[:n]]
     else:
         targets = ik_family(model, problem.target.value, count)
+        if cut and NEAR_TARGETS and starts:
+            targets = ik_near(model, problem.target.value, starts) + targets
     if not starts or not targets:
         return np.zeros((0, n)), np.zeros((0, 0, 0, n)), np.zeros((0, 0, 0))
     shiftable = shiftable_joints(problem)

@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["angle_family", "solve_ik", "ik_family", "wrap_angles"]
+__all__ = ["angle_family", "solve_ik", "ik_family", "ik_near", "wrap_angles"]
 
 #: A configuration counts as reaching a point when ``|P(q) - p|`` is below this (m).
 IK_TOL = 1e-9
@@ -257,6 +257,32 @@ def ik_family(model: RobotModel, p, count: int = 12,
     lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
     q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
+    return _distinct_solutions(model, p, list(q[err < IK_TOL]))
+
+
+def ik_near(model: RobotModel, p, seeds) -> list[np.ndarray]:
+    """Configurations reaching ``p``, each found from one of ``seeds`` (near it).
+
+    Levenberg-Marquardt's minimum-norm steps from a configuration end on the self-motion
+    manifold of ``p`` close to it: a target configuration that needs little motion from a
+    start configuration.
+
+    Parameters
+    ----------
+    model : RobotModel
+    p : array_like, shape (m,)
+        Task-space point (m).
+    seeds : array_like, shape (N, n)
+        Configurations to start from (rad, m).
+
+    Returns
+    -------
+    list of ndarray, shape (n,)
+        Distinct configurations (wrapped), in the seeds' order; those that did not converge
+        are left out.
+    """
+    p = np.asarray(p, dtype=float)
+    q, err = _lm_batch(model, p, np.atleast_2d(np.asarray(seeds, dtype=float)))
     return _distinct_solutions(model, p, list(q[err < IK_TOL]))
 
 
