@@ -17,6 +17,7 @@ import rclpy
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from rclpy.context import Context
+from rclpy.duration import Duration as RclpyDuration
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
@@ -41,6 +42,8 @@ def recorder_command():
 def stream_messages(path):
     """Messages readable by a non-seeking reader, up to the first incomplete record."""
     out = []
+    if not Path(path).exists():  # not flushed yet
+        return out
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f).records:
@@ -78,7 +81,13 @@ def test_signals_and_message_count(tmp_path, sig, seconds):
             pub.publish(JointState(name=["j1", "j2", "j3"], position=[i * 1e-3] * 3,
                                    effort=[float(i)] * 3))
             time.sleep(max(0.0, start + (i + 1) / RATE - time.monotonic()))
-        time.sleep(0.6)  # > flush_period: what was received is in the file
+        # Every message in the recorder's subscription, then in the file (flush_period): a
+        # loaded machine may take longer than a fixed wait, so the file is read until then.
+        assert pub.wait_for_all_acked(RclpyDuration(seconds=20.0))
+        deadline = time.monotonic() + 20.0
+        while len(stream_messages(out)) < count and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stdout.read()
+            time.sleep(0.1)
         proc.send_signal(sig)
         output, _ = proc.communicate(timeout=15)
     finally:
