@@ -35,7 +35,6 @@ from tocontrol_ros.nodes.qos import LATCHED as QOS_LATCHED
 from tocontrol_ros.nodes.tracker import (
     QOS_STATUS,
     QOS_STREAM,
-    QOS_TRAJECTORY,
     START_HISTORY,
     TrackerNode,
 )
@@ -96,7 +95,8 @@ class Harness:
         self.probe = Node("probe", context=self.context, namespace=self.ns)
         self.lock = threading.Lock()
         self.joint_states, self.errors, self.statuses, self.clock = [], [], [], []
-        self.pub = self.probe.create_publisher(JointTrajectory, self.topic, QOS_TRAJECTORY)
+        # As the planner publishes its plans (latched, depth 1).
+        self.pub = self.probe.create_publisher(JointTrajectory, self.topic, QOS_LATCHED)
         self.probe.create_subscription(JointState, f"{self.ns}/joint_states",
                                        self._keep(self.joint_states), js_qos)
         self.probe.create_subscription(JointState, f"{self.ns}/tracker/tracking_error",
@@ -276,14 +276,12 @@ def test_trajectories_published_between_two_takes_are_all_executed(model):
     publisher keeps one (latched), the tracker's subscription up to 10."""
     h = Harness(spin=False)
     try:
-        pub = h.probe.create_publisher(JointTrajectory, h.topic, QOS_LATCHED)  # the planner's
-        h.wait(lambda: pub.get_subscription_count() > 0, "tracker subscription")
         q0 = np.array(PAPER_START_Q)
         durations = [0.5, 0.6, 0.7]
         for i, duration in enumerate(durations):
-            pub.publish(motion_msg(model, q0, [0.01 * (i + 1), 0.0, 0.0], duration))
+            h.pub.publish(motion_msg(model, q0, [0.01 * (i + 1), 0.0, 0.0], duration))
             # In the tracker's subscription (acknowledged), not taken: nothing spins yet.
-            assert pub.wait_for_all_acked(RclpyDuration(seconds=10.0))
+            assert h.pub.wait_for_all_acked(RclpyDuration(seconds=10.0))
         h.start()
         h.wait(lambda: sum("executing" in s.message for s in h.statuses) >= len(durations),
                "every trajectory executing")

@@ -13,9 +13,8 @@ patches it on the module that reads it (``monkeypatch.setattr(solver, "CANDIDATE
 __all__ = ["EXHAUSTIVE_IK_COUNT", "RANDOM_IK_FACTOR", "NEAR_TARGETS", "EXHAUSTIVE_STARTS",
            "SEED_SPACING", "MAX_BRANCH_JOINTS", "RECOMBINED_PARENTS", "RECOMBINED_STARTS",
            "RECOMBINED_NEAR", "AT_K_MARGIN", "EXHAUSTIVE_CANDIDATES", "SAME_BASIN",
-           "CANDIDATE_MARGIN",
-           "GRAVITY_FREE", "SAME_K1", "WARM_RADIUS", "WARM_JOINT_RADIUS", "WARM_GAIN",
-           "INCUMBENT_TRIES"]
+           "CANDIDATE_MARGIN", "GRAVITY_FREE", "SAME_K1", "WARM_RADIUS", "WARM_JOINT_RADIUS",
+           "WARM_GAIN", "INCUMBENT_TRIES"]
 
 
 # -------------------------------------------------------- the seeds (seeding.py)

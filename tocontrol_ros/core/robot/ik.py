@@ -256,8 +256,7 @@ def ik_family(model: RobotModel, p, count: int = 12,
         return _distinct_solutions(model, p, list(q[err < IK_TOL]))
     lo = np.where(np.isfinite(model.q_lower), model.q_lower, -np.pi)
     hi = np.where(np.isfinite(model.q_upper), model.q_upper, np.pi)
-    q, err = _lm_batch(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
-    return _distinct_solutions(model, p, list(q[err < IK_TOL]))
+    return ik_near(model, p, np.array([rng.uniform(lo, hi) for _ in range(count)]))
 
 
 def ik_near(model: RobotModel, p, seeds) -> list[np.ndarray]:
