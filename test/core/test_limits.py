@@ -496,3 +496,46 @@ def test_guesses_far_above_the_best_are_solved_only_when_those_near_it_fail(gali
     assert again.success, again.message
     assert len(solved) > 1 and solved[0] == min(solved)  # the next ones, once it failed
     assert any("made to fail" in s.status for s in again.starts)
+
+
+def test_bounded_guesses_solve_the_requested_k_the_others_k_1(galicki, monkeypatch):
+    """Within the limits the multistart's guesses solve k (the bounded solve's starts)."""
+    from tocontrol_ros.core.direct import limited as lim
+
+    calls, starts = [], []
+    original_solve = DirectCollocation.solve
+
+    def solve(self, start, target, k, *args, x_bounds=None, **kw):
+        calls.append((k, x_bounds is not None))
+        return original_solve(self, start, target, k, *args, x_bounds=x_bounds, **kw)
+
+    original_uniform = lim._uniform_item
+
+    def uniform(planner, ctx, bounds, guess, fallback):
+        starts.append(guess)
+        return original_uniform(planner, ctx, bounds, guess, fallback)
+
+    monkeypatch.setattr(DirectCollocation, "solve", solve)
+    monkeypatch.setattr(lim, "_uniform_item", uniform)
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0, limits=_tight(galicki))
+    res = plan(problem, SolverOptions(starts=4, candidates=2, time_limit=SLOW_OK))
+    assert res.success, res.message
+    assert res.method == "direct"
+    assert len(calls) >= 4 and all(k == 4.0 and bounded for k, bounded in calls)
+    assert starts
+    for guess in starts:
+        # Inside the k = 4 set, and outside the k = 1 set (the unit ball) somewhere: a
+        # motion only k = 4's larger set allows.
+        assert np.max(np.sum(guess.u ** 8, axis=1)) <= 1 + 1e-4  # guess_tol 1e-5
+        assert np.max(np.linalg.norm(guess.u, axis=1)) > 1.05
+    recorded = {s.index: s.guess_T for s in res.starts}
+    assert all(any(abs(g.T - t) <= 1e-12 for t in recorded.values()) for g in starts)
+    # Limits that do not bind (the paper's arm's 100 rad/s placeholders): the first guess
+    # tried within them at k, then all without them at k = 1 (the maximum principle's).
+    calls.clear()
+    free = plan(Problem(galicki, point(P_START), point(P_TARGET), k=4.0),
+                SolverOptions(starts=4, candidates=1, time_limit=SLOW_OK))
+    assert free.success, free.message
+    assert free.method != "direct"
+    assert calls[0] == (4.0, True)
+    assert [k for k, bounded in calls[1:5]] == [1.0] * 4 and not any(b for _, b in calls[1:5])

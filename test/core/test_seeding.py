@@ -323,3 +323,19 @@ def test_limited_random_families_also_get_the_target_near_each_start(panda, monk
     _, dv_off, _ = seed_grid(Problem(panda, joint_state(q0), point(target), k=4), options)
     assert dv_off.shape[1] == dv.shape[1] - 1
     np.testing.assert_allclose(dv_off, dv[:, 1:])
+
+
+def test_limited_random_families_solve_half_as_many_starts_more(panda, galicki):
+    """RANDOM_STARTS_EXTRA: 24 seed pairs for the default 16 on an arm with random IK seeds
+    and joint limits (a single start stays one); a planar arm keeps ``starts``."""
+    from tocontrol_ros.core.seeding import seed_pairs, starts_solved
+
+    q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
+    problem = Problem(panda, point(panda.point(q0)), point(panda.point(q0 + 0.3)), k=4)
+    assert starts_solved(problem, SolverOptions()) == 24
+    assert len(seed_pairs(problem, SolverOptions())) == 24
+    assert starts_solved(problem, SolverOptions(starts=1)) == 1
+    assert starts_solved(problem, SolverOptions(starts=5)) == 7
+    planar = Problem(galicki, point([1.0, 1.0]), point([2.2, 1.5]), k=4)
+    assert starts_solved(planar, SolverOptions()) == 16
+    assert len(seed_pairs(planar, SolverOptions())) == 16

@@ -1,8 +1,12 @@
-"""The multistart's direct guesses: one k = 1 direct solve per seed pair.
+"""The multistart's direct guesses: one direct solve per seed pair.
 
-Within the joint limits when the first guess reaches them (the bounded solve then starts
-from these guesses), else without bounds, as on an arm without limits. Called by the
-orchestration (:func:`tocontrol_ros.core.solver._cold`).
+Within the joint limits when the first guess reaches them, else without bounds, as on an arm
+without limits. Without bounds a guess solves ``k = 1`` (the maximum principle's shooting
+continues from there in ``k``); within the limits it solves the requested ``k``: the bounded
+B-spline solve starts from these guesses at that ``k``, and the basins of ``k = 1`` are not
+those of ``k = 4`` (on the Panda's 50 reference cases of BENCHMARKS.md the best basin's
+``k = 1`` guess was 17 % slower than the best ``k = 1`` guess in one case, 2 % faster at
+``k = 4``). Called by the orchestration (:func:`tocontrol_ros.core.solver._cold`).
 """
 
 from __future__ import annotations
@@ -25,7 +29,9 @@ __all__ = ["solve_guesses", "recombined_guesses"]
 
 def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
                   ) -> tuple[list, tuple[np.ndarray, np.ndarray] | None]:
-    """The direct guesses (k = 1) from the seed pairs, within the joint limits where they bind.
+    """The direct guesses from the seed pairs, within the joint limits where they bind.
+
+    At ``k = 1`` without bounds, at the problem's ``k`` within them (see the module).
 
     Returns
     -------
@@ -35,11 +41,13 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     """
     problem = ctx.problem
     # When the first guess reaches the joint limits, it and the others are solved within
-    # them: the bounded solve then starts from these guesses (no second round). Otherwise
+    # them (at k): the bounded solve then starts from these guesses (no second round). Otherwise
     # they are solved without bounds, as on an arm without limits (bounds that never bind
     # still move IPOPT's iterates, and with them which basin a guess lands in). The first
     # is solved within the limits first: on a real arm it usually reaches them, and its
-    # solve without them (110 of 180 ms of a Panda's guess) is then not needed.
+    # solve without them (110 of 180 ms of a Panda's guess) is then not needed. Whether it
+    # reaches them is decided at k within the bounds (the motion the bounded solve starts
+    # from), or at k = 1 without them (the motion the shooting starts from).
     bounds = state_bounds(problem, PAD) if problem.limits.active else None
     x_bounds = None
     guesses = []
@@ -117,11 +125,13 @@ def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,
 
 def _guess(planner: Transcriptions, ctx: SolveContext, path: tuple,
            x_bounds: tuple[np.ndarray, np.ndarray] | None):
-    """The direct solve at k = 1 from an initial ``path``, within ``x_bounds`` (None: without).
+    """The direct solve from an initial ``path``, within ``x_bounds`` (None: without).
 
+    At the problem's ``k`` within bounds, at ``k = 1`` without (see the module).
     ``path``: the states, controls and ``T`` of :func:`initial_paths` for one seed pair.
     """
     problem, options = ctx.problem, ctx.options
     direct = planner.direct(problem, options.guess_intervals, tol=options.guess_tol)
-    return direct.solve(problem.start.value, problem.target.value, 1.0, *path,
+    k = 1.0 if x_bounds is None else problem.k
+    return direct.solve(problem.start.value, problem.target.value, k, *path,
                         x_bounds=x_bounds)

@@ -65,6 +65,9 @@ class SolverOptions:
         self-motion grids and their full-turn branches (``docs/seeding.md``). The paper's arm
         has dozens of local optima and the first seed pair is seldom in the best basin. Up to
         ``3 * starts // 4`` more (at most 12) cross the ends of the best direct solutions.
+        On an arm with random inverse-kinematics seeds (not a planar arm) whose joint limits
+        are active, ``starts // 2`` more (24 for the default 16; one stays one: the limits
+        cut the self-motion manifold into more basins, ``tuning.RANDOM_STARTS_EXTRA``).
     candidates : int
         At most this many distinct direct solutions (best ``T`` at k = 1 first) continued to
         the requested ``k`` by shooting; the best final ``T`` is returned. The best motion's

@@ -44,9 +44,9 @@ class StartRecord:
         Seed configurations (rad, m).
     guess_T : float
         ``T`` of the direct method's guess (s), NaN when it failed: at k = 1 for the
-        multistart's guesses, at the requested k for those a bounded solve
-        (``method="direct"``) made itself (where the multistart's were not within the
-        limits).
+        multistart's guesses without bounds (the maximum principle's starts), at the
+        requested k for those within the joint limits (the bounded solve's starts,
+        ``method="direct"``).
     T : float
         Final ``T`` at the requested k (s), NaN when not continued or failed.
     status : str

@@ -25,13 +25,15 @@ from tocontrol_ros.core.tuning import (
     MAX_BRANCH_JOINTS,
     NEAR_TARGETS,
     RANDOM_IK_FACTOR,
+    RANDOM_STARTS_EXTRA,
     RECOMBINED_NEAR,
     SAME_BASIN,
     SEED_SPACING,
 )
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
-           "branch_shifts", "recombined_pairs", "gravity_free", "time_ratio_bound"]
+           "branch_shifts", "recombined_pairs", "gravity_free", "time_ratio_bound",
+           "starts_solved"]
 
 
 def shiftable_joints(problem: Problem) -> np.ndarray:
@@ -122,7 +124,7 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     count = max(options.ik_count, EXHAUSTIVE_IK_COUNT) if exhaustive else options.ik_count
     # Random seeds on an arm whose limits cut its self-motion manifold into pieces (each a
     # basin): as many configurations as angles give, and the target's near each start.
-    cut = problem.limits.active and not angle_family(model)
+    cut = _cut(problem)
     if cut:
         count *= RANDOM_IK_FACTOR
     if problem.start.kind == "state":
@@ -153,6 +155,22 @@ def seed_grid(problem: Problem, options: SolverOptions, exhaustive: bool = False
     return qa, dv, est
 
 
+def _cut(problem: Problem) -> bool:
+    """Whether the arm's seeds are random and its joint limits cut their manifold."""
+    return problem.limits.active and not angle_family(problem.model)
+
+
+def starts_solved(problem: Problem, options: SolverOptions) -> int:
+    """How many seed pairs the multistart solves: ``options.starts``, more where limits cut.
+
+    On an arm whose self-motion family is random seeds and whose joint limits are active,
+    :data:`~tocontrol_ros.core.tuning.RANDOM_STARTS_EXTRA` of ``starts`` more (rounded
+    down: a single start stays one).
+    """
+    extra = int(options.starts * RANDOM_STARTS_EXTRA) if _cut(problem) else 0
+    return options.starts + extra
+
+
 #: The last :func:`seed_pairs` call: its problem (weakly), options and pairs. The planner
 #: node's first motion and its plan ask for the pairs of one problem (the same object; a
 #: :class:`Problem` is frozen) one after the other: the second call skips the inverse
@@ -168,16 +186,18 @@ def seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool = Fals
     every branch (:func:`branch_shifts`: the target unwrapped to the short way, and each
     joint that may turn a full turn also the long way and the short way plus a turn); the
     pairs are ranked by a bang-bang time estimate with diagonal inertia (one vectorised
-    expression over start x target x branch), ties kept in that order. The ``starts`` best
-    are returned, except that a seed within :data:`SEED_SPACING` of a better one at both ends
-    comes after every farther one. Ranking costs microseconds per pair; each returned pair
-    costs one direct solve.
+    expression over start x target x branch), ties kept in that order. The
+    :func:`starts_solved` best (``starts``, more on an arm whose limits cut its random
+    seeds' manifold) are returned, except that a seed within :data:`SEED_SPACING` of a
+    better one at both ends comes after every farther one. Ranking costs microseconds per
+    pair; each returned pair costs one direct solve.
 
     Parameters
     ----------
     problem : Problem
     options : SolverOptions
-        ``starts`` (how many pairs) and ``ik_count`` (configurations per end point).
+        ``starts`` (how many pairs, :func:`starts_solved`) and ``ik_count``
+        (configurations per end point).
     exhaustive : bool
         The reference mode of the benchmark: at least :data:`EXHAUSTIVE_IK_COUNT` angles
         per end point and (``starts`` ignored) the :data:`EXHAUSTIVE_STARTS` pairs taken in
@@ -215,7 +235,7 @@ def _seed_pairs(problem: Problem, options: SolverOptions, exhaustive: bool
     s_idx = np.unravel_index(order, est.shape)[0]
     dflat = dv.reshape(-1, qa.shape[1])
     if not exhaustive:
-        keep = _spread(qa[s_idx], qa[s_idx] + dflat[order], options.starts)
+        keep = _spread(qa[s_idx], qa[s_idx] + dflat[order], starts_solved(problem, options))
         order, s_idx = order[keep], s_idx[keep]
     return [(qa[i], qa[i] + dflat[j]) for i, j in zip(s_idx, order, strict=True)]
 

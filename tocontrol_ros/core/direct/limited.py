@@ -6,8 +6,9 @@ leaves the limits, :func:`plan_limited` solves the problem again with the limits
 bounds:
 
 1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
-   from the initial path timed within the velocity limits (the multistart's own guesses
-   when it solved them within the bounds at ``k = 1``; else at the requested ``k``);
+   at the requested ``k``, from the initial path timed within the velocity limits (the
+   multistart's own guesses when it solved them within the bounds, as it does when the
+   limits bind; else solved here);
 2. the best ``options.candidates`` (exhaustive mode: more) distinct ones whose ``T`` is
    within :data:`GUESS_WINDOW` of the best guess's are solved as B-spline joint paths whose
    torques are their inverse dynamics (:mod:`~tocontrol_ros.core.direct.flat`) on
@@ -156,7 +157,7 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     pairs = ctx.memo.get("pairs")
     if pairs is None:
         pairs = seed_pairs(problem, options)
-    # The multistart's guesses, when it solved them within these bounds (at k = 1).
+    # The multistart's guesses, when it solved them within these bounds (at k).
     known = dict(ctx.memo.get("guesses", ()))
     # After a failed shooting, the guess it was retried from (finer, tighter).
     known.update(ctx.memo.get("finer", {}))
@@ -187,7 +188,7 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     basins = distinct_basins(solved, lambda g: g[1], problem.model.n)
     near = len(basins)
     if basins and not (options.exhaustive or fallback):
-        # By increasing T: those whose guess is far slower at k = 1 come last, and only if
+        # By increasing T: those whose guess is far slower come last, and only if
         # the near ones all fail.
         cutoff = (1 + GUESS_WINDOW) * basins[0][1].T
         near = sum(b[1].T <= cutoff for b in basins)
@@ -326,7 +327,7 @@ def _offer(ctx: SolveContext, bounds, res: FlatResult, traj: FlatTrajectory,
 def _distinct_solutions(first: list) -> list:
     """The uniform-mesh solutions less repeats.
 
-    Two guesses of different basins at ``k = 1`` can meet in one B-spline solution (same
+    Two guesses of different basins can meet in one B-spline solution (same
     ``T`` to :data:`SAME_T`, control points within
     :data:`~tocontrol_ros.core.tuning.SAME_BASIN`), which would be refined twice.
     """
