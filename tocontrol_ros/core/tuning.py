@@ -36,7 +36,7 @@ RANDOM_IK_FACTOR = 2
 #: many more (``starts + starts // 2``: 24 for the default 16, one for one): the limits'
 #: basins are more than the planar arms'. On the 50 Panda cases against the independent
 #: reference (guesses at the requested k, ``core/guesses.py``): 48/50 within 1e-3 with 24,
-#: 47/50 with 16 (see RANDOM_STARTS_FIGURES in docs/seeding.md).
+#: 47/50 with 16 and with 20, at about 1.13 times the plan time of 16 (docs/seeding.md, 4).
 RANDOM_STARTS_EXTRA = 0.5
 
 #: On such an arm (random seeds, joint limits) each start configuration also gets the
