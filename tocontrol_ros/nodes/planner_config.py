@@ -83,7 +83,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "initial guess: the best-ranked of the self-motion grid and its full-turn "
                   "branches (docs/seeding.md); with the default candidates it finds the best "
                   "basin of nearly every problem of the paper's arm (1 = single start: "
-                  "faster, often a worse basin).", 1, 256),
+                  "faster, often a worse basin). On an arm with random IK seeds and joint "
+                  "limits (not a planar arm) starts // 2 more are solved.", 1, 256),
     ParameterSpec("candidates", 6, "At most this many distinct direct solutions continued by "
                   "shooting, fastest direct T first, stopping where the rest cannot beat the "
                   "best found (docs/seeding.md); the fastest motion is returned.", 1, 32,

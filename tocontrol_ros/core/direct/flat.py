@@ -201,7 +201,7 @@ def _warm_options(warm: bool | str) -> dict:
         return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **cap, **{
             f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
                                                  "slack_bound_push", "slack_bound_frac")}}
-    return {}
+    return {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
 
 
 class FlatTranscription:
@@ -222,8 +222,10 @@ class FlatTranscription:
     tol, max_iter : float, int
         IPOPT's tolerance and iteration limit (:func:`~.ipopt.ipopt_options`).
     warm : bool or "resume" or "dual" or "restart"
-        True: every solve starts at a solution of a nearby problem (a refined mesh, solved
-        from the coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
+        False: IPOPT's default start, its Hessian regularisation capped at
+        :data:`RESTART_MAX_PERTURBATION` (the uniform mesh's first solves). True: every
+        solve starts at a solution of a nearby problem (a refined mesh, solved from the
+        coarser one's path): IPOPT then starts its barrier at :data:`WARM_MU` with
         a monotone decrease, and moves the start at most ``WARM_PUSH`` inside its bounds,
         instead of starting at ``mu = 0.1`` 1 % inside them, which first leaves the
         solution (see :data:`WARM_MU`). ``"resume"``: from a solution that tightened
@@ -237,8 +239,7 @@ class FlatTranscription:
         29, 29 and 22 from the solution solved again alone, where the barrier from
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
-        ``"restart"``: IPOPT's default start, its regularisation capped at
-        :data:`RESTART_MAX_PERTURBATION` (the last resort of a re-solve with a wider pad).
+        ``"restart"``: as False (the last resort of a re-solve with a wider pad).
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",

@@ -144,8 +144,13 @@ WARM_PUSH = 1e-6
 #: :data:`WARM_MU` all three re-solves of a Panda case failed).
 RESUME_MU = 1e-5
 
-#: IPOPT's largest Hessian regularisation in a re-solve from its default start
-#: (``FlatTranscription(warm="restart")``); past it IPOPT skips to its restoration phase.
+#: IPOPT's largest Hessian regularisation in a solve from its default start
+#: (``FlatTranscription(warm=False)``, ``"restart"``) and in a resumed one; past it IPOPT
+#: skips to its restoration phase. The uniform mesh's first solves from the guesses are
+#: capped too since issue 35: with the guesses at k, one of the Panda's 24 candidates of a
+#: point-to-point case (bench/deployed_panda.py's case 10) crawled to its 300-iteration
+#: limit at 64 ms per iteration (19.2 s; 3 ms is usual), capped 1.3 s, the plan 24.4 s ->
+#: 6.0 s, the same T; on the 50 reference cases T changed on 2 by 1e-4 (one better).
 #: Such re-solves (a wider set pad after the resumed one failed) can crawl with the
 #: regularisation at 1e8-1e12, each iteration factorising the KKT matrix over and over
 #: (a Panda case from a moving state, 96 spans: 150 iterations in 100 s, 0.7 s each); capped
