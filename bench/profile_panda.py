@@ -5,11 +5,12 @@ The best-motion section's Panda cases (:func:`bench.limits.draw_cases`, seed of
 the URDF limits enforced, so every plan takes the bounded B-spline path of docs/limits.md),
 each planned once with the default :class:`SolverOptions` after one warm-up plan (compile
 cache filled). Every IPOPT solve is recorded by wrapping ``DirectCollocation.solve`` (the
-multistart's k = 1 guesses) and ``FlatTranscription.solve`` (the bounded solves), with
-CasADi's own counters of that solve (``solver.stats()``): wall time in each kind of function
-evaluation (constraints, their Jacobian, the Lagrangian's Hessian, objective), in the
-Python iteration callback, and the rest (IPOPT's own work: the linear solves with MUMPS,
-the barrier update, the line search's bookkeeping). The builds of transcriptions
+multistart's guesses, at the requested k within the limits) and
+``FlatTranscription.solve`` (the bounded solves), with CasADi's own counters of that
+solve (``solver.stats()``): wall time in each kind of function evaluation (constraints,
+their Jacobian, the Lagrangian's Hessian, objective), in the Python iteration callback,
+and the rest (IPOPT's own work: the linear solves with MUMPS, the barrier update, the line
+search's bookkeeping). The builds of transcriptions
 (``FlatTranscription.__init__``, ``DirectCollocation.__init__``) are timed the same way,
 and the plan's own ``timings`` give the certificate; what is left of a plan's wall time is
 the orchestration in Python (seeding, inverse kinematics, fits, trajectories).
@@ -54,7 +55,7 @@ from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
 EVALUATIONS = {"constraints": "t_wall_nlp_g", "Jacobian": "t_wall_nlp_jac_g",
                "Hessian": "t_wall_nlp_hess_l", "objective": ("t_wall_nlp_f", "t_wall_nlp_grad_f"),
                "callback": "t_wall_callback_fun"}
-STAGES = ("guesses (Hermite-Simpson, k = 1)", "bounded: uniform", "bounded: refined",
+STAGES = ("guesses (Hermite-Simpson, k = 4)", "bounded: uniform", "bounded: refined",
           "bounded: re-solves")
 
 
