@@ -7,8 +7,7 @@ bounds:
 
 1. every seed pair gets a coarse Hermite-Simpson solve with the bounds at its mesh points,
    at the requested ``k``, from the initial path timed within the velocity limits (the
-   multistart's own guesses when it solved them within the bounds, as it does when the
-   limits bind; else solved here);
+   multistart's own when it solved them within the bounds, as where they bind);
 2. the best ``options.candidates`` (exhaustive mode: more) distinct ones whose ``T`` is
    within :data:`GUESS_WINDOW` of the best guess's are solved as B-spline joint paths whose
    torques are their inverse dynamics (:mod:`~tocontrol_ros.core.direct.flat`) on
