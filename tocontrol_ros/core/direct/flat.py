@@ -189,19 +189,17 @@ class FlatResult(IpoptOutcome):
 
 def _warm_options(warm: bool | str) -> dict:
     """IPOPT's options of a transcription's start mode (see :class:`FlatTranscription`)."""
+    cap = {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
     if warm == "dual":
         return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
                 "ipopt.warm_start_init_point": "yes"}
-    if warm == "restart":
-        return {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
-    if warm:
-        mu = RESUME_MU if warm == "resume" else WARM_MU
-        cap = {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION} \
-            if warm == "resume" else {}
-        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu, **cap, **{
-            f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
-                                                 "slack_bound_push", "slack_bound_frac")}}
-    return {"ipopt.max_hessian_perturbation": RESTART_MAX_PERTURBATION}
+    if not warm or warm == "restart":  # IPOPT's default start
+        return cap
+    mu = RESUME_MU if warm == "resume" else WARM_MU
+    return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": mu,
+            **(cap if warm == "resume" else {}), **{
+                f"ipopt.{key}": WARM_PUSH for key in ("bound_push", "bound_frac",
+                                                     "slack_bound_push", "slack_bound_frac")}}
 
 
 class FlatTranscription:
