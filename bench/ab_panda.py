@@ -24,10 +24,10 @@ import tocontrol_ros  # noqa: E402
 from bench.common import PANDA_LOCKED, panda_urdf  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET  # noqa: E402
-from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.robot import compiled  # noqa: E402
 from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 20261202  # bench/optimum_panda.py's
 

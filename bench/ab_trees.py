@@ -33,8 +33,8 @@ def worker(tree: str) -> None:
     """Serve timing orders on stdin: one case name per line, one result line back."""
     sys.path.insert(0, str(Path(tree).resolve()))
     from bench.common import MOVED_TARGET, MULTI, START, TARGET, paper_model
-    from tocontrol_ros.core.problem import Problem, point
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
+    from tocontrol_ros.core.types.problem import Problem, point
 
     model = paper_model()
     problem = Problem(model, point(START), point(TARGET), k=4.0)

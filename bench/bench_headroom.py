@@ -42,7 +42,7 @@ except ImportError:  # not installed: use the source tree
 import numpy as np  # noqa: E402
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET  # noqa: E402
-from tocontrol_ros.core.problem import Problem, point  # noqa: E402
+from tocontrol_ros.core.planning.solver import plan  # noqa: E402
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot  # noqa: E402
 from tocontrol_ros.core.sim.tracking import (  # noqa: E402
     NominalTrajectory,
@@ -50,7 +50,7 @@ from tocontrol_ros.core.sim.tracking import (  # noqa: E402
     TrackingGains,
     simulate,
 )
-from tocontrol_ros.core.solver import plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, point  # noqa: E402
 
 START, TARGET = PAPER_START, PAPER_TARGET
 GAINS = TrackingGains(kp=(100.0, 100.0, 30.0), kd=(10.0, 10.0, 3.0))

@@ -301,8 +301,8 @@ FIRST_RUN_CODE = r"""
 import json, sys, time
 t0 = time.perf_counter()
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 t1 = time.perf_counter()
 model = load_robot(str(default_urdf_path()))
 start, target, k = json.loads(sys.argv[1])

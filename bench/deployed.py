@@ -136,9 +136,9 @@ class _Client(RosClient):
 
 def _in_process():
     """A function that serves the paper's example in this process; returns T (s)."""
-    from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.planning.solver import Planner
     from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-    from tocontrol_ros.core.solver import Planner
+    from tocontrol_ros.core.types.problem import Problem, point
     from tocontrol_ros.nodes.planner_config import (
         config_from_values,
         default_values,

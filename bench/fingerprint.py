@@ -39,8 +39,8 @@ try:  # the re-exports of tocontrol_ros.core (issue 31 onwards)
     )
 except ImportError:  # older trees: the module paths
     from tocontrol_ros.core.model import load_robot  # noqa: E402
-    from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
-    from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 # The Panda case of test/core/plan_probe.py: from rest at PANDA_Q0 to the tip at PANDA_Q1.
 PANDA_Q0 = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])

@@ -38,9 +38,9 @@ from bench.common import (  # noqa: E402
     timed,
 )
 from bench.limits import draw_cases, robots  # noqa: E402
-from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.planning.solver import Planner, SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.robot import compiled  # noqa: E402
-from tocontrol_ros.core.solver import Planner, SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 32
 K = 4.0

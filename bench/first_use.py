@@ -49,8 +49,8 @@ if os.environ.get("BENCH_O0_ONLY"):
     compiled.CFLAGS = compiled.LARGE_CFLAGS = compiled.QUICK_CFLAGS
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 path, locked, qa, qb, runs, limited = json.loads(sys.argv[1])
 builds = []
 compiled.add_listener(lambda e, name, info: builds.append(

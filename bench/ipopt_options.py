@@ -31,9 +31,9 @@ from bench.common import START, TARGET, paper_model  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
 from tocontrol_ros.core.direct import collocation as direct_module  # noqa: E402
 from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path  # noqa: E402
-from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions  # noqa: E402
+from tocontrol_ros.core.methods.seeding import seed_pairs  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, point  # noqa: E402
 
 
 def build(model, extra: dict) -> DirectCollocation:

@@ -39,10 +39,10 @@ from bench.common import (  # noqa: E402
 )
 from tocontrol_ros.core.direct.collocation import DirectCollocation  # noqa: E402
 from tocontrol_ros.core.direct.limited import PAD, state_bounds  # noqa: E402
-from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan, verify  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
 from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan, verify  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 16
 K = 4.0

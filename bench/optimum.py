@@ -26,8 +26,9 @@ import numpy as np  # noqa: E402
 
 from bench.common import Section, fmt_ms, log, table, timed  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
-from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.solver import SKIPPED, SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.indirect.method import SKIPPED  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, point  # noqa: E402
 
 SEED = 20261201
 K = 4.0

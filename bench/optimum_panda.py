@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 from bench.common import Section, log, table, timed  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
 from bench.optimum import GAP_TOL, _optima  # noqa: E402
-from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 20261202
 K = 4.0

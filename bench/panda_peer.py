@@ -33,10 +33,10 @@ from bench.common import PANDA_LOCKED, Section, fmt_ms, log, panda_urdf, table, 
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET
 from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
 from tocontrol_ros.core.direct.limited import PAD, state_bounds
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 K = 4.0
 MESHES = (25, 50, 100, 200)

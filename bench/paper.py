@@ -30,8 +30,8 @@ from bench.common import (
     table,
 )
 from tocontrol_ros.core.direct.collocation import DirectCollocation
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan, verify
+from tocontrol_ros.core.planning.solver import SolverOptions, plan, verify
+from tocontrol_ros.core.types.problem import Problem, point
 
 #: The default multistart, as its label.
 _MULTI = f"{SolverOptions().starts}x{SolverOptions().candidates}"

@@ -79,10 +79,10 @@ from tocontrol_ros.core import Problem, SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.direct.collocation import initial_path  # noqa: E402
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD, SET_PAD  # noqa: E402
-from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
+from tocontrol_ros.core.methods.seeding import seed_pairs  # noqa: E402
 from tocontrol_ros.core.robot import compiled  # noqa: E402
 from tocontrol_ros.core.robot.model import RobotModel  # noqa: E402
-from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
+from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
 #: The peer's meshes (uniform intervals).
 MESHES = (25, 50, 100, 200)

@@ -21,7 +21,7 @@ Bounded solves are grouped by stage: *uniform* (the first solve of each candidat
 ``k``, ``warm="resume"``/``"restart"``/``"dual"``).
 
 :func:`run_cores` then plans the same cases with one process and with two (``workers=2``,
-:mod:`tocontrol_ros.core.pool`), paired, and checks that both give the same plan.
+:mod:`tocontrol_ros.core.planning.pool`), paired, and checks that both give the same plan.
 
 Run alone: ``scripts/dev run python -P bench/profile_panda.py [CASES] [--cores]`` (prints
 the section).
@@ -49,7 +49,7 @@ from bench.optimum_panda import SEED, K  # noqa: E402
 from tocontrol_ros.core import Problem, SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.direct import collocation, flat  # noqa: E402
 from tocontrol_ros.core.direct.tuning import SPANS  # noqa: E402
-from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
+from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
 #: CasADi's per-solve wall-time counters (s), by what they time.
 EVALUATIONS = {"constraints": "t_wall_nlp_g", "Jacobian": "t_wall_nlp_jac_g",
@@ -248,7 +248,7 @@ def run_cores(count: int, workers: int = 2) -> Section:
         f"`SolverOptions()` (one process) and with `workers={workers}` (this process and "
         f"{workers - 1} worker process(es): the multistart's guesses after the first, the "
         "bounded solve's candidates and each refinement level shared out, "
-        "`core/pool.py`), in alternating order, after a warm-up plan that started the "
+        "`core/planning/pool.py`), in alternating order, after a warm-up plan that started the "
         "workers. *Same plan*: status, every digit of T, every start record and the "
         "trajectory's bits at 101 times equal. Ratio: one process's time over the "
         f"workers'. Median ratio {statistics.median(ratios):.2f} (min {min(ratios):.2f}, max "

@@ -13,8 +13,8 @@ import numpy as np
 
 from bench.common import Section, fmt_ms, log, table, timed
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan, verify
+from tocontrol_ros.core.planning.solver import SolverOptions, plan, verify
+from tocontrol_ros.core.types.problem import Problem, point
 
 SEED = 20240607
 K = 4.0

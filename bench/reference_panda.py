@@ -74,9 +74,9 @@ from bench.peer_compiled import (  # noqa: E402
 )
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
-from tocontrol_ros.core.problem import Problem  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.robot.model import RobotModel  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem  # noqa: E402
 
 #: Seeds per case.
 SEEDS = 32

@@ -7,11 +7,11 @@ both it and the default. This reference is built another way, by direct collocat
 
 1. seeds: both end points' inverse-kinematics families at :data:`ANGLES` absolute angles of
    the last link (both elbows), every start x target x branch (-1/0/+1 turn of every joint,
-   :func:`~tocontrol_ros.core.seeding.branch_shifts`), in a random order (per pair, fixed
+   :func:`~tocontrol_ros.core.methods.seeding.branch_shifts`), in a random order (per pair, fixed
    seed), the first :data:`SEEDS`;
 2. each seed solved at k = 1 by Hermite-Simpson on 10 intervals (IPOPT tol 1e-6) from the
    smoothstep path between its two configurations (:func:`initial_paths`);
-3. the distinct k = 1 solutions (:func:`~tocontrol_ros.core.seeding.distinct_basins`), the
+3. the distinct k = 1 solutions (:func:`~tocontrol_ros.core.methods.seeding.distinct_basins`), the
    :data:`CONTINUED` fastest solved at k = 4 on 40 intervals from themselves (through k = 2
    when the direct step fails);
 4. the :data:`REFINED` fastest at k = 4 solved again on 200 intervals (tol 1e-9): the
@@ -50,15 +50,15 @@ from bench.common import Section, log, paper_model, table, timed  # noqa: E402
 from bench.optimum import SEED, K  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
 from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_paths  # noqa: E402
-from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.robot.ik import ik_family  # noqa: E402
-from tocontrol_ros.core.seeding import (  # noqa: E402
+from tocontrol_ros.core.methods.seeding import (  # noqa: E402
     branch_shifts,
     distinct_basins,
     revolute_joints,
     shiftable_joints,
 )
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.robot.ik import ik_family  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, point  # noqa: E402
 
 #: Absolute angles of the last link per end point (each with both elbows).
 ANGLES = 32

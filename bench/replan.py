@@ -293,10 +293,10 @@ def _rest_chain(name: str, count: int, variants: dict) -> tuple[float, list] | N
     """
     import time
 
-    from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.problem import Problem, joint_state, point
-    from tocontrol_ros.core.replan import warm_replan
-    from tocontrol_ros.core.solver import Planner
+    from tocontrol_ros.core.planning.replan import warm_replan
+    from tocontrol_ros.core.planning.solver import Planner
+    from tocontrol_ros.core.types.options import SolverOptions
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
     found = _robot(name)
     if found is None:
@@ -333,8 +333,8 @@ def smoothing_cost(count: int = 49) -> list[str]:
     :func:`_rest_chain` of ``count`` replans at every smoothing of :data:`SMOOTHINGS`;
     ``T`` against the full schedule's (0). Markdown lines.
     """
-    from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.replan import replan_options
+    from tocontrol_ros.core.planning.replan import replan_options
+    from tocontrol_ros.core.types.options import SolverOptions
 
     radius, rows = _rest_chain("paper", count, {d: replan_options(SolverOptions(), d)
                                                 for d in SMOOTHINGS})
@@ -366,8 +366,8 @@ def spans_cost(count: int = 12) -> list[str] | None:
     the default plan's, and the time of the warm replan. Markdown lines, or None without
     example-robot-data.
     """
-    from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.replan import replan_options
+    from tocontrol_ros.core.planning.replan import replan_options
+    from tocontrol_ros.core.types.options import SolverOptions
 
     # (The smoothing is the maximum principle's: bounded solves have none.)
     chain = _rest_chain("panda", count, {s: replan_options(SolverOptions(), 0.0, s)

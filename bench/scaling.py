@@ -29,10 +29,10 @@ from bench.common import (
     table,
     timed,
 )
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.planning.solver import _PLANNERS, SolverOptions, plan
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.solver import _PLANNERS, SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 PLANAR_NS = (2, 3, 4, 5, 6, 7, 8)
 PLANAR_START = (1.2, 0.4)

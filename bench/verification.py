@@ -27,12 +27,12 @@ from bench.common import (
 )
 from bench.random_pairs import draw_pairs
 from bench.scaling import PANDA_Q_START, PANDA_Q_TARGET
-from tocontrol_ros.core.certificate import certify
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.checks.verification import fine_sample
+from tocontrol_ros.core.indirect.certificate import certify
+from tocontrol_ros.core.planning.solver import SolverOptions, plan, verify
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.solver import SolverOptions, plan, verify
-from tocontrol_ros.core.verification import fine_sample
+from tocontrol_ros.core.types.problem import Problem, point
 
 #: Issue 21: the certificate may cost at most this fraction of a cold one-start solve.
 TARGET_RATIO = 0.2
@@ -135,7 +135,7 @@ def run(model, runs, budget):
               "max defect", "max \\|H\\|", "DP5(4) steps / rejected", "verdict"]
     opts = _cold_opts().certificate_options(12)
     lines = [
-        "Cost of the certificate (`core/certificate.py`, on by default: `verify=True`) "
+        "Cost of the certificate (`core/checks/certificate.py`, on by default: `verify=True`) "
         "against the cold one-start solve of the same problem (`starts=1, candidates=1, "
         "verify=False`), side by side in this process; medians (the certificate of the "
         "solution of the last solve run). The certificate re-integrates, with a compiled "

@@ -5,7 +5,7 @@ Usage::
     scripts/dev run python bench/work_counts.py [tree] [options]
 
 ``tree`` (default ``.``) is the source tree to import, ``options`` a Python dict literal of
-:class:`~tocontrol_ros.core.solver.SolverOptions` fields (default ``{}``). Counts every RK4
+:class:`~tocontrol_ros.core.SolverOptions` fields (default ``{}``). Counts every RK4
 step the shooting residuals and the mesh error estimates take, a step with its Jacobian
 weighted 5.7 (its measured cost against a plain step), by wrapping
 ``ShootingGrid.residual`` and ``mesh.interval_errors`` (``solver._interval_errors`` in trees
@@ -25,16 +25,12 @@ sys.path.insert(0, str(Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
 
 from bench.common import MOVED_TARGET, START, TARGET, paper_model  # noqa: E402
 from bench.random_pairs import draw_pairs  # noqa: E402
-from tocontrol_ros.core import solver  # noqa: E402
+from tocontrol_ros.core.indirect import mesh as _estimates  # noqa: E402
 from tocontrol_ros.core.indirect import shooting  # noqa: E402
-from tocontrol_ros.core.problem import Problem, point  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, point  # noqa: E402
 
-try:  # the error estimates live in core/mesh.py since the solver's split, before in solver.py
-    from tocontrol_ros.core.indirect import mesh as _estimates
-    _ESTIMATE = "interval_errors"
-except ImportError:
-    _estimates, _ESTIMATE = solver, "_interval_errors"
+_ESTIMATE = "interval_errors"
 
 #: Cost of an RK4 step with its 12 x 12 Jacobian against a plain step (paper's arm).
 JACOBIAN_WEIGHT = 5.7

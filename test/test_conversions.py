@@ -173,8 +173,8 @@ def test_status_msg():
 
 def test_certificate_values(model):
     """The certificate's figures as ~/status values: one per item, failures and tolerances."""
-    from tocontrol_ros.core.problem import Problem, point
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
+    from tocontrol_ros.core.types.problem import Problem, point
 
     res = plan(Problem(model, point([1.0, 1.0]), point([2.2, 1.5]), k=1),
                SolverOptions(starts=1, candidates=1))
@@ -247,7 +247,7 @@ def test_the_paper_default_start_does_not_apply_to_a_spatial_arm():
 
 
 def test_the_node_multistart_defaults_are_the_solvers():
-    from tocontrol_ros.core.options import SolverOptions
+    from tocontrol_ros.core.types.options import SolverOptions
 
     values = default_values()
     assert (values["starts"], values["candidates"]) == (SolverOptions.starts,

@@ -17,8 +17,8 @@ from control_msgs.msg import JointTolerance
 
 from tocontrol_ros.core import Problem, SolverOptions, plan
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import point
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.core.types.problem import point
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import jtc_checks as jtc
 from tocontrol_ros.nodes.controller_client import controller_goal

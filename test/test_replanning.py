@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.nodes.planner_config import config_from_values
 from tocontrol_ros.nodes.replanning import COLD, REST, WARM, Replanner, align
 from tocontrol_ros.nodes.requests import LatestSlot

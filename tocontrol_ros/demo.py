@@ -132,8 +132,8 @@ def main(argv=None):
 # --------------------------------------------------------------------- core only
 def _core_only(model, start, target, k, starts) -> int:
     from tocontrol_ros.core.errors import ProblemError
-    from tocontrol_ros.core.problem import Problem, point
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
+    from tocontrol_ros.core.types.problem import Problem, point
 
     try:
         problem = Problem(model, point(start), point(target), k=k)

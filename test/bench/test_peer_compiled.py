@@ -21,7 +21,7 @@ from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core import Problem, SolverOptions  # noqa: E402
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
-from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
+from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
 
 def test_peer_reaches_the_target_through_the_forward_dynamics(panda):

@@ -19,7 +19,7 @@ from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core import Problem  # noqa: E402
 from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
-from tocontrol_ros.core.problem import joint_state, point  # noqa: E402
+from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
 
 def test_seeds_reach_both_points_inside_the_bounds_and_spread(panda):

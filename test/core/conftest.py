@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 #: Pinocchio's default gravity; the cross-checks give our models the same one.
 PIN_GRAVITY = (0.0, 0.0, -9.81)
@@ -61,7 +61,7 @@ def solved(galicki):
 @pytest.fixture(scope="session")
 def solved_grid(galicki, solved):
     """The final grid of the switch-node solve, its nodes, T and interval lengths."""
-    from tocontrol_ros.core.solver import Planner
+    from tocontrol_ros.core.planning.solver import Planner
 
     st = solved["nodes"].warm_state
     grid = st.grid(Planner(galicki).system, "point", "point")

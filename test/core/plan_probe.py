@@ -18,9 +18,9 @@ import sys
 import numpy as np
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 #: A Panda motion from rest whose velocity and position limits bind (as in test_flat.py).
 PANDA_Q0 = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])

@@ -1,4 +1,4 @@
-"""The certificate (core/certificate.py): passes on good solutions, fails on corrupted ones.
+"""The certificate (core/checks/certificate.py): passes on good solutions, fails on corrupted ones.
 
 Every corruption is small (a costate off by 1 %, one torque sample a hair over the limit,
 torques 1 % short) and each is caught by the check that is meant to catch it, while the
@@ -13,15 +13,16 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.certificate import Certificate, CertificateOptions, certify
+from tocontrol_ros.core.checks.verification import fine_sample
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.indirect.certificate import certify
+from tocontrol_ros.core.indirect.trajectory import Trajectory
+from tocontrol_ros.core.planning.solver import SolverOptions, Status, plan
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-from tocontrol_ros.core.solver import SolverOptions, Status, plan
-from tocontrol_ros.core.trajectory import Trajectory
-from tocontrol_ros.core.verification import fine_sample
+from tocontrol_ros.core.types.certificate import Certificate, CertificateOptions
+from tocontrol_ros.core.types.problem import Problem, point
 
 SINGLE = SolverOptions(starts=1, candidates=1)
 

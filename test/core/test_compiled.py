@@ -96,7 +96,7 @@ def test_a_failing_listener_does_not_fail_the_build(private_cache):
 
 
 def test_plan_loads_the_optimised_libraries_once_they_landed(private_cache, monkeypatch):
-    from tocontrol_ros.core import prepared, solver
+    from tocontrol_ros.core.planning import prepared, solver
 
     class Model:  # Planner only needs a model for CanonicalSystem; not built here
         pass
@@ -201,10 +201,10 @@ def test_first_plan_compiles_the_shooting_only_when_a_solve_reaches_it(private_c
     shooting compiles those then, and succeeds (the compile time is not held against its
     time limit)."""
     from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-    from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
     from tocontrol_ros.core.robot.limits import JointLimits
     from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.types.problem import Problem, point
 
     model = load_robot(default_urdf_path())  # a new model: nothing of it loaded yet
     base = JointLimits.from_model(model)

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from plan_probe import fingerprint, problem_of  # noqa: E402
@@ -49,9 +49,12 @@ CLOCK_SITES = {
     ("flat.py", "eval"): "the caller's deadline (IPOPT's iteration callback)",
     ("newton.py", "_stopped"): "the caller's deadline (between Newton iterations)",
     ("solver.py", "_plan"): "timings; the deadline is set from time_limit",
-    ("solver.py", "_plan_from"): "timings",
-    ("solver.py", "_cold"): "timings",
-    ("solver.py", "_result"): "timings",
+    ("solver.py", "solve_once"): "timings",
+    ("method.py", "_cold"): "timings",
+    ("method.py", "_result"): "timings",
+    ("method.py", "solve"): "timings",
+    ("method.py", "warm_start"): "timings",
+    ("method.py", "_finish"): "timings",
     ("prepared.py", "prepare_shooting"): "timings (the deadline moves by the compile time)",
     ("solver.py", "elapsed"): "timings",
     ("limited.py", "plan_limited"): "timings",
@@ -169,7 +172,7 @@ def test_the_deadline_is_the_one_clock_limit(galicki, monkeypatch):
     """With the same jittery clock and a time limit that the jumps pass, the solve stops
     with TIME_LIMIT (the deadline is read), and says so."""
     from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-    from tocontrol_ros.core.problem import Problem, point
+    from tocontrol_ros.core.types.problem import Problem, point
 
     problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
     clock = _JitteryClock(time.perf_counter, jump=100.0)
@@ -201,7 +204,7 @@ def test_a_time_limit_carries_the_best_certified_motion_found(case, offers, robo
                                                               monkeypatch):
     """The deadline fires after the solver found motions: the result says TIME_LIMIT, is
     not a success, and carries the best of them that passes its certificate."""
-    from tocontrol_ros.core.context import SolveContext
+    from tocontrol_ros.core.methods.context import SolveContext
 
     urdf = _panda_urdf(robot_specs) if case == "panda" else None
     problem = problem_of(case, urdf)

@@ -10,9 +10,9 @@ from tocontrol_ros.core.direct import time_scaling as ts
 from tocontrol_ros.core.direct.first_motion import first_motion
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.planning.solver import Planner, SolverOptions, Status, plan
 from tocontrol_ros.core.robot.limits import JointLimits
-from tocontrol_ros.core.solver import Planner, SolverOptions, Status, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 #: Velocity limits (rad/s) that bind on the paper's example (as in test_limits.py).
 TIGHT = np.array([0.4, 1.0, 1.0])

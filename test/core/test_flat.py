@@ -10,14 +10,14 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.interpolate import BSpline
 
-from tocontrol_ros.core.certificate import CertificateOptions, certify_open_loop
+from tocontrol_ros.core.checks.certificate import CertificateOptions, certify_open_loop
 from tocontrol_ros.core.direct.bspline import basis, breakpoints
 from tocontrol_ros.core.direct.collocation import DirectCollocation
 from tocontrol_ros.core.direct.flat import _sample_functions
 from tocontrol_ros.core.direct.flat_trajectory import refined_breaks
 from tocontrol_ros.core.direct.limited import NEAR_MAX_ITER, PAD, SPANS, state_bounds
-from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 #: The issue's Panda state at rest, and the configuration whose hand point is the target.
 PANDA_Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
@@ -256,7 +256,7 @@ def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkey
 
 
 def test_a_planner_keeps_the_most_recently_used_transcriptions(galicki, monkeypatch):
-    from tocontrol_ros.core import prepared, solver
+    from tocontrol_ros.core.planning import prepared, solver
 
     monkeypatch.setattr(prepared, "FLAT_CACHE", 2)
     planner = solver.Planner(galicki)
@@ -420,8 +420,8 @@ def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):
     uniform-mesh solve stopped at its 300 iterations at the solution's T (residual 1e-5)
     and the plan was LIMITS_INFEASIBLE. Here the cold solve is stopped at 15 iterations;
     continued warm from where it stopped, the plan converges and is certified."""
-    from tocontrol_ros.core import solver
     from tocontrol_ros.core.direct import flat
+    from tocontrol_ros.core.planning import solver
 
     q0 = np.array([-0.7974811845879118, -5.534415029278804, 0.1507150029737384,
                    4.834252918102076, 1.5310195967278124, 2.554346643521837])

@@ -9,13 +9,13 @@ import pytest
 
 from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.planning.solver import SolverOptions, Status, plan, verify
 from tocontrol_ros.core.robot.limits import (
     JointLimits,
     load_joint_limits_yaml,
     parse_joint_limits_yaml,
 )
-from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 P_START = np.array([1.0, 1.0])
 P_TARGET = np.array([2.2, 1.5])
@@ -301,7 +301,7 @@ def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
 
 
 def test_a_failed_warm_start_falls_back_to_the_multistart(limited, monkeypatch):
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.direct import method as solver
 
     def failing(planner, ctx, warm, timings, t_start, trajectory=None):
         return replace(limited, success=False, status=Status.LIMITS_INFEASIBLE,

@@ -7,7 +7,7 @@ import pytest
 
 from tocontrol_ros.core.indirect.mesh import Mesh, interval_errors, merge_pairs
 from tocontrol_ros.core.indirect.shooting import integrate
-from tocontrol_ros.core.solver import SolverOptions
+from tocontrol_ros.core.planning.solver import SolverOptions
 
 
 def test_switch_nodes_sit_on_sign_changes_of_s(solved, solved_grid):

@@ -4,7 +4,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.indirect.pmp import CanonicalSystem, LawParams, control_law
+from tocontrol_ros.core.indirect.pmp import CanonicalSystem, control_law
+from tocontrol_ros.core.types.law import LawParams
 
 
 @pytest.mark.parametrize("k", [1, 2, 4, 16])

@@ -1,4 +1,4 @@
-"""Worker processes (core/pool.py): the same answer with any number of workers.
+"""Worker processes (core/planning/pool.py): the same answer with any number of workers.
 
 The pool's own contract (results in the items' order, an item's exception where it
 stands, a worker that dies replaced by the caller) with small module-level functions, and
@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tocontrol_ros.core.context import SolveContext, StopError
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.pool import WorkerPool
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.result import Status
+from tocontrol_ros.core.methods.context import SolveContext, StopError
+from tocontrol_ros.core.planning.pool import WorkerPool
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
 from tocontrol_ros.core.robot.limits import JointLimits
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
+from tocontrol_ros.core.types.result import Status
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from plan_probe import fingerprint  # noqa: E402
@@ -147,7 +147,7 @@ def test_two_workers_plan_what_one_plans(galicki):
 SIGINT_SCRIPT = """
 import os, signal, sys, time
 signal.signal(signal.SIGINT, lambda *_: None)  # a handler of its own, as the nodes have
-from tocontrol_ros.core.pool import WorkerPool
+from tocontrol_ros.core.planning.pool import WorkerPool
 import test_pool
 pool = WorkerPool(2, test_pool._Prepared)
 time.sleep(0.1)  # the worker is starting: importing its modules

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.problem import point
-from tocontrol_ros.core.replan import (
+from tocontrol_ros.core.planning.replan import (
     TAIL_MIN_REMAINING,
     LatencyEstimate,
     tail_warm_start,
     warm_replan,
 )
-from tocontrol_ros.core.solver import Planner, SolverOptions
+from tocontrol_ros.core.planning.solver import Planner, SolverOptions
+from tocontrol_ros.core.types.problem import point
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,7 @@ def _circle(model, angles):
 
 def _rest_stream(planner, q_from, targets, options):
     """Rest-to-rest problems along ``targets``, each from the last one's end (cold, one start)."""
-    from tocontrol_ros.core.problem import Problem, joint_state
+    from tocontrol_ros.core.types.problem import Problem, joint_state
 
     model = planner.model
     out, q = [], np.asarray(q_from, dtype=float)
@@ -111,8 +111,8 @@ def test_wider_joint_radius_warm_starts_the_next_goal_of_a_stream(planner):
     # problem starts where the last ended; its joint-state start is beyond the core's
     # warm-start radius, within the replans' one, and the warm solve lands on the motion a
     # cold solve finds (an independent check: T and the reached point).
-    from tocontrol_ros.core.problem import Problem, joint_state
-    from tocontrol_ros.core.replan import REPLAN_JOINT_RADIUS
+    from tocontrol_ros.core.planning.replan import REPLAN_JOINT_RADIUS
+    from tocontrol_ros.core.types.problem import Problem, joint_state
 
     model = planner.model
     q0, circle = _circle(model, np.linspace(0.0, 0.5, 6))
@@ -163,8 +163,8 @@ def test_a_stream_of_replans_stays_warm_when_its_switches_change(planner):
     # switch mesh cannot follow: 3 of these 6 warm solves converged with it alone, 5
     # with the warm motion resampled on a uniform mesh and smoothed again. Each warm one
     # lands where the default multistart from the same start lands (an independent check).
-    from tocontrol_ros.core.problem import Problem, joint_state
-    from tocontrol_ros.core.replan import replan_options
+    from tocontrol_ros.core.planning.replan import replan_options
+    from tocontrol_ros.core.types.problem import Problem, joint_state
 
     model = planner.model
     q0, circle = _circle(model, 2 * np.pi * np.arange(8) / 50)
@@ -190,8 +190,8 @@ def test_a_smoothed_replan_continues_a_finer_solution_at_its_smoothing(planner):
     # replan_options(smoothing=1e-3): the warm solve of the stream's next goal stays at that
     # delta (a few Newton iterations), is certified with the Hamiltonian tolerance raised to
     # it, and lands within 1e-4 (relative T) of the unsmoothed default plan (independent).
-    from tocontrol_ros.core.problem import Problem, joint_state
-    from tocontrol_ros.core.replan import replan_options
+    from tocontrol_ros.core.planning.replan import replan_options
+    from tocontrol_ros.core.types.problem import Problem, joint_state
 
     model = planner.model
     q0, circle = _circle(model, 2 * np.pi * np.arange(3) / 50)

@@ -6,9 +6,7 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.seeding import (
+from tocontrol_ros.core.methods.seeding import (
     EXHAUSTIVE_STARTS,
     SEED_SPACING,
     branch_shifts,
@@ -16,6 +14,8 @@ from tocontrol_ros.core.seeding import (
     seed_pairs,
     shiftable_joints,
 )
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 
 def _problem(model, limits=None, **kw):
@@ -136,7 +136,7 @@ def test_a_motion_a_full_turn_further_is_one_basin():
     times among the six continued); other joints and other displacements stay distinct."""
     from types import SimpleNamespace
 
-    from tocontrol_ros.core.seeding import distinct_basins
+    from tocontrol_ros.core.methods.seeding import distinct_basins
 
     def sol(T, start, move):
         start = np.array(start, dtype=float)
@@ -161,7 +161,7 @@ def test_guess_tolerance_keeps_the_basins(galicki):
     as at 1e-8 (the paper's example's seed pairs): the looser tolerance only saves
     iterations."""
     from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_paths
-    from tocontrol_ros.core.seeding import SAME_BASIN
+    from tocontrol_ros.core.methods.seeding import SAME_BASIN
 
     problem = _problem(galicki)
     options = SolverOptions()
@@ -187,7 +187,7 @@ def test_the_same_problem_asked_again_gets_the_last_pairs(galicki, monkeypatch):
     """The planner node's first motion and its plan ask for one problem's pairs in turn: the
     second call skips the inverse kinematics, and gets copies (changing them changes
     nothing); another problem, or other options, are computed."""
-    from tocontrol_ros.core import seeding
+    from tocontrol_ros.core.methods import seeding
 
     calls = []
     real = seeding.seed_grid
@@ -221,7 +221,7 @@ def test_recombined_seeds_join_one_parent_start_to_another_end(galicki):
     (modulo full turns), each joint turning by the full turns nearest to one parent's own
     displacement; a parent's own basin, a seed tried before and repeats are left out, the
     slower parent's T decides the order, and at most ``count`` come back."""
-    from tocontrol_ros.core.seeding import recombined_pairs
+    from tocontrol_ros.core.methods.seeding import recombined_pairs
 
     problem = _problem(galicki)
     fast = _Direct(1.0, np.array([0.1, 1.2, -0.4]), np.array([0.9, -3.6, 5.5]))
@@ -272,7 +272,7 @@ def test_random_ik_families_get_more_seeds_where_limits_cut_the_manifold(panda, 
     """RANDOM_IK_FACTOR: an arm with joint limits whose family is random IK seeds draws
     ``ik_count`` times the factor of them per end point; without limits, or with the planar
     arm's angles (each with both elbows), ``ik_count``."""
-    import tocontrol_ros.core.seeding as seeding
+    import tocontrol_ros.core.methods.seeding as seeding
     from tocontrol_ros.core.robot.ik import angle_family
     from tocontrol_ros.core.robot.limits import JointLimits
 
@@ -308,7 +308,7 @@ def test_limited_random_families_also_get_the_target_near_each_start(panda, monk
     """NEAR_TARGETS: on an arm with random IK seeds and joint limits, the target point's
     configuration reached by Levenberg-Marquardt from each start configuration is a seed
     too (first), besides the random family; it moves the joints less than the family's."""
-    import tocontrol_ros.core.seeding as seeding
+    import tocontrol_ros.core.methods.seeding as seeding
     from tocontrol_ros.core.robot.ik import ik_near
 
     q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
@@ -328,7 +328,7 @@ def test_limited_random_families_also_get_the_target_near_each_start(panda, monk
 def test_limited_random_families_solve_half_as_many_starts_more(panda, galicki):
     """RANDOM_STARTS_EXTRA: 24 seed pairs for the default 16 on an arm with random IK seeds
     and joint limits (a single start stays one); a planar arm keeps ``starts``."""
-    from tocontrol_ros.core.seeding import seed_pairs, starts_solved
+    from tocontrol_ros.core.methods.seeding import seed_pairs, starts_solved
 
     q0 = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
     problem = Problem(panda, point(panda.point(q0)), point(panda.point(q0 + 0.3)), k=4)

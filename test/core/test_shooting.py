@@ -7,14 +7,14 @@ import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.indirect.newton import newton_solve
-from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.indirect.shooting import (
     ShootingGrid,
     integrate,
     step_fractions,
 )
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import Planner
+from tocontrol_ros.core.planning.solver import Planner
+from tocontrol_ros.core.types.law import LawParams
+from tocontrol_ros.core.types.problem import Problem, point
 
 P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 

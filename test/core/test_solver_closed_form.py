@@ -42,9 +42,9 @@ import numpy as np
 import pytest
 from scipy.integrate import IntegrationWarning, quad
 
-from tocontrol_ros.core.problem import Problem, joint_state, point
+from tocontrol_ros.core.planning.solver import Status, plan
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.solver import Status, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 M1, M2 = 3.0, 2.0  # kg
 TAU_MAX = np.array([10.0, 3.0])  # N

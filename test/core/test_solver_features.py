@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.result import WARM_RADIUS
+from tocontrol_ros.core.planning.solver import Planner, SolverOptions, plan
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import load_robot
-from tocontrol_ros.core.solver import Planner, SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
+from tocontrol_ros.core.types.result import WARM_RADIUS
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)
@@ -225,8 +225,8 @@ def test_a_position_limit_the_optimum_overshoots_is_enforced():
 def test_a_basin_that_fails_its_certificate_gives_way_to_the_next(galicki, monkeypatch):
     """When the best basin's certificate fails, the next best continued basin is finished,
     certified and returned (with a note); with no other basin the failure is returned."""
-    import tocontrol_ros.core.solver as solver_module
-    from tocontrol_ros.core.result import Status
+    import tocontrol_ros.core.indirect.method as solver_module
+    from tocontrol_ros.core.types.result import Status
 
     problem = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4)
     options = SolverOptions(starts=16, candidates=4)

@@ -9,8 +9,8 @@ import pytest
 
 from tocontrol_ros.core.errors import ProblemError, TocontrolError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.solver import PlanResult, SolverOptions, Status, plan
+from tocontrol_ros.core.planning.solver import PlanResult, SolverOptions, Status, plan
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)
@@ -157,7 +157,7 @@ def test_a_point_near_a_known_configuration_is_shown_reachable_without_ik(galick
     # A replan's target, a fraction of a millimetre from where the motion it continues
     # ends: Gauss-Newton from that end shows it reachable and the problem runs no IK.
     import tocontrol_ros.core.robot.ik as ik
-    from tocontrol_ros.core.problem import note_reachable
+    from tocontrol_ros.core.types.problem import note_reachable
 
     calls = []
     real = ik.solve_ik

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 pytestmark = pytest.mark.slow
 

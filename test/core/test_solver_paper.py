@@ -23,8 +23,8 @@ import pytest
 
 from tocontrol_ros.core.direct.collocation import DirectCollocation
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, Status, plan, verify
+from tocontrol_ros.core.planning.solver import SolverOptions, Status, plan, verify
+from tocontrol_ros.core.types.problem import Problem, point
 
 #: One start: these tests do not depend on the basin, and multistart costs time.
 SINGLE = SolverOptions(starts=1, candidates=1)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
-from tocontrol_ros.core.solver import SolverOptions, plan
+from tocontrol_ros.core.planning.solver import SolverOptions, plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 P_START, P_TARGET = np.array(PAPER_START), np.array(PAPER_TARGET)
 
@@ -42,7 +42,8 @@ def test_k1_newton_is_retried_on_twice_the_intervals(galicki, monkeypatch):
     """A k = 1 Newton failure on `intervals` intervals is retried once on twice as many
     (planar 8R in bench/scaling.py: initial residual 18 on 12 intervals, stall; converges
     on 24); a failure on both is reported as NEWTON_FAILED."""
-    from tocontrol_ros.core import context, solver
+    from tocontrol_ros.core.indirect import method as solver
+    from tocontrol_ros.core.indirect import run as context
     from tocontrol_ros.core.indirect.newton import NewtonReport
 
     sizes = []
@@ -175,7 +176,7 @@ def test_planar_8r_single_start_reaches_k4_by_the_direct_fallback(monkeypatch):
     guess stopped at 300 iterations twice, T creeping, and the plan failed; by continuation
     in k on the uniform mesh it converges (docs/limits.md), and the certificate checks the
     motion independently. (A time limit for a loaded machine: this is about robustness.)"""
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.indirect import method as solver
     from tocontrol_ros.core.robot.model import load_robot
 
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
@@ -243,9 +244,9 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
                                                                               monkeypatch):
     """The candidate loop stops continuing direct solutions once their T (k = 1) times the
     bound on T_k / T_1 exceeds the best final T (bench/optimum.py's pair 2: two of six)."""
-    from tocontrol_ros.core import solver
-    from tocontrol_ros.core.seeding import time_ratio_bound
-    from tocontrol_ros.core.solver import CANDIDATE_MARGIN, SKIPPED
+    from tocontrol_ros.core.indirect import method as solver
+    from tocontrol_ros.core.indirect.method import CANDIDATE_MARGIN, SKIPPED
+    from tocontrol_ros.core.methods.seeding import time_ratio_bound
 
     assert time_ratio_bound(3, 1.0) == 1.0
     assert time_ratio_bound(3, 4.0) == pytest.approx(3 ** (-3 / 16))
@@ -269,8 +270,8 @@ def test_candidates_whose_direct_time_cannot_beat_the_best_are_not_continued(gal
 def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     """The bound on T_k / T_1 holds without gravity: the paper's arm moves in a horizontal
     plane; the same arm with gravity in its plane does not qualify."""
+    from tocontrol_ros.core.methods.seeding import gravity_free
     from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
-    from tocontrol_ros.core.seeding import gravity_free
 
     q = np.array([[0.3, -0.2, 0.5], [2.0, 1.0, -3.0]])
     assert gravity_free(galicki, q)
@@ -286,9 +287,9 @@ def test_a_stalled_continuation_is_solved_at_k_directly():
     to within its mesh's error."""
     from tocontrol_ros.core.direct.collocation import initial_path
     from tocontrol_ros.core.direct.limited import finer_guess
+    from tocontrol_ros.core.methods.seeding import seed_pairs
+    from tocontrol_ros.core.planning.solver import _PLANNERS, Status
     from tocontrol_ros.core.robot.model import load_robot
-    from tocontrol_ros.core.seeding import seed_pairs
-    from tocontrol_ros.core.solver import _PLANNERS, Status
 
     model = load_robot(_planar_urdf(5))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -318,8 +319,8 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
     B-spline path (method "direct") from the finer guess, certified, and the warnings say
     why. Without the fallback the shooting's failure is reported."""
     from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.indirect.method import FINE_GUESS_INTERVALS, Status
     from tocontrol_ros.core.robot.model import load_robot
-    from tocontrol_ros.core.solver import FINE_GUESS_INTERVALS, Status
 
     model = load_robot(_planar_urdf(5))
     problem = Problem(model, point((1.2, 0.4)), point((0.4, 1.3)), k=4.0)
@@ -331,7 +332,7 @@ def test_a_failed_shooting_falls_back_to_the_direct_method(monkeypatch):
         return original(planner, ctx, bounds, guess, in_k)
 
     monkeypatch.setattr(limited, "_uniform", uniform)
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.indirect import method as solver
 
     shot, solve_from_guess = [], solver.solve_from_guess
 
@@ -401,7 +402,7 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
         return out
 
     monkeypatch.setattr(flat_mod.FlatTranscription, "solve", solve)
-    from tocontrol_ros.core import solver
+    from tocontrol_ros.core.indirect import method as solver
 
     # The shooting at k from a direct solve at k solves this start (the test of the
     # failed candidate faster than the solution found): forced to fail, for the fallback.
@@ -424,7 +425,7 @@ def test_a_continuation_step_that_fails_warm_is_solved_again_from_a_wider_barrie
 
 def _moving_start_problem(galicki):
     """The planner node's CI run's moving state, to the point (1, 1) m, k = 4."""
-    from tocontrol_ros.core.problem import joint_state
+    from tocontrol_ros.core.types.problem import joint_state
 
     start = joint_state([-0.719637912, 2.7061137, -1.16548131],
                         [-0.0874305797, 0.441203283, -0.888124462])
@@ -439,7 +440,8 @@ def test_a_failed_candidate_faster_than_the_solution_found_is_solved_directly(ga
     motion is faster than that, so it is solved as a B-spline path (T 0.406 s) and
     returned, certified, the records saying which was slower. Unforced, the shooting finds
     the same motion (the two methods' T within 1e-3)."""
-    from tocontrol_ros.core import guesses, solver
+    from tocontrol_ros.core.direct import guesses
+    from tocontrol_ros.core.indirect import method as solver
 
     problem = _moving_start_problem(galicki)
     shot = plan(problem, SolverOptions())
@@ -466,7 +468,8 @@ def test_a_slower_direct_solution_leaves_the_shooting_result(galicki, monkeypatc
     """When the B-spline path of the failed candidates is not faster, the multistart's
     solution is returned, and its warnings say what was tried (the direct solve at k of
     the failed candidate forced to fail, no recombined seeds)."""
-    from tocontrol_ros.core import guesses, solver
+    from tocontrol_ros.core.direct import guesses
+    from tocontrol_ros.core.indirect import method as solver
 
     monkeypatch.setattr(solver, "_direct_at_k", lambda *args: None)
     monkeypatch.setattr(guesses, "RECOMBINED_STARTS", 0)

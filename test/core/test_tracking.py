@@ -12,7 +12,7 @@ import pytest
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
-from tocontrol_ros.core.problem import Problem, point
+from tocontrol_ros.core.planning.solver import plan
 from tocontrol_ros.core.sim.tracking import (
     NominalTrajectory,
     PlantConfig,
@@ -21,7 +21,7 @@ from tocontrol_ros.core.sim.tracking import (
     make_plant_model,
     simulate,
 )
-from tocontrol_ros.core.solver import plan
+from tocontrol_ros.core.types.problem import Problem, point
 
 START, TARGET = PAPER_START, PAPER_TARGET
 #: The gains of config/tracker.yaml (normalised units: 1/rad, s/rad).

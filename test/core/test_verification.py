@@ -9,7 +9,7 @@ import pytest
 def test_check_sampling_finds_the_extremes_of_a_fine_sampling(solved):
     """The result checks sample at the RK4 step points (filled in to T / SAMPLE_GAPS):
     max |u| and the joint extremes agree with a 100001-point sampling."""
-    from tocontrol_ros.core.verification import SAMPLE_GAPS, fine_sample
+    from tocontrol_ros.core.checks.verification import SAMPLE_GAPS, fine_sample
 
     traj = solved["nodes"].trajectory
     sample = fine_sample(traj)

@@ -27,8 +27,8 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 
 from tocontrol_ros.core.errors import ModelError, TocontrolError
-from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.core.types.problem import MIN_MOVE
 from tocontrol_ros.nodes.conversions import seconds
 from tocontrol_ros.nodes.node_main import spin_slice
 from tocontrol_ros.nodes.params import RobotDescriptionError
@@ -489,7 +489,7 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     """A solution whose certificate fails (here: an impossible |H| tolerance) is a failure."""
     import dataclasses
 
-    from tocontrol_ros.core.certificate import CertificateOptions
+    from tocontrol_ros.core.types.certificate import CertificateOptions
     from tocontrol_ros.nodes import planner as planner_module
 
     strict = CertificateOptions(hamiltonian_tol=1e-15)
@@ -509,7 +509,7 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
 
 
 def test_shutdown_during_solve_is_prompt(monkeypatch):
-    from tocontrol_ros.core import solver as solver_module
+    from tocontrol_ros.core.planning import solver as solver_module
 
     # A slow solve (a multistart of 128 direct guesses, well over a second) so that it is
     # surely running when the node goes.
@@ -765,7 +765,7 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
     """A solve that ran out of time after finding a certified motion (the core's TIME_LIMIT
     result carrying it, here made from a finished solve) is published, with a WARN status
     that says it is not shown to be the optimum; one without a motion publishes nothing."""
-    from tocontrol_ros.core import solver as solver_module
+    from tocontrol_ros.core.planning import solver as solver_module
 
     real = solver_module.Planner.plan
     modes = {"carry": True}
@@ -776,8 +776,9 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
             return result
         if modes["carry"]:
             return solver_module._time_limited(result)
-        return solver_module._failure(problem, solver_module.Status.TIME_LIMIT,
-                                      "solve interrupted", dict(result.timings))
+        return solver_module.PlanResult.failure(problem, solver_module.Status.TIME_LIMIT,
+                                                "solve interrupted", dict(result.timings),
+                                                k=float("nan"))
 
     monkeypatch.setattr(solver_module.Planner, "plan", time_limited)
     with ready_planner("time_limit") as (_, client):
@@ -874,7 +875,7 @@ def test_first_then_optimum_publishes_both_in_order():
 def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
     """The optimum's solve fails: the first motion, already published, stays the answer (a
     WARN status that says so, the ~/plan path is the first motion's)."""
-    from tocontrol_ros.core import solver as solver_module
+    from tocontrol_ros.core.planning import solver as solver_module
 
     real = solver_module.Planner.plan
     serving = []  # set once the node is ready: its warm-up solves as ever
@@ -883,8 +884,9 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
         result = real(self, problem, options, warm_start, should_stop)
         if not serving:
             return result
-        return solver_module._failure(problem, solver_module.Status.NEWTON_FAILED,
-                                      "made to fail by the test", dict(result.timings))
+        return solver_module.PlanResult.failure(problem, solver_module.Status.NEWTON_FAILED,
+                                                "made to fail by the test",
+                                                dict(result.timings), k=float("nan"))
 
     monkeypatch.setattr(solver_module.Planner, "plan", failing)
     with first_mode_planner("first_stands") as (_, client, trajectories):

@@ -28,7 +28,7 @@ solver stops itself at ``time_limit`` (status ``TIME_LIMIT``); ``hard_timeout`` 
 runner's backstop for a task that does not come back at all (status ``TIMEOUT``).
 Each (motion, k, reserve) is one :class:`Task`. Every error is a :class:`TaskFileError`
 that names the field (``motions[2].start.q``) and what was wrong; every task is checked by
-building its :class:`~tocontrol_ros.core.problem.Problem` (reachable points, joint limits)
+building its :class:`~tocontrol_ros.core.types.problem.Problem` (reachable points, joint limits)
 before any planning starts. No ROS import here: workers use this module too.
 """
 
@@ -97,7 +97,7 @@ class Task:
         Station names ("" for ends written inline).
     k, reserve : float
     solver : tuple of (str, object)
-        :class:`~tocontrol_ros.core.solver.SolverOptions` fields, sorted.
+        :class:`~tocontrol_ros.core.planning.solver.SolverOptions` fields, sorted.
     sample_period : float
         Spacing of the stored trajectory points (s).
     hard_timeout : float
@@ -213,7 +213,7 @@ def _endpoint(where: str, value, model, stations: dict) -> tuple[str, tuple, str
 
 
 def _solver(where: str, value) -> dict:
-    from tocontrol_ros.core.solver import SolverOptions
+    from tocontrol_ros.core.planning.solver import SolverOptions
 
     value = _mapping(where, value)
     _unknown(where, value, [f.name for f in dataclasses.fields(SolverOptions)])
@@ -224,7 +224,7 @@ def _solver(where: str, value) -> dict:
 
 
 def _solver_options(where: str, fields: dict):
-    from tocontrol_ros.core.solver import SolverOptions
+    from tocontrol_ros.core.planning.solver import SolverOptions
 
     try:
         return SolverOptions(**fields)
@@ -286,8 +286,8 @@ def load_model(robot: RobotSpec):
 
 
 def build_problem(model, task: Task):
-    """The core's :class:`~tocontrol_ros.core.problem.Problem` of a task."""
-    from tocontrol_ros.core.problem import Problem, joint_state, point
+    """The core's :class:`~tocontrol_ros.core.types.problem.Problem` of a task."""
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
     def end(spec):
         kind, values = spec

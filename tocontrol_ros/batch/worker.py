@@ -76,14 +76,14 @@ def run_task(robot: RobotSpec, task: Task) -> dict:
     Returns
     -------
     dict
-        ``index``, ``key``, ``status`` (a :class:`~tocontrol_ros.core.solver.Status` name,
+        ``index``, ``key``, ``status`` (a :class:`~tocontrol_ros.core.planning.solver.Status` name,
         or :data:`ERROR` for a rejected problem or an unexpected exception), ``success``,
         ``message``, ``T`` (s), ``k``, ``solve_time`` (s), ``iterations``, ``residual``,
         ``max_abs_u``, ``pid``, ``builds`` (models this process built so far) and
         ``sample``: ``None`` or a dict of arrays ``t`` shape (K,) (s), ``q``, ``qd``, ``qdd``
         (rad, rad/s, rad/s^2), ``tau`` (N m), each (K, n).
     """
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
 
     t0 = time.perf_counter()
     out = {"index": task.index, "key": task.key, "pid": os.getpid(), "sample": None,

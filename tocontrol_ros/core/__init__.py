@@ -11,7 +11,7 @@ The layout (``docs/architecture.md``): ``robot/`` (URDF, dynamics, kinematics, l
 compiled functions), ``indirect/`` (the maximum principle, shooting, mesh, continuation),
 ``direct/`` (the collocation guess and the bounded B-spline solve), ``sim/`` (the
 tracker's plant), and here the problem, options, result, certificate and the orchestration
-(:mod:`tocontrol_ros.core.solver`), which chooses between the methods.
+(:mod:`tocontrol_ros.core.planning.solver`), which chooses between the methods.
 """
 
 from __future__ import annotations
@@ -20,24 +20,24 @@ import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tocontrol_ros.core.options import SolverOptions  # noqa: F401
-    from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: F401
-    from tocontrol_ros.core.result import PlanResult, Status  # noqa: F401
+    from tocontrol_ros.core.planning.solver import Planner, plan  # noqa: F401
     from tocontrol_ros.core.robot.model import load_robot  # noqa: F401
-    from tocontrol_ros.core.solver import Planner, plan  # noqa: F401
+    from tocontrol_ros.core.types.options import SolverOptions  # noqa: F401
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: F401
+    from tocontrol_ros.core.types.result import PlanResult, Status  # noqa: F401
 
 #: Public name -> module that defines it. Loaded on first use (PEP 562), so that importing
 #: one light module of the core (``errors``, ``robot.kinematics``: the nodes' conversions,
 #: the report) does not pull in CasADi and the whole solver.
 _EXPORTS = {
-    "plan": "tocontrol_ros.core.solver",
-    "Planner": "tocontrol_ros.core.solver",
-    "Problem": "tocontrol_ros.core.problem",
-    "point": "tocontrol_ros.core.problem",
-    "joint_state": "tocontrol_ros.core.problem",
-    "SolverOptions": "tocontrol_ros.core.options",
-    "PlanResult": "tocontrol_ros.core.result",
-    "Status": "tocontrol_ros.core.result",
+    "plan": "tocontrol_ros.core.planning.solver",
+    "Planner": "tocontrol_ros.core.planning.solver",
+    "Problem": "tocontrol_ros.core.types.problem",
+    "point": "tocontrol_ros.core.types.problem",
+    "joint_state": "tocontrol_ros.core.types.problem",
+    "SolverOptions": "tocontrol_ros.core.types.options",
+    "PlanResult": "tocontrol_ros.core.types.result",
+    "Status": "tocontrol_ros.core.types.result",
     "load_robot": "tocontrol_ros.core.robot.model",
 }
 

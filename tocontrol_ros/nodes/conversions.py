@@ -430,7 +430,7 @@ def certificate_values(certificate) -> dict[str, object]:
 
     Parameters
     ----------
-    certificate : tocontrol_ros.core.certificate.Certificate or None
+    certificate : tocontrol_ros.core.checks.certificate.Certificate or None
 
     Returns
     -------
@@ -454,7 +454,7 @@ ROUTINE_NOTE = "warm start did not converge"
 
 
 def result_values(result) -> dict[str, object]:
-    """The ``~/status`` values of a plan (:class:`~tocontrol_ros.core.result.PlanResult`).
+    """The ``~/status`` values of a plan (:class:`~tocontrol_ros.core.types.result.PlanResult`).
 
     Returns
     -------

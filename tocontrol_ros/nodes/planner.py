@@ -42,8 +42,8 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.problem import MIN_MOVE
 from tocontrol_ros.core.robot import compiled
+from tocontrol_ros.core.types.problem import MIN_MOVE
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.controller_client import ControllerClient
@@ -120,7 +120,7 @@ class PlannerNode(ReplanServing, Node):
         self._limits = planner_limits(config, self.model)
         self._config = config_from_values(self._parameter_values(), task_dim=self.model.m)
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
-        from tocontrol_ros.core.solver import Planner
+        from tocontrol_ros.core.planning.solver import Planner
 
         self.planner = Planner(self.model)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -172,7 +172,7 @@ class PlannerNode(ReplanServing, Node):
 
     @property
     def last_result(self):
-        """The last successful :class:`~tocontrol_ros.core.solver.PlanResult` (or None)."""
+        """The last successful :class:`~tocontrol_ros.core.PlanResult` (or None)."""
         return self._last_result
 
     @property
@@ -354,7 +354,7 @@ class PlannerNode(ReplanServing, Node):
 
     def _load_optimised(self) -> None:
         """Between requests: a new planner on the optimised libraries once they all landed."""
-        from tocontrol_ros.core.solver import Planner
+        from tocontrol_ros.core.planning.solver import Planner
         if not self.planner.stale() or self._stopping.is_set():
             return
         t0 = time.monotonic()

@@ -20,8 +20,8 @@ import numpy as np
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
-from tocontrol_ros.core.options import MIN_REPLAN_SPANS
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
+from tocontrol_ros.core.types.options import MIN_REPLAN_SPANS
 from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
@@ -363,8 +363,8 @@ def planner_limits(config: PlannerConfig, model):
 
 
 def solver_options(config: PlannerConfig):
-    """The :class:`~tocontrol_ros.core.solver.SolverOptions` of a config."""
-    from tocontrol_ros.core.solver import SolverOptions
+    """The :class:`~tocontrol_ros.core.planning.solver.SolverOptions` of a config."""
+    from tocontrol_ros.core.planning.solver import SolverOptions
 
     return SolverOptions(tol=config.tol, max_newton=config.max_newton, starts=config.starts,
                          candidates=config.candidates, time_limit=config.time_limit,
@@ -378,7 +378,7 @@ def warm_up_problems(config: PlannerConfig, model, limits) -> list:
     A point start and a joint-state start, both to a point target, on a generic move
     (alternating signs: not along a singular one) inside the position limits.
     """
-    from tocontrol_ros.core.problem import Problem, joint_state, point
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
     lo, hi = limits.plan_lower, limits.plan_upper
     bounded = np.isfinite(lo) & np.isfinite(hi)

@@ -4,7 +4,7 @@
 mixin: it uses the node's model, planner, limits, joint states and status helpers), kept
 apart so that the node's module stays about requests in general. The policy (hand-off,
 latencies, which warm start) is :mod:`tocontrol_ros.nodes.replanning`'s and
-:mod:`tocontrol_ros.core.replan`'s; see ``msg_docs/parameters.md``, "Replanning".
+:mod:`tocontrol_ros.core.planning.replan`'s; see ``msg_docs/parameters.md``, "Replanning".
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 from geometry_msgs.msg import PointStamped
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.replan import replan_options, warm_replan
-from tocontrol_ros.core.result import WarmState
+from tocontrol_ros.core.indirect.warm import WarmState
+from tocontrol_ros.core.planning.replan import replan_options, warm_replan
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
 from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align, keeps_ahead
@@ -188,7 +188,7 @@ class ReplanServing:
         the motion runs at the limit) is planned from the limit
         (:meth:`~tocontrol_ros.core.robot.limits.JointLimits.admissible_velocity`).
         """
-        from tocontrol_ros.core.problem import Problem, joint_state, point
+        from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
         limits = self._limits.with_margin(config.limit_margin)
         begin = point(start[1]) if start[0] == "point" else \

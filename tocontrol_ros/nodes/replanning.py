@@ -7,7 +7,7 @@ grid (the latest joint state's stamp plus a multiple of ``handoff_grid``). The p
 trajectory is stamped with that time; the tracker splices it in there
 (:mod:`tocontrol_ros.nodes.splice`). A goal within ``replan_radius`` of the running motion's
 target is re-solved warm from the running motion's tail
-(:func:`~tocontrol_ros.core.replan.tail_warm_start`). No ROS here.
+(:func:`~tocontrol_ros.core.planning.replan.tail_warm_start`). No ROS here.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tocontrol_ros.core.problem import REST_SPEED, note_reachable
-from tocontrol_ros.core.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
+from tocontrol_ros.core.planning.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
+from tocontrol_ros.core.types.problem import REST_SPEED, note_reachable
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
@@ -224,12 +224,12 @@ class Replanner:
 
         The plan solved ahead for the goal a stream predicted
         (:class:`GoalStream`), when it continues the motion that still runs; the running
-        motion's ``tail`` (:func:`~tocontrol_ros.core.replan.tail_warm_start`), when there
+        motion's ``tail`` (:func:`~tocontrol_ros.core.planning.replan.tail_warm_start`), when there
         is one; the last published motion itself (along a stream of goals the
         next problem is much like the last: a similar move from a start nearby); the last
         published motion that started at rest (a target that moves slowly is caught: each
         replan then starts at rest at the last target). Which apply is
-        :func:`~tocontrol_ros.core.replan.warm_replan`'s to say.
+        :func:`~tocontrol_ros.core.planning.replan.warm_replan`'s to say.
         """
         with self._lock:
             executing, from_rest, ahead = self._executing, self._from_rest, self._ahead
@@ -244,7 +244,7 @@ class Replanner:
         """Show ``target`` (m) reachable from the end of the motion that ends nearest it.
 
         The motion solved ahead or the last published one
-        (:func:`~tocontrol_ros.core.problem.note_reachable`): a goal of a stream is then not
+        (:func:`~tocontrol_ros.core.types.problem.note_reachable`): a goal of a stream is then not
         checked by a full inverse kinematics when its problem is made. Returns whether it
         was shown.
         """

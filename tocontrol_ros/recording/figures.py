@@ -129,8 +129,8 @@ def solve_all(model, ks, log=print):
     -------
     dict of float to PlanResult
     """
-    from tocontrol_ros.core.problem import Problem, point
-    from tocontrol_ros.core.solver import SolverOptions, plan
+    from tocontrol_ros.core.planning.solver import SolverOptions, plan
+    from tocontrol_ros.core.types.problem import Problem, point
 
     options = SolverOptions(starts=STARTS, candidates=CANDIDATES)
     results = {}

@@ -3,7 +3,8 @@
 The planner's optimum takes from a fraction of a second (the paper's arm) to seconds (an arm
 whose joint limits bind). A motion that is slower but already executable is available far
 sooner: a joint path between seed configurations of the planner
-(:func:`~tocontrol_ros.core.seeding.seed_pairs`), timed optimally along that path by TOPP-RA
+(:func:`~tocontrol_ros.core.methods.seeding.seed_pairs`),
+timed optimally along that path by TOPP-RA
 (``toppra``: reachability analysis, one small linear program per gridpoint, a convex
 problem), then certified like every other plan. :func:`first_motion`:
 
@@ -27,11 +28,12 @@ problem), then certified like every other plan. :func:`first_motion`:
    (:mod:`~tocontrol_ros.core.direct.time_scaling`);
 3. checks the torques between the gridpoints, and times the path again with smaller boxes
    where they leave the set (the same module);
-4. certifies the motion open loop (:func:`~tocontrol_ros.core.certificate.certify_open_loop`,
-   as the bounded direct solve does): its nominal torques re-integrated from its start must
-   reach the target at rest, inside the set and within the joint limits.
+4. certifies the motion open loop
+   (:func:`~tocontrol_ros.core.checks.certificate.certify_open_loop`, as the bounded direct
+   solve does): its nominal torques re-integrated from its start must reach the target at
+   rest, inside the set and within the joint limits.
 
-The result is a :class:`~tocontrol_ros.core.result.PlanResult` with ``method="first"``: a
+The result is a :class:`~tocontrol_ros.core.types.result.PlanResult` with ``method="first"``: a
 success only when certified; any failure says which step failed and why.
 """
 
@@ -42,15 +44,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from tocontrol_ros.core.certificate import certify_open_loop
+from tocontrol_ros.core.checks.certificate import certify_open_loop
+from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath
 from tocontrol_ros.core.direct.time_scaling import rest_time, time_scaling
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.result import PlanResult, Status
+from tocontrol_ros.core.methods.seeding import seed_pairs
 from tocontrol_ros.core.robot.ik import IK_TOL
-from tocontrol_ros.core.seeding import seed_pairs
-from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import PlanResult, Status
 
 __all__ = ["first_motion"]
 

@@ -17,9 +17,9 @@ from scipy.interpolate import BSpline
 from tocontrol_ros.core.direct.bspline import knots
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.tuning import REFINE_JUMP
-from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.model import RobotModel
-from tocontrol_ros.core.trajectory import InverseDynamicsTrajectory
+from tocontrol_ros.core.types.law import LawParams
+from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "integrate_segments", "polynomial_segment_ode",
            "refined_breaks"]
@@ -127,7 +127,7 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
 class FlatTrajectory(InverseDynamicsTrajectory):
     """A bounded B-spline solution: states from the spline, torques its inverse dynamics.
 
-    Same interface as :class:`~tocontrol_ros.core.trajectory.Trajectory` for sampling and
+    Same interface as :class:`~tocontrol_ros.core.types.trajectory.Trajectory` for sampling and
     verification; it has no costates (``psi``, ``S`` and ``H`` are NaN).
 
     Parameters

@@ -1,6 +1,6 @@
 """Plans whose joint limits bind: detection, and the bounded direct solve.
 
-:func:`~tocontrol_ros.core.solver.plan` solves the maximum principle first; when its best
+:func:`~tocontrol_ros.core.planning.solver.plan` solves the maximum principle first; when its best
 direct guess comes within :data:`TOUCH` of a joint limit (:func:`touches`), or its solution
 leaves the limits, :func:`plan_limited` solves the problem again with the limits as hard
 bounds:
@@ -25,16 +25,14 @@ limits itself.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
 from dataclasses import replace
-from typing import Protocol
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from tocontrol_ros.core.certificate import certify_open_loop
-from tocontrol_ros.core.context import SolveContext
-from tocontrol_ros.core.direct.collocation import DirectCollocation, DirectResult, initial_path
+from tocontrol_ros.core.checks.certificate import certify_open_loop
+from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
+from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
 from tocontrol_ros.core.direct.tuning import (
@@ -58,32 +56,18 @@ from tocontrol_ros.core.direct.tuning import (
     T_SETTLED,
     TOUCH,
 )
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status
-from tocontrol_ros.core.seeding import distinct_basins, seed_pairs
-from tocontrol_ros.core.tuning import EXHAUSTIVE_CANDIDATES, SAME_BASIN
-from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict
-
-
-class Transcriptions(Protocol):
-    """A planner's transcriptions: an interface, so that this never imports the solver."""
-
-    def direct(self, problem: Problem, intervals: int, box: bool = False,
-               tol: float = 1e-8) -> DirectCollocation:
-        """The direct transcription for ``problem``'s kinds (built once, cached)."""
-
-    def flat(self, problem: Problem, spans: int | np.ndarray,
-             warm: bool | str | None = None) -> FlatTranscription:
-        """The bounded B-spline transcription for ``problem``'s kinds."""
-
-    def map(self, fn: Callable, ctx: SolveContext, items: list) -> Iterator:
-        """``fn(self, ctx, *item)`` per item, in order, maybe on several processes."""
-
+from tocontrol_ros.core.direct.warm import PathWarmState
+from tocontrol_ros.core.methods.context import SolveContext
+from tocontrol_ros.core.methods.contract import Compiled
+from tocontrol_ros.core.methods.seeding import distinct_basins, seed_pairs
+from tocontrol_ros.core.methods.tuning import EXHAUSTIVE_CANDIDATES, SAME_BASIN
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import PlanResult, StartRecord, Status
 
 __all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
 
 
-def finer_guess(planner: Transcriptions, problem: Problem, coarse: DirectResult,
+def finer_guess(planner: Compiled, problem: Problem, coarse: DirectResult,
                 k: float = 1.0) -> DirectResult:
     """A direct solution solved again, finer, at the exponent ``k`` (default: 1, as a guess).
 
@@ -134,7 +118,7 @@ def state_bounds(problem: Problem, pad: float) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_start: float,
+def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: float,
                  notes: list[str], reason: str | None = None,
                  only: frozenset[int] | None = None) -> PlanResult:
     """Solve ``ctx.problem`` with its joint limits as hard bounds (see the module).
@@ -226,7 +210,7 @@ def plan_limited(planner: Transcriptions, ctx: SolveContext, timings: dict, t_st
     return _result(ctx, res, traj, records, notes, timings, t_start)
 
 
-def plan_limited_warm(planner: Transcriptions, ctx: SolveContext, warm: PathWarmState,
+def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                       timings: dict, t_start: float, trajectory=None) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
@@ -328,7 +312,7 @@ def _distinct_solutions(first: list) -> list:
 
     Two guesses of different basins can meet in one B-spline solution (same
     ``T`` to :data:`SAME_T`, control points within
-    :data:`~tocontrol_ros.core.tuning.SAME_BASIN`), which would be refined twice.
+    :data:`~tocontrol_ros.core.methods.tuning.SAME_BASIN`), which would be refined twice.
     """
     out = []
     for idx, sol in first:
@@ -344,11 +328,11 @@ def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
     return {"deadline": ctx.deadline, "should_stop": ctx.should_stop, "max_iter": max_iter}
 
 
-def _uniform_item(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
+def _uniform_item(planner: Compiled, ctx: SolveContext, bounds, guess: DirectResult,
                   fallback: bool) -> FlatResult:
     """One candidate's solve on the uniform mesh (:func:`_uniform`): its result only.
 
-    A piece of :meth:`Transcriptions.map` (the caller builds the trajectory). The fallback
+    A piece of :meth:`Compiled.map` (the caller builds the trajectory). The fallback
     of a failed shooting starts from the candidate's finer guess: the planar 8R's coarse
     guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at k = 1 (300 iterations,
     9 s each: 50-60 s in all, at the time limit), from the finer ones 39-141 (14.7 s).
@@ -359,7 +343,7 @@ def _uniform_item(planner: Transcriptions, ctx: SolveContext, bounds, guess: Dir
     return _uniform(planner, ctx, bounds, guess, in_k=fallback or bool(ctx.options.replan_spans))
 
 
-def _uniform(planner: Transcriptions, ctx: SolveContext, bounds, guess: DirectResult,
+def _uniform(planner: Compiled, ctx: SolveContext, bounds, guess: DirectResult,
              in_k: bool = False) -> FlatResult:
     """The B-spline solve on :data:`SPANS` uniform spans from a direct guess.
 
@@ -404,7 +388,7 @@ def k_steps(k: float) -> list[float]:
     return ks
 
 
-def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float, P: np.ndarray
+def _continued_in_k(planner: Compiled, ctx: SolveContext, bounds, T: float, P: np.ndarray
                     ) -> FlatResult:
     """The uniform-mesh solve by continuation in ``k`` from the guess ``(T, P)``.
 
@@ -439,7 +423,7 @@ def _continued_in_k(planner: Transcriptions, ctx: SolveContext, bounds, T: float
     return out
 
 
-def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list,
+def _race(planner: Compiled, ctx: SolveContext, bounds, first: list,
           levels: int = REFINEMENTS) -> list:
     """The uniform-mesh solutions refined level by level, the hopeless ones left behind.
 
@@ -506,9 +490,9 @@ def _race(planner: Transcriptions, ctx: SolveContext, bounds, first: list,
     return [out[idx] for idx in race]
 
 
-def _refine_item(planner: Transcriptions, ctx: SolveContext, bounds, breaks: np.ndarray,
+def _refine_item(planner: Compiled, ctx: SolveContext, bounds, breaks: np.ndarray,
                  T: float, P0: np.ndarray) -> FlatResult:
-    """One refinement solve of :func:`_race`, a piece of :meth:`Transcriptions.map`.
+    """One refinement solve of :func:`_race`, a piece of :meth:`Compiled.map`.
 
     On ``breaks`` from ``(T, P0)`` (the coarser path's control points on them), within
     :data:`NEAR_MAX_ITER` iterations.
@@ -521,7 +505,7 @@ def _refine_item(planner: Transcriptions, ctx: SolveContext, bounds, breaks: np.
     return again
 
 
-def _inside_set(planner: Transcriptions, ctx: SolveContext, bounds, out: FlatResult,
+def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
                 traj: FlatTrajectory, flat: FlatTranscription
                 ) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.

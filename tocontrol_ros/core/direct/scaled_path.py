@@ -11,10 +11,10 @@ acceleration jumps at the gridpoints, so the accelerations and torques do too (t
 taken from the segment that starts at a gridpoint).
 
 :class:`ScaledPath` has the interface of the other trajectories
-(:class:`~tocontrol_ros.core.trajectory.Trajectory`,
+(:class:`~tocontrol_ros.core.types.trajectory.Trajectory`,
 :class:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory`): ``T``, ``t_grid``,
 ``evaluate``, ``sample``, ``state``, ``control``, and ``open_loop`` for
-:func:`~tocontrol_ros.core.certificate.certify_open_loop`; it has no costates (``psi``,
+:func:`~tocontrol_ros.core.checks.certificate.certify_open_loop`; it has no costates (``psi``,
 ``S`` and ``H`` are NaN).
 """
 
@@ -32,10 +32,10 @@ from tocontrol_ros.core.direct.flat_trajectory import (
     integrate_segments,
     polynomial_segment_ode,
 )
-from tocontrol_ros.core.indirect.pmp import LawParams
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
-from tocontrol_ros.core.trajectory import InverseDynamicsTrajectory
+from tocontrol_ros.core.types.law import LawParams
+from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES"]
 

@@ -38,8 +38,8 @@ import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, mapped
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.result import Status
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import Status
 
 __all__ = ["GRIDPOINTS", "rest_time", "time_scaling"]
 

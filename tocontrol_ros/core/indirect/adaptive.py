@@ -1,11 +1,11 @@
 """A compiled Dormand-Prince 5(4) pair with step-size control, over chains of segments.
 
-The certificate's integrator (:mod:`tocontrol_ros.core.certificate`): a different method from
-the solver's fixed-step RK4. It integrates ``y = (z, x)``: the canonical state ``z`` (4n)
-under (16) with the control law (15), and the model's state ``x`` (2n) under the torques of
-that law. Each segment starts ``z`` anew from a given state; ``x`` runs on from the previous
-segment. The adaptive loop is compiled too: a trial step is a real branch in C (idle once
-the segment's end is reached), folded over a budget of trials per segment, and
+The certificate's integrator (:mod:`tocontrol_ros.core.indirect.certificate`): a different
+method from the solver's fixed-step RK4. It integrates ``y = (z, x)``: the canonical state
+``z`` (4n) under (16) with the control law (15), and the model's state ``x`` (2n) under the
+torques of that law. Each segment starts ``z`` anew from a given state; ``x`` runs on from
+the previous segment. The adaptive loop is compiled too: a trial step is a real branch in C
+(idle once the segment's end is reached), folded over a budget of trials per segment, and
 :data:`CHUNK` segments are chained in one call.
 """
 
@@ -16,9 +16,10 @@ import threading
 import casadi as ca
 import numpy as np
 
-from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem, LawParams
+from tocontrol_ros.core.indirect.pmp import BufferedFunction, CanonicalSystem
 from tocontrol_ros.core.indirect.tuning import BUDGETS, MIN_STEP
 from tocontrol_ros.core.robot.compiled import c_name, compile_function
+from tocontrol_ros.core.types.law import LawParams
 
 __all__ = ["AdaptiveIntegrator", "integrator", "CHUNK"]
 
@@ -182,7 +183,7 @@ class AdaptiveIntegrator:
             The control law of the canonical system (the trajectory's).
         torque_scale : float
             Fraction of ``tau_max`` the open loop applies (the problem's
-            :attr:`~tocontrol_ros.core.problem.Problem.torque_scale`).
+            :attr:`~tocontrol_ros.core.types.problem.Problem.torque_scale`).
         h0 : float
             First trial step (s).
 
@@ -228,6 +229,6 @@ def integrator(system: CanonicalSystem, rtol: float, atol: float) -> AdaptiveInt
     """The system's integrator for these tolerances (kept with its other functions)."""
     key = ("adaptive", rtol, atol)
     with _LOCK:
-        if key not in system._cache:
-            system._cache[key] = AdaptiveIntegrator(system, rtol, atol)
-        return system._cache[key]
+        if key not in system.function_cache:
+            system.function_cache[key] = AdaptiveIntegrator(system, rtol, atol)
+        return system.function_cache[key]

@@ -5,7 +5,7 @@ continued in ``k`` (doubling up to the requested value, bisecting a step that fa
 intermediate smoothing; when that stalls, again from k = 1 at a wide smoothing
 (:data:`WIDE_DELTA`). At the requested ``k`` the smoothing ``delta`` is driven down until
 ``T`` no longer changes, the mesh refined, and the next smaller ``delta`` confirmed on the
-refined mesh. These are the stages 2-4 of :mod:`tocontrol_ros.core.solver`, which
+refined mesh. These are the stages 2-4 of :mod:`tocontrol_ros.core.planning.solver`, which
 sequences them (it hands :func:`final_smoothing` the callback that offers each converged
 solution to the caller's deadline).
 """
@@ -17,12 +17,12 @@ from collections.abc import Callable
 import numpy as np
 from scipy.sparse.linalg import splu
 
-from tocontrol_ros.core.context import Run, SolveContext, newton
 from tocontrol_ros.core.direct.collocation import (
     DirectResult,
 )
 from tocontrol_ros.core.indirect.mesh import refine, switch_mesh
 from tocontrol_ros.core.indirect.newton import NewtonReport
+from tocontrol_ros.core.indirect.run import Run, newton
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.indirect.tuning import (
     CONTINUATION_STEPS,
@@ -37,7 +37,8 @@ from tocontrol_ros.core.indirect.tuning import (
     TANGENT_DIFFERENCE,
     WIDE_DELTA,
 )
-from tocontrol_ros.core.result import PlanResult, Status
+from tocontrol_ros.core.methods.context import SolveContext
+from tocontrol_ros.core.types.result import PlanResult, Status
 
 
 def _nodes_from_direct(direct: DirectResult, tau_nodes: np.ndarray) -> np.ndarray:

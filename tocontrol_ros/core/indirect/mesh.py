@@ -10,8 +10,8 @@ its error estimates to a new mesh (:class:`Mesh`):
 - :func:`merge_pairs` merges neighbours that together still pass;
 - :func:`switch_layout` places a node at every switch of the control law (pure).
 
-The drivers :func:`refine` and :func:`switch_mesh` move a :class:`~.context.Run` to the new
-mesh and solve on it by Newton.
+The drivers :func:`refine` and :func:`switch_mesh` move a
+:class:`~tocontrol_ros.core.indirect.run.Run` to the new mesh and solve on it by Newton.
 """
 
 from __future__ import annotations
@@ -20,16 +20,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tocontrol_ros.core.context import Run, SolveContext, newton, trajectory
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
+from tocontrol_ros.core.indirect.run import Run, newton, trajectory
 from tocontrol_ros.core.indirect.shooting import ShootingGrid, integrate, step_fractions
+from tocontrol_ros.core.indirect.trajectory import Trajectory
 from tocontrol_ros.core.indirect.tuning import (
     CASCADE_RATIO,
     MERGE_MARGIN,
     PLACING_TOL,
     SPLIT_PASSES,
 )
-from tocontrol_ros.core.trajectory import Trajectory
+from tocontrol_ros.core.methods.context import SolveContext
 
 __all__ = ["Mesh", "find_switches", "graded_split", "interval_errors", "merge_pairs",
            "part_kinds", "plan_splits", "refine", "split", "switch_layout", "switch_mesh"]

@@ -24,9 +24,9 @@ parameter: ``dz/dtau = T F(z)`` with ``z = (x, psi)``.
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -34,7 +34,7 @@ import numpy as np
 from tocontrol_ros.core.robot.compiled import c_name, compile_function
 from tocontrol_ros.core.robot.model import RobotModel, spd_solve
 
-__all__ = ["BufferedFunction", "CanonicalSystem", "LawParams", "control_law"]
+__all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
 
 
 def control_law(s, k, delta=0.0):
@@ -70,35 +70,6 @@ def control_law(s, k, delta=0.0):
         num = np.where(a > 0, s * a ** (p - 1), 0.0)
     den = np.sum(a ** (2 * k * p), axis=0) ** (1.0 / (2 * k))
     return num / den
-
-
-@dataclass(frozen=True)
-class LawParams:
-    """Parameters of the control law, the ``par`` input of every compiled function.
-
-    Attributes
-    ----------
-    k : float
-        Convexification exponent of the torque set ``sum u_i^(2k) <= 1``.
-    delta : float
-        Smoothing of the law (0 = the paper's law).
-    torque_scale : float
-        Fraction of ``tau_max`` planned against: ``1 - reserve``.
-    """
-
-    k: float
-    delta: float = 0.0
-    torque_scale: float = 1.0
-
-    def array(self) -> np.ndarray:
-        """``(k, delta, torque_scale)``, shape (3,): the compiled functions' ``par``."""
-        return np.array([self.k, self.delta, self.torque_scale])
-
-    @classmethod
-    def from_array(cls, par) -> LawParams:
-        """The inverse of :meth:`array`."""
-        k, delta, scale = (float(v) for v in np.asarray(par, dtype=float).ravel())
-        return cls(k, delta, scale)
 
 
 class CanonicalSystem:
@@ -152,6 +123,26 @@ class CanonicalSystem:
         self._sized: OrderedDict = OrderedDict()
         self._buffer_lock = threading.Lock()
         self.compile_status = "not compiled yet"
+
+    @property
+    def function_cache(self) -> dict:
+        """The functions built of this system, by key, shared by the modules that build them.
+
+        The shooting grid's boundary conditions and switching functions, the certificate's
+        kinematics and its adaptive integrator keep theirs here beside the system's own, so
+        that a model's functions are built once per system.
+        """
+        return self._cache
+
+    def scratch(self) -> CanonicalSystem:
+        """A copy sharing this system's symbolic expressions, without compiled functions."""
+        other = copy.copy(self)
+        other._cache = {  # the symbolic entries only
+            key: value for key, value in self._cache.items()
+            if key in ("rhs", "stagewise") or (isinstance(key, tuple) and key[0] == "step_sx")}
+        other._sized = OrderedDict()
+        other._buffer_lock = threading.Lock()
+        return other
 
     def pointwise(self) -> ca.Function:
         """``(z, par) -> (F, u, S, H)`` at one point (physical time); maps over columns.

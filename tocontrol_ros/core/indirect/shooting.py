@@ -192,7 +192,7 @@ class ShootingGrid:
     # ------------------------------------------------------------ boundary
     def _boundary_function(self) -> ca.Function:
         key = ("bc", self.start_kind, self.target_kind)
-        cache = self.system._cache
+        cache = self.system.function_cache
         if key in cache:
             return cache[key]
         model, n, m = self.system.model, self.n, self.m
@@ -226,7 +226,7 @@ class ShootingGrid:
 
     def _switch_compiled(self) -> ca.Function:
         """``(z, par) -> (S, dS/dz)`` at one node, compiled (shared by the grids)."""
-        cache = self.system._cache
+        cache = self.system.function_cache
         if "switch" not in cache:
             sy = self.system
             fun = ca.Function(f"tocontrol_switch_{c_name(sy.model.name)}_{sy.n}",

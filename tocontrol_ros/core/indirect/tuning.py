@@ -12,7 +12,7 @@ __all__ = ["GRADING", "CHORD_CONTRACTION", "CHORD_MAX", "STALL_STEP", "STALL_COU
            "CONTINUATION_TOL", "PLACEMENT_TOL", "CONTINUATION_STEPS", "STALL_REFINE_TOL",
            "EASY_K_NEWTON", "WIDE_DELTA", "DELTA_FACTOR", "MIN_DELTA_RATIO", "EASY_NEWTON",
            "TANGENT_DIFFERENCE", "SMOOTHING_BISECT_RATIO", "MERGE_MARGIN", "CASCADE_RATIO",
-           "PLACING_TOL", "SPLIT_PASSES", "BUDGETS", "MIN_STEP"]
+           "PLACING_TOL", "SPLIT_PASSES", "BUDGETS", "MIN_STEP", "SAME_K1", "AT_K_MARGIN"]
 
 
 # ------------------------- multiple shooting and Newton (shooting.py, newton.py)
@@ -114,3 +114,19 @@ BUDGETS = (256, 4096)
 
 #: Smallest step the integrator takes, relative to its segment: it gives up below.
 MIN_STEP = 1e-12
+
+
+# ----------------------------------------- after the shooting failed (method.py)
+#: The finer direct guess (:func:`~tocontrol_ros.core.direct.limited.finer_guess`) tried when the
+#: shooting failed from every coarse one is not shot from when the first candidate's
+#: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
+#: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
+#: its continuation's 19 Newton solves to the digit, 2.3 s).
+SAME_K1 = 1e-3
+
+#: A candidate whose shooting failed from its guess is solved by the direct method at the
+#: requested k (then shot from there) when its direct ``T`` (k = 1) is within this
+#: (relative) of the first candidate that succeeded, or none succeeded yet: within a few
+#: percent the k = 1 order of two basins often reverses at k = 4 on the paper's arm
+#: (0.6 % and 1.5 % apart at k = 1 in two of the reference's pairs).
+AT_K_MARGIN = 0.02

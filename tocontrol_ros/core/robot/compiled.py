@@ -13,7 +13,7 @@ straight-line code (register allocation), so a source above :data:`QUICK_SOURCE`
 first compiled without optimisation (``-O0``, several times faster to build, slower to run)
 and returned at once, while the optimised library is built in a background thread at low
 priority. :func:`generation` counts the optimised libraries that have landed in the cache
-since the process started; a :class:`~tocontrol_ros.core.solver.Planner` made after that
+since the process started; a :class:`~tocontrol_ros.core.planning.solver.Planner` made after that
 loads them (the cache holds both). ``TOCONTROL_COMPILE_TIERS=0`` builds the optimised
 library at once instead. :func:`add_listener` reports every build as it starts and ends.
 

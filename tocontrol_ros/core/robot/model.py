@@ -106,7 +106,7 @@ class RobotModel(Chain):
     def __reduce__(self):
         """Pickled as its data, without its compiled functions.
 
-        A worker process builds its own (:mod:`~tocontrol_ros.core.pool`); the model is
+        A worker process builds its own (:mod:`~tocontrol_ros.core.planning.pool`); the model is
         unpickled once per process and content.
         """
         return (_restored, ({f.name: getattr(self, f.name) for f in fields(self) if f.init},))

@@ -15,10 +15,7 @@ import weakref
 
 import numpy as np
 
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.robot.ik import angle_family, ik_family, ik_near
-from tocontrol_ros.core.tuning import (
+from tocontrol_ros.core.methods.tuning import (
     EXHAUSTIVE_IK_COUNT,
     EXHAUSTIVE_STARTS,
     GRAVITY_FREE,
@@ -30,6 +27,9 @@ from tocontrol_ros.core.tuning import (
     SAME_BASIN,
     SEED_SPACING,
 )
+from tocontrol_ros.core.robot.ik import angle_family, ik_family, ik_near
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem
 
 __all__ = ["distinct_basins", "revolute_joints", "seed_pairs", "seed_grid", "shiftable_joints",
            "branch_shifts", "recombined_pairs", "gravity_free", "time_ratio_bound",
@@ -164,7 +164,7 @@ def starts_solved(problem: Problem, options: SolverOptions) -> int:
     """How many seed pairs the multistart solves: ``options.starts``, more where limits cut.
 
     On an arm whose self-motion family is random seeds and whose joint limits are active,
-    :data:`~tocontrol_ros.core.tuning.RANDOM_STARTS_EXTRA` of ``starts`` more (rounded
+    :data:`~tocontrol_ros.core.methods.tuning.RANDOM_STARTS_EXTRA` of ``starts`` more (rounded
     down: a single start stays one).
     """
     extra = int(options.starts * RANDOM_STARTS_EXTRA) if _cut(problem) else 0

@@ -17,7 +17,7 @@ other).
 What crosses to a worker is pickled: ``fn`` (a module-level function), the solve's
 context without its compiled system (:meth:`SolveContext.portable`), the item. The model
 goes as its data (:meth:`RobotModel.__reduce__`) and is rebuilt once per worker; each
-worker keeps one :class:`~tocontrol_ros.core.prepared.PreparedModel` per model. A
+worker keeps one :class:`~tocontrol_ros.core.planning.prepared.PreparedModel` per model. A
 cancelled solve sets an event the workers' solves poll; the caller's deadline travels with
 the context. A worker that dies is replaced by the caller's process for the items it held
 (the pool is then not used again).

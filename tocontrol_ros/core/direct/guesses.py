@@ -6,28 +6,26 @@ continues from there in ``k``); within the limits it solves the requested ``k``:
 B-spline solve starts from these guesses at that ``k``, and the basins of ``k = 1`` are not
 those of ``k = 4`` (on the Panda's 50 reference cases of BENCHMARKS.md the best basin's
 ``k = 1`` guess was 17 % slower than the best ``k = 1`` guess in one case, 2 % faster at
-``k = 4``). Called by the orchestration (:func:`tocontrol_ros.core.solver._cold`).
+``k = 4``). Called by the maximum principle's multistart
+(:mod:`tocontrol_ros.core.indirect.method`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from tocontrol_ros.core.context import SolveContext
 from tocontrol_ros.core.direct.collocation import initial_paths
-from tocontrol_ros.core.direct.limited import (
-    Transcriptions,
-    state_bounds,
-    touches,
-)
+from tocontrol_ros.core.direct.limited import state_bounds, touches
 from tocontrol_ros.core.direct.tuning import PAD
-from tocontrol_ros.core.seeding import distinct_basins, recombined_pairs, revolute_joints
-from tocontrol_ros.core.tuning import RECOMBINED_PARENTS, RECOMBINED_STARTS
+from tocontrol_ros.core.methods.context import SolveContext
+from tocontrol_ros.core.methods.contract import Compiled
+from tocontrol_ros.core.methods.seeding import distinct_basins, recombined_pairs, revolute_joints
+from tocontrol_ros.core.methods.tuning import RECOMBINED_PARENTS, RECOMBINED_STARTS
 
 __all__ = ["solve_guesses", "recombined_guesses"]
 
 
-def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
+def solve_guesses(planner: Compiled, ctx: SolveContext, pairs: list
                   ) -> tuple[list, tuple[np.ndarray, np.ndarray] | None]:
     """The direct guesses from the seed pairs, within the joint limits where they bind.
 
@@ -76,12 +74,12 @@ def solve_guesses(planner: Transcriptions, ctx: SolveContext, pairs: list
     return guesses, x_bounds
 
 
-def recombined_guesses(planner: Transcriptions, ctx: SolveContext, guesses: list,
+def recombined_guesses(planner: Compiled, ctx: SolveContext, guesses: list,
                        pairs: list) -> tuple[list, list]:
     """The guesses and seed pairs with those of the recombined seeds added.
 
     Seeds that cross the ends of the :data:`RECOMBINED_PARENTS` best distinct guesses
-    (:func:`~tocontrol_ros.core.seeding.recombined_pairs`), at most
+    (:func:`~tocontrol_ros.core.methods.seeding.recombined_pairs`), at most
     :data:`RECOMBINED_STARTS` and ``3 * options.starts // 4``, solved like the others (k = 1,
     without bounds: only after :func:`solve_guesses` solved its own without them), side by
     side; their indices follow the pairs'.
@@ -113,17 +111,17 @@ def _initial_paths(ctx: SolveContext, pairs: list) -> tuple:
                          problem.torque_scale, problem.limits.plan_velocity)
 
 
-def _guess_item(planner: Transcriptions, ctx: SolveContext, path: tuple,
+def _guess_item(planner: Compiled, ctx: SolveContext, path: tuple,
                 x_bounds: tuple[np.ndarray, np.ndarray] | None):
     """One seed pair's direct guess (:func:`_guess`) after the deadline's check.
 
-    A piece of :meth:`~tocontrol_ros.core.direct.limited.Transcriptions.map`.
+    A piece of :meth:`~tocontrol_ros.core.direct.limited.Compiled.map`.
     """
     ctx.check()
     return _guess(planner, ctx, path, x_bounds)
 
 
-def _guess(planner: Transcriptions, ctx: SolveContext, path: tuple,
+def _guess(planner: Compiled, ctx: SolveContext, path: tuple,
            x_bounds: tuple[np.ndarray, np.ndarray] | None):
     """The direct solve from an initial ``path``, within ``x_bounds`` (None: without).
 

@@ -22,8 +22,9 @@ from dataclasses import replace
 import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.problem import Problem, joint_state, point
-from tocontrol_ros.core.result import PlanResult, Status, WarmState
+from tocontrol_ros.core.indirect.warm import WarmState
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
+from tocontrol_ros.core.types.result import PlanResult, Status
 
 __all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE",
            "TARGET_STEPS", "REPLAN_JOINT_RADIUS", "REPLAN_SPANS", "replan_options"]
@@ -54,7 +55,7 @@ def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
         A result whose ``problem`` is "from the joint state ``x(t)`` to the old target"
         (same model, target, ``k`` and reserve), ``T`` the time left and ``warm_state`` the
         cut mesh: pass it as ``warm_start`` to
-        :meth:`~tocontrol_ros.core.solver.Planner.plan` for a new target near the old one.
+        :meth:`~tocontrol_ros.core.planning.solver.Planner.plan` for a new target near the old one.
         None when there is nothing to continue: no shooting solution (a B-spline or first
         motion), or less than :data:`TAIL_MIN_REMAINING` of the motion left.
 
@@ -212,7 +213,7 @@ def replan_options(options, smoothing: float = 0.0, spans: int = REPLAN_SPANS):
         ``warm_only``, ``starts = candidates = 1``, ``warm_joint_radius =``
         :data:`REPLAN_JOINT_RADIUS`, ``replan_spans = spans``, and the smoothing above.
     """
-    from tocontrol_ros.core.certificate import CertificateOptions
+    from tocontrol_ros.core.types.certificate import CertificateOptions
 
     out = replace(options, warm_only=True, starts=1, candidates=1,
                   warm_joint_radius=REPLAN_JOINT_RADIUS, replan_spans=int(spans))
@@ -252,8 +253,8 @@ def warm_replan(planner, problem: Problem, warm, options=None,
     PlanResult
         The first success, else the last failure (the caller decides on a cold solve).
     """
-    from tocontrol_ros.core.options import SolverOptions
-    from tocontrol_ros.core.solver import _plan_from
+    from tocontrol_ros.core.planning.solver import solve_once
+    from tocontrol_ros.core.types.options import SolverOptions
 
     options = options or SolverOptions()
     t_start = time.perf_counter()
@@ -270,7 +271,7 @@ def warm_replan(planner, problem: Problem, warm, options=None,
 
     applicable = [w for w in sources if w.can_warm_start(problem, radius)]
     for source in applicable:
-        result = _plan_from(planner, problem, options, source, should_stop, deadline)
+        result = solve_once(planner, problem, options, source, should_stop, deadline)
         if result.success:
             return done(result)
         if should_stop is not None and should_stop():
@@ -285,7 +286,7 @@ def warm_replan(planner, problem: Problem, warm, options=None,
                     problem, target=point(old + f * (new - old)))
                 if not source.can_warm_start(step, radius):
                     break
-                result = _plan_from(planner, step, options, source, should_stop, deadline)
+                result = solve_once(planner, step, options, source, should_stop, deadline)
                 if not result.success:
                     break
                 source = result

@@ -1,7 +1,7 @@
 """Independent checks of a solution: re-integration, ``H``, the control set, URDF limits.
 
 The checks sample the solution once (:func:`fine_sample`); the solver certifies it on that
-sampling (:func:`~tocontrol_ros.core.certificate.certify`, a compiled adaptive integrator
+sampling (:func:`~tocontrol_ros.core.indirect.certificate.certify`, a compiled adaptive integrator
 independent of the solver's RK4) and :func:`verdict` turns the certificate into the result's
 status. :func:`verify` is a second, slower re-integration of the nominal torques by scipy's
 DOP853, against which the certificate is tested.
@@ -11,16 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from tocontrol_ros.core.certificate import Certificate
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.result import Status
-from tocontrol_ros.core.trajectory import Trajectory, TrajectorySample
+from tocontrol_ros.core.types.certificate import Certificate
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import Status
+from tocontrol_ros.core.types.trajectory import Motion, TrajectorySample
 
 __all__ = ["SAMPLE_GAPS", "fine_sample", "limit_warnings", "verdict", "verify"]
 
 
-def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
+def verify(problem: Problem, trajectory: Motion, rtol: float = 1e-11,
            sample: TrajectorySample | None = None) -> dict:
     """Independent checks of a solution.
 
@@ -31,12 +31,12 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
     Parameters
     ----------
     problem : Problem
-    trajectory : Trajectory
+    trajectory : Motion
     rtol : float
         Relative tolerance of the integrator (absolute: ``rtol / 10``).
     sample : TrajectorySample, optional
         The sampling on which ``H`` and the control set are checked; default: the one
-        :func:`~tocontrol_ros.core.solver.plan` uses (the RK4 step points, filled in where
+        :func:`~tocontrol_ros.core.planning.solver.plan` uses (the RK4 step points, filled in where
         they are more than ``T / SAMPLE_GAPS`` apart).
 
     Returns
@@ -91,7 +91,7 @@ def verify(problem: Problem, trajectory: Trajectory, rtol: float = 1e-11,
 SAMPLE_GAPS = 250
 
 
-def fine_sample(trajectory: Trajectory) -> TrajectorySample:
+def fine_sample(trajectory: Motion) -> TrajectorySample:
     """One sampling for every check of a result (see :data:`SAMPLE_GAPS`).
 
     It finds the extremes of a much finer equally spaced sampling at a fraction of its cost,
@@ -99,7 +99,7 @@ def fine_sample(trajectory: Trajectory) -> TrajectorySample:
 
     Parameters
     ----------
-    trajectory : Trajectory
+    trajectory : Motion
 
     Returns
     -------

@@ -1,20 +1,20 @@
-"""The tuning constants of the orchestration and its multistart, read together.
+"""The tuning constants of the seeds and of the choice of candidates, read together.
 
-The numeric knobs of the seeds (:mod:`~tocontrol_ros.core.seeding`), of the choice of the
-candidates that are continued, of the warm start (:mod:`~tocontrol_ros.core.result`,
-:mod:`~tocontrol_ros.core.solver`) and of the answer at the caller's deadline, each with why
-it has its value; the methods' own knobs are in :mod:`tocontrol_ros.core.indirect.tuning`
-and :mod:`tocontrol_ros.core.direct.tuning`. The modules that use them import them by name
-(``from tocontrol_ros.core.tuning import CANDIDATE_MARGIN``), so a test that patches a knob
-patches it on the module that reads it (``monkeypatch.setattr(solver, "CANDIDATE_MARGIN",
-...)``). This module imports nothing.
+The numeric knobs of the multistart's seeds (:mod:`~tocontrol_ros.core.methods.seeding`) and
+of which distinct direct solutions are continued (by the maximum principle's candidates in
+:mod:`~tocontrol_ros.core.planning.solver` and by the bounded solve in
+:mod:`~tocontrol_ros.core.direct.limited`), each with why it has its value; the methods' own
+knobs are in :mod:`tocontrol_ros.core.indirect.tuning` and
+:mod:`tocontrol_ros.core.direct.tuning`, the orchestration's in
+:mod:`tocontrol_ros.core.planning.tuning`. The modules that use them import them by name, so
+a test that patches a knob patches it on the module that reads it
+(``monkeypatch.setattr(solver, "CANDIDATE_MARGIN", ...)``). This module imports nothing.
 """
 
-__all__ = ["EXHAUSTIVE_IK_COUNT", "RANDOM_IK_FACTOR", "NEAR_TARGETS", "EXHAUSTIVE_STARTS",
-           "SEED_SPACING", "MAX_BRANCH_JOINTS", "RECOMBINED_PARENTS", "RECOMBINED_STARTS",
-           "RECOMBINED_NEAR", "AT_K_MARGIN", "EXHAUSTIVE_CANDIDATES", "SAME_BASIN",
-           "CANDIDATE_MARGIN", "GRAVITY_FREE", "SAME_K1", "WARM_RADIUS", "WARM_JOINT_RADIUS",
-           "WARM_GAIN", "INCUMBENT_TRIES"]
+__all__ = ["EXHAUSTIVE_IK_COUNT", "RANDOM_IK_FACTOR", "RANDOM_STARTS_EXTRA", "NEAR_TARGETS",
+           "EXHAUSTIVE_STARTS", "SEED_SPACING", "MAX_BRANCH_JOINTS", "RECOMBINED_PARENTS",
+           "RECOMBINED_STARTS", "RECOMBINED_NEAR", "EXHAUSTIVE_CANDIDATES", "SAME_BASIN",
+           "CANDIDATE_MARGIN", "GRAVITY_FREE"]
 
 
 # -------------------------------------------------------- the seeds (seeding.py)
@@ -35,7 +35,7 @@ RANDOM_IK_FACTOR = 2
 #: On such an arm (random seeds, joint limits) ``starts`` seed pairs are solved and half as
 #: many more (``starts + starts // 2``: 24 for the default 16, one for one): the limits'
 #: basins are more than the planar arms'. On the 50 Panda cases against the independent
-#: reference (guesses at the requested k, ``core/guesses.py``): 48/50 within 1e-3 with 24,
+#: reference (guesses at the requested k, ``core/planning/guesses.py``): 48/50 within 1e-3 with 24,
 #: 47/50 with 16 and with 20, at about 1.13 times the plan time of 16 (docs/seeding.md, 4).
 RANDOM_STARTS_EXTRA = 0.5
 
@@ -59,8 +59,8 @@ SEED_SPACING = 1.5
 MAX_BRANCH_JOINTS = 7
 
 #: The ends of this many distinct direct solutions (fastest first) are recombined into
-#: more seeds (:func:`~tocontrol_ros.core.seeding.recombined_pairs`): on the paper's arm the
-#: best motion's start often lies in one of the first four and its end in another.
+#: more seeds (:func:`~tocontrol_ros.core.methods.seeding.recombined_pairs`): on the paper's
+#: arm the best motion's start often lies in one of the first four and its end in another.
 RECOMBINED_PARENTS = 4
 
 #: Recombined seeds solved by the direct method after the ranked ones (at most three
@@ -86,52 +86,13 @@ EXHAUSTIVE_CANDIDATES = 12
 SAME_BASIN = 1e-3
 
 #: A candidate is not continued when its direct ``T`` (k = 1) times
-#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` exceeds the best final ``T`` so far
+#: :func:`~tocontrol_ros.core.methods.seeding.time_ratio_bound` exceeds the best final ``T`` so far
 #: by more than this (relative):
 #: the bound is exact only without gravity and friction and the direct ``T`` is a coarse
 #: mesh's, so it gets a margin.
 CANDIDATE_MARGIN = 0.02
 
 #: Gravity torques below this (relative to tau_max) count as none for the rule of
-#: :func:`~tocontrol_ros.core.seeding.time_ratio_bound` (the solver's skip of candidates
+#: :func:`~tocontrol_ros.core.methods.seeding.time_ratio_bound` (the solver's skip of candidates
 #: that cannot beat the best).
 GRAVITY_FREE = 1e-9
-
-
-# ----------------------------------------- after the shooting failed (solver.py)
-#: The finer direct guess (:func:`~tocontrol_ros.core.direct.limited.finer_guess`) tried when the
-#: shooting failed from every coarse one is not shot from when the first candidate's
-#: continuation in k stalled from a k = 1 solution whose ``T`` it matches to this
-#: (relative): the same k = 1 solution, the same stall (the Panda without limits repeated
-#: its continuation's 19 Newton solves to the digit, 2.3 s).
-SAME_K1 = 1e-3
-
-#: A candidate whose shooting failed from its guess is solved by the direct method at the
-#: requested k (then shot from there) when its direct ``T`` (k = 1) is within this
-#: (relative) of the first candidate that succeeded, or none succeeded yet: within a few
-#: percent the k = 1 order of two basins often reverses at k = 4 on the paper's arm
-#: (0.6 % and 1.5 % apart at k = 1 in two of the reference's pairs).
-AT_K_MARGIN = 0.02
-
-
-# ----------------------------------------- the warm start (result.py, solver.py)
-#: A previous solution warm-starts a problem only when each end point moved by at most this
-#: (m): farther, the warm solution often lands in another (worse) basin than the multistart
-#: (measured on the paper's arm, bench/optimum.py and docs/seeding.md).
-WARM_RADIUS = 0.1
-
-#: ...and each joint-state end by at most this (max-norm of positions and velocities, rad
-#: and rad/s).
-WARM_JOINT_RADIUS = 0.05
-
-#: A warm solution replaces the cold multistart's only when its ``T`` is lower by more than
-#: this (relative): within it both are the same basin, and the cold answer, which does not
-#: depend on earlier requests, is kept.
-WARM_GAIN = 1e-6
-
-
-# ------------------------------------------ at the caller's deadline (solver.py)
-#: At the caller's deadline at most this many motions found so far are checked (least ``T``
-#: first) for a ``TIME_LIMIT`` result that carries one: the result comes at most this many
-#: certificates after the deadline.
-INCUMBENT_TRIES = 2

@@ -1,70 +1,30 @@
-"""Time-optimal planning: guess, continuation, multistart, warm start, verification.
+"""The paper's maximum principle as a method of the contract: multistart, shooting, certificate.
 
-:func:`plan` is the one-shot entry point. For one start it
-
-1. solves a coarse direct transcription (k = 1) from a pair of inverse-kinematics seeds; its
-   multipliers are the initial costates (:mod:`tocontrol_ros.core.direct.collocation`);
-2. solves the boundary-value problem (16), (21) by multiple shooting and Newton at k = 1
-   (:mod:`tocontrol_ros.core.indirect.shooting`);
-3. continues in ``k`` (doubling up to the requested value, bisecting a step that fails),
-   with the control law smoothed by ``delta`` at intermediate values;
-4. at the requested ``k`` (> 1), moves to a mesh with a node at every sign change of a
-   switching function ``S_i`` (switch nodes: the node's time is an unknown with
-   ``S_i = 0`` there, and the RK4 steps next to it are graded towards it, see
-   :class:`~tocontrol_ros.core.indirect.shooting.ShootingGrid`), drives ``delta`` down until
-   ``T`` no longer changes, refines the mesh until every interval's RK4 error estimate is
-   below tolerance, and confirms on the refined mesh that the next smaller ``delta`` leaves ``T``
-   unchanged;
-5. certifies the result (:mod:`~tocontrol_ros.core.certificate`: residual, ``H``, the
-   torques inside the set, re-integration of the nominal torques and of the canonical system).
-
-Newton keeps its LU factors while they work (chord steps with Broyden's rank-one updates,
-also across the solves of one mesh and into a warm start). Because the switch nodes move
-with the switches, a warm start after a small move usually keeps the previous mesh: a few
-Newton iterations and one error estimate.
-
-Multistart runs step 1 from several seed pairs spread over the self-motion manifolds (then
-from more that cross the ends of the best direct solutions), groups the direct solutions by
-basin and continues the most promising ones; the best is returned and the others listed.
-A promising candidate whose shooting fails in steps 2-3 is solved by the direct method at
-the requested ``k`` and shot from there, without continuation in ``k``. A warm start skips
-the guess and continues from a previous solution (e.g. after the target moved).
-
-This module is the orchestration; the pieces live next to it:
-
-- :mod:`~tocontrol_ros.core.options` (:class:`SolverOptions`), :mod:`~tocontrol_ros.core.result`
-  (:class:`Status`, :class:`StartRecord`, :class:`PlanResult`, :class:`WarmState`);
-- :mod:`~tocontrol_ros.core.context`: the solve's context (deadline, cancel flag, options),
-  the iterate of one start and its Newton solve;
-- :mod:`~tocontrol_ros.core.seeding`: seed pairs of the multistart (step 1);
-- :mod:`~tocontrol_ros.core.indirect.mesh`: error estimates, refinement and the switch mesh
-  (step 4);
-- :mod:`~tocontrol_ros.core.certificate`, :mod:`~tocontrol_ros.core.verification`: the
-  checks of step 5 and the status they give.
-
-``from tocontrol_ros.core.solver import plan, SolverOptions, PlanResult, Status, verify,
-Planner`` keeps working.
+:class:`MaximumPrinciple` (``SolverOptions.method`` ``"indirect"``, and ``"auto"``) solves
+a problem cold in the steps of :mod:`tocontrol_ros.core.planning.solver`'s overview: direct
+guesses at k = 1 from seed pairs (:func:`~tocontrol_ros.core.direct.guesses.solve_guesses`),
+the most promising distinct ones shot and continued in ``k``
+(:mod:`~tocontrol_ros.core.indirect.continuation`), the best one refined and certified
+(:func:`~tocontrol_ros.core.indirect.certificate.certify`); the next basins are tried when
+the best one's certificate fails. Where the joint limits bind (the best guess touches them,
+or the solution leaves them) or the shooting fails on every candidate, it hands the problem
+to the bounded B-spline solve (:class:`~tocontrol_ros.core.direct.method.BoundedPath`). A
+warm start continues a previous maximum-principle solution
+(:func:`~tocontrol_ros.core.indirect.continuation.warm_run`).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
-from tocontrol_ros.core.certificate import certify
-from tocontrol_ros.core.context import Run, SolveContext, StopError, trajectory
-from tocontrol_ros.core.direct.first_motion import first_motion
-from tocontrol_ros.core.direct.limited import (
-    finer_guess,
-    plan_limited,
-    plan_limited_warm,
-    touches,
-)
+from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
+from tocontrol_ros.core.direct.guesses import recombined_guesses, solve_guesses
+from tocontrol_ros.core.direct.limited import finer_guess, plan_limited, touches
 from tocontrol_ros.core.direct.tuning import FINE_GUESS_INTERVALS
-from tocontrol_ros.core.guesses import recombined_guesses, solve_guesses
+from tocontrol_ros.core.indirect.certificate import certify
 from tocontrol_ros.core.indirect.continuation import (
     final_smoothing,
     finish_warm,
@@ -72,237 +32,142 @@ from tocontrol_ros.core.indirect.continuation import (
     solve_from_guess,
     warm_run,
 )
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.prepared import PreparedModel
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.result import PathWarmState, PlanResult, StartRecord, Status, WarmState
-from tocontrol_ros.core.seeding import (
+from tocontrol_ros.core.indirect.run import Run, trajectory
+from tocontrol_ros.core.indirect.tuning import AT_K_MARGIN, SAME_K1
+from tocontrol_ros.core.indirect.warm import WarmState
+from tocontrol_ros.core.methods.context import SolveContext, StopError
+from tocontrol_ros.core.methods.contract import Compiled, Method, register
+from tocontrol_ros.core.methods.seeding import (
     distinct_basins,
     gravity_free,
     revolute_joints,
     seed_pairs,
     time_ratio_bound,
 )
-from tocontrol_ros.core.tuning import (
-    AT_K_MARGIN,
-    CANDIDATE_MARGIN,
-    EXHAUSTIVE_CANDIDATES,
-    INCUMBENT_TRIES,
-    SAME_K1,
-    WARM_GAIN,
-)
-from tocontrol_ros.core.verification import fine_sample, limit_warnings, verdict, verify
+from tocontrol_ros.core.methods.tuning import CANDIDATE_MARGIN, EXHAUSTIVE_CANDIDATES
+from tocontrol_ros.core.types.certificate import Certificate, CertificateOptions
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import PlanResult, StartRecord, Status
+from tocontrol_ros.core.types.trajectory import Motion
 
-__all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "WarmState", "Planner",
-           "plan", "verify"]
-
+__all__ = ["MaximumPrinciple", "SKIPPED"]
 
 #: StartRecord.status of a distinct direct solution left out by the rule of
-#: :data:`~tocontrol_ros.core.tuning.CANDIDATE_MARGIN`.
+#: :data:`~tocontrol_ros.core.methods.tuning.CANDIDATE_MARGIN`.
 SKIPPED = "not continued: its direct T cannot beat the best"
 
 
-class Planner(PreparedModel):
-    """Holds the compiled functions of one model, reused across many solves; plans.
+class MaximumPrinciple(Method):
+    """The paper's method (see the module docstring); ``PlanResult.method`` ``"indirect"``."""
 
-    Parameters
-    ----------
-    model : RobotModel
-    """
+    name = "indirect"
 
-    def plan(self, problem: Problem, options: SolverOptions | None = None,
-             warm_start: PlanResult | None = None,
-             should_stop: Callable[[], bool] | None = None) -> PlanResult:
-        """See :func:`plan`."""
-        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
+    def owns(self, warm_state: object) -> bool:
+        """A previous maximum-principle solution's shooting mesh and unknowns."""
+        return isinstance(warm_state, WarmState)
 
-    def first(self, problem: Problem, options: SolverOptions | None = None) -> PlanResult:
-        """A certified motion inside every limit at once, slower than the optimum.
+    def certify(self, problem: Problem, motion: Motion,
+                options: CertificateOptions) -> Certificate:
+        """The canonical system and the nominal torques re-integrated (:func:`certify`)."""
+        return certify(problem, motion, options)
 
-        A seed configurations' joint path timed by TOPP-RA (``method="first"``,
-        :func:`~tocontrol_ros.core.direct.first_motion.first_motion`): tens of milliseconds
-        where :meth:`plan` takes up to seconds.
-        """
-        return first_motion(problem, options or SolverOptions())
-
-
-_PLANNERS: dict[int, Planner] = {}
-
-
-def plan(problem: Problem, options: SolverOptions | None = None,
-         warm_start: PlanResult | None = None,
-         should_stop: Callable[[], bool] | None = None) -> PlanResult:
-    """Solve a time-optimal problem.
-
-    Parameters
-    ----------
-    problem : Problem
-    options : SolverOptions, optional
-    warm_start : PlanResult, optional
-        A previous successful result of the same model, start kind and target kind: its
-        solution is continued to this problem (no guess, no continuation in ``k`` when the
-        exponents match). Falls back to a cold solve when it does not converge.
-    should_stop : callable, optional
-        Polled between Newton iterations; returning True cancels the solve.
-
-    Returns
-    -------
-    PlanResult
-        Never raises for numerical failure: see ``success``, ``status`` and ``message``.
-    """
-    planner = _PLANNERS.get(id(problem.model))
-    if planner is None or planner.model is not problem.model or planner.stale():
-        planner = Planner(problem.model)
-        _PLANNERS[id(problem.model)] = planner
-        if not problem.is_trivial():  # the first use of a model: on every core
-            planner.prepare(problem, options, shooting=False)
-    return planner.plan(problem, options, warm_start, should_stop)
-
-
-# ------------------------------------------------------------------------ driver
-def _plan(planner: Planner, problem: Problem, options: SolverOptions,
-          warm_start: PlanResult | None, should_stop) -> PlanResult:
-    """The multistart, and a near previous solution as one more candidate.
-
-    The cold multistart always runs as asked; a warm start (only when
-    :meth:`PlanResult.can_warm_start` allows it: same kinds and reserve, ends near the
-    previous ones) is solved too, and returned only when its ``T`` is lower by more than
-    :data:`WARM_GAIN` (relative). So the cold answer, which does not depend on what was
-    solved before, is returned unless a near previous solution leads to a better basin.
-    With ``options.warm_only`` a warm start that succeeds is returned alone (the
-    multistart runs only when it fails).
-    """
-    t_start = time.perf_counter()
-    if problem.model is not planner.model:
-        raise ValueError("`problem.model` is not the planner's model")
-    deadline = t_start + options.time_limit
-    warm = None
-    if warm_start is not None and \
-            warm_start.can_warm_start(problem, options.warm_joint_radius) \
-            and not problem.is_trivial():
-        warm = _plan_from(planner, problem, options, warm_start, should_stop, deadline)
-    if warm is not None:
-        n = problem.model.n
-        ends = warm.trajectory.state([0.0, warm.T])[:, :n] if warm.success \
-            else np.full((2, n), np.nan)
-        record = StartRecord(-1, ends[0], ends[1], np.nan, warm.T, "warm start" if
-                             warm.success else f"warm start failed: {warm.message}")
-        if warm.success and options.warm_only:
-            best = replace(warm, starts=(replace(record, status="returned"),))
-            best.timings["total"] = time.perf_counter() - t_start
-            return best
-    cold = _plan_from(planner, problem, options, None, should_stop, deadline)
-    best = cold
-    if warm is not None:
-        better = warm.success and (not cold.success or warm.T < cold.T * (1 - WARM_GAIN))
-        best = warm if better else cold
-        starts = tuple(replace(r, status="continued") if better and r.status == "returned"
-                       else r for r in cold.starts)
-        record = replace(record, status="returned") if better else record
-        timings = {key: cold.timings.get(key, 0.0) + warm.timings.get(key, 0.0)
-                   for key in cold.timings}
-        best = replace(best, starts=(record,) + starts, timings=timings)
-    best.timings["total"] = time.perf_counter() - t_start
-    return best
-
-
-def _plan_from(planner: Planner, problem: Problem, options: SolverOptions,
-               warm_start: PlanResult | None, should_stop, deadline: float) -> PlanResult:
-    """One solve: warm from ``warm_start`` only (a failure is reported), else cold."""
-    t_start = time.perf_counter()
-    ctx = SolveContext(planner.system, problem, options, deadline, should_stop)
-    timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
-    if problem.is_trivial():
-        timings["total"] = time.perf_counter() - t_start
-        return PlanResult.trivial(problem, timings)
-    notes: list[str] = []
-    run = None
-    records: list[StartRecord] = []
-    try:
-        finished = False
-        if warm_start is not None and isinstance(warm_start.warm_state, PathWarmState):
-            return plan_limited_warm(planner, ctx, warm_start.warm_state, timings, t_start,
-                                     warm_start.trajectory)
-        if warm_start is not None:
-            # A planner made since (optimised libraries landed) loads the shooting's first.
-            ctx.extend(planner.prepare_shooting(problem, options))
-            run, finished = warm_run(ctx, warm_start)
-            timings["shooting"] += time.perf_counter() - t_start
-            if run is None:
-                timings["total"] = time.perf_counter() - t_start
-                return _failure(problem, Status.NEWTON_FAILED,
-                                "the warm start did not converge", timings)
-        else:
-            run, records, status, message = _cold(planner, ctx, timings)
-            notes += ctx.memo.get("notes", [])
+    def solve(self, compiled: Compiled, ctx: SolveContext, timings: dict,
+              t_start: float) -> PlanResult:
+        """The multistart, then the best basin refined and certified (the next on failure)."""
+        problem, options = ctx.problem, ctx.options
+        run, records = None, []
+        try:
+            run, records, status, message = _cold(compiled, ctx, timings)
+            notes = list(ctx.memo.get("notes", []))
             if status is _LIMITS_BIND:
-                return plan_limited(planner, ctx, timings, t_start, notes)
+                return plan_limited(compiled, ctx, timings, t_start, notes)
             if status in _SHOOTING_FAILURES and options.direct_fallback:
-                return _fallback(planner, ctx, timings, t_start, status, message, records,
+                return _fallback(compiled, ctx, timings, t_start, status, message, records,
                                  run)
             if status is not Status.SUCCESS:
                 timings["total"] = time.perf_counter() - t_start
                 return _failure(problem, status, message, timings, records, run)
             faster = _faster_failures(records, run.t_final)
             if faster and options.direct_fallback:
-                direct, note = _faster_direct(planner, ctx, timings, t_start, faster, run,
+                direct, note = _faster_direct(compiled, ctx, timings, t_start, faster, run,
                                               records)
                 if direct is not None:
                     return direct
                 notes.append(note)
-        # The next basins of the multistart, best T first, in case the best one's
-        # certificate fails (a motion that cannot be certified is never returned when a
-        # certified one was found).
-        queue = [(run, None)] + ctx.memo.get("others", [])
-        why = ""
-        while queue:
-            run, idx = queue.pop(0)
-            t0 = time.perf_counter()
-            tried = list(notes)
-            finish = finish_warm if finished else final_smoothing
-            tried += finish(ctx, run, _offer)
-            timings["refine"] += time.perf_counter() - t0
-            traj = trajectory(ctx, run)
-            sample = fine_sample(traj)
-            if _leaves_limits(problem, sample):
-                if warm_start is not None:
-                    timings["total"] = time.perf_counter() - t_start
-                    return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
-                                    "leaves the joint limits", timings, run=run)
-                notes.append("the solution of the maximum principle leaves the joint limits")
-                return plan_limited(planner, ctx, timings, t_start, notes)
-            if idx is not None:
-                records = [replace(r, status="returned") if r.index == idx else
-                           replace(r, status=why) if r.status == "returned" else r
-                           for r in records]
-            result = _result(ctx, run, records, tried, timings, t_start, traj, sample)
-            if result.status is not Status.VERIFICATION_FAILED or not queue:
-                return result
-            why = result.message
-            notes.append(f"the basin with T = {result.T:.6f} s failed its certificate "
-                         f"({result.message}); the next best one was tried")
-    except StopError as stop:
-        best = None
-        if stop.status is Status.TIME_LIMIT:
-            best = ctx.incumbent(INCUMBENT_TRIES, timings, t_start)
-        timings["total"] = time.perf_counter() - t_start
-        if best is not None:
-            return _time_limited(best)
-        return _failure(problem, stop.status, "solve interrupted", timings, records, run)
+            return _finish(compiled, ctx, run, records, notes, timings, t_start, warm=False)
+        except StopError as stop:
+            stop.partial = _failure_fields(records, run)
+            raise
+
+    def warm_start(self, compiled: Compiled, ctx: SolveContext, previous: PlanResult,
+                   timings: dict, t_start: float) -> PlanResult:
+        """The previous solution continued to this problem (a failure is reported)."""
+        problem, run = ctx.problem, None
+        try:
+            # A planner made since (optimised libraries landed) loads the shooting's first.
+            ctx.extend(compiled.prepare_shooting(problem, ctx.options))
+            run, finished = warm_run(ctx, previous)
+            timings["shooting"] += time.perf_counter() - t_start
+            if run is None:
+                timings["total"] = time.perf_counter() - t_start
+                return _failure(problem, Status.NEWTON_FAILED,
+                                "the warm start did not converge", timings)
+            return _finish(compiled, ctx, run, [], [], timings, t_start, warm=True,
+                           finished=finished)
+        except StopError as stop:
+            stop.partial = _failure_fields([], run)
+            raise
 
 
-def _time_limited(best: PlanResult) -> PlanResult:
-    """``best``, a checked motion found before the deadline, as a ``TIME_LIMIT`` result.
+def _finish(compiled: Compiled, ctx: SolveContext, run: Run, records: list[StartRecord],
+            notes: list[str], timings: dict, t_start: float, warm: bool,
+            finished: bool = False) -> PlanResult:
+    """The best run refined, checked and certified; the next basins when its certificate fails.
 
-    Not a success (the solve did not finish: the motion is not shown to be the least ``T``
-    of its basin), but it carries the motion and its certificate.
+    The next basins of the multistart, best T first, in case the best one's certificate
+    fails (a motion that cannot be certified is never returned when a certified one was
+    found). A cold solution that leaves the joint limits goes to the bounded solve; a warm
+    one fails (the caller then solves cold).
     """
-    checked = "certified" if best.certificate is not None else "converged (not certified)"
-    note = (f"the time limit ran out: this is the best {checked} motion found before it "
-            f"(T = {best.T:.6f} s), not shown to be the optimum")
-    return replace(best, success=False, status=Status.TIME_LIMIT,
-                   message=f"{Status.TIME_LIMIT.value}: {note}",
-                   warnings=(note,) + best.warnings)
+    problem = ctx.problem
+    queue = [(run, None)] + ctx.memo.get("others", [])
+    why = ""
+    while queue:
+        run, idx = queue.pop(0)
+        t0 = time.perf_counter()
+        tried = list(notes)
+        finish = finish_warm if finished else final_smoothing
+        tried += finish(ctx, run, _offer)
+        timings["refine"] += time.perf_counter() - t0
+        traj = trajectory(ctx, run)
+        sample = fine_sample(traj)
+        if _leaves_limits(problem, sample):
+            if warm:
+                timings["total"] = time.perf_counter() - t_start
+                return _failure(problem, Status.LIMITS_INFEASIBLE, "the warm solution "
+                                "leaves the joint limits", timings, run=run)
+            notes.append("the solution of the maximum principle leaves the joint limits")
+            return plan_limited(compiled, ctx, timings, t_start, notes)
+        if idx is not None:
+            records = [replace(r, status="returned") if r.index == idx else
+                       replace(r, status=why) if r.status == "returned" else r
+                       for r in records]
+        result = _result(ctx, run, records, tried, timings, t_start, traj, sample)
+        if result.status is not Status.VERIFICATION_FAILED or not queue:
+            return result
+        why = result.message
+        notes.append(f"the basin with T = {result.T:.6f} s failed its certificate "
+                     f"({result.message}); the next best one was tried")
+    raise AssertionError("unreachable: the queue holds the best run")
+
+
+def _failure_fields(records: list[StartRecord], run: Run | None) -> dict:
+    """``PlanResult.failure``'s fields of an interrupted solve: its records and its run."""
+    fields = {"starts": tuple(records)}
+    if run is not None:
+        fields.update(k=run.k, residual=run.residual, iterations=run.iterations,
+                      continuation=tuple(run.log), delta=run.delta, intervals=run.grid.N)
+    return fields
 
 
 def _leaves_limits(problem: Problem, sample) -> bool:
@@ -337,7 +202,7 @@ def _offer(ctx: SolveContext, snap: tuple) -> None:
 _SHOOTING_FAILURES = (Status.NEWTON_FAILED, Status.CONTINUATION_FAILED)
 
 
-def _fallback(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
+def _fallback(planner: Compiled, ctx: SolveContext, timings: dict, t_start: float,
               status: Status, message: str, records: list[StartRecord], run) -> PlanResult:
     """The problem solved as a B-spline path after the shooting failed on every candidate.
 
@@ -370,7 +235,7 @@ def _faster_failures(records: list[StartRecord], T: float) -> frozenset[int]:
                      if r.status.startswith(failed) and r.guess_T < T)
 
 
-def _faster_direct(planner: Planner, ctx: SolveContext, timings: dict, t_start: float,
+def _faster_direct(planner: Compiled, ctx: SolveContext, timings: dict, t_start: float,
                    faster: frozenset[int], run: Run, records: list[StartRecord]
                    ) -> tuple[PlanResult | None, str]:
     """The B-spline solve of the candidates :func:`_faster_failures` names.
@@ -445,7 +310,7 @@ def _failure(problem: Problem, status: Status, message: str, timings: dict, star
 _LIMITS_BIND = object()
 
 
-def _cold(planner: Planner, ctx: SolveContext, timings: dict):
+def _cold(planner: Compiled, ctx: SolveContext, timings: dict):
     """Multistart: direct guesses from seed pairs, the best distinct ones continued.
 
     Ranked seeds, then recombined ones (:func:`~.guesses.recombined_guesses`); a candidate
@@ -541,7 +406,7 @@ def _cold(planner: Planner, ctx: SolveContext, timings: dict):
     return best[0], sorted(records.values(), key=lambda r: r.index), Status.SUCCESS, ""
 
 
-def _direct_at_k(planner: Planner, ctx: SolveContext, guess) -> Run | None:
+def _direct_at_k(planner: Compiled, ctx: SolveContext, guess) -> Run | None:
     """A candidate whose shooting failed from its guess, solved at the requested k directly.
 
     The direct method at ``problem.k`` from the guess (finer, :func:`finer_guess`), then
@@ -556,7 +421,7 @@ def _direct_at_k(planner: Planner, ctx: SolveContext, guess) -> Run | None:
     return run if status is Status.SUCCESS else None
 
 
-def _from_finer_guess(planner: Planner, ctx: SolveContext, g: tuple, failures: list,
+def _from_finer_guess(planner: Compiled, ctx: SolveContext, g: tuple, failures: list,
                       records: dict, succeeded: list):
     """After every candidate failed: the first again from its guess solved on a finer mesh.
 
@@ -598,3 +463,4 @@ def _k1_time(run) -> float | None:
     return next((T for k, delta, T, *_ in run.log if k == 1.0 and delta == 0.0), None)
 
 
+register(MaximumPrinciple())

@@ -2,17 +2,15 @@
 
 :class:`PreparedModel` holds a model's canonical system and its direct and bounded
 B-spline transcriptions, and prepares (generates and compiles) what a problem's kinds need.
-The orchestration's :class:`~tocontrol_ros.core.solver.Planner` is one, with ``plan``; the
+The orchestration's :class:`~tocontrol_ros.core.planning.solver.Planner` is one, with ``plan``; the
 methods that take one (the bounded solve, :mod:`tocontrol_ros.core.direct.limited`) see
 only this class, so they do not import the orchestration.
 """
 
 from __future__ import annotations
 
-import copy
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -26,11 +24,11 @@ from tocontrol_ros.core.direct.tuning import SPANS
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.indirect.tuning import CONTINUATION_STEPS
-from tocontrol_ros.core.options import SolverOptions
-from tocontrol_ros.core.pool import available_cores, shared_pool
-from tocontrol_ros.core.problem import Problem
+from tocontrol_ros.core.planning.pool import available_cores, shared_pool
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.robot.compiled import c_name
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem
 
 __all__ = ["PreparedModel"]
 
@@ -133,12 +131,7 @@ class PreparedModel:
         """A planner sharing this one's symbolic system, with empty caches of functions."""
         scratch = object.__new__(type(self))
         scratch.model, scratch.generation = self.model, self.generation
-        scratch.system = copy.copy(self.system)
-        scratch.system._cache = {  # the symbolic entries only
-            key: value for key, value in self.system._cache.items()
-            if key in ("rhs", "stagewise") or (isinstance(key, tuple) and key[0] == "step_sx")}
-        scratch.system._sized = OrderedDict()
-        scratch.system._buffer_lock = threading.Lock()
+        scratch.system = self.system.scratch()
         scratch._direct, scratch._prepared, scratch._lock = {}, set(), threading.Lock()
         return scratch
 
@@ -163,7 +156,7 @@ class PreparedModel:
 
         With one worker (the default), each item is solved when the iterator reaches it.
         With more, the items are shared out between this process and worker processes
-        (:class:`~tocontrol_ros.core.pool.WorkerPool`, one per number of workers) and the
+        (:class:`~tocontrol_ros.core.planning.pool.WorkerPool`, one per number of workers) and the
         iterator yields their results in the items' order once all have ended, the first
         exception raised where its item stands: the same values either way.
         """

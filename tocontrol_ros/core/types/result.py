@@ -7,18 +7,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tocontrol_ros.core.certificate import Certificate
-from tocontrol_ros.core.indirect.pmp import CanonicalSystem
-from tocontrol_ros.core.indirect.shooting import ShootingGrid
-from tocontrol_ros.core.problem import Problem
-from tocontrol_ros.core.trajectory import Trajectory
-from tocontrol_ros.core.tuning import WARM_JOINT_RADIUS, WARM_RADIUS
+from tocontrol_ros.core.types.certificate import Certificate
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.trajectory import Motion
+from tocontrol_ros.core.types.tuning import WARM_JOINT_RADIUS, WARM_RADIUS
 
-__all__ = ["Status", "StartRecord", "WarmState", "PathWarmState", "PlanResult"]
+__all__ = ["Status", "StartRecord", "PlanResult"]
 
 
 class Status(enum.Enum):
-    """Outcome of :func:`~tocontrol_ros.core.solver.plan`; the value is a readable sentence."""
+    """Outcome of :func:`~tocontrol_ros.core.plan`; the value is a readable sentence."""
 
     SUCCESS = "solved and verified"
     TRIVIAL = "start at rest within MIN_MOVE of the target: nothing to move"
@@ -60,67 +58,9 @@ class StartRecord:
     status: str
 
 
-@dataclass(frozen=True, eq=False)
-class WarmState:
-    """The final shooting mesh and unknowns of a solve: what a warm start continues from.
-
-    Attributes
-    ----------
-    lengths : ndarray, shape (N,)
-        Interval lengths in normalised time (sum 1).
-    w : ndarray, shape (size,)
-        Unknowns of the shooting grid (:meth:`ShootingGrid.pack`).
-    steps : int
-        RK4 steps per interval.
-    kinds : ndarray of int, shape (N,)
-        Step grading of each interval (0 uniform, 1 towards its end, -1 towards its start).
-    breaks : list of (int, int)
-        Switch nodes: (node index, index of the switching function).
-    factors : object or None
-        LU factors of a Jacobian on this mesh (reused by chord Newton steps).
-    """
-
-    lengths: np.ndarray
-    w: np.ndarray
-    steps: int
-    kinds: np.ndarray
-    breaks: list
-    factors: object = None
-
-    def grid(self, system: CanonicalSystem, start_kind: str, target_kind: str
-             ) -> ShootingGrid:
-        """The shooting grid of this state for the given end kinds ("point" or "state")."""
-        return ShootingGrid(system, self.lengths, self.steps, start_kind, target_kind,
-                            kinds=self.kinds, breaks=self.breaks)
-
-
-@dataclass(frozen=True, eq=False)
-class PathWarmState:
-    """The final B-spline mesh and path of a ``"direct"`` solve: what its warm start uses.
-
-    Attributes
-    ----------
-    breaks : ndarray, shape (L + 1,)
-        Breakpoints of the spline in normalised time ``s = t / T`` (from 0 to 1).
-    P : ndarray, shape (L + degree, n)
-        Control points (rad, m).
-    T : float
-        Final time (s).
-    lam_g, lam_x : ndarray or None
-        The NLP's multipliers at that solution (rows, then variables' bounds): a warm
-        re-solve on the same mesh starts from them too (docs/limits.md).
-    """
-
-    breaks: np.ndarray
-    P: np.ndarray
-    T: float
-    lam_g: np.ndarray | None = None
-    lam_x: np.ndarray | None = None
-
-
 @dataclass(frozen=True)
 class PlanResult:
-    """Outcome of :func:`~tocontrol_ros.core.solver.plan` (like ``solve_bvp``'s result).
+    """Outcome of :func:`~tocontrol_ros.core.planning.solver.plan` (like ``solve_bvp``'s result).
 
     Attributes
     ----------
@@ -131,7 +71,7 @@ class PlanResult:
         Minimum time (s); NaN when there is no solution.
     k : float
         Exponent reached (the requested one on success).
-    trajectory : Trajectory or None
+    trajectory : Motion or None
     residual : float
         Max-norm of the BVP equations (continuity, boundary, transversality, ``H(T)``).
     iterations : int
@@ -154,7 +94,9 @@ class PlanResult:
     starts : tuple of StartRecord
     problem : Problem or None
         The problem solved.
-    warm_state : WarmState or PathWarmState or None
+    warm_state : object or None
+        The method's own (:class:`~tocontrol_ros.core.indirect.warm.WarmState`,
+        :class:`~tocontrol_ros.core.direct.warm.PathWarmState`, ...); only that method reads it.
         What a warm start continues from (None on failure): the final shooting mesh and
         unknowns, or for a ``"direct"`` result the final B-spline mesh and path.
     method : str
@@ -174,7 +116,7 @@ class PlanResult:
     message: str
     T: float
     k: float
-    trajectory: Trajectory | None
+    trajectory: Motion | None
     residual: float
     iterations: int
     timings: dict
@@ -186,7 +128,7 @@ class PlanResult:
     warnings: tuple[str, ...] = ()
     starts: tuple[StartRecord, ...] = ()
     problem: Problem | None = field(default=None, repr=False)
-    warm_state: WarmState | PathWarmState | None = field(default=None, repr=False)
+    warm_state: object | None = field(default=None, repr=False)
     certificate: Certificate | None = None
     method: str = "indirect"
 
@@ -215,7 +157,7 @@ class PlanResult:
 
     def can_warm_start(self, problem: Problem,
                        joint_radius: float = WARM_JOINT_RADIUS) -> bool:
-        """Whether :func:`~tocontrol_ros.core.solver.plan` continues this to ``problem``.
+        """Whether :func:`~tocontrol_ros.core.planning.solver.plan` continues this to ``problem``.
 
         It does from a warm state with the same model, start and target kinds and reserve,
         when ``problem`` is near this one: each end point within :data:`WARM_RADIUS` of

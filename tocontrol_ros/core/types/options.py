@@ -6,9 +6,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tocontrol_ros.core.certificate import CertificateOptions
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.tuning import WARM_JOINT_RADIUS
+from tocontrol_ros.core.types.certificate import CertificateOptions
+from tocontrol_ros.core.types.tuning import WARM_JOINT_RADIUS
 
 #: Fewest spans of ``SolverOptions.replan_spans`` (a cubic spline on fewer barely bends).
 MIN_REPLAN_SPANS = 4
@@ -18,7 +18,7 @@ __all__ = ["SolverOptions"]
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Tolerances and limits of :func:`~tocontrol_ros.core.solver.plan` (validated).
+    """Tolerances and limits of :func:`~tocontrol_ros.core.planning.solver.plan` (validated).
 
     Attributes
     ----------
@@ -79,14 +79,14 @@ class SolverOptions:
         :func:`~tocontrol_ros.core.robot.ik.ik_family`); an arm whose family is random
         inverse-kinematics seeds instead (a spatial arm) gets ``ik_count`` seeds, or
         ``RANDOM_IK_FACTOR`` (2) times as many when the problem has joint limits
-        (:mod:`~tocontrol_ros.core.tuning`).
+        (:mod:`~tocontrol_ros.core.methods.tuning`).
     exhaustive : bool
         Reference mode of the benchmark (slow: minutes per problem on the paper's arm):
         a dense self-motion grid, every full-turn branch, many seed pairs solved by the
         direct method and many distinct direct solutions continued; ``starts`` and
-        ``candidates`` are ignored (see :mod:`~tocontrol_ros.core.seeding`).
+        ``candidates`` are ignored (see :mod:`~tocontrol_ros.core.methods.seeding`).
     verify : bool
-        Certify every solution (:func:`~tocontrol_ros.core.certificate.certify`: the
+        Certify every solution (:func:`~tocontrol_ros.core.indirect.certificate.certify`: the
         nominal torques re-integrated through the model by an adaptive integrator, the
         canonical system re-integrated per shooting interval, the torques inside the set,
         ``H``, the boundary conditions); a solution that fails is not a success.
@@ -119,7 +119,7 @@ class SolverOptions:
         (max-norm of positions and velocities, rad and rad/s; its end points within
         ``WARM_RADIUS`` too: :meth:`PlanResult.can_warm_start`). The default keeps a warm
         start in the multistart's basin; the planner node's replans allow more
-        (:data:`~tocontrol_ros.core.replan.REPLAN_JOINT_RADIUS`): along a stream of goals
+        (:data:`~tocontrol_ros.core.planning.replan.REPLAN_JOINT_RADIUS`): along a stream of goals
         each start moves by a few centimetres, and the warm solve still converges.
     replan_spans : int
         Bounded solves (``docs/limits.md``) of a replan stay on a coarse mesh: a warm start
@@ -127,7 +127,7 @@ class SolverOptions:
         fitted there when its own mesh has another number, and a solve without one keeps
         its uniform mesh, unrefined. 0 (the default): full accuracy (a warm start on its own
         mesh, from its path and multipliers; every candidate refined). The planner node's
-        replans use :data:`~tocontrol_ros.core.replan.REPLAN_SPANS`: a replan's motion is
+        replans use :data:`~tocontrol_ros.core.planning.replan.REPLAN_SPANS`: a replan's motion is
         short, IPOPT's iterations on a refined mesh of 56-128 spans cost 3-4 times more, and
         ``T`` stays within about 1e-3 (BENCHMARKS.md "Replanning").
     workers : int
@@ -137,8 +137,17 @@ class SolverOptions:
         process; 0: one per core this process may use. The answer is the same for any
         number (each piece is computed alike wherever it runs, and taken in its order);
         more workers only make it sooner. Workers are started on first use and kept
-        (:mod:`~tocontrol_ros.core.pool`); a worker that dies is replaced by the caller's
+        (:mod:`~tocontrol_ros.core.planning.pool`); a worker that dies is replaced by the caller's
         process.
+    method : str
+        The method that solves a cold request, by its name in the method contract's
+        registry (:func:`~tocontrol_ros.core.methods.contract.method_names`): ``"auto"``
+        (the default: the maximum principle, which solves the bounded B-spline problem
+        where the joint limits bind), ``"indirect"`` (the same), ``"direct"`` (the bounded
+        B-spline solve), ``"first"`` (a seed path timed by TOPP-RA: certified, not
+        optimal), or a method registered by the caller
+        (:func:`~tocontrol_ros.core.methods.contract.register`). A warm start is continued
+        by the method that made it. An unknown name is refused when the solve starts.
     """
 
     tol: float = 1e-10
@@ -168,6 +177,7 @@ class SolverOptions:
     warm_joint_radius: float = WARM_JOINT_RADIUS
     replan_spans: int = 0
     workers: int = 1
+    method: str = "auto"
 
     def __post_init__(self) -> None:
         positive = ("tol", "guess_tol", "integration_tol", "smoothing_tol", "min_k_step",
@@ -191,6 +201,9 @@ class SolverOptions:
                 and self.workers >= 0):
             raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "
                                f"{self.workers!r}")
+        if not (isinstance(self.method, str) and self.method):
+            raise ProblemError(f"`method` must be a method's name (a non-empty string), got "
+                               f"{self.method!r}")
         sm = tuple(float(d) for d in self.smoothing)
         if not sm or any(d < 0 or not np.isfinite(d) for d in sm) or \
                 any(b >= a for a, b in zip(sm, sm[1:], strict=False)):

@@ -1,0 +1,171 @@
+"""The certificate of any motion: its torques re-integrated, each check with its tolerance.
+
+:func:`certify_open_loop` certifies a motion whatever method made it: the nominal torques
+are integrated from ``x(0)`` by a method other than the motion's own, and the items say
+where they take the arm (end point, velocity, position for a joint-state target), whether
+every torque is inside the convexified set (``sum u_i^(2k) <= 1``, hence ``|u_i| <= 1``),
+whether the joint position and velocity limits hold along a fine sampling and the
+re-integration (:attr:`CertificateOptions.check_limits`, on by default), and the solver's
+own residual. The item builders (:func:`check_item`, :func:`end_checks`,
+:func:`torque_checks`, :func:`solver_and_limit_checks`, :func:`certificate_of`) are shared
+with the maximum principle's certificate
+(:func:`~tocontrol_ros.core.indirect.certificate.certify`), which also re-integrates its
+canonical system. The result is a frozen :class:`Certificate`
+(:mod:`tocontrol_ros.core.types.certificate`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tocontrol_ros.core.types.certificate import Certificate, CertificateItem, CertificateOptions
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.trajectory import TrajectorySample
+
+__all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify_open_loop",
+           "check_item", "end_checks", "torque_checks", "solver_and_limit_checks",
+           "certificate_of"]
+
+
+# ------------------------------------------------- the items every certificate has
+def check_item(name: str, value: float, tol: float, unit: str, meaning: str
+               ) -> CertificateItem:
+    """One check: passed when ``value`` is finite and at most ``tol``."""
+    value = float(value)
+    passed = bool(np.isfinite(value) and value <= tol)
+    return CertificateItem(name, value, float(tol), passed, unit, meaning)
+
+
+
+
+def solver_and_limit_checks(problem: Problem, sample: TrajectorySample, x_path: np.ndarray,
+                            solver_residual: float | None, meaning: str,
+                            options: CertificateOptions) -> list[CertificateItem]:
+    """The solver's own residual (when given, ``meaning`` says what it is) and the limits."""
+    items = []
+    if solver_residual is not None:
+        items.append(check_item("solver_residual", solver_residual, options.residual_tol, "",
+                           meaning))
+    if options.check_limits:
+        items += limit_checks(problem, sample, x_path, options)
+    return items
+
+
+def certificate_of(items: list[CertificateItem], figures: dict, options: CertificateOptions,
+             x_T: np.ndarray) -> Certificate:
+    """The certificate of ``items``: passed when all pass; their values, then ``figures``."""
+    return Certificate(passed=all(i.passed for i in items), items=tuple(items),
+                       figures={**{i.name: i.value for i in items}, **figures},
+                       options=options, open_loop_end=x_T.copy())
+
+
+def end_checks(problem: Problem, x_T: np.ndarray, point_err: float, vel_err: float,
+               finished: bool, options: CertificateOptions) -> list[CertificateItem]:
+    """Where the nominal torques take the arm: the open-loop state at T (2n,)."""
+    n = problem.model.n
+    items = [
+        check_item("integrator_finished", 0.0 if finished else 1.0, 0.5, "",
+              "the adaptive integrator reached the end of every segment"),
+        check_item("end_point", point_err, options.point_tol, "m",
+              "nominal torques integrated from x(0): end point to target"),
+        check_item("end_velocity", vel_err, options.velocity_tol, "rad/s",
+              "nominal torques integrated from x(0): max |qd(T)|")]
+    if problem.target.kind == "state":
+        items.append(check_item("end_position", float(np.max(np.abs(
+            x_T[:n] - problem.target.value[:n]))), options.position_tol, "rad",
+            "nominal torques integrated from x(0): max |q(T) - q_target|"))
+    return items
+
+
+def torque_checks(problem: Problem, u: np.ndarray, options: CertificateOptions
+                  ) -> tuple[np.ndarray, list[CertificateItem]]:
+    """Torques (K, n) inside the convexified set; also ``sum u_i^(2k)`` per sample."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        set_sum = np.sum(np.abs(u) ** (2 * problem.k), axis=1)
+    # |u_i| = 1 is in the set: where every other S_j = 0 (one joint's switch, n = 2).
+    return set_sum, [
+        check_item("control_set", float(np.max(set_sum) - 1.0), options.control_set_tol, "",
+              "max sum u_i^(2k) - 1 over the samples"),
+        check_item("max_abs_u", float(np.max(np.abs(u))), 1.0 + options.control_set_tol, "",
+              "max |u_i| over the samples (the torque limits, to rounding)")]
+
+
+def limit_checks(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
+                 options: CertificateOptions) -> list[CertificateItem]:
+    """The problem's joint limits, along the sampling and the open-loop states."""
+    n = problem.model.n
+    q = np.concatenate([sample.q, x_end[:, :n]])
+    qd = np.concatenate([sample.qd, x_end[:, n:]])
+    pos, vel = problem.limits.violations(q, qd)
+    return [check_item("position_limits", pos, options.limit_tol, "",
+                  "max excess over the joint position limits, fraction of the range"),
+            check_item("velocity_limits", vel, options.limit_tol, "",
+                  "max excess over the joint velocity limits, fraction of the limit")]
+
+
+
+
+def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions | None = None,
+                      sample: TrajectorySample | None = None,
+                      solver_residual: float | None = None) -> Certificate:
+    """Check a motion that has no costates (a direct method's): its torques and states.
+
+    The nominal torques are integrated from ``x(0)`` by scipy's DOP853 (adaptive, error
+    control at ``options.rtol``; a different method from the motion's own), through the
+    sampling's times, or by the trajectory's own ``open_loop(rtol, atol)`` when it has one
+    (:meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop`: CVODES span
+    by span); the items are the end point, velocity (and position for a joint-state
+    target), the torques inside the set, the joint limits along the sampling and the
+    integration, and the solver's residual. There is no ``H``, boundary-of-costate or
+    defect item: the motion carries no costates.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : object
+        With ``T``, ``t_grid``, ``evaluate``, ``state`` and ``control`` (e.g.
+        :class:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory`).
+    options : CertificateOptions, optional
+    sample : TrajectorySample, optional
+        Default: 2001 equally spaced times.
+    solver_residual : float, optional
+
+    Returns
+    -------
+    Certificate
+    """
+    from scipy.integrate import solve_ivp
+
+    options = options or CertificateOptions()
+    model, n = problem.model, problem.model.n
+    if sample is None:
+        sample = trajectory.evaluate(np.linspace(0.0, trajectory.T, 2001))
+    f = model.function("f")
+    scale = problem.torque_scale
+
+    def rhs(t, x):
+        return np.array(f(x, trajectory.control(t) * scale)).ravel()
+
+    if hasattr(trajectory, "open_loop"):  # its own (faster) re-integration, see its docs
+        _, x_path, success = trajectory.open_loop(options.rtol, options.atol)
+        nfev = -1
+    else:
+        x0 = trajectory.state(0.0)[0, :2 * n]
+        sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=options.rtol,
+                        atol=options.atol, t_eval=sample.t)
+        x_path, success, nfev = sol.y.T, bool(sol.success), int(sol.nfev)
+    x_T = x_path[-1]
+    point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+    target_qd = problem.target.value[n:] if problem.target.kind == "state" else 0.0
+    vel_err = float(np.max(np.abs(x_T[n:] - target_qd)))
+    items = end_checks(problem, x_T, point_err, vel_err, success, options)
+    items += torque_checks(problem, sample.u, options)[1]
+    max_u = float(np.max(np.abs(sample.u)))
+    items += solver_and_limit_checks(
+        problem, sample, x_path, solver_residual,
+        "the solver's max-norm of its NLP's constraint violation", options)
+    return certificate_of(items, {
+        "point_error": point_err, "velocity_error": vel_err,
+        "state_error": float(np.max(np.abs(x_T - trajectory.state(trajectory.T)[0, :2 * n]))),
+        "max_abs_u": max_u, "integrator_success": success, "nfev": nfev,
+        "rtol": options.rtol}, options, x_T)

@@ -1,0 +1,119 @@
+"""What every stage of one solve shares, whichever method runs it: its context.
+
+:class:`SolveContext` carries the problem, the options, the deadline, the cancel flag and
+the motions found so far; a cancelled or timed-out solve unwinds every stage by
+:class:`StopError`, which :func:`~tocontrol_ros.core.planning.solver.plan` turns into a
+result. The maximum principle's iterate of one start is
+:class:`~tocontrol_ros.core.indirect.run.Run`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from tocontrol_ros.core.types.law import LawParams
+from tocontrol_ros.core.types.options import SolverOptions
+from tocontrol_ros.core.types.problem import Problem
+from tocontrol_ros.core.types.result import PlanResult, Status
+
+__all__ = ["SolveContext", "StopError"]
+
+
+class StopError(Exception):
+    """Internal: the deadline passed or the caller cancelled."""
+
+    def __init__(self, status: Status) -> None:
+        super().__init__(status.value)
+        self.status = status
+        #: ``PlanResult.failure``'s fields of what the method had when it stopped (its
+        #: records, its iterate), set by the method on the way out; None: nothing.
+        self.partial: dict | None = None
+
+    def __reduce__(self):
+        return (StopError, (self.status,))  # from a worker process (core/planning/pool.py)
+
+
+@dataclass(frozen=True)
+class SolveContext:
+    """One call of :func:`~tocontrol_ros.core.planning.solver.plan`: what every stage reads.
+
+    Attributes
+    ----------
+    system : object
+        The model's compiled functions shared by the solve (the maximum principle's
+        :class:`~tocontrol_ros.core.indirect.pmp.CanonicalSystem`; None in a worker).
+    problem : Problem
+    options : SolverOptions
+    deadline : float
+        ``time.perf_counter()`` value at which the solve stops with ``TIME_LIMIT``.
+    should_stop : callable or None
+        Polled between Newton iterations; returning True cancels the solve.
+    memo : dict
+        Values computed once per solve: ``"pairs"``, the multistart's seed pairs (inverse
+        kinematics costs), reused by the bounded solve where the joint limits bind;
+        ``"incumbents"``, the motions found so far (:meth:`offer`).
+    """
+
+    system: Any
+    problem: Problem
+    options: SolverOptions
+    deadline: float
+    should_stop: Callable[[], bool] | None = None
+    memo: dict = field(default_factory=dict)
+
+    def portable(self) -> SolveContext:
+        """A copy for another process (:mod:`~tocontrol_ros.core.planning.pool`).
+
+        Without the compiled system (a worker has its own), the cancel callback (the pool
+        passes an event instead, :meth:`attached`) and the memo (incumbents stay here).
+        """
+        return replace(self, system=None, should_stop=None, memo={})
+
+    def attached(self, should_stop: Callable[[], bool] | None) -> SolveContext:
+        """A copy with ``should_stop`` as its cancel callback."""
+        return replace(self, should_stop=should_stop)
+
+    def extend(self, seconds: float) -> None:
+        """Move the deadline ``seconds`` later (time spent compiling, not solving)."""
+        if seconds > 0.0:
+            object.__setattr__(self, "deadline", self.deadline + seconds)
+
+    def law(self, k: float, delta: float) -> LawParams:
+        """The control law's parameters at ``k`` and ``delta`` for this problem."""
+        return LawParams(k, delta, self.problem.torque_scale)
+
+    def offer(self, T: float, build: Callable[[dict, float], PlanResult]) -> None:
+        """Keep a motion found so far: its ``T`` (s) and how to build its checked result.
+
+        ``build(timings, t_start)`` returns the result (its timings and start time as
+        :func:`~tocontrol_ros.core.planning.solver.plan` reports them).
+        At the caller's deadline :func:`~tocontrol_ros.core.planning.solver.plan` returns the best
+        one that passes its checks (:meth:`incumbent`), with the ``TIME_LIMIT`` status.
+        ``build`` must not depend on state that later stages change (take a snapshot).
+        """
+        if np.isfinite(T):
+            self.memo.setdefault("incumbents", []).append((float(T), build))
+
+    def incumbent(self, tries: int, timings: dict, t_start: float) -> PlanResult | None:
+        """The least-``T`` motion offered whose result passes its checks, or None.
+
+        At most ``tries`` results are built (each one a certificate), least ``T`` first.
+        """
+        offered = sorted(self.memo.get("incumbents", ()), key=lambda entry: entry[0])
+        for _, build in offered[:tries]:
+            result = build(timings, t_start)
+            if result.status is Status.SUCCESS:
+                return result
+        return None
+
+    def check(self) -> None:
+        """Raise :class:`StopError` when the caller cancelled or the deadline passed."""
+        if self.should_stop is not None and self.should_stop():
+            raise StopError(Status.CANCELLED)
+        if time.perf_counter() > self.deadline:
+            raise StopError(Status.TIME_LIMIT)
