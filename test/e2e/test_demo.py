@@ -224,7 +224,7 @@ def test_readme_replay_command_reaches_a_running_tracker(demo, tmp_path):
     Not a regression test of the issue's first try: the plans' recorded QoS is transient
     local, so on this machine's quick discovery the previous replay got through too. That
     failure (published before any subscriber matched) is reproduced, and fails with the
-    previous replay, by test/ros/test_replay.py::test_replay_waits_for_a_subscriber_that_
+    previous replay, by test/recording/test_replay.py::test_replay_waits_for_a_subscriber_that_
     comes_late."""
     demo_dir, returncode, out = demo
     assert returncode == 0, out[-3000:]

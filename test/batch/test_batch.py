@@ -22,7 +22,7 @@ from tocontrol_ros.core.robot.model import default_urdf_path
 from tocontrol_ros.recording import cdr
 
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 #: Fast settings: one start, no re-integration (the library's format is under test here).
 FAST = {"starts": 1, "candidates": 1, "verify": False, "time_limit": 60.0}
 STATIONS = {"feeder": {"point": [1.0, 1.0]}, "press": {"point": [2.2, 1.5]},

@@ -18,7 +18,7 @@ from tocontrol_ros.batch import cli as batch
 from tocontrol_ros.batch.library import TOPIC_PREFIX, library_paths
 
 AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # Not `importorskip("ray")`: --ray local must be the first to import ray (batch/ray_backend.py).
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(importlib.util.find_spec("ray") is None,
