@@ -111,7 +111,7 @@ def test_wider_joint_radius_warm_starts_the_next_goal_of_a_stream(planner):
     # problem starts where the last ended; its joint-state start is beyond the core's
     # warm-start radius, within the replans' one, and the warm solve lands on the motion a
     # cold solve finds (an independent check: T and the reached point).
-    from tocontrol_ros.core.planning.replan import REPLAN_JOINT_RADIUS
+    from tocontrol_ros.core.planning.tuning import REPLAN_JOINT_RADIUS
     from tocontrol_ros.core.types.problem import Problem, joint_state
 
     model = planner.model

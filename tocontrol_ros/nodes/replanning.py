@@ -18,7 +18,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tocontrol_ros.core.planning.replan import TAIL_MIN_REMAINING, LatencyEstimate, tail_warm_start
+from tocontrol_ros.core.planning.replan import LatencyEstimate, tail_warm_start
+from tocontrol_ros.core.planning.tuning import TAIL_MIN_REMAINING
 from tocontrol_ros.core.sim.nominal import NominalTrajectory
 from tocontrol_ros.core.types.problem import REST_SPEED, note_reachable
 from tocontrol_ros.nodes.planner_config import PlannerConfig

@@ -48,6 +48,14 @@ from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath
 from tocontrol_ros.core.direct.time_scaling import rest_time, time_scaling
+from tocontrol_ros.core.direct.tuning import (
+    CANDIDATES,
+    FOLLOW_ITERATIONS,
+    FOLLOW_STEPS,
+    OPEN_LOOP_ATOL,
+    OPEN_LOOP_RTOL,
+    TIME_SCALES,
+)
 from tocontrol_ros.core.methods.seeding import seed_pairs
 from tocontrol_ros.core.robot.ik import IK_TOL
 from tocontrol_ros.core.types.options import SolverOptions
@@ -55,27 +63,6 @@ from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
 __all__ = ["first_motion"]
-
-#: Candidate end configurations timed at rest before one is chosen (the planner's seed pairs
-#: and the target followed from the start, ranked by :func:`_estimates`). On 40 cases drawn
-#: as bench/limits.py's (Panda, UR5, xArm7, limited 3R; 10 each, from rest) the chosen line
-#: was the fastest of all 17 candidates in 38 and within 6 % in the others; the first seed
-#: pair's alone was up to 4 times slower, and the followed target was the fastest in 30.
-CANDIDATES = 3
-#: Points of the straight task-space line along which the target's configuration is
-#: followed from the start (:func:`_followed`), and Newton steps at each.
-FOLLOW_STEPS, FOLLOW_ITERATIONS = 20, 3
-#: A moving start's parabola is tried with these multiples of the straight path's
-#: rest-to-rest time as ``tau``, in turn, until one can be timed. A longer ``tau`` starts
-#: more slowly along the path (``qdd(0) = 2 (q_b - q_0 - v) / tau^2``, less force needed at
-#: the start); on the moving cases of bench/limits.py (Panda, limited 3R) the first was
-#: always the fastest, by 5-25 %.
-TIME_SCALES = (1.0, 2.0, 4.0)
-#: The certificate re-integrates the nominal torques open loop at these tolerances, tighter
-#: than the optimum's (1e-10): a first motion is slower, and an arm that is unstable open
-#: loop amplifies the integration error with time (a 1.8 s Panda motion: about e^(15 t),
-#: 3 mm at the target from 1e-10, 0.03 mm from 1e-12, at the same cost).
-OPEN_LOOP_RTOL, OPEN_LOOP_ATOL = 1e-12, 1e-13
 
 
 def first_motion(problem: Problem, options: SolverOptions | None = None,

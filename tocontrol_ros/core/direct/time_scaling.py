@@ -38,40 +38,22 @@ import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, mapped
+from tocontrol_ros.core.direct.tuning import (
+    ADAPT_FLOOR,
+    ADAPT_PASSES,
+    CHECK_POINTS,
+    GRIDPOINTS,
+    MARGIN_ROUNDS,
+    SCALING_SET_MARGIN,
+    SPEED_CAP,
+    TANGENT_FLOOR,
+    VELOCITY_PAD,
+    X_HUGE,
+)
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["GRIDPOINTS", "rest_time", "time_scaling"]
-
-#: TOPP-RA segments along the path. On the Panda and the limited 3R (bench/limits.py cases)
-#: T fell by 1-3 % from 50 to 100 segments and by 0.1-1.2 % from 100 to 200; each pass, and
-#: the certificate's open loop, costs in proportion.
-GRIDPOINTS = 100
-#: Passes that adapt each gridpoint's box to the torques of the pass before (a second one
-#: gained under 0.1 % of T on the Panda and the limited 3R of bench/limits.py).
-ADAPT_PASSES = 1
-#: Share of the corner direction given to every joint when a box is adapted, so that a
-#: joint the last pass hardly loaded keeps some room.
-ADAPT_FLOOR = 0.1
-#: The boxes are shrunk by this fraction at first: the torques between the gridpoints,
-#: which TOPP-RA does not see, stay inside the set.
-SET_MARGIN = 1e-3
-#: Times the path is timed again with wider margins when the torques between the
-#: gridpoints still leave the set.
-MARGIN_ROUNDS = 3
-#: Times per segment (both ends included) at which the torques are checked.
-CHECK_POINTS = 5
-#: The velocity limits are kept by this fraction (the open-loop re-integration of the
-#: certificate, a different integrator, must stay within them).
-VELOCITY_PAD = 1e-4
-#: Friction's tangent lines are taken at no less than this fraction of the largest squared
-#: path speed of the pass before (a tangent near zero would pin the path speed there).
-TANGENT_FLOOR = 1e-2
-#: The friction chords hold up to this multiple of the last pass's largest squared path
-#: speed, which bounds the path speed there.
-SPEED_CAP = 4.0
-#: Stands for "no bound" on a squared path speed (1/s^2): TOPP-RA's solvers take numbers.
-X_HUGE = 1e8
+__all__ = ["rest_time", "time_scaling"]
 
 def rest_time(problem: Problem, path: PolynomialPath) -> tuple[float | None, str]:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
@@ -139,7 +121,7 @@ def time_scaling(problem: Problem, path: PolynomialPath, sd0: float):
     """
     s = np.linspace(0.0, 1.0, GRIDPOINTS + 1)
     coef = _Coefficients(problem, path, s)
-    margin, passes = SET_MARGIN, 0
+    margin, passes = SCALING_SET_MARGIN, 0
     for _ in range(MARGIN_ROUNDS + 1):
         x, count = _best_scaling(problem, coef, s, sd0, margin)
         passes += count

@@ -12,7 +12,10 @@ __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SA
            "GUESS_WINDOW", "REFINEMENTS", "REFINE_JUMP", "REFINE_WINDOW", "LEVEL_WINDOWS",
            "T_SETTLED", "SPAN_BUCKET", "SET_MARGIN", "INSIDE_TIE", "PAD_ROUNDS", "STRETCHES",
            "NEAR_MAX_ITER", "WARM_MU", "WARM_PUSH", "RESUME_MU", "RESTART_MAX_PERTURBATION",
-           "FINE_GUESS_INTERVALS", "FINE_GUESS_TOL"]
+           "FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "GRIDPOINTS", "ADAPT_PASSES",
+           "ADAPT_FLOOR", "MARGIN_ROUNDS", "CHECK_POINTS", "VELOCITY_PAD", "TANGENT_FLOOR",
+           "SPEED_CAP", "X_HUGE", "SCALING_SET_MARGIN", "CANDIDATES", "FOLLOW_STEPS",
+           "FOLLOW_ITERATIONS", "TIME_SCALES", "OPEN_LOOP_RTOL", "OPEN_LOOP_ATOL"]
 
 
 # ---------------------------------------------- the k = 1 guess (collocation.py)
@@ -170,3 +173,68 @@ RESTART_MAX_PERTURBATION = 1e4
 #: (after a failed shooting, for the shooting's retry and for the fallback).
 FINE_GUESS_INTERVALS = 24
 FINE_GUESS_TOL = 1e-8
+
+
+# ------------------------------ the first motion (first_motion.py, time_scaling.py)
+#: TOPP-RA segments along the path. On the Panda and the limited 3R (bench/limits.py cases)
+#: T fell by 1-3 % from 50 to 100 segments and by 0.1-1.2 % from 100 to 200; each pass, and
+#: the certificate's open loop, costs in proportion.
+GRIDPOINTS = 100
+
+#: Passes that adapt each gridpoint's box to the torques of the pass before (a second one
+#: gained under 0.1 % of T on the Panda and the limited 3R of bench/limits.py).
+ADAPT_PASSES = 1
+
+#: Share of the corner direction given to every joint when a box is adapted, so that a
+#: joint the last pass hardly loaded keeps some room.
+ADAPT_FLOOR = 0.1
+
+#: The boxes are shrunk by this fraction at first: the torques between the gridpoints,
+#: which TOPP-RA does not see, stay inside the set.
+SCALING_SET_MARGIN = 1e-3
+
+#: Times the path is timed again with wider margins when the torques between the
+#: gridpoints still leave the set.
+MARGIN_ROUNDS = 3
+
+#: Times per segment (both ends included) at which the torques are checked.
+CHECK_POINTS = 5
+
+#: The velocity limits are kept by this fraction (the open-loop re-integration of the
+#: certificate, a different integrator, must stay within them).
+VELOCITY_PAD = 1e-4
+
+#: Friction's tangent lines are taken at no less than this fraction of the largest squared
+#: path speed of the pass before (a tangent near zero would pin the path speed there).
+TANGENT_FLOOR = 1e-2
+
+#: The friction chords hold up to this multiple of the last pass's largest squared path
+#: speed, which bounds the path speed there.
+SPEED_CAP = 4.0
+
+#: Stands for "no bound" on a squared path speed (1/s^2): TOPP-RA's solvers take numbers.
+X_HUGE = 1e8
+
+#: Candidate end configurations timed at rest before one is chosen (the planner's seed pairs
+#: and the target followed from the start, ranked by :func:`_estimates`). On 40 cases drawn
+#: as bench/limits.py's (Panda, UR5, xArm7, limited 3R; 10 each, from rest) the chosen line
+#: was the fastest of all 17 candidates in 38 and within 6 % in the others; the first seed
+#: pair's alone was up to 4 times slower, and the followed target was the fastest in 30.
+CANDIDATES = 3
+
+#: Points of the straight task-space line along which the target's configuration is
+#: followed from the start (:func:`_followed`), and Newton steps at each.
+FOLLOW_STEPS, FOLLOW_ITERATIONS = 20, 3
+
+#: A moving start's parabola is tried with these multiples of the straight path's
+#: rest-to-rest time as ``tau``, in turn, until one can be timed. A longer ``tau`` starts
+#: more slowly along the path (``qdd(0) = 2 (q_b - q_0 - v) / tau^2``, less force needed at
+#: the start); on the moving cases of bench/limits.py (Panda, limited 3R) the first was
+#: always the fastest, by 5-25 %.
+TIME_SCALES = (1.0, 2.0, 4.0)
+
+#: The certificate re-integrates the nominal torques open loop at these tolerances, tighter
+#: than the optimum's (1e-10): a first motion is slower, and an arm that is unstable open
+#: loop amplifies the integration error with time (a 1.8 s Panda motion: about e^(15 t),
+#: 3 mm at the target from 1e-10, 0.03 mm from 1e-12, at the same cost).
+OPEN_LOOP_RTOL, OPEN_LOOP_ATOL = 1e-12, 1e-13

@@ -25,17 +25,13 @@ from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
 from tocontrol_ros.core.indirect.tuning import CONTINUATION_STEPS
 from tocontrol_ros.core.planning.pool import available_cores, shared_pool
+from tocontrol_ros.core.planning.tuning import FLAT_CACHE
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.robot.compiled import c_name
 from tocontrol_ros.core.types.options import SolverOptions
 from tocontrol_ros.core.types.problem import Problem
 
 __all__ = ["PreparedModel"]
-
-#: Bounded B-spline transcriptions a planner keeps, the least recently used dropped (one
-#: per number of spans, start mode and kinds; 4-17 MB each for the Panda at 64-192 spans
-#: before their first solve).
-FLAT_CACHE = 32
 
 
 class PreparedModel:

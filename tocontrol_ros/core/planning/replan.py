@@ -23,20 +23,18 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.indirect.warm import WarmState
+from tocontrol_ros.core.planning.tuning import (
+    HIGH_QUANTILE,
+    REPLAN_JOINT_RADIUS,
+    REPLAN_SPANS,
+    TAIL_MERGE,
+    TAIL_MIN_REMAINING,
+    TARGET_STEPS,
+)
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "TAIL_MIN_REMAINING", "TAIL_MERGE",
-           "TARGET_STEPS", "REPLAN_JOINT_RADIUS", "REPLAN_SPANS", "replan_options"]
-
-#: A tail shorter than this fraction of the motion is no warm start (the motion has nearly
-#: ended: the arm is about to stop at the old target and a plan from rest is as good).
-TAIL_MIN_REMAINING = 0.02
-#: A cut this close (normalised time) to the next node drops that node: no interval is
-#: left that is much shorter than its neighbours (badly scaled Newton steps).
-TAIL_MERGE = 0.25
-#: The lead covers this quantile of the recent latencies (times the margin).
-HIGH_QUANTILE = 0.8
+__all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "replan_options"]
 
 
 def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
@@ -163,27 +161,6 @@ class LatencyEstimate:
         return self.floor + self.margin * high
 
 
-#: Target continuation of a warm replan whose direct warm solve fails: the fractions of the
-#: way from the old target to the new one solved in turn (each warm from the previous).
-TARGET_STEPS = ((1.0,), (0.5, 1.0), (0.25, 0.5, 0.75, 1.0))
-#: ``SolverOptions.warm_joint_radius`` of the node's replans (rad, rad/s). Along a stream
-#: of goals 1.9 cm apart on the paper's arm at k = 4 (bench/replan.py's circle, each replan
-#: from rest at the last goal, warm from the last solution), 36 of 49 warm solves applied
-#: and converged at 0.2, 25 of 49 at the default 0.05 (the others were solved cold, 2-5
-#: times dearer); the warm solves that fail change the number of switches of the control.
-REPLAN_JOINT_RADIUS = 0.2
-
-
-#: ``SolverOptions.replan_spans`` of the node's replans of an arm whose limits bind (bounded
-#: B-spline solves). The Panda with its URDF limits, the rest chain of the moving-target
-#: circle (goals 1.3 cm apart), each problem replanned warm from the default plan of the one
-#: before (its refined mesh; bench/replan.py, BENCHMARKS.md "Replanning"): at 24 spans
-#: T 7.6e-4 (median) and at most 9.8e-4 above the default plan's, 111 ms median, 11/12
-#: certified; on the refined mesh itself 325 ms median, 25 s at worst, 8/12 (16 spans:
-#: 2.0e-3, 73 ms; 32: 4.5e-4, 131 ms). The node's next replan continues on the coarse mesh
-#: from its multipliers (a stream's replans: 60-130 ms each). A cold replan is left on its
-#: uniform mesh, unrefined.
-REPLAN_SPANS = 24
 
 
 def replan_options(options, smoothing: float = 0.0, spans: int = REPLAN_SPANS):

@@ -119,7 +119,7 @@ class SolverOptions:
         (max-norm of positions and velocities, rad and rad/s; its end points within
         ``WARM_RADIUS`` too: :meth:`PlanResult.can_warm_start`). The default keeps a warm
         start in the multistart's basin; the planner node's replans allow more
-        (:data:`~tocontrol_ros.core.planning.replan.REPLAN_JOINT_RADIUS`): along a stream of goals
+        (:data:`~tocontrol_ros.core.planning.tuning.REPLAN_JOINT_RADIUS`): along a stream of goals
         each start moves by a few centimetres, and the warm solve still converges.
     replan_spans : int
         Bounded solves (``docs/limits.md``) of a replan stay on a coarse mesh: a warm start
@@ -127,7 +127,7 @@ class SolverOptions:
         fitted there when its own mesh has another number, and a solve without one keeps
         its uniform mesh, unrefined. 0 (the default): full accuracy (a warm start on its own
         mesh, from its path and multipliers; every candidate refined). The planner node's
-        replans use :data:`~tocontrol_ros.core.planning.replan.REPLAN_SPANS`: a replan's motion is
+        replans use :data:`~tocontrol_ros.core.planning.tuning.REPLAN_SPANS`: a replan's motion is
         short, IPOPT's iterations on a refined mesh of 56-128 spans cost 3-4 times more, and
         ``T`` stays within about 1e-3 (BENCHMARKS.md "Replanning").
     workers : int
