@@ -30,7 +30,8 @@ certificate's cost against the solve, the 3R and the Panda), ``deployed`` (plann
 processes: idle CPU and ~/plan round trip against the same request in-process),
 ``deployed_panda`` (the Panda through two planner nodes, one process against one per core),
 ``replan`` (a target moving at 10 Hz through planner and tracker processes: replan latency,
-splices, the paper's arm and the Panda),
+splices, the paper's arm and the Panda), ``replan_moving`` (the same with targets that keep
+the arm moving, the Panda from the README's set-up, latency also as a client sees it),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
@@ -58,7 +59,8 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "reference_panda",
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
-         "verification", "deployed", "deployed_panda", "replan", "batch", "limits",
+         "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
+         "limits",
          "first_motion")
 
 
@@ -213,6 +215,8 @@ def _run(args):
         section(lambda: deployed_panda.run(2 if args.quick else args.optimum_panda_cases))
     if "replan" in args.only:
         section(lambda: replan.run())
+    if "replan_moving" in args.only:
+        section(lambda: replan.run(moving=True))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))
