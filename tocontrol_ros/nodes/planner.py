@@ -62,7 +62,8 @@ from tocontrol_ros.nodes.planner_config import (
 )
 from tocontrol_ros.nodes.replan_serving import ReplanServing
 from tocontrol_ros.nodes.replanning import Replanner
-from tocontrol_ros.nodes.requests import LatestMessage, LatestSlot, PlanRequest
+from tocontrol_ros.nodes.latest_message import LatestMessage
+from tocontrol_ros.nodes.requests import LatestSlot, PlanRequest
 
 __all__ = ["PlannerNode", "main", "QOS_LATCHED", "QOS_STATUS", "QOS_GOAL", "QOS_JOINT_STATES"]
 

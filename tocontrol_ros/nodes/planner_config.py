@@ -22,7 +22,7 @@ from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.options import MIN_REPLAN_SPANS
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
-from tocontrol_ros.nodes.params import (
+from tocontrol_ros.nodes.parameter_specs import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,

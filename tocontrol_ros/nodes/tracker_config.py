@@ -19,7 +19,7 @@ from tocontrol_ros.core.sim.tracking import (
     PlantConfig,
     TrackingGains,
 )
-from tocontrol_ros.nodes.params import (
+from tocontrol_ros.nodes.parameter_specs import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
