@@ -490,11 +490,11 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     import dataclasses
 
     from tocontrol_ros.core.certificate import CertificateOptions
-    from tocontrol_ros.nodes import planner as planner_module
+    from tocontrol_ros.nodes import planning_service as service_module
 
     strict = CertificateOptions(hamiltonian_tol=1e-15)
-    real = planner_module.solver_options
-    monkeypatch.setattr(planner_module, "solver_options", lambda config: dataclasses.replace(
+    real = service_module.solver_options
+    monkeypatch.setattr(service_module, "solver_options", lambda config: dataclasses.replace(
         real(config), certificate=strict))
     with ready_planner("strict") as (_, client):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
@@ -547,7 +547,7 @@ def test_shutdown_during_solve_is_prompt(monkeypatch):
         # catches a hang.
         assert [r.status.name for r in outcomes] == ["CANCELLED"], outcomes
         assert elapsed < HANG
-        assert not running.node._worker.is_alive()
+        assert not running.node.service.worker.is_alive()
     finally:
         client.close()
 
