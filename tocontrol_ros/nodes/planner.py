@@ -105,7 +105,6 @@ class PlannerNode(Node):
         self.model = planner_model(config)
         limits = planner_limits(config, self.model)
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._joint_states = LatestMessage(self, JointState, "joint_states", QOS_JOINT_STATES)
         self._arm = MeasuredArm(self._joint_states, self.model)
@@ -124,6 +123,7 @@ class PlannerNode(Node):
                                                    task_dim=self.model.m),
             self.frame.frame_id, self._outputs, self._arm,
             Clock(now_ns=lambda: self.get_clock().now().nanoseconds))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         waiting = ReentrantCallbackGroup()
         inputs = MutuallyExclusiveCallbackGroup()
         self.create_service(GetPlan, "~/plan", self._on_plan, qos_profile=QOS_SERVICE,
