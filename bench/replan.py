@@ -158,7 +158,8 @@ def client_latencies(sent: list, trajectories: list, published: list) -> list[fl
         if "handoff" not in status or "target" not in status:
             continue
         target = _numbers(status["target"])
-        stamp = round(float(status["handoff"]) * 1e9)
+        sec, _, frac = str(status["handoff"]).strip().partition(".")
+        stamp = int(sec) * 1_000_000_000 + int((frac + "000000000")[:9])
         t_recv = received.get(stamp)
         times = [t for p, t in sent if len(p) == len(target)
                  and np.max(np.abs(p - target)) < 1e-6 and (t_recv is None or t <= t_recv)]

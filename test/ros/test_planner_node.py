@@ -490,11 +490,11 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     import dataclasses
 
     from tocontrol_ros.core.types.certificate import CertificateOptions
-    from tocontrol_ros.nodes import planner as planner_module
+    from tocontrol_ros.nodes import planning_service as service_module
 
     strict = CertificateOptions(hamiltonian_tol=1e-15)
-    real = planner_module.solver_options
-    monkeypatch.setattr(planner_module, "solver_options", lambda config: dataclasses.replace(
+    real = service_module.solver_options
+    monkeypatch.setattr(service_module, "solver_options", lambda config: dataclasses.replace(
         real(config), certificate=strict))
     with ready_planner("strict") as (_, client):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
@@ -547,7 +547,7 @@ def test_shutdown_during_solve_is_prompt(monkeypatch):
         # catches a hang.
         assert [r.status.name for r in outcomes] == ["CANCELLED"], outcomes
         assert elapsed < HANG
-        assert not running.node._worker.is_alive()
+        assert not running.node.service.worker.is_alive()
     finally:
         client.close()
 
@@ -776,9 +776,8 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
             return result
         if modes["carry"]:
             return solver_module._time_limited(result)
-        return solver_module.PlanResult.failure(problem, solver_module.Status.TIME_LIMIT,
-                                                "solve interrupted", dict(result.timings),
-                                                k=float("nan"))
+        return solver_module._failure(problem, solver_module.Status.TIME_LIMIT,
+                                      "solve interrupted", dict(result.timings))
 
     monkeypatch.setattr(solver_module.Planner, "plan", time_limited)
     with ready_planner("time_limit") as (_, client):
@@ -884,9 +883,8 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
         result = real(self, problem, options, warm_start, should_stop)
         if not serving:
             return result
-        return solver_module.PlanResult.failure(problem, solver_module.Status.NEWTON_FAILED,
-                                                "made to fail by the test",
-                                                dict(result.timings), k=float("nan"))
+        return solver_module._failure(problem, solver_module.Status.NEWTON_FAILED,
+                                      "made to fail by the test", dict(result.timings))
 
     monkeypatch.setattr(solver_module.Planner, "plan", failing)
     with first_mode_planner("first_stands") as (_, client, trajectories):

@@ -8,6 +8,9 @@ joint order (:func:`joint_state_from_msg`). Results out: a sampled trajectory be
 ``visualization_msgs/MarkerArray`` (:func:`markers_msg`), an outcome a
 ``diagnostic_msgs/DiagnosticStatus`` (:func:`status_msg`).
 
+The values and summary of a plan's status (:func:`result_values`, :func:`result_message`,
+:func:`stamp_text`) are ROS-free, in :mod:`tocontrol_ros.nodes.outcomes`, re-exported here.
+
 Bad input raises :class:`ConversionError` with a message that names the offending field.
 Forward kinematics (:func:`link_positions`, :func:`tip_pose`, from
 :mod:`tocontrol_ros.core.robot.kinematics`) is plain numpy on the model's body data, so these
@@ -31,6 +34,13 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.robot.kinematics import link_positions, tip_pose, tip_poses
+from tocontrol_ros.nodes.outcomes import (
+    ROUTINE_NOTE,
+    certificate_values,
+    result_message,
+    result_values,
+    stamp_text,
+)
 
 __all__ = ["ConversionError", "TaskFrame", "task_frame", "link_positions", "tip_pose",
            "point_from_msg", "joint_state_from_msg", "embed_point", "time_from_ns", "nanoseconds",
@@ -397,17 +407,6 @@ def markers_msg(model, q_snapshots, ee_points, start, target, frame_id: str,
     return MarkerArray(markers=out)
 
 
-def stamp_text(ns: int) -> str:
-    """A stamp (ns) as a ``~/status`` value: seconds with all nine decimals.
-
-    ``"%.9g"``, the status's float format, would keep whole seconds of a stamp since the
-    epoch.
-    """
-    ns = int(ns)
-    sign, ns = ("-", -ns) if ns < 0 else ("", ns)
-    return f"{sign}{ns // 10**9}.{ns % 10**9:09d}"
-
-
 def _format(value) -> str:
     if isinstance(value, bool) or isinstance(value, str):
         return str(value).lower() if isinstance(value, bool) else value
@@ -423,73 +422,6 @@ def status_values(values: Mapping[str, object]) -> list[KeyValue]:
     """``KeyValue`` pairs; floats with 9 significant digits, arrays as ``[a, b]``."""
     return [KeyValue(key=str(k), value=_format(v)) for k, v in values.items()
             if v is not None]
-
-
-def certificate_values(certificate) -> dict[str, object]:
-    """The ``~/status`` values of a plan's certificate (empty when there is none).
-
-    Parameters
-    ----------
-    certificate : tocontrol_ros.core.checks.certificate.Certificate or None
-
-    Returns
-    -------
-    dict
-        ``certified`` (bool), ``cert_<item>`` (each item's value), ``cert_failed`` (the
-        failed items' names, comma-separated, empty when none) and ``cert_tolerances``
-        (``item=tol`` pairs, comma-separated).
-    """
-    if certificate is None:
-        return {"certified": False}
-    out: dict[str, object] = {"certified": certificate.passed}
-    out.update({f"cert_{i.name}": i.value for i in certificate.items})
-    out["cert_failed"] = ",".join(i.name for i in certificate.failures)
-    out["cert_tolerances"] = ",".join(f"{i.name}={i.tol:.3g}" for i in certificate.items)
-    return out
-
-
-#: A solver note that is routine, not a warning: the warm start was tried and the solve
-#: went on cold (the status stays OK and keeps the note).
-ROUTINE_NOTE = "warm start did not converge"
-
-
-def result_values(result) -> dict[str, object]:
-    """The ``~/status`` values of a plan (:class:`~tocontrol_ros.core.types.result.PlanResult`).
-
-    Returns
-    -------
-    dict
-        ``T`` (s), ``iterations``, ``solve_time`` (s), ``residual``, ``max_abs_u``,
-        ``solver_status``, ``method``, ``verify_time`` (s; None without a certificate) and
-        the certificate's (:func:`certificate_values`).
-    """
-    return {"T": result.T, "iterations": result.iterations,
-            "solve_time": result.timings.get("total"), "residual": result.residual,
-            "max_abs_u": result.max_abs_u, "solver_status": result.status.name,
-            "method": result.method,
-            "verify_time": result.timings.get("verify") if result.certificate else None,
-            **certificate_values(result.certificate)}
-
-
-def result_message(result) -> tuple[str, str]:
-    """Level (``"OK"``, or ``"WARN"`` with warnings) and summary of a published plan.
-
-    ``T``, ``k``, the iterations (TOPP-RA passes for a first motion), the solve time, the
-    residual, ``max |u|``, whether it is certified, and its warnings: routine ones
-    (:data:`ROUTINE_NOTE`) appended, any other makes it a ``WARN``.
-    """
-    verified = "certified" if result.certificate else "not certified (verify = false)"
-    steps = "TOPP-RA passes" if result.method == "first" else "Newton iterations"
-    message = (f"T = {result.T:.6g} s at k = {result.k:g}, {result.iterations} {steps}, "
-               f"{result.timings['total']:.3f} s, residual {result.residual:.2g}, max |u| = "
-               f"{result.max_abs_u:.4f}; {verified}")
-    routine = [w for w in result.warnings if w.startswith(ROUTINE_NOTE)]
-    warnings = [w for w in result.warnings if not w.startswith(ROUTINE_NOTE)]
-    if routine:
-        message += "; " + "; ".join(routine)
-    if warnings:
-        return "WARN", message + "; warnings: " + "; ".join(warnings)
-    return "OK", message
 
 
 def status_msg(level: str, name: str, message: str, hardware_id: str,

@@ -67,6 +67,17 @@ def controller_options(config) -> jtc.ControllerOptions:
         goal_time=config.goal_time)
 
 
+def _enter_canceling(handle: ServerGoalHandle) -> None:
+    """Move an executing goal to CANCELING, so that ``handle.canceled()`` may end it.
+
+    rclpy's private API, isolated here: rclpy ends a goal CANCELED only from CANCELING,
+    which its public API reaches only through a client's cancel request; a preemption (the
+    JTC's "CANCELED with INVALID_GOAL, preempted") has none. rclcpp's ``canceled()`` makes
+    this transition itself; rclpy (Jazzy) has no public equivalent.
+    """
+    handle._update_state(GoalEvent.CANCEL_GOAL)
+
+
 @dataclass
 class GoalRecord:
     """One accepted goal: its handle, tolerances, and when it started (tracker time, s)."""
@@ -84,8 +95,10 @@ class FollowServer:
     Parameters
     ----------
     node : TrackerNode
-        Provides ``joint_names``, ``tracker``, ``config``, ``_epoch``, ``submit_goal`` (queues
-        a goal's trajectory for parsing) and ``_status``.
+        Its public interface: ``joint_names``, ``tracker``, ``config``, ``epoch`` (the
+        stamps' time at tracker time 0), ``submit_goal`` (queues a goal's trajectory for
+        parsing), ``publish_status``, ``publish_summary``, and rclpy's ``create_publisher``
+        and ``get_logger``.
     """
 
     def __init__(self, node) -> None:
@@ -101,7 +114,7 @@ class FollowServer:
 
     # ------------------------------------------------------------- callbacks
     def _now(self) -> float:
-        return self.node._epoch + self.node.tracker.t
+        return self.node.epoch + self.node.tracker.t
 
     def _on_goal(self, goal: FollowJointTrajectory.Goal) -> GoalResponse:
         joints = self.node.joint_names
@@ -114,7 +127,7 @@ class FollowServer:
         if check.accepted:
             return GoalResponse.ACCEPT
         name = jtc.CODE_NAMES[check.code]
-        self.node._status(DiagnosticStatus.ERROR, f"goal rejected ({name}): {check.reason}",
+        self.node.publish_status(DiagnosticStatus.ERROR, f"goal rejected ({name}): {check.reason}",
                           {"event": "goal_rejected", "error_code": str(check.code)})
         self.node.get_logger().warning(f"goal rejected ({name}): {check.reason}")
         return GoalResponse.REJECT
@@ -144,12 +157,11 @@ class FollowServer:
                 handle.abort()
             else:
                 if not handle.is_cancel_requested:
-                    # A preemption: rclpy ends a goal CANCELED only from CANCELING.
-                    handle._update_state(GoalEvent.CANCEL_GOAL)
+                    _enter_canceling(handle)  # a preemption
                 handle.canceled()
         level = DiagnosticStatus.OK if code == jtc.SUCCESSFUL else DiagnosticStatus.WARN
         verb = {"succeed": "succeeded", "abort": "aborted", "canceled": "canceled"}[event]
-        self.node._status(level, f"goal {verb} ({jtc.CODE_NAMES[code]})"
+        self.node.publish_status(level, f"goal {verb} ({jtc.CODE_NAMES[code]})"
                           + (f": {text}" if text else ""),
                           {"event": f"goal_{verb}", "error_code": str(code)})
         if not record.done.done():
@@ -206,7 +218,7 @@ class FollowServer:
     def _hold(self) -> None:
         summary = self.node.tracker.hold()
         if summary is not None:
-            self.node._pub_status.publish(self.node._summary_status(summary))
+            self.node.publish_summary(summary)
 
     def _check(self, record: GoalRecord, log: TrackingLog) -> None:
         joints = self.node.joint_names
@@ -237,7 +249,7 @@ class FollowServer:
                 return
 
     def _publish(self, log: TrackingLog, i: int) -> None:
-        header = Header(stamp=conv.time_from_seconds(self.node._epoch + float(log.t[i])))
+        header = Header(stamp=conv.time_from_seconds(self.node.epoch + float(log.t[i])))
         record = self.active
         elapsed = (float(log.t[i]) - record.start) if record is not None else 0.0
         since = conv.duration_from_seconds(max(elapsed, 0.0))

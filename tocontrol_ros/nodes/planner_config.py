@@ -22,7 +22,7 @@ from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
 from tocontrol_ros.core.types.options import MIN_REPLAN_SPANS
-from tocontrol_ros.nodes.params import (
+from tocontrol_ros.nodes.parameter_specs import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
@@ -35,7 +35,7 @@ from tocontrol_ros.nodes.params import (
 
 __all__ = ["ConfigError", "PARAMETERS", "PlannerConfig", "PUBLISH_MODES", "FIRST_THEN_OPTIMUM",
            "config_from_values", "solver_options", "default_values", "planner_model",
-           "planner_limits", "warm_up_problems"]
+           "planner_limits", "warm_up_problems", "plan_problem"]
 
 #: ``publish``: the optimum only (the default), or first a certified motion at once.
 FIRST_THEN_OPTIMUM = "first_then_optimum"
@@ -390,3 +390,22 @@ def warm_up_problems(config: PlannerConfig, model, limits) -> list:
     return [Problem(model, start, point(model.point(qb)), k=config.k,
                     reserve=config.reserve, limits=limits)
             for start in (point(model.point(qa)), joint_state(qa))]
+
+
+def plan_problem(config: PlannerConfig, model, limits, start: tuple, target):
+    """The problem from ``start`` to ``target`` (m); raises TocontrolError.
+
+    ``start``: ``("point", p)`` or ``("state", q, qd)`` (a request's start, or a
+    hand-off's state). ``limits``: :func:`planner_limits` (the margin is applied here). A
+    joint-state velocity a little over a planning limit (a measured arm's tracking
+    overshoot, or the published samples' interpolant at a hand-off where the motion runs at
+    the limit) is planned from the limit
+    (:meth:`~tocontrol_ros.core.robot.limits.JointLimits.admissible_velocity`).
+    """
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
+
+    limits = limits.with_margin(config.limit_margin)
+    begin = point(start[1]) if start[0] == "point" else \
+        joint_state(start[1], limits.admissible_velocity(start[2]))
+    return Problem(model, begin, point(target), k=config.k, reserve=config.reserve,
+                   limits=limits)

@@ -43,23 +43,19 @@ every ``1 / publish_rate`` seconds of simulated time.
 from __future__ import annotations
 
 import argparse
-import collections
-import math
 import sys
 import threading
-import time
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros.core.errors import ProblemError
@@ -78,13 +74,27 @@ from tocontrol_ros.nodes.params import (
     robot_from_topic,
 )
 from tocontrol_ros.nodes.splice import Splice, jumps, schedule, splice_instant
-from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig
+from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig, plant_text
 from tocontrol_ros.nodes.tracker_messages import (
+    ResetRequest,
     TrajectoryRejectedError,
     check_limits,
     nominal_from_msg,
+    reset_request,
     reset_state_from_msg,
+    rest_row,
+    splice_event,
+    start_event,
+    start_state_values,
+    state_msgs,
+    status_msg,
     summary_status,
+)
+from tocontrol_ros.nodes.tracker_time import (
+    START_HISTORY,
+    PositionHistory,
+    PublishSchedule,
+    SimClock,
 )
 
 __all__ = ["TrackerNode", "TrajectoryRejectedError",
@@ -101,10 +111,6 @@ QOS_TRAJECTORY = qos.profile(10, latched=True)
 QOS_STREAM = qos.RELIABLE
 #: Status events; the last few are kept for late subscribers.
 QOS_STATUS = qos.status_profile(20, latched=True)
-#: Control periods one timer tick may simulate (a few tens of ms of work); beyond, the
-#: simulation drops time (it cannot keep up with ``time_scale``) rather than starve the
-#: executor.
-MAX_TICK_PERIODS = 10_000
 
 
 class _Goal(NamedTuple):
@@ -112,21 +118,6 @@ class _Goal(NamedTuple):
 
     item: Any
     record: GoalRecord
-
-
-class _Reset(NamedTuple):
-    """A parsed ``~/reset`` request, queued behind the trajectories received before it."""
-
-    q: np.ndarray | None
-    qd: np.ndarray | None
-    stamp: str
-    error: str | None
-
-
-#: A trajectory may start from any position the arm had (as published on joint_states) in
-#: this many wall-clock seconds: a plan made from a state of a moving arm arrives after the
-#: arm has moved on (the planner uses joint states up to joint_state_timeout = 1 s old).
-START_HISTORY = 2.0
 
 
 # -------------------------------------------------------------------------- node
@@ -161,20 +152,16 @@ class TrackerNode(Node):
         if self._sim_time and self.config.publish_clock:
             raise ProblemError("`use_sim_time` and `publish_clock` cannot both be true (the "
                                "tracker would follow its own clock)")
-        self._clock_seen = False  # with use_sim_time: a /clock has arrived
-        self._epoch = 0.0 if self.config.publish_clock or self._sim_time else (
-            self.get_clock().now().nanoseconds * 1e-9)
-        self._publish_period = 1.0 / self.config.publish_rate
-        self._next_publish = self._publish_period
-        self._wall_start = time.monotonic()
-        self._sim_offset = 0.0  # simulated time dropped when the simulation fell behind
+        self._time = SimClock(self.config.time_scale, 0.0 if self.config.publish_clock
+                              or self._sim_time else self.get_clock().now().nanoseconds * 1e-9)
+        self._schedule = PublishSchedule(self.config.publish_rate)
         self.trajectories_received = 0
         self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
         self._parsed_lock = threading.Lock()
         # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
         self._parsed: list = []
         self._splices: list[Splice] = []  # stamped trajectories waiting for their instant
-        self._history: collections.deque = collections.deque()  # (wall time, q) published
+        self._history = PositionHistory(START_HISTORY)  # positions published
         # Until the first motion or reset: the next trajectory places the arm at its start.
         self._place_at_start = self.config.start_at_first_trajectory
         if not self._sim_time:
@@ -187,30 +174,28 @@ class TrackerNode(Node):
         self._follow = FollowServer(self)
         self.get_logger().info(
             f"tracking on {self.model.name!r} ({self.model.n} joints) from "
-            f"{self.config.trajectory_topic}; plant: {self._plant_text()}; "
+            f"{self.config.trajectory_topic}; plant: {plant_text(self.config.plant)}; "
             f"time_scale {self.config.time_scale:g}")
 
-    # ---------------------------------------------------------------- helpers
-    def _plant_text(self) -> str:
-        p = self.config.plant
-        if p.identical and p.torque_noise == 0 and not p.initial_offset:
-            return f"identical to the model, {p.sim_rate:g} Hz, control {p.control_rate:g} Hz"
-        return (f"mass x{p.mass_scale:g}, inertia x{p.inertia_scale:g}, friction "
-                f"x{p.friction_scale:g}, payload {p.payload_mass:g} kg, noise "
-                f"{p.torque_noise:g}, offset {list(p.initial_offset)}, {p.sim_rate:g} Hz, "
-                f"control {p.control_rate:g} Hz")
+    # ------------------------------------------- the action server's interface
+    @property
+    def epoch(self) -> float:
+        """The stamps' time (s) at the simulation's time 0: a stamp is ``epoch + t``."""
+        return self._time.epoch
 
-    def _status(self, level: bytes, message: str, values: Mapping[str, str] = ()) -> None:
-        self._pub_status.publish(DiagnosticStatus(
-            level=level, name=self.get_fully_qualified_name(), message=message,
-            hardware_id=self.model.name,
-            values=[KeyValue(key=k, value=v) for k, v in dict(values).items()]))
+    def publish_status(self, level: bytes, message: str,
+                       values: Mapping[str, str] = ()) -> None:
+        """A ``~/status`` event (``level``: a ``DiagnosticStatus`` level)."""
+        self._pub_status.publish(status_msg(level, self.get_fully_qualified_name(), message,
+                                            self.model.name, values))
+
+    def publish_summary(self, summary: TrackingSummary) -> None:
+        """A run's summary on ``~/status`` (completed, preempted, held)."""
+        self._pub_status.publish(summary_status(summary, self.get_fully_qualified_name(),
+                                                self.model.name, self.joint_names))
 
     def _initial_row(self) -> dict:
-        n = self.model.n
-        return {"t": self.tracker.t, "q": self.tracker.q, "qd": self.tracker.qd,
-                "error": np.zeros(n), "error_rate": np.zeros(n), "feedback": np.zeros(n),
-                "tau": np.zeros(n)}
+        return rest_row(self.tracker.t, self.tracker.q, self.tracker.qd)
 
     # -------------------------------------------------------------- callbacks
     def _on_trajectory(self, msg: JointTrajectory) -> None:
@@ -251,7 +236,7 @@ class TrackerNode(Node):
         if record is not None:
             self._follow.rejected(record, f"trajectory rejected: {reason}")
         running = "continuing the current trajectory" if self.tracker.running else "holding"
-        self._status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
+        self.publish_status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
         self.get_logger().warning(f"trajectory rejected: {reason}")
 
     def _start_parsed(self) -> None:
@@ -265,7 +250,7 @@ class TrackerNode(Node):
             if isinstance(item, TrajectoryRejectedError):
                 self._reject(str(item), record)
                 continue
-            if isinstance(item, _Reset):
+            if isinstance(item, ResetRequest):
                 self._apply_reset(item)
                 continue
             nominal, stamp = item
@@ -276,53 +261,38 @@ class TrackerNode(Node):
             placed = self._place_at_start
             if placed:
                 self._place_at(nominal)
-            gaps = np.abs(nominal.q[0] - self.tracker.q)
-            offset = float(np.max(gaps))
-            # Planned from a state the arm had: a plan from the published joint states of the
-            # last START_HISTORY seconds is accepted although the arm has moved on since.
-            recent = np.array([q for _, q in self._history]) if self._history else \
-                self.tracker.q[None, :]
-            nearest = float(np.min(np.max(np.abs(recent - nominal.q[0]), axis=1)))
-            if not placed and min(offset, nearest) > self.config.start_tolerance:
-                j = int(np.argmax(gaps))
-                self._reject(f"its first point is {offset:.3g} rad from the current position "
-                             f"({self.joint_names[j]}) and {nearest:.3g} rad from every "
-                             f"position of the last {START_HISTORY:g} s, more than "
-                             f"start_tolerance = {self.config.start_tolerance:g}", record)
+            # Planned from a state the arm had (published in the last START_HISTORY s).
+            offset, refused = self._history.start_gap(nominal.q[0], self.tracker.q,
+                                                      self.config.start_tolerance,
+                                                      self.joint_names)
+            if refused and not placed:
+                self._reject(refused, record)
                 continue
             # The state it starts from, for re-execution (the status is latched: a recorder
             # that subscribes late still gets it).
-            state = {f"start_{field}.{name}": f"{value:.17g}"
-                     for field, values in (("position", self.tracker.q),
-                                           ("velocity", self.tracker.qd))
-                     for name, value in zip(self.joint_names, values, strict=True)}
+            state = start_state_values(self.joint_names, self.tracker.q, self.tracker.qd)
             self._place_at_start = False
             preempted = self.tracker.start(nominal)
             if preempted is not None:
-                self._pub_status.publish(self._summary_status(preempted))
+                self.publish_summary(preempted)
             self._follow.started(record, nominal)
-            self._status(DiagnosticStatus.OK,
-                         f"executing trajectory: {len(nominal)} points, T = "
-                         f"{nominal.duration:.4f} s, start {offset:.3g} rad from the current "
-                         f"position" + (" (the arm placed there: start_at_first_trajectory)"
-                                        if placed else ""),
-                         {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
-                          "stamp": f"{stamp:.9f}", "start_offset": f"{offset:.9g}",
-                          "start_time": f"{self._epoch + self.tracker.t:.9f}", **state})
+            self.publish_status(DiagnosticStatus.OK, *start_event(
+                nominal, stamp, offset, placed, self.epoch + self.tracker.t, state))
 
     def _schedule_splice(self, nominal: NominalTrajectory, stamp: float) -> bool:
         """A stamp ahead of now: queue the trajectory for that instant (True), else False."""
         now = self._target_time()
         instant = None if now is None or self._place_at_start else splice_instant(
-            stamp, self._epoch, max(now, self.tracker.t), self.tracker.h)
+            stamp, self.epoch, max(now, self.tracker.t), self.tracker.h)
         if instant is None:
             return False
         self._splices, dropped = schedule(self._splices,
                                           Splice(nominal, instant[0], instant[1], stamp))
         for old in dropped:
-            self._status(DiagnosticStatus.WARN, f"trajectory stamped {old.stamp:.6f} replaced "
-                         f"before it took over by one stamped {stamp:.6f}",
-                         {"event": "splice_replaced", "stamp": f"{old.stamp:.9f}"})
+            self.publish_status(DiagnosticStatus.WARN,
+                                f"trajectory stamped {old.stamp:.6f} replaced before it took "
+                                f"over by one stamped {stamp:.6f}",
+                                {"event": "splice_replaced", "stamp": f"{old.stamp:.9f}"})
         return True
 
     def _splice(self, splice: Splice) -> None:
@@ -341,16 +311,9 @@ class TrackerNode(Node):
             return
         preempted = tracker.start(splice.nominal, elapsed)
         if preempted is not None:
-            self._pub_status.publish(self._summary_status(preempted))
-        self._status(DiagnosticStatus.OK,
-                     f"executing trajectory spliced in at its stamp: {len(splice.nominal)} "
-                     f"points, T = {splice.nominal.duration:.4f} s; command jumps {dq:.3g} "
-                     f"rad, {dqd:.3g} rad/s",
-                     {"event": "spliced", "points": str(len(splice.nominal)),
-                      "duration": f"{splice.nominal.duration:.9g}",
-                      "stamp": f"{splice.stamp:.9f}",
-                      "start_time": f"{self._epoch + tracker.t:.9f}",
-                      "position_jump": f"{dq:.9g}", "velocity_jump": f"{dqd:.9g}"})
+            self.publish_summary(preempted)
+        self.publish_status(DiagnosticStatus.OK, *splice_event(splice, dq, dqd,
+                                                               self.epoch + tracker.t))
 
     def _on_reset(self, msg: JointState) -> None:
         # Through the parsing thread's queue: a reset takes effect after the trajectories
@@ -361,19 +324,14 @@ class TrackerNode(Node):
             return
 
     def _parse_reset(self, msg: JointState) -> None:
-        stamp = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
-        try:
-            q, qd = reset_state_from_msg(msg, self.joint_names)
-            item = _Reset(q, qd, stamp, None)
-        except TrajectoryRejectedError as exc:
-            item = _Reset(None, None, stamp, str(exc))
+        item = reset_request(msg, self.joint_names)
         with self._parsed_lock:
             self._parsed.append(item)
 
-    def _apply_reset(self, item: _Reset) -> None:
+    def _apply_reset(self, item: ResetRequest) -> None:
         if item.error is not None:
-            self._status(DiagnosticStatus.ERROR, f"reset rejected: {item.error}",
-                         {"event": "reset_rejected"})
+            self.publish_status(DiagnosticStatus.ERROR, f"reset rejected: {item.error}",
+                                {"event": "reset_rejected"})
             self.get_logger().warning(f"reset rejected: {item.error}")
             return
         q, qd = item.q, item.qd
@@ -381,12 +339,12 @@ class TrackerNode(Node):
         self._splices = []
         preempted = self.tracker.reset(q, qd)
         if preempted is not None:
-            self._pub_status.publish(self._summary_status(preempted))
+            self.publish_summary(preempted)
         self._follow.stopped("stopped by ~/reset")
-        self._status(DiagnosticStatus.OK,
-                     f"reset to positions {np.round(q, 6).tolist()}, velocities "
-                     f"{np.round(qd, 6).tolist()}; holding",
-                     {"event": "reset", "request_stamp": item.stamp})
+        self.publish_status(DiagnosticStatus.OK,
+                            f"reset to positions {np.round(q, 6).tolist()}, velocities "
+                            f"{np.round(qd, 6).tolist()}; holding",
+                            {"event": "reset", "request_stamp": item.stamp})
         # The arm was put elsewhere: the positions it had before are no start for a plan.
         self._history.clear()
         self._publish_state(self._initial_row())
@@ -408,30 +366,18 @@ class TrackerNode(Node):
         self._follow.shutdown()
         super().destroy_node()
 
-    def _summary_status(self, summary: TrackingSummary) -> DiagnosticStatus:
-        return summary_status(summary, self.get_fully_qualified_name(), self.model.name,
-                              self.joint_names)
-
     def _target_time(self) -> float | None:
         """Simulated time to advance to; None while waiting for the first /clock."""
         if not self._sim_time:
-            return ((time.monotonic() - self._wall_start) * self.config.time_scale
-                    - self._sim_offset)
-        now = self._follow_clock()
-        return None if now is None else now - self._epoch - self._sim_offset
+            return self._time.wall_target()
+        return self._time.ros_target(self._follow_clock())
 
     def _follow_clock(self) -> float | None:
         """With use_sim_time: the ROS time (s), the epoch set from it; None before /clock."""
-        now = self.get_clock().now().nanoseconds * 1e-9
-        if now <= 0.0:
-            return None
-        tracker = self.tracker
-        if not self._clock_seen or now < self._epoch + tracker.t - tracker.h:
-            # The first clock, or the clock went back (a looped replay): count from it.
-            self._epoch, self._sim_offset = now - tracker.t, 0.0
-            if not self._clock_seen:
-                self._clock_seen = True
-                self._publish_state(self._initial_row())
+        now, first = self._time.follow(self.get_clock().now().nanoseconds * 1e-9,
+                                       self.tracker.t, self.tracker.h)
+        if first:
+            self._publish_state(self._initial_row())
         return now
 
     def _on_timer(self) -> None:
@@ -440,12 +386,9 @@ class TrackerNode(Node):
         if target is None:
             return
         tracker = self.tracker
-        behind = int(math.ceil((target - tracker.t) / tracker.h - 1e-9))
-        if behind > MAX_TICK_PERIODS:
-            # Cannot keep up with time_scale: simulate what one tick may, drop the rest.
-            dropped = (behind - MAX_TICK_PERIODS) * tracker.h
-            self._sim_offset += dropped
-            target -= dropped
+        # Cannot keep up with time_scale: simulate what one tick may, drop the rest.
+        target, dropped = self._time.limit(target, tracker.t, tracker.h)
+        if dropped:
             self.get_logger().warning(
                 f"the simulation cannot keep up with time_scale {self.config.time_scale:g}; "
                 f"dropped {dropped:.3f} s of simulated time", throttle_duration_sec=5.0)
@@ -455,44 +398,29 @@ class TrackerNode(Node):
             self._splice(splice)
         self._publish_report(tracker.advance(target))
         if self._pub_clock is not None:
-            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self._epoch + tracker.t)))
+            self._pub_clock.publish(Clock(clock=conv.time_from_seconds(self.epoch + tracker.t)))
 
     def _publish_report(self, report) -> None:
         """The states and run summaries of one stretch of simulation."""
         tracker = self.tracker
         log = report.log
-        rows = np.zeros(0, dtype=int)
-        if len(log):
-            # The first control instant at or after each publishing time.
-            due = np.arange(self._next_publish, log.t[-1] + 1e-9, self._publish_period)
-            rows = np.unique(np.searchsorted(log.t, due - 1e-9))
-            for i in rows:
-                self._publish_state({
-                    "t": log.t[i], "q": log.q[i], "qd": log.qd[i], "error": log.error[i],
-                    "error_rate": log.error_rate[i],
-                    "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max,
-                    "tau": log.tau[i]})
-            self._next_publish += due.size * self._publish_period
+        rows = self._schedule.rows(log.t) if len(log) else np.zeros(0, dtype=int)
+        for i in rows:
+            self._publish_state({
+                "t": log.t[i], "q": log.q[i], "qd": log.qd[i], "error": log.error[i],
+                "error_rate": log.error_rate[i],
+                "feedback": (log.u[i] - log.u_nom[i]) * tracker.tau_max, "tau": log.tau[i]})
         self._follow.update(log, rows)
         # After the states: whoever acts on "completed" (e.g. sends the next goal, which the
         # planner plans from the latest joint state) has seen the final state by then.
         for summary in report.summaries:
-            self._pub_status.publish(self._summary_status(summary))
+            self.publish_summary(summary)
 
     def _publish_state(self, row: Mapping[str, Any]) -> None:
-        now = time.monotonic()
-        self._history.append((now, np.array(row["q"], dtype=float)))
-        while self._history and self._history[0][0] < now - START_HISTORY:
-            self._history.popleft()
-        header = Header(stamp=conv.time_from_seconds(self._epoch + float(row["t"])), frame_id="")
-        self._pub_joints.publish(JointState(
-            header=header, name=self.joint_names, position=np.asarray(row["q"]).tolist(),
-            velocity=np.asarray(row["qd"]).tolist(), effort=np.asarray(row["tau"]).tolist()))
-        self._pub_error.publish(JointState(
-            header=header, name=self.joint_names,
-            position=np.asarray(row["error"]).tolist(),
-            velocity=np.asarray(row["error_rate"]).tolist(),
-            effort=np.asarray(row["feedback"]).tolist()))
+        self._history.add(row["q"])
+        joints, error = state_msgs(self.joint_names, self.epoch + float(row["t"]), row)
+        self._pub_joints.publish(joints)
+        self._pub_error.publish(error)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -19,7 +19,7 @@ from tocontrol_ros.core.sim.tracking import (
     PlantConfig,
     TrackingGains,
 )
-from tocontrol_ros.nodes.params import (
+from tocontrol_ros.nodes.parameter_specs import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
     ROBOT_DESCRIPTION_FILE,
@@ -30,7 +30,7 @@ from tocontrol_ros.nodes.params import (
     parse_locked_joints,
 )
 
-__all__ = ["PAPER_START_Q", "PARAMETERS", "TrackerConfig"]
+__all__ = ["PAPER_START_Q", "PARAMETERS", "TrackerConfig", "plant_text"]
 
 #: Start configuration of the paper's example (Section 5) on the bundled arm: the tip at
 #: (1.0, 1.0) (to 2e-10 m), on the self-motion branch where the k = 4 plan starts.
@@ -194,3 +194,16 @@ class TrackerConfig:
                          model.q_upper - model.q_lower, 0.0)
         return np.clip(np.zeros(model.n), model.q_lower + 0.05 * width,
                        model.q_upper - 0.05 * width)
+
+
+def plant_text(p) -> str:
+    """The simulated plant in a line of the start-up log.
+
+    ``p``: the config's :class:`~tocontrol_ros.core.sim.tracking.PlantOptions`.
+    """
+    if p.identical and p.torque_noise == 0 and not p.initial_offset:
+        return f"identical to the model, {p.sim_rate:g} Hz, control {p.control_rate:g} Hz"
+    return (f"mass x{p.mass_scale:g}, inertia x{p.inertia_scale:g}, friction "
+            f"x{p.friction_scale:g}, payload {p.payload_mass:g} kg, noise "
+            f"{p.torque_noise:g}, offset {list(p.initial_offset)}, {p.sim_rate:g} Hz, "
+            f"control {p.control_rate:g} Hz")

@@ -8,11 +8,13 @@ re-exports them under its own name).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros.core.errors import ProblemError
@@ -20,7 +22,9 @@ from tocontrol_ros.core.sim.tracking import NominalTrajectory, TrackingSummary
 from tocontrol_ros.nodes import conversions as conv
 
 __all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "check_limits",
-           "reset_state_from_msg", "summary_status"]
+           "reset_state_from_msg", "summary_status",
+           "start_event", "start_state_values", "state_msgs", "status_msg", "ResetRequest",
+           "reset_request", "rest_row", "splice_event"]
 
 
 class TrajectoryRejectedError(ProblemError):
@@ -146,6 +150,25 @@ def reset_state_from_msg(msg: JointState,
     return fields["position"], fields["velocity"]
 
 
+class ResetRequest(NamedTuple):
+    """A parsed ``~/reset`` request (``error``: why it is refused, else None)."""
+
+    q: np.ndarray | None
+    qd: np.ndarray | None
+    stamp: str
+    error: str | None
+
+
+def reset_request(msg: JointState, joint_names: Sequence[str]) -> ResetRequest:
+    """A ``~/reset`` request parsed (:func:`reset_state_from_msg`), its stamp as text."""
+    stamp = f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+    try:
+        q, qd = reset_state_from_msg(msg, joint_names)
+    except TrajectoryRejectedError as exc:
+        return ResetRequest(None, None, stamp, str(exc))
+    return ResetRequest(q, qd, stamp, None)
+
+
 def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
                    joint_names: Sequence[str]) -> DiagnosticStatus:
     """A run summary as a ``DiagnosticStatus`` (level OK; values as key/value pairs)."""
@@ -160,3 +183,77 @@ def summary_status(summary: TrackingSummary, name: str, hardware_id: str,
               for key, value in summary.as_dict(joint_names).items()]
     return DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=message,
                             hardware_id=hardware_id, values=values)
+
+
+def status_msg(level: bytes, name: str, message: str, hardware_id: str,
+               values: Mapping[str, str] = ()) -> DiagnosticStatus:
+    """A tracker event as a ``DiagnosticStatus`` (``values`` already text)."""
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in dict(values).items()])
+
+
+def start_event(nominal: NominalTrajectory, stamp: float, offset: float, placed: bool,
+                start_time: float, state: Mapping[str, str]) -> tuple[str, dict[str, str]]:
+    """The message and values of a trajectory's start on ``~/status``.
+
+    ``stamp``: its header's (s); ``offset``: its first point from the arm's position (rad);
+    ``placed``: the arm was put there (``start_at_first_trajectory``); ``start_time``: now
+    on the stamps' clock (s); ``state``: :func:`start_state_values`.
+    """
+    message = (f"executing trajectory: {len(nominal)} points, T = {nominal.duration:.4f} s, "
+               f"start {offset:.3g} rad from the current position"
+               + (" (the arm placed there: start_at_first_trajectory)" if placed else ""))
+    return message, {"points": str(len(nominal)), "duration": f"{nominal.duration:.9g}",
+                     "stamp": f"{stamp:.9f}", "start_offset": f"{offset:.9g}",
+                     "start_time": f"{start_time:.9f}", **state}
+
+
+def start_state_values(joint_names: Sequence[str], q: np.ndarray,
+                       qd: np.ndarray) -> dict[str, str]:
+    """The state a trajectory starts from as status values, for re-execution.
+
+    ``start_position.<joint>`` and ``start_velocity.<joint>`` (rad, rad/s), 17 digits.
+    """
+    return {f"start_{field}.{name}": f"{value:.17g}"
+            for field, values in (("position", q), ("velocity", qd))
+            for name, value in zip(joint_names, values, strict=True)}
+
+
+def state_msgs(joint_names: Sequence[str], stamp: float,
+               row: Mapping[str, np.ndarray]) -> tuple[JointState, JointState]:
+    """``joint_states`` and ``~/tracking_error`` of one control instant, stamped ``stamp`` (s).
+
+    ``row``: ``q``, ``qd``, ``tau`` (the state and the torque acting) and ``error``,
+    ``error_rate``, ``feedback`` (``q_des - q``, ``qd_des - qd``, the feedback torque).
+    """
+    header = Header(stamp=conv.time_from_seconds(stamp), frame_id="")
+    names = list(joint_names)
+    joints = JointState(header=header, name=names, position=np.asarray(row["q"]).tolist(),
+                        velocity=np.asarray(row["qd"]).tolist(),
+                        effort=np.asarray(row["tau"]).tolist())
+    error = JointState(header=header, name=names, position=np.asarray(row["error"]).tolist(),
+                       velocity=np.asarray(row["error_rate"]).tolist(),
+                       effort=np.asarray(row["feedback"]).tolist())
+    return joints, error
+
+
+def rest_row(t: float, q: np.ndarray, qd: np.ndarray) -> dict[str, object]:
+    """A :func:`state_msgs` row of the arm held at ``q``, ``qd``: no error, no torque."""
+    zero = np.zeros(len(q))
+    return {"t": t, "q": q, "qd": qd, "error": zero, "error_rate": zero, "feedback": zero,
+            "tau": zero}
+
+
+def splice_event(splice, dq: float, dqd: float, start_time: float) -> tuple[str, dict]:
+    """The message and values of a stamped trajectory spliced in, on ``~/status``.
+
+    ``splice``: a :class:`~tocontrol_ros.nodes.splice.Splice`; ``dq``, ``dqd``: the
+    command's jumps (rad, rad/s); ``start_time``: now on the stamps' clock (s).
+    """
+    nominal = splice.nominal
+    message = (f"executing trajectory spliced in at its stamp: {len(nominal)} points, T = "
+               f"{nominal.duration:.4f} s; command jumps {dq:.3g} rad, {dqd:.3g} rad/s")
+    return message, {"event": "spliced", "points": str(len(nominal)),
+                     "duration": f"{nominal.duration:.9g}", "stamp": f"{splice.stamp:.9f}",
+                     "start_time": f"{start_time:.9f}", "position_jump": f"{dq:.9g}",
+                     "velocity_jump": f"{dqd:.9g}"}

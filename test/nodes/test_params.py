@@ -74,7 +74,7 @@ def test_yaml_matches_the_table(name, table):
 
     import yaml
 
-    repo = pathlib.Path(__file__).resolve().parents[1]
+    repo = pathlib.Path(__file__).resolve().parents[2]
     values = yaml.safe_load((repo / "config" / f"{name}.yaml").read_text())
     assert values["/**"]["ros__parameters"] == {
         spec.name: spec.default for spec in table if spec.default is not None}
@@ -97,3 +97,12 @@ def test_locked_joints_parse(text, expected):
 def test_bad_locked_joints_are_named(text, match):
     with pytest.raises(RobotDescriptionError, match=match):
         parse_locked_joints(text)
+
+
+def test_the_tables_parameter_types_are_the_messages():
+    # parameter_specs repeats rcl_interfaces' values so that the tables load without ROS.
+    from tocontrol_ros.nodes.parameter_specs import ParamType
+
+    names = [n for n in vars(ParamType) if n.startswith("PARAMETER_")]
+    assert len(names) == 6
+    assert all(getattr(ParamType, n) == getattr(ParameterType, n) for n in names)

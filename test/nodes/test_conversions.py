@@ -259,7 +259,7 @@ def test_yaml_and_docs_list_every_parameter():
 
     import yaml
 
-    repo = pathlib.Path(__file__).resolve().parents[1]
+    repo = pathlib.Path(__file__).resolve().parents[2]
     values = yaml.safe_load((repo / "config" / "planner.yaml").read_text())
     assert values["/**"]["ros__parameters"] == default_values()
     doc = (repo / "msg_docs" / "parameters.md").read_text()

@@ -205,26 +205,23 @@ def test_a_slow_solve_does_not_push_a_rest_replan_far_ahead(motion):
 def test_a_handoff_velocity_a_little_over_a_limit_is_planned_from_the_limit():
     # The published samples' interpolant can pass a velocity limit between samples; a replan
     # from that hand-off starts at the limit (up to 10 % over), beyond that it is refused.
-    from types import SimpleNamespace
-
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.robot.limits import JointLimits
-    from tocontrol_ros.nodes.replan_serving import ReplanServing
+    from tocontrol_ros.nodes.planner_config import plan_problem
     from tocontrol_ros.nodes.replanning import Handoff
 
     model = load_robot(default_urdf_path())
     limits = JointLimits(tuple(model.joint_names), np.full(3, -10.0), np.full(3, 10.0),
                          np.array([2.0, 2.0, 2.0]))
-    node = SimpleNamespace(model=model, _limits=limits)
     config = config_from_values({})
     q = np.array([0.3, 0.9, 0.6])
     over = Handoff(0, q, np.array([2.1, -0.5, 0.0]), None, WARM)
-    problem = ReplanServing._problem(node, config, ("state", over.q, over.qd), PAPER_TARGET)
+    problem = plan_problem(config, model, limits, ("state", over.q, over.qd), PAPER_TARGET)
     qd = problem.start.value[3:]
     assert qd[0] == pytest.approx(2.0) and qd[0] < 2.0 and qd[1] == -0.5
     far = Handoff(0, q, np.array([2.5, 0.0, 0.0]), None, WARM)
     with pytest.raises(ProblemError, match="velocity 2.5 is not below its limit 2"):
-        ReplanServing._problem(node, config, ("state", far.q, far.qd), PAPER_TARGET)
+        plan_problem(config, model, limits, ("state", far.q, far.qd), PAPER_TARGET)
 
 
 def test_goal_stream_predicts_a_steady_stream_only():

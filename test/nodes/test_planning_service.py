@@ -1,0 +1,381 @@
+"""The planning service without ROS: its policy driven with fakes, no node, no spinning.
+
+A fake planner (solves on demand, held at a gate while a test queues more requests), fake
+outputs that record every publication in order, a fake arm and a fake clock for the stamps.
+Nothing waits on wall time except for events the test itself triggers, each bounded.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes.planner_config import config_from_values, planner_limits
+from tocontrol_ros.nodes.planning_service import Clock, PlanningService, replanning
+from tocontrol_ros.nodes.requests import PlanRequest
+
+#: Bound of every wait in these tests (s): a failure, never a slow pass.
+WAIT = 10.0
+
+MODEL = load_robot(default_urdf_path())
+
+
+# ------------------------------------------------------------------- fakes
+@dataclass
+class FakeSample:
+    """A sampled trajectory: ``n`` samples of a 3-joint arm at rest."""
+
+    n: int
+
+    def __post_init__(self) -> None:
+        self.t = np.linspace(0.0, 1.0, self.n)
+        self.q = np.zeros((self.n, 3))
+        self.qd = self.qdd = self.tau = np.zeros((self.n, 3))
+
+
+@dataclass
+class FakeResult:
+    """What the service reads of a :class:`~tocontrol_ros.core.types.result.PlanResult`."""
+
+    T: float
+    status: str = "SOLVED"
+    success: bool = True
+    method: str = "shooting"
+    message: str = ""
+    samples: int = 5
+    k: float = 8.0
+    iterations: int = 3
+    residual: float = 1e-10
+    max_abs_u: float = 1.0
+    certificate: object = None
+    problem: object = None
+    warm_state: object = None
+    warnings: tuple = ()
+    starts: list = field(default_factory=list)
+    timings: dict = field(default_factory=lambda: {"total": 0.01})
+
+    def __post_init__(self) -> None:
+        self.status = SimpleNamespace(name=self.status)
+        self.trajectory = SimpleNamespace(sample=lambda dt: FakeSample(self.samples)) \
+            if self.success else None
+
+    def can_warm_start(self, problem) -> bool:
+        return False
+
+
+class FakePlanner:
+    """Returns the results it is told to; once ``hold`` is set, each solve waits at the gate.
+
+    ``entered`` is set when a held solve has started (the worker is then busy).
+    """
+
+    def __init__(self, model) -> None:
+        self.optimum = FakeResult(T=1.5)
+        self.first_result = FakeResult(T=2.0, method="first")
+        self.error: Exception | None = None
+        self.hold = threading.Event()
+        self.gate = threading.Event()
+        self.entered = threading.Event()
+        self.solved: list = []  # the problems solved after the warm-up, in order
+
+    def stale(self) -> bool:
+        return False
+
+    def prepare(self, problem, options) -> None:
+        pass
+
+    def first(self, problem, options) -> FakeResult:
+        return self.first_result
+
+    def plan(self, problem, options, warm_start=None, should_stop=None) -> FakeResult:
+        if not self.hold.is_set():  # the warm-up's throw-away solves
+            return self.optimum
+        self.solved.append(problem)
+        self.entered.set()
+        assert self.gate.wait(WAIT), "the test never opened the gate"
+        if self.error is not None:
+            raise self.error
+        return self.optimum
+
+
+class FakeOutputs:
+    """Records each output as ``(kind, ...)`` in call order."""
+
+    def __init__(self) -> None:
+        self.events: list = []
+        self._lock = threading.Lock()
+
+    def _add(self, *event) -> None:
+        with self._lock:
+            self.events.append(event)
+
+    def status(self, level, message, values, routine=False) -> None:
+        self._add("status", level, message, dict(values))
+
+    def log_error(self, message) -> None:
+        self._add("log", message)
+
+    def trajectory(self, sample, stamp_ns):
+        self._add("trajectory", sample.n, stamp_ns)
+        return ("trajectory", stamp_ns)
+
+    def path(self, sample, stamp_ns):
+        self._add("path", sample.n)
+        return ("path", sample.n, stamp_ns)
+
+    def follow(self, request_id, trajectory, config) -> None:
+        self._add("follow", request_id)
+
+    def markers(self, result, path, config, start_point, target) -> None:
+        self._add("markers", result.T)
+
+    def rest_path(self, point):
+        return ("rest", tuple(point))
+
+    def statuses(self, event: str | None = None) -> list:
+        with self._lock:
+            return [e for e in self.events if e[0] == "status"
+                    and (event is None or e[3].get("event") == event)]
+
+    def kinds(self) -> list:
+        with self._lock:
+            return [e[0] for e in self.events]
+
+
+class FakeArm:
+    """The arm at rest at the paper's start, no joint state with a stamp."""
+
+    def start(self, config, since_ns, fresh=True) -> tuple:
+        return ("point", np.array(config.default_start))
+
+    def latest(self, config) -> tuple:
+        return 0, None
+
+
+class FakeClock:
+    """The node's clock and the wall clock: 1 s further at each reading."""
+
+    def __init__(self) -> None:
+        self._ticks = itertools.count(1)
+
+    def now_ns(self) -> int:
+        return next(self._ticks) * 10**9
+
+    def clock(self) -> Clock:
+        return Clock(now_ns=self.now_ns, wall_ns=self.now_ns)
+
+
+# ----------------------------------------------------------------- fixture
+@pytest.fixture
+def make_service():
+    """A started service with the given parameters; stopped after the test."""
+    services = []
+
+    def make(**params):
+        config = config_from_values(params, task_dim=MODEL.m)
+        out = FakeOutputs()
+        service = PlanningService(MODEL, planner_limits(config, MODEL), config, "base_link",
+                                  out, FakeArm(), FakeClock().clock(),
+                                  planner_factory=FakePlanner)
+        services.append(service)
+        service.start()
+        assert service.ready.wait(WAIT), "no warm-up"
+        service.planner.hold.set()
+        return service, out
+
+    yield make
+    for service in services:
+        service.planner.gate.set()
+        service.stop()
+
+
+def request(service, target=PAPER_TARGET, source="service", queue=False) -> PlanRequest:
+    return PlanRequest(service.next_id(), source, ("point", np.array(PAPER_START)),
+                       np.array(target), service.config, queue=queue)
+
+
+def wait_until(predicate) -> None:
+    deadline = time.monotonic() + WAIT
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def wait_done(*reqs) -> None:
+    for req in reqs:
+        assert req.done.wait(WAIT), f"request {req.id} got no outcome"
+
+
+def final(out: FakeOutputs, req: PlanRequest) -> dict:
+    """The final status of ``req``: level, event, message and values."""
+    events = [e for e in out.statuses() if e[3].get("request_id") == req.id
+              and e[3]["event"] not in ("accepted", "first")]
+    assert len(events) == 1, events
+    _, level, message, values = events[0]
+    return {"level": level, "event": values["event"], "message": message, "values": values}
+
+
+# ------------------------------------------------------------------- tests
+def test_the_warm_up_reports_ready(make_service):
+    _, out = make_service()
+    events = [e[3]["event"] for e in out.statuses()]
+    assert events[0] == "warming up" and events[-1] == "ready"
+
+
+def test_a_newer_request_supersedes_the_pending_one_and_cancels_the_running_one(make_service):
+    service, out = make_service()
+    a = request(service)
+    service.submit(a)
+    assert service.planner.entered.wait(WAIT)
+    b, c = request(service), request(service)
+    service.submit(b)  # a is cancelled during its solve; b waits
+    assert a.cancelled.is_set()
+    service.submit(c)  # b is replaced before its solve started
+    wait_done(b)
+    assert final(out, b)["event"] == "superseded"
+    assert "before its solve started" in final(out, b)["message"]
+    service.planner.gate.set()
+    wait_done(a, c)
+    assert final(out, a)["event"] == "superseded" and final(out, a)["level"] == "WARN"
+    assert "during its solve" in final(out, a)["message"]
+    assert final(out, c)["event"] == "solved" and final(out, c)["level"] == "OK"
+    # One answer each; only the newest published a motion.
+    assert a.path is None and b.path is None and c.path == ("path", 5, c.path[2])
+    assert out.kinds().count("trajectory") == 1
+
+
+def test_replanning_goals_queue_behind_the_running_one(make_service):
+    service, out = make_service(goal_queue=5)
+    assert replanning(service.config)
+    targets = [np.array(PAPER_TARGET) + [0.01 * i, 0.0] for i in range(3)]
+    service.goal(service.next_id(), targets[0], 0, 0.0)
+    assert service.planner.entered.wait(WAIT)
+    for target in targets[1:]:
+        service.goal(service.next_id(), target, 0, 0.0)
+    assert not out.statuses("superseded")
+    service.planner.gate.set()
+    wait_until(lambda: len(out.statuses("solved")) == 3)
+    solved = out.statuses("solved")
+    # Solved in their order of arrival, none cancelled, each published.
+    assert [e[3]["request_id"] for e in solved] == [1, 2, 3]
+    assert [p.target_point.tolist() for p in service.planner.solved] == \
+        [t.tolist() for t in targets]
+    # A goal's plan is stamped replan_min_lead ahead of the wall clock of the tracker's
+    # stamps (the fake clock's whole seconds; no joint state, so no grid to align to).
+    lead = int(service.config.replan_min_lead * 1e9)
+    stamps = [e[2] for e in out.events if e[0] == "trajectory"]
+    assert len(stamps) == 3 and all(s % 10**9 == lead for s in stamps)
+    assert stamps == sorted(stamps)
+
+
+def test_service_requests_never_queue(make_service):
+    service, out = make_service(goal_queue=5)
+    a = request(service)
+    service.submit(a)
+    assert service.planner.entered.wait(WAIT)
+    b = request(service)
+    service.submit(b)
+    assert a.cancelled.is_set() and a.cancel_reason[0] == "superseded"
+    service.planner.gate.set()
+    wait_done(a, b)
+
+
+def test_first_then_optimum_publishes_the_first_motion_before_the_optimum(make_service):
+    service, out = make_service(publish="first_then_optimum")
+    service.planner.gate.set()
+    req = request(service)
+    service.submit(req)
+    wait_done(req)
+    published = [e for e in out.events if e[0] in ("trajectory", "status")
+                 and (e[0] == "trajectory" or e[3]["event"] in ("first", "solved"))]
+    kinds = [e[0] if e[0] == "trajectory" else e[3]["event"] for e in published]
+    assert kinds == ["trajectory", "first", "trajectory", "solved"]
+    first = out.statuses("first")[0][3]
+    assert first["published"] == "first" and first["T"] == 2.0
+    done = final(out, req)["values"]
+    assert done["published"] == "optimum" and done["T"] == 1.5
+    assert out.kinds()[-1] == "markers"
+
+
+def test_a_first_motion_that_is_faster_stands(make_service):
+    service, out = make_service(publish="first_then_optimum")
+    service.planner.optimum = FakeResult(T=2.5)
+    service.planner.gate.set()
+    req = request(service)
+    service.submit(req)
+    wait_done(req)
+    done = final(out, req)
+    assert done["level"] == "WARN" and "the first motion stands" in done["message"]
+    assert done["values"]["optimum_T"] == 2.5 and done["values"]["T"] == 2.0
+    assert out.kinds().count("trajectory") == 1 and req.path is not None
+
+
+def test_a_failed_solve_publishes_nothing(make_service):
+    service, out = make_service()
+    service.planner.optimum = FakeResult(T=float("nan"), status="NO_CONVERGENCE",
+                                         success=False, message="no convergence")
+    service.planner.gate.set()
+    req = request(service)
+    service.submit(req)
+    wait_done(req)
+    done = final(out, req)
+    assert done["level"] == "ERROR" and done["event"] == "failed"
+    assert "trajectory" not in out.kinds() and req.path is None
+
+
+def test_bad_input_fails_that_request_and_the_service_keeps_serving(make_service):
+    service, out = make_service()
+    service.planner.gate.set()
+    far = request(service, target=(50.0, 50.0))  # out of the 3R arm's reach
+    service.submit(far)
+    wait_done(far)
+    assert final(out, far)["level"] == "ERROR" and final(out, far)["event"] == "failed"
+    with pytest.raises(ProblemError):
+        service.problem(service.config, far.start, far.target)
+    ok = request(service)
+    service.submit(ok)
+    wait_done(ok)
+    assert final(out, ok)["event"] == "solved"
+
+
+def test_an_internal_error_fails_that_request_and_the_service_keeps_serving(make_service):
+    service, out = make_service()
+    service.planner.error = RuntimeError("a bug")
+    service.planner.gate.set()
+    bad = request(service)
+    service.submit(bad)
+    wait_done(bad)
+    assert "internal error" in final(out, bad)["message"]
+    assert ("log", f"request {bad.id}: internal error: RuntimeError('a bug')") in out.events
+    service.planner.error = None
+    ok = request(service)
+    service.submit(ok)
+    wait_done(ok)
+    assert final(out, ok)["event"] == "solved"
+
+
+def test_stop_answers_the_pending_request(make_service):
+    service, out = make_service()
+    # Two goals: the second queues behind the running one (which it does not cancel).
+    running, pending = (request(service, source="goal", queue=True) for _ in range(2))
+    service.submit(running)
+    assert service.planner.entered.wait(WAIT)
+    service.submit(pending)
+    assert not running.cancelled.is_set()
+    service.stop(timeout=0.0)
+    wait_done(pending)
+    assert final(out, pending)["event"] == "cancelled"
+    assert "node shutting down" in final(out, pending)["message"]
+    service.planner.gate.set()
+    wait_done(running)
+    assert final(out, running)["event"] == "cancelled"
+

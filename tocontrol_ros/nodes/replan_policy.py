@@ -1,0 +1,210 @@
+"""The planning service's replans: a goal while a published motion runs, solved and stamped.
+
+:class:`ReplanPolicy` is a part of :class:`~tocontrol_ros.nodes.planning_service.PlanningService`
+(composition: it uses the service's public state and helpers), kept apart so that the
+service's module stays about requests in general. The hand-off, latencies and warm starts
+are :mod:`tocontrol_ros.nodes.replanning`'s and :mod:`tocontrol_ros.core.planning.replan`'s; see
+``msg_docs/parameters.md``, "Replanning". No ROS here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.indirect.warm import WarmState
+from tocontrol_ros.core.planning.replan import replan_options, warm_replan
+from tocontrol_ros.nodes.outcomes import result_values, stamp_text
+from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
+from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align, keeps_ahead
+from tocontrol_ros.nodes.requests import PlanRequest
+
+__all__ = ["ReplanPolicy", "replanning"]
+
+
+def replanning(config: PlannerConfig) -> bool:
+    """Whether goals are replanned from the hand-off (``replan``, and no ``controller_action``).
+
+    A plan sent to a FollowJointTrajectory controller starts there on receipt (stamp zero,
+    msg_docs/controller_execution.md), so a replan stamped at its hand-off would not be
+    spliced there: with ``controller_action`` set, goals are planned from the latest joint
+    state and start on receipt, as with ``replan: false``.
+    """
+    return bool(config.replan and not config.controller_action)
+
+
+class ReplanPolicy:
+    """Goals and replans of a :class:`~tocontrol_ros.nodes.planning_service.PlanningService`.
+
+    Parameters
+    ----------
+    service : PlanningService
+        Its planner, replanner (the published motions), arm, clock, slot and its
+        ``finish``/``publish_final`` helpers. (Typed ``Any`` here: the service's module
+        imports this one, and the import graph has no cycles, not even for type hints.)
+    """
+
+    def __init__(self, service: Any) -> None:
+        self.service = service
+
+    def goal_stamp(self, req: PlanRequest) -> int | None:
+        """The stamp of a goal's plan (ns), or None (now).
+
+        With replanning, a little ahead on the tracker's control grid, so that a replan from
+        it knows when it took over.
+        """
+        if not req.queue:
+            return None
+        config = req.config
+        t_ns = self.service.clock.wall_ns() + int(config.replan_min_lead * 1e9)
+        origin = self.service.arm.latest(config)[0]
+        return align(t_ns, origin or t_ns, config.handoff_grid)
+
+    def _measured(self, config: PlannerConfig) -> tuple[int, tuple | None]:
+        """The latest joint state's stamp (ns, 0: none) and (positions, stamp) or None."""
+        origin, q = self.service.arm.latest(config)
+        return origin, (None if q is None else (q, origin))
+
+    def serve(self, req: PlanRequest) -> bool:
+        """A goal while a published motion runs: planned from the hand-off, stamped with it.
+
+        Returns False when no published motion runs at the hand-off (the goal is then
+        served as any other, from the arm's measured state). Solved again from a later
+        hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
+        """
+        service = self.service
+        clock = service.clock
+        config = req.config
+        replans = service.replanner
+        late = []
+        min_lead = 0.0
+        late_result = None
+        for attempt in range(1, REPLAN_TRIES + 1):
+            t0 = clock.monotonic()
+            origin, measured = self._measured(config)
+            handoff = replans.handoff(config, req.target, clock.now_ns(), origin, min_lead,
+                                      measured)
+            if handoff is None:
+                if req.since_ns:  # as any goal: a joint state received after it
+                    try:
+                        req.start = service.arm.start(config, req.since_ns)
+                    except TocontrolError:
+                        pass  # keep the state taken at its arrival
+                return False
+            near = replans.near(config, req.target)
+            if near:  # its problem's reachability check from the nearest motion's end
+                replans.note_reachable(service.model, req.target)
+            try:
+                problem = service.problem(config, ("state", handoff.q, handoff.qd), req.target)
+            except TocontrolError as exc:
+                service.finish(req, "ERROR", "failed", str(exc))
+                return True
+            options = solver_options(config)
+            warm = [handoff.warm]
+            if near or (req.behind and problem.limits.active):
+                # Near: the running motion's tail continued, or the last motions published
+                # (replanning.Replanner.warm_starts); should they fail, one start, no
+                # multistart. So too a far goal after the worker fell behind the stream on an
+                # arm whose limits bind (its multistart takes seconds: the stream moves on).
+                options = replan_options(options, config.replan_smoothing,
+                                         config.replan_spans)
+                # A late solve's result first: the same goal from a little earlier.
+                warm = [late_result, *replans.warm_starts(handoff.warm)]
+            result = None
+            if any(w is not None for w in warm):
+                result = warm_replan(service.planner, problem, warm, options,
+                                     service.should_stop(req))
+            if result is None or not (result.success or req.cancelled.is_set()):
+                result = service.planner.plan(problem, options,
+                                              should_stop=service.should_stop(req))
+            if not (result.success or req.cancelled.is_set()) and options.starts == 1 \
+                    and not service.slot.has_pending():
+                # The one start failed: the multistart (its time counts as this solve's),
+                # unless goals wait (a stream: seconds of multistart would hold them all up;
+                # the next goal is solved instead).
+                result = service.planner.plan(problem, solver_options(config),
+                                              should_stop=service.should_stop(req))
+            # The status says where the replan starts: the hand-off state, not the state
+            # measured when the goal came.
+            extra = {"start": problem.start_point, "start_q": handoff.q,
+                     "start_qd": handoff.qd, **result_values(result),
+                     "replan": handoff.kind, "attempts": attempt,
+                     "handoff": stamp_text(handoff.stamp_ns),
+                     "warm_start": any(w is not None for w in warm),
+                     "published": "none"}
+            if service.finish_stopped(req, extra):
+                return True
+            if not result.success or result.trajectory is None:
+                service.finish(req, "ERROR", "failed", result.message, extra)
+                return True
+            estimate = replans.estimate(config, handoff.kind)
+            estimate.record(clock.monotonic() - t0)  # late or not: what a solve takes now
+            now = clock.now_ns()
+            if handoff.kind == REST:  # the arm rests there from the hand-off on: not late
+                handoff = handoff._replace(stamp_ns=replans.rest_stamp(config, handoff, now,
+                                                                       origin))
+                extra["handoff"] = stamp_text(handoff.stamp_ns)
+            if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
+                late.append(f"{(now - handoff.stamp_ns) * 1e-9:+.3f} s")
+                # Again, with at least twice this solve's time plus the delivery lead.
+                min_lead = config.replan_min_lead + 2.0 * (clock.monotonic() - t0)
+                late_result = result
+                continue
+            note = f" (after {len(late)} late solve(s))" if late else ""
+            service.publish_final(req, result, handoff.stamp_ns,
+                                  f"replan ({handoff.kind}) taking over at "
+                                  f"{handoff.stamp_ns * 1e-9:.3f}: ", extra, None, note)
+            return True
+        service.finish(req, "ERROR", "failed", f"each of {REPLAN_TRIES} replans would have "
+                       f"arrived after its hand-off (published - hand-off: {', '.join(late)})",
+                       {"replan": "late", "attempts": REPLAN_TRIES})
+        return True
+
+    def solve_ahead(self) -> None:
+        """While the worker waits: the goal a steady stream predicts, solved ahead.
+
+        With ``replan_predict``, when the recent goals form a stream
+        (:class:`~tocontrol_ros.nodes.replanning.GoalStream`) whose next goal is near the
+        running motion's target, that goal is replanned now, from the hand-off it would get
+        when due, and kept: the real goal's first warm start
+        (:meth:`~tocontrol_ros.nodes.replanning.Replanner.warm_starts`), a prediction error
+        away. Nothing is published; a request that arrives stops it.
+        """
+        service = self.service
+        config = service.config
+        replans = service.replanner
+        if not (replanning(config) and config.replan_predict) or service.slot.has_pending():
+            return
+        predicted = replans.goals.predict(config.replan_radius)
+        running = replans.running()
+        # Shooting solutions only: a bounded B-spline solve (seconds, IPOPT) would hold up
+        # the real goal, whose arrival stops a solve only between Newton iterations.
+        if predicted is None or not isinstance(getattr(running, "warm_state", None),
+                                               WarmState) \
+                or not replans.near(config, predicted[0]):
+            return
+        target, due = predicted
+        due_ns = service.clock.now_ns() + int(max(due - service.clock.monotonic(), 0) * 1e9)
+        origin, measured = self._measured(config)
+        handoff = replans.handoff(config, target, due_ns, origin, 0.0, measured)
+        if handoff is None:
+            return
+        replans.note_reachable(service.model, target)
+        try:
+            problem = service.problem(config, ("state", handoff.q, handoff.qd), target)
+        except TocontrolError:
+            return  # e.g. a predicted target out of reach: the real goal will say so
+        options = replan_options(solver_options(config), config.replan_smoothing,
+                                 config.replan_spans)
+        step = float(np.linalg.norm(target - running.problem.target_point))
+
+        def stop() -> bool:  # any request but the goal predicted stops it
+            return service.stopping.is_set() or not keeps_ahead(service.slot.pending(),
+                                                                target, step)
+
+        result = warm_replan(service.planner, problem, replans.warm_starts(handoff.warm),
+                             options, stop)
+        if result.success and result.trajectory is not None:
+            replans.solved_ahead(result, running)
