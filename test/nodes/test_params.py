@@ -106,3 +106,28 @@ def test_the_tables_parameter_types_are_the_messages():
     names = [n for n in vars(ParamType) if n.startswith("PARAMETER_")]
     assert len(names) == 6
     assert all(getattr(ParamType, n) == getattr(ParameterType, n) for n in names)
+
+
+def test_each_solver_parameter_takes_its_options_default():
+    """One hierarchy of knobs (issue 48): a planner parameter that is a solver option has the
+    option's default, but for the one listed exception (workers: a node solves on every
+    core), and solver_options passes each of them through."""
+    from tocontrol_ros.core.types.options import SolverOptions
+    from tocontrol_ros.nodes.planner_config import (
+        NODE_DEFAULTS,
+        PARAMETERS,
+        SOLVER_PARAMETERS,
+        config_from_values,
+        solver_options,
+    )
+
+    core = SolverOptions()
+    specs = {spec.name: spec for spec in PARAMETERS}
+    assert set(SOLVER_PARAMETERS) <= set(specs)
+    assert set(NODE_DEFAULTS) <= set(SOLVER_PARAMETERS)
+    for name in SOLVER_PARAMETERS:
+        expected = NODE_DEFAULTS.get(name, getattr(core, name))
+        assert specs[name].default == expected, name
+    options = solver_options(config_from_values({spec.name: spec.default for spec in PARAMETERS}))
+    for name in SOLVER_PARAMETERS:
+        assert getattr(options, name) == specs[name].default, name

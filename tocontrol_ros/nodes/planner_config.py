@@ -21,7 +21,7 @@ import numpy as np
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
-from tocontrol_ros.core.types.options import MIN_REPLAN_SPANS
+from tocontrol_ros.core.types.options import MIN_REPLAN_SPANS, SolverOptions
 from tocontrol_ros.nodes.parameter_specs import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
@@ -44,6 +44,22 @@ PUBLISH_MODES = ("optimum", FIRST_THEN_OPTIMUM)
 class ConfigError(TocontrolError, ValueError):
     """A parameter value that the planner cannot use; the message names the parameter."""
 
+
+#: The core's defaults: a parameter that maps to a solver option (:data:`SOLVER_PARAMETERS`)
+#: takes the option's default, so that the node and ``tocontrol_ros.core.plan`` answer a
+#: request alike unless told otherwise.
+_CORE = SolverOptions()
+
+#: The node parameters that are solver options of the same name
+#: (:class:`~tocontrol_ros.core.types.options.SolverOptions`), read by :func:`solver_options`.
+SOLVER_PARAMETERS = ("tol", "max_newton", "starts", "candidates", "time_limit", "verify",
+                     "warm_only", "workers")
+
+#: The one parameter whose default differs from its option's, and why: a planner node owns
+#: its machine and solves on every core (measured: the Panda's plan 1.5 times faster on two
+#: cores, BENCHMARKS.md "deployed_panda"), where a library call does not start processes
+#: unasked (``SolverOptions.workers`` 1).
+NODE_DEFAULTS = {"workers": 0}
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION,
@@ -74,34 +90,41 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "(dimensionless); larger is closer to bang-bang.", 1.0, 64.0),
     ParameterSpec("reserve", 0.0, "Torque reserve r (fraction): plan against (1 - r) "
                   "tau_max, leaving r tau_max for feedback.", 0.0, 0.95),
-    ParameterSpec("tol", 1e-10, "Newton tolerance on the max-norm of the boundary-value "
+    ParameterSpec("tol", _CORE.tol,
+                  "Newton tolerance on the max-norm of the boundary-value "
                   "equations.", 1e-14, 1e-4),
-    ParameterSpec("max_newton", 30, "Newton iterations per solve (each continuation step "
+    ParameterSpec("max_newton", _CORE.max_newton,
+                  "Newton iterations per solve (each continuation step "
                   "is one solve).", 1, 500),
     # starts and candidates: SolverOptions' defaults (checked by a test).
-    ParameterSpec("starts", 16, "Seed pairs tried by the direct method that makes the "
+    ParameterSpec("starts", _CORE.starts,
+                  "Seed pairs tried by the direct method that makes the "
                   "initial guess: the best-ranked of the self-motion grid and its full-turn "
                   "branches (docs/seeding.md); with the default candidates it finds the best "
                   "basin of nearly every problem of the paper's arm (1 = single start: "
                   "faster, often a worse basin). On an arm with random IK seeds and joint "
                   "limits (not a planar arm) starts // 2 more are solved.", 1, 256),
-    ParameterSpec("candidates", 6, "At most this many distinct direct solutions continued by "
+    ParameterSpec("candidates", _CORE.candidates,
+                  "At most this many distinct direct solutions continued by "
                   "shooting, fastest direct T first, stopping where the rest cannot beat the "
                   "best found (docs/seeding.md); the fastest motion is returned.", 1, 32,
                   constraints="candidates <= starts"),
-    ParameterSpec("time_limit", 30.0, "Wall-time budget of one solve (s), the solver's one "
+    ParameterSpec("time_limit", _CORE.time_limit,
+                  "Wall-time budget of one solve (s), the solver's one "
                   "reading of the clock that changes its course (it decides by work "
                   "otherwise: the same request gives the same plan on any load). A solve "
                   "that runs out ends with status TIME_LIMIT; when it had found a motion that "
                   "passes its certificate, the best one is published with a WARN status "
                   "(not shown to be the optimum), else nothing is.", 0.1, 600.0),
-    ParameterSpec("workers", 0, "Processes that solve a plan's independent pieces side by "
+    ParameterSpec("workers", NODE_DEFAULTS["workers"],
+                  "Processes that solve a plan's independent pieces side by "
                   "side, the planner's own included (the multistart's direct guesses, the "
                   "bounded solve's candidates and refinement levels): 0 = one per core the "
                   "node may use, 1 = all in the planner's process. The plan is the same for "
                   "any number; more only make it sooner. Worker processes start with the "
                   "first request that uses them and stay until the node exits.", 0, 64),
-    ParameterSpec("verify", True, "Certify every solution before it is published: the nominal "
+    ParameterSpec("verify", _CORE.verify,
+                  "Certify every solution before it is published: the nominal "
                   "torques re-integrated through the model by an independent adaptive "
                   "integrator must land on the target at rest, the torques stay inside the "
                   "set, H = 0 (a few ms on the paper's arm; see msg_docs/certificate.md). A "
@@ -111,7 +134,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "one more candidate next to the multistart, never instead of it (unless "
                   "warm_only); returned only when it is faster. Identical requests give the "
                   "same T whatever came before."),
-    ParameterSpec("warm_only", False, "With warm_start, return the previous solution "
+    ParameterSpec("warm_only", _CORE.warm_only,
+                  "With warm_start, return the previous solution "
                   "continued to the new problem without running the multistart, when it "
                   "succeeds: the quickest re-plan after a small move (the Panda with its "
                   "limits: 0.2-0.5 s against seconds), in the previous motion's basin, which "
@@ -363,13 +387,8 @@ def planner_limits(config: PlannerConfig, model):
 
 
 def solver_options(config: PlannerConfig):
-    """The :class:`~tocontrol_ros.core.planning.solver.SolverOptions` of a config."""
-    from tocontrol_ros.core.planning.solver import SolverOptions
-
-    return SolverOptions(tol=config.tol, max_newton=config.max_newton, starts=config.starts,
-                         candidates=config.candidates, time_limit=config.time_limit,
-                         verify=config.verify, warm_only=config.warm_only,
-                         workers=config.workers)
+    """The :class:`~tocontrol_ros.core.types.options.SolverOptions` of a config."""
+    return SolverOptions(**{name: getattr(config, name) for name in SOLVER_PARAMETERS})
 
 
 def warm_up_problems(config: PlannerConfig, model, limits) -> list:
