@@ -13,9 +13,12 @@ import shutil
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
-from test_report import write_two_motions
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recording"))
+from test_report import write_two_motions  # noqa: E402 (the report tests' helper)
 
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.recording import report
