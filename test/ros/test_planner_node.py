@@ -776,8 +776,9 @@ def test_a_time_limited_solve_publishes_its_certified_motion_with_a_warning(monk
             return result
         if modes["carry"]:
             return solver_module._time_limited(result)
-        return solver_module._failure(problem, solver_module.Status.TIME_LIMIT,
-                                      "solve interrupted", dict(result.timings))
+        return solver_module.PlanResult.failure(problem, solver_module.Status.TIME_LIMIT,
+                                                "solve interrupted", dict(result.timings),
+                                                k=float("nan"))
 
     monkeypatch.setattr(solver_module.Planner, "plan", time_limited)
     with ready_planner("time_limit") as (_, client):
@@ -883,8 +884,9 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
         result = real(self, problem, options, warm_start, should_stop)
         if not serving:
             return result
-        return solver_module._failure(problem, solver_module.Status.NEWTON_FAILED,
-                                      "made to fail by the test", dict(result.timings))
+        return solver_module.PlanResult.failure(problem, solver_module.Status.NEWTON_FAILED,
+                                                "made to fail by the test",
+                                                dict(result.timings), k=float("nan"))
 
     monkeypatch.setattr(solver_module.Planner, "plan", failing)
     with first_mode_planner("first_stands") as (_, client, trajectories):
