@@ -33,8 +33,9 @@ def worker(tree: str) -> None:
     """Serve timing orders on stdin: one case name per line, one result line back."""
     sys.path.insert(0, str(Path(tree).resolve()))
     from bench.common import MOVED_TARGET, MULTI, START, TARGET, paper_model
-    from tocontrol_ros.core.planning.solver import SolverOptions, plan
-    from tocontrol_ros.core.types.problem import Problem, point
+
+    # The public face, which both sides of a restructuring have (issue 31 onwards).
+    from tocontrol_ros.core import Problem, SolverOptions, plan, point
 
     model = paper_model()
     problem = Problem(model, point(START), point(TARGET), k=4.0)
