@@ -68,9 +68,26 @@ MAX_CHUNK = 1024
 
 
 # -------------------------------------------------------------------------- gains
+#: Largest ``2 zeta w h`` (the damping term's share of one control period ``h``) that
+#: :class:`TrackingGains` accepts: the sampled double integrator under PD (zero-order hold)
+#: is stable for ``2 zeta w h < 2`` (Jury), and half of that keeps a margin for a plant whose
+#: inertia is below the model's.
+MAX_DAMPING_STEP = 1.0
+
+
 @dataclass(frozen=True)
 class TrackingGains:
-    """PD gains in normalised units: ``u = u_nom + kp e + kd de``.
+    """PD gains: ``u = u_nom + kp e + kd de + M(q_des) (w^2 e + 2 zeta w de) / tau_max``.
+
+    Two parts, added: per-joint gains ``kp, kd`` in normalised units (diagonal, the same at
+    every configuration), and model-derived gains from a ``bandwidth`` ``w``: the
+    feedback is the planning model's inertia matrix at the desired configuration times a
+    critically damped (``zeta = 1`` by default) acceleration ``w^2 e + 2 zeta w de``, so that
+    every mode of the arm, including the light self-motion of two aligned joint axes, closes
+    at ``w`` rad/s. Per-joint diagonal gains set from the inertia's diagonal at one
+    configuration do not: where two axes align (the Panda's joints 1 and 3), the inertia of
+    their difference is a small fraction of either diagonal entry, and such gains exceed the
+    control rate's stability bound there.
 
     Attributes
     ----------
@@ -79,6 +96,12 @@ class TrackingGains:
         ``tau_max``) per unit position error. A scalar applies to every joint.
     kd : float or tuple of float
         Per joint, in s/rad (s/m). A scalar applies to every joint.
+    bandwidth : float or tuple of float
+        ``w``, rad/s (>= 0; zero: no model-derived part): per joint, the gains of that
+        joint's commanded acceleration (a scalar for all, the usual choice). Bounded by the control period ``h``
+        through ``2 zeta w h <= MAX_DAMPING_STEP`` (checked by :class:`Tracker`).
+    damping_ratio : float
+        ``zeta`` (> 0) of the model-derived part.
 
     Raises
     ------
@@ -88,9 +111,11 @@ class TrackingGains:
 
     kp: float | tuple[float, ...] = 0.0
     kd: float | tuple[float, ...] = 0.0
+    bandwidth: float | tuple[float, ...] = 0.0
+    damping_ratio: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("kp", "kd"):
+        for name in ("kp", "kd", "bandwidth"):
             value = getattr(self, name)
             arr = finite_array(name, value)
             if arr.ndim > 1:
@@ -100,22 +125,48 @@ class TrackingGains:
                 raise ProblemError(f"`{name}` must be >= 0, got {arr.tolist()}")
             object.__setattr__(self, name, float(arr) if arr.ndim == 0
                                else tuple(float(v) for v in arr))
+        zeta = finite_array("damping_ratio", self.damping_ratio)
+        if zeta.ndim != 0 or not zeta > 0:
+            raise ProblemError(f"`damping_ratio` must be a number > 0, got "
+                               f"{self.damping_ratio!r}")
+        object.__setattr__(self, "damping_ratio", float(zeta))
+
+    @staticmethod
+    def _spread(name: str, value, n: int) -> np.ndarray:
+        if isinstance(value, float):
+            return np.full(n, value)
+        if len(value) == 1:
+            return np.full(n, value[0])
+        if len(value) == n:
+            return np.array(value)
+        raise ProblemError(f"`{name}` must be one value or {n} (one per joint), got "
+                           f"{len(value)}")
 
     def per_joint(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``(kp, kd)`` spread to ``n`` joints, each shape (n,)."""
-        out = []
-        for name in ("kp", "kd"):
-            value = getattr(self, name)
-            if isinstance(value, float):
-                out.append(np.full(n, value))
-            elif len(value) == 1:
-                out.append(np.full(n, value[0]))
-            elif len(value) == n:
-                out.append(np.array(value))
-            else:
-                raise ProblemError(f"`{name}` must be one value or {n} (one per joint), got "
-                                   f"{len(value)}")
-        return out[0], out[1]
+        return self._spread("kp", self.kp, n), self._spread("kd", self.kd, n)
+
+    def acceleration_gains(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The model-derived part's ``(w^2, 2 zeta w)``, each shape (n,) (1/s^2, 1/s)."""
+        w = self._spread("bandwidth", self.bandwidth, n)
+        return w ** 2, 2.0 * self.damping_ratio * w
+
+    def check_rate(self, n: int, control_period: float) -> None:
+        """Raise when the model-derived part is too fast for ``control_period`` (s).
+
+        Raises
+        ------
+        ProblemError
+            ``2 zeta w h > MAX_DAMPING_STEP``, naming the largest bandwidth allowed.
+        """
+        _, b = self.acceleration_gains(n)
+        if b.size and float(np.max(b)) * control_period > MAX_DAMPING_STEP:
+            w_max = MAX_DAMPING_STEP / (2.0 * self.damping_ratio * control_period)
+            raise ProblemError(
+                f"`bandwidth` {float(np.max(b)) / (2 * self.damping_ratio):g} rad/s is above "
+                f"the stability bound of the control period {control_period:g} s: at most "
+                f"{w_max:g} rad/s (2 zeta w h <= {MAX_DAMPING_STEP:g}, zeta = "
+                f"{self.damping_ratio:g})")
 
 
 # --------------------------------------------------------------------------- tracker
@@ -159,6 +210,8 @@ class Tracker:
         self.gains = gains if gains is not None else TrackingGains()
         n = model.n
         self.kp, self.kd = self.gains.per_joint(n)
+        self.gains.check_rate(n, self.plant.control_period)
+        self.kp_acc, self.kd_acc = self.gains.acceleration_gains(n)
         if q0 is None:
             raise ProblemError("`q0` must give the initial configuration, shape "
                                f"({n},); got None")
@@ -239,7 +292,13 @@ class Tracker:
         wrapped = math.pi - ((math.pi - e) - two_pi * ca.floor((math.pi - e) / two_pi))
         cont = ca.DM(self._continuous.astype(float))
         e = cont * wrapped + (1 - cont) * e
-        v = u_nom + ca.DM(self.kp) * e + ca.DM(self.kd) * (qd_des - x[n:])
+        de = qd_des - x[n:]
+        v = u_nom + ca.DM(self.kp) * e + ca.DM(self.kd) * de
+        if np.any(self.kp_acc > 0) or np.any(self.kd_acc > 0):
+            # The model's inertia at the desired configuration: known ahead, smooth in time.
+            inertia = self.model.mass_matrix_sym(q_des)
+            acc = ca.DM(self.kp_acc) * e + ca.DM(self.kd_acc) * de
+            v = v + ca.mtimes(inertia, acc) / ca.DM(self.tau_max)
         u = ca.fmin(ca.fmax(v, -1.0), 1.0)
         saturated = ca.fabs(v) > 1.0 + SATURATION_TOL
         x_next = self._period(x, u * ca.DM(self.tau_max) + noise)
