@@ -5,11 +5,15 @@ the box ``|u_i| <= 1``, which leaves room for feedback, where a bang-bang contro
 This module is the experiment: a plant (the true dynamics, which may differ from the
 planning model) integrated at a fixed step, driven by
 
-    u = clip(u_nom + Kp e + Kd de, -1, 1),    e = q_des - q,  de = qd_des - qd,
+    u = clip(u_nom + Kp e + Kd de + M(q_des) (w^2 e + 2 zeta w de + ki z) / tau_max, -1, 1),
+    e = q_des - q,  de = qd_des - qd,  z = integral of e while holding,
 
 in normalised units (``u = tau / tau_max`` of the *planning* model), computed once per
 control period and held over it (zero-order hold), the applied torque being
-``tau = u tau_max`` plus optional actuator noise.
+``tau = u tau_max`` plus optional actuator noise. The gains
+(:mod:`~tocontrol_ros.core.sim.gains`) are per joint (``Kp, Kd``), or derived from the
+planning model's inertia and a bandwidth ``w`` (``M`` above; the integral ``z`` only while
+holding a configuration, from zero at each hold), or both.
 
 Timing, per control period ``[t_k, t_k + h]``:
 
@@ -21,7 +25,7 @@ Timing, per control period ``[t_k, t_k + h]``:
 - the plant integrates the true dynamics with classical RK4 at the simulation step
   (``sim_rate``, an integer multiple of ``control_rate``), the torque constant.
 
-The nominal trajectory (:mod:`~tocontrol_ros.core.sim.nominal`), the plant
+The nominal trajectory (:mod:`~tocontrol_ros.core.sim.nominal`), the gains, the plant
 (:mod:`~tocontrol_ros.core.sim.plant`) and the logs
 (:mod:`~tocontrol_ros.core.sim.tracking_log`) live
 next to this module, which holds the control law and the tracker that runs it period by
@@ -41,6 +45,7 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.robot.model import RobotModel
+from tocontrol_ros.core.sim.gains import TrackingGains
 from tocontrol_ros.core.sim.nominal import NominalSample, NominalTrajectory
 from tocontrol_ros.core.sim.plant import PlantConfig, make_plant_model, plant_period_function
 from tocontrol_ros.core.sim.tracking_log import RunStats, StepReport, TrackingLog, TrackingSummary
@@ -65,108 +70,6 @@ __all__ = [
 SATURATION_TOL = 1e-12
 #: Largest number of control periods simulated in one call to CasADi.
 MAX_CHUNK = 1024
-
-
-# -------------------------------------------------------------------------- gains
-#: Largest ``2 zeta w h`` (the damping term's share of one control period ``h``) that
-#: :class:`TrackingGains` accepts: the sampled double integrator under PD (zero-order hold)
-#: is stable for ``2 zeta w h < 2`` (Jury), and half of that keeps a margin for a plant whose
-#: inertia is below the model's.
-MAX_DAMPING_STEP = 1.0
-
-
-@dataclass(frozen=True)
-class TrackingGains:
-    """PD gains: ``u = u_nom + kp e + kd de + M(q_des) (w^2 e + 2 zeta w de) / tau_max``.
-
-    Two parts, added: per-joint gains ``kp, kd`` in normalised units (diagonal, the same at
-    every configuration), and model-derived gains from a ``bandwidth`` ``w``: the
-    feedback is the planning model's inertia matrix at the desired configuration times a
-    critically damped (``zeta = 1`` by default) acceleration ``w^2 e + 2 zeta w de``, so that
-    every mode of the arm, including the light self-motion of two aligned joint axes, closes
-    at ``w`` rad/s. Per-joint diagonal gains set from the inertia's diagonal at one
-    configuration do not: where two axes align (the Panda's joints 1 and 3), the inertia of
-    their difference is a small fraction of either diagonal entry, and such gains exceed the
-    control rate's stability bound there.
-
-    Attributes
-    ----------
-    kp : float or tuple of float
-        Per joint, in 1/rad (1/m for prismatic joints): the control (fraction of
-        ``tau_max``) per unit position error. A scalar applies to every joint.
-    kd : float or tuple of float
-        Per joint, in s/rad (s/m). A scalar applies to every joint.
-    bandwidth : float or tuple of float
-        ``w``, rad/s (>= 0; zero: no model-derived part): per joint, the gains of that
-        joint's commanded acceleration (a scalar for all, the usual choice). Bounded by the control period ``h``
-        through ``2 zeta w h <= MAX_DAMPING_STEP`` (checked by :class:`Tracker`).
-    damping_ratio : float
-        ``zeta`` (> 0) of the model-derived part.
-
-    Raises
-    ------
-    ProblemError
-        Negative or non-finite gains; :meth:`per_joint` also for a wrong number of them.
-    """
-
-    kp: float | tuple[float, ...] = 0.0
-    kd: float | tuple[float, ...] = 0.0
-    bandwidth: float | tuple[float, ...] = 0.0
-    damping_ratio: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name in ("kp", "kd", "bandwidth"):
-            value = getattr(self, name)
-            arr = finite_array(name, value)
-            if arr.ndim > 1:
-                raise ProblemError(f"`{name}` must be a number or a sequence of numbers, got "
-                                   f"shape {arr.shape}")
-            if np.any(arr < 0):
-                raise ProblemError(f"`{name}` must be >= 0, got {arr.tolist()}")
-            object.__setattr__(self, name, float(arr) if arr.ndim == 0
-                               else tuple(float(v) for v in arr))
-        zeta = finite_array("damping_ratio", self.damping_ratio)
-        if zeta.ndim != 0 or not zeta > 0:
-            raise ProblemError(f"`damping_ratio` must be a number > 0, got "
-                               f"{self.damping_ratio!r}")
-        object.__setattr__(self, "damping_ratio", float(zeta))
-
-    @staticmethod
-    def _spread(name: str, value, n: int) -> np.ndarray:
-        if isinstance(value, float):
-            return np.full(n, value)
-        if len(value) == 1:
-            return np.full(n, value[0])
-        if len(value) == n:
-            return np.array(value)
-        raise ProblemError(f"`{name}` must be one value or {n} (one per joint), got "
-                           f"{len(value)}")
-
-    def per_joint(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(kp, kd)`` spread to ``n`` joints, each shape (n,)."""
-        return self._spread("kp", self.kp, n), self._spread("kd", self.kd, n)
-
-    def acceleration_gains(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """The model-derived part's ``(w^2, 2 zeta w)``, each shape (n,) (1/s^2, 1/s)."""
-        w = self._spread("bandwidth", self.bandwidth, n)
-        return w ** 2, 2.0 * self.damping_ratio * w
-
-    def check_rate(self, n: int, control_period: float) -> None:
-        """Raise when the model-derived part is too fast for ``control_period`` (s).
-
-        Raises
-        ------
-        ProblemError
-            ``2 zeta w h > MAX_DAMPING_STEP``, naming the largest bandwidth allowed.
-        """
-        _, b = self.acceleration_gains(n)
-        if b.size and float(np.max(b)) * control_period > MAX_DAMPING_STEP:
-            w_max = MAX_DAMPING_STEP / (2.0 * self.damping_ratio * control_period)
-            raise ProblemError(
-                f"`bandwidth` {float(np.max(b)) / (2 * self.damping_ratio):g} rad/s is above "
-                f"the stability bound of the control period {control_period:g} s: at most "
-                f"{w_max:g} rad/s (2 zeta w h <= {MAX_DAMPING_STEP:g}, zeta = "
-                f"{self.damping_ratio:g})")
 
 
 # --------------------------------------------------------------------------- tracker
@@ -211,7 +114,7 @@ class Tracker:
         n = model.n
         self.kp, self.kd = self.gains.per_joint(n)
         self.gains.check_rate(n, self.plant.control_period)
-        self.kp_acc, self.kd_acc = self.gains.acceleration_gains(n)
+        self.kp_acc, self.kd_acc, self.ki_acc = self.gains.acceleration_gains(n)
         if q0 is None:
             raise ProblemError("`q0` must give the initial configuration, shape "
                                f"({n},); got None")
@@ -234,6 +137,8 @@ class Tracker:
         self._stats: RunStats | None = None
         self._hold_q = q0.copy()
         self._hold_u = self._static_control(q0)
+        #: The hold's integral of the position error, shape (n,) (rad s); zero in motion.
+        self._integral = np.zeros(n)
         self._chunks: dict = {}
 
     # ------------------------------------------------------------------ state
@@ -279,12 +184,16 @@ class Tracker:
         return tau / self.tau_max
 
     def _law_function(self) -> ca.Function:
-        """One control period with the law: ``(x, q_des, qd_des, u_nom, noise) -> (x, u, sat)``.
+        """One control period: ``(xz, q_des, qd_des, u_nom, noise, hold) -> (xz, u, sat)``.
 
-        Gains, limits and the continuous-joint mask are baked in as constants.
+        ``xz`` is the plant state and the hold's error integral, shape (3n,); ``hold`` is 1
+        while holding (the integral runs), 0 in motion. Gains, limits and the
+        continuous-joint mask are baked in as constants.
         """
         n = self.model.n
-        x = ca.SX.sym("x", 2 * n)
+        xz = ca.SX.sym("xz", 3 * n)
+        x, z = xz[:2 * n], xz[2 * n:]
+        hold = ca.SX.sym("hold")
         q_des, qd_des, u_nom, noise = (ca.SX.sym(name, n) for name in
                                        ("q_des", "qd_des", "u_nom", "noise"))
         e = q_des - x[:n]
@@ -297,13 +206,17 @@ class Tracker:
         if np.any(self.kp_acc > 0) or np.any(self.kd_acc > 0):
             # The model's inertia at the desired configuration: known ahead, smooth in time.
             inertia = self.model.mass_matrix_sym(q_des)
-            acc = ca.DM(self.kp_acc) * e + ca.DM(self.kd_acc) * de
+            acc = (ca.DM(self.kp_acc) * e + ca.DM(self.kd_acc) * de
+                   + hold * ca.DM(self.ki_acc) * z)
             v = v + ca.mtimes(inertia, acc) / ca.DM(self.tau_max)
         u = ca.fmin(ca.fmax(v, -1.0), 1.0)
         saturated = ca.fabs(v) > 1.0 + SATURATION_TOL
         x_next = self._period(x, u * ca.DM(self.tau_max) + noise)
-        return ca.Function("tracking_period", [x, q_des, qd_des, u_nom, noise],
-                           [x_next, u, saturated])
+        # Conditional integration (no wind-up): frozen while any joint saturates.
+        runs = hold * (1 - ca.mmax(saturated))
+        z_next = z + runs * self.h * e
+        return ca.Function("tracking_period", [xz, q_des, qd_des, u_nom, noise, hold],
+                           [ca.vertcat(x_next, z_next), u, saturated])
 
     def _chunk_function(self, size: int) -> ca.Function:
         """``size`` control periods in one call (``mapaccum`` of the period law)."""
@@ -318,29 +231,29 @@ class Tracker:
             self._chunks[size] = self._chunks["law"].mapaccum(f"tracking_{size}", size)
         return self._chunks[size]
 
-    def _simulate_chunks(self, q_des, qd_des, u_nom, noise):
-        """Run the law over ``K`` periods from ``self.x``, in few calls to CasADi.
+    def _simulate_chunks(self, q_des, qd_des, u_nom, noise, hold):
+        """Run the law over ``K`` periods from ``self.x`` and the integral, in few calls.
 
         Chunks of power-of-two sizes (``mapaccum``), so that the per-period cost is the
         compiled graph's, not Python's.
 
         Returns
         -------
-        x_next : ndarray, shape (K, 2n)
-            State at the end of each period.
+        x_next : ndarray, shape (K, 3n)
+            State at the end of each period, then the hold's error integral.
         u : ndarray, shape (K, n)
         saturated : ndarray of bool, shape (K, n)
         """
         count = q_des.shape[0]
         xs, us, sats = [], [], []
-        x = self.x
+        x = np.concatenate([self.x, self._integral])
         done = 0
         while done < count:
             size = min(MAX_CHUNK, 1 << ((count - done).bit_length() - 1))
             rows = slice(done, done + size)
             fun = self._chunk_function(size)
             x_out, u, sat = fun(x, q_des[rows].T, qd_des[rows].T, u_nom[rows].T,
-                                noise[rows].T)
+                                noise[rows].T, hold[rows][None, :])
             x_out = np.array(x_out).T
             xs.append(x_out)
             us.append(np.array(u).T)
@@ -386,6 +299,7 @@ class Tracker:
         self.nominal = nominal.with_hold_effort(self._static_control(q_end) * self.tau_max)
         self._start_index = self.step_index
         self._start_elapsed = float(elapsed)
+        self._integral = np.zeros(self.model.n)
         self._stats = RunStats(self.model.n, nominal.duration, self.t)
         return preempted
 
@@ -425,6 +339,7 @@ class Tracker:
         self._stats = None
         self._hold_q = q.copy()
         self._hold_u = self._static_control(q)
+        self._integral = np.zeros(n)
         self._rng = np.random.default_rng(self.plant.noise_seed)
         return preempted
 
@@ -448,6 +363,7 @@ class Tracker:
         self._stats = None
         self._hold_q = self.q
         self._hold_u = self._static_control(self._hold_q)
+        self._integral = np.zeros(self.model.n)
         return preempted
 
     def advance(self, until: float) -> StepReport:
@@ -484,11 +400,14 @@ class Tracker:
 
         noise = (self._rng.standard_normal((count, n)) * self._noise_std
                  if self.plant.torque_noise > 0 else np.zeros((count, n)))
-        x_next, u_log, sat_log = self._simulate_chunks(q_des, qd_des, u_nom, noise)
+        xz_next, u_log, sat_log = self._simulate_chunks(q_des, qd_des, u_nom, noise,
+                                                        (~active).astype(float))
+        x_next = xz_next[:, :2 * n]
         states = np.vstack([self.x[None, :], x_next[:-1]])
         q_log, qd_log = states[:, :n], states[:, n:]
         tau_log = u_log * self.tau_max + noise
         self.x = x_next[-1].copy()
+        self._integral = xz_next[-1, 2 * n:].copy()
         self.step_index += count
 
         error = q_des - q_log
