@@ -274,7 +274,9 @@ class Tracker:
         Parameters
         ----------
         nominal : NominalTrajectory
-            With ``n`` joints in the model's order.
+            With ``n`` joints in the model's order. Without its own ``inverse_dynamics``, it
+            gets the planning model's: the torque between samples is that of the
+            interpolated state (plus the samples' residual), not the chord between samples.
         elapsed : float
             The nominal's own time at the current instant (s, >= 0): a trajectory that took
             over between two control instants (a splice at its stamp) is this far along.
@@ -295,6 +297,9 @@ class Tracker:
         preempted = None
         if self._stats is not None:
             preempted = self._stats.summary("preempted", self.model)
+        if nominal.inverse_dynamics is None:
+            # Between samples, the torque of the planned state (not a chord of the samples).
+            nominal = nominal.with_inverse_dynamics(self.model.function("id"))
         q_end = nominal.q[-1]
         self.nominal = nominal.with_hold_effort(self._static_control(q_end) * self.tau_max)
         self._start_index = self.step_index
