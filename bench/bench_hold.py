@@ -102,8 +102,9 @@ def scenario(args) -> None:
     tracker = Tracker(model, PLANTS[args.plant], gains, q0=Q0)
     last_second = int(round(1.0 / tracker.h))
     rows = []
-    print(f"plant {args.plant}, gains {args.gains} (bandwidth {args.bandwidth:g}), reserve "
-          f"{args.reserve:g}, sample {1e3 * args.sample:g} ms, hold {args.hold:g} s")
+    label = "readme" if args.gains == "readme" else f"bandwidth {args.bandwidth:g} rad/s"
+    print(f"plant {args.plant}, gains {label}, reserve {args.reserve:g}, sample "
+          f"{1e3 * args.sample:g} ms, hold {args.hold:g} s")
     for i, goal in enumerate(goals(model, limits, args.goals)):
         try:
             result = plan(Problem(model, joint_state(tracker.q, tracker.qd), point(goal),
