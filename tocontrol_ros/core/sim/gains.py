@@ -27,7 +27,7 @@ __all__ = ["INTEGRAL_RATIO", "MAX_DAMPING_STEP", "TrackingGains", "hold_spectral
 #: inertia is below the model's.
 MAX_DAMPING_STEP = 1.0
 #: The hold's integral action runs at ``bandwidth / INTEGRAL_RATIO``: slow enough that the
-#: PD's double pole at ``-w`` stays dominant (Routh: stable for any ratio above 1/2), fast
+#: PD's poles near ``-w`` stay dominant (Routh: stable for any ratio above 1 / (2 zeta)), fast
 #: enough to remove a gravity mismatch within a second at ``w`` = 50 rad/s.
 INTEGRAL_RATIO = 4.0
 
@@ -136,9 +136,10 @@ def hold_spectral_radius(model, gains: TrackingGains, q, control_period: float) 
 
     The plant is the model linearised at rest at ``q`` (inertia ``M(q)``, viscous friction;
     gravity cancelled by the fed-forward static torque), the torque
-    ``tau = -(K_p e + K_d de)`` computed from the state at each control instant and held over
-    the period; ``K_p = diag(kp tau_max) + M(q) w^2``, ``K_d`` likewise (the hold's slow
-    integral action left out).
+    ``tau = -(K_p dq + K_d dqd)`` on the deviation from rest at ``q``, computed from the state
+    at each control instant and held over the period;
+    ``K_p = diag(kp tau_max) + M(q) diag(w^2)``, ``K_d`` likewise (the hold's slow integral
+    action left out).
 
     Parameters
     ----------
