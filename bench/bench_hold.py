@@ -56,8 +56,11 @@ Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 #: The README's per-joint gains before issue 49 (30 rad/s on M's diagonal at Q0, zeta 0.7).
 README_GAINS = TrackingGains(kp=(10.0, 20.0, 13.0, 10.0, 2.4, 4.0, 0.5),
                              kd=(0.47, 0.91, 0.6, 0.49, 0.11, 0.19, 0.023))
+#: The issue's "payload +10 %, friction x2", read two ways: every body 10 % heavier, or 0.3 kg
+#: at the hand (10 % of the Panda's rated 3 kg payload).
 PLANTS = {"identical": PlantConfig(),
-          "heavier": PlantConfig(mass_scale=1.1, inertia_scale=1.1, friction_scale=2.0)}
+          "heavier": PlantConfig(mass_scale=1.1, inertia_scale=1.1, friction_scale=2.0),
+          "payload": PlantConfig(payload_mass=0.3, friction_scale=2.0)}
 #: Five goals of the reserve's cost (m, panda_link0).
 COST_GOALS = ((0.5, -0.2, 0.4), (0.4, 0.2, 0.5), (0.3, 0.3, 0.6), (0.6, 0.0, 0.3),
               (0.2, -0.4, 0.7))
