@@ -10,7 +10,8 @@ planned with k = 4 and with k = 16 (close to bang-bang), each also with a 20 % t
 reserve (``Problem(reserve=0.2)``). Every plan is sampled every 1 ms (so that the
 interpolation of the nominal torques is not what is measured) and executed by
 :func:`tocontrol_ros.core.sim.tracking.simulate` on a mismatched plant, with the feedforward
-alone (FF) and with the default PD gains of ``config/tracker.yaml`` (PD), plant at 2 kHz,
+alone (FF) and with per-joint PD gains kp = (100, 100, 30), kd = (10, 10, 3) (PD; the
+tracker's default before issue 49), plant at 2 kHz,
 control at 1 kHz:
 
 - *lighter*: masses and inertias x0.9, friction x0.7;

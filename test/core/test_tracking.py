@@ -122,6 +122,29 @@ def test_effort_is_linear_and_the_end_is_held():
     assert nom.duration == 2.0 and len(nom) == 3
 
 
+def test_effort_between_samples_follows_the_model(galicki):
+    # A quintic motion sampled every 20 ms: the interpolated state is the motion itself, so
+    # between samples its inverse dynamics (plus the samples' residual, zero here) is the
+    # motion's torque to round-off; the chord between samples errs by about 1 % of the range.
+    fine = smooth_motion(galicki, Q0, Q0 + [0.8, -0.6, 0.9], 0.6, dt=1e-4)
+    coarse = smooth_motion(galicki, Q0, Q0 + [0.8, -0.6, 0.9], 0.6, dt=0.02)
+    shaped = coarse.with_inverse_dynamics(galicki.function("id"))
+    t = np.linspace(0.0, 0.6, 601)
+    exact = fine.evaluate(t).effort
+    scale = np.max(np.abs(exact))
+    chord = np.max(np.abs(coarse.evaluate(t).effort - exact)) / scale
+    model = np.max(np.abs(shaped.evaluate(t).effort - exact)) / scale
+    assert model < 1e-9 and chord > 5e-3
+    # At the samples, the published effort itself (an offset on it is kept).
+    offset = NominalTrajectory(coarse.t, coarse.q, coarse.qd, coarse.qdd, coarse.effort + 0.5,
+                               inverse_dynamics=galicki.function("id"))
+    np.testing.assert_allclose(offset.evaluate(coarse.t[1:-1]).effort,
+                               coarse.effort[1:-1] + 0.5, atol=1e-9)
+    with pytest.raises(ProblemError, match="`inverse_dynamics` must map"):
+        NominalTrajectory(coarse.t, coarse.q, coarse.qd, coarse.qdd, coarse.effort,
+                          inverse_dynamics=lambda q, qd, qdd: q[:2])
+
+
 GOOD = dict(t=[0.0, 0.1, 0.2], q=np.zeros((3, 2)), qd=np.zeros((3, 2)), qdd=np.zeros((3, 2)),
             effort=np.zeros((3, 2)))
 

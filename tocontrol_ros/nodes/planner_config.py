@@ -88,8 +88,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "(no tf lookup).", read_only=True),
     ParameterSpec("k", 4.0, "Convexification exponent of the torque set sum u_i^(2k) <= 1 "
                   "(dimensionless); larger is closer to bang-bang.", 1.0, 64.0),
-    ParameterSpec("reserve", 0.0, "Torque reserve r (fraction): plan against (1 - r) "
-                  "tau_max, leaving r tau_max for feedback.", 0.0, 0.95),
+    # Not Problem's 0 (the paper's problem): a node drives an arm, whose feedback needs
+    # room (issue 49; msg_docs/parameters.md).
+    ParameterSpec("reserve", 0.1, "Torque reserve r (fraction): plan against (1 - r) "
+                  "tau_max, leaving r tau_max for feedback (0.1: a 10 % model error, e.g. "
+                  "a payload, costs T about 5 %; 0: the paper's problem).", 0.0, 0.95),
     ParameterSpec("tol", _CORE.tol,
                   "Newton tolerance on the max-norm of the boundary-value "
                   "equations.", 1e-14, 1e-4),

@@ -3,9 +3,14 @@
 Interpolation of the nominal trajectory (:class:`NominalTrajectory`): between two samples the
 position is the quintic Hermite polynomial that matches ``q, qd, qdd`` at both ends (so
 ``q`` is C2 and velocities and accelerations are its derivatives, consistent with samples
-of one smooth motion, which is what the planner publishes); the nominal torque is linear
-between samples (its error is at most ``dt^2/8 max|tau''|`` for a sample spacing ``dt``:
-sample finely where the feedforward alone must be accurate). After the last sample the
+of one smooth motion, which is what the planner publishes). The nominal torque between
+samples is, given the model's inverse dynamics, that of the interpolated state plus the
+linear interpolation of the samples' residual ``effort - ID(q, qd, qdd)``: it equals the
+published effort at every sample, and between samples follows the torque the planner
+computed (for a plan consistent with the model, ``ID`` of the planned state *is* the planned
+torque; the quintic's acceleration errs by ``O(dt^4)``), where the linear interpolation of
+the effort alone, the fallback without a model, errs by up to ``dt^2/8 max|tau''|`` (the
+Panda's torques change within milliseconds where arcs meet). After the last sample the
 trajectory holds the last position at rest; the tracker then feeds forward the planning
 model's static torque there (gravity), not the last nominal torque (which, for a
 time-optimal motion, is braking).
@@ -59,6 +64,10 @@ class NominalTrajectory:
         Torque fed forward after the end, while holding the last position (default zero).
     joint_names : sequence of str, optional
         Names of the ``n`` joints, for messages.
+    inverse_dynamics : callable, optional
+        ``(q, qd, qdd) -> tau`` of the model, each argument shape (n, K) and the result
+        (n, K) (a CasADi function such as ``model.function("id")``): the torque between
+        samples follows it (module docstring). Default: linear interpolation of ``effort``.
 
     Raises
     ------
@@ -69,12 +78,15 @@ class NominalTrajectory:
     Notes
     -----
     ``evaluate(t)`` uses, on each interval, the quintic Hermite polynomial through
-    ``(q, qd, qdd)`` at both ends (C2 across samples) and linear interpolation for
-    ``effort``. Before ``t[0]`` it returns the first sample; after ``t[-1]`` it holds the last
-    position with zero velocity and acceleration and ``hold_effort``.
+    ``(q, qd, qdd)`` at both ends (C2 across samples) and, for ``effort``, the inverse
+    dynamics of that state plus the linearly interpolated residual at the samples (or, without
+    ``inverse_dynamics``, linear interpolation). Before ``t[0]`` it returns the first sample;
+    after ``t[-1]`` it holds the last position with zero velocity and acceleration and
+    ``hold_effort``.
     """
 
-    def __init__(self, t, q, qd, qdd, effort, hold_effort=None, joint_names=None) -> None:
+    def __init__(self, t, q, qd, qdd, effort, hold_effort=None, joint_names=None,
+                 inverse_dynamics=None) -> None:
         t = finite_array("t", t, ndim=1)
         if t.size == 0:
             raise ProblemError("`t` must hold at least one sample, got none")
@@ -109,6 +121,11 @@ class NominalTrajectory:
         self.joint_names = joint_names
         self.n = n
         self._coef = _quintic_coefficients(t, q, qd, qdd)
+        self.inverse_dynamics = inverse_dynamics
+        #: ``effort - ID`` at the samples, shape (K, n); None without a model.
+        self._residual = None
+        if inverse_dynamics is not None:
+            self._residual = effort - _call(inverse_dynamics, q, qd, qdd)
 
     @property
     def duration(self) -> float:
@@ -121,7 +138,14 @@ class NominalTrajectory:
     def with_hold_effort(self, hold_effort) -> NominalTrajectory:
         """The same samples with another torque held after the end, shape (n,) (N m)."""
         return NominalTrajectory(self.t, self.q, self.qd, self.qdd, self.effort,
-                                 hold_effort=hold_effort, joint_names=self.joint_names)
+                                 hold_effort=hold_effort, joint_names=self.joint_names,
+                                 inverse_dynamics=self.inverse_dynamics)
+
+    def with_inverse_dynamics(self, inverse_dynamics) -> NominalTrajectory:
+        """The same samples, the torque between them following ``inverse_dynamics``."""
+        return NominalTrajectory(self.t, self.q, self.qd, self.qdd, self.effort,
+                                 hold_effort=self.hold_effort, joint_names=self.joint_names,
+                                 inverse_dynamics=inverse_dynamics)
 
     def evaluate(self, t) -> NominalSample:
         """Interpolated values at times ``t`` (s), scalar or shape (K,).
@@ -159,8 +183,28 @@ class NominalTrajectory:
             out_qd[inside] = np.sum(c[:, 1:] * d1 * powers[:, :5], axis=1) / h
             d2 = (np.arange(2, 6) * np.arange(1, 5))[None, :, None]
             out_qdd[inside] = np.sum(c[:, 2:] * d2 * powers[:, :4], axis=1) / h**2
-            out_e[inside] = (1 - s) * self.effort[idx] + s * self.effort[idx + 1]
+            if self._residual is None:
+                out_e[inside] = (1 - s) * self.effort[idx] + s * self.effort[idx + 1]
+            else:
+                out_e[inside] = (_call(self.inverse_dynamics, out_q[inside], out_qd[inside],
+                                       out_qdd[inside])
+                                 + (1 - s) * self._residual[idx] + s * self._residual[idx + 1])
         return NominalSample(t=t, q=out_q, qd=out_qd, qdd=out_qdd, effort=out_e)
+
+
+def _call(inverse_dynamics, q, qd, qdd) -> np.ndarray:
+    """``inverse_dynamics`` on rows of states, each shape (K, n): the torques, (K, n).
+
+    Raises
+    ------
+    ProblemError
+        A result that is not ``n`` torques per state.
+    """
+    tau = np.asarray(inverse_dynamics(q.T, qd.T, qdd.T), dtype=float)
+    if tau.size != q.size:
+        raise ProblemError(f"`inverse_dynamics` must map (n, K) arrays to shape "
+                           f"{q.T.shape}, got {tau.shape}")
+    return tau.reshape(q.shape[1], q.shape[0]).T
 
 
 def _quintic_coefficients(t, q, qd, qdd) -> np.ndarray:

@@ -5,11 +5,15 @@ the box ``|u_i| <= 1``, which leaves room for feedback, where a bang-bang contro
 This module is the experiment: a plant (the true dynamics, which may differ from the
 planning model) integrated at a fixed step, driven by
 
-    u = clip(u_nom + Kp e + Kd de, -1, 1),    e = q_des - q,  de = qd_des - qd,
+    u = clip(u_nom + Kp e + Kd de + M(q_des) (w^2 e + 2 zeta w de + ki z) / tau_max, -1, 1),
+    e = q_des - q,  de = qd_des - qd,  z = integral of e while holding,
 
 in normalised units (``u = tau / tau_max`` of the *planning* model), computed once per
 control period and held over it (zero-order hold), the applied torque being
-``tau = u tau_max`` plus optional actuator noise.
+``tau = u tau_max`` plus optional actuator noise. The gains
+(:mod:`~tocontrol_ros.core.sim.gains`) are per joint (``Kp, Kd``), or derived from the
+planning model's inertia and a bandwidth ``w`` (``M`` above; the integral ``z`` only while
+holding a configuration, from zero at each hold), or both.
 
 Timing, per control period ``[t_k, t_k + h]``:
 
@@ -21,7 +25,7 @@ Timing, per control period ``[t_k, t_k + h]``:
 - the plant integrates the true dynamics with classical RK4 at the simulation step
   (``sim_rate``, an integer multiple of ``control_rate``), the torque constant.
 
-The nominal trajectory (:mod:`~tocontrol_ros.core.sim.nominal`), the plant
+The nominal trajectory (:mod:`~tocontrol_ros.core.sim.nominal`), the gains, the plant
 (:mod:`~tocontrol_ros.core.sim.plant`) and the logs
 (:mod:`~tocontrol_ros.core.sim.tracking_log`) live
 next to this module, which holds the control law and the tracker that runs it period by
@@ -41,6 +45,7 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.robot.model import RobotModel
+from tocontrol_ros.core.sim.gains import TrackingGains
 from tocontrol_ros.core.sim.nominal import NominalSample, NominalTrajectory
 from tocontrol_ros.core.sim.plant import PlantConfig, make_plant_model, plant_period_function
 from tocontrol_ros.core.sim.tracking_log import RunStats, StepReport, TrackingLog, TrackingSummary
@@ -65,57 +70,6 @@ __all__ = [
 SATURATION_TOL = 1e-12
 #: Largest number of control periods simulated in one call to CasADi.
 MAX_CHUNK = 1024
-
-
-# -------------------------------------------------------------------------- gains
-@dataclass(frozen=True)
-class TrackingGains:
-    """PD gains in normalised units: ``u = u_nom + kp e + kd de``.
-
-    Attributes
-    ----------
-    kp : float or tuple of float
-        Per joint, in 1/rad (1/m for prismatic joints): the control (fraction of
-        ``tau_max``) per unit position error. A scalar applies to every joint.
-    kd : float or tuple of float
-        Per joint, in s/rad (s/m). A scalar applies to every joint.
-
-    Raises
-    ------
-    ProblemError
-        Negative or non-finite gains; :meth:`per_joint` also for a wrong number of them.
-    """
-
-    kp: float | tuple[float, ...] = 0.0
-    kd: float | tuple[float, ...] = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("kp", "kd"):
-            value = getattr(self, name)
-            arr = finite_array(name, value)
-            if arr.ndim > 1:
-                raise ProblemError(f"`{name}` must be a number or a sequence of numbers, got "
-                                   f"shape {arr.shape}")
-            if np.any(arr < 0):
-                raise ProblemError(f"`{name}` must be >= 0, got {arr.tolist()}")
-            object.__setattr__(self, name, float(arr) if arr.ndim == 0
-                               else tuple(float(v) for v in arr))
-
-    def per_joint(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(kp, kd)`` spread to ``n`` joints, each shape (n,)."""
-        out = []
-        for name in ("kp", "kd"):
-            value = getattr(self, name)
-            if isinstance(value, float):
-                out.append(np.full(n, value))
-            elif len(value) == 1:
-                out.append(np.full(n, value[0]))
-            elif len(value) == n:
-                out.append(np.array(value))
-            else:
-                raise ProblemError(f"`{name}` must be one value or {n} (one per joint), got "
-                                   f"{len(value)}")
-        return out[0], out[1]
 
 
 # --------------------------------------------------------------------------- tracker
@@ -159,6 +113,8 @@ class Tracker:
         self.gains = gains if gains is not None else TrackingGains()
         n = model.n
         self.kp, self.kd = self.gains.per_joint(n)
+        self.gains.check_rate(n, self.plant.control_period)
+        self.kp_acc, self.kd_acc, self.ki_acc = self.gains.acceleration_gains(n)
         if q0 is None:
             raise ProblemError("`q0` must give the initial configuration, shape "
                                f"({n},); got None")
@@ -181,6 +137,8 @@ class Tracker:
         self._stats: RunStats | None = None
         self._hold_q = q0.copy()
         self._hold_u = self._static_control(q0)
+        #: The hold's integral of the position error, shape (n,) (rad s); zero in motion.
+        self._integral = np.zeros(n)
         self._chunks: dict = {}
 
     # ------------------------------------------------------------------ state
@@ -226,12 +184,16 @@ class Tracker:
         return tau / self.tau_max
 
     def _law_function(self) -> ca.Function:
-        """One control period with the law: ``(x, q_des, qd_des, u_nom, noise) -> (x, u, sat)``.
+        """One control period: ``(xz, q_des, qd_des, u_nom, noise, hold) -> (xz, u, sat)``.
 
-        Gains, limits and the continuous-joint mask are baked in as constants.
+        ``xz`` is the plant state and the hold's error integral, shape (3n,); ``hold`` is 1
+        while holding (the integral runs), 0 in motion. Gains, limits and the
+        continuous-joint mask are baked in as constants.
         """
         n = self.model.n
-        x = ca.SX.sym("x", 2 * n)
+        xz = ca.SX.sym("xz", 3 * n)
+        x, z = xz[:2 * n], xz[2 * n:]
+        hold = ca.SX.sym("hold")
         q_des, qd_des, u_nom, noise = (ca.SX.sym(name, n) for name in
                                        ("q_des", "qd_des", "u_nom", "noise"))
         e = q_des - x[:n]
@@ -239,12 +201,22 @@ class Tracker:
         wrapped = math.pi - ((math.pi - e) - two_pi * ca.floor((math.pi - e) / two_pi))
         cont = ca.DM(self._continuous.astype(float))
         e = cont * wrapped + (1 - cont) * e
-        v = u_nom + ca.DM(self.kp) * e + ca.DM(self.kd) * (qd_des - x[n:])
+        de = qd_des - x[n:]
+        v = u_nom + ca.DM(self.kp) * e + ca.DM(self.kd) * de
+        if np.any(self.kp_acc > 0) or np.any(self.kd_acc > 0):
+            # The model's inertia at the desired configuration: known ahead, smooth in time.
+            inertia = self.model.mass_matrix_sym(q_des)
+            acc = (ca.DM(self.kp_acc) * e + ca.DM(self.kd_acc) * de
+                   + hold * ca.DM(self.ki_acc) * z)
+            v = v + ca.mtimes(inertia, acc) / ca.DM(self.tau_max)
         u = ca.fmin(ca.fmax(v, -1.0), 1.0)
         saturated = ca.fabs(v) > 1.0 + SATURATION_TOL
         x_next = self._period(x, u * ca.DM(self.tau_max) + noise)
-        return ca.Function("tracking_period", [x, q_des, qd_des, u_nom, noise],
-                           [x_next, u, saturated])
+        # Conditional integration (no wind-up): frozen while any joint saturates.
+        runs = hold * (1 - ca.mmax(saturated))
+        z_next = z + runs * self.h * e
+        return ca.Function("tracking_period", [xz, q_des, qd_des, u_nom, noise, hold],
+                           [ca.vertcat(x_next, z_next), u, saturated])
 
     def _chunk_function(self, size: int) -> ca.Function:
         """``size`` control periods in one call (``mapaccum`` of the period law)."""
@@ -259,29 +231,29 @@ class Tracker:
             self._chunks[size] = self._chunks["law"].mapaccum(f"tracking_{size}", size)
         return self._chunks[size]
 
-    def _simulate_chunks(self, q_des, qd_des, u_nom, noise):
-        """Run the law over ``K`` periods from ``self.x``, in few calls to CasADi.
+    def _simulate_chunks(self, q_des, qd_des, u_nom, noise, hold):
+        """Run the law over ``K`` periods from ``self.x`` and the integral, in few calls.
 
         Chunks of power-of-two sizes (``mapaccum``), so that the per-period cost is the
         compiled graph's, not Python's.
 
         Returns
         -------
-        x_next : ndarray, shape (K, 2n)
-            State at the end of each period.
+        x_next : ndarray, shape (K, 3n)
+            State at the end of each period, then the hold's error integral.
         u : ndarray, shape (K, n)
         saturated : ndarray of bool, shape (K, n)
         """
         count = q_des.shape[0]
         xs, us, sats = [], [], []
-        x = self.x
+        x = np.concatenate([self.x, self._integral])
         done = 0
         while done < count:
             size = min(MAX_CHUNK, 1 << ((count - done).bit_length() - 1))
             rows = slice(done, done + size)
             fun = self._chunk_function(size)
             x_out, u, sat = fun(x, q_des[rows].T, qd_des[rows].T, u_nom[rows].T,
-                                noise[rows].T)
+                                noise[rows].T, hold[rows][None, :])
             x_out = np.array(x_out).T
             xs.append(x_out)
             us.append(np.array(u).T)
@@ -302,7 +274,9 @@ class Tracker:
         Parameters
         ----------
         nominal : NominalTrajectory
-            With ``n`` joints in the model's order.
+            With ``n`` joints in the model's order. Without its own ``inverse_dynamics``, it
+            gets the planning model's: the torque between samples is that of the
+            interpolated state (plus the samples' residual), not the chord between samples.
         elapsed : float
             The nominal's own time at the current instant (s, >= 0): a trajectory that took
             over between two control instants (a splice at its stamp) is this far along.
@@ -323,10 +297,14 @@ class Tracker:
         preempted = None
         if self._stats is not None:
             preempted = self._stats.summary("preempted", self.model)
+        if nominal.inverse_dynamics is None:
+            # Between samples, the torque of the planned state (not a chord of the samples).
+            nominal = nominal.with_inverse_dynamics(self.model.function("id"))
         q_end = nominal.q[-1]
         self.nominal = nominal.with_hold_effort(self._static_control(q_end) * self.tau_max)
         self._start_index = self.step_index
         self._start_elapsed = float(elapsed)
+        self._integral = np.zeros(self.model.n)
         self._stats = RunStats(self.model.n, nominal.duration, self.t)
         return preempted
 
@@ -366,6 +344,7 @@ class Tracker:
         self._stats = None
         self._hold_q = q.copy()
         self._hold_u = self._static_control(q)
+        self._integral = np.zeros(n)
         self._rng = np.random.default_rng(self.plant.noise_seed)
         return preempted
 
@@ -389,6 +368,7 @@ class Tracker:
         self._stats = None
         self._hold_q = self.q
         self._hold_u = self._static_control(self._hold_q)
+        self._integral = np.zeros(self.model.n)
         return preempted
 
     def advance(self, until: float) -> StepReport:
@@ -425,11 +405,14 @@ class Tracker:
 
         noise = (self._rng.standard_normal((count, n)) * self._noise_std
                  if self.plant.torque_noise > 0 else np.zeros((count, n)))
-        x_next, u_log, sat_log = self._simulate_chunks(q_des, qd_des, u_nom, noise)
+        xz_next, u_log, sat_log = self._simulate_chunks(q_des, qd_des, u_nom, noise,
+                                                        (~active).astype(float))
+        x_next = xz_next[:, :2 * n]
         states = np.vstack([self.x[None, :], x_next[:-1]])
         q_log, qd_log = states[:, :n], states[:, n:]
         tau_log = u_log * self.tau_max + noise
         self.x = x_next[-1].copy()
+        self._integral = xz_next[-1, 2 * n:].copy()
         self.step_index += count
 
         error = q_des - q_log
