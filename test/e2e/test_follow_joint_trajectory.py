@@ -174,7 +174,7 @@ def test_a_newer_goal_preempts_and_a_cancel_stops(nodes):
 @pytest.mark.parametrize("change, reason", [
     (lambda t: setattr(t.points[-1], "velocities", [0.1, 0.0, 0.0]), "velocity is not zero"),
     (lambda t: setattr(t, "joint_names", ["joint1", "joint2", "elbow"]), "elbow"),
-    (lambda t: setattr(t.points[3], "velocities", []), "velocities has 0 values"),
+    (lambda t: setattr(t.points[3], "velocities", [0.0, 0.0]), "velocities has 2 values"),
 ])
 def test_bad_goals_are_rejected_and_the_reason_is_on_status(nodes, change, reason):
     trajectory = move(nodes.q(), [0.05, 0.0, 0.0], 0.5)
@@ -193,6 +193,28 @@ def test_bad_goals_are_rejected_and_the_reason_is_on_status(nodes, change, reaso
                               "the rejection on the tracker's ~/status")
     finally:
         nodes.client.node.destroy_subscription(sub)
+
+
+@pytest.mark.parametrize("kept", [("positions",), ("positions", "velocities")])
+def test_goals_without_velocities_or_accelerations_succeed_as_on_a_jtc(nodes, kept):
+    """A Jazzy JTC takes points whose velocities and accelerations are empty, and interpolates
+    each segment with what its ends have (a line, a cubic); so does the tracker's action: the
+    simplest goals a user writes succeed, error_code 0, the arm at the last point."""
+    trajectory = move(nodes.q(), [0.1, -0.05, 0.05], 2.0, points=11)
+    for point in trajectory.points:
+        point.accelerations = []
+        if "velocities" not in kept:
+            point.velocities = []
+    handle = nodes.send(FollowJointTrajectory.Goal(
+        trajectory=trajectory, goal_tolerance=[JointTolerance(name=j, position=GOAL_TOLERANCE)
+                                               for j in JOINTS],
+        goal_time_tolerance=conv.duration_from_seconds(1.0)))
+    assert handle.accepted
+    result = nodes.result(handle, 60.0)
+    assert result.status == GoalStatus.STATUS_SUCCEEDED, result.result.error_string
+    assert result.result.error_code == jtc.SUCCESSFUL
+    final = np.array(trajectory.points[-1].positions)
+    assert np.max(np.abs(nodes.q() - final)) < GOAL_TOLERANCE
 
 
 def test_a_broken_path_tolerance_aborts(nodes):

@@ -38,6 +38,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import jtc_checks as jtc
+from tocontrol_ros.nodes.tracker_messages import jtc_completed
 
 if TYPE_CHECKING:
     from tocontrol_ros.core.sim.nominal import NominalTrajectory
@@ -52,7 +53,10 @@ STATE_TOPIC = "~/controller_state"
 
 
 def controller_options(config) -> jtc.ControllerOptions:
-    """The tracker as a JTC: effort accepted (fed forward), velocities required.
+    """The tracker as a Jazzy JTC: effort accepted (fed forward), derivatives optional.
+
+    Velocities and accelerations may be empty per point; such segments are interpolated as
+    a JTC does (:mod:`~tocontrol_ros.nodes.jtc_interpolation`).
 
     Parameters
     ----------
@@ -61,7 +65,7 @@ def controller_options(config) -> jtc.ControllerOptions:
         ``goal_time`` are the defaults of every goal.
     """
     return jtc.ControllerOptions(
-        effort_interface=True, require_velocities=True,
+        effort_interface=True, require_velocities=False,
         path_tolerance=config.path_tolerance, goal_tolerance=config.goal_tolerance,
         stopped_velocity_tolerance=config.stopped_velocity_tolerance,
         goal_time=config.goal_time)
@@ -140,7 +144,8 @@ class FollowServer:
         record = GoalRecord(handle, jtc.resolve_tolerances(goal, self.node.joint_names,
                                                            self.options))
         self._pending[bytes(handle.goal_id.uuid)] = record
-        self.node.submit_goal(goal.trajectory, record)
+        # Velocities and accelerations filled in as a JTC interpolates, a control period apart.
+        self.node.submit_goal(jtc_completed(goal.trajectory, self.node.tracker.h), record)
         return await record.done
 
     # ------------------------------------------------------------- outcomes

@@ -15,13 +15,15 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
-from trajectory_msgs.msg import JointTrajectory
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.sim.tracking import NominalTrajectory, TrackingSummary
 from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes.jtc_interpolation import jtc_samples
 
-__all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "check_limits",
+__all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "jtc_completed",
+           "check_limits",
            "reset_state_from_msg", "summary_status",
            "start_event", "start_state_values", "state_msgs", "status_msg", "ResetRequest",
            "reset_request", "rest_row", "splice_event"]
@@ -87,6 +89,34 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str],
             "`q`", "positions").replace("`qd`", "velocities").replace(
             "`qdd`", "accelerations").replace("`effort`", "effort")
         raise TrajectoryRejectedError(text) from exc
+
+
+def jtc_completed(msg: JointTrajectory, period: float) -> JointTrajectory:
+    """An action goal's trajectory with every point's velocities and accelerations.
+
+    A goal whose points all carry them is returned as it is. Otherwise (positions only, or
+    positions and velocities, in any point) the segments are interpolated as a Jazzy JTC
+    does, by what both of their ends carry (:mod:`~tocontrol_ros.nodes.jtc_interpolation`),
+    sampled every ``period`` (s): the tracker then follows the JTC's motion. The effort of
+    such a goal is left out (the tracker feeds forward the model's inverse dynamics); a point
+    with a field of the wrong size is left to :func:`nominal_from_msg`, which names it.
+    """
+    points, n = msg.points, len(msg.joint_names)
+    if all(len(p.velocities) == n and len(p.accelerations) == n for p in points) or \
+            any(len(p.positions) != n or len(p.velocities) not in (0, n)
+                or len(p.accelerations) not in (0, n) for p in points):
+        return msg
+    t, q, qd, qdd = jtc_samples(
+        [conv.seconds(p.time_from_start) for p in points], [list(p.positions) for p in points],
+        [list(p.velocities) if len(p.velocities) == n else None for p in points],
+        [list(p.accelerations) if len(p.accelerations) == n else None for p in points],
+        period)
+    out = JointTrajectory(header=msg.header, joint_names=list(msg.joint_names))
+    out.points = [JointTrajectoryPoint(positions=q[i].tolist(), velocities=qd[i].tolist(),
+                                       accelerations=qdd[i].tolist(),
+                                       time_from_start=conv.duration_from_seconds(t[i]))
+                  for i in range(len(t))]
+    return out
 
 
 #: Effort may exceed the torque limit by this fraction (rounding in the planner's samples).
