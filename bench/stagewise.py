@@ -1,0 +1,360 @@
+"""The stage-wise transcription and its solvers on Panda cases, side by side (issue 47).
+
+The NLP of :mod:`tocontrol_ros.core.direct.stagewise` (piecewise-constant accelerations,
+``order 1``, unless said; start joint state, target point at rest, the URDF limits padded as
+the planner pads them, k = 4) solved by IPOPT (MUMPS), Fatrop and the own SQP with HPIPM
+(:mod:`~tocontrol_ros.core.direct.stagewise_sqp`), from the same guesses:
+
+- *cold*: the planner's first seed pair joined by ``initial_path`` (its start velocity is the
+  case's only through the bounds);
+- *plan*: the planner's own bounded plan (``plan(problem, SolverOptions())``), sampled at the
+  nodes.
+
+Sections: cold solves; warm re-solves after a 2 cm move of the target (primal + duals of the
+converged solution; the reference is IPOPT converged on the moved problem); replans from the
+motion's state 50 and 100 ms in (the rest of the motion as guess; SQP real-time iterations
+1-3); meshes (``N`` and order against the planner's ``T``); and the evaluation cost of one
+iteration's functions compiled (the solvers here evaluate CasADi's SX virtual machine, which
+dominates their times: the tables give the solvers' own time per iteration apart).
+
+Fatrop runs in a forked child with a timeout (it has hung inside an iteration before). Every
+loop is bounded in count, and the run in time (``--budget``, s). Times wobble on a shared
+machine: compare within a table.
+
+Usage: ``scripts/dev run python -P bench/stagewise.py [CASES] [--budget S] [--skip-compiled]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from bench.common import log, table  # noqa: E402
+from bench.limits import draw_cases, robots  # noqa: E402
+from bench.optimum_panda import SEED, K  # noqa: E402
+from tocontrol_ros.core.direct.collocation import initial_path  # noqa: E402
+from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
+from tocontrol_ros.core.direct.stagewise import StagewiseTranscription  # noqa: E402
+from tocontrol_ros.core.direct.stagewise_solve import StagewiseSolver  # noqa: E402
+from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
+from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
+from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+
+#: The default mesh of the comparison, the meshes of the mesh section.
+N_MAIN = 30
+MESHES = ((20, 1), (30, 1), (50, 1), (20, 2), (30, 2))
+#: Target moves (m) and shifts (s).
+MOVE = 0.02
+SHIFTS = (0.05, 0.10)
+#: Fatrop's time limit per solve (s).
+FATROP_TIMEOUT = 60.0
+SQP_COLD_ITER = 30
+
+
+def _guarded(fn, timeout: float) -> dict:
+    """``fn()`` (returning a dict) in a forked child; ``{"hung": True}`` after ``timeout``."""
+    ctx = multiprocessing.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+
+    def run():
+        try:
+            child.send(fn())
+        except Exception as e:  # noqa: BLE001  (reported as a failure)
+            child.send({"error": repr(e)[:200]})
+
+    proc = ctx.Process(target=run)
+    proc.start()
+    ready = parent.poll(timeout)
+    out = parent.recv() if ready else {"hung": True}
+    if proc.is_alive():
+        proc.kill()
+    proc.join()
+    return out
+
+
+def _summary(r) -> dict:
+    return {"ok": r.success, "status": r.status, "T": r.T, "it": r.iterations,
+            "s": r.seconds, "eval": r.eval_seconds, "res": r.residual, "w": r.w,
+            "lam_g": r.warm.lam_g, "lam_x": r.warm.lam_x}
+
+
+def _solve(S: StagewiseSolver, solver: str, args: tuple, **kw) -> dict:
+    """One solve (Fatrop guarded); the summary dict."""
+    if solver == "fatrop":
+        S.solver("fatrop", kw.get("warm") is not None, kw.get("max_iter"))  # built here
+        out = _guarded(lambda: _summary(S.solve(*args, solver=solver, **kw)), FATROP_TIMEOUT)
+        if "hung" in out or "error" in out:
+            return {"ok": False, "status": "hung" if "hung" in out else out["error"],
+                    "T": np.nan, "it": -1, "s": np.nan, "eval": np.nan, "res": np.nan}
+        return out
+    return _summary(S.solve(*args, solver=solver, **kw))
+
+
+class Case:
+    """One Panda case: problem, bounds, the planner's plan."""
+
+    def __init__(self, model, limits, q0, qd0, target) -> None:
+        self.model, self.q0, self.qd0, self.target = model, q0, qd0, target
+        self.problem = Problem(model, joint_state(q0, qd0), point(target), k=K, limits=limits)
+        self.lo, self.hi = state_bounds(self.problem, PAD)
+        self.scale = model.tau_max * self.problem.torque_scale
+        self.x0 = np.concatenate([q0, qd0])
+        t0 = time.perf_counter()
+        self.plan = plan(self.problem, SolverOptions())
+        self.plan_s = time.perf_counter() - t0
+        self.pair = seed_pairs(self.problem, SolverOptions())[0]
+
+    def args(self, target=None, x0=None) -> tuple:
+        return (self.x0 if x0 is None else x0, self.target if target is None else target, K,
+                self.scale, self.lo, self.hi)
+
+    def cold_guess(self, tr: StagewiseTranscription) -> np.ndarray:
+        from scipy.interpolate import CubicHermiteSpline
+
+        n = self.model.n
+        T, x, _ = initial_path(self.model, self.pair[0], self.pair[1], 4 * tr.N,
+                               self.problem.torque_scale, self.problem.limits.plan_velocity)
+        t = np.linspace(0.0, T, 4 * tr.N + 1)
+        acc = np.gradient(x[:, n:], t, axis=0)
+        return tr.guess(T, CubicHermiteSpline(t, x[:, :n], x[:, n:]),
+                        CubicHermiteSpline(t, x[:, n:], acc))
+
+    def plan_guess(self, tr: StagewiseTranscription) -> np.ndarray:
+        tj = self.plan.trajectory
+        return tr.guess(self.plan.T, lambda t: tj.evaluate(t).q, lambda t: tj.evaluate(t).qd,
+                        lambda t: tj.evaluate(t).qdd)
+
+
+def _med(v) -> str:
+    v = [x for x in v if np.isfinite(x)]
+    return f"{statistics.median(v):.3g}" if v else "—"
+
+
+def _max(v) -> str:
+    v = [x for x in v if np.isfinite(x)]
+    return f"{max(v):.3g}" if v else "—"
+
+
+def _row(name: str, recs: list[dict], ref: list[float]) -> list:
+    ok = [r for r in recs if r["ok"]]
+    it = [r["it"] for r in ok]
+    own = [(r["s"] - r["eval"]) / max(r["it"], 1) * 1e3 for r in ok]
+    ev = [r["eval"] / max(r["it"], 1) * 1e3 for r in ok]
+    gap = [(r["T"] - t) / t for r, t in zip(recs, ref, strict=True) if r["ok"]]
+    return [name, f"{len(ok)}/{len(recs)}", _med(it), _max(it), _med(own), _med(ev),
+            _med([r["s"] * 1e3 for r in ok]), _med(gap), _max(np.abs(gap)) if gap else "—"]
+
+
+HEAD = ["solver / start", "converged", "iter median", "iter max", "own ms/iter",
+        "eval ms/iter (VM)", "total ms median", "T gap median", "abs T gap max"]
+
+
+def cold_section(cases, S, budget_end) -> tuple[list, dict]:
+    """Cold solves; returns the lines and the converged IPOPT-from-plan solutions."""
+    recs = {f"{s} / {g}": [] for s in ("ipopt", "fatrop", "sqp") for g in ("cold", "plan")}
+    ref, base = [], {}
+    for i, c in enumerate(cases):
+        if time.perf_counter() > budget_end:
+            break
+        ref.append(c.plan.T)
+        for g, w0 in (("cold", c.cold_guess(S.tr)), ("plan", c.plan_guess(S.tr))):
+            for s in ("ipopt", "fatrop", "sqp"):
+                kw = {"max_iter": SQP_COLD_ITER} if s == "sqp" else {}
+                r = _solve(S, s, c.args(), guess=w0, **kw)
+                recs[f"{s} / {g}"].append(r)
+                if s == "ipopt" and g == "plan" and r["ok"]:
+                    base[i] = r
+        log(f"stagewise: cold case {i}: plan T {c.plan.T:.5f} ({c.plan_s:.2f} s); " + ", ".join(
+            f"{k} {v[-1]['T']:.5f} {v[-1]['it']} it {'ok' if v[-1]['ok'] else 'FAIL'}"
+            for k, v in recs.items()))
+    lines = [f"Cold solves, N = {S.tr.N}, order {S.tr.order}; T gap against the planner's own "
+             f"bounded plan (median planner time {_med([c.plan_s for c in cases])} s):", ""]
+    lines += table(HEAD, [_row(k, v, ref[:len(v)]) for k, v in recs.items()])
+    return lines, base
+
+
+def warm_section(cases, S, base, rng, budget_end) -> list:
+    """2 cm moves from the converged solution; reference: IPOPT converged on the move."""
+    recs = {k: [] for k in ("ipopt warm", "fatrop warm (primal)", "sqp 1 it", "sqp 2 it",
+                            "sqp 3 it", "sqp to convergence")}
+    ref, viol = [], {k: [] for k in recs}
+    for i, b in base.items():
+        c = cases[i]
+        for _ in range(2):
+            if time.perf_counter() > budget_end:
+                break
+            d = rng.normal(size=3)
+            tgt = c.target + MOVE * d / np.linalg.norm(d)
+            from tocontrol_ros.core.direct.stagewise_solve import StageWarm
+
+            warm = StageWarm(b["w"], b["lam_g"], b["lam_x"])
+            r_ref = _solve(S, "ipopt", c.args(tgt), guess=b["w"], warm=warm)
+            if not r_ref["ok"]:
+                log(f"stagewise: warm case {i}: reference failed ({r_ref['status']})")
+                continue
+            ref.append(r_ref["T"])
+            runs = {"ipopt warm": ("ipopt", None), "fatrop warm (primal)": ("fatrop", None),
+                    "sqp 1 it": ("sqp", 1), "sqp 2 it": ("sqp", 2), "sqp 3 it": ("sqp", 3),
+                    "sqp to convergence": ("sqp", SQP_COLD_ITER)}
+            for k, (s, mi) in runs.items():
+                kw = {"max_iter": mi} if mi else {}
+                r = _solve(S, s, c.args(tgt), guess=b["w"], warm=warm, **kw)
+                if s == "sqp" and mi and mi <= 3:
+                    r["ok"] = r["it"] == mi and not r["status"].startswith("QP failed")
+                recs[k].append(r)
+                viol[k].append(r["res"])
+            log(f"stagewise: warm case {i}: ref T {r_ref['T']:.5f} ({r_ref['it']} it); " +
+                ", ".join(f"{k} {v[-1]['T']:.5f} res {v[-1]['res']:.1e}"
+                          for k, v in recs.items()))
+    lines = [f"Warm re-solves after a {MOVE * 100:.0f} cm move (primal and multipliers of the "
+             "converged solution; Fatrop 1.1.8 takes no multipliers), T gap against IPOPT "
+             "converged on the moved problem:", ""]
+    rows = [_row(k, v, ref) + [_med(viol[k]), _max(viol[k])] for k, v in recs.items()]
+    lines += table(HEAD + ["residual median", "residual max"], rows)
+    return lines
+
+
+def shift_guess(tr: StagewiseTranscription, w: np.ndarray, dt: float) -> tuple:
+    """The motion's state at ``dt`` and the rest of the motion on the mesh as guess."""
+    T = tr.unpack(w)[0]
+    x0 = tr.state_at(w, dt)
+
+    def part(j):
+        return lambda t: tr.evaluate(w, dt + np.asarray(t))[j]
+
+    return x0, tr.guess(T - dt, part(0), part(1), part(2))
+
+
+def replan_section(cases, S, base, budget_end) -> list:
+    """Replans from the motion's state at 50 and 100 ms; reference: IPOPT converged."""
+    recs = {k: [] for k in ("ipopt (duals of the last)", "fatrop (primal)", "sqp 1 it",
+                            "sqp 2 it", "sqp 3 it", "sqp to convergence")}
+    ref, viol = [], {k: [] for k in recs}
+    from tocontrol_ros.core.direct.stagewise_solve import StageWarm
+
+    for i, b in base.items():
+        c = cases[i]
+        for dt in SHIFTS:
+            if time.perf_counter() > budget_end:
+                break
+            x0, w0 = shift_guess(S.tr, b["w"], dt)
+            warm = StageWarm(w0, b["lam_g"], b["lam_x"])
+            r_ref = _solve(S, "ipopt", c.args(x0=x0), guess=w0)
+            if not r_ref["ok"]:
+                log(f"stagewise: replan case {i}: reference failed ({r_ref['status']})")
+                continue
+            ref.append(r_ref["T"])
+            runs = {"ipopt (duals of the last)": ("ipopt", None), "fatrop (primal)":
+                    ("fatrop", None), "sqp 1 it": ("sqp", 1), "sqp 2 it": ("sqp", 2),
+                    "sqp 3 it": ("sqp", 3), "sqp to convergence": ("sqp", SQP_COLD_ITER)}
+            for k, (s, mi) in runs.items():
+                kw = {"max_iter": mi} if mi else {}
+                r = _solve(S, s, c.args(x0=x0), guess=w0, warm=warm, **kw)
+                if s == "sqp" and mi and mi <= 3:
+                    r["ok"] = r["it"] == mi and not r["status"].startswith("QP failed")
+                recs[k].append(r)
+                viol[k].append(r["res"])
+            log(f"stagewise: replan case {i} dt {dt}: ref T {r_ref['T']:.5f}; " +
+                ", ".join(f"{k} {v[-1]['T']:.5f} res {v[-1]['res']:.1e}"
+                          for k, v in recs.items()))
+    lines = ["Replans from the motion's own state 50 and 100 ms in (the rest of the motion as "
+             "the guess, the last solve's multipliers), T gap against IPOPT converged:", ""]
+    rows = [_row(k, v, ref) + [_med(viol[k]), _max(viol[k])] for k, v in recs.items()]
+    lines += table(HEAD + ["residual median", "residual max"], rows)
+    return lines
+
+
+def mesh_section(cases, model, budget_end) -> list:
+    """T per mesh (IPOPT from the plan), against the planner's T; the set on a fine sampling."""
+    rows = []
+    for N, order in MESHES:
+        S = StagewiseSolver(StagewiseTranscription(model, N, "state", order))
+        gaps, sets, ok, its = [], [], 0, []
+        for c in cases:
+            if time.perf_counter() > budget_end:
+                break
+            r = S.solve(*c.args(), guess=c.plan_guess(S.tr))
+            if r.success:
+                ok += 1
+                gaps.append((r.T - c.plan.T) / c.plan.T)
+                sets.append(float(S.tr.set_values(r.w, K, c.scale).max()))
+                its.append(r.iterations)
+        rows.append([N, order, f"{ok}/{len(gaps) if gaps else 0}", _med(gaps), _max(gaps),
+                     f"{min(gaps):.3g}" if gaps else "—", _max(sets), _med(its)])
+        log(f"stagewise: mesh N {N} order {order}: {rows[-1]}")
+    return ["Meshes (IPOPT from the plan), T against the planner's bounded plan; the torque "
+            "set's largest value on 32 samples per interval:", ""] + table(
+        ["N", "order", "converged", "T gap median", "T gap max", "T gap min",
+         "set max (fine)", "iter median"], rows)
+
+
+def compiled_section(S: StagewiseSolver, cases) -> list:
+    """One iteration's stage functions compiled: their time against the VM's."""
+    from tocontrol_ros.core.robot.compiled import compile_function
+
+    f = S.tr.stage_derivatives()
+    t0 = time.perf_counter()
+    fc, how = compile_function(f)
+    build = time.perf_counter() - t0
+    N, n = S.tr.N, S.tr.model.n
+    _, X, U = S.tr.unpack(cases[0].plan_guess(S.tr))
+    args = (X[:N].T, U.T, K, cases[0].scale, np.ones((f.size1_in(4), N)))
+    out = []
+    for name, fun in (("VM", f), ("compiled", fc)):
+        mapped = fun.map(N)
+        mapped(*args)
+        t0 = time.perf_counter()
+        reps = 20
+        for _ in range(reps):
+            mapped(*args)
+        out.append([name, f"{(time.perf_counter() - t0) / reps * 1e3:.2f}"])
+    return [f"One iteration's stage functions (rows, Jacobian, Hessian of {N} stages, "
+            f"n = {n}), compiled by gcc ({how}, {build:.0f} s):", ""] + table(
+        ["evaluation", "ms per iteration"], out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("cases", nargs="?", type=int, default=10)
+    ap.add_argument("--budget", type=float, default=2400.0)
+    ap.add_argument("--skip-compiled", action="store_true")
+    ap.add_argument("--sections", default="cold,warm,replan,mesh,compiled")
+    a = ap.parse_args()
+    end = time.perf_counter() + a.budget
+    model, limits = robots()["Panda"]
+    raw = draw_cases(model, limits, a.cases, seed=SEED)
+    log(f"stagewise: planning {len(raw)} Panda cases")
+    cases = [Case(model, limits, *c) for c in raw]
+    S = StagewiseSolver(StagewiseTranscription(model, N_MAIN, "state", 1))
+    secs = a.sections.split(",")
+    out = ["## Stage-wise transcription (bench/stagewise.py)", "",
+           f"Command: `scripts/dev run python -P bench/stagewise.py {a.cases}`; "
+           f"{len(cases)} Panda cases (draw_cases, seed {SEED}; odd ones start moving), "
+           f"k = {K:g}.", ""]
+    lines, base = cold_section(cases, S, end)
+    out += lines + [""]
+    if "warm" in secs:
+        out += warm_section(cases, S, base, np.random.default_rng(47), end) + [""]
+    if "replan" in secs:
+        out += replan_section(cases, S, base, end) + [""]
+    if "mesh" in secs:
+        out += mesh_section(cases, model, end) + [""]
+    if "compiled" in secs and not a.skip_compiled:
+        out += compiled_section(S, cases) + [""]
+    print("\n".join(out))
+
+
+if __name__ == "__main__":
+    main()
