@@ -10,14 +10,14 @@ start passes the previous solution's primal point and multipliers.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.direct.stagewise import StagewiseTranscription, inverse_dynamics
 from tocontrol_ros.core.direct.stagewise_sqp import StageSqp
-from tocontrol_ros.core.direct.tuning import SET_PAD, WARM_MU
+from tocontrol_ros.core.direct.tuning import PAD_ROUNDS, SET_MARGIN, SET_PAD, WARM_MU
 
 __all__ = ["SOLVERS", "StageResult", "StageWarm", "StagewiseSolver"]
 
@@ -79,6 +79,11 @@ class StageResult:
     warm : StageWarm
     w : ndarray
         The solution vector (stage order).
+    set_max : float
+        Largest ``sum_i |u_i|^(2k)`` on 32 samples per interval (:meth:`StagewiseSolver.
+        solve_within_set`; NaN when not checked).
+    pad : float
+        The set pad of the last solve.
     """
 
     success: bool
@@ -96,6 +101,8 @@ class StageResult:
     residual: float
     warm: StageWarm = field(repr=False)
     w: np.ndarray = field(repr=False)
+    set_max: float = float("nan")
+    pad: float = SET_PAD
 
 
 class StagewiseSolver:
@@ -200,6 +207,34 @@ class StagewiseSolver:
         evals = sum(float(stats.get(f"t_wall_{f}", 0.0)) for f in _FUNCTIONS)
         return self._result(w, sol["lam_g"], sol["lam_x"], ok, status, residual,
                             int(stats.get("iter_count", -1)), seconds, evals)
+
+    def solve_within_set(self, start_value, target_value, k: float, scale: np.ndarray,
+                         lower: np.ndarray, upper: np.ndarray, guess: np.ndarray,
+                         rounds: int = PAD_ROUNDS, **kw) -> StageResult:
+        """:meth:`solve`, then the torque set checked on the whole motion, the pad widened.
+
+        The set is sampled at 3 times per interval in the NLP; between them the torques may
+        leave it. As the B-spline solve does (``docs/limits.md``), the solution is checked on
+        32 samples per interval and, while some exceed ``1 - SET_MARGIN``, solved again
+        (warm, with IPOPT) with the pad widened by twice the excess, at most ``rounds``
+        times. A result still outside the set is a failure.
+        """
+        pad = kw.pop("set_pad", SET_PAD)
+        args = (start_value, target_value, k, scale, lower, upper)
+        r = self.solve(*args, guess=guess, set_pad=pad, **kw)
+        for i in range(rounds + 1):
+            if not r.success:
+                return r
+            smax = float(np.max(self.tr.set_values(r.w, k, scale)))
+            r = replace(r, set_max=smax, pad=pad)
+            if smax <= 1.0 - SET_MARGIN:
+                return r
+            if i == rounds:
+                break
+            pad += 2.0 * (smax - (1.0 - SET_MARGIN))
+            r = self.solve(*args, guess=r.w, warm=r.warm, set_pad=pad, solver="ipopt")
+        return replace(r, success=False,
+                       message=f"torque set {r.set_max:.6f} > 1 after {rounds} wider pads")
 
     def _sqp_solve(self, par, bounds, x0, warm, max_iter) -> StageResult:
         if self._sqp is None:
