@@ -293,17 +293,18 @@ def mesh_section(cases, model, budget_end) -> list:
     rows = []
     for N, order in MESHES:
         S = StagewiseSolver(StagewiseTranscription(model, N, "state", order))
-        gaps, sets, ok, its = [], [], 0, []
+        gaps, sets, ok, its, tried = [], [], 0, [], 0
         for c in cases:
             if time.perf_counter() > budget_end:
                 break
+            tried += 1
             r = S.solve(*c.args(), guess=c.plan_guess(S.tr))
             if r.success:
                 ok += 1
                 gaps.append((r.T - c.plan.T) / c.plan.T)
                 sets.append(float(S.tr.set_values(r.w, K, c.scale).max()))
                 its.append(r.iterations)
-        rows.append([N, order, f"{ok}/{len(gaps) if gaps else 0}", _med(gaps), _max(gaps),
+        rows.append([N, order, f"{ok}/{tried}", _med(gaps), _max(gaps),
                      f"{min(gaps):.3g}" if gaps else "—", _max(sets), _med(its)])
         log(f"stagewise: mesh N {N} order {order}: {rows[-1]}")
     return ["Meshes (IPOPT from the plan), T against the planner's bounded plan; the torque "

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from tocontrol_ros.core.certificate import certify_open_loop
 from tocontrol_ros.core.direct.limited import PAD, state_bounds
 from tocontrol_ros.core.direct.stagewise import StagewiseTranscription, inverse_dynamics
 from tocontrol_ros.core.direct.stagewise_solve import StagewiseSolver
+from tocontrol_ros.core.direct.stagewise_trajectory import StageTrajectory
 from tocontrol_ros.core.direct.tuning import SET_PAD
 from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.robot.model import load_robot
@@ -115,3 +117,7 @@ def test_a_panda_motion_holds_its_limits_and_reaches_the_target_when_reintegrate
     xT = _reintegrated(model, tr, r.w, x0)
     assert np.linalg.norm(model.point(xT[:n]) - target) < 1e-5
     assert np.max(np.abs(xT[n:])) < 1e-5
+    # The project's certificate of a direct method's motion, through the adapter.
+    cert = certify_open_loop(problem, StageTrajectory(tr, r.w, scale),
+                             solver_residual=r.residual)
+    assert cert.passed, [f"{i.name} {i.value:.3g}" for i in cert.failures]
