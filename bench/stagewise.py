@@ -13,7 +13,8 @@ the planner pads them, k = 4) solved by IPOPT (MUMPS), Fatrop and the own SQP wi
 Sections: cold solves; warm re-solves after a 2 cm move of the target (primal + duals of the
 converged solution; the reference is IPOPT converged on the moved problem); replans from the
 motion's state 50 and 100 ms in (the rest of the motion as guess; SQP real-time iterations
-1-3); meshes (``N`` and order against the planner's ``T``); and the evaluation cost of one
+1-3); meshes (``N``, order and a free mesh, each interval's length a control, against the planner's
+``T``); and the evaluation cost of one
 iteration's functions compiled (the solvers here evaluate CasADi's SX virtual machine, which
 dominates their times: the tables give the solvers' own time per iteration apart).
 
@@ -54,7 +55,8 @@ from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
 
 #: The default mesh of the comparison, the meshes of the mesh section.
 N_MAIN = 30
-MESHES = ((20, 1), (30, 1), (50, 1), (20, 2), (30, 2))
+MESHES = ((20, 1, False), (30, 1, False), (50, 1, False), (20, 2, False), (30, 2, False),
+          (20, 1, True), (30, 1, True), (20, 2, True))
 #: Target moves (m) and shifts (s).
 MOVE = 0.02
 SHIFTS = (0.05, 0.10)
@@ -291,8 +293,8 @@ def replan_section(cases, S, base, budget_end) -> list:
 def mesh_section(cases, model, budget_end) -> list:
     """T per mesh (IPOPT from the plan), against the planner's T; the set on a fine sampling."""
     rows = []
-    for N, order in MESHES:
-        S = StagewiseSolver(StagewiseTranscription(model, N, "state", order))
+    for N, order, free in MESHES:
+        S = StagewiseSolver(StagewiseTranscription(model, N, "state", order, free))
         gaps, sets, ok, its, tried = [], [], 0, [], 0
         for c in cases:
             if time.perf_counter() > budget_end:
@@ -304,12 +306,12 @@ def mesh_section(cases, model, budget_end) -> list:
                 gaps.append((r.T - c.plan.T) / c.plan.T)
                 sets.append(float(S.tr.set_values(r.w, K, c.scale).max()))
                 its.append(r.iterations)
-        rows.append([N, order, f"{ok}/{tried}", _med(gaps), _max(gaps),
-                     f"{min(gaps):.3g}" if gaps else "—", _max(sets), _med(its)])
-        log(f"stagewise: mesh N {N} order {order}: {rows[-1]}")
+        rows.append([N, order, "free" if free else "uniform", f"{ok}/{tried}", _med(gaps),
+                     _max(gaps), f"{min(gaps):.3g}" if gaps else "—", _max(sets), _med(its)])
+        log(f"stagewise: mesh {rows[-1]}")
     return ["Meshes (IPOPT from the plan), T against the planner's bounded plan; the torque "
             "set's largest value on 32 samples per interval:", ""] + table(
-        ["N", "order", "converged", "T gap median", "T gap max", "T gap min",
+        ["N", "order", "mesh", "converged", "T gap median", "T gap max", "T gap min",
          "set max (fine)", "iter median"], rows)
 
 

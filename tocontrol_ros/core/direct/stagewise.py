@@ -42,6 +42,8 @@ __all__ = ["SAMPLES", "StagewiseTranscription", "inverse_dynamics"]
 SAMPLES = {1: (0.0, 0.5, 1.0), 2: (0.0, 1.0 / 3.0, 2.0 / 3.0)}
 #: Bounds of the final time T (s).
 T_RANGE = (1e-3, 100.0)
+#: Bounds of an interval's length on a free mesh (s).
+H_RANGE = (1e-3, 1.0)
 
 
 def _poly(order: int, x, u, s):
@@ -68,6 +70,10 @@ class StagewiseTranscription:
         A start joint state (fixed by bounds) or a start point at rest (free configuration).
     order : {1, 2}
         Piecewise-constant (1) or piecewise-linear (2) joint accelerations.
+    free_mesh : bool
+        Each interval's length ``h_k`` a control (in ``H_RANGE``), the state's last entry
+        the elapsed time, the objective its final value: the nodes can move to where the
+        motion switches.
 
     Attributes
     ----------
@@ -79,20 +85,25 @@ class StagewiseTranscription:
         ``x``, ``p``, ``f``, ``g`` (SX): the NLP as ``nlpsol`` takes it.
     """
 
-    def __init__(self, model, N: int, start_kind: str = "state", order: int = 1) -> None:
+    def __init__(self, model, N: int, start_kind: str = "state", order: int = 1,
+                 free_mesh: bool = False) -> None:
         if order not in SAMPLES or start_kind not in ("state", "point"):
             raise ValueError(f"order {order!r} or start kind {start_kind!r} not supported")
         self.model, self.N, self.start_kind, self.order = model, N, start_kind, order
+        self.free_mesh = free_mesh
         n, m = model.n, model.m
         nxs = order * n + n + 1
-        self._nx = nxs
+        self._nx, self._nu = nxs, n + (1 if free_mesh else 0)
         x = ca.SX.sym("x", nxs)
-        u = ca.SX.sym("u", n)
+        uu = ca.SX.sym("u", self._nu)
+        u = uu[:n]
         k = ca.SX.sym("k")
         scale = ca.SX.sym("scale", n)
-        h = x[-1] / N
+        # Uniform: x[-1] = T, h = T / N. Free mesh: x[-1] = the elapsed time, h = u[n].
+        h = uu[n] if free_mesh else x[-1] / N
+        last = x[-1] + h if free_mesh else x[-1]
         q1, v1, a1 = _poly(order, x, u, h)
-        xn = ca.vertcat(q1, v1, x[-1]) if order == 1 else ca.vertcat(q1, v1, a1, x[-1])
+        xn = ca.vertcat(q1, v1, last) if order == 1 else ca.vertcat(q1, v1, a1, last)
         rows = [self._set(*_poly(order, x, u, s * h), k, scale) for s in SAMPLES[order]]
         q, v = x[:n], x[n:2 * n]
         if order == 1:
@@ -101,7 +112,7 @@ class StagewiseTranscription:
             a = x[2 * n:3 * n]
             rows += [q + h * v / 3, q + 2 * h * v / 3 + h ** 2 * a / 6, v + h * a / 2]
         path = ca.vertcat(*rows)
-        self._stage = ca.Function("stage", [x, u, k, scale], [xn, path])
+        self._stage = ca.Function("stage", [x, uu, k, scale], [xn, path])
         self._path_rows = path.numel()
         qs = ca.SX.sym("q", n)
         self._fk = ca.Function("fk", [qs], [model.point_sym(qs)])
@@ -115,7 +126,7 @@ class StagewiseTranscription:
         NLP's derivatives from compiled stages).
         """
         x = ca.SX.sym("x", self._nx)
-        u = ca.SX.sym("u", self.model.n)
+        u = ca.SX.sym("u", self._nu)
         k, scale = ca.SX.sym("k"), ca.SX.sym("scale", self.model.n)
         xn, path = self._stage(x, u, k, scale)
         rows = ca.vertcat(xn, path)
@@ -135,7 +146,7 @@ class StagewiseTranscription:
         p_target = ca.SX.sym("p_target", m)
         par = ca.vertcat(p_start, p_target, k, scale)
         xs = [ca.SX.sym(f"x{i}", nxs) for i in range(N + 1)]
-        us = [ca.SX.sym(f"u{i}", n) for i in range(N)]
+        us = [ca.SX.sym(f"u{i}", self._nu) for i in range(N)]
         w, g = [], []
         self.ng = []
         for i in range(N):
@@ -152,8 +163,8 @@ class StagewiseTranscription:
         g += final
         self.ng.append(sum(e.numel() for e in final))
         self.nx = [nxs] * (N + 1)
-        self.nu = [n] * N + [0]
-        f = xs[0][-1]
+        self.nu = [self._nu] * N + [0]
+        f = xs[N][-1] if self.free_mesh else xs[0][-1]
         self.nlp = {"x": ca.vertcat(*w), "p": par, "f": f, "g": ca.vertcat(*g)}
         self.n_w, self.n_g = self.nlp["x"].numel(), self.nlp["g"].numel()
         self._g_fun = ca.Function("g", [self.nlp["x"], par], [self.nlp["g"]])
@@ -161,16 +172,21 @@ class StagewiseTranscription:
     # ------------------------------------------------------------------ layout
     def _x_index(self, i: int) -> int:
         """Offset of ``x_i`` in ``w``."""
-        return i * (self._nx + self.model.n)
+        return i * (self._nx + self._nu)
 
     def unpack(self, w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """``T`` (s), node states ``X`` (N + 1, nx) and controls ``U`` (N, n) of ``w``."""
         w = np.asarray(w, dtype=float).ravel()
-        n, nxs, N = self.model.n, self._nx, self.N
-        body = w[:N * (nxs + n)].reshape(N, nxs + n)
-        X = np.vstack([body[:, :nxs], w[N * (nxs + n):][None, :]])
+        nu, nxs, N = self._nu, self._nx, self.N
+        body = w[:N * (nxs + nu)].reshape(N, nxs + nu)
+        X = np.vstack([body[:, :nxs], w[N * (nxs + nu):][None, :]])
         U = body[:, nxs:]
-        return float(X[0, -1]), X, U
+        return float(X[N if self.free_mesh else 0, -1]), X, U
+
+    def node_times(self, w: np.ndarray) -> np.ndarray:
+        """Node times (N + 1,) (s) of ``w``."""
+        T, X, _ = self.unpack(w)
+        return X[:, -1].copy() if self.free_mesh else np.linspace(0.0, T, self.N + 1)
 
     def pack(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """``w`` from node states (N + 1, nx) and controls (N, n)."""
@@ -193,12 +209,14 @@ class StagewiseTranscription:
         lo_q, hi_q = np.asarray(lower[:n], float), np.asarray(upper[:n], float)
         vmax = np.asarray(upper[n:], float)
         xl = np.concatenate([lo_q, -vmax] + ([np.full(n, -big)] if order == 2 else [])
-                            + [[T_RANGE[0]]])
+                            + [[0.0 if self.free_mesh else T_RANGE[0]]])
         xu = np.concatenate([hi_q, vmax] + ([np.full(n, big)] if order == 2 else [])
                             + [[T_RANGE[1]]])
         lbx, ubx = [], []
         for i in range(N + 1):
             a, b = xl.copy(), xu.copy()
+            if i == 0 and self.free_mesh:
+                a[-1] = b[-1] = 0.0
             if i == 0 and self.start_kind == "state":
                 a[:2 * n] = b[:2 * n] = np.asarray(start_value, dtype=float)[:2 * n]
             if i == 0 and self.start_kind == "point":
@@ -208,8 +226,10 @@ class StagewiseTranscription:
             lbx.append(a)
             ubx.append(b)
             if i < N:
-                lbx.append(np.full(n, -big))
-                ubx.append(np.full(n, big))
+                lbx.append(np.full(n, -big) if not self.free_mesh else
+                           np.concatenate([np.full(n, -big), [H_RANGE[0]]]))
+                ubx.append(np.full(n, big) if not self.free_mesh else
+                           np.concatenate([np.full(n, big), [H_RANGE[1]]]))
         ns = len(SAMPLES[order])
         pl = np.concatenate([np.full(ns, -big)] + [lo_q] * order
                             + ([-vmax] if order == 2 else []))
@@ -251,11 +271,14 @@ class StagewiseTranscription:
         t = np.linspace(0.0, T, N + 1)
         h = T / N
         q, qd = np.asarray(q_of_t(t)), np.asarray(qd_of_t(t))
-        hcol = np.full((N + 1, 1), T)
+        tcol = (t if self.free_mesh else np.full(N + 1, T))[:, None]
+        hcol = [np.full((N, 1), h)] if self.free_mesh else []
         if self.order == 1:
-            return self.pack(np.hstack([q, qd, hcol]), np.diff(qd, axis=0) / h)
+            return self.pack(np.hstack([q, qd, tcol]),
+                             np.hstack([np.diff(qd, axis=0) / h] + hcol))
         qdd = np.asarray(qdd_of_t(t)) if qdd_of_t is not None else np.gradient(qd, t, axis=0)
-        return self.pack(np.hstack([q, qd, qdd, hcol]), np.diff(qdd, axis=0) / h)
+        return self.pack(np.hstack([q, qd, qdd, tcol]),
+                         np.hstack([np.diff(qdd, axis=0) / h] + hcol))
 
     def evaluate(self, w: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
         """``q, qd, qdd`` (len(t), n) of the solution ``w`` at times ``t`` (s) in [0, T].
@@ -264,11 +287,12 @@ class StagewiseTranscription:
         """
         T, X, U = self.unpack(w)
         n, N = self.model.n, self.N
-        h = T / N
+        nodes = self.node_times(w)
         t = np.clip(np.asarray(t, dtype=float), 0.0, T)
-        i = np.minimum((t / h).astype(int), N - 1)
-        s = (t - i * h)[:, None]
+        i = np.clip(np.searchsorted(nodes, t, side="right") - 1, 0, N - 1)
+        s = (t - nodes[i])[:, None]
         q0, v0 = X[i, :n], X[i, n:2 * n]
+        U = U[:, :n]
         if self.order == 1:
             a = U[i]
             return q0 + s * v0 + s ** 2 / 2 * a, v0 + s * a, a
@@ -284,10 +308,9 @@ class StagewiseTranscription:
     def set_values(self, w: np.ndarray, k: float, scale: np.ndarray, per_interval: int = 32
                    ) -> np.ndarray:
         """``sum_i |tau_i / scale_i|^(2k)`` on a fine sampling (both sides of every node)."""
-        T, _, _ = self.unpack(w)
-        N, h = self.N, T / self.N
+        nodes = self.node_times(w)
         frac = np.linspace(0.0, 1.0 - 1e-9, per_interval + 1)
-        t = ((np.arange(N)[:, None] + frac[None, :]) * h).ravel()
+        t = (nodes[:-1, None] + frac[None, :] * np.diff(nodes)[:, None]).ravel()
         q, qd, qdd = self.evaluate(w, t)
         tau = inverse_dynamics(self.model, q, qd, qdd)
         return np.sum(np.abs(tau / scale) ** (2 * k), axis=1)

@@ -258,7 +258,8 @@ class StagewiseSolver:
         tr = self.tr
         T, X, U = tr.unpack(w)
         n = tr.model.n
-        t = np.linspace(0.0, T, tr.N + 1)
+        t = tr.node_times(w)
+        U = U[:, :n]
         qdd = np.vstack([U, U[-1:]]) if tr.order == 1 else X[:, 2 * n:3 * n]
         tau = inverse_dynamics(tr.model, X[:, :n], X[:, n:2 * n], qdd)
         return StageResult(

@@ -42,7 +42,7 @@ class StageTrajectory:
         self.scale = np.asarray(scale, dtype=float)
         self.n = transcription.model.n
         self.T = transcription.unpack(self.w)[0]
-        self.t_grid = np.linspace(0.0, self.T, transcription.N + 1)
+        self.t_grid = transcription.node_times(self.w)
 
     def evaluate(self, t) -> TrajectorySample:
         """``q, qd, qdd``, the torques and ``u`` at times ``t`` (s); no costates (NaN)."""
