@@ -239,17 +239,6 @@ def warm_section(cases, S, base, rng, budget_end) -> list:
     return lines
 
 
-def shift_guess(tr: StagewiseTranscription, w: np.ndarray, dt: float) -> tuple:
-    """The motion's state at ``dt`` and the rest of the motion on the mesh as guess."""
-    T = tr.unpack(w)[0]
-    x0 = tr.state_at(w, dt)
-
-    def part(j):
-        return lambda t: tr.evaluate(w, dt + np.asarray(t))[j]
-
-    return x0, tr.guess(T - dt, part(0), part(1), part(2))
-
-
 def replan_section(cases, S, base, budget_end) -> list:
     """Replans from the motion's state at 50 and 100 ms; reference: IPOPT converged."""
     recs = {k: [] for k in ("ipopt (duals of the last)", "fatrop (primal)", "sqp 1 it",
@@ -262,7 +251,7 @@ def replan_section(cases, S, base, budget_end) -> list:
         for dt in SHIFTS:
             if time.perf_counter() > budget_end:
                 break
-            x0, w0 = shift_guess(S.tr, b["w"], dt)
+            x0, w0 = S.tr.shifted(b["w"], dt)
             warm = StageWarm(w0, b["lam_g"], b["lam_x"])
             r_ref = _solve(S, "ipopt", c.args(x0=x0), guess=w0)
             if not r_ref["ok"]:

@@ -305,6 +305,19 @@ class StagewiseTranscription:
         q, qd, _ = self.evaluate(w, np.array([t]))
         return np.concatenate([q[0], qd[0]])
 
+    def shifted(self, w: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """A replan's start and guess from the running motion ``w``.
+
+        Returns the motion's state at ``dt`` (s), shape (2n,), and the rest of the motion,
+        ``T - dt`` long, resampled on this mesh (a ``w``).
+        """
+        T = self.unpack(w)[0]
+
+        def part(j):
+            return lambda t: self.evaluate(w, dt + np.asarray(t))[j]
+
+        return self.state_at(w, dt), self.guess(T - dt, part(0), part(1), part(2))
+
     def set_values(self, w: np.ndarray, k: float, scale: np.ndarray, per_interval: int = 32
                    ) -> np.ndarray:
         """``sum_i |tau_i / scale_i|^(2k)`` on a fine sampling (both sides of every node)."""
