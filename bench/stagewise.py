@@ -173,8 +173,11 @@ HEAD = ["solver / start", "converged", "iter median", "iter max", "own ms/iter",
         "abs T gap max"]
 
 
-def cold_section(cases, S, budget_end) -> tuple[list, dict]:
-    """Cold solves; returns the lines and the converged IPOPT-from-plan solutions."""
+def cold_section(cases, S, budget_end, fatrop=None) -> tuple[list, dict]:
+    """Cold solves; returns the lines and the converged IPOPT-from-plan solutions.
+
+    ``fatrop``: the solver (another tolerance) of Fatrop's solves, default ``S``.
+    """
     recs = {f"{s} / {g}": [] for s in ("ipopt", "fatrop", "sqp") for g in ("cold", "plan")}
     ref, base = [], {}
     for i, c in enumerate(cases):
@@ -184,7 +187,8 @@ def cold_section(cases, S, budget_end) -> tuple[list, dict]:
         for g, w0 in (("cold", c.cold_guess(S.tr)), ("plan", c.plan_guess(S.tr))):
             for s in ("ipopt", "fatrop", "sqp"):
                 kw = {"max_iter": SQP_COLD_ITER} if s == "sqp" else {}
-                r = _solve(S, s, c.args(), guess=w0, **kw)
+                r = _solve(fatrop if (s == "fatrop" and fatrop) else S, s, c.args(),
+                           guess=w0, **kw)
                 recs[f"{s} / {g}"].append(r)
                 if s == "ipopt" and g == "plan" and r["ok"]:
                     base[i] = r
@@ -335,6 +339,8 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=2400.0)
     ap.add_argument("--skip-compiled", action="store_true")
     ap.add_argument("--sections", default="cold,warm,replan,mesh,compiled")
+    ap.add_argument("--fatrop-tol", type=float, default=None,
+                    help="Fatrop's tolerance in the cold section (default: the others', 1e-8)")
     a = ap.parse_args()
     end = time.perf_counter() + a.budget
     model, limits = robots()["Panda"]
@@ -347,7 +353,10 @@ def main() -> None:
            f"Command: `scripts/dev run python -P bench/stagewise.py {a.cases}`; "
            f"{len(cases)} Panda cases (draw_cases, seed {SEED}; odd ones start moving), "
            f"k = {K:g}.", ""]
-    lines, base = cold_section(cases, S, end)
+    fat = None if a.fatrop_tol is None else StagewiseSolver(S.tr, tol=a.fatrop_tol)
+    lines, base = cold_section(cases, S, end, fat)
+    if fat is not None:
+        lines[0] += f" (Fatrop's tolerance {a.fatrop_tol:g})"
     out += lines + [""]
     if "warm" in secs:
         out += warm_section(cases, S, base, np.random.default_rng(47), end) + [""]
