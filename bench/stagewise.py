@@ -49,9 +49,9 @@ from tocontrol_ros.core.direct.limited import state_bounds  # noqa: E402
 from tocontrol_ros.core.direct.stagewise import StagewiseTranscription  # noqa: E402
 from tocontrol_ros.core.direct.stagewise_solve import StagewiseSolver  # noqa: E402
 from tocontrol_ros.core.direct.tuning import PAD  # noqa: E402
-from tocontrol_ros.core.problem import Problem, joint_state, point  # noqa: E402
-from tocontrol_ros.core.seeding import seed_pairs  # noqa: E402
-from tocontrol_ros.core.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.methods.seeding import seed_pairs  # noqa: E402
+from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
+from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 #: The default mesh of the comparison, the meshes of the mesh section.
 N_MAIN = 30

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from tocontrol_ros.core.certificate import certify_open_loop
+from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.limited import PAD, state_bounds
 from tocontrol_ros.core.direct.stagewise import StagewiseTranscription, inverse_dynamics
 from tocontrol_ros.core.direct.stagewise_solve import StagewiseSolver
 from tocontrol_ros.core.direct.stagewise_trajectory import StageTrajectory
 from tocontrol_ros.core.direct.tuning import SET_PAD
-from tocontrol_ros.core.problem import Problem, joint_state, point
 from tocontrol_ros.core.robot.model import load_robot
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 #: One uniform rod (1 kg, 1 m) on a vertical axis: inertia 1/3 kg m^2 about the joint, no
 #: friction, 10 N m: the double integrator qdd = 3 tau.

@@ -1,6 +1,6 @@
 """A stage-wise solution as a trajectory that the project's certificate takes.
 
-:func:`~tocontrol_ros.core.certificate.certify_open_loop` needs ``T``, ``t_grid``,
+:func:`~tocontrol_ros.core.checks.certificate.certify_open_loop` needs ``T``, ``t_grid``,
 ``evaluate``, ``state`` and ``control``; this adapter gives them for a solution ``w`` of a
 :class:`~tocontrol_ros.core.direct.stagewise.StagewiseTranscription`: the joint path is the
 interval's polynomial, the torques its inverse dynamics (so the certificate re-integrates
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from tocontrol_ros.core.direct.stagewise import StagewiseTranscription, inverse_dynamics
-from tocontrol_ros.core.trajectory import TrajectorySample
+from tocontrol_ros.core.types.trajectory import TrajectorySample
 
 __all__ = ["StageTrajectory"]
 
