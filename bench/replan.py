@@ -24,7 +24,8 @@ rest replans (:func:`smoothing_cost`).
 With ``--moving`` (issue 47's hard case) the targets keep the arm moving: the paper's arm on
 a circle of 0.3 m (goals 3.8 cm apart, 0.1 s apart: the arm is still on its way to one goal
 when the next comes), the Panda from the README's own set-up ("Your own arm": its start
-configuration, joints 1 and 3 aligned, and its gains) on its 0.1 m circle. Beside the node's
+configuration, joints 1 and 3 aligned, the limit margin and sample period it gives the
+planner, the tracker's own gains) on its 0.1 m circle. Beside the node's
 own ``publish_latency``, the latency as a client sees it: the goal's publication in this
 process -> its trajectory received here, matched by request (the solved status's ``target``
 is the goal's, its ``handoff`` the trajectory's ``header.stamp``), not by arrival order; and
@@ -193,10 +194,13 @@ def _robot(name: str, moving: bool = False):
     q0 = np.array(README_PANDA_Q0 if moving else [0.3, -0.4, 0.2, -2.0, 0.1, 1.6, 0.5])
     robot = ["-p", f"robot_description_file:={urdf}", "-p", "tip_link:=panda_hand"]
     q_text = "[" + ",".join(f"{v:.6f}" for v in q0) + "]"
-    # Gains of test/e2e/test_your_own_arm.py (the README's Panda).
-    tracker = ["-p", f"initial_positions:={q_text}",
-               "-p", "kp:=[10.0,20.0,13.0,10.0,2.4,4.0,0.5]",
-               "-p", "kd:=[0.47,0.91,0.6,0.49,0.11,0.19,0.023]"]
+    tracker = ["-p", f"initial_positions:={q_text}"]
+    if moving:  # the README's "Your own arm" as it reads (no joint_limits.yaml: the URDF's)
+        robot += ["-p", "limit_margin:=0.05", "-p", "sample_period:=0.002", "-p",
+                  "time_limit:=120.0"]
+    else:  # the gains of the README's Panda before the tracker derived its own (issue 49)
+        tracker += ["-p", "kp:=[10.0,20.0,13.0,10.0,2.4,4.0,0.5]",
+                    "-p", "kd:=[0.47,0.91,0.6,0.49,0.11,0.19,0.023]"]
     return model, robot, tracker, "panda_link0", model.point(q0), 0.1, q0
 
 
