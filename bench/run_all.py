@@ -32,6 +32,8 @@ processes: idle CPU and ~/plan round trip against the same request in-process),
 ``replan`` (a target moving at 10 Hz through planner and tracker processes: replan latency,
 splices, the paper's arm and the Panda), ``replan_moving`` (the same with targets that keep
 the arm moving, the Panda from the README's set-up, latency also as a client sees it),
+``stagewise`` (issue 47's stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on
+the same NLPs, 10 Panda cases),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
@@ -60,7 +62,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
-         "limits",
+         "limits", "stagewise",
          "first_motion")
 
 
@@ -148,6 +150,7 @@ def _run(args):
         reference_paper,
         replan,
         scaling,
+        stagewise,
         verification,
     )
 
@@ -217,6 +220,8 @@ def _run(args):
         section(lambda: replan.run())
     if "replan_moving" in args.only:
         section(lambda: replan.run(moving=True))
+    if "stagewise" in args.only:
+        section(lambda: stagewise.run(3 if args.quick else 10))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))

@@ -41,7 +41,7 @@ if __name__ == "__main__":
 
 import numpy as np  # noqa: E402
 
-from bench.common import log, table  # noqa: E402
+from bench.common import Section, log, table  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
 from bench.optimum_panda import SEED, K  # noqa: E402
 from tocontrol_ros.core.direct.collocation import initial_path  # noqa: E402
@@ -333,6 +333,38 @@ def compiled_section(S: StagewiseSolver, cases) -> list:
         ["evaluation", "ms per iteration"], out)
 
 
+def run(count: int = 10, budget: float = 2400.0, sections: str = "cold,warm,replan,mesh,compiled",
+        fatrop_tol: float | None = 1e-6) -> Section:
+    """The tables on ``count`` Panda cases, as a section of BENCHMARKS.md (issue 47)."""
+    end = time.perf_counter() + budget
+    model, limits = robots()["Panda"]
+    raw = draw_cases(model, limits, count, seed=SEED)
+    log(f"stagewise: planning {len(raw)} Panda cases")
+    cases = [Case(model, limits, *c) for c in raw]
+    S = StagewiseSolver(StagewiseTranscription(model, N_MAIN, "state", 1))
+    secs = sections.split(",")
+    out = [f"Command: `scripts/dev run python -P bench/stagewise.py {count}"
+           + (f" --fatrop-tol {fatrop_tol:g}" if fatrop_tol is not None else "") + "`; "
+           f"{len(cases)} Panda cases (draw_cases, seed {SEED}; odd ones start moving), "
+           f"k = {K:g}. The solvers tried on the same NLPs from the same guesses "
+           f"(docs/limits.md, \"Stage-wise transcription\": measured, not adopted).", ""]
+    fat = None if fatrop_tol is None else StagewiseSolver(S.tr, tol=fatrop_tol)
+    lines, base = cold_section(cases, S, end, fat)
+    if fat is not None:
+        lines[0] += f" (Fatrop's tolerance {fatrop_tol:g})"
+    out += lines + [""]
+    if "warm" in secs:
+        out += warm_section(cases, S, base, np.random.default_rng(47), end) + [""]
+    if "replan" in secs:
+        out += replan_section(cases, S, base, end) + [""]
+    if "mesh" in secs:
+        out += mesh_section(cases, model, end) + [""]
+    if "compiled" in secs:
+        out += compiled_section(S, cases) + [""]
+    return Section("Stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on the "
+                   "same NLPs (issue 47)", out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("cases", nargs="?", type=int, default=10)
@@ -342,31 +374,9 @@ def main() -> None:
     ap.add_argument("--fatrop-tol", type=float, default=None,
                     help="Fatrop's tolerance in the cold section (default: the others', 1e-8)")
     a = ap.parse_args()
-    end = time.perf_counter() + a.budget
-    model, limits = robots()["Panda"]
-    raw = draw_cases(model, limits, a.cases, seed=SEED)
-    log(f"stagewise: planning {len(raw)} Panda cases")
-    cases = [Case(model, limits, *c) for c in raw]
-    S = StagewiseSolver(StagewiseTranscription(model, N_MAIN, "state", 1))
-    secs = a.sections.split(",")
-    out = ["## Stage-wise transcription (bench/stagewise.py)", "",
-           f"Command: `scripts/dev run python -P bench/stagewise.py {a.cases}`; "
-           f"{len(cases)} Panda cases (draw_cases, seed {SEED}; odd ones start moving), "
-           f"k = {K:g}.", ""]
-    fat = None if a.fatrop_tol is None else StagewiseSolver(S.tr, tol=a.fatrop_tol)
-    lines, base = cold_section(cases, S, end, fat)
-    if fat is not None:
-        lines[0] += f" (Fatrop's tolerance {a.fatrop_tol:g})"
-    out += lines + [""]
-    if "warm" in secs:
-        out += warm_section(cases, S, base, np.random.default_rng(47), end) + [""]
-    if "replan" in secs:
-        out += replan_section(cases, S, base, end) + [""]
-    if "mesh" in secs:
-        out += mesh_section(cases, model, end) + [""]
-    if "compiled" in secs and not a.skip_compiled:
-        out += compiled_section(S, cases) + [""]
-    print("\n".join(out))
+    sections = a.sections if not a.skip_compiled else ",".join(
+        x for x in a.sections.split(",") if x != "compiled")
+    run(a.cases, a.budget, sections, a.fatrop_tol).print()
 
 
 if __name__ == "__main__":
