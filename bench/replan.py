@@ -516,7 +516,9 @@ def run(which: str = "both", moving: bool = False) -> Section:
         f" Client: goal published in the client -> its trajectory received there, matched "
         f"by request (status target and hand-off stamp), median / p95 over the matched."
         + (f" Hard case: the paper's arm on a {MOVING_PAPER_RADIUS:g} m circle, the Panda "
-           f"from the README's start configuration and gains." if moving else "")
+           f"as the README's \"Your own arm\" sets it up (start configuration with joints 1 and 3 "
+           f"aligned, limit margin 0.05, sample period 2 ms, the tracker's derived gains)."
+           if moving else "")
         + f" Command: `scripts/dev run python -P bench/replan.py {which}"
         + (" --moving`." if moving else "`."),
         "",
