@@ -173,7 +173,9 @@ def read_config(node):
         ``link_frames`` a topic it writes itself in ``topics``, or robot parameters that give
         no URDF (:class:`~tocontrol_ros.nodes.params.RobotDescriptionError`).
     """
-    values = robot_from_topic(node, declare_all(node, PARAMETERS))
+    values = declare_all(node, PARAMETERS)
+    if values["link_frames"]:
+        values = robot_from_topic(node, values)
     if values["compression"] not in mcap_io.COMPRESSIONS:
         raise ValueError(f"parameter `compression` must be one of "
                          f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
@@ -337,12 +339,17 @@ class Recorder(Node):
         for topic, type_name, profile in own:
             self.writer.add_topic(topic, type_name, [profile],
                                   mcap_io.installed_type_hash(type_name))
-        now = self.get_clock().now()
-        now_ns = now.nanoseconds
+        # Log times from the system clock, as every received message's; the static frames
+        # stamped by the node's clock, as robot_state_publisher stamps them.
+        now_ns = time.time_ns()
         self.writer.write(link_frames.DESCRIPTION_TOPIC, cdr.serialize_exact(
             String(data=self.config.robot_description)), now_ns)
         self.writer.write(link_frames.TF_STATIC_TOPIC, cdr.serialize_exact(
-            frames.tf_static_message(now.to_msg())), now_ns)
+            frames.tf_static_message(self.get_clock().now().to_msg())), now_ns)
+        if self.config.joint_states_topic not in self.config.topics:
+            self.get_logger().warning(
+                f"joint_states_topic {self.config.joint_states_topic} is not among `topics`: "
+                f"no {link_frames.TF_TOPIC} will be written")
         self.get_logger().info(
             f"writing {link_frames.TF_TOPIC} for {len(frames.moving_joints)} moving joints "
             f"from {self.config.joint_states_topic}, {len(frames.fixed_joints)} fixed joints "
