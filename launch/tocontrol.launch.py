@@ -80,7 +80,8 @@ def _nodes(context):
         nodes.append(Node(package=PACKAGE, executable="recorder", name="recorder",
                           output="screen",
                           parameters=[config + "recorder.yaml",
-                                      {**common, "output": arg["output"]}, *extra]))
+                                      {**robot, **common, "output": arg["output"]},
+                                      *extra]))
     return nodes
 
 

@@ -74,6 +74,27 @@ def assert_first_motion_recorded(recording):
     assert max(gaps) < 1.5 * JS_PERIOD, f"a gap of {max(gaps):.3f} s in the joint states"
 
 
+def assert_watchable(recording, urdf_text=None):
+    """Read by mcap's reader with mcap_ros2's decoder (not the project's): the URDF on
+    /robot_description, /tf_static once, one /tf per joint state with its stamp."""
+    decoder = pytest.importorskip("mcap_ros2.decoder")
+    from tocontrol_ros.core.robot.urdf import default_urdf_path  # noqa: PLC0415
+
+    got = {}
+    with open(recording, "rb") as f:
+        reader = make_reader(f, decoder_factories=[decoder.DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages(
+                topics=["/robot_description", "/tf", "/tf_static", "/joint_states"]):
+            got.setdefault(channel.topic, []).append(msg)
+    want = urdf_text if urdf_text is not None else default_urdf_path().read_text()
+    assert [m.data for m in got["/robot_description"]] == [want]
+    assert len(got["/tf_static"]) == 1
+    assert len(got["/tf"]) == len(got["/joint_states"]) > 0
+    assert [(m.transforms[0].header.stamp.sec, m.transforms[0].header.stamp.nanosec)
+            for m in got["/tf"]] == [(m.header.stamp.sec, m.header.stamp.nanosec)
+                                     for m in got["/joint_states"]]
+
+
 def test_demo_runs_the_whole_pipeline(demo):
     tmp_path, returncode, out = demo
     assert returncode == 0, out[-4000:]
@@ -97,6 +118,7 @@ def test_demo_runs_the_whole_pipeline(demo):
     assert counts.get("/planner/goal", 0) == 1
     assert counts.get("/tracker/status", 0) >= 2
     assert_first_motion_recorded(recordings[0])
+    assert_watchable(recordings[0])
     # The report shows both legs: a figure each, a row each, all on one page.
     report = next(tmp_path.glob("demo-*_report"))
     page = (report / "index.html").read_text()

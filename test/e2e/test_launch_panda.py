@@ -5,12 +5,16 @@
 (the package's YAML, the launch arguments, the user's parameters file), and each becomes a
 process with the same ``--ros-args``. Arguments: ``robot:=panda.urdf``,
 ``controller_action:=/tracker/follow_joint_trajectory``, ``params_file:=`` (the Panda's tip,
-gains and start), ``record:=false``. A goal on ``/planner/goal`` is planned and executed
-through the tracker's action: ``~/status`` reports ``executed``, ``SUCCEEDED``.
+gains and start), ``record:=true``. A goal on ``/planner/goal`` is planned and executed
+through the tracker's action: ``~/status`` reports ``executed``, ``SUCCEEDED``. The recording
+is one you can watch (read by mcap's reader, not the project's): the Panda's URDF on
+``/robot_description``, ``/tf`` at the joint states' rate, ``/tf_static``, and the topics the
+Foxglove layout reads.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -19,6 +23,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 from launch_stubs import launched_nodes, load_launch_file, ros_args
+from mcap.reader import make_reader
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
@@ -71,8 +76,8 @@ def test_launch_with_the_panda_plans_and_executes_a_goal(tmp_path, monkeypatch):
     module = load_launch_file(monkeypatch, share=str(Path(sys.prefix) / "share"))
     nodes = launched_nodes(module, robot=str(urdf), params_file=str(params),
                            controller_action="/tracker/follow_joint_trajectory",
-                           record="false")
-    assert [n["executable"] for n in nodes] == ["planner", "tracker"]
+                           record="true", output=str(tmp_path / "panda.mcap"))
+    assert [n["executable"] for n in nodes] == ["planner", "tracker", "recorder"]
     processes = [NodeProcess(n["executable"], ros_args(n), tmp_path) for n in nodes]
     client = PlannerClient("/planner")
     try:
@@ -105,4 +110,14 @@ def test_launch_with_the_panda_plans_and_executes_a_goal(tmp_path, monkeypatch):
     finally:
         client.close()
         codes = [p.stop() for p in processes]
-    assert codes == [0, 0], [p.log.read_text()[-2000:] for p in processes]
+    assert codes == [0, 0, 0], [p.log.read_text()[-2000:] for p in processes]
+    from test_demo import assert_watchable  # noqa: PLC0415 (test helper module)
+
+    assert_watchable(tmp_path / "panda.mcap", urdf.read_text())
+    layout = json.loads((Path(sys.prefix) / "share/tocontrol_ros/config/"
+                         "foxglove_layout.json").read_text())
+    with open(tmp_path / "panda.mcap", "rb") as f:
+        recorded = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    plotted = {p["value"].split(".")[0] for pid, c in layout["configById"].items()
+               if pid.startswith("Plot!") for p in c["paths"]}
+    assert plotted <= recorded

@@ -1,7 +1,7 @@
 """The recorder as a real process: SIGINT/SIGTERM finish the file, SIGKILL leaves it readable.
 
 The publisher runs in this process at the tracker's joint-state rate; every message it
-published must be in the file.
+published must be in the file, and with it the /tf the recorder computes from each.
 """
 
 import os
@@ -39,15 +39,23 @@ def recorder_command():
     return [sys.executable, "-m", "tocontrol_ros.recorder"], env
 
 
-def stream_messages(path):
-    """Messages readable by a non-seeking reader, up to the first incomplete record."""
+def stream_messages(path, topic=None):
+    """Messages readable by a non-seeking reader, up to the first incomplete record.
+
+    Only those of `topic` if given (the recorder also writes /robot_description and
+    /tf_static at the start).
+    """
     out = []
     if not Path(path).exists():  # not flushed yet
         return out
+    topics = {}
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f).records:
-                if type(record).__name__ == "Message":
+                kind = type(record).__name__
+                if kind == "Channel":
+                    topics[record.id] = record.topic
+                elif kind == "Message" and topic in (None, topics.get(record.channel_id)):
                     out.append(record)
         except Exception:  # noqa: BLE001 (the truncated tail of a killed recording)
             pass
@@ -62,6 +70,7 @@ def test_signals_and_message_count(tmp_path, sig, seconds):
     command, env = recorder_command()
     proc = subprocess.Popen(
         [*command, "--ros-args", "-p", f"output:={out}", "-p", f"topics:=[{topic}]",
+         "-p", f"joint_states_topic:={topic}",
          "-p", "discovery_period:=0.05", "-p", "flush_period:=0.2"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctx = Context()
@@ -78,14 +87,15 @@ def test_signals_and_message_count(tmp_path, sig, seconds):
         count = int(seconds * RATE)
         start = time.monotonic()
         for i in range(count):
-            pub.publish(JointState(name=["j1", "j2", "j3"], position=[i * 1e-3] * 3,
-                                   effort=[float(i)] * 3))
+            pub.publish(JointState(name=["joint1", "joint2", "joint3"],
+                                   position=[i * 1e-3] * 3, effort=[float(i)] * 3))
             time.sleep(max(0.0, start + (i + 1) / RATE - time.monotonic()))
         # Every message in the recorder's subscription, then in the file (flush_period): a
         # loaded machine may take longer than a fixed wait, so the file is read until then.
         assert pub.wait_for_all_acked(RclpyDuration(seconds=20.0))
         deadline = time.monotonic() + 20.0
-        while len(stream_messages(out)) < count and time.monotonic() < deadline:
+        while (len(stream_messages(out, topic)) < count
+               or len(stream_messages(out, "/tf")) < count) and time.monotonic() < deadline:
             assert proc.poll() is None, proc.stdout.read()
             time.sleep(0.1)
         proc.send_signal(sig)
@@ -100,13 +110,15 @@ def test_signals_and_message_count(tmp_path, sig, seconds):
         with open(out, "rb") as f:
             with pytest.raises(Exception):  # noqa: B017 (no summary, no footer)
                 list(make_reader(f).iter_messages())
-        messages = stream_messages(out)
+        messages = stream_messages(out, topic)
+        frames = stream_messages(out, "/tf")
     else:
         assert proc.returncode == 0, output
         channels = mcap_io.read_channels(out)  # uses the summary
-        assert channels[topic].message_count == count, output
-        messages = [r for r in mcap_io.iter_records(out)]
-    assert len(messages) == count, output
+        assert channels[topic].message_count == channels["/tf"].message_count == count, output
+        messages = list(mcap_io.iter_records(out, topics=[topic]))
+        frames = list(mcap_io.iter_records(out, topics=["/tf"]))
+    assert len(messages) == len(frames) == count, output
 
 
 def _reindex_command():
@@ -157,7 +169,7 @@ def test_killed_recording_loses_at_most_the_flush_period_and_reindexes(tmp_path)
             proc.wait()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    kept = stream_messages(out)
+    kept = stream_messages(out, topic)
     assert kept, "nothing in the killed recording"
     # Message i is position [i]: the newest one in the file says what was lost.
     from rclpy.serialization import deserialize_message
@@ -175,16 +187,17 @@ def test_killed_recording_loses_at_most_the_flush_period_and_reindexes(tmp_path)
     done = subprocess.run([*command, str(out), "-o", str(fixed)], env=env,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    assert f"{len(kept)} messages (input cut off" in done.stdout
+    # ... and the recorder's own /robot_description and /tf_static.
+    assert f"{len(kept) + 2} messages (input cut off" in done.stdout
     channels = mcap_io.read_channels(fixed)  # the indexed reader: summary and indexes
     assert channels[topic].message_count == len(kept)
     assert channels[topic].type == "sensor_msgs/msg/JointState"
-    records = list(mcap_io.iter_records(fixed))
+    records = list(mcap_io.iter_records(fixed, topics=[topic]))
     assert [r.data for r in records] == [m.data for m in kept]
     rosbags = pytest.importorskip("rosbags.highlevel")
     with rosbags.AnyReader([fixed]) as reader:
         positions = [reader.deserialize(raw, conn.msgtype).position[0]
-                     for conn, _, raw in reader.messages()]
+                     for conn, _, raw in reader.messages() if conn.topic == topic]
     assert positions == [float(i) for i in range(last + 1)]
     # Never overwrites.
     again = subprocess.run([*command, str(out), "-o", str(fixed)], env=env,

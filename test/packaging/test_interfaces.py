@@ -1,8 +1,9 @@
-"""The control_msgs interfaces built from interfaces/ are the released Jazzy types.
+"""The interface packages built from interfaces/ are the released Jazzy types.
 
 Their type hashes (RIHS01, over field names and types) equal those of a build of the released
 definitions (interfaces/README.md says where they come from): a goal sent to a real
-joint_trajectory_controller, or a real client's goal to the tracker, is the same type.
+joint_trajectory_controller, or a real client's goal to the tracker, is the same type, and a
+recording's /tf is the type that tf2 and the viewers know.
 """
 
 import json
@@ -32,16 +33,18 @@ RELEASED = {
         "RIHS01_c254f9cece0f3b733017b6990fd46d1326e25242d6b8844398c97d9a88e7d648",
     "control_msgs/msg/JointComponentTolerance":
         "RIHS01_739ea7566931944d33830fa10f1bf5e7a7fbdc3172bce7a7eaac642bd6e3ffa4",
+    "tf2_msgs/msg/TFMessage":
+        "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
 }
 
 
-def _built_hashes() -> dict[str, str]:
-    share = Path(sys.prefix) / "share" / "control_msgs"
+def _built_hashes(package: str = "control_msgs") -> dict[str, str]:
+    share = Path(sys.prefix) / "share" / package
     files = sorted(share.glob("*/*.json"))
     if not files:
         if os.environ.get("TOCONTROL_DEV_VENV"):
-            pytest.fail(f"scripts/dev should have built control_msgs into {sys.prefix}")
-        pytest.skip(f"control_msgs is not built into {sys.prefix} (not the pip route)")
+            pytest.fail(f"scripts/dev should have built {package} into {sys.prefix}")
+        pytest.skip(f"{package} is not built into {sys.prefix} (not the pip route)")
     hashes = {}
     for path in files:
         for entry in json.loads(path.read_text())["type_hashes"]:
@@ -50,8 +53,16 @@ def _built_hashes() -> dict[str, str]:
 
 
 def test_built_types_hash_like_the_released_ones():
-    built = _built_hashes()
+    built = {**_built_hashes("control_msgs"), **_built_hashes("tf2_msgs")}
     assert {name: built.get(name) for name in RELEASED} == RELEASED
+
+
+def test_tf_message_hashes_as_an_independent_implementation_says():
+    """rosbags computes RIHS01 itself from its own copy of Jazzy's definitions."""
+    typesys = pytest.importorskip("rosbags.typesys")
+    store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+    name = "tf2_msgs/msg/TFMessage"
+    assert _built_hashes("tf2_msgs")[name] == store.hash_rihs01(name) == RELEASED[name]
 
 
 def test_the_python_types_import():
@@ -60,3 +71,17 @@ def test_the_python_types_import():
 
     assert FollowJointTrajectory.Result.GOAL_TOLERANCE_VIOLATED == -5
     assert hasattr(JointTrajectoryControllerState(), "speed_scaling_factor")
+
+
+def test_tf2_msgs_is_upstream_jazzy_byte_for_byte():
+    """The built TFMessage.msg is ros2/geometry2's (jazzy): a recording's schema text equals
+    the one rosbag2 would write in a ROS install."""
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    share = Path(sys.prefix) / "share" / "tf2_msgs" / "msg" / "TFMessage.msg"
+    if not share.is_file():
+        pytest.skip("tf2_msgs is not built into this prefix (not the pip route)")
+    assert share.read_bytes() == b"geometry_msgs/TransformStamped[] transforms\n"
+    assert isinstance(TFMessage(transforms=[TransformStamped()]).transforms[0],
+                      TransformStamped)

@@ -49,6 +49,7 @@ MODULE_DEPENDENCIES = {
 # take the distribution's package.
 BUILT_INTERFACES = {
     "control_msgs": "control_msgs",
+    "tf2_msgs": "tf2_msgs",
 }
 
 # Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of

@@ -96,7 +96,7 @@ def test_round_trip_byte_for_byte_and_field_by_field(context, tmp_path):
     out = tmp_path / "rt.mcap"
     recorder = Recorder(context=context, parameter_overrides=[
         Parameter("output", value=str(out)), Parameter("topics", value=list(topics)),
-        Parameter("discovery_period", value=0.05)])
+        Parameter("discovery_period", value=0.05), Parameter("link_frames", value=False)])
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     executor.add_node(recorder)
@@ -167,7 +167,7 @@ def test_status_reports_subscriptions_and_first_messages(context, tmp_path):
     recorder = Recorder(context=context, namespace=ns, parameter_overrides=[
         Parameter("output", value=str(tmp_path / "s.mcap")),
         Parameter("topics", value=[js_topic, other]),
-        Parameter("discovery_period", value=0.05)])
+        Parameter("discovery_period", value=0.05), Parameter("link_frames", value=False)])
     node = rclpy.create_node("probe", context=context)
     events = []
     node.create_subscription(DiagnosticStatus, f"{ns}/recorder/status",

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import Point, PointStamped
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -187,3 +187,86 @@ def test_report_default_out_next_to_file(tmp_path, model):
 def test_report_missing_file(tmp_path, capsys):
     assert report.main([str(tmp_path / "nope.mcap")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def _panda_urdf():
+    import sys
+    from pathlib import Path
+
+    for d in sys.path:
+        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
+                "urdf/panda.urdf")
+        if path.is_file():
+            return path
+    pytest.skip("example-robot-data is not installed")
+
+
+def test_spatial_arm_gets_its_end_effector_path_in_3d_against_the_goal(tmp_path, monkeypatch):
+    """The Panda (three task axes): the motion's arm panel is a 3-D axes with the executed and
+    planned end-effector paths and the goal; the URDF comes from the recording itself."""
+    import matplotlib.pyplot as plt
+    from std_msgs.msg import String
+
+    from tocontrol_ros.core.robot.kinematics import link_positions
+
+    urdf = _panda_urdf()
+    model = load_robot(urdf, tip_link="panda_hand")
+    assert model.m == 3
+    names = list(model.joint_names)
+    q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    q1 = np.array([0.9, 0.6, -0.4, -1.5, 0.5, 1.5, -0.2])
+    ts = np.linspace(0.0, T, 21)
+    q = q0 + np.outer(ts / T, q1 - q0)
+    traj = JointTrajectory(header=Header(stamp=_time(T0)), joint_names=names, points=[
+        JointTrajectoryPoint(positions=q[i].tolist(), effort=[0.0] * 7,
+                             time_from_start=Duration(sec=int(t), nanosec=int((t % 1) * 1e9)))
+        for i, t in enumerate(ts)])
+    p_goal = model.point(q1)
+    goal = PointStamped(point=Point(x=float(p_goal[0]), y=float(p_goal[1]),
+                                    z=float(p_goal[2])))
+    path = tmp_path / "panda.mcap"
+    with mcap_io.RecordingWriter(path) as writer:
+        writer.add_topic("/robot_description", "std_msgs/msg/String", [QoSProfile(depth=1)])
+        writer.write("/robot_description", cdr_exact.serialize_exact(
+            String(data=urdf.read_text())), log_time=int(T0 * 1e9) - 5000)
+        for topic, msg in [("/planner/goal", goal), ("/planner/trajectory", traj)]:
+            writer.add_topic(topic, f"{type(msg).__module__.split('.')[0]}/msg/"
+                             f"{type(msg).__name__}", [QoSProfile(depth=1)])
+            writer.write(topic, cdr_exact.serialize_exact(msg), log_time=int(T0 * 1e9) - 1000)
+        writer.add_topic("/joint_states", "sensor_msgs/msg/JointState", [QoSProfile(depth=10)])
+        for t in np.arange(0.0, T + 1e-9, 0.01):
+            qi = np.array([np.interp(t, ts, q[:, j]) for j in range(7)])
+            js = JointState(header=Header(stamp=_time(T0 + t)), name=names,
+                            position=qi.tolist(), effort=[0.0] * 7)
+            writer.write("/joint_states", cdr_exact.serialize_exact(js),
+                         log_time=int((T0 + t) * 1e9))
+    figures = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig) or close(fig))
+    out = tmp_path / "report"
+    # No --urdf: the recording's /robot_description is the arm.
+    assert report.main([str(path), "--out", str(out), "--tip-link", "panda_hand"]) == 0
+    assert (out / "motion_1.png").stat().st_size > 20000
+    (fig,) = [f for f in figures if f is not None]
+    (ax3d,) = [ax for ax in fig.axes if ax.name == "3d"]
+    lines = {line.get_label(): line for line in ax3d.get_lines()}
+    executed = np.array(lines["executed"].get_data_3d()).T
+    want = np.array([link_positions(model, row)[-1] for row in q])
+    np.testing.assert_allclose(executed[0], want[0], atol=1e-9)
+    np.testing.assert_allclose(executed[-1], want[-1], atol=1e-9)
+    assert "planned" in lines
+    (goal_marker,) = [c for c in ax3d.collections if c.get_label() == "goal"]
+    np.testing.assert_allclose(np.array(goal_marker._offsets3d).ravel(), p_goal, atol=1e-12)
+
+
+def test_planar_arm_keeps_its_2d_motion_panel(tmp_path, model, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    figures = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig) or close(fig))
+    path = tmp_path / "run.mcap"
+    write_run(path, model)
+    assert report.main([str(path), "--out", str(tmp_path / "r")]) == 0
+    (fig,) = [f for f in figures if f is not None]
+    assert not [ax for ax in fig.axes if ax.name == "3d"]

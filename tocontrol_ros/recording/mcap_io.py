@@ -18,6 +18,7 @@ buffer, are in ``tocontrol_ros/cdr.py``.)
 """
 
 import importlib
+import json
 import os
 import re
 import sys
@@ -147,6 +148,38 @@ def message_definition(type_name):
         return "".join(parts)
 
     return append(type_name, 50)
+
+
+def installed_type_hash(type_name):
+    """The RIHS01 type hash of an installed message type, as rosidl wrote it at build time.
+
+    Read from ``share/<pkg>/msg/<Type>.json`` (``type_hashes``), for a channel whose
+    messages the recorder makes itself (no publisher announces a hash).
+
+    Parameters
+    ----------
+    type_name : str
+        ``pkg/msg/Type``.
+
+    Returns
+    -------
+    str
+        ``RIHS01_...``, or empty when no installed description names the type.
+    """
+    package, name = _split_type(type_name)
+    full = f"{package}/msg/{name}"
+    for directory in _share_dirs(package):
+        path = directory / "msg" / f"{name}.json"
+        if not path.is_file():
+            continue
+        try:
+            entries = json.loads(path.read_text(encoding="utf-8")).get("type_hashes", [])
+        except (OSError, ValueError):
+            continue
+        for entry in entries:
+            if entry.get("type_name") == full:
+                return str(entry.get("hash_string", ""))
+    return ""
 
 
 # ---------------------------------------------------------------- QoS metadata

@@ -17,6 +17,14 @@ what a volatile publisher sends in between is lost. A program that needs the who
 stream in the file (the demo) waits for that event before it makes the stream's publisher
 act.
 
+With ``link_frames`` (the default) the file also holds what a viewer needs to draw the arm
+moving, as robot_state_publisher would publish it: ``/robot_description`` (the URDF of the
+robot parameters, the same as the planner's and tracker's: ``robot_description``,
+``robot_description_file``, ``robot_description_topic``, ``locked_joints``), ``/tf_static``
+(the fixed joints) once at the start, and one ``/tf`` message per message on
+``joint_states_topic``, with its stamp, computed from its positions
+(:mod:`tocontrol_ros.recording.link_frames`) and written with the same times right after it.
+
 SIGINT and SIGTERM finish the file (last chunk, summary, indexes) after taking what is
 already queued. A process killed outright (``kill -9``) leaves a file without summary and
 indexes that holds every message received up to about ``flush_period`` (0.1 s) before the
@@ -26,14 +34,16 @@ readers and rosbags. The output never overwrites an existing file; an output tha
 written ends the recorder with a one-line error and exit status 2.
 
 Parameters (all read-only; see ``config/recorder.yaml``): ``topics``, ``output``,
-``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``.
+``compression``, ``discovery_period``, ``chunk_size``, ``flush_period``, ``queue_depth``,
+``link_frames``, ``joint_states_topic`` and the robot's.
 """
 
 import argparse
 import signal
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -49,8 +59,19 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros.nodes import qos
-from tocontrol_ros.nodes.params import ParameterSpec, declare_all, parameters_parser
-from tocontrol_ros.recording import mcap_io
+from tocontrol_ros.nodes.params import (
+    LOCKED_JOINTS,
+    ROBOT_DESCRIPTION,
+    ROBOT_DESCRIPTION_FILE,
+    ROBOT_DESCRIPTION_TIMEOUT,
+    ROBOT_DESCRIPTION_TOPIC,
+    ParameterSpec,
+    declare_all,
+    parameters_parser,
+    parse_locked_joints,
+    robot_from_topic,
+)
+from tocontrol_ros.recording import cdr, link_frames, mcap_io
 
 #: Everything the planner and the tracker publish, and their inputs.
 DEFAULT_TOPICS = (
@@ -89,6 +110,14 @@ class RecorderConfig:
         Longest time (s) a received message stays only in memory.
     queue_depth : int
         Subscription history depth (messages): generous, so bursts are not dropped.
+    link_frames : bool
+        Also write ``/robot_description``, ``/tf_static`` and ``/tf``.
+    joint_states_topic : str
+        The recorded topic whose joint states give ``/tf``.
+    robot_description : str
+        The URDF XML (read from the robot parameters; empty without `link_frames`).
+    locked_joints : dict of str to float
+        Positions (rad, m) of moving joints that joint states do not name.
     """
 
     topics: tuple
@@ -98,6 +127,10 @@ class RecorderConfig:
     chunk_size: int
     flush_period: float
     queue_depth: int
+    link_frames: bool = False
+    joint_states_topic: str = "/joint_states"
+    robot_description: str = ""
+    locked_joints: dict = field(default_factory=dict)
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
@@ -116,7 +149,18 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "loses).", 0.01, 60.0, read_only=True),
     ParameterSpec("queue_depth", 1000, "Subscription history depth (messages).", 1, 100000,
                   read_only=True),
+    ParameterSpec("link_frames", True, "Also write /robot_description (the robot "
+                  "parameters' URDF), /tf_static (fixed joints) and /tf (moving joints, one "
+                  "message per joint state on joint_states_topic), as robot_state_publisher "
+                  "publishes them, so that a viewer draws the arm moving.", read_only=True),
+    ParameterSpec("joint_states_topic", "/joint_states", "The recorded sensor_msgs/JointState "
+                  "topic that /tf is computed from (link_frames).", read_only=True),
+    ROBOT_DESCRIPTION, ROBOT_DESCRIPTION_FILE, ROBOT_DESCRIPTION_TOPIC,
+    ROBOT_DESCRIPTION_TIMEOUT, LOCKED_JOINTS,
 )
+#: Topics the recorder writes itself with ``link_frames`` (so not also from the graph).
+OWN_TOPICS = (link_frames.DESCRIPTION_TOPIC, link_frames.TF_STATIC_TOPIC,
+              link_frames.TF_TOPIC)
 
 
 def read_config(node):
@@ -125,9 +169,13 @@ def read_config(node):
     Raises
     ------
     ValueError
-        For a compression name outside none/zstd/lz4 or a relative topic name.
+        For a compression name outside none/zstd/lz4, a relative topic name, with
+        ``link_frames`` a topic it writes itself in ``topics``, or robot parameters that give
+        no URDF (:class:`~tocontrol_ros.nodes.params.RobotDescriptionError`).
     """
     values = declare_all(node, PARAMETERS)
+    if values["link_frames"]:
+        values = robot_from_topic(node, values)
     if values["compression"] not in mcap_io.COMPRESSIONS:
         raise ValueError(f"parameter `compression` must be one of "
                          f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
@@ -136,7 +184,45 @@ def read_config(node):
     if bad or not topics:
         raise ValueError(f"parameter `topics` must list absolute topic names, got {topics!r}")
     values["topics"] = tuple(dict.fromkeys(topics))
+    robot = {name: values.pop(name) for name in (
+        "robot_description", "robot_description_file", "robot_description_topic",
+        "robot_description_timeout", "locked_joints")}
+    values["locked_joints"] = parse_locked_joints(robot["locked_joints"])
+    if values["link_frames"]:
+        clash = sorted(set(topics) & set(OWN_TOPICS))
+        if clash:
+            raise ValueError(f"parameter `topics` names {clash}, which the recorder writes "
+                             f"itself with `link_frames`: drop them or set link_frames false")
+        values["robot_description"] = robot_urdf(robot["robot_description"],
+                                                 robot["robot_description_file"])
     return RecorderConfig(**values)
+
+
+def robot_urdf(description, description_file):
+    """The URDF XML of the robot parameters, as the nodes read it (the bundled arm if empty).
+
+    Raises
+    ------
+    RobotDescriptionError
+        Both given, a description that is not XML, or a file that cannot be read.
+    """
+    from tocontrol_ros.core.robot.urdf import default_urdf_path
+    from tocontrol_ros.nodes.params import RobotDescriptionError
+
+    text, path = description.strip(), description_file.strip()
+    if text and path:
+        raise RobotDescriptionError("set `robot_description` or `robot_description_file`, "
+                                    "not both")
+    if not text:
+        source = Path(path) if path else default_urdf_path()
+        try:
+            text = source.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RobotDescriptionError(f"`robot_description_file` {str(source)!r} cannot be "
+                                        f"read: {exc}") from None
+    if not text.lstrip().startswith("<"):
+        raise RobotDescriptionError("`robot_description` must be URDF XML (starting with '<')")
+    return text
 
 
 def subscription_qos(offered, depth):
@@ -169,6 +255,10 @@ class Recorder(Node):
     def __init__(self, writer=None, **kwargs):
         super().__init__("recorder", **kwargs)
         self.config = read_config(self)
+        # Built before the file is opened: a URDF the core cannot read leaves no file.
+        frames = (link_frames.LinkFrames(self.config.robot_description,
+                                         self.config.locked_joints)
+                  if self.config.link_frames else None)
         if writer is None:
             path = self.config.output or str(mcap_io.default_output_path())
             writer = mcap_io.RecordingWriter(
@@ -183,6 +273,7 @@ class Recorder(Node):
         self._status(DiagnosticStatus.OK, f"recording {len(self.config.topics)} topics to "
                      f"{self.writer.path}", event="started", output=str(self.writer.path),
                      topics=",".join(self.config.topics))
+        self._frames = None if frames is None else self._start_link_frames(frames)
         self.create_timer(self.config.discovery_period, self.discover)
         # Checked twice per period: a message waits at most about one period.
         self.create_timer(self.config.flush_period / 2, self.writer.flush_if_due)
@@ -232,13 +323,55 @@ class Recorder(Node):
             self._status(DiagnosticStatus.OK, f"subscribed to {topic} ({type_name})",
                          event="subscribed", topic=topic, type=type_name)
 
+    def _start_link_frames(self, frames):
+        """Add the robot's topics; write ``/robot_description`` and ``/tf_static`` now.
+
+        Returns the function that writes ``/tf`` for a joint state's CDR bytes.
+        """
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
+
+        own = ((link_frames.DESCRIPTION_TOPIC, link_frames.DESCRIPTION_TYPE,
+                link_frames.QOS_DESCRIPTION),
+               (link_frames.TF_STATIC_TOPIC, link_frames.TF_TYPE, link_frames.QOS_TF_STATIC),
+               (link_frames.TF_TOPIC, link_frames.TF_TYPE, link_frames.QOS_TF))
+        for topic, type_name, profile in own:
+            self.writer.add_topic(topic, type_name, [profile],
+                                  mcap_io.installed_type_hash(type_name))
+        # Log times from the system clock, as every received message's; the static frames
+        # stamped by the node's clock, as robot_state_publisher stamps them.
+        now_ns = time.time_ns()
+        self.writer.write(link_frames.DESCRIPTION_TOPIC, cdr.serialize_exact(
+            String(data=self.config.robot_description)), now_ns)
+        self.writer.write(link_frames.TF_STATIC_TOPIC, cdr.serialize_exact(
+            frames.tf_static_message(self.get_clock().now().to_msg())), now_ns)
+        if self.config.joint_states_topic not in self.config.topics:
+            self.get_logger().warning(
+                f"joint_states_topic {self.config.joint_states_topic} is not among `topics`: "
+                f"no {link_frames.TF_TOPIC} will be written")
+        self.get_logger().info(
+            f"writing {link_frames.TF_TOPIC} for {len(frames.moving_joints)} moving joints "
+            f"from {self.config.joint_states_topic}, {len(frames.fixed_joints)} fixed joints "
+            f"on {link_frames.TF_STATIC_TOPIC}")
+        write = self.writer.write
+
+        def on_joint_state(data, received, source):
+            tf = frames.tf_message(deserialize_message(bytes(data), JointState))
+            write(link_frames.TF_TOPIC, cdr.serialize_exact(tf), received, source)
+
+        return on_joint_state
+
     def _callback(self, topic):
         write = self.writer.write
+        frames = self._frames if topic == self.config.joint_states_topic else None
 
         def on_message(data, info):
             received = info.get("received_timestamp") or time.time_ns()
             source = info.get("source_timestamp") or received
             write(topic, data, received, source, info.get("publication_sequence_number") or 0)
+            if frames is not None:
+                frames(data, received, source)
             if topic not in self._first_seen:
                 self._first_seen.add(topic)
                 self._status(DiagnosticStatus.OK, f"first message on {topic} written",

@@ -8,8 +8,10 @@ named after the file, next to it):
   its execution on the tracker if there was one): the planned controls
   ``u_i = tau_i / tau_max_i`` against ``time_from_start`` (the paper's Figures 2 and 3), the
   applied controls from ``/joint_states`` effort with the planned ones dashed, the arm at
-  snapshots with the executed and planned end-effector paths (Figure 4), and the tracking
-  error ``/tracker/tracking_error`` against time;
+  snapshots with the executed and planned end-effector paths (Figure 4; for a spatial arm,
+  one whose task has three axes, a 3-D view of the executed and planned end-effector paths
+  against the goal of the motion, the last ``/planner/goal`` before its plan, with the arm at
+  the start and the end), and the tracking error ``/tracker/tracking_error`` against time;
 - ``summary.txt``: the run (k, joints, torque limits) and a table, one row per motion: T,
   planned and applied max ``|u_i|``, final end-effector error, time saturated, outcome;
 - ``index.html``: the table and every figure, one page to open in a browser.
@@ -19,8 +21,9 @@ trajectory's size) up to its completed or preempted summary, whose figures (fina
 end-effector error, saturated fraction) the table shows; its joint states are those stamped
 from its start to the next execution's start (or 0.3 s after its end). A recording without
 tracker status (another tracker) gets one execution, all joint states, for the last plan.
-The torque limits come from the URDF (``--urdf``; default the bundled arm); the joint order
-from the messages' names.
+The torque limits come from the URDF (``--urdf``; default the recording's
+``/robot_description``, else the bundled arm; ``--tip-link`` for an arm with several leaf
+links); the joint order from the messages' names.
 """
 
 import argparse
@@ -41,6 +44,7 @@ GOAL = "/planner/goal"
 JOINT_STATES = "/joint_states"
 TRACKING_ERROR = "/tracker/tracking_error"
 TRACKER_STATUS = "/tracker/status"
+ROBOT_DESCRIPTION = "/robot_description"
 TOPICS = (TRAJECTORY, PLANNER_STATUS, GOAL, JOINT_STATES, TRACKING_ERROR, TRACKER_STATUS)
 #: |u_i| at or above this counts as saturated (the tracker clips to |u_i| <= 1).
 SATURATION = 0.999
@@ -62,6 +66,7 @@ class Run:
     tracker_status: list = field(default_factory=list)  # (log time ns, DiagnosticStatus)
     goal: object = None  # the last PointStamped
     goals: list = field(default_factory=list)  # every goal point (x, y, z), in order
+    goal_times: list = field(default_factory=list)  # their log times (ns)
     js_t: list = field(default_factory=list)  # stamp (s)
     js_q: list = field(default_factory=list)
     js_effort: list = field(default_factory=list)
@@ -134,6 +139,7 @@ def load_run(path, joint_names=None):
         elif record.topic == GOAL:
             run.goal = msg
             run.goals.append((msg.point.x, msg.point.y, msg.point.z))
+            run.goal_times.append(record.log_time)
         elif record.topic == JOINT_STATES:
             if not run.joint_names:
                 run.joint_names = list(msg.name)
@@ -349,6 +355,54 @@ def _plot_motion(ax, model, q, q_nom):
     ax.legend(fontsize="small")
 
 
+def motion_goal(run, motion):
+    """The goal point (3,) (m) of a motion: the last goal logged before its plan, or None.
+
+    Plans served on the service (no goal message) have none unless an earlier goal was sent.
+    """
+    if motion.trajectory is None or not run.goals:
+        return None
+    planned = run.trajectories[motion.index - 1][0]
+    before = [g for g, t in zip(run.goals, run.goal_times, strict=True) if t <= planned]
+    return np.array(before[-1], dtype=float) if before else None
+
+
+def _plot_motion_3d(ax, model, q, q_nom, goal):
+    """The end effector's executed and planned paths against the goal, in 3-D (m)."""
+    points = []
+    for k, shade, label in ((0, "0.7", "arm at start"), (-1, "0.3", "arm at end")):
+        if len(q):
+            pts = link_positions(model, q[k])
+            ax.plot(pts[:, 0], pts[:, 1], pts[:, 2], "-o", color=shade, ms=2, lw=1.2,
+                    label=label)
+            points.append(pts)
+    if len(q):
+        tip = np.array([link_positions(model, qk)[-1] for qk in q])
+        ax.plot(tip[:, 0], tip[:, 1], tip[:, 2], color="C3", lw=1.8, label="executed")
+        points.append(tip)
+    if q_nom is not None:
+        tip_nom = np.array([link_positions(model, qk)[-1] for qk in q_nom])
+        ax.plot(tip_nom[:, 0], tip_nom[:, 1], tip_nom[:, 2], "--", color="C0", lw=1.2,
+                label="planned")
+        points.append(tip_nom)
+    if goal is not None:
+        ax.scatter([goal[0]], [goal[1]], [goal[2]], marker="x", s=80, color="C2",
+                   label="goal")
+        points.append(goal[None, :])
+    if points:
+        allp = np.vstack(points)
+        centre = 0.5 * (allp.max(axis=0) + allp.min(axis=0))
+        half = max(0.5 * float(np.max(allp.max(axis=0) - allp.min(axis=0))), 1e-3)
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_zlim(centre[2] - half, centre[2] + half)
+        ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.legend(fontsize="x-small", loc="upper left")
+
+
 def plot_motion(plt, run, motion, row, model, tau_max, names, path):
     """The four panels of one motion, saved to `path`."""
     fig, axs = plt.subplots(2, 2, figsize=FIGSIZE)
@@ -387,8 +441,14 @@ def plot_motion(plt, run, motion, row, model, tau_max, names, path):
         for ax in (axs[0, 1], axs[1, 1]):
             ax.set_title("Not executed in this recording")
             ax.axis("off")
-    _plot_motion(axs[1, 0], model, q, q_nom)
-    axs[1, 0].set_title("Motion of the arm")
+    if model.m == 3:
+        axs[1, 0].remove()
+        ax3d = fig.add_subplot(2, 2, 3, projection="3d")
+        _plot_motion_3d(ax3d, model, q, q_nom, motion_goal(run, motion))
+        ax3d.set_title("End effector against the goal (3-D)")
+    else:
+        _plot_motion(axs[1, 0], model, q, q_nom)
+        axs[1, 0].set_title("Motion of the arm")
     cells = dict(zip(TABLE_HEADER, _cells(row), strict=True))
     fig.suptitle(f"Motion {motion.index}: T = {cells['T (s)']} s, final end-effector error "
                  f"{cells['final EE error (m)']} m, saturated {cells['saturated (%)']} %, "
@@ -489,8 +549,23 @@ def build_parser():
                         help="output folder (default: FILE without .mcap, plus _report)")
     parser.add_argument("--urdf", type=Path, default=None, metavar="PATH",
                         help="URDF of the arm, for torque limits and drawing (default: the "
-                        "bundled arm)")
+                        "recording's /robot_description, else the bundled arm)")
+    parser.add_argument("--tip-link", default=None, metavar="LINK",
+                        help="the arm's tip link, as the planner's tip_link (default: the "
+                        "URDF's only leaf link)")
     return parser
+
+
+def recorded_urdf(path):
+    """The URDF XML of a recording's first ``/robot_description`` message, or None."""
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
+
+    if ROBOT_DESCRIPTION not in mcap_io.read_channels(path):
+        return None
+    for record in mcap_io.iter_records(path, topics=[ROBOT_DESCRIPTION]):
+        return deserialize_message(record.data, String).data
+    return None
 
 
 def main(argv=None):
@@ -503,7 +578,8 @@ def main(argv=None):
 
     out = args.out or args.file.with_name(args.file.stem + "_report")
     try:
-        model = load_robot(args.urdf or default_urdf_path())
+        source = args.urdf or recorded_urdf(args.file) or default_urdf_path()
+        model = load_robot(source, **({"tip_link": args.tip_link} if args.tip_link else {}))
         written = write_report(args.file, out, model)
     except (ValueError, OSError) as err:
         print(f"report: {err}", file=sys.stderr)

@@ -11,7 +11,8 @@ import math
 
 import numpy as np
 
-__all__ = ["axis_rotation", "joint_transform", "link_positions", "tip_pose", "tip_poses"]
+__all__ = ["axis_rotation", "joint_transform", "link_positions", "quaternion_from_matrix",
+           "tip_pose", "tip_poses"]
 
 
 def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -21,15 +22,47 @@ def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
+def quaternion_from_matrix(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion ``(x, y, z, w)``, shape (4,), of a rotation matrix, shape (3, 3).
+
+    Shepperd's method (the largest of the four squared components first, so no division by
+    a small number); ``w >= 0``.
+    """
+    m = np.asarray(rotation, dtype=float)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > max(m[0, 0], m[1, 1], m[2, 2]):
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s,
+             0.25 * s]
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+        q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s,
+             (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
+        q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s,
+             (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s,
+             (m[1, 0] - m[0, 1]) / s]
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
 def joint_transform(body, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (3, 3) and translation (3,) (m) of a :class:`Body` in its parent's frame.
 
     Parameters
     ----------
-    body : Body
+    body : Body or JointFrame
+        A fixed joint (``kind == "fixed"``) ignores `q`.
     q : float
         The joint's position (rad or m).
     """
+    if body.kind == "fixed":
+        return body.rotation, body.translation
     if body.kind == "prismatic":
         return body.rotation, body.translation + body.rotation @ body.axis * q
     return body.rotation @ axis_rotation(body.axis, q), body.translation

@@ -23,8 +23,8 @@ import numpy as np
 from tocontrol_ros.core.errors import ModelError
 from tocontrol_ros.core.robot.kinematics import axis_rotation
 
-__all__ = ["Body", "Chain", "MOVING_TYPES", "chain_from_urdf", "default_urdf_path",
-           "read_urdf"]
+__all__ = ["Body", "Chain", "JointFrame", "MOVING_TYPES", "chain_from_urdf",
+           "default_urdf_path", "joint_frames", "read_urdf"]
 
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 #: Lumped bodies lighter than this (kg) count as "no inertia".
@@ -304,6 +304,89 @@ class _Tree:
                 poses[j.child] = (rot_l @ r, pos_l + rot_l @ p)
                 stack.append(j.child)
         return poses
+
+
+@dataclass(frozen=True)
+class JointFrame:
+    """One joint of a whole URDF tree: where its child link sits on its parent link.
+
+    What robot_state_publisher needs to broadcast the link frames (``/tf``, ``/tf_static``);
+    :func:`tocontrol_ros.core.robot.kinematics.joint_transform` gives the child's frame in
+    the parent's at a joint position.
+
+    Attributes
+    ----------
+    joint : str
+        Name of the URDF joint.
+    kind : str
+        ``"fixed"``, ``"revolute"`` (also for URDF ``continuous``) or ``"prismatic"``.
+    parent, child : str
+        The joint's parent and child links.
+    rotation, translation : ndarray, shape (3, 3) and (3,)
+        The joint's ``<origin>`` in the parent link's frame (m).
+    axis : ndarray, shape (3,)
+        Unit joint axis in the joint frame (``[1, 0, 0]`` for a fixed joint).
+    rest : float
+        Position (rad, m) for a moving joint that no joint state names: 0, moved into the
+        position limits if 0 is outside them (as a joint locked below the tip).
+    """
+
+    joint: str
+    kind: str
+    parent: str
+    child: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    axis: np.ndarray
+    rest: float
+
+
+def joint_frames(source) -> tuple[JointFrame, ...]:
+    """Every fixed and moving joint of a URDF, parents before children.
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        URDF XML or the path of a URDF file.
+
+    Returns
+    -------
+    tuple of JointFrame
+        In tree order from the root link(s). Joints of other types (``floating``,
+        ``planar``) are left out, as robot_state_publisher leaves them to other
+        broadcasters.
+
+    Raises
+    ------
+    ModelError
+        A URDF that cannot be parsed, a link with two parents, an axis of zero length.
+    """
+    robot, label = read_urdf(source)
+    tree = _Tree(robot, label)
+    roots = [name for name in tree.links if name not in tree.parent_joint]
+    out = []
+    stack = list(reversed(roots))
+    while stack:
+        link = stack.pop()
+        for j in reversed(tree.children[link]):
+            stack.append(j.child)
+        for j in tree.children[link]:
+            if j.type not in MOVING_TYPES + ("fixed",):
+                continue
+            rot, pos = _origin(j.origin)
+            if j.type == "fixed":
+                out.append(JointFrame(j.name, "fixed", j.parent, j.child, rot, pos,
+                                      np.array([1.0, 0.0, 0.0]), 0.0))
+                continue
+            lim = j.limit
+            lo = -math.inf if lim is None or lim.lower is None or j.type == "continuous" \
+                else float(lim.lower)
+            hi = math.inf if lim is None or lim.upper is None or j.type == "continuous" \
+                else float(lim.upper)
+            kind = "prismatic" if j.type == "prismatic" else "revolute"
+            out.append(JointFrame(j.name, kind, j.parent, j.child, rot, pos, _joint_axis(j),
+                                  float(min(max(0.0, lo), hi))))
+    return tuple(out)
 
 
 def _joint_motion(j, value: float) -> tuple[np.ndarray, np.ndarray]:
