@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[2]
 # Not `importorskip("ray")`: --ray local must be the first to import ray (batch/ray_backend.py).
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(importlib.util.find_spec("ray") is None,
-                                 reason="ray is not installed (pip install '.[ray]')")]
+                                 reason="missing: ray (pip install '.[test]')")]
 RAY_PROCESSES = ("gcs_server", "raylet", "ray::")
 
 
