@@ -179,8 +179,14 @@ def test_executes_a_trajectory_and_reports(harness, model):
     assert float(values["max_error.joint3"]) < 1e-3
     assert float(values["saturated_fraction"]) == 0.0
     assert float(values["duration"]) == pytest.approx(1.0)
-    # Then it holds the final configuration.
-    time.sleep(0.2)
+    # Then it holds the final configuration: the states of one more simulated second.
+    def stamp(msg):
+        return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+    with harness.lock:
+        done_at = stamp(harness.joint_states[-1])
+    harness.wait(lambda: stamp(harness.joint_states[-1]) >= done_at + 1.0,
+                 "a simulated second of holding", timeout=HANG)
     with harness.lock:
         last = harness.joint_states[-1]
         errors = list(harness.errors)
