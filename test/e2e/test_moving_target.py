@@ -86,8 +86,7 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
             finals = [s for s in client.status_list()[since:]
                       if s.event in ("solved", "failed", "superseded", "cancelled")]
             return finals if len(finals) >= count else None
-        # A bound that only catches a hang: 50 solves in turn on a loaded machine.
-        finals = client.wait_for(answered, 600.0, "an outcome for every goal")
+        finals = client.wait_for(answered, 180.0, "an outcome for every goal")
 
         def settled(goal, what):
             # The arm at rest at the goal: the last trajectory (the one for that goal) ran to
