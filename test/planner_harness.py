@@ -270,8 +270,12 @@ def path_end(path: Path) -> tuple[float, float, float]:
     return (p.x, p.y, p.z)
 
 
-def goal_storm(client: PlannerClient, count: int, x0: float, period: float = 0.018):
+def goal_storm(client: PlannerClient, count: int, x0: float, period: float = 0.018,
+               then=None):
     """Send ``count`` goals, one every ``period`` s, along x from ``x0``; wait for the last.
+
+    ``then(since, last)``, if given, runs once all are sent, before the wait (``last``: the
+    last goal's ``target`` value), e.g. to open a gate that holds the solves.
 
     Returns
     -------
@@ -291,6 +295,8 @@ def goal_storm(client: PlannerClient, count: int, x0: float, period: float = 0.0
         time.sleep(max(0.0, t0 + (i + 1) * period - time.monotonic()))
     sent = time.monotonic() - t0
     last = target_key((x0 + 0.002 * (count - 1), 1.5))
+    if then is not None:
+        then(since, last)
     status = client.final_status(since, 90.0, match=lambda s: s.values.get("target") == last)
     return since, sent, status, time.monotonic() - t0
 

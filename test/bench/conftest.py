@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from skip_policy import missing
 
 # The repository, for bench/ (not installed), last: tocontrol_ros stays the installed one.
 sys.path.append(str(Path(__file__).resolve().parents[2]))
@@ -16,5 +17,5 @@ def panda():
 
     found = robots().get("Panda")
     if found is None:
-        pytest.skip("example-robot-data is not installed")
+        missing("example-robot-data (pip install '.[test]')")
     return found

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from skip_policy import missing
 
 from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.planning.solver import SolverOptions, plan
@@ -176,7 +177,7 @@ def robot_specs(request) -> dict:
 
 def _load(specs: dict, name: str):
     if name not in specs:
-        pytest.skip(f"{name}: URDF not installed (example-robot-data)")
+        missing(f"the {name} URDF of example-robot-data (pip install '.[test]')")
     return load_robot(specs[name]["source"], **specs[name]["kwargs"])
 
 

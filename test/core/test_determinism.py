@@ -34,6 +34,7 @@ from tocontrol_ros.core.planning.solver import SolverOptions, plan
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from plan_probe import fingerprint, problem_of  # noqa: E402
+from skip_policy import missing
 
 PROBE = Path(__file__).resolve().parent / "plan_probe.py"
 
@@ -86,7 +87,7 @@ def _run_probe(case: str, urdf: str | None, burners: int) -> dict:
 
 def _panda_urdf(robot_specs) -> str:
     if "panda" not in robot_specs:
-        pytest.skip("panda: URDF not installed (example-robot-data)")
+        missing("the Panda URDF of example-robot-data (pip install '.[test]')")
     return str(robot_specs["panda"]["source"])
 
 

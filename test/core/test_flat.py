@@ -359,13 +359,28 @@ def test_torques_between_samples_are_brought_inside_the_set(panda):
                    -1.2204077330213567, -0.8281207701729179, 1.6282500082433669,
                    -2.552027336517661])
     target = np.array([0.5091020144428229, 0.23647708130297732, 0.14495267618112728])
+    from tocontrol_ros.core.direct import limited
+
     problem = Problem(panda, joint_state(q0, np.zeros(7)), point(target), k=4.0)
-    res, padded = _plan_recording_pad_solves(problem, replace(OPTIONS, starts=4,
-                                                              candidates=1))
+    stretched = []
+    real_stretched = limited._stretched
+
+    def recorded(*args, **kwargs):
+        out = real_stretched(*args, **kwargs)
+        stretched.append(out is not None)
+        return out
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(limited, "_stretched", recorded)
+        res, padded = _plan_recording_pad_solves(problem, replace(OPTIONS, starts=4,
+                                                                  candidates=1))
     assert res.success, res.message
     assert res.certificate.passed and res.method == "direct"
-    widened = [warm for _, warm, _ in padded]
-    assert all(warm == "resume" for warm in widened), widened
+    # Here the slowed-down path suffices (the solver is deterministic): no re-solve with a
+    # wider pad. (That those start from the higher barrier, warm="resume", and converge is
+    # test_a_moving_start_pads_its_set_without_crawling's case.)
+    assert True in stretched, stretched
+    assert padded == [], [(spans, warm, out.success) for spans, warm, out in padded]
 
 
 def test_a_moving_start_pads_its_set_without_crawling(panda):
@@ -411,8 +426,10 @@ def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
     res, padded = _plan_recording_pad_solves(problem, OPTIONS)
     assert res.success and res.certificate.passed, res.message
     solves = [(warm, out.success) for _, warm, out in padded]
-    if any(warm == "resume" and not ok for warm, ok in solves):  # as in the benchmark
-        assert ("restart", True) in solves, solves
+    # The premise, as in the benchmark (the solver is deterministic): a resumed re-solve
+    # fails; then one from the default start succeeds.
+    assert ("resume", False) in solves, solves
+    assert ("restart", True) in solves, solves
 
 
 def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):

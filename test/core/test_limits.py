@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from skip_policy import missing
 
 from tocontrol_ros.core.direct.collocation import DirectCollocation, initial_path
 from tocontrol_ros.core.errors import ProblemError
@@ -384,7 +385,7 @@ def test_a_gripper_below_the_tip_is_locked_without_being_named(robot_specs):
     from tocontrol_ros.core.robot.model import load_robot
 
     if "panda" not in robot_specs:
-        pytest.skip("example-robot-data is not installed")
+        missing("example-robot-data (pip install '.[test]')")
     source = robot_specs["panda"]["source"]
     model = load_robot(source, tip_link="panda_hand")
     assert model.n == 7

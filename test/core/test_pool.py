@@ -107,6 +107,7 @@ def test_a_worker_that_dies_is_replaced_by_the_caller(galicki):
                                             [(x,) for x in range(40)])}
             if len(pids) > 1:
                 break
+        assert len(pids) > 1, "the worker never took an item: only the caller would be tested"
         ctx = _ctx(galicki, caller_pid=os.getpid())
         caller = _Prepared(galicki)
         caller.pid = os.getpid()
@@ -145,15 +146,31 @@ def test_two_workers_plan_what_one_plans(galicki):
 
 
 SIGINT_SCRIPT = """
-import os, signal, sys, time
+import os, signal, sys, threading, time
 signal.signal(signal.SIGINT, lambda *_: None)  # a handler of its own, as the nodes have
 from tocontrol_ros.core.planning.pool import WorkerPool
 import test_pool
+served = threading.Event()
+
+def ctrl_c():
+    # Ctrl-C to the group again and again, from the workers' start until one has served an
+    # item: some land while it imports its modules, whatever the machine's speed.
+    while not served.is_set():
+        os.killpg(0, signal.SIGINT)
+        time.sleep(0.005)
+
+sender = threading.Thread(target=ctrl_c)
 pool = WorkerPool(2, test_pool._Prepared)
-time.sleep(0.1)  # the worker is starting: importing its modules
-os.killpg(0, signal.SIGINT)  # Ctrl-C to the group
+sender.start()
 model = test_pool._model()
-time.sleep(0.5)
+deadline = time.monotonic() + 120.0
+pids = set()
+while not pids - {os.getpid()} and time.monotonic() < deadline:
+    pids = {pid for _, pid in pool.map(test_pool._square, test_pool._Prepared(model),
+                                       test_pool._ctx(model), [(x,) for x in range(40)])}
+served.set()
+sender.join()
+assert pids - {os.getpid()}, "the worker never took an item"
 assert all(p.is_alive() for p in pool._procs), "a worker died of the SIGINT"
 out = [v for v, _ in pool.map(test_pool._square, test_pool._Prepared(model),
                               test_pool._ctx(model), [(x,) for x in range(20)])]

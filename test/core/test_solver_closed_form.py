@@ -85,10 +85,12 @@ RTOL = 1e-7
 # Rest to rest.
 Q0 = np.array([0.3, -0.4])
 DISPLACEMENT = np.array([0.8, -0.5])  # m
+# raises=AssertionError: a crash is not the expected failure (`res.success` is False).
 REST_TO_REST_XFAIL = pytest.mark.xfail(
-    strict=True, reason="all switching functions vanish together at T/2, where the control "
-    "law (15) is 0/0; RK4 evaluates it exactly there (T/2 is always a stage point of the "
-    "uniform initial mesh), so the discrete shooting equations are discontinuous at the "
+    strict=True, raises=AssertionError,
+    reason="all switching functions vanish together at T/2, where the control law (15) is "
+    "0/0; RK4 evaluates it exactly there (T/2 is always a stage point of the uniform "
+    "initial mesh), so the discrete shooting equations are discontinuous at the "
     "root and Newton stalls at a residual of about 5e-3 at k = 1")
 
 # Moving start: S(t) = S_T + R (T - t); S_1 changes sign at t = 0.7 s, S_2 at t = 0.8 s.

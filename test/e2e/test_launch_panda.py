@@ -27,6 +27,7 @@ from mcap.reader import make_reader
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
+from skip_policy import missing
 
 from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.nodes import qos
@@ -66,7 +67,7 @@ def _panda_urdf() -> Path:
                 "urdf/panda.urdf")
         if path.is_file():
             return path
-    pytest.skip("example-robot-data is not installed")
+    missing("example-robot-data (pip install '.[test]')")
 
 
 def test_launch_with_the_panda_plans_and_executes_a_goal(tmp_path, monkeypatch):

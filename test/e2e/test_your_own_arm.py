@@ -22,6 +22,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
+from skip_policy import missing
 
 from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.nodes import qos
@@ -48,7 +49,7 @@ def _panda_urdf() -> Path:
                 "urdf/panda.urdf")
         if path.is_file():
             return path
-    pytest.skip("example-robot-data is not installed")
+    missing("example-robot-data (pip install '.[test]')")
 
 
 def _tracker_statuses(context, seen: list, until, timeout: float) -> bool:

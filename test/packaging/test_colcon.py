@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from skip_policy import missing
 
 PACKAGE = "tocontrol_ros"
 
@@ -52,7 +53,8 @@ def colcon(tmp_path_factory, repo):
         timeout=600,
     )
     if proc.returncode != 0:
-        pytest.skip(f"colcon could not be installed here: {proc.stderr.strip()[-800:]}")
+        missing("colcon: pip could not install test/packaging/colcon-requirements.txt: "
+                f"{proc.stderr.strip()[-800:]}")
     return venv / "bin" / "colcon"
 
 

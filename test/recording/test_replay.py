@@ -200,11 +200,17 @@ def test_replay_waits_for_a_subscriber_that_comes_late(context, tmp_path):
     topic = unique("/planner/trajectory")
     path = tmp_path / "run.mcap"
     write_stream(path, [0.0, 50.0, 100.0], topic=topic)  # volatile, reliable
-    proc = _replay([str(path), "--no-keys"])
+    # A generous wait for subscribers: the late one comes once the replay's publisher is
+    # seen, however long a loaded machine takes (the default 10 s only bounds a hang here).
+    proc = _replay([str(path), "--no-keys", "--wait-for-subscribers", "120"])
     try:
-        time.sleep(3.0)  # the replay process is up and waiting by now
-        assert proc.poll() is None, proc.communicate()[0]
         node = rclpy.create_node("late_subscriber", context=context)
+        # The replay process is up and waiting: its publisher is in the graph (an event).
+        deadline = time.monotonic() + 120.0
+        while node.count_publishers(topic) == 0 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()[0]
+            time.sleep(0.05)
+        assert node.count_publishers(topic) == 1, "the replay never advertised its topic"
         got = []
         node.create_subscription(JointState, topic, lambda m: got.append(m.position[0]),
                                  RELIABLE)

@@ -25,6 +25,7 @@ from planner_harness import (
 )
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
+from solve_gate import SolveGate
 
 from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.robot import compiled
@@ -68,6 +69,29 @@ class Running:
         self.executor.shutdown(timeout_sec=2.0)
         rclpy.try_shutdown(context=self.context)
         self.thread.join(timeout=2.0)
+
+
+class PublishedAtTheNode:
+    """The trajectories each planner node published, counted at the node (a test hook on
+    PlannerOutputs.trajectory). Once a request's final status is in, its count is final:
+    the worker publishes before it reports, whereas what DDS delivered so far is a race."""
+
+    def __init__(self, monkeypatch):
+        from tocontrol_ros.nodes import planner_outputs
+
+        self._by = {}
+        real = planner_outputs.PlannerOutputs.trajectory
+
+        def trajectory(outputs, sample, stamp_ns):
+            msg = real(outputs, sample, stamp_ns)
+            if msg is not None:
+                self._by.setdefault(id(outputs), []).append(msg)
+            return msg
+
+        monkeypatch.setattr(planner_outputs.PlannerOutputs, "trajectory", trajectory)
+
+    def of(self, node) -> list:
+        return list(self._by.get(id(node.service.out), []))
 
 
 @contextlib.contextmanager
@@ -185,26 +209,46 @@ def test_goal_topic_from_joint_state(planner, client):
     np.testing.assert_allclose(msg.points[-1].velocities, 0.0, atol=1e-6)
 
 
-def test_goal_plans_from_a_joint_state_received_after_it(planner, client):
+def test_goal_plans_from_a_joint_state_received_after_it(planner, client, monkeypatch):
     """A joint state that arrives just after the goal (within FRESH_STATE_WAIT) is the start:
-    a goal is not planned from a state still queued, or older, while the arm moves."""
-    from tocontrol_ros.nodes.planner import FRESH_STATE_WAIT
+    a goal is not planned from a state still queued, or older, while the arm moves.
+
+    The order is the test's: the new state is sent once the node is waiting for a state
+    fresher than the goal (a test hook on LatestMessage.newest), and that wait, normally
+    FRESH_STATE_WAIT, is made long enough for any machine's DDS delivery."""
+    from tocontrol_ros.nodes import latest_message, planner_outputs
 
     names = ["joint1", "joint2", "joint3"]
     old_q, new_q = np.array([0.2, 1.1, -0.4]), np.array([0.25, 1.05, -0.35])
     qd = np.array([0.5, -0.5, 0.5])
+    joint_states = planner.node._joint_states
     client.wait_subscribed(client.joint_pub)
     client.wait_subscribed(client.goal_pub)
     # The previous test's motion (from old_q) over: this goal is not a replan of it.
     client.wait_motion_over()
-    for _ in range(5):
+    assert all(r.successful for r in client.set_parameters(joint_state_timeout=HANG))
+    try:
         client.send_joint_state(names, old_q, qd)
-        time.sleep(0.02)
-    since = len(client.status_list())
-    client.send_goal((2.0, 2.0))
-    time.sleep(FRESH_STATE_WAIT / 4)
-    client.send_joint_state(names, new_q, qd)
-    status = client.final_status(since, 60.0)
+        # The old state is the node's newest before the goal is sent.
+        client.wait_for(lambda: (lambda m: m is not None and close(m.position, old_q, 0.0))(
+            joint_states.newest(0, HANG, 0.0)), HANG, "the old joint state at the node")
+        waiting = threading.Event()
+        real_newest = latest_message.LatestMessage.newest
+
+        def newest(self, since_ns, max_age, wait):
+            if self is joint_states and wait > 0.0:
+                waiting.set()
+            return real_newest(self, since_ns, max_age, wait)
+
+        monkeypatch.setattr(latest_message.LatestMessage, "newest", newest)
+        monkeypatch.setattr(planner_outputs, "FRESH_STATE_WAIT", HANG)
+        since = len(client.status_list())
+        client.send_goal((2.0, 2.0))
+        assert waiting.wait(HANG), "the goal never asked for a fresh joint state"
+        client.send_joint_state(names, new_q, qd)
+        status = client.final_status(since, HANG)
+    finally:
+        client.set_parameters(joint_state_timeout=1.0)
     assert status.event == "solved", status.message
     np.testing.assert_allclose(status.vector("start_q"), new_q, atol=1e-9)
 
@@ -395,37 +439,34 @@ def test_warm_only_returns_the_continued_motion(planner, client):
     assert second.values["certified"] == "true"
 
 
-def test_newest_service_call_supersedes_older(planner, client):
+def test_newest_service_call_supersedes_older(planner, client, monkeypatch):
     results = {}
 
     def call(name, goal):
         results[name] = client.call_plan(PAPER_START, goal)
 
-    # A large cold multistart (64 direct guesses, about 1 s) keeps the first solve running
-    # when the second call comes (a one-start solve alone takes well under 0.1 s).
-    assert all(r.successful for r in client.set_parameters(starts=64, candidates=8,
-                                                            warm_start=False))
-    try:
-        first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
-        first.start()
-        client.wait_for(lambda: any(s.event == "accepted"
-                                    and "2.3" in s.values.get("target", "")
-                                    for s in client.status_list()), 30.0, "first accepted")
-        second = threading.Thread(target=call, args=("second", (2.25, 1.3)))
-        second.start()
-        first.join(60.0)
-        second.join(60.0)
-    finally:
-        client.set_parameters(candidates=6, starts=16, warm_start=True)
-    path1, _, _ = results["first"]
+    # The first solve is held at its start (a test hook, solve_gate.py) until the second
+    # call cancels it: the order is the test's, whatever the solver's speed.
+    gate = SolveGate.install(monkeypatch)
+    gate.arm()
+    first = threading.Thread(target=call, args=("first", (2.3, 1.2)))
+    first.start()
+    assert gate.held.wait(HANG), "the first call's solve never started"
+    second = threading.Thread(target=call, args=("second", (2.25, 1.3)))
+    second.start()
+    first.join(HANG)
+    gate.open()
+    second.join(HANG)
+    assert not first.is_alive() and not second.is_alive()
+    path1, status1, _ = results["first"]
     path2, status2, _ = results["second"]
+    assert status1.event == "superseded" and status1.level == 1, status1.message
     assert len(path1.poses) == 0
-    superseded = [s for s in client.status_list() if s.event == "superseded"]
-    assert superseded and superseded[-1].level == 1
+    assert gate.outcomes[0].status.name == "CANCELLED", gate.outcomes
     assert status2.event == "solved" and len(path2.poses) > 0
 
 
-def test_goal_storm(planner, client):
+def test_goal_storm(planner, client, monkeypatch):
     """50 goals within a second: the node stays alive, the last one is served, RSS bounded."""
     client.wait_subscribed(client.goal_pub)
     # Newest wins (goal_queue 1), the mode this storm covers; with the default queue every
@@ -436,14 +477,27 @@ def test_goal_storm(planner, client):
         # A first, smaller storm settles allocations (message types, solver caches).
         goal_storm(client, 10, 2.0)
         rss0 = rss_kib()
-        since, sent, status, total = goal_storm(client, 50, 2.1)
+        # Every solve of the storm is held at its start (solve_gate.py) until a newer goal
+        # supersedes it or, once the last goal is accepted, the test opens the gate: goals
+        # come faster than the node solves them whatever the solver's speed.
+        gate = SolveGate.install(monkeypatch)
+        gate.arm()
+
+        def open_once_the_last_is_accepted(since, last):
+            client.wait_for(lambda: any(s.event == "accepted" and s.values.get("target") == last
+                                        for s in client.status_list()[since:]),
+                            HANG, "the last goal accepted")
+            gate.open()
+
+        since, sent, status, total = goal_storm(client, 50, 2.1,
+                                                then=open_once_the_last_is_accepted)
         rss1 = rss_kib()
         assert status.event == "solved", status.message
         events = storm_events(client, since)
         print(f"storm: sent in {sent:.2f} s, last served after {total:.2f} s; events {events}; "
               f"RSS {rss0} -> {rss1} KiB")
-        # The premise, a storm: goals came faster than the node solves them, so some were
-        # superseded (not a timed assertion: sending 50 took 0.9-2.8 s, with the machine).
+        # The premise, a storm: goals came faster than the node solves them (held), so some
+        # were superseded.
         assert events.get("superseded", 0) > 0, events
         accepted = events.get("accepted", 0)
         assert accepted >= 10
@@ -497,7 +551,8 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
     real = service_module.solver_options
     monkeypatch.setattr(service_module, "solver_options", lambda config: dataclasses.replace(
         real(config), certificate=strict))
-    with ready_planner("strict") as (_, client):
+    published = PublishedAtTheNode(monkeypatch)
+    with ready_planner("strict") as (running, client):
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
         assert status.event == "failed" and status.level == 2, status.message
         assert "max_abs_H" in status.message
@@ -505,49 +560,28 @@ def test_a_plan_that_fails_its_certificate_is_not_published(monkeypatch):
         assert status.values["certified"] == "false" and "max_abs_H" in status.values[
             "cert_failed"]
         assert len(path.poses) == 0
-        time.sleep(0.2)
-        assert not client.trajectories
+        assert published.of(running.node) == []
 
 
 def test_shutdown_during_solve_is_prompt(monkeypatch):
-    from tocontrol_ros.core.planning import solver as solver_module
-
-    # A slow solve (a multistart of 128 direct guesses, well over a second) so that it is
-    # surely running when the node goes.
+    # The goal's solve is held at its start (solve_gate.py) until the shutdown stops it, so
+    # the shutdown surely comes during the solve, whatever the solver's speed.
+    gate = SolveGate.install(monkeypatch)
     ns = f"{NAMESPACE}_shutdown"
-    running = Running([Parameter("starts", value=128), Parameter("candidates", value=8)],
-                      namespace=ns)
-    outcomes = []
-    plan = solver_module.Planner.plan
-
-    def recorded(self, *args, **kwargs):
-        result = plan(self, *args, **kwargs)
-        if running.node.ready.is_set():  # not a warm-up solve
-            outcomes.append(result)
-        return result
-
-    # On the class: the node makes a new Planner when the optimised libraries land.
-    monkeypatch.setattr(solver_module.Planner, "plan", recorded)
+    running = Running(namespace=ns)
     client = PlannerClient(f"{ns}/planner")
     try:
         client.wait_ready(30.0)
-        assert running.node.ready.wait(120.0)
+        assert running.node.ready.wait(HANG)
         client.wait_subscribed(client.goal_pub)
-        since = len(client.status_list())
+        gate.arm()
         client.send_goal(PAPER_TARGET)
-        client.wait_for(lambda: any(s.event == "accepted" for s in client.status_list()[since:]),
-                        10.0, "accepted")
-        time.sleep(0.5)
-        assert not any(s.event == "solved" for s in client.status_list()[since:])
-        t0 = time.monotonic()
+        assert gate.held.wait(HANG), "the goal's solve never started"
         running.stop()
-        elapsed = time.monotonic() - t0
-        print(f"shutdown during a solve took {elapsed:.3f} s")
         # Prompt means the solve was cancelled, not run to its end: checked by its status,
-        # not by the wall time (a loaded machine stretches any time); the bound only
-        # catches a hang.
-        assert [r.status.name for r in outcomes] == ["CANCELLED"], outcomes
-        assert elapsed < HANG
+        # not by the wall time (a loaded machine stretches any time); stop()'s joins only
+        # catch a hang.
+        assert [r.status.name for r in gate.outcomes] == ["CANCELLED"], gate.outcomes
         assert not running.node.service.worker.is_alive()
     finally:
         client.close()
@@ -563,20 +597,43 @@ def test_use_sim_time_can_be_set(client):
         client.set_parameters(use_sim_time=False)
 
 
-def test_warm_up_builds_every_kind_even_when_a_request_comes_first():
+def test_warm_up_builds_every_kind_even_when_a_request_comes_first(monkeypatch):
     # Issue 14: the first request from a joint state waited seconds for its direct
     # transcription (a request during the warm-up stopped it before that kind was built).
+    # The warm-up's first build is held (a test hook on PreparedModel.prepare) until the
+    # request is waiting: the request surely comes first, whatever the machine's speed.
+    from tocontrol_ros.core.planning import prepared as prepared_module
+
+    real_prepare = prepared_module.PreparedModel.prepare
+    held, opened = threading.Event(), threading.Event()
+
+    def gated_prepare(self, *args, **kwargs):
+        if not opened.is_set():
+            held.set()
+            opened.wait(HANG)
+        return real_prepare(self, *args, **kwargs)
+
+    monkeypatch.setattr(prepared_module.PreparedModel, "prepare", gated_prepare)
     ns = f"{NAMESPACE}_warm"
     running = Running(namespace=ns)
     client = PlannerClient(f"{ns}/planner")
+    answers = []
+    request = threading.Thread(target=lambda: answers.append(
+        client.call_plan(PAPER_START, PAPER_TARGET, timeout=HANG)))
     try:
         client.wait_ready(30.0)
-        assert not running.node.ready.is_set(), "warm-up finished before the request"
-        client.call_plan(PAPER_START, PAPER_TARGET, timeout=120.0)
-        assert running.node.ready.wait(120.0)
+        assert held.wait(HANG), "the warm-up never started building"
+        assert not running.node.ready.is_set()
+        request.start()
+        client.wait_for(running.node.service.slot.has_pending, HANG, "the request waiting")
+        opened.set()
+        request.join(HANG)
+        assert answers and answers[0][1].event == "solved", answers
+        assert running.node.ready.wait(HANG)
         kinds = {(key[1], key[2]) for key in running.node.planner._direct}
         assert {("point", "point"), ("state", "point")} <= kinds, kinds
     finally:
+        opened.set()
         client.close()
         running.stop()
 
@@ -834,9 +891,10 @@ def _path_duration(path) -> float:
     return (stamps[-1] - stamps[0]) * 1e-9
 
 
-def test_first_then_optimum_publishes_both_in_order():
+def test_first_then_optimum_publishes_both_in_order(monkeypatch):
     """Issue 32: the first certified motion on ~/trajectory before the solve ends, then the
     optimum; ~/status says which was published; ~/plan answers with the optimum."""
+    published = PublishedAtTheNode(monkeypatch)
     with first_mode_planner("first") as (running, client, trajectories):
         since = len(client.status_list())
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
@@ -853,8 +911,8 @@ def test_first_then_optimum_publishes_both_in_order():
         assert float(first.values["publish_latency"]) == float(first.values["latency"])
         assert 0.0 < float(status.values["publish_latency"]) <= float(status.values["latency"])
         assert float(first.values["publish_latency"]) < float(status.values["publish_latency"])
+        assert len(published.of(running.node)) == 2
         client.wait_for(lambda: len(trajectories) >= 2, 30.0, "two trajectories")
-        time.sleep(0.2)
         assert len(trajectories) == 2
         T_first, T_opt = float(first.values["T"]), float(status.values["T"])
         assert _duration(trajectories[0]) == pytest.approx(T_first, abs=1e-9)
@@ -890,7 +948,8 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
                                                 dict(result.timings), k=float("nan"))
 
     monkeypatch.setattr(solver_module.Planner, "plan", failing)
-    with first_mode_planner("first_stands") as (_, client, trajectories):
+    published = PublishedAtTheNode(monkeypatch)
+    with first_mode_planner("first_stands") as (running, client, trajectories):
         serving.append(True)
         path, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
         assert status.event == "solved" and status.level == 1, status.message
@@ -898,8 +957,8 @@ def test_first_motion_stands_when_the_optimum_fails(monkeypatch):
         assert status.values["published"] == "first" and status.values["method"] == "first"
         assert status.values["optimum_status"] == "NEWTON_FAILED"
         assert status.values["certified"] == "true"  # the first motion's certificate
+        assert len(published.of(running.node)) == 1
         client.wait_for(lambda: len(trajectories) >= 1, 30.0, "the first motion")
-        time.sleep(0.2)
         assert len(trajectories) == 1
         assert _path_duration(path) == pytest.approx(_duration(trajectories[0]), abs=1e-8)
         assert float(status.values["T"]) == pytest.approx(_duration(trajectories[0]), abs=1e-9)
