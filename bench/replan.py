@@ -99,7 +99,7 @@ class _Client(RosClient):
                                       self._on_trajectory, latched)
         #: (task point, time sent: time.monotonic()) of every goal.
         self.sent: list[tuple[np.ndarray, float]] = []
-        self.goals = self.node.create_publisher(PointStamped, f"{ns}/planner/goal", 10)
+        self.goals = self.node.create_publisher(PointStamped, f"{ns}/planner/goal", 100)
         self._Point = PointStamped
 
     def _on_trajectory(self, msg) -> None:

@@ -131,7 +131,7 @@ class PlannerClient:
                                  lambda m: self._append(self.paths, m), latched)
         node.create_subscription(MarkerArray, f"{planner}/markers",
                                  lambda m: self._append(self.markers, m), latched)
-        self.goal_pub = node.create_publisher(PointStamped, f"{planner}/goal", 10)
+        self.goal_pub = node.create_publisher(PointStamped, f"{planner}/goal", 100)
         self.joint_pub = node.create_publisher(JointState, f"{ns}/joint_states", 10)
         self.plan_client = node.create_client(GetPlan, f"{planner}/plan")
         self.set_client = node.create_client(SetParameters, f"{planner}/set_parameters")

@@ -249,7 +249,7 @@ class _Listener:
         self.node.create_subscription(JointTrajectory, "/planner/trajectory",
                                       lambda m: self._add(self.trajectories, m), latched)
         self.node.create_subscription(JointState, "/joint_states", self._on_js, 50)
-        self.goal_pub = self.node.create_publisher(PointStamped, "/planner/goal", 10)
+        self.goal_pub = self.node.create_publisher(PointStamped, "/planner/goal", 100)
         self.client = self.node.create_client(GetPlan, "/planner/plan")
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

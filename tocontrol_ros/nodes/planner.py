@@ -72,8 +72,11 @@ EXECUTOR_THREADS = 8
 QOS_LATCHED = qos.LATCHED
 #: One message per request event; deep enough for a burst of requests.
 QOS_STATUS = qos.status_profile(100, latched=False)
-#: Goals: reliable; newest wins anyway, so a short queue is enough.
-QOS_GOAL = qos.RELIABLE
+#: Goals: reliable, and deep enough for ten seconds of a 10 Hz stream: with ``replan`` every
+#: goal is queued and answered (``goal_queue``), and an executor starved by a busy machine
+#: must not lose goals in the middleware before their callback takes them (a CI run under
+#: load lost one of 50 with a queue of 10).
+QOS_GOAL = qos.profile(100)
 #: Joint states: best effort matches both reliable and best-effort publishers; the newest
 #: one is all the planner needs, so the middleware keeps one.
 QOS_JOINT_STATES = qos.profile(1, reliable=False)
