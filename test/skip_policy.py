@@ -15,6 +15,8 @@ throwaway suite.
 """
 
 import os
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -33,6 +35,16 @@ def missing(what: str) -> None:
     ``"example-robot-data (pip install '.[test]')"``.
     """
     pytest.skip(MISSING + what)
+
+
+def panda_urdf() -> Path:
+    """example-robot-data's Panda URDF, installed by the test extra; else :func:`missing`."""
+    for d in sys.path:
+        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
+                "urdf/panda.urdf")
+        if path.is_file():
+            return path
+    missing("example-robot-data (pip install '.[test]')")
 
 
 def _reason(report) -> str:

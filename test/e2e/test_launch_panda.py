@@ -27,7 +27,7 @@ from mcap.reader import make_reader
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
-from skip_policy import missing
+from skip_policy import panda_urdf
 
 from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.nodes import qos
@@ -61,17 +61,9 @@ PARAMS = f"""/planner:
 """
 
 
-def _panda_urdf() -> Path:
-    for d in sys.path:
-        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
-                "urdf/panda.urdf")
-        if path.is_file():
-            return path
-    missing("example-robot-data (pip install '.[test]')")
-
 
 def test_launch_with_the_panda_plans_and_executes_a_goal(tmp_path, monkeypatch):
-    urdf = _panda_urdf()
+    urdf = panda_urdf()
     params = tmp_path / "panda.yaml"
     params.write_text(PARAMS)
     module = load_launch_file(monkeypatch, share=str(Path(sys.prefix) / "share"))

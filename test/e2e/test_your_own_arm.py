@@ -10,9 +10,7 @@ within them, and the tracker executes it.
 from __future__ import annotations
 
 import re
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
-from skip_policy import missing
+from skip_policy import panda_urdf
 
 from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.nodes import qos
@@ -43,14 +41,6 @@ SAMPLE = 0.002
 FIRST_PLAN = 600.0
 
 
-def _panda_urdf() -> Path:
-    for d in sys.path:
-        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
-                "urdf/panda.urdf")
-        if path.is_file():
-            return path
-    missing("example-robot-data (pip install '.[test]')")
-
 
 def _tracker_statuses(context, seen: list, until, timeout: float) -> bool:
     node = rclpy.create_node("own_arm_probe", context=context)
@@ -67,7 +57,7 @@ def _tracker_statuses(context, seen: list, until, timeout: float) -> bool:
 
 
 def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_path):
-    urdf_path = _panda_urdf()
+    urdf_path = panda_urdf()
     urdf = urdf_path.read_text()
     model = load_robot(str(urdf_path), tip_link="panda_hand")
     goal = model.point(np.array(Q1))

@@ -9,7 +9,6 @@ and for the Panda of example-robot-data (a spatial arm with fixed joints and fin
 no joint state names).
 """
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ from builtin_interfaces.msg import Time
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
+from skip_policy import panda_urdf
 from std_msgs.msg import Header
 from test_recorder import context, spin_until, unique  # noqa: F401 (fixture)
 
@@ -33,14 +33,6 @@ AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
 #: Joint states published per test (the /tf count must equal it).
 COUNT = 12
 
-
-def _panda_urdf() -> Path:
-    for d in sys.path:
-        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
-                "urdf/panda.urdf")
-        if path.is_file():
-            return path
-    pytest.skip("example-robot-data is not installed")
 
 
 def _rotation(q) -> np.ndarray:
@@ -76,7 +68,7 @@ def _read_foreign(path):
 
 ARMS = {
     "bundled planar arm": lambda: (default_urdf_path(), None),
-    "panda": lambda: (_panda_urdf(), "panda_hand"),
+    "panda": lambda: (panda_urdf(), "panda_hand"),
 }
 
 

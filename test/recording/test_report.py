@@ -8,6 +8,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
+from skip_policy import panda_urdf
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -189,18 +190,6 @@ def test_report_missing_file(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
-def _panda_urdf():
-    import sys
-    from pathlib import Path
-
-    for d in sys.path:
-        path = (Path(d) / "cmeel.prefix/share/example-robot-data/robots/panda_description/"
-                "urdf/panda.urdf")
-        if path.is_file():
-            return path
-    pytest.skip("example-robot-data is not installed")
-
-
 def test_spatial_arm_gets_its_end_effector_path_in_3d_against_the_goal(tmp_path, monkeypatch):
     """The Panda (three task axes): the motion's arm panel is a 3-D axes with the executed and
     planned end-effector paths and the goal; the URDF comes from the recording itself."""
@@ -209,7 +198,7 @@ def test_spatial_arm_gets_its_end_effector_path_in_3d_against_the_goal(tmp_path,
 
     from tocontrol_ros.core.robot.kinematics import link_positions
 
-    urdf = _panda_urdf()
+    urdf = panda_urdf()
     model = load_robot(urdf, tip_link="panda_hand")
     assert model.m == 3
     names = list(model.joint_names)
