@@ -65,7 +65,7 @@ def controller_options(config) -> jtc.ControllerOptions:
         ``goal_time`` are the defaults of every goal.
     """
     return jtc.ControllerOptions(
-        effort_interface=True, require_velocities=False,
+        effort_interface=True,
         path_tolerance=config.path_tolerance, goal_tolerance=config.goal_tolerance,
         stopped_velocity_tolerance=config.stopped_velocity_tolerance,
         goal_time=config.goal_time)

@@ -69,9 +69,6 @@ class ControllerOptions:
         Goals may name a subset of the joints.
     allow_nonzero_velocity_at_trajectory_end : bool
         The last point may have a non-zero velocity (false by default in Jazzy).
-    require_velocities : bool
-        Not a JTC setting: every point must carry velocities and accelerations (the
-        simulated tracker interpolates positions through them).
     path_tolerance, goal_tolerance : float
         Default position tolerance of every joint (rad, m) during the motion and at its end;
         0 = not checked (the JTC's ``constraints.<joint>.trajectory`` and ``.goal``).
@@ -85,7 +82,6 @@ class ControllerOptions:
     effort_interface: bool = False
     allow_partial_joints_goal: bool = False
     allow_nonzero_velocity_at_trajectory_end: bool = False
-    require_velocities: bool = False
     path_tolerance: float = 0.0
     goal_tolerance: float = 0.0
     stopped_velocity_tolerance: float = 0.01
@@ -145,10 +141,9 @@ def _check_points(points, n: int, options: ControllerOptions) -> GoalCheck | Non
                                            f"values for {n} joints")
         for field in ("velocities", "accelerations"):
             size = len(getattr(point, field))
-            if size not in (0, n) or (options.require_velocities and size != n):
-                want = f"{n}" if options.require_velocities else f"0 or {n}"
+            if size not in (0, n):
                 return GoalCheck(INVALID_GOAL, f"point {i}: {field} has {size} values, "
-                                               f"needs {want}")
+                                               f"needs 0 or {n}")
         if len(point.effort) and not options.effort_interface:
             return GoalCheck(INVALID_GOAL, f"point {i} has effort, but the controller has no "
                                            f"effort command interface")

@@ -296,13 +296,9 @@ def _result(ctx: SolveContext, run: Run, records: list[StartRecord], notes: list
 
 def _failure(problem: Problem, status: Status, message: str, timings: dict, starts=(),
              run: Run | None = None) -> PlanResult:
-    if run is None:
-        return PlanResult.failure(problem, status, message, timings, k=float("nan"),
-                                  starts=tuple(starts))
-    return PlanResult.failure(problem, status, message, timings, k=run.k,
-                              residual=run.residual, iterations=run.iterations,
-                              continuation=tuple(run.log), delta=run.delta,
-                              intervals=run.grid.N, starts=tuple(starts))
+    """A failed result with the records and the run it had (:func:`_failure_fields`)."""
+    return PlanResult.failure(problem, status, message, timings,
+                              **{"k": float("nan"), **_failure_fields(starts, run)})
 
 
 # -------------------------------------------------------------------- cold start
