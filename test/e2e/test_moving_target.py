@@ -101,8 +101,9 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
             except AssertionError as exc:
                 tail = [s["message"][:120] for s in tracker_status[-12:]]
                 raise AssertionError(f"{exc}; the tracker's last statuses: {tail}") from None
-        answer = next((s for s in reversed(finals) if s.values.get("published") == "optimum"),
-                      None)
+        # A goal's answer: the optimum, or the quick motion that stands (replan_quick).
+        answer = next((s for s in reversed(finals)
+                       if s.values.get("published") in ("optimum", "first")), None)
         assert answer is not None, [s.message for s in finals]
         settled(np.array(answer.vector("target")), "the arm at rest at the last goal answered")
         time.sleep(0.5)  # a few more joint states at rest
@@ -141,7 +142,7 @@ def test_moving_target_followed_with_spliced_replans(tmp_path):
         codes = [proc.stop() for proc in procs]
     events = [s.event for s in finals]
     published = [s for s in finals if s.event == "solved"
-                 and s.values.get("published") == "optimum"]
+                 and s.values.get("published") in ("optimum", "first")]
     replans = [s for s in published if s.values.get("replan")]
     splices = [s for s in tracker_status if s.get("event") == "spliced"]
     print(f"{len(published)}/{count} goals answered ({len(replans)} replans, "
