@@ -16,7 +16,11 @@ import numpy as np
 from tocontrol_ros.core.direct.first_motion import quick_motion
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.indirect.warm import WarmState
-from tocontrol_ros.core.planning.replan import replan_options, warm_replan
+from tocontrol_ros.core.planning.replan import (
+    path_tail_warm_start,
+    replan_options,
+    warm_replan,
+)
 from tocontrol_ros.nodes.outcomes import result_values, stamp_text
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
 from tocontrol_ros.nodes.replanning import (
@@ -160,7 +164,10 @@ class ReplanPolicy:
 
         Solved while no other goal waits (one that arrives stops it), warm alone (the
         motion that ran before the quick one, and the replanner's warm starts), no cold
-        solve; published as the request's optimum when certified, in time for its hand-off
+        solve; the quick motion's own rest from the hand-off is the first warm start (of the
+        bounded solve: :func:`~tocontrol_ros.core.planning.replan.path_tail_warm_start`),
+        with ``replan_spans``; published as the
+        request's optimum when certified, in time for its hand-off
         and ending before the quick motion does. Always finishes the request (``path``:
         the quick motion's, its answer when it stands).
         """
@@ -196,7 +203,11 @@ class ReplanPolicy:
             return req.cancelled.is_set() or service.stopping.is_set() or \
                 service.slot.has_pending()
 
-        warm = [w for w in (before, *replans.warm_starts(handoff.warm))
+        # The quick motion's own rest from the hand-off (the bounded solve from its path
+        # fitted on replan_spans uniform spans), then the others.
+        tail = path_tail_warm_start(quick, (handoff.stamp_ns - quick_stamp_ns) * 1e-9) \
+            if options.replan_spans else None
+        warm = [w for w in (tail, before, *replans.warm_starts(handoff.warm))
                 if w is not None and w.warm_state is not None
                 and w.can_warm_start(problem, options.warm_joint_radius)]
         if not warm:  # a cold solve takes longer than a quick motion runs
