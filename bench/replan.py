@@ -510,7 +510,8 @@ def run(which: str = "both", moving: bool = False) -> Section:
         kinds = "; ".join(f"{k} {n}: {1e3 * m:.1f} / {1e3 * p:.1f} ms"
                           for k, (n, m, p) in sorted(r["kinds"].items()))
         rows.append([r["robot"], f"{r['answered']}/{r['goals']} ({r['superseded']} "
-                     f"superseded)", f"{1e3 * r['median']:.1f} ({1e3 * r['status_median']:.1f})",
+                     f"superseded; {r['improved']} improved)",
+                     f"{1e3 * r['median']:.1f} ({1e3 * r['status_median']:.1f})",
                      f"{1e3 * r['p95']:.1f}",
                      f"{1e3 * r['client_median']:.1f} / {1e3 * r['client_p95']:.1f} "
                      f"({r['client_matched']})", f"{100 * r['within']:.0f} %",
@@ -525,9 +526,14 @@ def run(which: str = "both", moving: bool = False) -> Section:
         f"the planner -> trajectory published (its status's `publish_latency`; in parentheses "
         f"its `latency`, to the status that follows), over the goals answered; "
         f"within one period: published within {1e3 * PERIOD:.0f} ms, share of all goals. "
-        f"Solve ms, iterations: the published result's own solve time and Newton "
-        f"iterations, median (the rest of a latency is waiting for the worker, the "
-        f"hand-off and the problem, and publication). Per kind: count, median / p95. "
+        f"A goal's answer is its first trajectory: with `replan_quick` (the default) the "
+        f"quick motion published at once; *improved*: the goals whose optimum followed it "
+        f"(msg_docs/parameters.md, 'Replanning'). "
+        f"Solve ms, iterations: the first published result's own solve time and iterations "
+        f"(TOPP-RA passes for a quick motion), median (the rest of a latency is waiting for "
+        f"the worker, the hand-off and the problem, and publication). Per kind: count, "
+        f"median / p95 (kind of the first publication's hand-off: `rest` from the end of a "
+        f"motion over by then, `warm` or `cold` from a moving state). "
         f"Jumps: the tracker's largest command jump at a splice (rad / rad/s). Final "
         f"error: end effector at rest (the mean of the last 10 joint states, within 1e-9 "
         f"rad of each other, or within {SETTLED:g} rad when that did not come in "
@@ -536,7 +542,10 @@ def run(which: str = "both", moving: bool = False) -> Section:
         f"by request (status target and hand-off stamp), median / p95 over the matched."
         + (f" Hard case: the paper's arm on a {MOVING_PAPER_RADIUS:g} m circle, the Panda "
            f"as the README's \"Your own arm\" sets it up (start configuration with joints 1 and 3 "
-           f"aligned, limit margin 0.05, sample period 2 ms, the tracker's derived gains)."
+           f"aligned, limit margin 0.05, sample period 2 ms, the tracker's derived gains), "
+           f"its target {MOVING_PANDA_LAPS} times around a {MOVING_PANDA_RADIUS:g} m circle "
+           f"(goals {100 * 2 * math.pi * MOVING_PANDA_RADIUS * MOVING_PANDA_LAPS / 50:.1f} cm "
+           f"apart: on a 0.1 m circle once around every replan started at rest)."
            if moving else "")
         + f" Command: `scripts/dev run python -P bench/replan.py {which}"
         + (" --moving`." if moving else "`."),
