@@ -33,7 +33,8 @@ processes: idle CPU and ~/plan round trip against the same request in-process),
 splices, the paper's arm and the Panda), ``replan_moving`` (the same with targets that keep
 the arm moving, the Panda from the README's set-up, latency also as a client sees it),
 ``stagewise`` (issue 47's stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on
-the same NLPs, 10 Panda cases),
+the same NLPs, 10 Panda cases), ``warm_resolve`` (one replan after a 2 cm move on 20 Panda
+cases: the warm re-solve and the quick motion),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
@@ -62,7 +63,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
-         "limits", "stagewise",
+         "limits", "stagewise", "warm_resolve",
          "first_motion")
 
 
@@ -152,6 +153,7 @@ def _run(args):
         scaling,
         stagewise,
         verification,
+        warm_resolve,
     )
 
     t0 = time.perf_counter()
@@ -222,6 +224,8 @@ def _run(args):
         section(lambda: replan.run(moving=True))
     if "stagewise" in args.only:
         section(lambda: stagewise.run(3 if args.quick else 10))
+    if "warm_resolve" in args.only:
+        section(lambda: warm_resolve.run(3 if args.quick else warm_resolve.CASES))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))
