@@ -28,6 +28,7 @@ from tocontrol_ros.nodes.replanning import (
     QUICK,
     REPLAN_TRIES,
     REST,
+    STREAM_PERIOD,
     STREAM_RATIO,
     align,
     keeps_ahead,
@@ -68,14 +69,16 @@ class ReplanPolicy:
     def idle_wait(self) -> float | None:
         """How long the worker waits for a goal before it improves a quick motion (s).
 
-        None: nothing to improve (wait for requests). Else 1.5 times the interval of the
-        recent goals (:data:`~tocontrol_ros.nodes.replanning.STREAM_RATIO`: a stream's next
-        goal is served first), at least ``replan_min_lead``.
+        None: nothing to improve (wait for requests). Else, while goals stream in (the last
+        two at most :data:`~tocontrol_ros.nodes.replanning.STREAM_PERIOD` apart), 1.5 times
+        their interval (:data:`~tocontrol_ros.nodes.replanning.STREAM_RATIO`: a stream's
+        next goal is served first); at least ``replan_min_lead``.
         """
         if self._improvable is None:
             return None
         interval = self.service.replanner.goals.interval()
-        return max(STREAM_RATIO * interval if interval else 0.0,
+        stream = 0.0 < interval <= STREAM_PERIOD  # goals a second apart or more: none
+        return max(STREAM_RATIO * interval if stream else 0.0,
                    self.service.config.replan_min_lead)
 
     def goal_stamp(self, req: PlanRequest) -> int | None:

@@ -26,7 +26,7 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
            "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
-           "IMPROVE", "STREAM_RATIO"]
+           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -45,7 +45,7 @@ FOLLOWING = 0.05
 #: hand-off, it held up the goals behind it, and the backlog kept the goal solved ahead from
 #: running for 20-30 goals (paper's arm, 10 Hz circle, bench/replan.py: median latency 57-299
 #: ms in five runs; with 0.1, 12-39 ms in eight).
-INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1, QUICK: 0.03, IMPROVE: 0.05}
+INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1, QUICK: 0.03, IMPROVE: 0.15}
 #: The delivery reserve of a rest replan after its publication is at most ``replan_min_lead``
 #: plus this (s). It grows with the recent rest solves' latencies (a loaded machine), but a
 #: published trajectory's delivery does not take as long as a slow solve: on the Panda with
