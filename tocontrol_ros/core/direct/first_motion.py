@@ -47,7 +47,7 @@ import numpy as np
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath
-from tocontrol_ros.core.direct.time_scaling import rest_time, time_scaling
+from tocontrol_ros.core.direct.time_scaling import cube_time, rest_time, time_scaling
 from tocontrol_ros.core.direct.tuning import (
     CANDIDATES,
     FOLLOW_ITERATIONS,
@@ -403,22 +403,37 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
     if not fastest:
         best = next((r for r in map(attempt, range(len(scales))) if r is not None), None)
     else:
-        # The least T: from the middle scale down while T falls, else up while it falls
-        # (T is unimodal in the scale on the cases measured); all of them when the middle
-        # one cannot be timed.
+        # The least T: each scale's parabola ranked by one TOPP-RA pass in the cube
+        # (cube_time), from the middle scale down while it falls, else up while it falls
+        # (unimodal in the scale on the cases measured); then timed in full in that order
+        # until one can be.
+        estimate: dict = {}
+
+        def rank(i: int) -> float:
+            if i not in estimate:
+                tau = scales[i] * rest_T
+                path = PolynomialPath.parabola(qa, qb, qd0 * tau)
+                estimate[i] = cube_time(problem, path, 1.0 / tau, gridpoints, speed_cap) \
+                    if _inside(path, lo, hi) else np.inf
+            return estimate[i]
+
         mid = len(scales) // 2
-        if attempt(mid) is None:
-            found = [r for r in map(attempt, range(len(scales))) if r is not None]
-            best = min(found, key=lambda r: r[0].T) if found else None
-        else:
-            best = timed[mid]
+        if np.isfinite(rank(mid)):
             for step in (-1, 1):
-                i, moved = mid + step, False
-                while 0 <= i < len(scales) and attempt(i) is not None and \
-                        timed[i][0].T < best[0].T:
-                    best, moved, i = timed[i], True, i + step
-                if moved:
+                i = mid + step
+                while 0 <= i < len(scales) and rank(i) < rank(i - step):
+                    i += step
+                if i != mid + step:
                     break
+        else:
+            for i in range(len(scales)):
+                rank(i)
+        passes += len(estimate)
+        best = None
+        for i in sorted(estimate, key=estimate.get):
+            best = attempt(i)
+            if best is not None:
+                break
     if best is not None:
         return (best[0], max(passes, 1), f"first motion: a parabola from the moving start "
                 f"along its velocity to {label} (tau = {best[1]:.3g} s), timed by TOPP-RA")

@@ -53,7 +53,7 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "time_scaling"]
+__all__ = ["rest_time", "cube_time", "time_scaling"]
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
               peaks: bool = False) -> tuple:
@@ -74,6 +74,21 @@ def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOIN
     if x is None:
         return None, why, None
     return T, "", np.max(np.abs(path(s, 1)) * np.sqrt(np.maximum(x, 0.0))[:, None], axis=0)
+
+
+def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
+              gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None) -> float:
+    """The time (s) of ``path`` from path speed ``sd0`` to rest in the cube (one pass).
+
+    As :func:`rest_time`, from a moving start and with :func:`time_scaling`'s
+    ``speed_cap``: what ranks a moving start's candidate paths before one is timed in full.
+    ``inf`` when TOPP-RA finds no timing.
+    """
+    n = problem.model.n
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    x, _ = _toppra(_Coefficients(problem, path, s, speed_cap), s, sd0, cube, None)
+    return np.inf if x is None else _duration(x, s)
 
 
 class _Coefficients:
