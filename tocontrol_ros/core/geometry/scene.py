@@ -194,7 +194,8 @@ def scene_from_dict(data, label: str = "scene", frame: str | None = None) -> Sce
     if given is not None and frame is not None and given != frame:
         raise ProblemError(f"{label}: `frame` is {given!r}, but obstacles are given in the "
                            f"base frame {frame!r}")
-    entries = data.get("obstacles") or []
+    entries = data.get("obstacles")
+    entries = [] if entries is None else entries
     if not isinstance(entries, list):
         raise ProblemError(f"{label}: `obstacles` must be a list, got {entries!r}")
     obstacles = tuple(_obstacle(e, i, label) for i, e in enumerate(entries))
@@ -203,7 +204,10 @@ def scene_from_dict(data, label: str = "scene", frame: str | None = None) -> Sce
     if twice:
         raise ProblemError(f"{label}: obstacle names must be unique, repeated: {twice}")
     allowed = []
-    for pair in data.get("allowed") or []:
+    pairs = data.get("allowed")
+    if pairs is not None and not isinstance(pairs, list):
+        raise ProblemError(f"{label}: `allowed` must be a list of name pairs, got {pairs!r}")
+    for pair in pairs or []:
         if not (isinstance(pair, (list, tuple)) and len(pair) == 2
                 and all(isinstance(p, str) for p in pair)):
             raise ProblemError(f"{label}: each `allowed` entry is a pair of names, got "

@@ -59,6 +59,23 @@ class LinkShape:
             self._coal.append(coal_geometry(self.kind, self.size, self.mesh))
         return self._coal[0]
 
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """A sphere that holds the whole shape: centre (3,) in the body's frame, radius (m).
+
+        A mesh's: about the middle of its vertices' box, out to the farthest vertex (the
+        mesh is inside its vertices' hull); a primitive's from its size.
+        """
+        if self.kind == "mesh":
+            v = np.asarray(self.geometry().vertices(), dtype=float)
+            local = 0.5 * (v.min(axis=0) + v.max(axis=0))
+            radius = float(np.max(np.linalg.norm(v - local, axis=1)))
+        else:
+            local = np.zeros(3)
+            radius = {"box": 0.5 * float(np.linalg.norm(self.size)),
+                      "cylinder": float(np.hypot(self.size[0], 0.5 * self.size[1])),
+                      "sphere": float(self.size[0])}[self.kind]
+        return self.rotation @ local + self.translation, radius
+
     def points(self, spacing: float) -> np.ndarray:
         """Points (N, 3) on the surface (and a mesh's vertices), in the body's frame (m)."""
         local = surface_points(self.kind, self.size, spacing, self.geometry())

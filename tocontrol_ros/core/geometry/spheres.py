@@ -4,7 +4,8 @@ A link's surface points (:meth:`~tocontrol_ros.core.geometry.shapes.LinkShape.po
 mesh's vertices and its triangles filled to :data:`~.tuning.SURFACE_SPACING`) are grouped by a
 deterministic k-means into ``m`` groups, each enclosed by a sphere (Badoiu-Clarkson: the
 centre walks toward the farthest point, then the radius is the farthest point's distance,
-so every point is inside); ``m`` grows from 1 until the worst gap is at most
+plus :data:`~.tuning.COVER_PAD`, so every point of the surface
+is inside, not only the points); ``m`` grows from 1 until the worst gap is at most
 :data:`~.tuning.GAP_TARGET` or ``m`` reaches :data:`~.tuning.MAX_SPHERES`. The gap of a
 sphere is how far its surface stands off the geometry: the largest distance from a point
 of its surface (outside the other spheres and outside the link's convex hull) to the
@@ -19,6 +20,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from tocontrol_ros.core.geometry.tuning import (
+    COVER_PAD,
     ENCLOSING_ITERATIONS,
     GAP_PROBES,
     GAP_TARGET,
@@ -72,7 +74,7 @@ def _enclosing(points: np.ndarray) -> tuple[np.ndarray, float]:
     for it in range(ENCLOSING_ITERATIONS):
         far = points[np.argmax(np.sum((points - c) ** 2, axis=1))]
         c = c + (far - c) / (it + 2)
-    return c, float(np.sqrt(np.max(np.sum((points - c) ** 2, axis=1))))
+    return c, float(np.sqrt(np.max(np.sum((points - c) ** 2, axis=1)))) + COVER_PAD
 
 
 def _groups(points: np.ndarray, m: int) -> np.ndarray:

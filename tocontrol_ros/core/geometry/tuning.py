@@ -5,6 +5,11 @@
 #: vertices, not only the vertices.
 SURFACE_SPACING = 0.01
 
+#: Each sphere's radius reaches this far beyond its farthest surface point (m): a point of
+#: the surface is within SURFACE_SPACING / sqrt(2) of one of the points (a triangle filled
+#: to that spacing, a primitive's grid), so the spheres cover the whole surface.
+COVER_PAD = 0.75 * SURFACE_SPACING
+
 #: A link's spheres are added one at a time until the worst gap (how far a sphere's surface
 #: stands off the link's geometry) is at most this (m)...
 GAP_TARGET = 0.02
@@ -28,3 +33,12 @@ GAP_PROBES = 200
 
 #: The collision margin's default (m): the clearance every published motion keeps.
 DEFAULT_MARGIN = 0.01
+
+#: The certificate measures the exact distances at this many equally spaced times of a
+#: motion; between two of them a distance can fall by at most its speed bound times half the
+#: step (CollisionModel.swept), so the finer the step the less margin that bound eats.
+CERTIFY_STEPS = 1000
+
+#: Where a bounding sphere's distance (a lower bound) is more than this above what must
+#: hold, Coal is not asked for the exact distance (m): the bound already certifies it.
+EXACT_BAND = 0.02
