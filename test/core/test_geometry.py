@@ -162,3 +162,32 @@ def test_scene_files(tmp_path, panda):
     model, _, _, col = panda
     with pytest.raises(ProblemError, match="neither a link with geometry nor an obstacle"):
         col.with_scene(scene_from_dict({"allowed": [["panda_link0", "nowhere"]]}))
+
+
+def test_a_scene_makes_the_plan_avoid_it(panda):
+    """A ball on the obstacle-free optimum's path: the plan with the scene goes around it.
+
+    Checked independently of the solver and of its certificate: Coal's exact distances at
+    2001 times of the published motion, every checked pair at least the margin apart.
+    """
+    from tocontrol_ros.core import SolverOptions, plan
+
+    model, _, _, col = panda
+    options = SolverOptions(starts=4, candidates=1, time_limit=600)
+    target = point([0.3, 0.4, 0.5])
+    free = plan(Problem(model, joint_state(Q0), target), options)
+    assert free.success
+    _, tip = tip_pose(model, free.trajectory.evaluate(np.array([free.T / 2])).q[0])
+    scene = scene_from_dict({"obstacles": [
+        {"name": "ball", "type": "sphere", "radius": 0.05, "position": tip.tolist()}]})
+    problem = Problem(model, joint_state(Q0), target, collision=col.with_scene(scene))
+    # The obstacle-free optimum goes through the ball.
+    assert not certify_open_loop(problem, free.trajectory).item("clearance").passed
+    res = plan(problem, options)
+    assert res.success, res.message
+    assert res.certificate.item("clearance").passed
+    assert res.verification["min_clearance"] >= col.margin
+    sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+    exact = problem.collision.clearance(sample.q)
+    assert exact.minimum >= col.margin, (exact.minimum, exact.pair)
+    assert res.T > free.T  # going around costs time
