@@ -101,6 +101,8 @@ setup(
         ],
         "bench": [
             "ray>=2.9",
+            # bench/collision.py's peer: OMPL's sampling planner (imported there only).
+            "ompl>=2",
         ],
         # `batch --ray`: only tocontrol_ros/batch/ray_backend.py imports it, inside RayBackend.
         "ray": [
