@@ -125,7 +125,7 @@ def _peer(problem: Problem, col) -> dict:
 
     ss.setStateValidityChecker(valid)
     ss.getSpaceInformation().setStateValidityCheckingResolution(0.01)
-    start, goal = ob.State(space), ob.State(space)
+    start, goal = space.allocState(), space.allocState()
     for i in range(n):
         start[i] = float(q0[i])
         goal[i] = float(goals[0][i])
