@@ -14,6 +14,7 @@ velocity limits, which bounds what happens between two sampled times.
 from __future__ import annotations
 
 import os
+import threading
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -433,5 +434,17 @@ def collision_model(model: RobotModel, urdf, srdf=None, scene: Scene | None = No
                            tuple(str(d) for d in package_dirs)))
 
 
+#: Collision models rebuilt from a pickle (a worker process's problems), by what their
+#: geometry comes from: read once per process, then given each problem's scene and margin.
+_REBUILT: dict = {}
+_REBUILT_LOCK = threading.Lock()
+
+
 def _rebuilt(model, urdf, srdf, scene, margin, dirs) -> CollisionModel:
-    return collision_model(model, urdf, srdf, scene, margin, dirs)
+    key = (model.name, model.joint_names, model.base_link, model.tip_link, model.locked,
+           urdf, srdf, dirs)
+    with _REBUILT_LOCK:
+        base = _REBUILT.get(key)
+        if base is None:
+            base = _REBUILT[key] = collision_model(model, urdf, srdf, None, margin, dirs)
+    return replace(base, model=model).with_scene(scene, margin)
