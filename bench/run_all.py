@@ -9,7 +9,7 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion]
+                verification,deployed,replan,batch,limits,first_motion,collision]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -38,8 +38,11 @@ cases: the warm re-solve and the quick motion),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
-Panda). Every timing is taken in this one process, side by side; compiled functions go to a
-fresh temporary cache so that first-run costs are measured, not inherited.
+Panda), ``collision`` (issue 51: the Panda in three scenes placed on each case's
+obstacle-free optimum, planned with the clearance rows, checked exactly with Coal, against
+OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene). Every timing is
+taken in this one process, side by side; compiled functions go to a fresh temporary cache so
+that first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -64,7 +67,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise", "warm_resolve",
-         "first_motion")
+         "first_motion", "collision")
 
 
 def _parse(argv):
@@ -95,6 +98,8 @@ def _parse(argv):
                         help="robots of the joint-limits part, comma-separated, of "
                              "3R-limited, UR5, Panda, xArm7, each with an optional :cases "
                              "(default --limit-cases)")
+    parser.add_argument("--collision-cases", type=int, default=20,
+                        help="drawn cases of the collision part (20; 2 with --quick)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--update", action="store_true",
                         help="replace only the sections of the parts run (and their target "
@@ -134,6 +139,7 @@ def main(argv=None):
 def _run(args):
     from bench import (
         batch,
+        collision,
         deployed,
         deployed_panda,
         first_motion,
@@ -236,6 +242,8 @@ def _run(args):
     if "first_motion" in args.only:
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
+    if "collision" in args.only:
+        section(lambda: collision.run(2 if args.quick else args.collision_cases))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

@@ -151,6 +151,9 @@ class PlanningService:
             planner_factory = Planner
         self.model = model
         self.limits = limits
+        #: The collision model the next problem gets (the planner node sets it: scene_file,
+        #: robot_description_semantic, ~/scene); None: no geometry. Replaced, never mutated.
+        self.collision = None
         self.frame_id = frame_id
         self.planner = planner_factory(model)
         self.planner_factory = planner_factory
@@ -333,7 +336,7 @@ class PlanningService:
 
     def problem(self, config: PlannerConfig, start: tuple, target: np.ndarray):
         """The problem from ``start`` to ``target`` (:func:`plan_problem`)."""
-        return plan_problem(config, self.model, self.limits, start, target)
+        return plan_problem(config, self.model, self.limits, start, target, self.collision)
 
     def serve(self, req: PlanRequest) -> None:
         """Solve ``req`` and publish (or not) its outcome; always finishes it."""

@@ -23,7 +23,9 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
   ``-v <= p (P_j+1 - P_j) / ((t_j+p+1 - t_j+1) T) <= v`` (one two-sided row per difference
   and joint, see :meth:`FlatTranscription._velocity_rows`);
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
-  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
+  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state;
+- with a collision model only, the clearance rows at every sample
+  (:mod:`~tocontrol_ros.core.direct.clearance`), after all the others.
 
 Its derivatives are assembled from one compiled function per sample (the constraint, its
 gradient and its weighted Hessian in the span's ``(p + 1) n`` control points and ``T``).
@@ -42,6 +44,7 @@ from scipy.interpolate import CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
+from tocontrol_ros.core.direct.clearance import ClearanceRows, compile_clearance
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.direct.tuning import (
@@ -238,12 +241,16 @@ class FlatTranscription:
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
         ``"restart"``: as False (the last resort of a re-solve with a wider pad).
+    clearance : ClearanceRows, optional
+        The clearance rows (:func:`~tocontrol_ros.core.direct.clearance.clearance_rows`);
+        default none: the NLP of a problem without a collision model is unchanged.
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 warm: bool | str = False) -> None:
+                 warm: bool | str = False, clearance: ClearanceRows | None = None) -> None:
+        self.clearance = clearance if clearance is not None and clearance.count else None
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
@@ -274,7 +281,8 @@ class FlatTranscription:
         nb = 3 * (p + 1) * S
         bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
         cvec = geo[nb:nb + K - 1]
-        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:]
+        b_start_vel = geo[nb + K - 1:nb + K + p]
+        b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]  # then the clearance rows' ds, if any
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
@@ -294,9 +302,19 @@ class FlatTranscription:
         self._rows = (ng_set, ng_lin, ng_b)
         local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
         g_eval, jac = self._constraint_jacobian(set_grad, local, zvars, w, g_lin, g_b)
+        self._ng_clear = 0
+        if self.clearance is not None:
+            clear_local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat[0, :], geo[-1])
+            clear = self._clearance_rows(clear_local, zvars, w)
+            g, g_eval, jac = (ca.vertcat(g, clear[0]), ca.vertcat(g_eval, clear[1]),
+                              ca.vertcat(jac, clear[2]))
+            ng += self._ng_clear
         lam_g = ca.MX.sym("lam_g", ng)
         lam_f = ca.MX.sym("lam_f")
         hess = self._lagrangian_hessian(set_hess, local, zvars, w, g_lin, g_b, lam_g)
+        if self.clearance is not None:
+            hess = hess + self._clearance_hessian(clear_local, zvars, w,
+                                                  lam_g[ng - self._ng_clear:])
         self._nw, self._iT, self._ng = nw, iT, ng
         allp = ca.vertcat(par, geo)
         opts = ipopt_options(
@@ -328,6 +346,40 @@ class FlatTranscription:
         """
         n = self.model.n
         return ca.vertcat(*[cvec * (Pm[i, 1:] - Pm[i, :-1]).T / T for i in range(n)])
+
+    def _clearance_rows(self, local: tuple, zvars: np.ndarray, w: ca.MX
+                        ) -> tuple[ca.MX, ca.MX, ca.MX]:
+        """The clearance rows (R per sample, sample by sample).
+
+        As ``g``, as evaluated with their gradients, and their Jacobian (scattered into the
+        span's variables and ``T``).
+        """
+        rows = self.clearance
+        funs, _ = compile_clearance(self.model, rows, self.degree)
+        self._clear_hess = funs[2]
+        S, R = len(zvars), len(rows.groups())
+        self._ng_clear = S * R
+        values = ca.vec(funs[0].map(S)(*local))
+        cs, grads = funs[1].map(S)(*local)
+        scat = Scatter(S * R, w.numel())
+        for r in range(S):
+            scat.block(np.arange(r * R, (r + 1) * R), np.concatenate([zvars[r], [w.numel() - 1]]))
+        return values, ca.vec(cs), scat.apply(ca.vec(grads))
+
+    def _clearance_hessian(self, local: tuple, zvars: np.ndarray, w: ca.MX, lam: ca.MX
+                           ) -> ca.MX:
+        """The clearance rows' part of the Lagrangian's Hessian (upper triangle)."""
+        S, R = len(zvars), len(self.clearance.groups())
+        nw, iT = w.numel(), w.numel() - 1
+        d = zvars.shape[1] + 1
+        hs = self._clear_hess.map(S)(*local, ca.reshape(lam, R, S))
+        sh = Scatter(nw, nw, triu=True)
+        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
+                                           strict=True))
+        for r in range(S):
+            v = np.concatenate([zvars[r], [iT]])
+            sh.add(v[ur], v[uc])
+        return sh.apply(ca.vec(hs))
 
     def _boundary_rows(self, Pm: ca.MX, T: ca.MX, par: ca.MX, sizes: list[int],
                        b_start_vel: ca.MX, b_end_vel: ca.MX) -> ca.MX:
@@ -388,7 +440,8 @@ class FlatTranscription:
             sh.add(v[ur], v[uc])
         hess = sh.apply(ca.vec(hs))
         hv = ca.triu(ca.hessian(ca.dot(lam_g[ng_set:ng_set + ng_lin], g_lin), w)[0])
-        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
+        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:ng_set + ng_lin + g_b.numel()], g_b),
+                                    w)[0])
         return hess + hv + hb
 
     @property
@@ -410,6 +463,9 @@ class FlatTranscription:
                               np.zeros(ng_b)])
         v = np.repeat(np.asarray(upper[n:], dtype=float), self.K - 1)  # rows joint by joint
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
+        if self._ng_clear:  # clearance rows: >= 0
+            lbg = np.concatenate([lbg, np.zeros(self._ng_clear)])
+            ubg = np.concatenate([ubg, np.full(self._ng_clear, np.inf)])
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
         ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
 
@@ -534,7 +590,10 @@ class FlatTranscription:
         c = p / (tk[p + 1:p + K] - tk[1:K])
         bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
         # The first and last samples are s = 0 and s = 1: the end velocities' basis.
-        return np.concatenate([bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]])
+        geo = [bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]]
+        if self.clearance is not None:  # the largest normalised time between two samples
+            geo.append([float(np.max(np.diff(breaks))) / ps])
+        return np.concatenate(geo)
 
     def on(self, breaks: np.ndarray) -> FlatTranscription:
         """The same NLP on other breakpoints with as many spans (no new build).

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from tocontrol_ros.core.direct.clearance import clearance_rows
 from tocontrol_ros.core.direct.collocation import (
     DirectCollocation,
     compile_direct,
@@ -191,12 +192,17 @@ class PreparedModel:
         count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
                count, warm)
+        col = problem.collision
+        if col is not None:  # its own transcription: the scene's rows
+            key += (col.key(), tuple(problem.limits.velocity))
         with self._lock:
             base = self._direct.pop(key, None)
             if base is None:
                 base = FlatTranscription(
                     self.model, count, problem.start.kind, problem.target.kind,
-                    torque_scale=problem.torque_scale, warm=warm)
+                    torque_scale=problem.torque_scale, warm=warm,
+                    clearance=None if col is None else clearance_rows(
+                        col, problem.limits.velocity))
             self._direct[key] = base  # the most recently used last
             for old in [k for k in self._direct if k[0] == "flat"][:-FLAT_CACHE]:
                 del self._direct[old]
