@@ -37,7 +37,8 @@ from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES"]
+__all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES",
+           "rigid_body_terms"]
 
 #: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
 _MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -84,13 +85,43 @@ def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
 def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
     """The right-hand sides of :data:`COMPILED_DEGREES` and their Jacobians, one library.
 
-    CVODES asks for the Jacobians at set-up, whichever iteration it uses.
+    CVODES asks for the Jacobians at set-up, whichever iteration it uses. Last, the
+    inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`).
     """
     out = []
     for degree in COMPILED_DEGREES:
         rhs = _open_loop_rhs(model, degree)
         out += [rhs, rhs.jacobian()]
-    return out
+    return out + [_rigid_body_terms(model)]
+
+
+def _rigid_body_terms(model: RobotModel) -> ca.Function:
+    """``(q, q', q'') -> (tau(q, 0, 0), tau(q, 0, q'), tau(q, q', q''))``, no friction.
+
+    The inverse dynamics without viscous friction (which enters a timing linearly in the
+    path speed) at the three points a path's TOPP-RA coefficients need.
+    """
+    q, d1, d2 = (ca.SX.sym(name, model.n) for name in ("q", "d1", "d2"))
+    zero = ca.SX.zeros(model.n)
+    rnea = model.rnea_sym
+    return ca.Function("rigid_body_terms", [q, d1, d2],
+                       [rnea(q, zero, zero, friction=False), rnea(q, zero, d1, friction=False),
+                        rnea(q, d1, d2, friction=False)])
+
+
+def rigid_body_terms(model: RobotModel, count: int) -> ca.Function:
+    """:func:`_rigid_body_terms` compiled with the open loop's library, mapped over ``count``.
+
+    The first motion's and the quick replan's coefficients evaluate it on every path they
+    time (in CasADi's virtual machine about 1 ms on the Panda at 31 gridpoints).
+    """
+    funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
+                            lambda: _compiled_rhs(model))
+    table = _MAPPED.setdefault(model, {})
+    key = ("rigid_body_terms", count)
+    if key not in table or table[key][0] is not funs[-1]:
+        table[key] = (funs[-1], funs[-1].map(count))
+    return table[key][1]
 
 
 def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,

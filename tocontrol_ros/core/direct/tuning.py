@@ -244,8 +244,9 @@ OPEN_LOOP_RTOL, OPEN_LOOP_ATOL = 1e-12, 1e-13
 
 # ------------------------------ the quick replan (first_motion.quick_motion)
 #: TOPP-RA segments of a replan's quick motion (each pass and the certificate's open loop
-#: cost in proportion; a replan's motion is short).
-QUICK_GRIDPOINTS = 40
+#: cost in proportion; a replan's motion is short). On a Panda replan from a moving state:
+#: 40 segments 20.9 ms, T 0.1049 s; 30: 17.6 ms, 0.1055 s; 20: 14.8 ms, 0.1065 s.
+QUICK_GRIDPOINTS = 30
 
 #: Newton steps from the running motion's end to the replan's target before the
 #: task-space line is followed instead (a target a few centimetres away converges in 3-4).
