@@ -251,8 +251,9 @@ def entry_fields(result: PlanResult, source: str, solve_time: float,
 
 def remember(store: MotionStore, result: PlanResult, source: str, solve_time: float,
              sample_period: float = SAMPLE_PERIOD) -> bool:
-    """Store a certified result (:func:`entry_fields`); False when it is not one, or the
-    same request is stored with a ``T`` as low.
+    """Store a certified result (:func:`entry_fields`).
+
+    False when it is not one, or when the same request is stored with a ``T`` as low.
 
     Raises
     ------

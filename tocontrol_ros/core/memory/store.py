@@ -317,7 +317,7 @@ class MotionStore:
             except sqlite3.DatabaseError as exc:
                 raise MemoryFileError(f"memory {self.path}: cannot be read ({_reason(exc)})"
                                       ) from None
-        cols = list(zip(*rows)) if rows else [[] for _ in _KEY_COLUMNS]
+        cols = list(zip(*rows, strict=True)) if rows else [[] for _ in _KEY_COLUMNS]
         keys = {"id": np.array(cols[0], dtype=np.int64),
                 "start_kind": list(cols[1]), "start": [_vec(b) for b in cols[2]],
                 "target_kind": list(cols[3]), "target": [_vec(b) for b in cols[4]],
@@ -341,7 +341,7 @@ class MotionStore:
                                       ) from None
         if row is None:
             raise MemoryFileError(f"memory {self.path}: no entry {entry_id}")
-        r = dict(zip(names, row))
+        r = dict(zip(names, row, strict=True))
         return StoredMotion(
             id=r["id"], key=r["key"],
             request=Request(r["start_kind"], _vec(r["start"]), r["target_kind"],
