@@ -268,6 +268,13 @@ class MotionStore:
         return {r[0]: {"status": r[1], "message": r[2], "T": r[3], "solve_time": r[4],
                        "worker": r[5], "finished": r[6]} for r in rows}
 
+    def forget_failed(self) -> int:
+        """Drop the build log's failed tasks (a build run again retries them); the count."""
+        with self._lock:
+            return self._db.execute(
+                "DELETE FROM tasks WHERE key NOT IN (SELECT t.key FROM tasks t WHERE "
+                "t.status IN ('SUCCESS', 'TRIVIAL'))").rowcount
+
     def delete(self, ids) -> int:
         """Remove the entries ``ids``; the count removed."""
         ids = [int(i) for i in ids]
