@@ -15,8 +15,8 @@ from __future__ import annotations
 import os
 import time
 
-from tocontrol_ros.batch.tasks import RobotSpec
 from tocontrol_ros.batch import worker as batch_worker
+from tocontrol_ros.batch.tasks import RobotSpec
 from tocontrol_ros.batch.worker import ERROR, worker_model
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.memory.cell import MotionTask, task_problem

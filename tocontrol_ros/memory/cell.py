@@ -55,8 +55,8 @@ from tocontrol_ros.batch.tasks import (
 )
 from tocontrol_ros.core.errors import TocontrolError
 
-__all__ = ["Cell", "MotionTask", "load_cell", "parse_cell", "example_robot_data_urdf", "task_problem",
-           "cell_problem"]
+__all__ = ["Cell", "MotionTask", "load_cell", "parse_cell", "example_robot_data_urdf",
+           "task_problem", "cell_problem"]
 
 TOP_KEYS = ("robot", "k", "reserve", "method", "sample_period", "solver", "hard_timeout",
             "starts", "targets")
@@ -275,11 +275,11 @@ def _targets(where, value, model) -> list[tuple]:
         if np.any(hi < lo):
             raise TaskFileError(f"{w}: upper must be >= lower on every axis")
         spacing = _number(f"{w}.spacing", box.get("spacing"), 1e-4)
-        counts = [int(math.ceil((h - l) / spacing - 1e-9)) + 1 for l, h in zip(lo, hi,
-                                                                               strict=True)]
+        counts = [int(math.ceil((b - a) / spacing - 1e-9)) + 1
+                  for a, b in zip(lo, hi, strict=True)]
         if math.prod(counts) > MAX_TASKS:
             raise TaskFileError(f"{w}: {math.prod(counts)} grid points; at most {MAX_TASKS}")
-        axes = [np.linspace(l, h, c) for l, h, c in zip(lo, hi, counts, strict=True)]
+        axes = [np.linspace(a, b, c) for a, b, c in zip(lo, hi, counts, strict=True)]
         for p in np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, model.m):
             out.append(("point", tuple(float(v) for v in p)))
     for i, p in enumerate(value.get("points") or []):
