@@ -9,7 +9,8 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion]
+                verification,deployed,replan,batch,limits,first_motion,memory]
+        [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -37,8 +38,12 @@ the same NLPs, 10 Panda cases),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
-Panda). Every timing is taken in this one process, side by side; compiled functions go to a
-fresh temporary cache so that first-run costs are measured, not inherited.
+Panda), ``memory`` (issue 50: a memory of optimal motions of a Panda cell, built with the
+``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
+then 50 requests inside the cell and 20 outside through a planner node with it against one
+without, and the compiled peer from the same stored motions). Every timing is taken in this
+one process, side by side; compiled functions go to a fresh temporary cache so that first-run
+costs are measured, not inherited.
 """
 
 import argparse
@@ -63,7 +68,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise",
-         "first_motion")
+         "first_motion", "memory")
 
 
 def _parse(argv):
@@ -86,6 +91,9 @@ def _parse(argv):
                              "4 with --quick); the exhaustive reference takes 10-40 s each")
     parser.add_argument("--only", default=",".join(PARTS),
                         help="comma-separated parts (peers needs paper)")
+    parser.add_argument("--memory-file", type=Path, default=None,
+                        help="the memory part's file, built or resumed there (default: "
+                             "panda_cell.sqlite in the temporary folder)")
     parser.add_argument("--optimum-panda-cases", type=int, default=20,
                         help="cases of the best-motion section on the Panda (default 20)")
     parser.add_argument("--limit-cases", type=int, default=10,
@@ -138,6 +146,7 @@ def _run(args):
         first_motion,
         first_use,
         limits,
+        memory,
         optimum,
         optimum_panda,
         panda_peer,
@@ -232,6 +241,10 @@ def _run(args):
     if "first_motion" in args.only:
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
+    if "memory" in args.only:
+        section(lambda: memory.run(args.memory_file, inside=5 if args.quick else 50,
+                                   outside=2 if args.quick else 20,
+                                   peer_cases=2 if args.quick else memory.PEER_CASES))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
