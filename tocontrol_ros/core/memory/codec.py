@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -25,7 +26,7 @@ from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
 __all__ = ["CodecError", "encode_warm", "decode_warm", "encode_sample", "decode_sample",
-           "warm_result", "WARM_KINDS"]
+           "warm_result", "without_multipliers", "WARM_KINDS"]
 
 #: The warm states a memory can hold, by the name stored with them.
 WARM_KINDS = ("path", "shooting")
@@ -141,6 +142,19 @@ def warm_result(problem: Problem, kind: str, blob: bytes, method: str,
                       timings={}, continuation=(), max_abs_u=float("nan"),
                       delta=head["delta"], intervals=0, problem=problem, warm_state=state,
                       method=method)
+
+
+def without_multipliers(warm: PlanResult) -> PlanResult | None:
+    """The same warm start from the path alone (no NLP multipliers); None without any.
+
+    A bounded warm re-solve from a solution and its multipliers is IPOPT's quickest when it
+    works, but from a stored motion a few centimetres away it can fail in its first steps
+    (``Error_In_Step_Computation``) where the same path without multipliers converges.
+    """
+    st = warm.warm_state
+    if not isinstance(st, PathWarmState) or st.lam_g is None:
+        return None
+    return replace(warm, warm_state=replace(st, lam_g=None, lam_x=None))
 
 
 def encode_sample(sample) -> bytes:

@@ -13,8 +13,10 @@ more than :data:`BASIN_RADIUS` apart, max-norm, rad) is kept, up to ``basins`` o
 (several basins, as Lembono et al. 2020 found, beat any single guess); each is re-solved
 warm through the method contract (:func:`~tocontrol_ros.core.planning.solver.solve_once`:
 the method that owns the stored warm state continues it, and certifies the motion as any
-solve of it would), and the least ``T`` among the successes is returned. Bounded by work:
-one warm solve per basin tried.
+solve of it would), and the least ``T`` among the successes is returned. A bounded motion
+whose warm re-solve from its multipliers fails is solved once more from its path alone
+(:func:`~tocontrol_ros.core.memory.codec.without_multipliers`). Bounded by work: at most two
+warm solves per basin tried.
 """
 
 from __future__ import annotations
@@ -25,7 +27,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tocontrol_ros.core.memory.codec import CodecError, encode_sample, encode_warm, warm_result
+from tocontrol_ros.core.memory.codec import (
+    CodecError,
+    encode_sample,
+    encode_warm,
+    warm_result,
+    without_multipliers,
+)
 from tocontrol_ros.core.memory.keys import options_hash, options_summary, robot_hash
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, Request
 from tocontrol_ros.core.planning.solver import solve_once
@@ -202,9 +210,13 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         t2 = time.perf_counter()
         t_decode += t2 - t1
         result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
+        primal = without_multipliers(warm) if not result.success else None
+        if primal is not None and not (should_stop is not None and should_stop()):
+            result = solve_once(planner, problem, warm_options, primal, should_stop, deadline)
         t_solve += time.perf_counter() - t2
         messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s): "
-                        f"{result.message}")
+                        f"{result.message}" + (" (from its path alone: its multipliers "
+                                               "failed)" if primal is not None else ""))
         if result.success and (best is None or result.T < best.T):
             best = result
         if should_stop is not None and should_stop():
