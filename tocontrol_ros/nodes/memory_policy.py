@@ -86,6 +86,10 @@ class MemoryPolicy:
         except (MemoryFileError, CodecError) as exc:
             self._warn(f"memory lookup failed, planning without it: {exc}")
             return None, {"memory": UNAVAILABLE, "memory_error": str(exc)}
+        except Exception as exc:  # noqa: BLE001  (a memory must never cost a request its plan)
+            reason = f"unexpected {type(exc).__name__}: {exc}"
+            self._warn(f"memory lookup failed, planning without it: {reason}")
+            return None, {"memory": UNAVAILABLE, "memory_error": reason}
         values = {"memory": HIT if found.result is not None else MISS,
                   "memory_distance": found.distance if math.isfinite(found.distance)
                   else None}
@@ -110,6 +114,10 @@ class MemoryPolicy:
             return remember(store, result, "planner", solve_time)
         except (MemoryFileError, TocontrolError) as exc:
             self._warn(f"memory: the plan was not stored: {exc}")
+            return False
+        except Exception as exc:  # noqa: BLE001  (the plan is published already)
+            self._warn(f"memory: the plan was not stored: unexpected "
+                       f"{type(exc).__name__}: {exc}")
             return False
 
     def close(self) -> None:
