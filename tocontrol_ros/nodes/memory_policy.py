@@ -82,7 +82,7 @@ class MemoryPolicy:
             return None, {"memory": UNAVAILABLE, "memory_error": store}
         try:
             found = recall(planner, problem, options, store, config.memory_radius,
-                           config.memory_basins, should_stop)
+                           config.memory_basins, should_stop, config.memory_spans)
         except (MemoryFileError, CodecError) as exc:
             self._warn(f"memory lookup failed, planning without it: {exc}")
             return None, {"memory": UNAVAILABLE, "memory_error": str(exc)}

@@ -219,6 +219,11 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("memory_basins", 2, "Stored motions re-solved warm per hit, nearest "
                   "first, one per basin (end configurations more than 0.3 rad apart); the "
                   "least T certified is published.", 1, 16),
+    ParameterSpec("memory_spans", 64, "A stored motion of an arm whose limits bind is "
+                  "re-solved on this many uniform B-spline spans, from its stored path (T "
+                  "above the optimum by about 1/spans^2: 5e-4 at 64 on the Panda); 0: on its "
+                  "own refined mesh, from its multipliers (a transcription built per mesh "
+                  "size: slow).", 0, 256, constraints="0 or at least 4"),
     ParameterSpec("memory_learn", False, "Add every certified plan the node publishes to "
                   "the memory (made if the file does not exist), so that a cell learns."),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
@@ -300,6 +305,7 @@ class PlannerConfig:
     memory: str = ""
     memory_radius: float = 1.0
     memory_basins: int = 2
+    memory_spans: int = 64
     memory_learn: bool = False
 
 
@@ -381,6 +387,9 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
         raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
                           f"({out['starts']}): only the starts' direct solutions can be "
                           f"continued")
+    if 0 < out["memory_spans"] < MIN_REPLAN_SPANS:
+        raise ConfigError(f"`memory_spans` must be 0 or at least {MIN_REPLAN_SPANS}, got "
+                          f"{out['memory_spans']}")
     if 0 < out["replan_spans"] < MIN_REPLAN_SPANS:
         raise ConfigError(f"`replan_spans` must be 0 or at least {MIN_REPLAN_SPANS}, got "
                           f"{out['replan_spans']}")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
 __all__ = ["CodecError", "encode_warm", "decode_warm", "encode_sample", "decode_sample",
-           "warm_result", "without_multipliers", "WARM_KINDS"]
+           "warm_result", "without_multipliers", "SampledPath", "WARM_KINDS"]
 
 #: The warm states a memory can hold, by the name stored with them.
 WARM_KINDS = ("path", "shooting")
@@ -116,8 +117,33 @@ def decode_warm(kind: str, blob: bytes, what: str = "warm state") -> tuple[objec
     return state, head
 
 
+class SampledPath:
+    """A stored motion's joint path between its samples (cubic Hermite in ``q`` and ``qd``).
+
+    What a bounded warm re-solve on another mesh fits its start to
+    (``SolverOptions.replan_spans``): ``evaluate(t)`` with ``t``, ``q`` and ``qd``.
+
+    Parameters
+    ----------
+    sample : dict
+        :func:`decode_sample`'s arrays: ``t`` (K,) s, ``q`` and ``qd`` (K, n).
+    """
+
+    def __init__(self, sample: dict) -> None:
+        from scipy.interpolate import CubicHermiteSpline
+
+        self.T = float(sample["t"][-1])
+        self._q = CubicHermiteSpline(sample["t"], sample["q"], sample["qd"])
+        self._qd = CubicHermiteSpline(sample["t"], sample["qd"], sample["qdd"])
+
+    def evaluate(self, t) -> SimpleNamespace:
+        """``t`` (s, clipped to [0, T]), ``q`` (rad) and ``qd`` (rad/s) at those times."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
+        return SimpleNamespace(t=t, q=self._q(t), qd=self._qd(t))
+
+
 def warm_result(problem: Problem, kind: str, blob: bytes, method: str,
-                what: str = "warm state") -> PlanResult:
+                what: str = "warm state", trajectory=None) -> PlanResult:
     """A :class:`PlanResult` that warm-starts a solve from a stored motion.
 
     Parameters
@@ -129,16 +155,19 @@ def warm_result(problem: Problem, kind: str, blob: bytes, method: str,
         From :func:`encode_warm`.
     method : str
         The stored result's ``method``.
+    trajectory : SampledPath, optional
+        The stored motion's path, for a warm re-solve on another mesh.
 
     Returns
     -------
     PlanResult
-        Success, the stored ``T``, ``k``, ``delta`` and warm state, no trajectory: only a
-        warm start reads it.
+        Success, the stored ``T``, ``k``, ``delta``, warm state and path: only a warm start
+        reads it.
     """
     state, head = decode_warm(kind, blob, what)
     return PlanResult(success=True, status=Status.SUCCESS, message="stored motion",
-                      T=head["T"], k=head["k"], trajectory=None, residual=0.0, iterations=0,
+                      T=head["T"], k=head["k"], trajectory=trajectory, residual=0.0,
+                      iterations=0,
                       timings={}, continuation=(), max_abs_u=float("nan"),
                       delta=head["delta"], intervals=0, problem=problem, warm_state=state,
                       method=method)

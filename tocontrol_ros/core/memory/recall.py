@@ -29,6 +29,8 @@ import numpy as np
 
 from tocontrol_ros.core.memory.codec import (
     CodecError,
+    SampledPath,
+    decode_sample,
     encode_sample,
     encode_warm,
     warm_result,
@@ -42,7 +44,7 @@ from tocontrol_ros.core.types.result import PlanResult
 from tocontrol_ros.core.types.tuning import WARM_RADIUS
 
 __all__ = ["Recall", "recall", "distances", "choose", "remember", "entry_fields", "open_memory",
-           "stored_problem", "BASIN_RADIUS", "DEFAULT_BASINS", "DEFAULT_RADIUS",
+           "stored_problem", "BASIN_RADIUS", "DEFAULT_BASINS", "DEFAULT_RADIUS", "DEFAULT_SPANS",
            "SAMPLE_PERIOD"]
 
 #: End configurations farther apart than this (max-norm, rad) are distinct basins: the
@@ -54,6 +56,13 @@ BASIN_RADIUS = 0.3
 DEFAULT_BASINS = 2
 #: Default radius of a hit, in warm units (1 = the warm start's own radius).
 DEFAULT_RADIUS = 1.0
+#: Uniform B-spline spans of a bounded warm re-solve (``SolverOptions.replan_spans``): the
+#: stored motions' refined meshes have 50-140 spans, each count its own transcription to
+#: build (a minute for the Panda under load) and its warm re-solve from multipliers stalled
+#: there; one uniform mesh is built once and re-solved from each stored path fitted to it.
+#: Its T is above the refined mesh's by about 1/N^2: on three Panda requests 2-5.5e-3 at 24
+#: spans, 0.5-1.5e-3 at 48; 64 aims below the issue's 1e-3.
+DEFAULT_SPANS = 64
 #: Spacing of the stored trajectory's samples (s): the planner's default sample period.
 SAMPLE_PERIOD = 0.005
 
@@ -157,7 +166,7 @@ def stored_problem(problem: Problem, request: Request) -> Problem:
 
 def recall(planner, problem: Problem, options, store: MotionStore,
            radius: float = DEFAULT_RADIUS, basins: int = DEFAULT_BASINS,
-           should_stop=None) -> Recall:
+           should_stop=None, spans: int = DEFAULT_SPANS) -> Recall:
     """Look ``problem`` up in ``store`` and re-solve the chosen entries warm.
 
     Parameters
@@ -175,6 +184,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     basins : int
         Most entries re-solved (distinct basins).
     should_stop : callable, optional
+    spans : int
+        A bounded motion is re-solved on this many uniform spans, from its stored path
+        (0: on its own mesh, from its path and multipliers).
 
     Returns
     -------
@@ -195,14 +207,16 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         return Recall(False, nearest, timings={"lookup": t_lookup, "decode": 0.0,
                                                "solve": 0.0, "total": t_lookup})
     deadline = t0 + options.time_limit
-    warm_options = replace(options, warm_only=True, replan_spans=0)
+    warm_options = replace(options, warm_only=True, replan_spans=int(spans))
     best, messages, t_decode, t_solve = None, [], 0.0, 0.0
     for i in rows:
         t1 = time.perf_counter()
         try:
             entry = store.get(int(keys["id"][i]))
+            path = SampledPath(decode_sample(entry.trajectory, f"entry {entry.id}")) \
+                if spans and entry.warm_kind == "path" else None
             warm = warm_result(stored_problem(problem, entry.request), entry.warm_kind,
-                               entry.warm, entry.method, what=f"entry {entry.id}")
+                               entry.warm, entry.method, f"entry {entry.id}", path)
         except (CodecError, MemoryFileError) as exc:
             messages.append(f"entry {int(keys['id'][i])}: {exc}")
             t_decode += time.perf_counter() - t1
@@ -210,7 +224,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         t2 = time.perf_counter()
         t_decode += t2 - t1
         result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
-        primal = without_multipliers(warm) if not result.success else None
+        own_mesh = not spans or entry.warm_kind != "path" or \
+            len(warm.warm_state.breaks) - 1 == spans
+        primal = without_multipliers(warm) if own_mesh and not result.success else None
         if primal is not None and not (should_stop is not None and should_stop()):
             result = solve_once(planner, problem, warm_options, primal, should_stop, deadline)
         t_solve += time.perf_counter() - t2
