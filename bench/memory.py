@@ -55,7 +55,7 @@ import yaml
 if __name__ == "__main__":
     sys.path.append(str(Path(__file__).resolve().parents[1]))
 
-from bench.common import Section, log, panda_urdf, table  # noqa: E402
+from bench.common import Section, load_text, log, panda_urdf, table  # noqa: E402
 from bench.deployed import RosClient, _Process  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -259,6 +259,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
         return Section(title, ["example-robot-data is not installed: section skipped."], [])
     model, limits = found
     memory = Path(memory or Path(tempfile.gettempdir()) / "panda_cell.sqlite")
+    load_start = load_text()
     build_wall = _build(memory) if build else 0.0
     build = _build_figures(memory, model)
     log(f"memory: build {build}")
@@ -303,7 +304,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
         for proc in procs:
             proc.stop()
     peer = _peer_rows(memory, model, limits, sets["inside"][:peer_cases]) if peer_cases else []
-    return _section(title, build, build_wall, out, peer, first_hit)
+    return _section(title, build, build_wall, out, peer, first_hit, (load_start, load_text()))
 
 
 def _f(values: dict, key: str) -> float:
@@ -313,7 +314,7 @@ def _f(values: dict, key: str) -> float:
         return float("nan")
 
 
-def _section(title, build, build_wall, out, peer, first_hit) -> Section:
+def _section(title, build, build_wall, out, peer, first_hit, load) -> Section:
     ins, outs = out["inside"], out["outside"]
     lat = [g["memory"][0] for g in ins]
     cold_lat = [g["cold"][0] for g in ins]
@@ -339,10 +340,14 @@ def _section(title, build, build_wall, out, peer, first_hit) -> Section:
         f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
         f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
         f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
-        f"the requests `bench/memory_cell/requests.yaml` ({len(ins)} inside, {len(outs)} "
-        f"outside). Two cores shared with other work: the figures are as measured. Command: "
-        f"`scripts/dev run python -P bench/memory.py --memory FILE` (the build resumes in "
-        f"FILE).",
+        f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 "
+        f"outside; this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
+        f"other work (load average {load[0]} at the start, {load[1]} at the end): the "
+        f"figures are as measured. Command: "
+        f"`scripts/dev bench run_all.py --update --only memory --memory-file FILE` "
+        f"(`--memory-requests {len(ins)},{len(outs)},{len(peer)}` for this run's counts, "
+        f"`--memory-no-build` to serve FILE as it is; without it the build resumes in FILE), "
+        f"or `scripts/dev run python -P bench/memory.py --memory FILE`.",
         "",
         f"**Build** (`ros2 run tocontrol_ros memory build`, 2 worker processes): "
         f"{build['ok']}/{build['tasks']} tasks solved and certified, {build['motions']} "
@@ -352,7 +357,11 @@ def _section(title, build, build_wall, out, peer, first_hit) -> Section:
         f"{build['size'] / 1e6:.1f} MB, "
         f"{build['size'] / max(build['motions'], 1) * 1000 / 1e6:.1f} MB per 1000 "
         f"motions; coverage {100 * build['coverage']:.1f} % of 2000 uniform "
-        f"targets in the box (a stored motion within the hit radius, 1 warm unit = 0.1 m).",
+        f"targets in the box (a stored motion within the hit radius, 1 warm unit = 0.1 m)."
+        + (f" **The build was stopped at {build['tasks']}/{build['total']} tasks** (the "
+           f"cell's tasks go station by station: home, left, right); a request whose "
+           f"station's motions near its target are not built is a miss."
+           if build["tasks"] < build["total"] else ""),
         "",
         f"**Inside the cell, through the node** ({len(ins)} requests, memory node against "
         f"the default node, both as processes): memory hits {len(hits)}/{len(ins)}; latency "

@@ -94,6 +94,12 @@ def _parse(argv):
     parser.add_argument("--memory-file", type=Path, default=None,
                         help="the memory part's file, built or resumed there (default: "
                              "panda_cell.sqlite in the temporary folder)")
+    parser.add_argument("--memory-requests", default=None, metavar="INSIDE,OUTSIDE,PEER",
+                        help="the memory part's request counts (default 50,20,10; 5,2,2 "
+                             "with --quick)")
+    parser.add_argument("--memory-no-build", action="store_true",
+                        help="the memory part serves --memory-file as it is (a partial "
+                             "build is reported as such)")
     parser.add_argument("--optimum-panda-cases", type=int, default=20,
                         help="cases of the best-motion section on the Panda (default 20)")
     parser.add_argument("--limit-cases", type=int, default=10,
@@ -242,9 +248,11 @@ def _run(args):
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
     if "memory" in args.only:
-        section(lambda: memory.run(args.memory_file, inside=5 if args.quick else 50,
-                                   outside=2 if args.quick else 20,
-                                   peer_cases=2 if args.quick else memory.PEER_CASES))
+        counts = (5, 2, 2) if args.quick else (50, 20, memory.PEER_CASES)
+        if args.memory_requests:
+            counts = tuple(int(v) for v in args.memory_requests.split(","))
+        section(lambda: memory.run(args.memory_file, *counts,
+                                   build=not args.memory_no_build))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(
