@@ -400,8 +400,9 @@ def _section(title, build, build_wall, out, peer, first_hit, load) -> Section:
         lines += [
             "",
             f"**The compiled peer from the same nearest stored motion** (the first {len(peer)} "
-            f"inside requests that were hits, in this process): the peer (Hermite-Simpson, {PEER_INTERVALS} "
-            f"intervals, compiled, IPOPT) converged on {sum(r['peer_ok'] for r in peer)}/"
+            f"inside requests that were hits, in this process): the peer (Hermite-Simpson, "
+            f"{PEER_INTERVALS} intervals, compiled, IPOPT) converged on "
+            f"{sum(r['peer_ok'] for r in peer)}/"
             f"{len(peer)}, median {_med([r['peer_s'] for r in peer]) * 1e3:.0f} ms, "
             f"{_med([r['peer_it'] for r in peer]):.0f} iterations; ours (warm re-solve of that "
             f"entry alone) {sum(r['ours_ok'] for r in peer)}/{len(peer)}, median "
