@@ -26,6 +26,7 @@ PACKAGE_NAME = "tocontrol_ros"
 # (test/packaging/test_executables.py checks that the two agree).
 EXECUTABLES = {
     "batch": "tocontrol_ros.batch",
+    "memory": "tocontrol_ros.memory",
     "demo": "tocontrol_ros.demo",
     "figures": "tocontrol_ros.figures",
     "planner": "tocontrol_ros.planner",

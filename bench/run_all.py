@@ -9,7 +9,9 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion,collision]
+                verification,deployed,replan,batch,limits,first_motion,collision,
+                memory]
+        [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -40,9 +42,13 @@ planning throughput: loop, process pool, Ray), ``limits`` (random cases with joi
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
 Panda), ``collision`` (issue 51: the Panda in three scenes placed on each case's
 obstacle-free optimum, planned with the clearance rows, checked exactly with Coal, against
-OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene). Every timing is
-taken in this one process, side by side; compiled functions go to a fresh temporary cache so
-that first-run costs are measured, not inherited.
+OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene),
+``memory`` (issue 50: a memory of optimal motions of a Panda cell, built with the
+``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
+then 50 requests inside the cell and 20 outside through a planner node with it against one
+without, and the compiled peer from the same stored motions). Every timing is taken in this
+one process, side by side; compiled functions go to a fresh temporary cache so that first-run
+costs are measured, not inherited.
 """
 
 import argparse
@@ -67,7 +73,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise", "warm_resolve",
-         "first_motion", "collision")
+         "first_motion", "collision", "memory")
 
 
 def _parse(argv):
@@ -90,6 +96,15 @@ def _parse(argv):
                              "4 with --quick); the exhaustive reference takes 10-40 s each")
     parser.add_argument("--only", default=",".join(PARTS),
                         help="comma-separated parts (peers needs paper)")
+    parser.add_argument("--memory-file", type=Path, default=None,
+                        help="the memory part's file, built or resumed there (default: "
+                             "panda_cell.sqlite in the temporary folder)")
+    parser.add_argument("--memory-requests", default=None, metavar="INSIDE,OUTSIDE,PEER",
+                        help="the memory part's request counts (default 50,20,10; 5,2,2 "
+                             "with --quick)")
+    parser.add_argument("--memory-no-build", action="store_true",
+                        help="the memory part serves --memory-file as it is (a partial "
+                             "build is reported as such)")
     parser.add_argument("--optimum-panda-cases", type=int, default=20,
                         help="cases of the best-motion section on the Panda (default 20)")
     parser.add_argument("--limit-cases", type=int, default=10,
@@ -145,6 +160,7 @@ def _run(args):
         first_motion,
         first_use,
         limits,
+        memory,
         optimum,
         optimum_panda,
         panda_peer,
@@ -244,6 +260,12 @@ def _run(args):
                                          count=3 if args.quick else 9))
     if "collision" in args.only:
         section(lambda: collision.run(2 if args.quick else args.collision_cases))
+    if "memory" in args.only:
+        counts = (5, 2, 2) if args.quick else (50, 20, memory.PEER_CASES)
+        if args.memory_requests:
+            counts = tuple(int(v) for v in args.memory_requests.split(","))
+        section(lambda: memory.run(args.memory_file, *counts,
+                                   build=not args.memory_no_build))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

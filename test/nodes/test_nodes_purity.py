@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 #: The ROS-free modules of ``tocontrol_ros/nodes/``.
 PURE = ("planning_service", "replan_policy", "warm_up", "requests", "replanning",
         "planner_config", "parameter_specs", "outcomes", "splice", "tracker_time",
-        "jtc_interpolation",
+        "jtc_interpolation", "memory_policy",
         "tracker_config")
 
 #: Imports the given module and prints the ROS packages in ``sys.modules`` after it: rclpy,

@@ -51,9 +51,13 @@ class RayBackend:
     workers : int, optional
         ``local``: the cluster's CPUs (default: all of this machine's). Elsewhere: at most
         this many tasks at once (default: the cluster's CPUs).
+    fn : callable (robot, task) -> dict, optional
+        The work of one task (default :func:`~tocontrol_ros.batch.worker.run_task`; the
+        memory's build passes its own); a module-level function, so that workers import it.
     """
 
-    def __init__(self, robot: RobotSpec, address: str, workers: int | None = None) -> None:
+    def __init__(self, robot: RobotSpec, address: str, workers: int | None = None,
+                 fn=run_task) -> None:
         if address == "local":
             if "ray" in sys.modules and any(os.environ.get(k) != v
                                             for k, v in LOCAL_ONLY_ENV.items()):
@@ -86,7 +90,7 @@ class RayBackend:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.cpus = min(cpus, workers) if workers and address != "local" else cpus
         self.capacity = QUEUE_PER_CPU * self.cpus
-        self._remote = ray.remote(num_cpus=1, max_retries=0)(run_task)
+        self._remote = ray.remote(num_cpus=1, max_retries=0)(fn)
         self._robot = ray.put(robot)
         self._refs: dict = {}
 

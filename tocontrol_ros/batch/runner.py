@@ -44,13 +44,17 @@ class LocalPool:
     robot : RobotSpec
     workers : int
         Processes; each builds the model once, in its initializer.
+    fn : callable (robot, task) -> dict, optional
+        The work of one task (default :func:`~tocontrol_ros.batch.worker.run_task`; the
+        memory's build passes its own); a module-level function (pickled by name).
     """
 
-    def __init__(self, robot: RobotSpec, workers: int) -> None:
+    def __init__(self, robot: RobotSpec, workers: int, fn=run_task) -> None:
         if workers < 1:
             raise ValueError(f"`workers` must be >= 1, got {workers!r}")
         self.robot = robot
         self.capacity = workers
+        self.fn = fn
         self._pool = None
         self._futures: dict[cf.Future, tuple[Task, cf.ProcessPoolExecutor]] = {}
         self._context = multiprocessing.get_context("spawn")
@@ -85,7 +89,7 @@ class LocalPool:
     def submit(self, task: Task) -> None:
         """Start `task` on a free worker."""
         pool = self._executor()
-        self._futures[pool.submit(run_task, self.robot, task)] = (task, pool)
+        self._futures[pool.submit(self.fn, self.robot, task)] = (task, pool)
 
     def poll(self, timeout: float) -> list:
         """Finished tasks (waits up to `timeout` s for the first)."""

@@ -227,6 +227,26 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "goals are superseded while solving those waiting would take longer than "
                   "this (s; their count times the recent replans' median solve time): newest "
                   "wins. Solves that keep up answer every goal.", 0.0, 3600.0),
+    # The memory of optimal motions (tocontrol_ros/nodes/memory_policy.py, docs/memory.md).
+    ParameterSpec("memory", "", "Path of a memory of optimal motions (a SQLite file that "
+                  "`ros2 run tocontrol_ros memory build` made for this robot and these k, "
+                  "reserve, joint limits and margin): a request near a stored motion is "
+                  "answered by re-solving the nearest ones warm (memory: hit on ~/status), "
+                  "else planned as without it (miss). A missing, corrupt, locked or other "
+                  "robot's file: a WARN status, and plans without it. Empty: no memory."),
+    ParameterSpec("memory_radius", 1.0, "Largest distance of a hit, in units of the warm "
+                  "start's radii (each end point 0.1 m, each joint-state end 0.05 rad): a "
+                  "stored motion farther from the request is not tried.", 0.0, 5.0),
+    ParameterSpec("memory_basins", 2, "Stored motions re-solved warm per hit, nearest "
+                  "first, one per basin (end configurations more than 0.3 rad apart); the "
+                  "least T certified is published.", 1, 16),
+    ParameterSpec("memory_spans", 64, "A stored motion of an arm whose limits bind is "
+                  "re-solved on this many uniform B-spline spans, from its stored path (T "
+                  "above the optimum by about 1/spans^2: 5e-4 at 64 on the Panda); 0: on its "
+                  "own refined mesh, from its multipliers (a transcription built per mesh "
+                  "size: slow).", 0, 256, constraints="0 or at least 4"),
+    ParameterSpec("memory_learn", False, "Add every certified plan the node publishes to "
+                  "the memory (made if the file does not exist), so that a cell learns."),
     ParameterSpec("service_timeout", 120.0, "Longest a ~/plan call waits for its outcome "
                   "(s); then it returns an empty path.", 1.0, 3600.0),
     # Execution on a controller (tocontrol_ros/nodes/controller_client.py).
@@ -307,6 +327,11 @@ class PlannerConfig:
     scene_file: str = ""
     margin: float = DEFAULT_MARGIN
     robot_description_semantic: str = ""
+    memory: str = ""
+    memory_radius: float = 1.0
+    memory_basins: int = 2
+    memory_spans: int = 64
+    memory_learn: bool = False
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:
@@ -387,6 +412,9 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
         raise ConfigError(f"`candidates` ({out['candidates']}) must not exceed `starts` "
                           f"({out['starts']}): only the starts' direct solutions can be "
                           f"continued")
+    if 0 < out["memory_spans"] < MIN_REPLAN_SPANS:
+        raise ConfigError(f"`memory_spans` must be 0 or at least {MIN_REPLAN_SPANS}, got "
+                          f"{out['memory_spans']}")
     if 0 < out["replan_spans"] < MIN_REPLAN_SPANS:
         raise ConfigError(f"`replan_spans` must be 0 or at least {MIN_REPLAN_SPANS}, got "
                           f"{out['replan_spans']}")

@@ -30,6 +30,7 @@ import numpy as np
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.core.types.problem import MIN_MOVE
+from tocontrol_ros.nodes.memory_policy import MemoryPolicy
 from tocontrol_ros.nodes.outcomes import result_message, result_values
 from tocontrol_ros.nodes.planner_config import (
     FIRST_THEN_OPTIMUM,
@@ -170,6 +171,8 @@ class PlanningService:
         self._last_result = None
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
         self._replans = ReplanPolicy(self)
+        self.memory = MemoryPolicy(lambda message: self.out.status(
+            "WARN", message, {"event": "memory", "frame_id": frame_id}))
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
 
     # ------------------------------------------------------------- state
@@ -353,14 +356,22 @@ class PlanningService:
             return
         start_point = problem.start_point
         options = solver_options(config)
-        first = self._first(req, problem, options) \
-            if config.publish == FIRST_THEN_OPTIMUM else None
-        last = self._last_result
-        warm = last if config.warm_start and last is not None and \
-            last.can_warm_start(problem) else None
-        result = self.planner.plan(problem, options, warm_start=warm,
-                                   should_stop=self.should_stop(req))
-        extra = {"start": start_point, **result_values(result),
+        t0 = self.clock.monotonic()
+        # A memory hit answers by warm re-solves of stored motions; a miss plans as before.
+        recalled, memory_values = self.memory.lookup(config, self.planner, problem, options,
+                                                     self.should_stop(req))
+        first = warm = None
+        if recalled is not None and recalled.result is not None:
+            result = recalled.result
+        else:
+            first = self._first(req, problem, options) \
+                if config.publish == FIRST_THEN_OPTIMUM else None
+            last = self._last_result
+            warm = last if config.warm_start and last is not None and \
+                last.can_warm_start(problem) else None
+            result = self.planner.plan(problem, options, warm_start=warm,
+                                       should_stop=self.should_stop(req))
+        extra = {"start": start_point, **result_values(result), **memory_values,
                  "warm_start": warm is not None,
                  "warm_returned": any(r.index == -1 and r.status == "returned"
                                       for r in result.starts),
@@ -395,6 +406,8 @@ class PlanningService:
             return
         self.publish_final(req, result, self._replans.goal_stamp(req), message_prefix="",
                            extra=extra, start_point=start_point)
+        if result.success:
+            self.memory.learn(config, result, self.clock.monotonic() - t0)
 
     def publish_final(self, req: PlanRequest, result, stamp_ns: int | None,
                       message_prefix: str, extra: dict, start_point: np.ndarray | None,
@@ -501,3 +514,5 @@ class PlanningService:
             self.finish(leftover, "WARN", "cancelled", "node shutting down")
         if self._worker.is_alive() and threading.current_thread() is not self._worker:
             self._worker.join(timeout)
+        if not self._worker.is_alive():
+            self.memory.close()

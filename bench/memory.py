@@ -1,0 +1,467 @@
+"""A memory of optimal motions for the Panda cell (issue 50): build, then serve as deployed.
+
+The cell (``bench/memory_cell/panda_cell.yaml``): the Panda of example-robot-data with its
+URDF limits (which bind), tip ``panda_hand``, three stations (start points) and a 40 x 40 x
+30 cm target box at a 10 cm grid: 300 motions, each planned with a search wider than the
+node's default (``starts`` 24, ``candidates`` 8). The requests
+(``bench/memory_cell/requests.yaml``, made once by :func:`write_requests` from a seed): 50
+inside the cell (a station, a target drawn uniformly in the box: none on the grid) and 20
+outside (targets 15-30 cm beside the box).
+
+Measured:
+
+- *The build* (``ros2 run tocontrol_ros memory build``, two worker processes; resumed when a
+  file is there already, so the figures come from the file's build log): motions per minute
+  (stored motions over the span of the log's finish times, plus one median solve), the
+  file's size per 1000 motions, and the coverage: the share of 2000 targets drawn uniformly
+  in the box (from a random station) with a stored motion within the hit radius.
+- *Serving, through the node as deployed*: two planner processes (``python -P -m
+  tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default options
+  otherwise: one with ``memory`` set, one without (the full default multistart: the
+  reference). A client in this process calls ``~/plan`` on each in turn (the order
+  alternating), after one uncounted call each; the round trip is request sent to response
+  received, ``T``, the certificate and ``memory: hit|miss`` come from the request's final
+  ``~/status``. Inside: median and p95 latency with the memory, certified count, ``T``
+  within 1e-3 (relative) of the reference's; outside: both nodes' latencies (a miss plans
+  cold: the memory's cost is the lookup) and ``T`` (the same cold plan). Where a hit's time
+  goes: the lookup, the warm re-solves and the rest (sampling, publishing, the round trip),
+  from the status values.
+- *The compiled peer, side by side*: :class:`bench.peer_compiled.Peer` (Hermite-Simpson,
+  compiled, IPOPT) on 25 intervals started from the same nearest stored motion (its samples
+  at the peer's collocation points, torques normalised), against our warm re-solve of that
+  one entry in this process (:func:`~tocontrol_ros.core.memory.recall.recall` with one
+  basin): time, iterations and ``T`` on the first :data:`PEER_CASES` inside requests.
+
+Run alone: ``scripts/dev run python -P bench/memory.py [--memory FILE] [--inside N]
+[--outside N]`` (builds into FILE, default ``panda_cell.sqlite`` in the system's temporary
+folder, resuming a partial build). ``--write-requests`` rewrites the request file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+if __name__ == "__main__":
+    sys.path.append(str(Path(__file__).resolve().parents[1]))
+
+from bench.common import Section, load_text, log, panda_urdf, table  # noqa: E402
+from bench.deployed import RosClient, _Process  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+CELL = HERE / "memory_cell" / "panda_cell.yaml"
+REQUESTS = HERE / "memory_cell" / "requests.yaml"
+SEED = 50
+#: Inside requests whose nearest stored motion the compiled peer also re-solves.
+PEER_CASES = 10
+#: The peer's mesh (intervals): its fastest of bench/peer_compiled.py's meshes.
+PEER_INTERVALS = 25
+#: The memory node's first, uncounted request (the box's centre from the home station).
+WARM_UP_TARGET = (0.5, 0.0, 0.35)
+#: The issue's bars.
+TARGET_MEDIAN, TARGET_P95, TARGET_T_COUNT, T_TOL = 0.100, 0.250, 48, 1e-3
+FINAL = ("solved", "failed", "superseded", "cancelled", "timed out")
+
+
+def write_requests(path: Path = REQUESTS, inside: int = 50, outside: int = 20) -> None:
+    """Draw the request sets from :data:`SEED` and write them (YAML)."""
+    cell = yaml.safe_load(CELL.read_text())
+    stations = cell["starts"]["stations"]
+    box = cell["targets"]["boxes"][0]
+    lo, hi = np.array(box["lower"]), np.array(box["upper"])
+    rng = np.random.default_rng(SEED)
+    names = sorted(stations)
+    ins = [{"start": names[rng.integers(len(names))],
+            "target": np.round(lo + rng.uniform(0, 1, 3) * (hi - lo), 4).tolist()}
+           for _ in range(inside)]
+    outs = []
+    while len(outs) < outside:
+        side = 1.0 if len(outs) % 2 else -1.0
+        y = side * rng.uniform(0.35, 0.5)
+        target = [rng.uniform(0.25, 0.5), y, rng.uniform(0.25, 0.5)]
+        outs.append({"start": names[rng.integers(len(names))],
+                     "target": np.round(target, 4).tolist()})
+    header = ("# The memory benchmark's requests (bench/memory.py, issue 50), drawn with "
+              f"seed {SEED}:\n# {inside} targets uniform in the cell's box (none on its "
+              f"grid), {outside} beside it\n# (|y| 0.35-0.5 m, 15-30 cm from the box). "
+              "Rewritten by `bench/memory.py --write-requests`.\n")
+    path.write_text(header + yaml.safe_dump({"stations": stations, "inside": ins,
+                                             "outside": outs}, sort_keys=False))
+
+
+class _Client(RosClient):
+    """``~/plan`` calls to several planners, and their ``~/status``."""
+
+    def __init__(self, planners: list[str]) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from nav_msgs.srv import GetPlan
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        super().__init__("bench_memory")
+        self._GetPlan = GetPlan
+        self.clients = {name: self.node.create_client(GetPlan, f"{name}/plan")
+                        for name in planners}
+        self.statuses = {name: [] for name in planners}
+        self._lock = threading.Lock()
+        for name in planners:
+            self.node.create_subscription(
+                DiagnosticStatus, f"{name}/status",
+                lambda msg, name=name: self._status(name, msg),
+                QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _status(self, name, msg) -> None:
+        with self._lock:
+            self.statuses[name].append({kv.key: kv.value for kv in msg.values})
+
+    def call(self, name: str, start, goal, timeout: float = 300.0) -> tuple[float, dict]:
+        """One call: (round trip in s, the final status's values)."""
+        request = self._GetPlan.Request()
+        request.start.header.frame_id = request.goal.header.frame_id = "panda_link0"
+        for pose, p in ((request.start.pose, start), (request.goal.pose, goal)):
+            pose.position.x, pose.position.y, pose.position.z = (float(v) for v in p)
+        with self._lock:
+            since = len(self.statuses[name])
+        done = threading.Event()
+        t0 = time.perf_counter()
+        future = self.clients[name].call_async(request)
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout):
+            raise RuntimeError(f"{name}/plan did not answer")
+        elapsed = time.perf_counter() - t0
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            with self._lock:
+                final = [s for s in self.statuses[name][since:] if s.get("event") in FINAL]
+            if final:
+                return elapsed, final[0]
+            time.sleep(0.01)
+        raise RuntimeError(f"{name}: no final status")
+
+
+def _build(memory: Path) -> float:
+    """Run the build (resumes); its wall time (s)."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "build", str(CELL),
+                    str(memory), "-j", "2", "--quiet"], check=True)
+    return time.perf_counter() - t0
+
+
+def _build_figures(memory: Path, model, radius: float = 1.0) -> dict:
+    from tocontrol_ros.core.memory.recall import distances
+    from tocontrol_ros.core.memory.store import MotionStore
+    from tocontrol_ros.core.types.problem import Problem, point
+
+    cell = yaml.safe_load(CELL.read_text())
+    with MotionStore(memory) as store:
+        tasks = store.tasks()
+        keys = store.keys()
+        count = store.count()
+    finished = sorted(t["finished"] for t in tasks.values())
+    solves = [t["solve_time"] for t in tasks.values() if t["solve_time"] is not None]
+    span = finished[-1] - finished[0] + statistics.median(solves) if finished else float("nan")
+    box = cell["targets"]["boxes"][0]
+    lo, hi = np.array(box["lower"]), np.array(box["upper"])
+    stations = [np.array(s["point"]) for s in cell["starts"]["stations"].values()]
+    rng = np.random.default_rng(SEED + 1)
+    covered, draws = 0, 2000
+    for _ in range(draws):
+        target = lo + rng.uniform(0, 1, 3) * (hi - lo)
+        start = stations[rng.integers(len(stations))]
+        problem = Problem(model, point(start), point(target), k=4.0, reserve=0.1)
+        covered += bool(np.min(distances(keys, problem, 0.05)) <= radius)
+    return {"tasks": len(tasks), "ok": sum(t["status"] == "SUCCESS" for t in tasks.values()),
+            "motions": count, "per_minute": 60.0 * count / span, "span": span,
+            "solve_median": statistics.median(solves), "size": memory.stat().st_size,
+            "coverage": covered / draws, "total": len(cell_tasks())}
+
+
+def cell_tasks():
+    from tocontrol_ros.memory.cell import load_cell
+
+    return load_cell(CELL).tasks
+
+
+def _peer_rows(memory: Path, model, limits, cases: list) -> list:
+    """The compiled peer and our in-process warm re-solve from the same nearest entry."""
+    from scipy.interpolate import CubicHermiteSpline, make_interp_spline
+
+    from bench.peer_compiled import Peer
+    from tocontrol_ros.core import Planner, SolverOptions
+    from tocontrol_ros.core.direct.limited import PAD, state_bounds
+    from tocontrol_ros.core.memory.codec import decode_sample
+    from tocontrol_ros.core.memory.recall import distances, recall
+    from tocontrol_ros.core.memory.store import MotionStore
+    from tocontrol_ros.core.types.problem import Problem, point
+
+    cache = Path(tempfile.gettempdir()) / "tocontrol-bench-memory-peer"
+    planner = Planner(model)
+    rows = []
+    with MotionStore(memory) as store:
+        keys = store.keys()
+        peer = Peer(model, PEER_INTERVALS, "point", 4, 0.9, cache)
+        log(f"memory: peer built in {peer.build_seconds:.1f} s")
+        warmup = True
+        for start, target in cases:
+            problem = Problem(model, point(start), point(target), k=4.0, reserve=0.1,
+                              limits=limits)
+            d = distances(keys, problem, 0.05)
+            entry = store.get(int(keys["id"][int(np.argmin(d))]))
+            s = decode_sample(entry.trajectory)
+            t = np.linspace(0.0, entry.T, 2 * PEER_INTERVALS + 1)
+            z = np.hstack([CubicHermiteSpline(s["t"], s["q"], s["qd"])(t),
+                           CubicHermiteSpline(s["t"], s["qd"], s["qdd"])(t),
+                           make_interp_spline(s["t"], s["qdd"], k=1)(t),
+                           np.clip(make_interp_spline(s["t"], s["tau"], k=1)(t)
+                                   / (model.tau_max * problem.torque_scale), -1, 1)])
+            bounds = state_bounds(problem, PAD)
+            if warmup:  # the first solve of each loads its libraries: not counted
+                recall(planner, problem, SolverOptions(), store, radius=math.inf, basins=1)
+                peer.solve(problem.start.value, problem.target.value, *bounds, entry.T, z)
+                warmup = False
+            sol = peer.solve(problem.start.value, problem.target.value, *bounds, entry.T, z)
+            t0 = time.perf_counter()
+            ours = recall(planner, problem, SolverOptions(), store, radius=math.inf, basins=1)
+            ours_time = time.perf_counter() - t0
+            res = ours.result
+            rows.append({"d": float(d.min()), "peer_ok": sol.success, "peer_T": sol.T,
+                         "peer_s": sol.seconds, "peer_it": sol.iterations,
+                         "ours_ok": res is not None, "ours_T": res.T if res else np.nan,
+                         "ours_s": ours_time,
+                         "ours_it": res.iterations if res else 0})
+            log(f"memory peer: d {d.min():.2f}: peer {sol.status} T {sol.T:.5f} "
+                f"{sol.seconds:.3f} s {sol.iterations} it; ours "
+                f"{res.T if res else float('nan'):.5f} {ours_time:.3f} s")
+    return rows
+
+
+def _quantile(values, q) -> float:
+    return float(np.quantile(values, q)) if values else float("nan")
+
+
+def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
+        peer_cases: int = PEER_CASES, build: bool = True) -> Section:
+    """The section (see the module docstring)."""
+    from bench.limits import robots
+
+    title = "A memory of optimal motions: the Panda cell (issue 50)"
+    found, urdf = robots().get("Panda"), panda_urdf()
+    if found is None or urdf is None:
+        return Section(title, ["example-robot-data is not installed: section skipped."], [])
+    model, limits = found
+    memory = Path(memory or Path(tempfile.gettempdir()) / "panda_cell.sqlite")
+    load_start = load_text()
+    build_wall = _build(memory) if build else 0.0
+    build = _build_figures(memory, model)
+    log(f"memory: build {build}")
+    req = yaml.safe_load(REQUESTS.read_text())
+    stations = {k: v["point"] for k, v in req["stations"].items()}
+    sets = {name: [(stations[r["start"]], r["target"]) for r in req[name][:count]]
+            for name, count in (("inside", inside), ("outside", outside))}
+    workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-memory-"))
+    ns = f"/bench_memory_{os.getpid()}"
+    common = ["-p", f"robot_description_file:={urdf}", "-p", "tip_link:=panda_hand",
+              "-p", "warm_start:=false"]
+    names = {"memory": f"{ns}/mem/planner", "cold": f"{ns}/cold/planner"}
+    procs = [
+        _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/mem", *common,
+                                           "-p", f"memory:={memory}"], workdir / "mem.log"),
+        _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/cold", *common],
+                 workdir / "cold.log"),
+    ]
+    client = _Client(list(names.values()))
+    out = {"inside": [], "outside": []}
+    try:
+        for name in names.values():
+            if not client.clients[name].wait_for_service(timeout_sec=300.0):
+                raise RuntimeError(f"{name}/plan did not come up")
+        # Not counted: the cold node's first plan (compiled functions, worker processes), and
+        # the memory node's first hit (the uniform transcription of memory_spans is built
+        # then), a request of neither set.
+        client.call(names["cold"], *sets["outside"][0])
+        first_hit = client.call(names["memory"], stations["home"], WARM_UP_TARGET)
+        log(f"memory: first hit {first_hit[0]:.2f} s ({first_hit[1].get('memory')})")
+        for which, cases in sets.items():
+            for i, (start, goal) in enumerate(cases):
+                order = ("memory", "cold") if i % 2 == 0 else ("cold", "memory")
+                got = {w: client.call(names[w], start, goal) for w in order}
+                out[which].append(got)
+                m, c = got["memory"][1], got["cold"][1]
+                log(f"memory {which} {i + 1}/{len(cases)}: {m.get('memory')} "
+                    f"d {m.get('memory_distance')} {got['memory'][0]:.3f} s T {m.get('T')} | "
+                    f"cold {got['cold'][0]:.2f} s T {c.get('T')}")
+    finally:
+        client.close()
+        for proc in procs:
+            proc.stop()
+    # The peer side by side where the memory serves: the first inside requests that were hits.
+    served = [case for case, got in zip(sets["inside"], out["inside"], strict=True)
+              if got["memory"][1].get("memory") == "hit"]
+    peer = _peer_rows(memory, model, limits, served[:peer_cases]) if peer_cases else []
+    return _section(title, build, build_wall, out, peer, first_hit, (load_start, load_text()))
+
+
+def _f(values: dict, key: str) -> float:
+    try:
+        return float(values.get(key))
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _section(title, build, build_wall, out, peer, first_hit, load) -> Section:
+    ins, outs = out["inside"], out["outside"]
+    lat = [g["memory"][0] for g in ins]
+    cold_lat = [g["cold"][0] for g in ins]
+    hits = [g for g in ins if g["memory"][1].get("memory") == "hit"]
+    certified = sum(g["memory"][1].get("event") == "solved"
+                    and g["memory"][1].get("certified") == "true" for g in ins)
+    rel = [(_f(g["memory"][1], "T") - _f(g["cold"][1], "T")) / _f(g["cold"][1], "T")
+           for g in ins]
+    within = sum(r <= T_TOL for r in rel)
+    better = sum(r < -T_TOL for r in rel)
+    lookups = [_f(g["memory"][1], "memory_lookup_time") for g in hits]
+    resolves = [_f(g["memory"][1], "memory_time") - _f(g["memory"][1], "memory_lookup_time")
+                for g in hits]
+    rest = [g["memory"][0] - _f(g["memory"][1], "memory_time") for g in hits]
+    iters = [_f(g["memory"][1], "iterations") for g in hits]
+    o_mem = [g["memory"][0] for g in outs]
+    o_cold = [g["cold"][0] for g in outs]
+    o_same = sum(_f(g["memory"][1], "T") == _f(g["cold"][1], "T") for g in outs)
+    o_worse = sum(_f(g["memory"][1], "T") > _f(g["cold"][1], "T") * (1 + 1e-9) for g in outs)
+    o_miss = sum(g["memory"][1].get("memory") == "miss" for g in outs)
+    med, p95 = statistics.median(lat), _quantile(lat, 0.95)
+    hit_lat = [g["memory"][0] for g in hits]
+    hit_cold = [g["cold"][0] for g in hits]
+    lines = [
+        f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
+        f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
+        f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
+        f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 "
+        f"outside; this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
+        f"other work (load average {load[0]} at the start, {load[1]} at the end): the "
+        f"figures are as measured. Command: "
+        f"`scripts/dev bench run_all.py --update --only memory --memory-file FILE` "
+        f"(`--memory-requests {len(ins)},{len(outs)},{len(peer)}` for this run's counts, "
+        f"`--memory-no-build` to serve FILE as it is; without it the build resumes in FILE), "
+        f"or `scripts/dev run python -P bench/memory.py --memory FILE`.",
+        "",
+        f"**Build** (`ros2 run tocontrol_ros memory build`, 2 worker processes): "
+        f"{build['ok']}/{build['tasks']} tasks solved and certified, {build['motions']} "
+        f"motions stored, {build['per_minute']:.1f} motions per minute (the build log's span, "
+        f"{build['span'] / 60:.1f} min; median solve {build['solve_median']:.1f} s per "
+        f"motion per worker; this run's build call {build_wall:.0f} s, resumed); "
+        f"{build['size'] / 1e6:.1f} MB, "
+        f"{build['size'] / max(build['motions'], 1) * 1000 / 1e6:.1f} MB per 1000 "
+        f"motions; coverage {100 * build['coverage']:.1f} % of 2000 uniform "
+        f"targets in the box (a stored motion within the hit radius, 1 warm unit = 0.1 m)."
+        + (f" **The build was stopped at {build['tasks']}/{build['total']} tasks** (the "
+           f"cell's tasks go station by station: home, left, right); a request whose "
+           f"station's motions near its target are not built is a miss."
+           if build["tasks"] < build["total"] else ""),
+        "",
+        f"**Inside the cell, through the node** ({len(ins)} requests, memory node against "
+        f"the default node, both as processes): memory hits {len(hits)}/{len(ins)}; latency "
+        f"median {med * 1e3:.0f} ms, p95 {p95 * 1e3:.0f} ms (default node: median "
+        f"{statistics.median(cold_lat):.2f} s, p95 {_quantile(cold_lat, 0.95):.2f} s; "
+        f"speed-up of the medians {statistics.median(cold_lat) / med:.1f}x); over the hits "
+        f"alone median {_med(hit_lat) * 1e3:.0f} ms, p95 {_quantile(hit_lat, 0.95) * 1e3:.0f} "
+        f"ms (the default node on the same requests: median {_med(hit_cold):.2f} s); "
+        f"certified "
+        f"{certified}/{len(ins)}; `T` within {T_TOL:g} (relative) of the default "
+        f"multistart's on {within}/{len(ins)} (better by more than that on {better}; worst "
+        f"{100 * max(rel):+.3f} %).",
+        "",
+        f"Where a hit's time goes (medians over the hits): lookup "
+        f"{_med(lookups) * 1e3:.2f} ms; warm re-solves (up to 2 basins, decode included) "
+        f"{_med(resolves) * 1e3:.0f} ms ({_med(iters):.0f} iterations in the one published); "
+        f"the rest (certificate sampling, publishing, the service round trip) "
+        f"{_med(rest) * 1e3:.0f} ms. The memory node's first hit after start (not counted: "
+        f"it builds the transcription of `memory_spans` = 64 uniform spans) took "
+        f"{first_hit[0]:.2f} s ({first_hit[1].get('memory')}).",
+        "",
+        f"**Outside the cell** ({len(outs)} requests): misses {o_miss}/{len(outs)}; memory "
+        f"node median {statistics.median(o_mem):.2f} s, default node "
+        f"{statistics.median(o_cold):.2f} s (paired ratio median "
+        f"{statistics.median([a / b for a, b in zip(o_mem, o_cold, strict=True)]):.2f}); the "
+        f"same `T` on {o_same}/{len(outs)}, worse on {o_worse}.",
+    ]
+    if peer:
+        ok = [r for r in peer if r["peer_ok"] and r["ours_ok"]]
+        lines += [
+            "",
+            f"**The compiled peer from the same nearest stored motion** (the first {len(peer)} "
+            f"inside requests that were hits, in this process): the peer (Hermite-Simpson, "
+            f"{PEER_INTERVALS} intervals, compiled, IPOPT) converged on "
+            f"{sum(r['peer_ok'] for r in peer)}/"
+            f"{len(peer)}, median {_med([r['peer_s'] for r in peer]) * 1e3:.0f} ms, "
+            f"{_med([r['peer_it'] for r in peer]):.0f} iterations; ours (warm re-solve of that "
+            f"entry alone) {sum(r['ours_ok'] for r in peer)}/{len(peer)}, median "
+            f"{_med([r['ours_s'] for r in peer]) * 1e3:.0f} ms. `T` peer / ours (the peer's "
+            f"coarse mesh is not certified and errs by about 1/N^2): median "
+            f"{_med([r['peer_T'] / r['ours_T'] for r in ok]):.4f}.",
+            "",
+            *table(["distance", "peer (ms)", "peer it", "peer T (s)", "ours (ms)", "ours it",
+                    "ours T (s)"],
+                   [[f"{r['d']:.2f}", f"{r['peer_s'] * 1e3:.0f}", str(r["peer_it"]),
+                     f"{r['peer_T']:.5f}" if r["peer_ok"] else "failed",
+                     f"{r['ours_s'] * 1e3:.0f}", str(r["ours_it"]),
+                     f"{r['ours_T']:.5f}" if r["ours_ok"] else "failed"] for r in peer]),
+        ]
+    lines += ["", *table(
+        ["set", "case", "memory", "distance", "memory node (s)", "T", "default node (s)",
+         "T default", "rel. diff"],
+        [[which, str(i + 1), g["memory"][1].get("memory", "?"),
+          f"{_f(g['memory'][1], 'memory_distance'):.2f}", f"{g['memory'][0]:.3f}",
+          f"{_f(g['memory'][1], 'T'):.5f}", f"{g['cold'][0]:.2f}", f"{_f(g['cold'][1], 'T'):.5f}",
+          f"{(_f(g['memory'][1], 'T') / _f(g['cold'][1], 'T') - 1):+.1e}"]
+         for which, gs in (("inside", ins), ("outside", outs)) for i, g in enumerate(gs)])]
+    targets = [
+        (f"inside: median <= {TARGET_MEDIAN * 1e3:.0f} ms, p95 <= {TARGET_P95 * 1e3:.0f} ms",
+         ("**yes**" if med <= TARGET_MEDIAN and p95 <= TARGET_P95 else "**no**")
+         + f": {med * 1e3:.0f} ms, {p95 * 1e3:.0f} ms"),
+        (f"inside: every one certified, T within {T_TOL:g} on >= {TARGET_T_COUNT}/50",
+         ("**yes**" if certified == len(ins) and within >= TARGET_T_COUNT * len(ins) / 50
+          else "**no**") + f": {certified}/{len(ins)} certified, {within}/{len(ins)} within"),
+        ("outside: no worse T than without the memory",
+         ("**yes**" if o_worse == 0 else "**no**") + f": worse on {o_worse}/{len(outs)}"),
+    ]
+    return Section(title, lines, targets)
+
+
+def _med(values) -> float:
+    values = [v for v in values if np.isfinite(v)]
+    return statistics.median(values) if values else float("nan")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--memory", type=Path, default=None)
+    parser.add_argument("--inside", type=int, default=50)
+    parser.add_argument("--outside", type=int, default=20)
+    parser.add_argument("--peer", type=int, default=PEER_CASES)
+    parser.add_argument("--no-build", action="store_true",
+                        help="serve the memory as it is (no build call)")
+    parser.add_argument("--write-requests", action="store_true")
+    args = parser.parse_args(argv)
+    if args.write_requests:
+        write_requests()
+        return 0
+    section = run(args.memory, args.inside, args.outside, args.peer, not args.no_build)
+    print("\n".join([f"## {section.title}", "", *section.lines, ""]))
+    for target, verdict in section.targets:
+        print(f"- {target}: {verdict}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,295 @@
+"""Recall: the nearest stored motions of a request, re-solved warm; and remembering one.
+
+The metric is the warm start's own (:meth:`PlanResult.warm_distance
+<tocontrol_ros.core.types.result.PlanResult.warm_distance>`): the largest of the end
+points' moves in units of :data:`~tocontrol_ros.core.types.tuning.WARM_RADIUS` and, for
+joint-state ends, the joint moves (max-norm of positions and velocities) in units of
+``SolverOptions.warm_joint_radius``; only entries of the request's kinds count. So a
+distance of at most 1 is what the warm start is made for, and the node's ``memory_radius``
+says how far beyond (or short of) that a stored motion is still tried.
+
+Among the entries within the radius, nearest first, one per *basin* (end configurations
+more than :data:`BASIN_RADIUS` apart, max-norm, rad) is kept, up to ``basins`` of them
+(several basins, as Lembono et al. 2020 found, beat any single guess); each is re-solved
+warm through the method contract (:func:`~tocontrol_ros.core.planning.solver.solve_once`:
+the method that owns the stored warm state continues it, and certifies the motion as any
+solve of it would), and the least ``T`` among the successes is returned. A bounded motion
+whose warm re-solve from its multipliers fails is solved once more from its path alone
+(:func:`~tocontrol_ros.core.memory.codec.without_multipliers`). Bounded by work: at most two
+warm solves per basin tried.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from tocontrol_ros.core.memory.codec import (
+    CodecError,
+    SampledPath,
+    decode_sample,
+    encode_sample,
+    encode_warm,
+    warm_result,
+    without_multipliers,
+)
+from tocontrol_ros.core.memory.keys import options_hash, options_summary, robot_hash
+from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, Request
+from tocontrol_ros.core.planning.solver import solve_once
+from tocontrol_ros.core.types.problem import Problem, joint_state, point
+from tocontrol_ros.core.types.result import PlanResult
+from tocontrol_ros.core.types.tuning import WARM_RADIUS
+
+__all__ = ["Recall", "recall", "distances", "choose", "remember", "entry_fields", "open_memory",
+           "stored_problem", "BASIN_RADIUS", "DEFAULT_BASINS", "DEFAULT_RADIUS", "DEFAULT_SPANS",
+           "SAMPLE_PERIOD"]
+
+#: End configurations farther apart than this (max-norm, rad) are distinct basins: the
+#: Panda's distinct optima of one request differ by tenths of a radian to radians in some
+#: joint, neighbours of one basin by far less.
+BASIN_RADIUS = 0.3
+#: Basins re-solved per request by default: the nearest and one more (each costs one warm
+#: solve; more than two rarely changed the answer in the benchmark's cell).
+DEFAULT_BASINS = 2
+#: Default radius of a hit, in warm units (1 = the warm start's own radius).
+DEFAULT_RADIUS = 1.0
+#: Uniform B-spline spans of a bounded warm re-solve (``SolverOptions.replan_spans``): the
+#: stored motions' refined meshes have 50-140 spans, each count its own transcription to
+#: build (a minute for the Panda under load) and its warm re-solve from multipliers stalled
+#: there; one uniform mesh is built once and re-solved from each stored path fitted to it.
+#: Its T is above the refined mesh's by about 1/N^2: on three Panda requests 2-5.5e-3 at 24
+#: spans, 0.5-1.5e-3 at 48; 64 aims below the issue's 1e-3.
+DEFAULT_SPANS = 64
+#: Spacing of the stored trajectory's samples (s): the planner's default sample period.
+SAMPLE_PERIOD = 0.005
+
+
+@dataclass(frozen=True)
+class Recall:
+    """What a lookup and its warm re-solves gave.
+
+    Attributes
+    ----------
+    hit : bool
+        A stored motion was within the radius.
+    distance : float
+        The nearest entry's distance (warm units; ``inf`` for an empty memory or no entry
+        of the request's kinds).
+    result : PlanResult or None
+        The best successful warm re-solve (least ``T``); None on a miss or when every one
+        failed (the caller then plans cold).
+    entries : tuple of int
+        Ids of the entries re-solved, in the order tried.
+    stored_T : tuple of float
+        Their stored ``T`` (s).
+    messages : tuple of str
+        One per re-solve: its outcome.
+    timings : dict
+        ``lookup`` (s: the distances and the choice), ``decode`` (reading and decoding the
+        warm states), ``solve`` (the warm re-solves), ``total``.
+    """
+
+    hit: bool
+    distance: float
+    result: PlanResult | None = None
+    entries: tuple[int, ...] = ()
+    stored_T: tuple[float, ...] = ()
+    messages: tuple[str, ...] = ()
+    timings: dict = field(default_factory=dict)
+
+
+def open_memory(path, problem: Problem, method: str = "auto", create: bool = False,
+                cell: dict | None = None) -> MotionStore:
+    """The memory at ``path`` for ``problem``'s robot and class (made when ``create``).
+
+    Raises
+    ------
+    MemoryFileError
+        See :class:`~tocontrol_ros.core.memory.store.MotionStore`.
+    """
+    model = problem.model
+    meta = {"robot": {"name": model.name, "joints": list(model.joint_names),
+                      "base_link": model.base_link, "tip_link": model.tip_link},
+            "options": options_summary(problem, method)}
+    if cell is not None:
+        meta["cell"] = cell
+    return MotionStore(path, robot_hash(model), options_hash(problem, method), create=create,
+                       meta=meta)
+
+
+def distances(keys: dict, problem: Problem, joint_radius: float) -> np.ndarray:
+    """Each entry's distance to ``problem`` (warm units, shape (E,); ``inf``: other kinds)."""
+    E = len(keys["id"])
+    if E == 0:
+        return np.zeros(0)
+    d = np.maximum(np.linalg.norm(keys["start_point"] - problem.start_point, axis=1),
+                   np.linalg.norm(keys["target_point"] - problem.target_point, axis=1)) \
+        / WARM_RADIUS
+    for name, end in (("start", problem.start), ("target", problem.target)):
+        kinds = np.array([k == end.kind for k in keys[f"{name}_kind"]])
+        d[~kinds] = np.inf
+        if end.kind == "state":
+            for i in np.flatnonzero(kinds):
+                other = keys[name][i]
+                d[i] = max(d[i], float(np.max(np.abs(other - end.value))) / joint_radius) \
+                    if other.shape == end.value.shape else np.inf
+    return d
+
+
+def choose(keys: dict, dist: np.ndarray, radius: float, basins: int) -> list[int]:
+    """Rows of ``keys`` to re-solve: nearest first, one per basin, at most ``basins``."""
+    order = [int(i) for i in np.argsort(dist, kind="stable") if dist[i] <= radius]
+    chosen: list[int] = []
+    for i in order:
+        if len(chosen) >= basins:
+            break
+        end = keys["end_q"][i]
+        if all(np.max(np.abs(end - keys["end_q"][j])) > BASIN_RADIUS for j in chosen):
+            chosen.append(i)
+    return chosen
+
+
+def stored_problem(problem: Problem, request: Request) -> Problem:
+    """The stored request as a problem of ``problem``'s model, class and limits."""
+    n = problem.model.n
+
+    def end(kind, value):
+        return point(value) if kind == "point" else joint_state(value[:n], value[n:])
+
+    return Problem(problem.model, end(request.start_kind, request.start),
+                   end(request.target_kind, request.target), k=problem.k,
+                   reserve=problem.reserve, limits=problem.limits)
+
+
+def recall(planner, problem: Problem, options, store: MotionStore,
+           radius: float = DEFAULT_RADIUS, basins: int = DEFAULT_BASINS,
+           should_stop=None, spans: int = DEFAULT_SPANS) -> Recall:
+    """Look ``problem`` up in ``store`` and re-solve the chosen entries warm.
+
+    Parameters
+    ----------
+    planner : Planner
+        The caller's (its model is ``problem.model``).
+    problem : Problem
+    options : SolverOptions
+        The solve's (tolerances, certificate, ``time_limit`` for all the re-solves
+        together, ``warm_joint_radius`` in the metric).
+    store : MotionStore
+        Opened for this robot and class (:func:`open_memory`).
+    radius : float
+        Largest distance of a hit (warm units).
+    basins : int
+        Most entries re-solved (distinct basins).
+    should_stop : callable, optional
+    spans : int
+        A bounded motion is re-solved on this many uniform spans, from its stored path
+        (0: on its own mesh, from its path and multipliers).
+
+    Returns
+    -------
+    Recall
+
+    Raises
+    ------
+    MemoryFileError
+        The file cannot be read (the caller plans without it).
+    """
+    t0 = time.perf_counter()
+    keys = store.keys()
+    dist = distances(keys, problem, options.warm_joint_radius)
+    nearest = float(dist.min()) if dist.size else math.inf
+    rows = choose(keys, dist, radius, basins)
+    t_lookup = time.perf_counter() - t0
+    if not rows:
+        return Recall(False, nearest, timings={"lookup": t_lookup, "decode": 0.0,
+                                               "solve": 0.0, "total": t_lookup})
+    deadline = t0 + options.time_limit
+    warm_options = replace(options, warm_only=True, replan_spans=int(spans))
+    best, messages, t_decode, t_solve = None, [], 0.0, 0.0
+    for i in rows:
+        t1 = time.perf_counter()
+        try:
+            entry = store.get(int(keys["id"][i]))
+            path = SampledPath(decode_sample(entry.trajectory, f"entry {entry.id}")) \
+                if spans and entry.warm_kind == "path" else None
+            warm = warm_result(stored_problem(problem, entry.request), entry.warm_kind,
+                               entry.warm, entry.method, f"entry {entry.id}", path)
+        except (CodecError, MemoryFileError) as exc:
+            messages.append(f"entry {int(keys['id'][i])}: {exc}")
+            t_decode += time.perf_counter() - t1
+            continue
+        t2 = time.perf_counter()
+        t_decode += t2 - t1
+        result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
+        own_mesh = not spans or entry.warm_kind != "path" or \
+            len(warm.warm_state.breaks) - 1 == spans
+        primal = without_multipliers(warm) if own_mesh and not result.success else None
+        if primal is not None and not (should_stop is not None and should_stop()):
+            result = solve_once(planner, problem, warm_options, primal, should_stop, deadline)
+        t_solve += time.perf_counter() - t2
+        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s): "
+                        f"{result.message}" + (" (from its path alone: its multipliers "
+                                               "failed)" if primal is not None else ""))
+        if result.success and (best is None or result.T < best.T):
+            best = result
+        if should_stop is not None and should_stop():
+            break
+    total = time.perf_counter() - t0
+    return Recall(True, nearest, best, tuple(int(keys["id"][i]) for i in rows),
+                  tuple(float(keys["T"][i]) for i in rows), tuple(messages),
+                  {"lookup": t_lookup, "decode": t_decode, "solve": t_solve, "total": total})
+
+
+def entry_fields(result: PlanResult, source: str, solve_time: float,
+                 sample_period: float = SAMPLE_PERIOD) -> dict | None:
+    """What :meth:`MotionStore.add` stores of a certified result; None when it is not one.
+
+    Only a success with a trajectory, a certificate that passed (or ``verify`` off: none)
+    and a warm state a memory can hold is stored. Plain data (bytes, arrays), so that a
+    build's worker process returns it.
+    """
+    problem = result.problem
+    if not (result.success and result.trajectory is not None and problem is not None
+            and math.isfinite(result.T)):
+        return None
+    if result.certificate is not None and not result.certificate.passed:
+        return None
+    try:
+        warm_kind, warm = encode_warm(result)
+    except CodecError:
+        return None
+    sample = result.trajectory.sample(sample_period)
+    cert = {"passed": None if result.certificate is None else bool(result.certificate.passed),
+            "summary": "not verified" if result.certificate is None
+            else result.certificate.summary(),
+            "figures": {k: v for k, v in (result.verification or {}).items()
+                        if isinstance(v, (int, float, np.floating, np.integer, bool))}}
+    request = Request(problem.start.kind, np.asarray(problem.start.value, float),
+                      problem.target.kind, np.asarray(problem.target.value, float))
+    return {"request": request, "start_point": np.asarray(problem.start_point, float),
+            "target_point": np.asarray(problem.target_point, float),
+            "end_q": np.asarray(sample.q[-1], dtype=float), "T": float(result.T),
+            "status": result.status.name, "method": result.method, "certificate": cert,
+            "warm_kind": warm_kind, "warm": warm, "trajectory": encode_sample(sample),
+            "source": source, "solve_time": float(solve_time)}
+
+
+def remember(store: MotionStore, result: PlanResult, source: str, solve_time: float,
+             sample_period: float = SAMPLE_PERIOD) -> bool:
+    """Store a certified result (:func:`entry_fields`).
+
+    False when it is not one, or when the same request is stored with a ``T`` as low.
+
+    Raises
+    ------
+    MemoryFileError
+        The file cannot be written.
+    """
+    fields = entry_fields(result, source, solve_time, sample_period)
+    if fields is None:
+        return False
+    request = fields.pop("request")
+    return store.add(request, **fields)
