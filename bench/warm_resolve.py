@@ -46,6 +46,7 @@ def _timed(fn, repeats: int = 3):
 def run(count: int = CASES) -> Section:
     from bench.limits import draw_cases
     from tocontrol_ros.core.direct.first_motion import quick_motion
+    from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.planning.replan import replan_options, warm_replan
     from tocontrol_ros.core.planning.solver import Planner
     from tocontrol_ros.core.robot.limits import JointLimits
@@ -70,9 +71,19 @@ def run(count: int = CASES) -> Section:
         if not base.success:
             rows.append([str(i + 1), "plan failed", "", "", "", "", ""])
             continue
-        d = rng.normal(size=3)
-        moved = Problem(model, problem.start, point(target + MOVE * d / np.linalg.norm(d)),
-                        k=4.0, limits=limits)
+        moved = None
+        for _ in range(10):  # a direction whose moved target the arm reaches
+            d = rng.normal(size=3)
+            try:
+                moved = Problem(model, problem.start,
+                                point(target + MOVE * d / np.linalg.norm(d)), k=4.0,
+                                limits=limits)
+                break
+            except ProblemError:
+                continue
+        if moved is None:
+            rows.append([str(i + 1), "no reachable move", "", "", "", "", ""])
+            continue
         q_end = base.trajectory.state(base.T)[0][:model.n]
         warm, tw = _timed(lambda: warm_replan(  # noqa: B023
             planner, moved, [base], replan_options(options, 0.0, 24)))  # noqa: B023
