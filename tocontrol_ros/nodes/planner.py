@@ -46,7 +46,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
-from tocontrol_ros.nodes.controller_client import ControllerClient
+from tocontrol_ros.nodes.controller_client import ControllerClient, MissingInterfaceError
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all, robot_from_topic
@@ -118,8 +118,11 @@ class PlannerNode(Node):
             "markers": self.create_publisher(MarkerArray, "~/markers", QOS_LATCHED),
             "status": self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)}
         self._outputs = PlannerOutputs(self, self.model, self.frame, publishers)
-        self._controller = ControllerClient(self, config.controller_action,
-                                            self._outputs.status)
+        try:  # control_msgs only with a controller: a pip install without it still plans
+            self._controller = ControllerClient(self, config.controller_action,
+                                                self._outputs.status)
+        except MissingInterfaceError as exc:
+            raise ConfigError(str(exc)) from exc
         self._outputs.controller = self._controller
         self.service = PlanningService(
             self.model, limits, config_from_values(self._parameter_values(),
