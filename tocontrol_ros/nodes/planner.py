@@ -8,6 +8,11 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
   answer is the end-effector path stamped with the planned times, empty on failure;
 - topic ``~/goal`` (``geometry_msgs/msg/PointStamped``): plan from the robot's current state
   (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
+- topic ``~/goal_joints`` (``sensor_msgs/msg/JointState``): a joint-space target, from the
+  current state;
+- action ``~/plan_motion`` (``tocontrol_msgs/action/PlanMotion``, when that package is
+  installed): start, target (point or joints) and options; feedback, cancel, the trajectory
+  as the result (:mod:`tocontrol_ros.nodes.plan_action`);
 - published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local;
   with ``publish: first_then_optimum`` first a certified motion at once, then the optimum),
   ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
@@ -32,6 +37,7 @@ import argparse
 import sys
 import time
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Path
@@ -44,12 +50,14 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.controller_client import ControllerClient, MissingInterfaceError
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all, robot_from_topic
+from tocontrol_ros.nodes.plan_action import PlanMotionServer
 from tocontrol_ros.nodes.planner_config import (
     PARAMETERS,
     ConfigError,
@@ -136,6 +144,14 @@ class PlannerNode(Node):
                             callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
                                  callback_group=inputs)
+        self.create_subscription(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL,
+                                 callback_group=inputs)
+        try:  # tocontrol_msgs only for the action: without it the rest is served
+            self._plan_action = PlanMotionServer(self, self._outputs, self._arm.start,
+                                                 self._parameter_values)
+        except MissingInterfaceError as exc:
+            self._plan_action = None
+            self.get_logger().warning(f"~/plan_motion is not served: {exc}")
         self.service.start()
         self.get_logger().info(
             f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
@@ -211,6 +227,23 @@ class PlannerNode(Node):
             return
         self.service.goal(rid, target, since, received)
 
+    def _on_goal_joints(self, msg: JointState, info) -> None:
+        received = time.monotonic()
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
+        rid = self.service.next_id()
+        config = self.config
+        try:
+            q, qd = conv.joint_state_from_msg(msg, self.model.joint_names, "goal_joints")
+            if np.any(qd != 0.0):
+                raise conv.ConversionError("`goal_joints.velocity` must be empty or zero (a "
+                                           f"target is at rest), got {qd.tolist()}")
+            start = self._arm.start(config, since)
+        except TocontrolError as exc:
+            self.service.reject(rid, "goal_joints", str(exc))
+            return
+        self.service.submit(PlanRequest(rid, "goal_joints", start, self.model.point(q), config,
+                                        received=received, target_q=q))
+
     def _empty_path(self) -> Path:
         return conv.empty_path(self.frame.frame_id, self.get_clock().now().to_msg())
 
@@ -222,6 +255,8 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
+        if self._plan_action is not None:
+            self._plan_action.destroy()
         self._controller.destroy()
         self._joint_states.destroy()
         super().destroy_node()

@@ -414,8 +414,11 @@ def warm_up_problems(config: PlannerConfig, model, limits) -> list:
             for start in (point(model.point(qa)), joint_state(qa))]
 
 
-def plan_problem(config: PlannerConfig, model, limits, start: tuple, target):
+def plan_problem(config: PlannerConfig, model, limits, start: tuple, target,
+                 target_q=None):
     """The problem from ``start`` to ``target`` (m); raises TocontrolError.
+
+    ``target_q`` (rad, m; shape (n,)): a joint-space target at rest instead of ``target``.
 
     ``start``: ``("point", p)`` or ``("state", q, qd)`` (a request's start, or a
     hand-off's state). ``limits``: :func:`planner_limits` (the margin is applied here). A
@@ -429,5 +432,5 @@ def plan_problem(config: PlannerConfig, model, limits, start: tuple, target):
     limits = limits.with_margin(config.limit_margin)
     begin = point(start[1]) if start[0] == "point" else \
         joint_state(start[1], limits.admissible_velocity(start[2]))
-    return Problem(model, begin, point(target), k=config.k, reserve=config.reserve,
-                   limits=limits)
+    end = point(target) if target_q is None else joint_state(target_q)
+    return Problem(model, begin, end, k=config.k, reserve=config.reserve, limits=limits)
