@@ -21,7 +21,10 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
 - the joint limits at every time, linear in ``w`` through the convex hull of the control
   points and of the derivative's: ``lower <= P_j <= upper`` (bounds on the variables) and
   ``-v <= p (P_j+1 - P_j) / ((t_j+p+1 - t_j+1) T) <= v`` (one two-sided row per difference
-  and joint, see :meth:`FlatTranscription._velocity_rows`);
+  and joint, see :meth:`FlatTranscription._velocity_rows`); with acceleration limits ``a``,
+  the second derivative's control points too: ``-a <= c2_j (Q_j+1 - Q_j) / T^2 <= a`` with
+  ``Q_j = c_j (P_j+1 - P_j)`` and ``c2_j = (p - 1) / (t_j+p+1 - t_j+2)``
+  (:meth:`FlatTranscription._acceleration_rows`): ``|qdd| <= a`` at every time;
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
   target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
 
@@ -238,18 +241,24 @@ class FlatTranscription:
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
         ``"restart"``: as False (the last resort of a re-solve with a wider pad).
+    acceleration : ndarray, shape (n,), optional
+        Acceleration limits held at every time (rad/s^2; ``inf``: none), the planning
+        limits (margin applied). None or all infinite: no acceleration rows (the NLP of a
+        problem without them, unchanged).
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 warm: bool | str = False) -> None:
+                 warm: bool | str = False, acceleration: np.ndarray | None = None) -> None:
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
         self.start_kind, self.target_kind = start_kind, target_kind
         self.torque_scale = torque_scale
         self.warm = warm
+        self.acceleration = None if acceleration is None or \
+            not np.any(np.isfinite(acceleration)) else np.asarray(acceleration, dtype=float)
         n, m, L, p = model.n, model.m, self.spans, degree
         br = self.breaks
         K = L + p
@@ -274,7 +283,8 @@ class FlatTranscription:
         nb = 3 * (p + 1) * S
         bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
         cvec = geo[nb:nb + K - 1]
-        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:]
+        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:nb + K + 2 * p + 1]
+        c2vec = geo[nb + K + 2 * p + 1:]  # the acceleration rows' (K - 2,), when held
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
@@ -286,6 +296,8 @@ class FlatTranscription:
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
         g_lin = self._velocity_rows(Pm, T, cvec)
+        if self.acceleration is not None:  # the bounds tell the two kinds of rows apart
+            g_lin = ca.vertcat(g_lin, self._acceleration_rows(Pm, T, cvec, c2vec))
         g_b = self._boundary_rows(Pm, T, par, sizes, b_start_vel, b_end_vel)
         g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
         ng_set, ng_lin, ng_b = S, g_lin.numel(), g_b.numel()
@@ -328,6 +340,21 @@ class FlatTranscription:
         """
         n = self.model.n
         return ca.vertcat(*[cvec * (Pm[i, 1:] - Pm[i, :-1]).T / T for i in range(n)])
+
+    def _acceleration_rows(self, Pm: ca.MX, T: ca.MX, cvec: ca.MX, c2vec: ca.MX) -> ca.MX:
+        """The acceleration rows, ``c2_j (Q_j+1 - Q_j) / T^2`` per joint (n (K - 2),).
+
+        ``Q_j = c_j (P_j+1 - P_j)`` are the control points of ``q'(s)``; these rows are the
+        control points of ``q''(s)`` over ``T^2``, whose convex hull holds ``qdd(t)`` at
+        every time: bounded by ``-a`` and ``a`` (:meth:`bounds`), the acceleration limit
+        holds on the whole motion, not only at samples.
+        """
+        n = self.model.n
+        rows = []
+        for i in range(n):
+            Q = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
+            rows.append(c2vec * (Q[1:] - Q[:-1]) / T ** 2)
+        return ca.vertcat(*rows)
 
     def _boundary_rows(self, Pm: ca.MX, T: ca.MX, par: ca.MX, sizes: list[int],
                        b_start_vel: ca.MX, b_end_vel: ca.MX) -> ca.MX:
@@ -409,6 +436,8 @@ class FlatTranscription:
         ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
                               np.zeros(ng_b)])
         v = np.repeat(np.asarray(upper[n:], dtype=float), self.K - 1)  # rows joint by joint
+        if self.acceleration is not None:
+            v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
         ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
@@ -534,7 +563,10 @@ class FlatTranscription:
         c = p / (tk[p + 1:p + K] - tk[1:K])
         bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
         # The first and last samples are s = 0 and s = 1: the end velocities' basis.
-        return np.concatenate([bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]])
+        geo = [bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]]
+        if self.acceleration is not None:  # q''(s)'s control points: (p - 1) / knot spans
+            geo.append((p - 1) / (tk[p + 1:p + K - 1] - tk[2:K]))
+        return np.concatenate(geo)
 
     def on(self, breaks: np.ndarray) -> FlatTranscription:
         """The same NLP on other breakpoints with as many spans (no new build).

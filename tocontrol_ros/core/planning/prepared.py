@@ -189,14 +189,18 @@ class PreparedModel:
         """
         warm = np.ndim(spans) != 0 if warm is None else warm
         count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
+        # Acceleration limits add rows (a problem without them keeps the NLP it had).
+        accel = tuple(problem.limits.plan_acceleration) \
+            if problem.limits.has_acceleration else None
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
-               count, warm)
+               count, warm) + ((accel,) if accel is not None else ())
         with self._lock:
             base = self._direct.pop(key, None)
             if base is None:
                 base = FlatTranscription(
                     self.model, count, problem.start.kind, problem.target.kind,
-                    torque_scale=problem.torque_scale, warm=warm)
+                    torque_scale=problem.torque_scale, warm=warm,
+                    acceleration=None if accel is None else np.array(accel))
             self._direct[key] = base  # the most recently used last
             for old in [k for k in self._direct if k[0] == "flat"][:-FLAT_CACHE]:
                 del self._direct[old]
