@@ -128,3 +128,19 @@ def test_panda_reintegrated_accelerations_keep_the_limits(panda, panda_runs):
     assert worst <= 1.0 + 1e-4, worst
     assert np.max(np.abs(x[:n] - traj.state(held.T)[0, :n])) < 1e-5
     np.testing.assert_allclose(x[n:], 0.0, atol=1e-4)
+
+
+def test_panda_first_motion_keeps_the_acceleration_limits(panda):
+    """The first motion (a seed path timed by TOPP-RA) with the acceleration rows."""
+    from tocontrol_ros.core.planning.solver import Planner
+
+    base = JointLimits.from_model(panda)
+    limited = JointLimits(base.names, base.lower, base.upper, base.velocity, 0.0,
+                          PANDA_ACCELERATION)
+    problem = Problem(panda, joint_state(PANDA_Q0), point(panda.point(PANDA_Q1)), k=4.0,
+                      limits=limited)
+    first = Planner(panda).first(problem, OPTIONS)
+    assert first.success, first.message
+    assert first.verification["acceleration_limits"] == 0.0
+    fine = first.trajectory.evaluate(np.linspace(0.0, first.T, 8001))
+    assert np.all(np.max(np.abs(fine.qdd), axis=0) <= PANDA_ACCELERATION * (1 + 1e-9))
