@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -371,11 +371,24 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
 
 
 def planner_model(config: PlannerConfig):
-    """The planner's :class:`~tocontrol_ros.core.robot.model.RobotModel` of a config."""
-    return load_model(config.robot_description, config.robot_description_file,
-                      base_link=config.base_link or None, tip_link=config.tip_link or None,
-                      gravity=config.gravity, task_axes=config.task_axes or None,
-                      locked_joints=parse_locked_joints(config.locked_joints))[0]
+    """The planner's :class:`~tocontrol_ros.core.robot.model.RobotModel` of a config.
+
+    The ``joint_limits`` file's ``max_effort`` entries narrow the URDF's torque limits
+    (the model plans against the tighter).
+    """
+    model = load_model(config.robot_description, config.robot_description_file,
+                       base_link=config.base_link or None, tip_link=config.tip_link or None,
+                       gravity=config.gravity, task_axes=config.task_axes or None,
+                       locked_joints=parse_locked_joints(config.locked_joints))[0]
+    if config.joint_limits:
+        from tocontrol_ros.core.robot.limits import load_joint_limits_yaml, narrowed_efforts
+
+        tau = narrowed_efforts(model.joint_names, model.tau_max,
+                               load_joint_limits_yaml(config.joint_limits),
+                               f"`joint_limits` file {config.joint_limits!r}")
+        if np.any(tau != model.tau_max):
+            model = replace(model, tau_max=tau)
+    return model
 
 
 def planner_limits(config: PlannerConfig, model):

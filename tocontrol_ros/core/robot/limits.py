@@ -27,7 +27,8 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 
-__all__ = ["JointLimits", "load_joint_limits_yaml", "parse_joint_limits_yaml", "VELOCITY_SLACK"]
+__all__ = ["JointLimits", "load_joint_limits_yaml", "narrowed_efforts",
+           "parse_joint_limits_yaml", "VELOCITY_SLACK"]
 
 #: A measured joint velocity at most this fraction above its planning limit is a tracking
 #: overshoot (a simulated or real arm driven at its limit passes it by a little): a plan from
@@ -264,6 +265,36 @@ class JointLimits:
         qdd = np.atleast_2d(np.asarray(qdd, dtype=float))
         over = (np.abs(qdd[:, fin]) - self.acceleration[fin]) / self.acceleration[fin]
         return max(float(np.max(over, initial=0.0)), 0.0)
+
+
+def narrowed_efforts(names, tau_max: np.ndarray, table: Mapping[str, Mapping],
+                     source: str = "joint limits") -> np.ndarray:
+    """The torque limits ``tau_max`` (n,) (N m, N) narrowed by a ``joint_limits`` table.
+
+    Entries with ``has_effort_limits: true`` give ``max_effort``; the tighter of it and the
+    URDF's ``<limit effort>`` is kept (a file narrows, never widens). Unknown joint names
+    raise, as in :meth:`JointLimits.narrowed`.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    tau = np.array(tau_max, dtype=float)
+    index = {name: i for i, name in enumerate(names)}
+    for name, entry in table.items():
+        if name not in index:
+            raise ProblemError(f"{source}: joint {name!r} is not a moving joint of the "
+                               f"model (joints: {', '.join(names)})")
+        if not isinstance(entry, Mapping):
+            raise ProblemError(f"{source}: the entry of joint {name!r} must be a mapping, "
+                               f"got {entry!r}")
+        if _flag(entry, "has_effort_limits", name, source):
+            e = _number(entry, "max_effort", name, source)
+            if not e > 0:
+                raise ProblemError(f"{source}: joint {name!r} max_effort must be > 0, got "
+                                   f"{e:g}")
+            tau[index[name]] = min(tau[index[name]], e)
+    return tau
 
 
 def _flag(entry: Mapping, key: str, joint: str, source: str) -> bool:
