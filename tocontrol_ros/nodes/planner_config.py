@@ -68,9 +68,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
-                  "position and velocity limits (has_position_limits, min_position, "
-                  "max_position, has_velocity_limits, max_velocity; the tighter of the two "
-                  "wins). Empty: the URDF's limits.", read_only=True),
+                  "position, velocity and effort limits (has_position_limits, min_position, "
+                  "max_position, has_velocity_limits, max_velocity, has_effort_limits, "
+                  "max_effort; the tighter of the two wins) and adding acceleration limits "
+                  "(has_acceleration_limits, max_acceleration), held on the whole motion; "
+                  "jerk entries are not enforced (docs/limits.md). Empty: the URDF's limits.",
+                  read_only=True),
     ParameterSpec("limit_margin", 0.0, "Fraction of each joint's position range and velocity "
                   "limit kept free by the plans (as reserve does for torque).", 0.0, 0.5),
     ParameterSpec("base_link", "", "Link fixed to the world; start, target and outputs are "
