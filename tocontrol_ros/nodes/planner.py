@@ -51,9 +51,11 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.controller_client import ControllerClient, MissingInterfaceError
+from tocontrol_ros.nodes.diagnostics import Diagnostics
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all, robot_from_topic
@@ -152,6 +154,7 @@ class PlannerNode(Node):
         except MissingInterfaceError as exc:
             self._plan_action = None
             self.get_logger().warning(f"~/plan_motion is not served: {exc}")
+        self.diagnostics = Diagnostics(self, self.model.name, self._diagnostic_state)
         self.service.start()
         self.get_logger().info(
             f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
@@ -243,6 +246,22 @@ class PlannerNode(Node):
             return
         self.service.submit(PlanRequest(rid, "goal_joints", start, self.model.point(q), config,
                                         received=received, target_q=q))
+
+    def _diagnostic_state(self):
+        """``/diagnostics``: readiness, requests waiting, last plan, builds, controller."""
+        service = self.service
+        ready = service.ready.is_set()
+        last = service.last_result
+        values = {"state": "ready" if ready else "warming up",
+                  "requests_waiting": len(service.slot.pending()),
+                  "compile_builds_pending": compiled.pending_builds(),
+                  "last_T": last.T if last is not None else "",
+                  "last_status": last.status.name if last is not None else "",
+                  "controller_action": self.config.controller_action,
+                  "plan_motion": "served" if self._plan_action is not None else "not served"}
+        if not ready:
+            return "WARN", "warming up (compiling the model's functions)", values
+        return "OK", "ready", values
 
     def _empty_path(self) -> Path:
         return conv.empty_path(self.frame.frame_id, self.get_clock().now().to_msg())

@@ -66,6 +66,7 @@ from tocontrol_ros.core.sim.tracking import (
 )
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.diagnostics import Diagnostics, tracker_state
 from tocontrol_ros.nodes.follow_action import FollowServer, GoalRecord
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import (
@@ -170,8 +171,8 @@ class TrackerNode(Node):
         # would not fire at all before the first /clock).
         self.create_timer(1.0 / self.config.update_rate, self._on_timer,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
-        # ~/follow_joint_trajectory and ~/controller_state, a joint_trajectory_controller's.
-        self._follow = FollowServer(self)
+        self._follow = FollowServer(self)  # ~/follow_joint_trajectory, ~/controller_state
+        self.diagnostics = Diagnostics(self, self.model.name, lambda: tracker_state(self))
         self.get_logger().info(
             f"tracking on {self.model.name!r} ({self.model.n} joints) from "
             f"{self.config.trajectory_topic}; plant: {plant_text(self.config.plant)}; "
