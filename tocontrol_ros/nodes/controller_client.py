@@ -6,7 +6,8 @@ or a ros2_control ``joint_trajectory_controller``'s) and reports the outcome on 
 (events ``sent``, ``rejected``, ``executed``; msg_docs/controller_execution.md).
 
 What is sent is what a default-configured Jazzy JTC accepts (:func:`controller_goal`):
-``header.stamp`` zero (start now), the last point's velocities and accelerations exactly zero,
+``header.stamp`` zero (start now), or a replan's future hand-off (the JTC joins it to the
+running trajectory there), the last point's velocities and accelerations exactly zero,
 effort only with ``controller_effort``. A newer plan preempts the goal being executed (the
 controller cancels it, as a JTC does).
 
@@ -68,7 +69,7 @@ def control_msgs_types() -> tuple[type, type]:
 
 def controller_goal(trajectory: JointTrajectory, effort: bool = False,
                     goal_time_tolerance: float = 0.0, goal_tolerance: float = 0.0,
-                    path_tolerance: float = 0.0):
+                    path_tolerance: float = 0.0, now_ns: int | None = None):
     """A ``FollowJointTrajectory`` goal of a planned trajectory, as a Jazzy JTC accepts it.
 
     Parameters
@@ -81,17 +82,24 @@ def controller_goal(trajectory: JointTrajectory, effort: bool = False,
         s; 0 = the controller's default.
     goal_tolerance, path_tolerance : float
         Position tolerance of every joint (rad, m); 0 = the controller's default.
+    now_ns : int, optional
+        The controller's clock now (ns): a trajectory stamped after it (a replan, stamped
+        with its hand-off) keeps its stamp, and a JTC joins it to the running trajectory
+        there (shared/DESIGN.md, "How a trajectory controller splices"). Default (None), or a
+        stamp not after it: stamp zero.
 
     Returns
     -------
     FollowJointTrajectory.Goal
-        ``header.stamp`` zero (start when received), the last point's velocities and
+        ``header.stamp`` zero (start when received) or the future hand-off, the last
+        point's velocities and
         accelerations exactly zero (the plan ends at rest to the solver's accuracy; a JTC
         refuses a non-zero end velocity by default), no effort unless ``effort``.
     """
     follow_joint_trajectory, joint_tolerance = control_msgs_types()
     msg = copy.deepcopy(trajectory)
-    msg.header.stamp = Time()
+    if now_ns is None or conv.nanoseconds(msg.header.stamp) <= now_ns:
+        msg.header.stamp = Time()
     if not effort:
         for point in msg.points:
             point.effort = []
@@ -133,6 +141,7 @@ class ControllerClient:
     def __init__(self, node, action_name: str,
                  publish_status: Callable[[str, str, dict], None]) -> None:
         self.action_name = action_name
+        self._now_ns = lambda: node.get_clock().now().nanoseconds
         self._client = ActionClient(node, control_msgs_types()[0], action_name) \
             if action_name else None
         self._publish_status = publish_status
@@ -159,7 +168,8 @@ class ControllerClient:
         goal = controller_goal(trajectory, config.controller_effort,
                                config.controller_goal_time_tolerance,
                                config.controller_goal_tolerance,
-                               config.controller_path_tolerance)
+                               config.controller_path_tolerance,
+                               now_ns=self._now_ns())
         values = {"controller_action": self.action_name,
                   "points": len(goal.trajectory.points)}
         if not self._client.wait_for_server(timeout_sec=SERVER_WAIT):  # at once when known

@@ -37,12 +37,15 @@ class Splice(NamedTuple):
         The trajectory's own time at that instant (s, >= 0: ``at`` minus the stamp).
     stamp : float
         The take-over time as stamped (s, the tracker's clock).
+    record : GoalRecord or None
+        The ``FollowJointTrajectory`` goal it came in (None: the topic).
     """
 
     nominal: object
     at: float
     elapsed: float
     stamp: float
+    record: object = None
 
 
 def splice_instant(stamp: float, epoch: float, now: float, h: float
