@@ -46,12 +46,13 @@ class _Client(RosClient):
     """``~/plan_motion`` goals to two planners (one per ``publish`` mode), and cancels."""
 
     def __init__(self, planners: dict[str, str]) -> None:
-        from rclpy.action import ActionClient
         from tocontrol_msgs.action import PlanMotion
+
+        from tocontrol_ros.nodes.action_calls import SerialActionClient
 
         super().__init__("bench_cancel")
         self.PlanMotion = PlanMotion
-        self.clients = {mode: ActionClient(self.node, PlanMotion, f"{name}/plan_motion")
+        self.clients = {mode: SerialActionClient(self.node, PlanMotion, f"{name}/plan_motion")
                         for mode, name in planners.items()}
 
     def goal(self, q0, names, target):
@@ -79,14 +80,14 @@ class _Client(RosClient):
             box["handle"] = handle = future.result()
             box["accepted_at"] = time.perf_counter()
             accepted.set()
-            handle.get_result_async().add_done_callback(on_result)
+            client.get_result(handle).add_done_callback(on_result)
 
-        client.send_goal_async(goal).add_done_callback(on_goal)
+        client.send_goal(goal).add_done_callback(on_goal)
         if not accepted.wait(HANG):
             raise RuntimeError("the goal was not answered")
         if delay is not None and not done.wait(delay):
             box["cancel_at"] = time.perf_counter()
-            box["handle"].cancel_goal_async()
+            client.cancel(box["handle"])
         if not done.wait(HANG):
             raise RuntimeError("no result")
         return box
@@ -120,7 +121,7 @@ def run(count: int = 12) -> Section:
     rows = []
     try:
         for mode, action in client.clients.items():
-            if not action.wait_for_server(timeout_sec=HANG):
+            if not action.wait_for_server(HANG):
                 raise RuntimeError(f"{names[mode]}/plan_motion did not come up")
             q0, _qd0, target = cases[0]
             client.run(mode, client.goal(q0, model.joint_names, target), None)  # warm-up

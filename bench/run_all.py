@@ -9,7 +9,7 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion]
+                verification,deployed,replan,batch,limits,first_motion,cancel]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -37,7 +37,8 @@ the same NLPs, 10 Panda cases),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
-Panda). Every timing is taken in this one process, side by side; compiled functions go to a
+Panda), ``cancel`` (a cancel during a Panda plan through ``~/plan_motion``: cancel to result,
+issue 52). Every timing is taken in this one process, side by side; compiled functions go to a
 fresh temporary cache so that first-run costs are measured, not inherited.
 """
 
@@ -63,7 +64,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise",
-         "first_motion")
+         "first_motion", "cancel")
 
 
 def _parse(argv):
@@ -133,6 +134,7 @@ def main(argv=None):
 def _run(args):
     from bench import (
         batch,
+        cancel,
         deployed,
         deployed_panda,
         first_motion,
@@ -232,6 +234,8 @@ def _run(args):
     if "first_motion" in args.only:
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
+    if "cancel" in args.only:
+        section(lambda: cancel.run(4 if args.quick else 12))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

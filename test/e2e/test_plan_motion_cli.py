@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 from planner_harness import PAPER_TARGET, PlannerClient
-from rclpy.action import ActionClient
 from test_planner_process import PlannerProcess, _wait_warm
 
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes.action_calls import SerialActionClient
 
 pytestmark = pytest.mark.ros
 pytest.importorskip("tocontrol_msgs.action")
@@ -67,17 +67,18 @@ class Cli:
         kind = action_type(type_name)
         goal = kind.Goal()
         set_fields(goal, yaml.safe_load(goal_yaml))
-        client = ActionClient(self.client.node, kind, action)
-        assert client.wait_for_server(timeout_sec=HANG), f"no action server {action}"
+        # The requests on the executor, as the CLI's own spin does (rclpy's race avoided).
+        client = SerialActionClient(self.client.node, kind, action)
+        assert client.wait_for_server(HANG), f"no action server {action}"
         self.print("Sending goal:")
-        future = client.send_goal_async(
+        future = client.send_goal(
             goal, feedback_callback=lambda f: self.print(f"Feedback:\n    {f.feedback}"))
         self.client.wait_for(future.done, HANG, "the goal's acceptance")
         handle = future.result()
         self.print("Goal accepted" if handle.accepted else "Goal was rejected.")
         if on_accepted is not None:
             on_accepted()
-        result = handle.get_result_async()
+        result = client.get_result(handle)
         self.client.wait_for(result.done, HANG, "the result")
         response = result.result()
         self.print(f"Result:\n    {response.result}")

@@ -12,12 +12,12 @@ import threading
 import numpy as np
 import pytest
 from planner_harness import PAPER_START, PAPER_TARGET
-from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 from solve_gate import SolveGate
 from test_planner_node import JOINTS, PublishedAtTheNode, ready_planner
 
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.nodes.action_calls import SerialActionClient
 from tocontrol_ros.nodes.conversions import seconds
 
 pytestmark = pytest.mark.ros
@@ -36,8 +36,8 @@ class ActionUser:
 
     def __init__(self, client, planner: str):
         self.client = client
-        self.action = ActionClient(client.node, PlanMotion, f"{planner}/plan_motion")
-        assert self.action.wait_for_server(timeout_sec=HANG), "no ~/plan_motion server"
+        self.action = SerialActionClient(client.node, PlanMotion, f"{planner}/plan_motion")
+        assert self.action.wait_for_server(HANG), "no ~/plan_motion server"
         self.feedback = []
         self._lock = threading.Lock()
 
@@ -50,14 +50,14 @@ class ActionUser:
             return list(self.feedback)
 
     def send(self, goal):
-        future = self.action.send_goal_async(goal, feedback_callback=self._on_feedback)
+        future = self.action.send_goal(goal, feedback_callback=self._on_feedback)
         self.client.wait_for(future.done, HANG, "the goal's acceptance")
         handle = future.result()
         assert handle.accepted
         return handle
 
     def result(self, handle):
-        future = handle.get_result_async()
+        future = self.action.get_result(handle)
         self.client.wait_for(future.done, HANG, "the action's result")
         return future.result()
 
@@ -162,7 +162,7 @@ def test_cancel_returns_the_first_motion_or_says_there_is_none(monkeypatch, mode
         gate.arm()
         handle = user.send(point_goal(PAPER_TARGET, start_type=1, start_state=start))
         assert gate.held.wait(HANG)
-        cancel = handle.cancel_goal_async()
+        cancel = user.action.cancel(handle)
         client.wait_for(cancel.done, HANG, "the cancel's response")
         response = user.result(handle)
         assert response.status == 5, response.result.message  # CANCELED
@@ -177,7 +177,7 @@ def test_cancel_returns_the_first_motion_or_says_there_is_none(monkeypatch, mode
         assert gate.held.wait(HANG)
         client.wait_for(lambda: any(f.best_duration > 0.0 for f in user.feedback_list()),
                         HANG, "feedback with the first motion's duration")
-        handle.cancel_goal_async()
+        user.action.cancel(handle)
         response = user.result(handle)
         gate.open()
         result = response.result

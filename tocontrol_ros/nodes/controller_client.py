@@ -19,14 +19,13 @@ controller cancels it, as a JTC does).
 from __future__ import annotations
 
 import copy
-import threading
 from collections.abc import Callable
 
 from builtin_interfaces.msg import Time
-from rclpy.action import ActionClient
 from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros.nodes import conversions as conv
+from tocontrol_ros.nodes.action_calls import SerialActionClient
 from tocontrol_ros.nodes.jtc_checks import CODE_NAMES
 
 __all__ = ["controller_goal", "control_msgs_types", "ControllerClient", "GOAL_STATUS_NAMES",
@@ -142,10 +141,10 @@ class ControllerClient:
                  publish_status: Callable[[str, str, dict], None]) -> None:
         self.action_name = action_name
         self._now_ns = lambda: node.get_clock().now().nanoseconds
-        self._client = ActionClient(node, control_msgs_types()[0], action_name) \
+        # Requests made on the executor: rclpy's race would lose a response (action_calls).
+        self._client = SerialActionClient(node, control_msgs_types()[0], action_name) \
             if action_name else None
         self._publish_status = publish_status
-        self._lock = threading.Lock()
 
     def _report(self, request_id: int, level: str, event: str, message: str,
                 values: dict) -> None:
@@ -172,14 +171,13 @@ class ControllerClient:
                                now_ns=self._now_ns())
         values = {"controller_action": self.action_name,
                   "points": len(goal.trajectory.points)}
-        if not self._client.wait_for_server(timeout_sec=SERVER_WAIT):  # at once when known
+        if not self._client.wait_for_server(SERVER_WAIT):  # at once when known
             self._report(request_id, "ERROR", "rejected",
                          f"request {request_id}: no FollowJointTrajectory server at "
                          f"{self.action_name} within {SERVER_WAIT:g} s; the plan was not "
                          f"executed", values)
             return
-        with self._lock:
-            future = self._client.send_goal_async(goal)
+        future = self._client.send_goal(goal)
         future.add_done_callback(lambda f: self._on_response(request_id, f, values))
         self._report(request_id, "OK", "sent", f"request {request_id}: plan sent to "
                      f"{self.action_name}", values)
@@ -191,7 +189,7 @@ class ControllerClient:
                          f"request {request_id}: the controller at {self.action_name} "
                          f"rejected the plan (see its log for the reason)", values)
             return
-        handle.get_result_async().add_done_callback(
+        self._client.get_result(handle).add_done_callback(
             lambda f: self._on_result(request_id, f, values))
 
     def _on_result(self, request_id: int, future, values: dict) -> None:
