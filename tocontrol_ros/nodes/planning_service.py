@@ -424,7 +424,11 @@ class PlanningService:
         status says why; the optimum follows either way).
         """
         first = self.planner.first(problem, options)
-        if first.status.name == "TRIVIAL" or req.cancelled.is_set() or self.stopping.is_set():
+        if first.status.name == "TRIVIAL":
+            return None
+        if req.cancelled.is_set() or self.stopping.is_set():
+            if first.success:  # the best certified motion at the cancel (~/plan_motion's)
+                req.first = first
             return None
         values = {"start": problem.start_point, **result_values(first),
                   "latency": self.clock.monotonic() - req.received}
