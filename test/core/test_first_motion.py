@@ -244,3 +244,55 @@ def test_joint_state_to_joint_state(galicki):
     _check_motion(problem, res)
     np.testing.assert_allclose(res.trajectory.evaluate(res.T).q[0], q1, atol=1e-12)
     assert res.certificate.item("end_position").passed
+
+
+# ------------------------------------------------------- the quick replan (issue 47)
+def _running_and_moved(problem: Problem, result, t: float, shift: np.ndarray):
+    """The replan of ``result`` at its time ``t`` to its target moved by ``shift`` (m)."""
+    n = problem.model.n
+    z = result.trajectory.state(t)[0]
+    return Problem(problem.model, joint_state(z[:n], z[n:2 * n]),
+                   point(problem.target_point + shift), k=problem.k, limits=problem.limits)
+
+
+@pytest.mark.parametrize("t", [0.0, 0.2, 0.45], ids=["start", "moving", "tail"])
+def test_quick_motion_replans_the_paper_example_from_its_own_states(paper_optimum, t):
+    """From rest and from moving states of the optimum, to a target moved by 4 cm: the
+    target's configuration found near the old end, certified, from the hand-off state
+    (position and velocity) to the new target at rest, and not faster than the optimum of
+    the same problem (a quick motion is one path's best timing)."""
+    problem, optimum = paper_optimum
+    assert optimum.success, optimum.message
+    moved = _running_and_moved(problem, optimum, t, np.array([0.03, -0.025]))
+    q_end = optimum.trajectory.state(optimum.T)[0][:problem.model.n]
+    quick = fm.quick_motion(moved, q_end, optimum.T - t)
+    _check_motion(moved, quick)
+    assert quick.timings["guess"] >= 0.0 and quick.iterations >= 1
+    reference = plan(moved)
+    assert reference.success, reference.message
+    assert quick.T >= reference.T * (1.0 - 1e-6)
+
+
+def test_quick_motion_on_the_panda_from_a_moving_state(panda):
+    """The Panda with its limits from a moving state of a first motion: certified within the
+    limits at every time, the end configuration near the given one."""
+    problem = _panda_problem(panda, True)
+    running = first_motion(problem)
+    assert running.success, running.message
+    moved = _running_and_moved(problem, running, 0.3 * running.T, np.array([0.02, 0.03, -0.02]))
+    q_end = running.trajectory.state(running.T)[0][:7]
+    quick = fm.quick_motion(moved, q_end, 0.7 * running.T)
+    _check_motion(moved, quick)
+    end_q = quick.trajectory.state(quick.T)[0][:7]
+    assert np.max(np.abs(end_q - q_end)) < 0.5  # found near the old end, not anywhere
+
+
+def test_quick_motion_failures_are_named(galicki):
+    """A point start is refused; a target out of reach says so."""
+    start = Problem(galicki, point(PAPER_START), point(PAPER_TARGET), k=4.0)
+    with pytest.raises(fm.ProblemError, match="joint-state start"):
+        fm.quick_motion(start, np.zeros(3))
+    q = np.array([0.3, 0.9, 0.6])
+    with pytest.raises(fm.ProblemError, match="not reachable"):
+        far = Problem(galicki, joint_state(q, np.zeros(3)), point((6.0, 0.0)), k=4.0)
+        fm.quick_motion(far, q)  # reach 5.5 m

@@ -211,3 +211,40 @@ def test_a_smoothed_replan_continues_a_finer_solution_at_its_smoothing(planner):
     assert abs(result.T / cold.T - 1) < 1e-4
     again = warm_replan(planner, problem, result, smoothed)  # the same problem: at once
     assert again.success and again.iterations <= 2
+
+
+def test_a_quick_motions_rest_warm_starts_the_bounded_optimum(panda):
+    """The Panda with its limits: a quick motion from a moving state (what a replan
+    publishes first), its rest from a later time as the bounded solve's warm start
+    (path_tail_warm_start): the optimum from that state, certified, to the same target,
+    and faster than the rest of the quick motion; none at the motion's end."""
+    from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
+    from tocontrol_ros.core.planning.replan import path_tail_warm_start, replan_options
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state
+
+    limits = JointLimits.from_model(panda).with_margin(0.05)
+    q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    p0 = panda.point(q0)
+    running = first_motion(Problem(panda, joint_state(q0, np.zeros(7)),
+                                   point(p0 + [0.2, 0.0, 0.0]), k=4.0, limits=limits))
+    assert running.success, running.message
+    t = 0.4 * running.T
+    z = running.trajectory.state(t)[0]
+    problem = Problem(panda, joint_state(z[:7], z[7:14]), point(p0 + [0.2, 0.05, 0.0]), k=4.0,
+                      limits=limits)
+    quick = quick_motion(problem, running.trajectory.state(running.T)[0][:7],
+                         running.T - t)
+    assert quick.success, quick.message
+    t2 = 0.3 * quick.T
+    tail = path_tail_warm_start(quick, t2)
+    assert tail is not None and tail.T == pytest.approx(quick.T - t2)
+    np.testing.assert_allclose(tail.trajectory.evaluate(np.array([0.0])).q[0],
+                               quick.trajectory.state(t2)[0][:7], atol=1e-12)
+    assert tail.can_warm_start(tail.problem)
+    result = Planner(panda).plan(tail.problem, replan_options(SolverOptions(), 0.0, 24),
+                                 warm_start=tail)
+    assert result.success and result.certificate.passed, result.message
+    assert result.method == "direct" and result.T < tail.T
+    assert path_tail_warm_start(quick, quick.T) is None
+

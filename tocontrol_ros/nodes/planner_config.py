@@ -195,6 +195,13 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "mesh: T within about 1e-3, about 3 times faster on the Panda). 0: on the "
                   "running motion's own mesh (msg_docs/parameters.md, 'Replanning').",
                   0, 256),
+    ParameterSpec("replan_quick", True, "A replan publishes at once a quick certified "
+                  "motion (the target's configuration found near the running motion's end, "
+                  "the path from the hand-off state timed by TOPP-RA: milliseconds, T "
+                  "typically 5-25 % above the optimum), then solves the optimum from a later "
+                  "hand-off on it, while no other goal waits, and publishes it when it "
+                  "arrives in time and ends sooner. False: the optimum only "
+                  "(msg_docs/parameters.md, 'Replanning')."),
     ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
                   "smooth path, the worker solves the goal they predict (the quadratic "
                   "through the last three) between goals, as the real goal's first warm start "
@@ -282,6 +289,7 @@ class PlannerConfig:
     handoff_grid: float = 0.001
     replan_smoothing: float = 1e-2
     replan_spans: int = 24
+    replan_quick: bool = True
     replan_predict: bool = True
     goal_queue: int = 50
     goal_max_backlog: float = 3.0

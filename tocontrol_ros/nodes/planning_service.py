@@ -438,17 +438,31 @@ class PlanningService:
                         {**values, "published": "none"})
             return None
         req.first = first
-        published = self.publish(first, req.config, req.id, execute=req.execute)
+        published = self.publish_first(req, first, None, values)
+        if published is None:
+            return None
+        return first, published[0], published[1]["samples"]
+
+    def publish_first(self, req: PlanRequest, result, stamp_ns: int | None,
+                      extra: dict) -> tuple[Any, dict] | None:
+        """Publish ``result`` as ``req``'s first motion, with a ``first`` status.
+
+        ``stamp_ns``: when it takes over (a replan's hand-off, ns); default now. Returns
+        ``(path, values)`` (the status's values: samples, latencies), or None when the
+        publishers are gone (shutdown). A plan-only request (``execute`` false): nothing
+        published, the path None, the status says ``published: first`` all the same.
+        """
+        published = self.publish(result, req.config, req.id, stamp_ns, execute=req.execute)
         if published is None:
             return None
         path, samples = published
-        level, message = result_message(first)
+        level, message = result_message(result)
+        values = {**extra, "published": "first", "samples": samples,
+                  "latency": self._published_at - req.received,
+                  "publish_latency": self._published_at - req.received}
         self.status(req, level, "first", f"request {req.id} first motion published: "
-                    f"{message}; the optimum follows",
-                    {**values, "published": "first", "samples": samples,
-                     "latency": self._published_at - req.received,
-                     "publish_latency": self._published_at - req.received})
-        return first, path, samples
+                    f"{message}; the optimum follows", values)
+        return path, values
 
     def publish(self, result, config: PlannerConfig, rid: int = 0,
                 stamp_ns: int | None = None, execute: bool = True) -> tuple[Any, int] | None:

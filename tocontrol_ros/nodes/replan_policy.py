@@ -13,12 +13,24 @@ from typing import Any
 
 import numpy as np
 
+from tocontrol_ros.core.direct.first_motion import quick_motion
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.indirect.warm import WarmState
-from tocontrol_ros.core.planning.replan import replan_options, warm_replan
+from tocontrol_ros.core.planning.replan import (
+    path_tail_warm_start,
+    replan_options,
+    warm_replan,
+)
 from tocontrol_ros.nodes.outcomes import result_values, stamp_text
 from tocontrol_ros.nodes.planner_config import PlannerConfig, solver_options
-from tocontrol_ros.nodes.replanning import REPLAN_TRIES, REST, align, keeps_ahead
+from tocontrol_ros.nodes.replanning import (
+    IMPROVE,
+    QUICK,
+    REPLAN_TRIES,
+    REST,
+    align,
+    keeps_ahead,
+)
 from tocontrol_ros.nodes.requests import PlanRequest
 
 __all__ = ["ReplanPolicy", "replanning"]
@@ -71,8 +83,163 @@ class ReplanPolicy:
         """A goal while a published motion runs: planned from the hand-off, stamped with it.
 
         Returns False when no published motion runs at the hand-off (the goal is then
-        served as any other, from the arm's measured state). Solved again from a later
-        hand-off when the plan would arrive late (at most :data:`REPLAN_TRIES` solves).
+        served as any other, from the arm's measured state). With ``replan_quick``, a quick
+        motion first (:meth:`serve_quick`); else, or when it fails, the optimum
+        (:meth:`serve_optimum`).
+        """
+        if req.config.replan_quick:
+            served = self.serve_quick(req)
+            if served is not None:
+                return served
+        return self.serve_optimum(req)
+
+    def serve_quick(self, req: PlanRequest) -> bool | None:
+        """The quick motion from the hand-off, published at once; then the optimum after it.
+
+        The target's configuration is found near the running motion's end and the path
+        from the hand-off state to it timed by TOPP-RA
+        (:func:`~tocontrol_ros.core.direct.first_motion.quick_motion`), certified, stamped
+        with the hand-off (its lead from the quick motions' latencies) and published with a
+        ``first`` status. Then, while no other goal waits, the optimum is solved warm from
+        a later hand-off on the quick motion (:meth:`improve`). Returns None when no quick
+        motion could be published (it failed, or was late :data:`REPLAN_TRIES` times;
+        nothing was published, or no published motion runs at the hand-off): the caller
+        goes on as without ``replan_quick``.
+        """
+        service = self.service
+        clock = service.clock
+        config = req.config
+        replans = service.replanner
+        min_lead = 0.0
+        for attempt in range(1, REPLAN_TRIES + 1):
+            t0 = clock.monotonic()
+            origin, measured = self._measured(config)
+            running = replans.running()
+            handoff = replans.handoff(config, req.target, clock.now_ns(), origin, min_lead,
+                                      measured, quick=True)
+            if handoff is None or running is None or running.trajectory is None:
+                return None  # the optimum's route decides (a goal from the measured state)
+            if replans.near(config, req.target):
+                replans.note_reachable(service.model, req.target)
+            try:
+                problem = service.problem(config, ("state", handoff.q, handoff.qd),
+                                          req.target)
+            except TocontrolError:
+                return None  # the optimum's route says why
+            n = problem.model.n
+            q_end = running.trajectory.state(running.T)[0][:n]
+            stamp_s = (handoff.stamp_ns - replans.running_stamp()) * 1e-9
+            left = running.T - stamp_s if handoff.kind != REST else None
+            quick = quick_motion(problem, q_end, left, solver_options(config))
+            extra = {"start": problem.start_point, "start_q": handoff.q,
+                     "start_qd": handoff.qd, **result_values(quick),
+                     "replan": handoff.kind, "attempts": attempt,
+                     "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
+                     "published": "none"}
+            if service.finish_stopped(req, extra):
+                return True
+            if not quick.success or quick.trajectory is None:
+                return None
+            now = clock.now_ns()
+            if handoff.kind == REST:
+                handoff = handoff._replace(stamp_ns=replans.rest_stamp(config, handoff, now,
+                                                                       origin))
+                extra["handoff"] = stamp_text(handoff.stamp_ns)
+            replans.estimate(config, QUICK).record(clock.monotonic() - t0)
+            if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
+                min_lead = config.replan_min_lead + 2.0 * (clock.monotonic() - t0)
+                continue
+            published = service.publish_first(req, quick, handoff.stamp_ns, extra)
+            if published is None:  # shutdown
+                req.done.set()
+                return True
+            path, values = published
+            self.improve(req, quick, handoff.stamp_ns, running, values, path)
+            return True
+        return None
+
+    def improve(self, req: PlanRequest, quick, quick_stamp_ns: int, before,
+                extra: dict, path: Any) -> None:
+        """The optimum after a quick motion: from a later hand-off on it, warm; or it stands.
+
+        Solved while no other goal waits (one that arrives stops it), warm alone (the
+        motion that ran before the quick one, and the replanner's warm starts), no cold
+        solve; the quick motion's own rest from the hand-off is the first warm start (of the
+        bounded solve: :func:`~tocontrol_ros.core.planning.replan.path_tail_warm_start`),
+        with ``replan_spans``; published as the
+        request's optimum when certified, in time for its hand-off
+        and ending before the quick motion does. Always finishes the request (``path``:
+        the quick motion's, its answer when it stands).
+        """
+        service = self.service
+        clock = service.clock
+        config = req.config
+        replans = service.replanner
+        quick_end = quick_stamp_ns * 1e-9 + quick.T
+        stands = {**extra, "published": "first"}
+
+        def keep(why: str) -> None:
+            service.finish(req, "OK", "solved", f"the quick motion stands "
+                           f"(T = {quick.T:.6g} s): {why}", stands, path=path)
+
+        if service.slot.has_pending():
+            return keep("another goal waits")
+        t0 = clock.monotonic()
+        origin, measured = self._measured(config)
+        # Any moving hand-off on the quick motion (quick=True: no REST_TAIL rule, which is
+        # the tail continuation's), with the lead of the optima solved after quick motions.
+        handoff = replans.handoff(config, req.target, clock.now_ns(), origin, 0.0, measured,
+                                  quick=True, lead_kind=IMPROVE)
+        if handoff is None or handoff.kind == REST:
+            return keep("it ends before an optimum could take over")
+        try:
+            problem = service.problem(config, ("state", handoff.q, handoff.qd), req.target)
+        except TocontrolError as exc:
+            return keep(str(exc))
+        options = replan_options(solver_options(config), config.replan_smoothing,
+                                 config.replan_spans)
+
+        def stop() -> bool:
+            return req.cancelled.is_set() or service.stopping.is_set() or \
+                service.slot.has_pending()
+
+        # The quick motion's own rest from the hand-off (the bounded solve from its path
+        # fitted on replan_spans uniform spans), then the others.
+        tail = path_tail_warm_start(quick, (handoff.stamp_ns - quick_stamp_ns) * 1e-9) \
+            if options.replan_spans else None
+        warm = [w for w in (tail, before, *replans.warm_starts(handoff.warm))
+                if w is not None and w.warm_state is not None
+                and w.can_warm_start(problem, options.warm_joint_radius)]
+        if not warm:  # a cold solve takes longer than a quick motion runs
+            return keep("no warm start applies to its optimum")
+        result = warm_replan(service.planner, problem, warm, options, stop)
+        if service.finish_stopped(req, {**stands, "optimum_status": result.status.name}):
+            return None
+        if not result.success or result.trajectory is None:
+            return keep(f"the optimum was not found warm ({result.message})")
+        replans.estimate(config, IMPROVE).record(clock.monotonic() - t0)
+        now = clock.now_ns()
+        if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
+            return keep(f"the optimum came {(now - handoff.stamp_ns) * 1e-9:+.3f} s after "
+                        "its hand-off")
+        if handoff.stamp_ns * 1e-9 + result.T >= quick_end:
+            return keep(f"the optimum from its hand-off would not end sooner "
+                        f"(T = {result.T:.6g} s)")
+        values = {**extra, "start": problem.start_point, "start_q": handoff.q,
+                  "start_qd": handoff.qd, **result_values(result), "replan": handoff.kind,
+                  "handoff": stamp_text(handoff.stamp_ns), "warm_start": True,
+                  "quick_T": quick.T}
+        service.publish_final(req, result, handoff.stamp_ns,
+                              f"replan ({handoff.kind}) improving the quick motion, taking "
+                              f"over at {handoff.stamp_ns * 1e-9:.3f}: ", values, None)
+        return None
+
+    def serve_optimum(self, req: PlanRequest) -> bool:
+        """A goal while a published motion runs, its optimum from the hand-off.
+
+        Solved again from a later hand-off when the plan would arrive late (at most
+        :data:`REPLAN_TRIES` solves). Returns False when no published motion runs at the
+        hand-off.
         """
         service = self.service
         clock = service.clock

@@ -25,7 +25,8 @@ from tocontrol_ros.core.types.problem import REST_SPEED, note_reachable
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
-           "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead"]
+           "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
+           "IMPROVE"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -33,6 +34,9 @@ REPLAN_TRIES = 4
 #: Kinds of replan: the running motion's tail continued; a multistart from the hand-off
 #: state; from the end of a motion that is over by the hand-off (the arm at rest there).
 WARM, COLD, REST = "warm", "cold", "rest"
+#: The latency estimates of the quick motions published first (``replan_quick``) and of
+#: the optimum solved after one, from a later hand-off on it.
+QUICK, IMPROVE = "quick", "improve"
 #: The arm follows a published motion when its measured positions are this close (rad, m;
 #: any joint) to the command at their stamp: tracking error plus a control period's motion.
 FOLLOWING = 0.05
@@ -41,7 +45,7 @@ FOLLOWING = 0.05
 #: hand-off, it held up the goals behind it, and the backlog kept the goal solved ahead from
 #: running for 20-30 goals (paper's arm, 10 Hz circle, bench/replan.py: median latency 57-299
 #: ms in five runs; with 0.1, 12-39 ms in eight).
-INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1}
+INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1, QUICK: 0.03, IMPROVE: 0.05}
 #: The delivery reserve of a rest replan after its publication is at most ``replan_min_lead``
 #: plus this (s). It grows with the recent rest solves' latencies (a loaded machine), but a
 #: published trajectory's delivery does not take as long as a slow solve: on the Panda with
@@ -182,6 +186,11 @@ class Replanner:
         with self._lock:
             return self._executing[0] if self._executing is not None else None
 
+    def running_stamp(self) -> int:
+        """When the last published motion takes over (ns), or 0."""
+        with self._lock:
+            return self._executing[1] if self._executing is not None else 0
+
     def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
         """The latency estimate of one kind of solve (made with the config's margins)."""
         with self._lock:
@@ -309,7 +318,8 @@ class Replanner:
             self._executing = self._from_rest = None
 
     def handoff(self, config: PlannerConfig, target: np.ndarray, now_ns: int,
-                origin_ns: int, min_lead: float = 0.0, measured=None) -> Handoff | None:
+                origin_ns: int, min_lead: float = 0.0, measured=None,
+                quick: bool = False, lead_kind: str | None = None) -> Handoff | None:
         """The hand-off of a replan to ``target`` decided now, or None.
 
         Parameters
@@ -327,6 +337,15 @@ class Replanner:
             The arm's latest measured positions (rad) and their stamp (ns): the published
             motion counts as executing only when they are within :data:`FOLLOWING` of its
             command then (no executor, a rejected trajectory or a reset: not followed).
+
+        quick : bool
+            For a quick motion (``replan_quick``): the lead of the quick motions, and a
+            moving hand-off whatever the tail left (a quick motion starts from any state;
+            :data:`REST_TAIL` is the warm continuation's rule); kind ``"rest"`` only when
+            the motion is over by then.
+        lead_kind : str, optional
+            The kind whose latency estimate sets the lead (default: the hand-off's own
+            kind; :data:`QUICK` with ``quick``).
 
         Returns
         -------
@@ -350,12 +369,14 @@ class Replanner:
         # A near goal is re-solved warm, with the warm lead, when the running motion still
         # has a tail then; otherwise (or farther) the multistart's lead applies.
         for kind in (WARM, REST) if near else (COLD,):
-            lead = max(self.estimate(config, kind).lead(), min_lead)
+            lead_of = lead_kind or (QUICK if quick else kind)
+            lead = max(self.estimate(config, lead_of).lead(), min_lead)
             stamp = max(now_ns + int(lead * 1e9), start_ns + 1)
             stamp = align(stamp, origin_ns or start_ns, config.handoff_grid)
             t = (stamp - start_ns) * 1e-9
             n = result.problem.model.n
-            if t >= result.T * (1.0 - TAIL_MIN_REMAINING) or (near and result.T - t < REST_TAIL):
+            if t >= result.T * (1.0 - TAIL_MIN_REMAINING) or \
+                    (near and not quick and result.T - t < REST_TAIL):
                 # The motion is over by then, or a near goal's tail is under REST_TAIL
                 # (a tail too short to continue is waited out:
                 # the command is at rest only after the end): the arm holds its end. Any
@@ -366,7 +387,7 @@ class Replanner:
                 q_end = result.trajectory.state(result.T)[0][:n]
                 return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
             warm = tail_warm_start(result, t) if kind == WARM else None
-            if kind == WARM and warm is None:
+            if kind == WARM and warm is None and not quick:
                 continue
             z = result.trajectory.state(t)[0]
             q, qd = z[:n].copy(), z[n:2 * n].copy()

@@ -52,17 +52,21 @@ from tocontrol_ros.core.direct.tuning import (
     CANDIDATES,
     FOLLOW_ITERATIONS,
     FOLLOW_STEPS,
+    GRIDPOINTS,
     OPEN_LOOP_ATOL,
     OPEN_LOOP_RTOL,
+    QUICK_GRIDPOINTS,
+    QUICK_IK_ITERATIONS,
     TIME_SCALES,
 )
+from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.methods.seeding import seed_pairs
 from tocontrol_ros.core.robot.ik import IK_TOL
 from tocontrol_ros.core.types.options import SolverOptions
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["first_motion"]
+__all__ = ["first_motion", "quick_motion"]
 
 
 def first_motion(problem: Problem, options: SolverOptions | None = None,
@@ -113,6 +117,86 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
     timings["scaling"] = time.perf_counter() - t0
     if isinstance(found[0], Status):
         return _failure(problem, *found, timings, t_start)
+    return _certified(problem, options, found, timings, t_start)
+
+
+def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None = None,
+                 options: SolverOptions | None = None,
+                 gridpoints: int = QUICK_GRIDPOINTS) -> PlanResult:
+    """A first motion whose end is known to be near ``q_near``: a replan's, in milliseconds.
+
+    A replan of a running motion to a target near its own needs no search for the end
+    configuration: the target's configuration is found by Newton steps from ``q_near``
+    (the running motion's end; weighted least norm, the position limits held, as
+    :func:`_followed` does at each of its points), and the path from the start to it is
+    timed as :func:`first_motion` times its chosen path (a straight joint line from rest,
+    a parabola along a moving start's velocity), on ``gridpoints`` TOPP-RA segments, then
+    certified open loop. No candidates are ranked: one or two TOPP-RA passes per time scale
+    tried and the certificate.
+
+    Parameters
+    ----------
+    problem : Problem
+        A joint-state start (at rest or moving) and a point or joint-state target.
+    q_near : ndarray, shape (n,)
+        A configuration near the target's (rad): where the Newton steps start.
+    time_scale : float, optional
+        A moving start's time scale (s): the parabola's ``tau`` is tried at
+        :data:`TIME_SCALES` multiples of it (e.g. the time the running motion had left).
+        Default: the straight path's rest-to-rest time (one more TOPP-RA pass).
+    options : SolverOptions, optional
+        The certificate's tolerances and ``verify``.
+    gridpoints : int
+        TOPP-RA's segments along the path (:data:`QUICK_GRIDPOINTS`).
+
+    Returns
+    -------
+    PlanResult
+        As :func:`first_motion`'s (``method="first"``); a failure says which step failed.
+        Never raises for a numerical failure.
+    """
+    options = options or SolverOptions()
+    t_start = time.perf_counter()
+    timings = {"guess": 0.0, "scaling": 0.0, "verify": 0.0}
+    if problem.start.kind != "state":
+        raise ProblemError("quick_motion needs a joint-state start")
+    if problem.is_trivial():
+        timings["total"] = time.perf_counter() - t_start
+        return PlanResult.trivial(problem, timings, method="first")
+    n = problem.model.n
+    q0 = np.asarray(problem.start.value[:n], dtype=float)
+    if problem.target.kind == "point":
+        qb = _newton_near(problem, np.asarray(q_near, dtype=float))
+        if qb is None:
+            qb = _followed(problem, np.asarray(q_near, dtype=float))
+    else:
+        qb = np.asarray(problem.target.value[:n], dtype=float)
+    timings["guess"] = time.perf_counter() - t_start
+    if qb is None:
+        return _failure(problem, Status.NO_GUESS, "the target's configuration was not found "
+                        "near the given one", timings, t_start)
+    t0 = time.perf_counter()
+    label = "the target near the running motion's end"
+    found = None
+    if time_scale is not None and np.isfinite(time_scale) and time_scale > 0.0:
+        found = _timed(problem, q0, qb, float(time_scale), label, gridpoints)
+    if found is None or (isinstance(found[0], Status) and np.any(problem.start.value[n:])):
+        # No time scale given, or none of its multiples could be timed (e.g. the running
+        # motion's short tail): the straight path's rest-to-rest time, as first_motion's.
+        rest_T, why = rest_time(problem, PolynomialPath.straight(q0, qb), gridpoints)
+        if rest_T is None:
+            return _failure(problem, Status.SCALING_FAILED, f"the straight path could not be "
+                            f"timed at rest ({why})", timings, t_start)
+        found = _timed(problem, q0, qb, rest_T, label, gridpoints)
+    timings["scaling"] = time.perf_counter() - t0
+    if isinstance(found[0], Status):
+        return _failure(problem, *found, timings, t_start)
+    return _certified(problem, options, found, timings, t_start)
+
+
+def _certified(problem: Problem, options: SolverOptions, found: tuple, timings: dict,
+               t_start: float) -> PlanResult:
+    """The timed path ``found`` = ``(ScaledPath, passes, note)`` certified, as a result."""
     traj, passes, note = found
     sample = fine_sample(traj)
     t0 = time.perf_counter()
@@ -130,6 +214,7 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
         intervals=len(traj.h), verification=dict(cert.figures) if cert else {},
         certificate=cert, warnings=limit_warnings(problem, sample),
         problem=problem, method="first")
+
 
 
 def _failure(problem: Problem, status: Status, why: str, timings: dict,
@@ -204,6 +289,28 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
     return q
 
 
+def _newton_near(problem: Problem, q: np.ndarray) -> np.ndarray | None:
+    """The target's configuration by Newton steps from ``q`` (near it), or None.
+
+    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_limited_step`),
+    straight at the target; None unless within ``IK_TOL`` of it (the caller then follows
+    the task-space line, :func:`_followed`).
+    """
+    model, lim = problem.model, problem.limits
+    fk, jac = model.function("P"), model.function("J")
+    w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
+    target = problem.target.value
+    q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
+    for _ in range(QUICK_IK_ITERATIONS):
+        r = target - np.array(fk(q)).ravel()
+        if np.linalg.norm(r) <= IK_TOL:
+            return q
+        q = _limited_step(q, r, np.array(jac(q)), w, lim.plan_lower, lim.plan_upper)
+        if q is None:
+            return None
+    return q if np.linalg.norm(target - np.array(fk(q)).ravel()) <= IK_TOL else None
+
+
 def _limited_step(q, r, jac, w, lo, hi) -> np.ndarray | None:
     """``q`` moved by the weighted least-norm step towards the task error ``r`` (m,).
 
@@ -243,7 +350,8 @@ def _estimates(problem: Problem, cands: list) -> np.ndarray:
     return np.max(t, axis=1)
 
 
-def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, label: str):
+def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, label: str,
+           gridpoints: int = GRIDPOINTS):
     """The timed path between ``qa`` and ``qb``: ``(ScaledPath, passes, note)``.
 
     Or ``(status, why)`` when there is none. ``rest_T`` (s) sets a moving start's time scale.
@@ -252,7 +360,7 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     qd0 = problem.start.value[n:] if problem.start.kind == "state" else np.zeros(n)
     if not np.any(qd0):
-        out = time_scaling(problem, PolynomialPath.straight(qa, qb), 0.0)
+        out = time_scaling(problem, PolynomialPath.straight(qa, qb), 0.0, gridpoints)
         if isinstance(out[0], Status):
             return out
         return (*out, f"first motion: the straight joint path to {label}, timed by TOPP-RA")
@@ -263,7 +371,7 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
         if not _inside(path, lo, hi):
             why.append(f"tau = {tau:.3g} s: leaves the position limits")
             continue
-        out = time_scaling(problem, path, 1.0 / tau)
+        out = time_scaling(problem, path, 1.0 / tau, gridpoints)
         if not isinstance(out[0], Status):
             return (*out, f"first motion: a parabola from the moving start along its "
                     f"velocity to {label} (tau = {tau:.3g} s), timed by TOPP-RA")

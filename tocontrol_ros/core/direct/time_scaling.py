@@ -59,14 +59,15 @@ from tocontrol_ros.core.types.result import Status
 
 __all__ = ["rest_time", "time_scaling"]
 
-def rest_time(problem: Problem, path: PolynomialPath) -> tuple[float | None, str]:
+def rest_time(problem: Problem, path: PolynomialPath,
+              gridpoints: int = GRIDPOINTS) -> tuple[float | None, str]:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
 
     What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
-    TOPP-RA finds no timing.
+    TOPP-RA finds no timing. ``gridpoints``: TOPP-RA's segments along the path.
     """
     n = problem.model.n
-    s = np.linspace(0.0, 1.0, GRIDPOINTS + 1)
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
     cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
     x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None)
     return (None, why) if x is None else (_duration(x, s), "")
@@ -123,15 +124,18 @@ def _rigid_body(model) -> ca.Function:
     return ca.Function("rigid_body", [q, qd, qdd], [model.rnea_sym(q, qd, qdd, friction=False)])
 
 
-def time_scaling(problem: Problem, path: PolynomialPath, sd0: float):
+def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
+                 gridpoints: int = GRIDPOINTS):
     """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
+
+    ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer).
 
     Returns
     -------
     (ScaledPath, int) or (Status, str)
         The timed path and the TOPP-RA passes it took, or ``SCALING_FAILED`` and why.
     """
-    s = np.linspace(0.0, 1.0, GRIDPOINTS + 1)
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
     coef = _Coefficients(problem, path, s)
     margin, passes = SCALING_SET_MARGIN, 0
     for _ in range(MARGIN_ROUNDS + 1):

@@ -16,7 +16,8 @@ __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SA
            "ADAPT_FLOOR", "MARGIN_ROUNDS", "CHECK_POINTS", "VELOCITY_PAD", "ACCELERATION_PAD",
            "TANGENT_FLOOR",
            "SPEED_CAP", "X_HUGE", "SCALING_SET_MARGIN", "CANDIDATES", "FOLLOW_STEPS",
-           "FOLLOW_ITERATIONS", "TIME_SCALES", "OPEN_LOOP_RTOL", "OPEN_LOOP_ATOL"]
+           "FOLLOW_ITERATIONS", "TIME_SCALES", "OPEN_LOOP_RTOL", "OPEN_LOOP_ATOL",
+           "QUICK_GRIDPOINTS", "QUICK_IK_ITERATIONS"]
 
 
 # ---------------------------------------------- the k = 1 guess (collocation.py)
@@ -244,3 +245,13 @@ TIME_SCALES = (1.0, 2.0, 4.0)
 #: loop amplifies the integration error with time (a 1.8 s Panda motion: about e^(15 t),
 #: 3 mm at the target from 1e-10, 0.03 mm from 1e-12, at the same cost).
 OPEN_LOOP_RTOL, OPEN_LOOP_ATOL = 1e-12, 1e-13
+
+
+# ------------------------------ the quick replan (first_motion.quick_motion)
+#: TOPP-RA segments of a replan's quick motion (each pass and the certificate's open loop
+#: cost in proportion; a replan's motion is short).
+QUICK_GRIDPOINTS = 40
+
+#: Newton steps from the running motion's end to the replan's target before the
+#: task-space line is followed instead (a target a few centimetres away converges in 3-4).
+QUICK_IK_ITERATIONS = 8

@@ -21,6 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.indirect.warm import WarmState
 from tocontrol_ros.core.planning.tuning import (
@@ -34,7 +35,8 @@ from tocontrol_ros.core.planning.tuning import (
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["tail_warm_start", "warm_replan", "LatencyEstimate", "replan_options"]
+__all__ = ["tail_warm_start", "path_tail_warm_start", "warm_replan", "LatencyEstimate",
+           "replan_options"]
 
 
 def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
@@ -114,6 +116,65 @@ def tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
     problem = Problem(prev.model, joint_state(q_h, qd_h), prev.target, k=prev.k,
                       reserve=prev.reserve, limits=prev.limits)
     return replace(result, problem=problem, warm_state=warm, T=T - t, starts=())
+
+
+class _ShiftedMotion:
+    """``motion`` from its time ``t0`` on, on a clock that starts there.
+
+    What a path warm start evaluates (:func:`path_tail_warm_start`).
+    """
+
+    def __init__(self, motion, t0: float) -> None:
+        self._motion, self._t0 = motion, float(t0)
+
+    def evaluate(self, t):
+        sample = self._motion.evaluate(np.asarray(t, dtype=float) + self._t0)
+        return replace(sample, t=sample.t - self._t0)
+
+    def state(self, t):
+        return self._motion.state(np.asarray(t, dtype=float) + self._t0)
+
+
+def path_tail_warm_start(result: PlanResult, t: float) -> PlanResult | None:
+    """Any certified motion from time ``t`` on, as a bounded solve's warm start.
+
+    A motion without a maximum-principle or bounded solution to continue (a quick motion,
+    ``method="first"``) still has a path: its rest from ``t`` is a feasible motion from the
+    state ``x(t)`` to its target, and the bounded B-spline solve
+    (:class:`~tocontrol_ros.core.direct.method.BoundedPath`) takes it as its start, fitted on
+    the ``replan_spans`` uniform mesh (no multipliers): the optimum from there is then the
+    bounded solve's (``method="direct"``), on an arm whose limits do not bind too. None
+    with less than :data:`TAIL_MIN_REMAINING` of the motion left.
+
+    Parameters
+    ----------
+    result : PlanResult
+        A successful result with a trajectory.
+    t : float
+        Time on the motion's own clock (s), ``0 <= t < T``.
+
+    Returns
+    -------
+    PlanResult or None
+        ``problem`` "from ``x(t)`` to the target", ``T`` the time left, ``warm_state`` a
+        :class:`PathWarmState` whose mesh is the whole interval (so that the warm solve
+        fits the path on its own uniform mesh: ``SolverOptions.replan_spans`` must be set),
+        ``trajectory`` the motion from ``t`` on.
+    """
+    if not (isinstance(t, (int, float)) and math.isfinite(t) and t >= 0.0):
+        raise ProblemError(f"`t` must be a finite time >= 0 (s), got {t!r}")
+    traj, prev = result.trajectory, result.problem
+    if not result.success or traj is None or prev is None or \
+            not math.isfinite(result.T) or t >= result.T * (1.0 - TAIL_MIN_REMAINING):
+        return None
+    n = prev.model.n
+    z = traj.state(t)[0]
+    problem = Problem(prev.model, joint_state(z[:n], z[n:2 * n]), prev.target, k=prev.k,
+                      reserve=prev.reserve, limits=prev.limits)
+    left = float(result.T) - float(t)
+    warm = PathWarmState(breaks=np.array([0.0, 1.0]), P=np.zeros((1, n)), T=left)
+    return replace(result, problem=problem, warm_state=warm, T=left, starts=(),
+                   trajectory=_ShiftedMotion(traj, t))
 
 
 class LatencyEstimate:
