@@ -5,9 +5,10 @@
 the running one at that instant). Planner and tracker as deployed, separate processes.
 
 As the topic route's test (test_moving_target.py), nothing here asserts on elapsed time: every
-goal is answered by construction; a goal counts as executed when its plan was published,
-sent, accepted by the controller and ended there SUCCEEDED or preempted by the next plan
-(CANCELED, "preempted"); the issue's bar is 80 % of the goals. Splices are held to the topic
+goal is answered by construction; a goal counts as executed when its plans (the quick motion
+and the optimum, with ``replan_quick``) were published, sent, accepted by the controller and
+ended there SUCCEEDED or preempted by the next plan (CANCELED, "preempted"); the issue's bar is
+80 % of the goals. Splices are held to the topic
 route's bounds.
 """
 
@@ -29,6 +30,8 @@ CENTRE, RADIUS = (1.8, 1.2), 0.15
 #: The arm counts as arrived within this of a goal (m); the final error is held to 1e-4 m.
 SETTLE_TOL = 1e-3
 HANG = 180.0
+#: replan_min_lead (s) for the action route (the topic route's default is 0.05 s).
+LEAD = 0.25
 
 
 def circle(i: int, count: int) -> tuple[float, float]:
@@ -43,7 +46,9 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
 
     ns = f"/replan_action_{os.getpid()}"
     args = ["--ros-args", "-r", f"__ns:={ns}"]
-    planner_args = ["-p", "goal_max_backlog:=3600.0",
+    # The hand-off lead covers the action's round trip too (goal sent, checked, accepted,
+    # parsed by the controller): msg_docs/controller_execution.md.
+    planner_args = ["-p", "goal_max_backlog:=3600.0", "-p", f"replan_min_lead:={LEAD}",
                     "-p", "controller_action:=tracker/follow_joint_trajectory"]
     procs = [NodeProcess(name, args + extra, tmp_path, env={"OPENBLAS_NUM_THREADS": "1"})
              for name, extra in (("planner", planner_args),
@@ -80,15 +85,21 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
                       if s.event in ("solved", "failed", "superseded", "cancelled")]
             return finals if len(finals) >= count else None
         finals = client.wait_for(answered, HANG, "an outcome for every goal")
+        # Published: the optimum, or the quick motion that stood (replan_quick, the default).
         published = [s for s in finals if s.event == "solved"
-                     and s.values.get("published") == "optimum"]
+                     and s.values.get("published") in ("optimum", "first")]
         ids = {s.request_id for s in published}
 
         def outcomes():
-            done = {s.request_id: s for s in client.status_list()[since:]
-                    if s.event in ("executed", "rejected") and s.request_id in ids}
-            return done if len(done) == len(ids) else None
-        executed = client.wait_for(outcomes, HANG, "the controller's outcome of every plan")
+            events = client.status_list()[since:]
+            sent = sum(s.event == "sent" for s in events)
+            done = [s for s in events if s.event in ("executed", "rejected")]
+            return done if len(done) >= sent and ids <= {s.request_id for s in done} \
+                else None
+        outcome_list = client.wait_for(outcomes, HANG, "the controller's outcome of every plan")
+        executed = {}
+        for s in outcome_list:
+            executed.setdefault(s.request_id, []).append(s)
         last = np.array(published[-1].vector("target"))
 
         def at_goal():
@@ -100,15 +111,17 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
     finally:
         client.close()
         codes = [proc.stop() for proc in procs]
-    ok = [s for s in executed.values() if s.event == "executed" and (
-        s.values.get("goal_status") == "SUCCEEDED"
-        or (s.values.get("goal_status") == "CANCELED" and "preempted" in s.message))]
+    def fine(s):
+        return s.event == "executed" and (
+            s.values.get("goal_status") == "SUCCEEDED"
+            or (s.values.get("goal_status") == "CANCELED" and "preempted" in s.message))
+    ok = [rid for rid in ids if rid in executed and all(fine(s) for s in executed[rid])]
     replans = [s for s in published if s.values.get("replan")]
     splices = [s for s in tracker_status if s.get("event") == "spliced"]
     print(f"{len(published)}/{count} published, {len(ok)} executed ({len(replans)} replans); "
           f"{len(splices)} splices")
-    assert len(ok) >= 0.8 * count, [s.message for s in executed.values() if s not in ok]
-    assert not [s.message for s in executed.values() if s.event == "rejected"]
+    assert len(ok) >= 0.8 * count, [s.message for s in outcome_list if not fine(s)]
+    assert not [s.message for s in outcome_list if s.event == "rejected"]
     assert not [s["message"] for s in tracker_status if "rejected" in s["message"]]
     # Replans reached the controller as replans: stamped ahead, spliced in by the tracker.
     assert replans and splices

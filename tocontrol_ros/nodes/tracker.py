@@ -283,7 +283,7 @@ class TrackerNode(Node):
         """A stamp ahead of now: queue the trajectory (and its goal) for then (True)."""
         now = self._target_time()
         instant = None if now is None or self._place_at_start else splice_instant(
-            stamp, self.epoch, max(now, self.tracker.t), self.tracker.h)
+            stamp, self.epoch, max(now, self.tracker.t), self.tracker.h, record is not None)
         if instant is None:
             return False
         self._splices, dropped = schedule(self._splices,
