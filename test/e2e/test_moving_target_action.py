@@ -31,7 +31,7 @@ CENTRE, RADIUS = (1.8, 1.2), 0.15
 SETTLE_TOL = 1e-3
 HANG = 180.0
 #: replan_min_lead (s) for the action route (the topic route's default is 0.05 s).
-LEAD = 0.25
+LEAD = 0.5
 
 
 def circle(i: int, count: int) -> tuple[float, float]:

@@ -164,19 +164,18 @@ class ControllerClient:
         """
         if self._client is None:
             return
-        goal = controller_goal(trajectory, config.controller_effort,
-                               config.controller_goal_time_tolerance,
-                               config.controller_goal_tolerance,
-                               config.controller_path_tolerance,
-                               now_ns=self._now_ns())
-        values = {"controller_action": self.action_name,
-                  "points": len(goal.trajectory.points)}
+        values = {"controller_action": self.action_name, "points": len(trajectory.points)}
         if not self._client.wait_for_server(SERVER_WAIT):  # at once when known
             self._report(request_id, "ERROR", "rejected",
                          f"request {request_id}: no FollowJointTrajectory server at "
                          f"{self.action_name} within {SERVER_WAIT:g} s; the plan was not "
                          f"executed", values)
             return
+        # The clock read after the wait: a stamp still ahead now is a replan's hand-off.
+        goal = controller_goal(trajectory, config.controller_effort,
+                               config.controller_goal_time_tolerance,
+                               config.controller_goal_tolerance,
+                               config.controller_path_tolerance, now_ns=self._now_ns())
         future = self._client.send_goal(goal)
         future.add_done_callback(lambda f: self._on_response(request_id, f, values))
         self._report(request_id, "OK", "sent", f"request {request_id}: plan sent to "
