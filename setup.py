@@ -83,6 +83,8 @@ setup(
         "mcap>=1.1",
         # The first motion (tocontrol_ros/core/direct/first_motion.py): TOPP-RA.
         "toppra>=0.6",
+        # Exact distances of the collision geometry (tocontrol_ros/core/geometry/).
+        "coal>=3",
         "ros-jazzy-rclpy>=7.1",
         "ros-jazzy-common-interfaces>=5.3",
         "ros-jazzy-rmw-fastrtps-cpp>=8.4",
@@ -99,6 +101,8 @@ setup(
         ],
         "bench": [
             "ray>=2.9",
+            # bench/collision.py's peer: OMPL's sampling planner (imported there only).
+            "ompl>=2",
         ],
         # `batch --ray`: only tocontrol_ros/batch/ray_backend.py imports it, inside RayBackend.
         "ray": [

@@ -290,8 +290,7 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
 
         # Trajectories published: a quick motion's ("first" status) and an optimum's.
         published = sum(s.get("published") == "optimum" for s in outcomes) + sum(
-            s.get("event") == "first" and s.get("published") == "first"
-            for s in client.snapshot("planner")[since:])
+            s.get("event") in ("first", "improved") for s in client.snapshot("planner")[since:])
 
         def settled(spread: float):
             # Every published trajectory taken over (a splice waits for its stamp) or
@@ -325,8 +324,7 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
             proc.stop()
     answered = {s["request_id"] for s in outcomes if s.get("event") == "solved"
                 and s.get("published") in ("optimum", "first")}
-    improved = sum(s.get("event") == "solved" and s.get("published") == "optimum"
-                   and s.get("quick_T") is not None for s in outcomes)
+    improved = sum(s.get("event") == "improved" for s in client.snapshot("planner")[since:])
     # A goal's answer is its first trajectory: the quick motion's ("first" status, with
     # replan_quick) or else the optimum's ("solved").
     first_of = {}

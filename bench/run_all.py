@@ -9,7 +9,7 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion,cancel]
+                verification,deployed,replan,batch,limits,first_motion,collision,cancel]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
 (direct collocation, Hermite-Simpson and Radau, and TOPP-RA on the paper's example),
@@ -33,13 +33,17 @@ processes: idle CPU and ~/plan round trip against the same request in-process),
 splices, the paper's arm and the Panda), ``replan_moving`` (the same with targets that keep
 the arm moving, the Panda from the README's set-up, latency also as a client sees it),
 ``stagewise`` (issue 47's stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on
-the same NLPs, 10 Panda cases),
+the same NLPs, 10 Panda cases), ``warm_resolve`` (one replan after a 2 cm move on 20 Panda
+cases: the warm re-solve and the quick motion),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
-Panda), ``cancel`` (a cancel during a Panda plan through ``~/plan_motion``: cancel to result,
-issue 52). Every timing is taken in this one process, side by side; compiled functions go to a
-fresh temporary cache so that first-run costs are measured, not inherited.
+Panda), ``collision`` (issue 51: the Panda in three scenes placed on each case's
+obstacle-free optimum, planned with the clearance rows, checked exactly with Coal, against
+OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene), ``cancel`` (a cancel
+during a Panda plan through ``~/plan_motion``: cancel to result, issue 52). Every timing is
+taken in this one process, side by side; compiled functions go to a fresh temporary cache so
+that first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -63,8 +67,8 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
-         "limits", "stagewise",
-         "first_motion", "cancel")
+         "limits", "stagewise", "warm_resolve",
+         "first_motion", "collision", "cancel")
 
 
 def _parse(argv):
@@ -95,6 +99,8 @@ def _parse(argv):
                         help="robots of the joint-limits part, comma-separated, of "
                              "3R-limited, UR5, Panda, xArm7, each with an optional :cases "
                              "(default --limit-cases)")
+    parser.add_argument("--collision-cases", type=int, default=20,
+                        help="drawn cases of the collision part (20; 2 with --quick)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--update", action="store_true",
                         help="replace only the sections of the parts run (and their target "
@@ -135,6 +141,7 @@ def _run(args):
     from bench import (
         batch,
         cancel,
+        collision,
         deployed,
         deployed_panda,
         first_motion,
@@ -154,6 +161,7 @@ def _run(args):
         scaling,
         stagewise,
         verification,
+        warm_resolve,
     )
 
     t0 = time.perf_counter()
@@ -224,6 +232,8 @@ def _run(args):
         section(lambda: replan.run(moving=True))
     if "stagewise" in args.only:
         section(lambda: stagewise.run(3 if args.quick else 10))
+    if "warm_resolve" in args.only:
+        section(lambda: warm_resolve.run(3 if args.quick else warm_resolve.CASES))
     if "batch" in args.only:
         section(lambda: batch.run(count=6, starts=4, candidates=2) if args.quick
                 else batch.run(count=20))
@@ -234,6 +244,8 @@ def _run(args):
     if "first_motion" in args.only:
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
+    if "collision" in args.only:
+        section(lambda: collision.run(2 if args.quick else args.collision_cases))
     if "cancel" in args.only:
         section(lambda: cancel.run(4 if args.quick else 12))
     total = time.perf_counter() - t0

@@ -37,6 +37,7 @@ LAYERS = (
     ("foundation", ("tocontrol_ros", "tocontrol_ros.core.errors", "tocontrol_ros.core.validate",
                     "tocontrol_ros.core.examples")),
     ("robot", ("tocontrol_ros.core.robot",)),
+    ("geometry", ("tocontrol_ros.core.geometry",)),
     ("types", ("tocontrol_ros.core.types",)),
     ("simulation", ("tocontrol_ros.core.sim",)),
     ("checks", ("tocontrol_ros.core.checks",)),

@@ -138,6 +138,29 @@ def test_moving_target_followed_with_spliced_replans(tmp_path, quick):
                  if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
                         - float(near.values["handoff"])) < 1e-6), None),
             10.0, "the near replan's trajectory")
+        # With replan_quick the near goal's quick motion runs about a second: once the worker
+        # is idle its optimum is tried, and either published from a later hand-off
+        # ("improved", its trajectory starting at that hand-off's state) or not ("kept",
+        # saying why).
+        after = None
+        if quick and near.event == "solved":
+            after = client.wait_for(lambda: next(
+                (s for s in client.status_list()[since_near:]
+                 if s.event in ("improved", "kept")
+                 and s.values.get("request_id") == near.values.get("request_id")), None),
+                120.0, "the near goal's optimum tried")
+            if after.event == "improved":
+                improved = client.wait_for(lambda: next(
+                    (m for m in reversed(client.trajectories)
+                     if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+                            - float(after.values["handoff"])) < 1e-6), None),
+                    10.0, "the improved trajectory")
+                np.testing.assert_allclose(improved.points[0].positions,
+                                           after.vector("start_q"), atol=1e-8)
+                assert after.values.get("certified") == "true", after.message
+                assert float(after.values["T"]) < float(after.values["quick_T"])
+            else:
+                assert "the quick motion stands" in after.message, after.message
         last = NEAR
         settled(np.array(NEAR), "the arm at rest at the near goal")
         time.sleep(0.5)
@@ -165,7 +188,7 @@ def test_moving_target_followed_with_spliced_replans(tmp_path, quick):
     # end). Every splice, of either kind, is held to the jump bar below.
     assert far.event == "solved", far.message
     assert near.event == "solved" and near.values.get("replan"), near.message
-    print(f"far: {far.message}\nnear: {near.message}")
+    print(f"far: {far.message}\nnear: {near.message}\nthen: {after and after.message}")
     # (~/status writes floats with 9 significant digits)
     np.testing.assert_allclose(near_motion.points[0].positions, near.vector("start_q"),
                                atol=1e-8)

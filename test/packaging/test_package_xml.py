@@ -42,6 +42,8 @@ MODULE_DEPENDENCIES = {
     "mcap": ("mcap-ros2-support", "mcap"),
     "mcap_ros2": ("mcap-ros2-support", "mcap-ros2-support"),
     "toppra": ("python3-toppra-pip", "toppra"),
+    # Jazzy's coal package (formerly hpp-fcl) carries its Python bindings.
+    "coal": ("coal", "coal"),
 }
 
 # Interface packages with no wheel: top-level module -> rosdep key. The pip route builds them

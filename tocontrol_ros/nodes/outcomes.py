@@ -66,7 +66,16 @@ def result_values(result) -> dict[str, object]:
             "max_abs_u": result.max_abs_u, "solver_status": result.status.name,
             "method": result.method,
             "verify_time": result.timings.get("verify") if result.certificate else None,
-            **certificate_values(result.certificate)}
+            **certificate_values(result.certificate), **_clearance_values(result)}
+
+
+def _clearance_values(result) -> dict[str, object]:
+    """``min_clearance`` (m) and ``closest_pair`` of a plan with a collision model."""
+    figures = getattr(result, "verification", None) or {}
+    if "min_clearance" not in figures:
+        return {}
+    return {"min_clearance": figures["min_clearance"],
+            "closest_pair": figures["closest_pair"]}
 
 
 def result_message(result) -> tuple[str, str]:

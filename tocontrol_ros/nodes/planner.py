@@ -65,12 +65,14 @@ from tocontrol_ros.nodes.planner_config import (
     ConfigError,
     PlannerConfig,
     config_from_values,
+    planner_collision,
     planner_limits,
     planner_model,
 )
 from tocontrol_ros.nodes.planner_outputs import FRESH_STATE_WAIT, MeasuredArm, PlannerOutputs
 from tocontrol_ros.nodes.planning_service import JOIN_TIMEOUT, Clock, PlanningService
 from tocontrol_ros.nodes.requests import PlanRequest
+from tocontrol_ros.nodes.scene_markers import scene_from_markers
 
 __all__ = ["PlannerNode", "main", "QOS_LATCHED", "QOS_STATUS", "QOS_GOAL", "QOS_JOINT_STATES",
            "FRESH_STATE_WAIT"]
@@ -93,6 +95,8 @@ QOS_JOINT_STATES = qos.profile(1, reliable=False)
 #: Service requests: a burst of calls must not overflow the request queue before the
 #: executor takes them (each call gets exactly one response).
 QOS_SERVICE = qos.profile(1000)
+#: ~/scene: reliable (every change counts), volatile: matches RViz's and a script's publishers.
+QOS_SCENE = qos.profile(10)
 
 
 class PlannerNode(Node):
@@ -139,12 +143,15 @@ class PlannerNode(Node):
                                                    task_dim=self.model.m),
             self.frame.frame_id, self._outputs, self._arm,
             Clock(now_ns=lambda: self.get_clock().now().nanoseconds))
+        self.service.collision = planner_collision(config, self.model)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         waiting = ReentrantCallbackGroup()
         inputs = MutuallyExclusiveCallbackGroup()
         self.create_service(GetPlan, "~/plan", self._on_plan, qos_profile=QOS_SERVICE,
                             callback_group=waiting)
         self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
+                                 callback_group=inputs)
+        self.create_subscription(MarkerArray, "~/scene", self._on_scene, QOS_SCENE,
                                  callback_group=inputs)
         self.create_subscription(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL,
                                  callback_group=inputs)
@@ -262,6 +269,27 @@ class PlannerNode(Node):
         if not ready:
             return "WARN", "warming up (compiling the model's functions)", values
         return "OK", "ready", values
+
+    def _on_scene(self, msg: MarkerArray) -> None:
+        """A scene change: the next plan and replans avoid it; a bad one is refused whole."""
+        from tocontrol_ros.core.errors import TocontrolError
+        from tocontrol_ros.core.geometry.scene import Scene
+
+        current = self.service.collision
+        try:
+            scene = scene_from_markers(msg, Scene() if current is None else current.scene,
+                                       self.frame.frame_id)
+            collision = planner_collision(self.config, self.model, scene) if current is None \
+                else current.with_scene(scene)
+        except TocontrolError as exc:
+            self._outputs.status("WARN", f"scene refused: {exc}; the previous scene is kept",
+                                 {"event": "scene_refused"})
+            return
+        self.service.collision = collision
+        names = ", ".join(scene.names()) or "none"
+        self._outputs.status("OK", f"scene: {len(scene.obstacles)} obstacles ({names}); the "
+                             f"next plan avoids them", {"event": "scene",
+                                                       "obstacles": names})
 
     def _empty_path(self) -> Path:
         return conv.empty_path(self.frame.frame_id, self.get_clock().now().to_msg())

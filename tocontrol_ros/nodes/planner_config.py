@@ -20,6 +20,7 @@ import numpy as np
 
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.examples import PAPER_START
+from tocontrol_ros.core.geometry.tuning import DEFAULT_MARGIN
 from tocontrol_ros.core.robot.model import STANDARD_GRAVITY
 from tocontrol_ros.core.types.options import MIN_REPLAN_SPANS, SolverOptions
 from tocontrol_ros.nodes.parameter_specs import (
@@ -76,6 +77,19 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   read_only=True),
     ParameterSpec("limit_margin", 0.0, "Fraction of each joint's position range and velocity "
                   "limit kept free by the plans (as reserve does for torque).", 0.0, 0.5),
+    ParameterSpec("scene_file", "", "Path of a YAML file of obstacles (boxes, spheres, "
+                  "cylinders in the base frame) and allowed pairs (msg_docs/scene_file.md); "
+                  "plans keep the collision margin from them and between the arm's own links, "
+                  "certified with Coal on the URDF's collision geometry. Empty: no obstacles "
+                  "(and no collision checking unless robot_description_semantic is set or a "
+                  "scene arrives on ~/scene).", read_only=True),
+    ParameterSpec("margin", DEFAULT_MARGIN, "Collision margin (m): the least distance every "
+                  "published motion keeps between the arm and the obstacles and between its "
+                  "own checked links, when collision checking is on.", 0.0, 0.5),
+    ParameterSpec("robot_description_semantic", "", "SRDF XML or the path of an SRDF file "
+                  "(as MoveIt takes it): its disable_collisions pairs are not checked. "
+                  "Setting it turns collision checking on (self-collision). Empty: all link "
+                  "pairs but adjacent ones.", read_only=True),
     ParameterSpec("base_link", "", "Link fixed to the world; start, target and outputs are "
                   "in its frame. Empty: the URDF's root link.", read_only=True),
     ParameterSpec("tip_link", "", "Link whose origin is the end-effector point. Empty: the "
@@ -293,6 +307,9 @@ class PlannerConfig:
     replan_predict: bool = True
     goal_queue: int = 50
     goal_max_backlog: float = 3.0
+    scene_file: str = ""
+    margin: float = DEFAULT_MARGIN
+    robot_description_semantic: str = ""
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:
@@ -402,6 +419,28 @@ def planner_model(config: PlannerConfig):
     return model
 
 
+def planner_collision(config: PlannerConfig, model, scene=None):
+    """The collision model of a config (None when collision checking is off).
+
+    On when ``scene_file`` or ``robot_description_semantic`` is set, or a ``scene`` is
+    given (one from ``~/scene``). Raises the core's ModelError (a mesh that cannot be found,
+    a malformed SRDF) or ProblemError (a malformed scene file), naming what was wrong.
+    """
+    if scene is None and not (config.scene_file or config.robot_description_semantic):
+        return None
+    from tocontrol_ros.core.geometry.collision import collision_model
+    from tocontrol_ros.core.geometry.scene import Scene, load_scene
+    from tocontrol_ros.core.robot.model import default_urdf_path
+
+    if scene is None:
+        scene = load_scene(config.scene_file, frame=model.base_link) if config.scene_file \
+            else Scene()
+    urdf = config.robot_description.strip() or config.robot_description_file.strip() or \
+        default_urdf_path()
+    return collision_model(model, urdf, config.robot_description_semantic.strip() or None,
+                           scene, config.margin)
+
+
 def planner_limits(config: PlannerConfig, model):
     """The URDF's joint limits narrowed by the ``joint_limits`` file (no margin yet)."""
     from tocontrol_ros.core.robot.limits import JointLimits, load_joint_limits_yaml
@@ -439,9 +478,11 @@ def warm_up_problems(config: PlannerConfig, model, limits) -> list:
 
 
 def plan_problem(config: PlannerConfig, model, limits, start: tuple, target,
-                 target_q=None):
+                 collision=None, target_q=None):
     """The problem from ``start`` to ``target`` (m); raises TocontrolError.
 
+    ``collision``: the collision model in use (:func:`planner_collision`, its scene perhaps
+    from ``~/scene``), with the config's ``margin``; None: no geometry.
     ``target_q`` (rad, m; shape (n,)): a joint-space target at rest instead of ``target``.
 
     ``start``: ``("point", p)`` or ``("state", q, qd)`` (a request's start, or a
@@ -456,5 +497,8 @@ def plan_problem(config: PlannerConfig, model, limits, start: tuple, target,
     limits = limits.with_margin(config.limit_margin)
     begin = point(start[1]) if start[0] == "point" else \
         joint_state(start[1], limits.admissible_velocity(start[2]))
+    if collision is not None and collision.margin != config.margin:
+        collision = collision.with_scene(margin=config.margin)
     end = point(target) if target_q is None else joint_state(target_q)
-    return Problem(model, begin, end, k=config.k, reserve=config.reserve, limits=limits)
+    return Problem(model, begin, end, k=config.k, reserve=config.reserve, limits=limits,
+                   collision=collision)

@@ -20,6 +20,7 @@ from trajectory_msgs.msg import JointTrajectory
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.planner_config import PlannerConfig
+from tocontrol_ros.nodes.scene_markers import scene_marker_list
 
 __all__ = ["FRESH_STATE_WAIT", "MeasuredArm", "PlannerOutputs"]
 
@@ -109,9 +110,13 @@ class PlannerOutputs:
                                                        config.marker_snapshots)).q
         ee = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
                        for p in path.poses])
-        self._publish("markers", conv.markers_msg(
+        msg = conv.markers_msg(
             self._model, snaps, ee, conv.embed_point(self._frame, start_point),
-            conv.embed_point(self._frame, target), self._frame.frame_id, path.header.stamp))
+            conv.embed_point(self._frame, target), self._frame.frame_id, path.header.stamp)
+        collision = getattr(getattr(result, "problem", None), "collision", None)
+        if collision is not None:  # the scene this plan avoided
+            msg.markers.extend(scene_marker_list(collision.scene, msg.markers[0].header))
+        self._publish("markers", msg)
 
     def rest_path(self, point: np.ndarray) -> Path:
         """The one-pose answer at ``point`` (m), stamped now."""

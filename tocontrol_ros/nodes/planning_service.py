@@ -151,6 +151,9 @@ class PlanningService:
             planner_factory = Planner
         self.model = model
         self.limits = limits
+        #: The collision model the next problem gets (the planner node sets it: scene_file,
+        #: robot_description_semantic, ~/scene); None: no geometry. Replaced, never mutated.
+        self.collision = None
         self.frame_id = frame_id
         self.planner = planner_factory(model)
         self.planner_factory = planner_factory
@@ -301,7 +304,9 @@ class PlanningService:
         warm_up(self)
         while not self.stopping.is_set():
             waiting = compiled.pending_builds() > 0 or self.planner.stale()
-            req, stale = self.slot.take(OPTIMISED_POLL if waiting else None,
+            idle = self._replans.idle_wait()  # a quick motion to improve when idle
+            waits = [t for t in (OPTIMISED_POLL if waiting else None, idle) if t is not None]
+            req, stale = self.slot.take(min(waits) if waits else None,
                                         self.config.goal_max_backlog,
                                         self.replanner.replan_time())
             for old, by in stale:  # solves fell behind the stream: newest wins
@@ -311,6 +316,8 @@ class PlanningService:
             if req is None:
                 if self.slot.closed:
                     break
+                if idle is not None:
+                    self._replans.improve()
                 load_optimised(self)
                 continue
             try:
@@ -331,9 +338,10 @@ class PlanningService:
                 target_q: np.ndarray | None = None):
         """The problem from ``start`` to ``target``, or the joint state ``target_q`` (at rest).
 
-        :func:`plan_problem`.
+        :func:`plan_problem`, with the collision model in use.
         """
-        return plan_problem(config, self.model, self.limits, start, target, target_q)
+        return plan_problem(config, self.model, self.limits, start, target, self.collision,
+                            target_q)
 
     def serve(self, req: PlanRequest) -> None:
         """Solve ``req`` and publish (or not) its outcome; always finishes it."""
@@ -442,6 +450,19 @@ class PlanningService:
         if published is None:
             return None
         return first, published[0], published[1]["samples"]
+
+    def publish_improved(self, req: PlanRequest, result, stamp_ns: int, message_prefix: str,
+                         extra: dict) -> None:
+        """Publish ``result``, the optimum after ``req``'s quick motion (``improved``)."""
+        self._last_result = result
+        published = self.publish(result, req.config, req.id, stamp_ns)
+        if published is None:  # publishers gone during shutdown
+            return
+        level, message = result_message(result)
+        self.status(req, level, "improved", f"request {req.id} improved: {message_prefix}"
+                    f"{message}", {**extra, "published": "optimum",
+                                   "samples": published[1],
+                                   "latency": self.clock.monotonic() - req.received})
 
     def publish_first(self, req: PlanRequest, result, stamp_ns: int | None,
                       extra: dict) -> tuple[Any, dict] | None:

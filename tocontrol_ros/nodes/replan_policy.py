@@ -28,6 +28,8 @@ from tocontrol_ros.nodes.replanning import (
     QUICK,
     REPLAN_TRIES,
     REST,
+    STREAM_PERIOD,
+    STREAM_RATIO,
     align,
     keeps_ahead,
 )
@@ -60,6 +62,24 @@ class ReplanPolicy:
 
     def __init__(self, service: Any) -> None:
         self.service = service
+        #: The last quick motion published, until its optimum was tried:
+        #: (request, quick result, its stamp ns, the motion before it, its status values).
+        self._improvable: tuple | None = None
+
+    def idle_wait(self) -> float | None:
+        """How long the worker waits for a goal before it improves a quick motion (s).
+
+        None: nothing to improve (wait for requests). Else, while goals stream in (the last
+        two at most :data:`~tocontrol_ros.nodes.replanning.STREAM_PERIOD` apart), 1.5 times
+        their interval (:data:`~tocontrol_ros.nodes.replanning.STREAM_RATIO`: a stream's
+        next goal is served first); at least ``replan_min_lead``.
+        """
+        if self._improvable is None:
+            return None
+        interval = self.service.replanner.goals.interval()
+        stream = 0.0 < interval <= STREAM_PERIOD  # goals a second apart or more: none
+        return max(STREAM_RATIO * interval if stream else 0.0,
+                   self.service.config.replan_min_lead)
 
     def goal_stamp(self, req: PlanRequest) -> int | None:
         """The stamp of a goal's plan (ns), or None (now).
@@ -87,7 +107,8 @@ class ReplanPolicy:
         motion first (:meth:`serve_quick`); else, or when it fails, the optimum
         (:meth:`serve_optimum`).
         """
-        if req.config.replan_quick:
+        if req.config.replan_quick and self.service.replanner.near(req.config, req.target):
+            # A near goal; a far one is a new motion: the cold multistart's, as ever.
             served = self.serve_quick(req)
             if served is not None:
                 return served
@@ -100,8 +121,8 @@ class ReplanPolicy:
         from the hand-off state to it timed by TOPP-RA
         (:func:`~tocontrol_ros.core.direct.first_motion.quick_motion`), certified, stamped
         with the hand-off (its lead from the quick motions' latencies) and published with a
-        ``first`` status. Then, while no other goal waits, the optimum is solved warm from
-        a later hand-off on the quick motion (:meth:`improve`). Returns None when no quick
+        ``first`` status, and the request finishes ``solved`` with it. Its optimum is
+        solved when the worker is idle (:meth:`improve`). Returns None when no quick
         motion could be published (it failed, or was late :data:`REPLAN_TRIES` times;
         nothing was published, or no published motion runs at the hand-off): the caller
         goes on as without ``replan_quick``.
@@ -128,9 +149,10 @@ class ReplanPolicy:
                 return None  # the optimum's route says why
             n = problem.model.n
             q_end = running.trajectory.state(running.T)[0][:n]
-            stamp_s = (handoff.stamp_ns - replans.running_stamp()) * 1e-9
-            left = running.T - stamp_s if handoff.kind != REST else None
-            quick = quick_motion(problem, q_end, left, solver_options(config))
+            # The parabola's time scale from the straight path's rest-to-rest time, not from
+            # the time the running motion has left: along a stream of quick motions that
+            # grew (each a little slower than the last: 0.5 s to 2.2 s on the paper's arm).
+            quick = quick_motion(problem, q_end, None, solver_options(config))
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(quick),
                      "replan": handoff.kind, "attempts": attempt,
@@ -154,36 +176,44 @@ class ReplanPolicy:
                 req.done.set()
                 return True
             path, values = published
-            self.improve(req, quick, handoff.stamp_ns, running, values, path)
+            service.finish(req, "OK", "solved", f"the quick motion published (T = "
+                           f"{quick.T:.6g} s); its optimum follows when the worker is idle",
+                           values, path=path)
+            self._improvable = (req, quick, handoff.stamp_ns, running, values)
             return True
         return None
 
-    def improve(self, req: PlanRequest, quick, quick_stamp_ns: int, before,
-                extra: dict, path: Any) -> None:
-        """The optimum after a quick motion: from a later hand-off on it, warm; or it stands.
+    def improve(self) -> None:
+        """The optimum after the last quick motion, when the worker is idle; or it stands.
 
-        Solved while no other goal waits (one that arrives stops it), warm alone (the
+        From a later hand-off on the quick motion, while no request waits (one that arrives
+        stops it), warm alone (the
         motion that ran before the quick one, and the replanner's warm starts), no cold
         solve; the quick motion's own rest from the hand-off is the first warm start (of the
         bounded solve: :func:`~tocontrol_ros.core.planning.replan.path_tail_warm_start`),
         with ``replan_spans``; published as the
         request's optimum when certified, in time for its hand-off
-        and ending before the quick motion does. Always finishes the request (``path``:
-        the quick motion's, its answer when it stands).
+        and ending before the quick motion does, with an ``improved`` status (the request
+        was answered by the quick motion); otherwise a ``kept`` status says why. Nothing
+        when the quick motion no longer runs (a later motion was published).
         """
         service = self.service
+        improvable, self._improvable = self._improvable, None
+        if improvable is None:
+            return
+        req, quick, quick_stamp_ns, before, extra = improvable
         clock = service.clock
         config = req.config
         replans = service.replanner
+        if replans.running() is not quick:
+            return
         quick_end = quick_stamp_ns * 1e-9 + quick.T
         stands = {**extra, "published": "first"}
 
         def keep(why: str) -> None:
-            service.finish(req, "OK", "solved", f"the quick motion stands "
-                           f"(T = {quick.T:.6g} s): {why}", stands, path=path)
+            service.status(req, "OK", "kept", f"request {req.id}: the quick motion stands "
+                           f"(T = {quick.T:.6g} s): {why}", stands)
 
-        if service.slot.has_pending():
-            return keep("another goal waits")
         t0 = clock.monotonic()
         origin, measured = self._measured(config)
         # Any moving hand-off on the quick motion (quick=True: no REST_TAIL rule, which is
@@ -200,23 +230,25 @@ class ReplanPolicy:
                                  config.replan_spans)
 
         def stop() -> bool:
-            return req.cancelled.is_set() or service.stopping.is_set() or \
-                service.slot.has_pending()
+            return service.stopping.is_set() or service.slot.has_pending()
 
         # The quick motion's own rest from the hand-off (the bounded solve from its path
-        # fitted on replan_spans uniform spans), then the others.
+        # fitted on replan_spans uniform spans) where the bounded solve is the method (the
+        # last optimum published was one: the limits bind here; on the paper's arm it
+        # crawled to its iteration limit from a long quick motion), then the others.
+        bounded = getattr(service.last_result, "method", None) == "direct"
         tail = path_tail_warm_start(quick, (handoff.stamp_ns - quick_stamp_ns) * 1e-9) \
-            if options.replan_spans else None
+            if options.replan_spans and bounded else None
         warm = [w for w in (tail, before, *replans.warm_starts(handoff.warm))
                 if w is not None and w.warm_state is not None
                 and w.can_warm_start(problem, options.warm_joint_radius)]
         if not warm:  # a cold solve takes longer than a quick motion runs
             return keep("no warm start applies to its optimum")
         result = warm_replan(service.planner, problem, warm, options, stop)
-        if service.finish_stopped(req, {**stands, "optimum_status": result.status.name}):
-            return None
+        if stop():
+            return keep("stopped by a request")
         if not result.success or result.trajectory is None:
-            return keep(f"the optimum was not found warm ({result.message})")
+            return keep(f"its optimum was not found ({result.message})")
         replans.estimate(config, IMPROVE).record(clock.monotonic() - t0)
         now = clock.now_ns()
         if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
@@ -229,10 +261,9 @@ class ReplanPolicy:
                   "start_qd": handoff.qd, **result_values(result), "replan": handoff.kind,
                   "handoff": stamp_text(handoff.stamp_ns), "warm_start": True,
                   "quick_T": quick.T}
-        service.publish_final(req, result, handoff.stamp_ns,
-                              f"replan ({handoff.kind}) improving the quick motion, taking "
-                              f"over at {handoff.stamp_ns * 1e-9:.3f}: ", values, None)
-        return None
+        service.publish_improved(req, result, handoff.stamp_ns,
+                                 f"replan ({handoff.kind}) improving the quick motion, taking "
+                                 f"over at {handoff.stamp_ns * 1e-9:.3f}: ", values)
 
     def serve_optimum(self, req: PlanRequest) -> bool:
         """A goal while a published motion runs, its optimum from the hand-off.

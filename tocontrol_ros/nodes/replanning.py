@@ -26,7 +26,7 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
            "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
-           "IMPROVE"]
+           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -45,7 +45,7 @@ FOLLOWING = 0.05
 #: hand-off, it held up the goals behind it, and the backlog kept the goal solved ahead from
 #: running for 20-30 goals (paper's arm, 10 Hz circle, bench/replan.py: median latency 57-299
 #: ms in five runs; with 0.1, 12-39 ms in eight).
-INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1, QUICK: 0.03, IMPROVE: 0.05}
+INITIAL_LATENCY = {WARM: 0.1, COLD: 0.5, REST: 0.1, QUICK: 0.03, IMPROVE: 0.15}
 #: The delivery reserve of a rest replan after its publication is at most ``replan_min_lead``
 #: plus this (s). It grows with the recent rest solves' latencies (a loaded machine), but a
 #: published trajectory's delivery does not take as long as a slow solve: on the Panda with
@@ -143,6 +143,12 @@ class GoalStream:
         with self._lock:
             self._recent = (self._recent + [(np.array(target, dtype=float), float(t))])[-3:]
 
+    def interval(self) -> float:
+        """The last interval between two goals (s), 0 before two came."""
+        with self._lock:
+            recent = list(self._recent)
+        return recent[-1][1] - recent[-2][1] if len(recent) >= 2 else 0.0
+
     def predict(self, radius: float) -> tuple[np.ndarray, float] | None:
         """The next goal (m) and when it is due (s, monotonic), or None: no steady stream.
 
@@ -185,11 +191,6 @@ class Replanner:
         """The last published motion (a PlanResult), or None."""
         with self._lock:
             return self._executing[0] if self._executing is not None else None
-
-    def running_stamp(self) -> int:
-        """When the last published motion takes over (ns), or 0."""
-        with self._lock:
-            return self._executing[1] if self._executing is not None else 0
 
     def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
         """The latency estimate of one kind of solve (made with the config's margins)."""

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from tocontrol_ros.core.geometry.tuning import CERTIFY_STEPS
 from tocontrol_ros.core.types.certificate import Certificate, CertificateItem, CertificateOptions
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.trajectory import TrajectorySample
 
 __all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify_open_loop",
            "check_item", "end_checks", "torque_checks", "solver_and_limit_checks",
-           "certificate_of"]
+           "certificate_of", "clearance_checks"]
 
 
 # ------------------------------------------------- the items every certificate has
@@ -111,6 +112,41 @@ def limit_checks(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
 
 
 
+def clearance_checks(problem: Problem, trajectory) -> tuple[list[CertificateItem], dict]:
+    """The motion's clearance on the URDF's own geometry (none without ``problem.collision``).
+
+    Coal's exact distances of every checked pair (:class:`~tocontrol_ros.core.geometry.
+    collision.CollisionModel`) at :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_STEPS`
+    equally spaced times, and between them the bound of
+    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` under the joint
+    velocity limits (which the ``velocity_limits`` item checks; a joint without one: twice
+    its largest sampled speed). Independent of the optimiser's spheres.
+
+    Returns
+    -------
+    items : list of CertificateItem
+        ``clearance``: the margin minus the least distance any pair can have, at or between
+        the times (passes at <= 0).
+    figures : dict
+        ``min_clearance`` (m, the least exact distance at the times), ``closest_pair``
+        ("link/obstacle"), ``closest_time`` (s), ``clearance_bound`` (m).
+    """
+    col = problem.collision
+    if col is None:
+        return [], {}
+    t = np.linspace(0.0, trajectory.T, CERTIFY_STEPS + 1)
+    sample = trajectory.evaluate(t)
+    v = problem.limits.velocity
+    v = np.where(np.isfinite(v), v, 2.0 * np.max(np.abs(sample.qd), axis=0))
+    swept = col.swept(t, sample.q, v)
+    item = check_item("clearance", col.margin - swept.lower_bound, 0.0, "m",
+                      f"margin ({col.margin:g} m) minus the least distance of any checked "
+                      f"pair over the motion (exact at {CERTIFY_STEPS + 1} times, bounded "
+                      f"between them)")
+    return [item], {"min_clearance": swept.minimum, "closest_pair": "/".join(swept.pair),
+                    "closest_time": swept.time, "clearance_bound": swept.lower_bound}
+
+
 def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions | None = None,
                       sample: TrajectorySample | None = None,
                       solver_residual: float | None = None) -> Certificate:
@@ -170,7 +206,9 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     items += solver_and_limit_checks(
         problem, sample, x_path, solver_residual,
         "the solver's max-norm of its NLP's constraint violation", options)
-    return certificate_of(items, {
+    clear_items, clear_figures = clearance_checks(problem, trajectory)
+    items += clear_items
+    return certificate_of(items, {**clear_figures,
         "point_error": point_err, "velocity_error": vel_err,
         "state_error": float(np.max(np.abs(x_T - trajectory.state(trajectory.T)[0, :2 * n]))),
         "max_abs_u": max_u, "integrator_success": success, "nfev": nfev,

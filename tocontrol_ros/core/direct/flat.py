@@ -26,7 +26,9 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
   ``Q_j = c_j (P_j+1 - P_j)`` and ``c2_j = (p - 1) / (t_j+p+1 - t_j+2)``
   (:meth:`FlatTranscription._acceleration_rows`): ``|qdd| <= a`` at every time;
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
-  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state.
+  target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state;
+- with a collision model only, the clearance rows at every sample
+  (:mod:`~tocontrol_ros.core.direct.clearance`), after all the others.
 
 Its derivatives are assembled from one compiled function per sample (the constraint, its
 gradient and its weighted Hessian in the span's ``(p + 1) n`` control points and ``T``).
@@ -45,6 +47,7 @@ from scipy.interpolate import CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
+from tocontrol_ros.core.direct.clearance import ClearanceRows, compile_clearance
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.direct.tuning import (
@@ -241,6 +244,9 @@ class FlatTranscription:
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
         ``"restart"``: as False (the last resort of a re-solve with a wider pad).
+    clearance : ClearanceRows, optional
+        The clearance rows (:func:`~tocontrol_ros.core.direct.clearance.clearance_rows`);
+        default none: the NLP of a problem without a collision model is unchanged.
     acceleration : ndarray, shape (n,), optional
         Acceleration limits held at every time (rad/s^2; ``inf``: none), the planning
         limits (margin applied). None or all infinite: no acceleration rows (the NLP of a
@@ -250,7 +256,9 @@ class FlatTranscription:
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 warm: bool | str = False, acceleration: np.ndarray | None = None) -> None:
+                 warm: bool | str = False, clearance: ClearanceRows | None = None,
+                 acceleration: np.ndarray | None = None) -> None:
+        self.clearance = clearance if clearance is not None and clearance.count else None
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
         self.model, self.degree, self.per_span = model, degree, per_span
@@ -283,8 +291,10 @@ class FlatTranscription:
         nb = 3 * (p + 1) * S
         bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
         cvec = geo[nb:nb + K - 1]
-        b_start_vel, b_end_vel = geo[nb + K - 1:nb + K + p], geo[nb + K + p:nb + K + 2 * p + 1]
-        c2vec = geo[nb + K + 2 * p + 1:]  # the acceleration rows' (K - 2,), when held
+        b_start_vel = geo[nb + K - 1:nb + K + p]
+        # then the acceleration rows' (K - 2,) when held, then the clearance rows' ds, if any
+        b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]
+        c2vec = geo[nb + K + 2 * p + 1:nb + K + 2 * p + 1 + K - 2]
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
@@ -306,9 +316,19 @@ class FlatTranscription:
         self._rows = (ng_set, ng_lin, ng_b)
         local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
         g_eval, jac = self._constraint_jacobian(set_grad, local, zvars, w, g_lin, g_b)
+        self._ng_clear = 0
+        if self.clearance is not None:
+            clear_local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat[0, :], geo[-1])
+            clear = self._clearance_rows(clear_local, zvars, w)
+            g, g_eval, jac = (ca.vertcat(g, clear[0]), ca.vertcat(g_eval, clear[1]),
+                              ca.vertcat(jac, clear[2]))
+            ng += self._ng_clear
         lam_g = ca.MX.sym("lam_g", ng)
         lam_f = ca.MX.sym("lam_f")
         hess = self._lagrangian_hessian(set_hess, local, zvars, w, g_lin, g_b, lam_g)
+        if self.clearance is not None:
+            hess = hess + self._clearance_hessian(clear_local, zvars, w,
+                                                  lam_g[ng - self._ng_clear:])
         self._nw, self._iT, self._ng = nw, iT, ng
         allp = ca.vertcat(par, geo)
         opts = ipopt_options(
@@ -355,6 +375,40 @@ class FlatTranscription:
             Q = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
             rows.append(c2vec * (Q[1:] - Q[:-1]) / T ** 2)
         return ca.vertcat(*rows)
+
+    def _clearance_rows(self, local: tuple, zvars: np.ndarray, w: ca.MX
+                        ) -> tuple[ca.MX, ca.MX, ca.MX]:
+        """The clearance rows (R per sample, sample by sample).
+
+        As ``g``, as evaluated with their gradients, and their Jacobian (scattered into the
+        span's variables and ``T``).
+        """
+        rows = self.clearance
+        funs, _ = compile_clearance(self.model, rows, self.degree)
+        self._clear_hess = funs[2]
+        S, R = len(zvars), len(rows.groups())
+        self._ng_clear = S * R
+        values = ca.vec(funs[0].map(S)(*local))
+        cs, grads = funs[1].map(S)(*local)
+        scat = Scatter(S * R, w.numel())
+        for r in range(S):
+            scat.block(np.arange(r * R, (r + 1) * R), np.concatenate([zvars[r], [w.numel() - 1]]))
+        return values, ca.vec(cs), scat.apply(ca.vec(grads))
+
+    def _clearance_hessian(self, local: tuple, zvars: np.ndarray, w: ca.MX, lam: ca.MX
+                           ) -> ca.MX:
+        """The clearance rows' part of the Lagrangian's Hessian (upper triangle)."""
+        S, R = len(zvars), len(self.clearance.groups())
+        nw, iT = w.numel(), w.numel() - 1
+        d = zvars.shape[1] + 1
+        hs = self._clear_hess.map(S)(*local, ca.reshape(lam, R, S))
+        sh = Scatter(nw, nw, triu=True)
+        ur, uc = (np.array(v) for v in zip(*[(r, c) for c in range(d) for r in range(c + 1)],
+                                           strict=True))
+        for r in range(S):
+            v = np.concatenate([zvars[r], [iT]])
+            sh.add(v[ur], v[uc])
+        return sh.apply(ca.vec(hs))
 
     def _boundary_rows(self, Pm: ca.MX, T: ca.MX, par: ca.MX, sizes: list[int],
                        b_start_vel: ca.MX, b_end_vel: ca.MX) -> ca.MX:
@@ -415,7 +469,8 @@ class FlatTranscription:
             sh.add(v[ur], v[uc])
         hess = sh.apply(ca.vec(hs))
         hv = ca.triu(ca.hessian(ca.dot(lam_g[ng_set:ng_set + ng_lin], g_lin), w)[0])
-        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:], g_b), w)[0])
+        hb = ca.triu(ca.hessian(ca.dot(lam_g[ng_set + ng_lin:ng_set + ng_lin + g_b.numel()], g_b),
+                                    w)[0])
         return hess + hv + hb
 
     @property
@@ -439,6 +494,9 @@ class FlatTranscription:
         if self.acceleration is not None:
             v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
+        if self._ng_clear:  # clearance rows: >= 0
+            lbg = np.concatenate([lbg, np.zeros(self._ng_clear)])
+            ubg = np.concatenate([ubg, np.full(self._ng_clear, np.inf)])
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
         ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
 
@@ -566,6 +624,8 @@ class FlatTranscription:
         geo = [bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]]
         if self.acceleration is not None:  # q''(s)'s control points: (p - 1) / knot spans
             geo.append((p - 1) / (tk[p + 1:p + K - 1] - tk[2:K]))
+        if self.clearance is not None:  # the largest normalised time between two samples
+            geo.append([float(np.max(np.diff(breaks))) / ps])
         return np.concatenate(geo)
 
     def on(self, breaks: np.ndarray) -> FlatTranscription:

@@ -57,20 +57,42 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "time_scaling"]
+__all__ = ["rest_time", "cube_time", "time_scaling"]
 
-def rest_time(problem: Problem, path: PolynomialPath,
-              gridpoints: int = GRIDPOINTS) -> tuple[float | None, str]:
+def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
+              peaks: bool = False) -> tuple:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
 
     What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
-    TOPP-RA finds no timing. ``gridpoints``: TOPP-RA's segments along the path.
+    TOPP-RA finds no timing. ``gridpoints``: TOPP-RA's segments along the path. With
+    ``peaks``: ``(T, why, peak)``, ``peak`` (n,) each joint's largest speed on that timing
+    at the gridpoints (rad/s; None without a timing).
     """
     n = problem.model.n
     s = np.linspace(0.0, 1.0, gridpoints + 1)
     cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
     x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None)
-    return (None, why) if x is None else (_duration(x, s), "")
+    T = None if x is None else _duration(x, s)
+    if not peaks:
+        return (None, why) if x is None else (T, "")
+    if x is None:
+        return None, why, None
+    return T, "", np.max(np.abs(path(s, 1)) * np.sqrt(np.maximum(x, 0.0))[:, None], axis=0)
+
+
+def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
+              gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None) -> float:
+    """The time (s) of ``path`` from path speed ``sd0`` to rest in the cube (one pass).
+
+    As :func:`rest_time`, from a moving start and with :func:`time_scaling`'s
+    ``speed_cap``: what ranks a moving start's candidate paths before one is timed in full.
+    ``inf`` when TOPP-RA finds no timing.
+    """
+    n = problem.model.n
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    x, _ = _toppra(_Coefficients(problem, path, s, speed_cap), s, sd0, cube, None)
+    return np.inf if x is None else _duration(x, s)
 
 
 class _Coefficients:
@@ -80,7 +102,8 @@ class _Coefficients:
     (N + 1,) bounds ``sd^2`` by the velocity limits.
     """
 
-    def __init__(self, problem: Problem, path: PolynomialPath, s: np.ndarray) -> None:
+    def __init__(self, problem: Problem, path: PolynomialPath, s: np.ndarray,
+                 speed_cap: np.ndarray | None = None) -> None:
         model = problem.model
         fn = mapped(model, "rigid_body", len(s), lambda: _rigid_body(model))
         q, d1, d2 = path(s), path(s, 1), path(s, 2)
@@ -98,8 +121,12 @@ class _Coefficients:
         seg = np.maximum(speed[:-1], speed[1:])
         speed = np.maximum(np.vstack([seg, seg[-1:]]), np.vstack([seg[:1], seg]))
         v = problem.limits.plan_velocity * (1.0 - VELOCITY_PAD)
-        with np.errstate(divide="ignore"):
-            self.xv = np.min((v / speed) ** 2, axis=1)
+        if speed_cap is not None:
+            v = np.minimum(v, speed_cap)
+        # A joint that does not move along the path has no bound (0/0 would be NaN).
+        moving = speed > 0.0
+        self.xv = np.min(np.where(moving, (v / np.where(moving, speed, 1.0)) ** 2, np.inf),
+                         axis=1)
         # joint_limits.yaml's accelerations: qdd = q'(s) sdd + q''(s) sd^2, linear in
         # (sdd, sd^2) as TOPP-RA's rows are.
         lim = problem.limits
@@ -125,10 +152,11 @@ def _rigid_body(model) -> ca.Function:
 
 
 def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
-                 gridpoints: int = GRIDPOINTS):
+                 gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None):
     """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
 
-    ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer).
+    ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer);
+    ``speed_cap`` (n,): joint speeds held below it too (rad/s, m/s), as the velocity limits.
 
     Returns
     -------
@@ -136,7 +164,7 @@ def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
         The timed path and the TOPP-RA passes it took, or ``SCALING_FAILED`` and why.
     """
     s = np.linspace(0.0, 1.0, gridpoints + 1)
-    coef = _Coefficients(problem, path, s)
+    coef = _Coefficients(problem, path, s, speed_cap)
     margin, passes = SCALING_SET_MARGIN, 0
     for _ in range(MARGIN_ROUNDS + 1):
         x, count = _best_scaling(problem, coef, s, sd0, margin)

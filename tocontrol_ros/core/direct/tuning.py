@@ -17,7 +17,8 @@ __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SA
            "TANGENT_FLOOR",
            "SPEED_CAP", "X_HUGE", "SCALING_SET_MARGIN", "CANDIDATES", "FOLLOW_STEPS",
            "FOLLOW_ITERATIONS", "TIME_SCALES", "OPEN_LOOP_RTOL", "OPEN_LOOP_ATOL",
-           "QUICK_GRIDPOINTS", "QUICK_IK_ITERATIONS"]
+           "QUICK_GRIDPOINTS", "QUICK_IK_ITERATIONS", "QUICK_TIME_SCALES",
+           "QUICK_SPEED_SLACK"]
 
 
 # ---------------------------------------------- the k = 1 guess (collocation.py)
@@ -255,3 +256,13 @@ QUICK_GRIDPOINTS = 40
 #: Newton steps from the running motion's end to the replan's target before the
 #: task-space line is followed instead (a target a few centimetres away converges in 3-4).
 QUICK_IK_ITERATIONS = 8
+
+#: A quick motion's parabola from a moving start is tried with these multiples of the
+#: straight path's rest-to-rest time as ``tau``; the one of least ``T`` is kept (the first
+#: motion's ``TIME_SCALES`` take the first that can be timed).
+QUICK_TIME_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0)
+
+#: A quick motion from a moving start keeps each joint's speed below this much more than
+#: the larger of its speed at the start and its peak on the straight path's rest-to-rest
+#: timing (first_motion.quick_motion).
+QUICK_SPEED_SLACK = 0.01

@@ -19,6 +19,7 @@ import numpy as np
 from tocontrol_ros.core.checks.certificate import (
     certificate_of,
     check_item,
+    clearance_checks,
     end_checks,
     solver_and_limit_checks,
     torque_checks,
@@ -151,7 +152,9 @@ def certify(problem: Problem, trajectory: Trajectory, options: CertificateOption
                        "max |H| over the samples"))
     items += solver_and_limit_checks(problem, sample, x_end, solver_residual,
                                      "the solver's max-norm of its BVP equations", options)
-    return certificate_of(items, {
+    clear_items, clear_figures = clearance_checks(problem, trajectory)
+    items += clear_items
+    return certificate_of(items, {**clear_figures,
         "point_error": point_err, "velocity_error": vel_err,
         "state_error": float(np.max(np.abs(x_T - z_grid[-1, :2 * n]))),
         "open_loop_deviation": float(np.max(np.abs(x_end - z_next[:, :2 * n]))),

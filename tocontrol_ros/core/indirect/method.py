@@ -76,6 +76,10 @@ class MaximumPrinciple(Method):
         """The multistart, then the best basin refined and certified (the next on failure)."""
         problem, options = ctx.problem, ctx.options
         run, records = None, []
+        if problem.collision is not None:  # clearance is a constraint of the bounded solve
+            return plan_limited(compiled, ctx, timings, t_start, [], reason=(
+                "a collision model is given: solved as a B-spline path with hard bounds "
+                "(docs/collision.md)"))
         try:
             run, records, status, message = _cold(compiled, ctx, timings)
             notes = list(ctx.memo.get("notes", []))

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from tocontrol_ros.core.direct.clearance import clearance_rows
 from tocontrol_ros.core.direct.collocation import (
     DirectCollocation,
     compile_direct,
@@ -194,13 +195,18 @@ class PreparedModel:
             if problem.limits.has_acceleration else None
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
                count, warm) + ((accel,) if accel is not None else ())
+        col = problem.collision
+        if col is not None:  # its own transcription: the scene's rows
+            key += (col.key(), tuple(problem.limits.velocity))
         with self._lock:
             base = self._direct.pop(key, None)
             if base is None:
                 base = FlatTranscription(
                     self.model, count, problem.start.kind, problem.target.kind,
                     torque_scale=problem.torque_scale, warm=warm,
-                    acceleration=None if accel is None else np.array(accel))
+                    acceleration=None if accel is None else np.array(accel),
+                    clearance=None if col is None else clearance_rows(
+                        col, problem.limits.velocity))
             self._direct[key] = base  # the most recently used last
             for old in [k for k in self._direct if k[0] == "flat"][:-FLAT_CACHE]:
                 del self._direct[old]

@@ -208,6 +208,22 @@ class RobotModel(Chain):
         rot = ca.mtimes(rot, ca.DM(self.tip_rotation))
         return rot, pos
 
+    def body_frames_sym(self, q) -> list:
+        """Each body's frame in the base frame, symbolic.
+
+        A list of n (rotation (3, 3), position (3, 1)) (m); body ``i``'s frame is the one its
+        joint moves.
+        """
+        rot = ca.DM.eye(3)
+        pos = ca.DM.zeros(3)
+        out = []
+        for i, body in enumerate(self.bodies):
+            r, p = self._joint_transform(body, q[i])
+            pos = pos + ca.mtimes(rot, p)
+            rot = ca.mtimes(rot, r)
+            out.append((rot, pos))
+        return out
+
     def point_sym(self, q):
         """Task-space point ``P(q)``, shape (m, 1), symbolic (m)."""
         _, pos = self.tip_pose_sym(q)

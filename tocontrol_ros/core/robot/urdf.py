@@ -24,7 +24,7 @@ from tocontrol_ros.core.errors import ModelError
 from tocontrol_ros.core.robot.kinematics import axis_rotation
 
 __all__ = ["Body", "Chain", "JointFrame", "MOVING_TYPES", "chain_from_urdf",
-           "default_urdf_path", "joint_frames", "read_urdf"]
+           "default_urdf_path", "joint_frames", "link_placements", "origin_pose", "read_urdf"]
 
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 #: Lumped bodies lighter than this (kg) count as "no inertia".
@@ -89,6 +89,11 @@ def _origin(elem) -> tuple[np.ndarray, np.ndarray]:
     xyz = np.zeros(3) if elem.xyz is None else np.asarray(elem.xyz, dtype=float)
     rpy = np.zeros(3) if elem.rpy is None else np.asarray(elem.rpy, dtype=float)
     return _rpy_matrix(rpy), xyz
+
+
+def origin_pose(elem) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) (m) of a parsed URDF ``<origin>`` (or None)."""
+    return _origin(elem)
 
 
 @dataclass(frozen=True)
@@ -573,3 +578,41 @@ def _lump_inertia(poses: dict, links: dict) -> tuple[float, np.ndarray, np.ndarr
         d = ci - com
         inertia += ii + mi * (np.dot(d, d) * np.eye(3) - np.outer(d, d))
     return total, com, inertia
+
+
+def link_placements(robot, label: str, chain: Chain) -> dict[str, tuple[int, np.ndarray,
+                                                                        np.ndarray]]:
+    """Where every link of ``chain`` sits: the body that carries it and its pose there.
+
+    The same walk as :func:`chain_from_urdf`'s (links rigidly attached, locked joints at
+    their locked positions), so that a link's geometry moves with the body whose inertia
+    holds its mass.
+
+    Parameters
+    ----------
+    robot : urdf_parser_py.urdf.Robot
+        The URDF the chain was read from (:func:`read_urdf`).
+    label : str
+        Names the URDF in errors.
+    chain : Chain
+
+    Returns
+    -------
+    dict of str to (int, ndarray (3, 3), ndarray (3,))
+        Link name -> body index (-1: the base, fixed to the world; ``i``: moved by
+        ``chain.bodies[i]``), rotation and translation (m) in that body's frame.
+    """
+    tree = _Tree(robot, label)
+    locked = dict(chain.locked)
+    path = tree.path(chain.base_link, chain.tip_link)
+    on_path = {j.name for j in path}
+    moving = [j for j in path if j.type in MOVING_TYPES and j.name not in locked]
+    ends = (chain.base_link, chain.tip_link)
+    out = {}
+    root, joints = chain.base_link, [None] + moving
+    for idx, j in enumerate(joints):
+        root = chain.base_link if j is None else j.child
+        nxt = joints[idx + 1] if idx + 1 < len(joints) else None
+        for link, (rot, pos) in tree.rigid_group(root, nxt, locked, on_path, ends).items():
+            out[link] = (idx - 1, rot, pos)
+    return out

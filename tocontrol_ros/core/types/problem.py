@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
+from tocontrol_ros.core.geometry.collision import CollisionModel
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -90,6 +91,11 @@ class Problem:
     limits : JointLimits, optional
         Joint position and velocity limits the plan keeps to; default: the URDF's, no
         margin (:meth:`JointLimits.from_model`).
+    collision : CollisionModel, optional
+        The arm's geometry, the scene and the margin the motion keeps from obstacles and
+        between its own links (:func:`~tocontrol_ros.core.geometry.collision.collision_model`);
+        default: none (the motion knows no geometry). A start or target joint state closer
+        than the margin is refused, naming the pair and the distance.
 
     Raises
     ------
@@ -104,6 +110,7 @@ class Problem:
     k: float = 1.0
     reserve: float = 0.0
     limits: JointLimits | None = None
+    collision: CollisionModel | None = None
 
     def __post_init__(self) -> None:
         model = self.model
@@ -140,6 +147,26 @@ class Problem:
             else:
                 raise ProblemError(f"`{name}.kind` must be 'point' or 'state', got "
                                    f"{end.kind!r}")
+        if self.collision is not None:
+            self._check_clearance()
+
+    def _check_clearance(self) -> None:
+        """A collision model of this model; joint-state ends at least the margin clear."""
+        col = self.collision
+        if not isinstance(col, CollisionModel) or \
+                tuple(col.model.joint_names) != tuple(self.model.joint_names):
+            raise ProblemError(f"`collision` must be a CollisionModel of the model's joints "
+                               f"{list(self.model.joint_names)}, got {col!r}")
+        for name in ("start", "target"):
+            end = getattr(self, name)
+            if end.kind != "state":
+                continue
+            found = col.clearance(end.value[:self.model.n])
+            if found.minimum < col.margin:
+                what = "in collision" if found.minimum < 0 else "within the collision margin"
+                raise ProblemError(
+                    f"`{name}` joint state is {what}: {found.pair[0]} and {found.pair[1]} are "
+                    f"{found.minimum:.4f} m apart (margin {col.margin:g} m)")
 
     @property
     def start_point(self) -> np.ndarray:
