@@ -294,7 +294,8 @@ class FlatTranscription:
         b_start_vel = geo[nb + K - 1:nb + K + p]
         # then the acceleration rows' (K - 2,) when held, then the clearance rows' ds, if any
         b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]
-        c2vec = geo[nb + K + 2 * p + 1:nb + K + 2 * p + 1 + K - 2]
+        c2vec = geo[nb + K + 2 * p + 1:nb + K + 2 * p + 1 + K - 2] \
+            if self.acceleration is not None else None
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
