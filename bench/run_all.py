@@ -10,7 +10,7 @@ Run from the repository root::
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
                 verification,deployed,replan,batch,limits,first_motion,collision,
-                memory]
+                memory,cancel]
         [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -46,9 +46,10 @@ OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene),
 ``memory`` (issue 50: a memory of optimal motions of a Panda cell, built with the
 ``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
 then 50 requests inside the cell and 20 outside through a planner node with it against one
-without, and the compiled peer from the same stored motions). Every timing is taken in this
-one process, side by side; compiled functions go to a fresh temporary cache so that first-run
-costs are measured, not inherited.
+without, and the compiled peer from the same stored motions), ``cancel`` (a cancel during a
+Panda plan through ``~/plan_motion``: cancel to result, issue 52). Every timing is taken in
+this one process, side by side; compiled functions go to a fresh temporary cache so that
+first-run costs are measured, not inherited.
 """
 
 import argparse
@@ -73,7 +74,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise", "warm_resolve",
-         "first_motion", "collision", "memory")
+         "first_motion", "collision", "memory", "cancel")
 
 
 def _parse(argv):
@@ -154,6 +155,7 @@ def main(argv=None):
 def _run(args):
     from bench import (
         batch,
+        cancel,
         collision,
         deployed,
         deployed_panda,
@@ -266,6 +268,8 @@ def _run(args):
             counts = tuple(int(v) for v in args.memory_requests.split(","))
         section(lambda: memory.run(args.memory_file, *counts,
                                    build=not args.memory_no_build))
+    if "cancel" in args.only:
+        section(lambda: cancel.run(4 if args.quick else 12))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

@@ -3,7 +3,7 @@ r"""Start the planner, the simulated arm (tracker) and the recorder for your rob
     ros2 launch tocontrol_ros tocontrol.launch.py [robot:=/path/arm.urdf]
         [params_file:=/path/params.yaml] [use_sim_time:=false]
         [controller_action:=/tracker/follow_joint_trajectory] [simulate:=true]
-        [record:=true] [output:=runs/x.mcap]
+        [record:=true] [output:=runs/x.mcap] [namespace:=arm1]
 
 - ``robot``: a URDF file (no xacro); empty (the default): the nodes read the URDF from the
   ``/robot_description`` topic, as ``robot_state_publisher`` publishes it (start that first,
@@ -19,6 +19,11 @@ r"""Start the planner, the simulated arm (tracker) and the recorder for your rob
   the tracker takes goals on its action only (not also the topic).
 - ``simulate``: start the tracker (the simulated arm); ``false`` with a real controller.
 - ``record``, ``output``: the recorder and its file.
+- ``namespace``: every node in this namespace (``/<namespace>/planner``, ...), their topics
+  with them (the defaults are relative: ``planner/trajectory``, ``joint_states``,
+  ``robot_description``); two arms side by side are two launches with two namespaces. A
+  relative ``controller_action`` (``tracker/follow_joint_trajectory``) resolves in it too.
+  ``/diagnostics`` and ``/clock`` stay global, as ROS has them.
 
 Then send a goal, e.g.
     ros2 topic pub --once /planner/goal geometry_msgs/msg/PointStamped \
@@ -34,8 +39,8 @@ from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
 PACKAGE = "tocontrol_ros"
-#: Where the nodes read the robot when no ``robot`` file is given.
-ROBOT_TOPIC = "/robot_description"
+#: Where the nodes read the robot when no ``robot`` file is given (in their namespace).
+ROBOT_TOPIC = "robot_description"
 
 ARGUMENTS = (
     ("robot", "", "URDF file of the arm; empty: read it from /robot_description"),
@@ -46,6 +51,7 @@ ARGUMENTS = (
     ("simulate", "true", "start the tracker (the simulated arm)"),
     ("record", "true", "also start the recorder"),
     ("output", "", "recording path (default runs/<timestamp>.mcap)"),
+    ("namespace", "", "namespace of every node (and of their relative topics); empty: none"),
 )
 
 
@@ -69,16 +75,17 @@ def _nodes(context):
     planner = {**robot, **common, "controller_action": action}
     # With an action, the tracker takes the plan as a goal only: not twice.
     tracker = {**robot, **common,
-               "trajectory_topic": "/planner/trajectory" if not action else "~/unused"}
-    nodes = [Node(package=PACKAGE, executable="planner", name="planner", output="screen",
-                  parameters=[config + "planner.yaml", planner, *extra])]
+               "trajectory_topic": "planner/trajectory" if not action else "~/unused"}
+    ns = arg["namespace"]
+    nodes = [Node(package=PACKAGE, executable="planner", name="planner", namespace=ns,
+                  output="screen", parameters=[config + "planner.yaml", planner, *extra])]
     if _true(arg["simulate"]):
         nodes.append(Node(package=PACKAGE, executable="tracker", name="tracker",
-                          output="screen",
+                          namespace=ns, output="screen",
                           parameters=[config + "tracker.yaml", tracker, *extra]))
     if _true(arg["record"]):
         nodes.append(Node(package=PACKAGE, executable="recorder", name="recorder",
-                          output="screen",
+                          namespace=ns, output="screen",
                           parameters=[config + "recorder.yaml",
                                       {**robot, **common, "output": arg["output"]},
                                       *extra]))

@@ -46,6 +46,8 @@ def launched_nodes(module, **arguments) -> list[dict]:
 def ros_args(node: dict) -> list[str]:
     """The command-line ROS arguments that give a process what ``Node(**node)`` gives it."""
     args = ["--ros-args", "-r", f"__node:={node['name']}"]
+    if node.get("namespace"):
+        args += ["-r", f"__ns:=/{node['namespace'].strip('/')}"]
     for entry in node["parameters"]:
         if isinstance(entry, str):
             args += ["--params-file", entry]

@@ -21,7 +21,6 @@ from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTolerance, JointTrajectoryControllerState
 from node_process import NodeProcess
 from planner_harness import PlannerClient
-from rclpy.action import ActionClient
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -29,6 +28,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from tocontrol_ros.core.examples import PAPER_TARGET
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import jtc_checks as jtc
+from tocontrol_ros.nodes.action_calls import SerialActionClient
 from tocontrol_ros.nodes.controller_client import controller_goal
 
 pytestmark = pytest.mark.ros
@@ -62,8 +62,10 @@ class Nodes:
         node.create_subscription(JointTrajectoryControllerState,
                                  f"{self.ns}/tracker/controller_state", self._on_state,
                                  QoSProfile(depth=10))
-        self.action = ActionClient(node, FollowJointTrajectory,
-                                   f"{self.ns}/tracker/follow_joint_trajectory")
+        # Requests on the executor: rclpy 7.1's race loses a fast response (a rejected goal)
+        # when the request is made from this thread (nodes/action_calls.py).
+        self.action = SerialActionClient(node, FollowJointTrajectory,
+                                         f"{self.ns}/tracker/follow_joint_trajectory")
         self.feedback: list = []
 
     def _on_joints(self, msg: JointState) -> None:
@@ -84,13 +86,13 @@ class Nodes:
             return np.array(self.joint_state.position)
 
     def send(self, goal: FollowJointTrajectory.Goal):
-        future = self.action.send_goal_async(
+        future = self.action.send_goal(
             goal, feedback_callback=lambda f: self.feedback.append(f))
         self.client.wait_for(future.done, 10.0, "the goal response")
         return future.result()
 
     def result(self, handle, timeout: float = 20.0):
-        future = handle.get_result_async()
+        future = self.action.get_result(handle)
         self.client.wait_for(future.done, timeout, "the goal's result")
         return future.result()
 
@@ -103,7 +105,7 @@ class Nodes:
 def nodes(tmp_path_factory):
     n = Nodes(tmp_path_factory.mktemp("fjt"))
     try:
-        assert n.action.wait_for_server(timeout_sec=60.0), n.logs()
+        assert n.action.wait_for_server(60.0), n.logs()
         n.client.wait_ready(120.0)
         yield n
     finally:
@@ -164,7 +166,7 @@ def test_a_newer_goal_preempts_and_a_cancel_stops(nodes):
     assert preempted.status == GoalStatus.STATUS_CANCELED
     assert preempted.result.error_code == jtc.INVALID_GOAL
     assert "preempted by a newer goal" in preempted.result.error_string
-    cancel = second.cancel_goal_async()
+    cancel = nodes.action.cancel(second)
     nodes.client.wait_for(cancel.done, 10.0, "the cancel response")
     canceled = nodes.result(second)
     assert canceled.status == GoalStatus.STATUS_CANCELED

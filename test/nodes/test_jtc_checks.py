@@ -52,6 +52,19 @@ def test_the_planners_goal_is_accepted_by_a_default_jtc(published):
     assert len(published.points[-1].effort) == 3
 
 
+def test_a_replan_keeps_its_future_hand_off_stamp(published):
+    """A replan is stamped with its hand-off, ahead of the controller's clock: the goal keeps
+    that stamp (the JTC joins it to the running trajectory there, issue 52), and a default
+    JTC accepts it; a stamp not ahead of the clock becomes zero (start now)."""
+    stamp_ns = conv.nanoseconds(published.header.stamp)
+    ahead = controller_goal(published, now_ns=stamp_ns - 1)
+    assert ahead.trajectory.header.stamp == published.header.stamp
+    check = jtc.check_goal(ahead.trajectory, published.joint_names, NOW - 5.0 - 1e-3, JTC)
+    assert check.accepted, check.reason
+    for now_ns in (stamp_ns, stamp_ns + 1):
+        assert controller_goal(published, now_ns=now_ns).trajectory.header.stamp == Time()
+
+
 def test_the_published_trajectory_as_is_would_be_refused(published):
     # Why the goal is rewritten: effort without an effort interface, and a stamp in the past
     # (or an end velocity within 1e-6 of zero but not zero).

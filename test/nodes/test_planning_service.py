@@ -379,3 +379,39 @@ def test_stop_answers_the_pending_request(make_service):
     wait_done(running)
     assert final(out, running)["event"] == "cancelled"
 
+
+
+def test_a_plan_only_request_publishes_nothing_and_keeps_its_motions(make_service):
+    """``execute`` false (the ~/plan_motion action's default): the first motion and the
+    optimum are solved and kept on the request, nothing is published (issue 52)."""
+    service, out = make_service(publish="first_then_optimum")
+    service.planner.gate.set()
+    req = request(service)
+    req.execute = False
+    service.submit(req)
+    wait_done(req)
+    assert "trajectory" not in out.kinds() and "markers" not in out.kinds()
+    assert req.first is service.planner.first_result
+    assert req.result is service.planner.optimum
+    assert final(out, req)["values"]["published"] == "returned"
+
+
+def test_a_first_motion_finished_after_a_cancel_is_kept_not_published(make_service):
+    """A cancel during the first motion (it is not interruptible): the motion, certified, is
+    kept as the request's best known one, for the action's result; nothing is published."""
+    service, out = make_service(publish="first_then_optimum")
+    req = request(service)
+    planner = service.planner
+    real_first = planner.first
+
+    def first_then_cancelled(problem, options):
+        req.cancel("cancelled", "cancelled by the action client")
+        return real_first(problem, options)
+
+    planner.first = first_then_cancelled
+    planner.gate.set()
+    service.submit(req)
+    wait_done(req)
+    assert req.first is planner.first_result and req.result is None
+    assert final(out, req)["event"] == "cancelled"
+    assert "trajectory" not in out.kinds()

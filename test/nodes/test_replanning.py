@@ -265,3 +265,16 @@ def test_a_solve_ahead_goes_on_for_the_goal_it_predicted_only():
     assert not keeps_ahead([goal(1.01 * AHEAD_KEEP * step)], predicted, step)
     assert not keeps_ahead([goal(1e-4, queue=False)], predicted, step)
     assert not keeps_ahead([goal(1e-4), goal(step)], predicted, step)
+
+
+def test_a_late_goal_joins_as_far_along_as_its_stamp_says():
+    """FollowJointTrajectory goals (``late``): a stamp already past takes over at the next
+    control instant with the time since the stamp, as a JTC drops the points already past;
+    without ``late`` (the topic) it starts at once from its beginning (None)."""
+    h = 0.001
+    assert splice_instant(104.0, 100.0, 5.0, h) is None
+    at, elapsed = splice_instant(104.9995, 100.0, 5.0, h, late=True)
+    assert at == pytest.approx(5.001) and elapsed == pytest.approx(0.0015)
+    at, elapsed = splice_instant(104.0, 100.0, 5.0004, h, late=True)
+    assert at == pytest.approx(5.001) and elapsed == pytest.approx(1.001)
+    assert splice_instant(0.0, 100.0, 5.0, h, late=True) is None  # stamp 0: now

@@ -119,3 +119,38 @@ def test_ros2_run_demo(workspace):
     proc = _sourced(workspace, ["python3", "-c", ROS2RUN, PACKAGE, "demo"])
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert proc.stdout.strip()
+
+
+def test_colcon_builds_tocontrol_msgs(colcon, repo, tmp_path_factory):
+    """The colcon route of the project's own interface package (issue 52).
+
+    colcon does not look inside a package for others (``tocontrol_ros`` is the repository's
+    root), so a workspace names the folder: ``--base-paths`` (or a link in ``src/``), as
+    interfaces/README.md says. The dev env's rosidl wheels stand in for a Jazzy install's
+    ament and rosidl (found through ``AMENT_PREFIX_PATH`` as a sourced install would be);
+    the generated Python package is then imported from the workspace.
+    """
+    import sysconfig
+
+    import numpy
+
+    ws = tmp_path_factory.mktemp("ws-msgs")
+    folder = repo / "interfaces" / "tocontrol_msgs"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["AMENT_PREFIX_PATH"] = sys.prefix
+    env["CMAKE_PREFIX_PATH"] = sys.prefix
+    env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '')}"
+    proc = _run([str(colcon), "build", "--base-paths", str(folder), "--cmake-args",
+                 f"-DPython3_EXECUTABLE={sys.executable}", "-DBUILD_TESTING=OFF",
+                 f"-DTOCONTROL_PYTHON_INCLUDE={sysconfig.get_paths()['include']}",
+                 f"-DTOCONTROL_NUMPY_INCLUDE={numpy.get_include()}"],
+                cwd=ws, env=env, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
+    site = next((ws / "install" / "tocontrol_msgs" / "lib").glob("python3*/site-packages"))
+    check = _run([sys.executable, "-P", "-c", "import tocontrol_msgs.action as a, sys; "
+                  "print(a.__file__); print(a.PlanMotion.Goal().k)"],
+                 env={**env, "PYTHONPATH": str(site),
+                      "LD_LIBRARY_PATH": f"{ws / 'install' / 'tocontrol_msgs' / 'lib'}:"
+                                         f"{env.get('LD_LIBRARY_PATH', '')}"}, timeout=120)
+    assert check.returncode == 0, check.stderr[-3000:]
+    assert str(ws) in check.stdout and "-1.0" in check.stdout

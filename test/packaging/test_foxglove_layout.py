@@ -16,6 +16,9 @@ import pytest
 from tocontrol_ros.recording import link_frames
 from tocontrol_ros.recording.recorder import DEFAULT_TOPICS
 
+#: The recorder's default topics as recorded without a namespace (they are relative).
+RECORDED = {t if t.startswith("/") else f"/{t}" for t in DEFAULT_TOPICS}
+
 LAYOUT = "foxglove_layout.json"
 #: Built-in Foxglove panels the layout may use.
 PANEL_TYPES = {"3D", "Plot", "RawMessages", "StateTransitions", "Table"}
@@ -52,11 +55,11 @@ def test_3d_panel_draws_the_recorded_robot(layout):
     assert len(urdf) == 1
     assert urdf[0]["sourceType"] == "topic"
     assert urdf[0]["topic"] == link_frames.DESCRIPTION_TOPIC
-    assert set(panel["topics"]) <= set(DEFAULT_TOPICS)
+    assert set(panel["topics"]) <= RECORDED
 
 
 def test_plots_read_recorded_topics(layout):
     plots = [c for pid, c in layout["configById"].items() if pid.startswith("Plot!")]
     topics = {p["value"].split(".")[0] for plot in plots for p in plot["paths"]}
     assert "/joint_states" in topics
-    assert topics <= set(DEFAULT_TOPICS)
+    assert topics <= RECORDED

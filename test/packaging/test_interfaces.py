@@ -85,3 +85,51 @@ def test_tf2_msgs_is_upstream_jazzy_byte_for_byte():
     assert share.read_bytes() == b"geometry_msgs/TransformStamped[] transforms\n"
     assert isinstance(TFMessage(transforms=[TransformStamped()]).transforms[0],
                       TransformStamped)
+
+
+#: The project's own action (interfaces/tocontrol_msgs): its hashes as released with it. A
+#: change of a field name or type changes them; a client built against the old definition
+#: could then no longer decode goals, feedback or results: change these only with a new
+#: interface version (and say so in msg_docs/plan_motion_action.md).
+OWN = {
+    "tocontrol_msgs/action/PlanMotion":
+        "RIHS01_72186d51c4688751d9f6887c7d30ba9b222ce8362c27b3876f57ec83df44aee6",
+    "tocontrol_msgs/action/PlanMotion_Goal":
+        "RIHS01_0b52dfafb24cf82b3759762550b1ebd93ab285321d43135de09a7b1f0e8d3b90",
+    "tocontrol_msgs/action/PlanMotion_Result":
+        "RIHS01_47bce968a5d68c3e7f14594cc75e4f16b029750fe9b8793d86208096b92d8f49",
+    "tocontrol_msgs/action/PlanMotion_Feedback":
+        "RIHS01_98cc66a5edbce98033e46832c0d8a3bcfa77201b9a3800ab6492797b53b36aee",
+}
+
+
+def test_plan_motion_hashes_as_released():
+    built = _built_hashes("tocontrol_msgs")
+    assert {name: built.get(name) for name in OWN} == OWN
+
+
+def test_plan_motion_hashes_as_an_independent_implementation_says(repo):
+    """rosbags computes RIHS01 on its own from the .action's three parts (goal, result,
+    feedback) and Jazzy's definitions of the messages they use."""
+    typesys = pytest.importorskip("rosbags.typesys")
+    store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+    text = (repo / "interfaces" / "tocontrol_msgs" / "action" / "PlanMotion.action").read_text()
+    parts = text.split("\n---\n")
+    assert len(parts) == 3
+    built = _built_hashes("tocontrol_msgs")
+    for part, kind in zip(parts, ("Goal", "Result", "Feedback"), strict=True):
+        name = f"tocontrol_msgs/action/PlanMotion_{kind}"
+        store.register(typesys.get_types_from_msg(part, name))
+        assert store.hash_rihs01(name) == built[name] == OWN[name]
+
+
+def test_plan_motion_defaults():
+    """A goal left at its defaults plans from the current state to a point, with the
+    planner's parameters, and publishes nothing (``execute`` false)."""
+    from tocontrol_msgs.action import PlanMotion
+
+    goal = PlanMotion.Goal()
+    assert goal.start_type == PlanMotion.Goal.START_CURRENT
+    assert goal.target_type == PlanMotion.Goal.TARGET_POINT
+    assert (goal.k, goal.time_limit, goal.limit_margin, goal.execute) == (-1.0, -1.0, -1.0,
+                                                                          False)

@@ -61,14 +61,17 @@ def test_launch_arguments_reach_the_nodes(monkeypatch):
     module = load_launch_file(monkeypatch)
     names = [entry[1] for entry in module.generate_launch_description()[:-1]]
     assert names == ["robot", "params_file", "use_sim_time", "controller_action", "simulate",
-                     "record", "output"]
+                     "record", "output", "namespace"]
     nodes = _started(module)  # defaults: the robot from /robot_description, the topic route
     assert list(nodes) == ["planner", "tracker", "recorder"]
     planner, tracker = nodes["planner"][1], nodes["tracker"][1]
+    # Relative: in the launch's namespace (issue 52), /robot_description without one.
     assert planner["robot_description_topic"] == tracker["robot_description_topic"] == \
-        "/robot_description"
+        "robot_description"
     assert planner["controller_action"] == "" and \
-        tracker["trajectory_topic"] == "/planner/trajectory"
+        tracker["trajectory_topic"] == "planner/trajectory"
+    assert all(n["namespace"] == "" for n in launched_nodes(module))
+    assert {n["namespace"] for n in launched_nodes(module, namespace="arm1")} == {"arm1"}
     assert nodes["planner"][0] == "/prefix/share/tocontrol_ros/config/planner.yaml"
 
     nodes = _started(module, robot="/arm.urdf", params_file="/mine.yaml", use_sim_time="true",

@@ -54,6 +54,13 @@ BUILT_INTERFACES = {
     "tf2_msgs": "tf2_msgs",
 }
 
+# The project's own interface packages (interfaces/<module>/): top-level module -> rosdep key.
+# Built on both routes: scripts/dev builds them into the venv (pip route); colcon builds them
+# in a workspace (no COLCON_IGNORE); package.xml depends on them.
+OWN_INTERFACES = {
+    "tocontrol_msgs": "tocontrol_msgs",
+}
+
 # Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of
 # setup.py's extras_require, not in install_requires nor package.xml (rosdistro has no key),
 # and imported only inside functions, so that the package works without them.
@@ -123,9 +130,10 @@ def test_every_import_is_declared(repo, package_xml, setup_keywords):
     for module, places in sorted(_third_party_imports(repo).items()):
         if module in OPTIONAL_DEPENDENCIES:
             continue
-        if module in BUILT_INTERFACES:
-            if BUILT_INTERFACES[module] not in rosdep_keys:
-                undeclared.append(f"package.xml lacks <exec_depend>{BUILT_INTERFACES[module]}"
+        interfaces = {**BUILT_INTERFACES, **OWN_INTERFACES}
+        if module in interfaces:
+            if interfaces[module] not in rosdep_keys:
+                undeclared.append(f"package.xml lacks <exec_depend>{interfaces[module]}"
                                   f"</exec_depend> for {module}")
             continue
         if module not in MODULE_DEPENDENCIES:
@@ -186,3 +194,10 @@ def test_built_interfaces_are_in_the_tree_and_skipped_by_colcon(repo):
         assert (folder / "package.xml").is_file() and (folder / "CMakeLists.txt").is_file()
         assert (folder / "COLCON_IGNORE").is_file(), f"colcon would build {folder}"
     assert "interfaces" in (repo / "scripts" / "dev").read_text()
+
+
+def test_own_interfaces_are_built_on_both_routes(repo):
+    for module in OWN_INTERFACES:
+        folder = repo / "interfaces" / module
+        assert (folder / "package.xml").is_file() and (folder / "CMakeLists.txt").is_file()
+        assert not (folder / "COLCON_IGNORE").exists(), f"colcon must build {folder}"

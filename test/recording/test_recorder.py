@@ -378,3 +378,36 @@ def test_replay_rejects_unknown_topics(context, tmp_path):
             Player(node, path, rate=0.0)
     finally:
         node.destroy_node()
+
+
+def test_relative_topics_resolve_in_the_namespace_and_diagnostics_say_so(context, tmp_path):
+    """The default topics are relative (issue 52): in namespace /armN they are /armN/...;
+    the recorder's /diagnostics status names the file and the topics still waiting."""
+    ns = unique("")
+    out = tmp_path / "ns.mcap"
+    recorder = Recorder(context=context, namespace=ns, parameter_overrides=[
+        Parameter("output", value=str(out)), Parameter("link_frames", value=False),
+        Parameter("topics", value=["planner/trajectory", "joint_states", "/elsewhere/x"])])
+    try:
+        assert recorder.config.topics == (f"{ns}/planner/trajectory", f"{ns}/joint_states",
+                                          "/elsewhere/x")
+        assert recorder.config.joint_states_topic == f"{ns}/joint_states"
+        array = recorder.diagnostics.message()
+        [status] = array.status
+        values = {kv.key: kv.value for kv in status.values}
+        assert status.name == f"{ns}/recorder" and values["output"] == str(out)
+        assert values["pending_topics"].split(",") == list(recorder.config.topics)
+        from diagnostic_msgs.msg import DiagnosticStatus  # noqa: PLC0415
+
+        assert status.level == DiagnosticStatus.WARN  # nothing published on them yet
+    finally:
+        recorder.close()
+        recorder.destroy_node()
+
+
+def test_an_invalid_topic_name_is_refused_by_name(context, tmp_path):
+    with pytest.raises(ValueError, match="invalid topic name"):
+        Recorder(context=context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bad.mcap")),
+            Parameter("link_frames", value=False),
+            Parameter("topics", value=["bad topic name!"])])

@@ -199,7 +199,8 @@ def embed_point(frame: TaskFrame, p) -> np.ndarray:
     return out
 
 
-def joint_state_from_msg(msg, joint_names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+def joint_state_from_msg(msg, joint_names: Sequence[str],
+                         field: str = "joint_states") -> tuple[np.ndarray, np.ndarray]:
     """Positions and velocities of the model's joints from a ``sensor_msgs/JointState``.
 
     Joints are matched by name (any order); extra joints in the message (other parts of the
@@ -211,6 +212,8 @@ def joint_state_from_msg(msg, joint_names: Sequence[str]) -> tuple[np.ndarray, n
     msg : sensor_msgs.msg.JointState
     joint_names : sequence of str
         The model's joints, in the model's order.
+    field : str
+        The message's name in errors (e.g. ``"target_joints"``).
 
     Returns
     -------
@@ -225,16 +228,16 @@ def joint_state_from_msg(msg, joint_names: Sequence[str]) -> tuple[np.ndarray, n
     """
     names = list(msg.name)
     if len(set(names)) != len(names):
-        raise ConversionError(f"`joint_states.name` has duplicates: {names}")
+        raise ConversionError(f"`{field}.name` has duplicates: {names}")
     missing = [j for j in joint_names if j not in names]
     if missing:
-        raise ConversionError(f"`joint_states.name` lacks the planner's joint(s) {missing} "
+        raise ConversionError(f"`{field}.name` lacks the planner's joint(s) {missing} "
                               f"(got {names}; expected {list(joint_names)})")
     if len(msg.position) != len(names):
-        raise ConversionError(f"`joint_states.position` has {len(msg.position)} entries for "
+        raise ConversionError(f"`{field}.position` has {len(msg.position)} entries for "
                               f"{len(names)} names")
     if len(msg.velocity) not in (0, len(names)):
-        raise ConversionError(f"`joint_states.velocity` has {len(msg.velocity)} entries for "
+        raise ConversionError(f"`{field}.velocity` has {len(msg.velocity)} entries for "
                               f"{len(names)} names (empty means at rest)")
     index = [names.index(j) for j in joint_names]
     q = np.array([msg.position[i] for i in index], dtype=float)
@@ -244,7 +247,7 @@ def joint_state_from_msg(msg, joint_names: Sequence[str]) -> tuple[np.ndarray, n
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             j = int(bad[0])
-            raise ConversionError(f"`joint_states.{label}` of joint {joint_names[j]!r} must be "
+            raise ConversionError(f"`{field}.{label}` of joint {joint_names[j]!r} must be "
                                   f"finite, got {values[j]!r}")
     return q, qd
 

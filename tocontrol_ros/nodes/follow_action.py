@@ -178,18 +178,31 @@ class FollowServer:
         self._finish(record, "abort", jtc.INVALID_GOAL, reason)
 
     def started(self, record: GoalRecord | None, nominal: NominalTrajectory,
-                source: str = "a newer goal") -> None:
-        """A trajectory started now: it preempts the active goal; ``record`` becomes it."""
-        if self.active is not None:
+                source: str = "a newer goal", elapsed: float = 0.0) -> None:
+        """A trajectory started now: it preempts the active goal; ``record`` becomes it.
+
+        ``elapsed``: how far along its own time it starts (s; a goal stamped in the future
+        joins the running motion at its stamp, a JTC's replacement, and starts there).
+        """
+        if self.active is not None and self.active is not record:
             what = source if record is not None else "a trajectory on the topic"
             self._finish(self.active, "canceled", jtc.INVALID_GOAL, f"preempted by {what}")
         if record is not None:
-            record.start = self.node.tracker.t
+            record.start = self.node.tracker.t - elapsed
             record.end = record.start + nominal.duration
             self.active = record
             if record.handle.is_cancel_requested:  # cancelled while queued: never moves
                 self._hold()
                 self._finish(record, "canceled", jtc.SUCCESSFUL, "canceled by the client")
+
+    def replaced(self, record: GoalRecord | None, stamp: float) -> None:
+        """A goal waiting for its stamp, replaced by one stamped ``stamp`` (s): CANCELED.
+
+        Preempted, as a JTC's newer goal preempts; None (a topic trajectory): nothing.
+        """
+        if record is not None:
+            self._finish(record, "canceled", jtc.INVALID_GOAL,
+                         f"preempted by a goal stamped {stamp:.6f} before it took over")
 
     def stopped(self, reason: str) -> None:
         """The trajectory was stopped (``~/reset``): abort the active goal."""

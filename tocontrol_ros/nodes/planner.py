@@ -8,6 +8,11 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
   answer is the end-effector path stamped with the planned times, empty on failure;
 - topic ``~/goal`` (``geometry_msgs/msg/PointStamped``): plan from the robot's current state
   (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
+- topic ``~/goal_joints`` (``sensor_msgs/msg/JointState``): a joint-space target, from the
+  current state;
+- action ``~/plan_motion`` (``tocontrol_msgs/action/PlanMotion``, when that package is
+  installed): start, target (point or joints) and options; feedback, cancel, the trajectory
+  as the result (:mod:`tocontrol_ros.nodes.plan_action`);
 - published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local;
   with ``publish: first_then_optimum`` first a certified motion at once, then the optimum),
   ``~/status`` (``diagnostic_msgs/msg/DiagnosticStatus``, one per request event),
@@ -32,6 +37,7 @@ import argparse
 import sys
 import time
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from nav_msgs.msg import Path
@@ -44,12 +50,16 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.robot import compiled
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
-from tocontrol_ros.nodes.controller_client import ControllerClient
+from tocontrol_ros.nodes.controller_client import ControllerClient, MissingInterfaceError
+from tocontrol_ros.nodes.diagnostics import Diagnostics
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all, robot_from_topic
+from tocontrol_ros.nodes.plan_action import PlanMotionServer
 from tocontrol_ros.nodes.planner_config import (
     PARAMETERS,
     ConfigError,
@@ -122,8 +132,11 @@ class PlannerNode(Node):
             "markers": self.create_publisher(MarkerArray, "~/markers", QOS_LATCHED),
             "status": self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)}
         self._outputs = PlannerOutputs(self, self.model, self.frame, publishers)
-        self._controller = ControllerClient(self, config.controller_action,
-                                            self._outputs.status)
+        try:  # control_msgs only with a controller: a pip install without it still plans
+            self._controller = ControllerClient(self, config.controller_action,
+                                                self._outputs.status)
+        except MissingInterfaceError as exc:
+            raise ConfigError(str(exc)) from exc
         self._outputs.controller = self._controller
         self.service = PlanningService(
             self.model, limits, config_from_values(self._parameter_values(),
@@ -140,6 +153,15 @@ class PlannerNode(Node):
                                  callback_group=inputs)
         self.create_subscription(MarkerArray, "~/scene", self._on_scene, QOS_SCENE,
                                  callback_group=inputs)
+        self.create_subscription(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL,
+                                 callback_group=inputs)
+        try:  # tocontrol_msgs only for the action: without it the rest is served
+            self._plan_action = PlanMotionServer(self, self._outputs, self._arm.start,
+                                                 self._parameter_values)
+        except MissingInterfaceError as exc:
+            self._plan_action = None
+            self.get_logger().warning(f"~/plan_motion is not served: {exc}")
+        self.diagnostics = Diagnostics(self, self.model.name, self._diagnostic_state)
         self.service.start()
         self.get_logger().info(
             f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
@@ -215,6 +237,39 @@ class PlannerNode(Node):
             return
         self.service.goal(rid, target, since, received)
 
+    def _on_goal_joints(self, msg: JointState, info) -> None:
+        received = time.monotonic()
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
+        rid = self.service.next_id()
+        config = self.config
+        try:
+            q, qd = conv.joint_state_from_msg(msg, self.model.joint_names, "goal_joints")
+            if np.any(qd != 0.0):
+                raise conv.ConversionError("`goal_joints.velocity` must be empty or zero (a "
+                                           f"target is at rest), got {qd.tolist()}")
+            start = self._arm.start(config, since)
+        except TocontrolError as exc:
+            self.service.reject(rid, "goal_joints", str(exc))
+            return
+        self.service.submit(PlanRequest(rid, "goal_joints", start, self.model.point(q), config,
+                                        received=received, target_q=q))
+
+    def _diagnostic_state(self):
+        """``/diagnostics``: readiness, requests waiting, last plan, builds, controller."""
+        service = self.service
+        ready = service.ready.is_set()
+        last = service.last_result
+        values = {"state": "ready" if ready else "warming up",
+                  "requests_waiting": len(service.slot.pending()),
+                  "compile_builds_pending": compiled.pending_builds(),
+                  "last_T": last.T if last is not None else "",
+                  "last_status": last.status.name if last is not None else "",
+                  "controller_action": self.config.controller_action,
+                  "plan_motion": "served" if self._plan_action is not None else "not served"}
+        if not ready:
+            return "WARN", "warming up (compiling the model's functions)", values
+        return "OK", "ready", values
+
     def _on_scene(self, msg: MarkerArray) -> None:
         """A scene change: the next plan and replans avoid it; a bad one is refused whole."""
         from tocontrol_ros.core.errors import TocontrolError
@@ -247,6 +302,8 @@ class PlannerNode(Node):
     def destroy_node(self) -> None:
         """Stop the worker, then destroy the node."""
         self.stop_worker()
+        if self._plan_action is not None:
+            self._plan_action.destroy()
         self._controller.destroy()
         self._joint_states.destroy()
         super().destroy_node()

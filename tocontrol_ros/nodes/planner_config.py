@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -69,9 +69,12 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ROBOT_DESCRIPTION_TIMEOUT,
     LOCKED_JOINTS,
     ParameterSpec("joint_limits", "", "Path of a MoveIt joint_limits.yaml narrowing the URDF's "
-                  "position and velocity limits (has_position_limits, min_position, "
-                  "max_position, has_velocity_limits, max_velocity; the tighter of the two "
-                  "wins). Empty: the URDF's limits.", read_only=True),
+                  "position, velocity and effort limits (has_position_limits, min_position, "
+                  "max_position, has_velocity_limits, max_velocity, has_effort_limits, "
+                  "max_effort; the tighter of the two wins) and adding acceleration limits "
+                  "(has_acceleration_limits, max_acceleration), held on the whole motion; "
+                  "jerk entries are not enforced (docs/limits.md). Empty: the URDF's limits.",
+                  read_only=True),
     ParameterSpec("limit_margin", 0.0, "Fraction of each joint's position range and velocity "
                   "limit kept free by the plans (as reserve does for torque).", 0.0, 0.5),
     ParameterSpec("scene_file", "", "Path of a YAML file of obstacles (boxes, spheres, "
@@ -424,11 +427,24 @@ def config_from_values(values: Mapping[str, Any], task_dim: int | None = None) -
 
 
 def planner_model(config: PlannerConfig):
-    """The planner's :class:`~tocontrol_ros.core.robot.model.RobotModel` of a config."""
-    return load_model(config.robot_description, config.robot_description_file,
-                      base_link=config.base_link or None, tip_link=config.tip_link or None,
-                      gravity=config.gravity, task_axes=config.task_axes or None,
-                      locked_joints=parse_locked_joints(config.locked_joints))[0]
+    """The planner's :class:`~tocontrol_ros.core.robot.model.RobotModel` of a config.
+
+    The ``joint_limits`` file's ``max_effort`` entries narrow the URDF's torque limits
+    (the model plans against the tighter).
+    """
+    model = load_model(config.robot_description, config.robot_description_file,
+                       base_link=config.base_link or None, tip_link=config.tip_link or None,
+                       gravity=config.gravity, task_axes=config.task_axes or None,
+                       locked_joints=parse_locked_joints(config.locked_joints))[0]
+    if config.joint_limits:
+        from tocontrol_ros.core.robot.limits import load_joint_limits_yaml, narrowed_efforts
+
+        tau = narrowed_efforts(model.joint_names, model.tau_max,
+                               load_joint_limits_yaml(config.joint_limits),
+                               f"`joint_limits` file {config.joint_limits!r}")
+        if np.any(tau != model.tau_max):
+            model = replace(model, tau_max=tau)
+    return model
 
 
 def planner_collision(config: PlannerConfig, model, scene=None):
@@ -490,11 +506,12 @@ def warm_up_problems(config: PlannerConfig, model, limits) -> list:
 
 
 def plan_problem(config: PlannerConfig, model, limits, start: tuple, target,
-                 collision=None):
+                 collision=None, target_q=None):
     """The problem from ``start`` to ``target`` (m); raises TocontrolError.
 
     ``collision``: the collision model in use (:func:`planner_collision`, its scene perhaps
     from ``~/scene``), with the config's ``margin``; None: no geometry.
+    ``target_q`` (rad, m; shape (n,)): a joint-space target at rest instead of ``target``.
 
     ``start``: ``("point", p)`` or ``("state", q, qd)`` (a request's start, or a
     hand-off's state). ``limits``: :func:`planner_limits` (the margin is applied here). A
@@ -510,5 +527,6 @@ def plan_problem(config: PlannerConfig, model, limits, start: tuple, target,
         joint_state(start[1], limits.admissible_velocity(start[2]))
     if collision is not None and collision.margin != config.margin:
         collision = collision.with_scene(margin=config.margin)
-    return Problem(model, begin, point(target), k=config.k, reserve=config.reserve,
-                   limits=limits, collision=collision)
+    end = point(target) if target_q is None else joint_state(target_q)
+    return Problem(model, begin, end, k=config.k, reserve=config.reserve, limits=limits,
+                   collision=collision)

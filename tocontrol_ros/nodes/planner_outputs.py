@@ -55,11 +55,17 @@ class PlannerOutputs:
         self._pubs = dict(publishers)
         self.controller = controller
         self._status_lock = threading.Lock()
+        #: request id -> ``listener(event, message, values)``, told each status event of that
+        #: request (the ``~/plan_motion`` action's progress and outcome).
+        self.listeners: dict[int, Any] = {}
 
     def status(self, level: str, message: str, values: Mapping[str, Any],
                routine: bool = False) -> None:
         """``~/status`` and the log (a ``routine`` event, e.g. ``accepted``, at DEBUG)."""
         # rclpy's logger reads its caller's source file, about 1 ms a message: a goal waited.
+        listener = self.listeners.get(values.get("request_id"))
+        if listener is not None:
+            listener(values.get("event", ""), message, values)
         msg = conv.status_msg(level, self._node.get_fully_qualified_name(), message,
                               self._model.name, values)
         with self._status_lock:

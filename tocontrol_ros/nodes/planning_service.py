@@ -337,9 +337,14 @@ class PlanningService:
         """The solver's ``should_stop`` for ``req``: cancelled, or the service stops."""
         return lambda: req.cancelled.is_set() or self.stopping.is_set()
 
-    def problem(self, config: PlannerConfig, start: tuple, target: np.ndarray):
-        """The problem from ``start`` to ``target`` (:func:`plan_problem`)."""
-        return plan_problem(config, self.model, self.limits, start, target, self.collision)
+    def problem(self, config: PlannerConfig, start: tuple, target: np.ndarray,
+                target_q: np.ndarray | None = None):
+        """The problem from ``start`` to ``target``, or the joint state ``target_q`` (at rest).
+
+        :func:`plan_problem`, with the collision model in use.
+        """
+        return plan_problem(config, self.model, self.limits, start, target, self.collision,
+                            target_q)
 
     def serve(self, req: PlanRequest) -> None:
         """Solve ``req`` and publish (or not) its outcome; always finishes it."""
@@ -350,7 +355,7 @@ class PlanningService:
         if req.queue and self._replans.serve(req):
             return
         try:
-            problem = self.problem(config, req.start, req.target)
+            problem = self.problem(config, req.start, req.target, req.target_q)
         except TocontrolError as exc:
             self.finish(req, "ERROR", "failed", str(exc))
             return
@@ -390,7 +395,9 @@ class PlanningService:
                         {**extra, **result_values(first[0]), "optimum_T": result.T,
                          "optimum_status": result.status.name, "samples": first[2]},
                         path=first[1])
-            self.out.markers(first[0], first[1], config, start_point, req.target)
+            req.result = first[0]
+            if first[1] is not None:
+                self.out.markers(first[0], first[1], config, start_point, req.target)
             return
         if not publishable:
             self.finish(req, "ERROR", "failed", result.message, extra)
@@ -417,15 +424,17 @@ class PlanningService:
         With ``start_point`` (m), the viewer's markers follow (replans publish none).
         """
         self._last_result = result
-        published = self.publish(result, req.config, req.id, stamp_ns)
+        req.result = result
+        published = self.publish(result, req.config, req.id, stamp_ns, execute=req.execute)
         if published is None:  # publishers gone during shutdown
             req.done.set()
             return
         path, samples = published
         level, message = result_message(result)
         self.finish(req, level, "solved", f"{message_prefix}{message}{note}",
-                    {**extra, "published": "optimum", "samples": samples}, path=path)
-        if start_point is not None:
+                    {**extra, "published": "optimum" if req.execute else "returned",
+                     "samples": samples}, path=path)
+        if start_point is not None and path is not None:
             self.out.markers(result, path, req.config, start_point, req.target)
 
     def _first(self, req: PlanRequest, problem, options) -> tuple | None:
@@ -436,7 +445,11 @@ class PlanningService:
         status says why; the optimum follows either way).
         """
         first = self.planner.first(problem, options)
-        if first.status.name == "TRIVIAL" or req.cancelled.is_set() or self.stopping.is_set():
+        if first.status.name == "TRIVIAL":
+            return None
+        if req.cancelled.is_set() or self.stopping.is_set():
+            if first.success:  # the best certified motion at the cancel (~/plan_motion's)
+                req.first = first
             return None
         values = {"start": problem.start_point, **result_values(first),
                   "latency": self.clock.monotonic() - req.received}
@@ -445,6 +458,7 @@ class PlanningService:
                         f"({first.message}); the optimum follows",
                         {**values, "published": "none"})
             return None
+        req.first = first
         published = self.publish_first(req, first, None, values)
         if published is None:
             return None
@@ -469,9 +483,10 @@ class PlanningService:
 
         ``stamp_ns``: when it takes over (a replan's hand-off, ns); default now. Returns
         ``(path, values)`` (the status's values: samples, latencies), or None when the
-        publishers are gone (shutdown).
+        publishers are gone (shutdown). A plan-only request (``execute`` false): nothing
+        published, the path None, the status says ``published: first`` all the same.
         """
-        published = self.publish(result, req.config, req.id, stamp_ns)
+        published = self.publish(result, req.config, req.id, stamp_ns, execute=req.execute)
         if published is None:
             return None
         path, samples = published
@@ -484,14 +499,17 @@ class PlanningService:
         return path, values
 
     def publish(self, result, config: PlannerConfig, rid: int = 0,
-                stamp_ns: int | None = None) -> tuple[Any, int] | None:
+                stamp_ns: int | None = None, execute: bool = True) -> tuple[Any, int] | None:
         """``~/trajectory``, ``~/ee_path``, the controller's goal: ``(path, samples)``.
 
         None when the publishers are gone (shutdown). ``stamp_ns``: when the motion takes
         over (a replan's hand-off, ns); default now. The trajectory first: the path and the
-        rest do not hold it up.
+        rest do not hold it up. ``execute`` False (a plan only): nothing is published, and
+        the path is None.
         """
         sample = result.trajectory.sample(config.sample_period)
+        if not execute:
+            return None, len(sample.t)
         if stamp_ns is None:
             stamp_ns = self.clock.now_ns()
         stamp_ns = int(stamp_ns)

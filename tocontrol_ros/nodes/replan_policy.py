@@ -39,14 +39,14 @@ __all__ = ["ReplanPolicy", "replanning"]
 
 
 def replanning(config: PlannerConfig) -> bool:
-    """Whether goals are replanned from the hand-off (``replan``, and no ``controller_action``).
+    """Whether goals are replanned from the hand-off (``replan``).
 
-    A plan sent to a FollowJointTrajectory controller starts there on receipt (stamp zero,
-    msg_docs/controller_execution.md), so a replan stamped at its hand-off would not be
-    spliced there: with ``controller_action`` set, goals are planned from the latest joint
-    state and start on receipt, as with ``replan: false``.
+    With ``controller_action`` too (issue 52): a replan goes to the FollowJointTrajectory
+    controller with its hand-off as a future ``header.stamp``, where a Jazzy JTC (and the
+    tracker's action) joins it to the running trajectory
+    (:func:`~tocontrol_ros.nodes.controller_client.controller_goal`).
     """
-    return bool(config.replan and not config.controller_action)
+    return bool(config.replan)
 
 
 class ReplanPolicy:

@@ -36,6 +36,16 @@ class PlanRequest:
         Task-space target point (m).
     config : PlannerConfig
         Parameters at acceptance (later changes apply to later requests).
+    target_q : ndarray, shape (n,), optional
+        A joint-space target (rad, m; at rest); ``target`` is then its end-effector point.
+    execute : bool
+        Publish the plan (``~/trajectory``, ``~/ee_path``, the controller's goal); False: a
+        plan only, returned to the caller (the ``~/plan_motion`` action's ``execute``).
+    result : PlanResult or None
+        The motion that answered the request (the optimum, or the first motion that stood),
+        set before ``done``.
+    first : PlanResult or None
+        The first motion of ``publish: first_then_optimum``, once known (certified).
     """
 
     id: int
@@ -56,6 +66,10 @@ class PlanRequest:
     #: A goal whose start was taken without waiting for a fresh joint state: its DDS receive
     #: time (ns), to take a fresh one if it is not a replan after all; else 0.
     since_ns: int = 0
+    target_q: np.ndarray | None = None
+    execute: bool = True
+    result: Any = None
+    first: Any = None
 
     def cancel(self, event: str, reason: str) -> None:
         """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""

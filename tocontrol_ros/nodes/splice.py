@@ -37,15 +37,18 @@ class Splice(NamedTuple):
         The trajectory's own time at that instant (s, >= 0: ``at`` minus the stamp).
     stamp : float
         The take-over time as stamped (s, the tracker's clock).
+    record : GoalRecord or None
+        The ``FollowJointTrajectory`` goal it came in (None: the topic).
     """
 
     nominal: object
     at: float
     elapsed: float
     stamp: float
+    record: object = None
 
 
-def splice_instant(stamp: float, epoch: float, now: float, h: float
+def splice_instant(stamp: float, epoch: float, now: float, h: float, late: bool = False
                    ) -> tuple[float, float] | None:
     """The control instant at which a trajectory stamped ``stamp`` takes over, or None.
 
@@ -59,16 +62,24 @@ def splice_instant(stamp: float, epoch: float, now: float, h: float
         The tracker's simulation time (s).
     h : float
         Control period (s).
+    late : bool
+        A stamp already past takes over at the next control instant, as far along as the
+        stamp says (a Jazzy JTC drops the points already past: a FollowJointTrajectory
+        goal whose round trip outlasted its lead). False: it starts at once from its start.
 
     Returns
     -------
     (at, elapsed) or None
         Simulation time of the take-over and the trajectory's own time then; None when the
-        trajectory starts at once (stamp 0, not ahead of ``now``, or beyond the horizon).
+        trajectory starts at once (stamp 0, not ahead of ``now`` unless ``late``, or beyond
+        the horizon).
     """
     if stamp <= 0.0 or not math.isfinite(stamp):
         return None
     t = stamp - epoch
+    if late and t <= now + GRID_SLACK:
+        at = math.ceil((now + GRID_SLACK) / h) * h
+        return at, at - t
     if t <= now + GRID_SLACK or t > now + SPLICE_HORIZON:
         return None
     at = math.ceil(t / h - GRID_SLACK / h) * h

@@ -66,6 +66,7 @@ from tocontrol_ros.core.sim.tracking import (
 )
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.diagnostics import Diagnostics, tracker_state
 from tocontrol_ros.nodes.follow_action import FollowServer, GoalRecord
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import (
@@ -170,8 +171,8 @@ class TrackerNode(Node):
         # would not fire at all before the first /clock).
         self.create_timer(1.0 / self.config.update_rate, self._on_timer,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
-        # ~/follow_joint_trajectory and ~/controller_state, a joint_trajectory_controller's.
-        self._follow = FollowServer(self)
+        self._follow = FollowServer(self)  # ~/follow_joint_trajectory, ~/controller_state
+        self.diagnostics = Diagnostics(self, self.model.name, lambda: tracker_state(self))
         self.get_logger().info(
             f"tracking on {self.model.name!r} ({self.model.n} joints) from "
             f"{self.config.trajectory_topic}; plant: {plant_text(self.config.plant)}; "
@@ -189,10 +190,11 @@ class TrackerNode(Node):
         self._pub_status.publish(status_msg(level, self.get_fully_qualified_name(), message,
                                             self.model.name, values))
 
-    def publish_summary(self, summary: TrackingSummary) -> None:
-        """A run's summary on ``~/status`` (completed, preempted, held)."""
-        self._pub_status.publish(summary_status(summary, self.get_fully_qualified_name(),
-                                                self.model.name, self.joint_names))
+    def publish_summary(self, summary: TrackingSummary | None) -> None:
+        """A run's summary on ``~/status`` (completed, preempted, held); None: nothing."""
+        if summary is not None:
+            self._pub_status.publish(summary_status(
+                summary, self.get_fully_qualified_name(), self.model.name, self.joint_names))
 
     def _initial_row(self) -> dict:
         return rest_row(self.tracker.t, self.tracker.q, self.tracker.qd)
@@ -256,7 +258,7 @@ class TrackerNode(Node):
             nominal, stamp = item
             if self._sim_time:
                 self._follow_clock()  # a trajectory right after the first /clock: stamp with it
-            if self._schedule_splice(nominal, stamp):
+            if self._schedule_splice(nominal, stamp, record):
                 continue
             placed = self._place_at_start
             if placed:
@@ -272,23 +274,22 @@ class TrackerNode(Node):
             # that subscribes late still gets it).
             state = start_state_values(self.joint_names, self.tracker.q, self.tracker.qd)
             self._place_at_start = False
-            preempted = self.tracker.start(nominal)
-            if preempted is not None:
-                self.publish_summary(preempted)
+            self.publish_summary(self.tracker.start(nominal))  # the one it preempted
             self._follow.started(record, nominal)
             self.publish_status(DiagnosticStatus.OK, *start_event(
                 nominal, stamp, offset, placed, self.epoch + self.tracker.t, state))
 
-    def _schedule_splice(self, nominal: NominalTrajectory, stamp: float) -> bool:
-        """A stamp ahead of now: queue the trajectory for that instant (True), else False."""
+    def _schedule_splice(self, nominal: NominalTrajectory, stamp: float, record=None) -> bool:
+        """A stamp ahead of now: queue the trajectory (and its goal) for then (True)."""
         now = self._target_time()
         instant = None if now is None or self._place_at_start else splice_instant(
-            stamp, self.epoch, max(now, self.tracker.t), self.tracker.h)
+            stamp, self.epoch, max(now, self.tracker.t), self.tracker.h, record is not None)
         if instant is None:
             return False
         self._splices, dropped = schedule(self._splices,
-                                          Splice(nominal, instant[0], instant[1], stamp))
+                                          Splice(nominal, instant[0], instant[1], stamp, record))
         for old in dropped:
+            self._follow.replaced(old.record, stamp)  # a JTC's newer goal preempts it
             self.publish_status(DiagnosticStatus.WARN,
                                 f"trajectory stamped {old.stamp:.6f} replaced before it took "
                                 f"over by one stamped {stamp:.6f}",
@@ -307,11 +308,10 @@ class TrackerNode(Node):
         if dq > self.config.start_tolerance:
             self._reject(f"stamped {splice.stamp:.6f}: at its take-over its position is "
                          f"{dq:.3g} rad from the commanded one, more than start_tolerance = "
-                         f"{self.config.start_tolerance:g}")
+                         f"{self.config.start_tolerance:g}", splice.record)
             return
-        preempted = tracker.start(splice.nominal, elapsed)
-        if preempted is not None:
-            self.publish_summary(preempted)
+        self.publish_summary(tracker.start(splice.nominal, elapsed))  # the one preempted
+        self._follow.started(splice.record, splice.nominal, elapsed=elapsed)
         self.publish_status(DiagnosticStatus.OK, *splice_event(splice, dq, dqd,
                                                                self.epoch + tracker.t))
 

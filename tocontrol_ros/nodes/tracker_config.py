@@ -101,8 +101,8 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
           "faster than real time, for tests and batch runs)", 0.001, 1000.0),
     _spec("publish_clock", False, "Publish the simulated time on /clock (stamps then count "
           "from zero)"),
-    _spec("trajectory_topic", "/planner/trajectory", "Topic of the planner's "
-          "trajectory_msgs/JointTrajectory"),
+    _spec("trajectory_topic", "planner/trajectory", "Topic of the planner's "
+          "trajectory_msgs/JointTrajectory (relative: in the tracker's namespace)"),
     _spec("start_at_first_trajectory", False, "Put the simulated arm at the first "
           "trajectory's first point (positions, velocities, plus initial_offset) when it "
           "arrives, instead of checking it against start_tolerance: for a plan whose start "

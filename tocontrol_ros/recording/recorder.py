@@ -59,6 +59,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.nodes.diagnostics import Diagnostics
 from tocontrol_ros.nodes.params import (
     LOCKED_JOINTS,
     ROBOT_DESCRIPTION,
@@ -73,16 +74,17 @@ from tocontrol_ros.nodes.params import (
 )
 from tocontrol_ros.recording import cdr, link_frames, mcap_io
 
-#: Everything the planner and the tracker publish, and their inputs.
+#: Everything the planner and the tracker publish, and their inputs: relative names,
+#: resolved in the recorder's namespace (the arm's, with the launch file's ``namespace``).
 DEFAULT_TOPICS = (
-    "/planner/goal",
-    "/planner/trajectory",
-    "/planner/status",
-    "/planner/ee_path",
-    "/planner/markers",
-    "/joint_states",
-    "/tracker/tracking_error",
-    "/tracker/status",
+    "planner/goal",
+    "planner/trajectory",
+    "planner/status",
+    "planner/ee_path",
+    "planner/markers",
+    "joint_states",
+    "tracker/tracking_error",
+    "tracker/status",
 )
 #: How long (s) a stop request keeps taking messages already queued in the middleware.
 DRAIN_TIME = 0.3
@@ -134,8 +136,8 @@ class RecorderConfig:
 
 
 PARAMETERS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("topics", list(DEFAULT_TOPICS), "Topics to record (absolute names).",
-                  read_only=True),
+    ParameterSpec("topics", list(DEFAULT_TOPICS), "Topics to record; relative names are "
+                  "resolved in the recorder's namespace.", read_only=True),
     ParameterSpec("output", "", "Output .mcap file; empty: runs/<YYYYmmdd-HHMMSS>.mcap. "
                   "Never overwritten.", read_only=True),
     ParameterSpec("compression", "none", "Chunk compression: none, zstd or lz4.",
@@ -153,8 +155,9 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "parameters' URDF), /tf_static (fixed joints) and /tf (moving joints, one "
                   "message per joint state on joint_states_topic), as robot_state_publisher "
                   "publishes them, so that a viewer draws the arm moving.", read_only=True),
-    ParameterSpec("joint_states_topic", "/joint_states", "The recorded sensor_msgs/JointState "
-                  "topic that /tf is computed from (link_frames).", read_only=True),
+    ParameterSpec("joint_states_topic", "joint_states", "The recorded sensor_msgs/JointState "
+                  "topic that /tf is computed from (link_frames); relative: in the "
+                  "recorder's namespace.", read_only=True),
     ROBOT_DESCRIPTION, ROBOT_DESCRIPTION_FILE, ROBOT_DESCRIPTION_TOPIC,
     ROBOT_DESCRIPTION_TIMEOUT, LOCKED_JOINTS,
 )
@@ -179,10 +182,16 @@ def read_config(node):
     if values["compression"] not in mcap_io.COMPRESSIONS:
         raise ValueError(f"parameter `compression` must be one of "
                          f"{sorted(mcap_io.COMPRESSIONS)}, got {values['compression']!r}")
-    topics = tuple(values["topics"])
-    bad = [t for t in topics if not t.startswith("/")]
-    if bad or not topics:
-        raise ValueError(f"parameter `topics` must list absolute topic names, got {topics!r}")
+    try:  # relative names in the recorder's namespace; the recording names them absolute
+        topics = tuple(node.resolve_topic_name(t, only_expand=True) for t in values["topics"])
+        values["joint_states_topic"] = node.resolve_topic_name(values["joint_states_topic"],
+                                                               only_expand=True)
+    except Exception as exc:  # noqa: BLE001  (rclpy's own invalid-name errors)
+        raise ValueError(f"parameter `topics` or `joint_states_topic`: an invalid topic name "
+                         f"in {list(values['topics'])!r} / "
+                         f"{values['joint_states_topic']!r} ({exc})") from exc
+    if not topics:
+        raise ValueError("parameter `topics` must list at least one topic")
     values["topics"] = tuple(dict.fromkeys(topics))
     robot = {name: values.pop(name) for name in (
         "robot_description", "robot_description_file", "robot_description_topic",
@@ -277,7 +286,20 @@ class Recorder(Node):
         self.create_timer(self.config.discovery_period, self.discover)
         # Checked twice per period: a message waits at most about one period.
         self.create_timer(self.config.flush_period / 2, self.writer.flush_if_due)
+        self.diagnostics = Diagnostics(self, "recorder", self._diagnostic_state)
         self.discover()
+
+    def _diagnostic_state(self):
+        """``/diagnostics``: the file, what it holds, the topics still without a publisher."""
+        pending = self.pending_topics
+        values = {"output": str(self.writer.path), "messages": self.writer.message_count,
+                  "receiving": ",".join(self.receiving_topics),
+                  "pending_topics": ",".join(pending)}
+        if self.writer.closed:
+            return "WARN", "recording closed", values
+        return ("OK" if not pending else "WARN",
+                f"recording to {self.writer.path}" +
+                (f"; {len(pending)} topics without a publisher" if pending else ""), values)
 
     @property
     def pending_topics(self):

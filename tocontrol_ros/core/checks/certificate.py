@@ -98,10 +98,16 @@ def limit_checks(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
     q = np.concatenate([sample.q, x_end[:, :n]])
     qd = np.concatenate([sample.qd, x_end[:, n:]])
     pos, vel = problem.limits.violations(q, qd)
-    return [check_item("position_limits", pos, options.limit_tol, "",
-                  "max excess over the joint position limits, fraction of the range"),
-            check_item("velocity_limits", vel, options.limit_tol, "",
-                  "max excess over the joint velocity limits, fraction of the limit")]
+    items = [check_item("position_limits", pos, options.limit_tol, "",
+                        "max excess over the joint position limits, fraction of the range"),
+             check_item("velocity_limits", vel, options.limit_tol, "",
+                        "max excess over the joint velocity limits, fraction of the limit")]
+    if problem.limits.has_acceleration:  # joint_limits.yaml's max_acceleration
+        items.append(check_item(
+            "acceleration_limits", problem.limits.acceleration_violation(sample.qdd),
+            options.limit_tol, "", "max excess of the sampled |qdd| over the joint "
+            "acceleration limits, fraction of the limit"))
+    return items
 
 
 

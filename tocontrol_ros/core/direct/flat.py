@@ -21,7 +21,10 @@ The NLP, in ``w = (P, T)``: minimise ``T`` subject to
 - the joint limits at every time, linear in ``w`` through the convex hull of the control
   points and of the derivative's: ``lower <= P_j <= upper`` (bounds on the variables) and
   ``-v <= p (P_j+1 - P_j) / ((t_j+p+1 - t_j+1) T) <= v`` (one two-sided row per difference
-  and joint, see :meth:`FlatTranscription._velocity_rows`);
+  and joint, see :meth:`FlatTranscription._velocity_rows`); with acceleration limits ``a``,
+  the second derivative's control points too: ``-a <= c2_j (Q_j+1 - Q_j) / T^2 <= a`` with
+  ``Q_j = c_j (P_j+1 - P_j)`` and ``c2_j = (p - 1) / (t_j+p+1 - t_j+2)``
+  (:meth:`FlatTranscription._acceleration_rows`): ``|qdd| <= a`` at every time;
 - the boundary conditions: ``P_0 = q_0`` and ``B1(0) P = T qd_0`` at a start joint state; a
   target point ``P(P_{K-1}) = p_T`` with ``P_{K-1} = P_{K-2}`` (at rest), or a target state;
 - with a collision model only, the clearance rows at every sample
@@ -244,12 +247,17 @@ class FlatTranscription:
     clearance : ClearanceRows, optional
         The clearance rows (:func:`~tocontrol_ros.core.direct.clearance.clearance_rows`);
         default none: the NLP of a problem without a collision model is unchanged.
+    acceleration : ndarray, shape (n,), optional
+        Acceleration limits held at every time (rad/s^2; ``inf``: none), the planning
+        limits (margin applied). None or all infinite: no acceleration rows (the NLP of a
+        problem without them, unchanged).
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
-                 warm: bool | str = False, clearance: ClearanceRows | None = None) -> None:
+                 warm: bool | str = False, clearance: ClearanceRows | None = None,
+                 acceleration: np.ndarray | None = None) -> None:
         self.clearance = clearance if clearance is not None and clearance.count else None
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
@@ -257,6 +265,8 @@ class FlatTranscription:
         self.start_kind, self.target_kind = start_kind, target_kind
         self.torque_scale = torque_scale
         self.warm = warm
+        self.acceleration = None if acceleration is None or \
+            not np.any(np.isfinite(acceleration)) else np.asarray(acceleration, dtype=float)
         n, m, L, p = model.n, model.m, self.spans, degree
         br = self.breaks
         K = L + p
@@ -282,7 +292,10 @@ class FlatTranscription:
         bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
         cvec = geo[nb:nb + K - 1]
         b_start_vel = geo[nb + K - 1:nb + K + p]
-        b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]  # then the clearance rows' ds, if any
+        # then the acceleration rows' (K - 2,) when held, then the clearance rows' ds, if any
+        b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]
+        c2vec = geo[nb + K + 2 * p + 1:nb + K + 2 * p + 1 + K - 2] \
+            if self.acceleration is not None else None
         Pm = ca.reshape(w[:K * n], n, K)
         T = w[iT]
         k = par[-1]
@@ -294,6 +307,8 @@ class FlatTranscription:
         zvars = (span[:, None] * n + np.arange(d - 1)[None, :])  # (S, d - 1) indices into w
 
         g_lin = self._velocity_rows(Pm, T, cvec)
+        if self.acceleration is not None:  # the bounds tell the two kinds of rows apart
+            g_lin = ca.vertcat(g_lin, self._acceleration_rows(Pm, T, cvec, c2vec))
         g_b = self._boundary_rows(Pm, T, par, sizes, b_start_vel, b_end_vel)
         g_set = ca.vec(self._set.map(S)(ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc))
         ng_set, ng_lin, ng_b = S, g_lin.numel(), g_b.numel()
@@ -346,6 +361,21 @@ class FlatTranscription:
         """
         n = self.model.n
         return ca.vertcat(*[cvec * (Pm[i, 1:] - Pm[i, :-1]).T / T for i in range(n)])
+
+    def _acceleration_rows(self, Pm: ca.MX, T: ca.MX, cvec: ca.MX, c2vec: ca.MX) -> ca.MX:
+        """The acceleration rows, ``c2_j (Q_j+1 - Q_j) / T^2`` per joint (n (K - 2),).
+
+        ``Q_j = c_j (P_j+1 - P_j)`` are the control points of ``q'(s)``; these rows are the
+        control points of ``q''(s)`` over ``T^2``, whose convex hull holds ``qdd(t)`` at
+        every time: bounded by ``-a`` and ``a`` (:meth:`bounds`), the acceleration limit
+        holds on the whole motion, not only at samples.
+        """
+        n = self.model.n
+        rows = []
+        for i in range(n):
+            Q = cvec * (Pm[i, 1:] - Pm[i, :-1]).T
+            rows.append(c2vec * (Q[1:] - Q[:-1]) / T ** 2)
+        return ca.vertcat(*rows)
 
     def _clearance_rows(self, local: tuple, zvars: np.ndarray, w: ca.MX
                         ) -> tuple[ca.MX, ca.MX, ca.MX]:
@@ -462,6 +492,8 @@ class FlatTranscription:
         ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
                               np.zeros(ng_b)])
         v = np.repeat(np.asarray(upper[n:], dtype=float), self.K - 1)  # rows joint by joint
+        if self.acceleration is not None:
+            v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
         if self._ng_clear:  # clearance rows: >= 0
             lbg = np.concatenate([lbg, np.zeros(self._ng_clear)])
@@ -591,6 +623,8 @@ class FlatTranscription:
         bcat = np.concatenate(list(b), axis=1)  # (3, (p + 1) S)
         # The first and last samples are s = 0 and s = 1: the end velocities' basis.
         geo = [bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]]
+        if self.acceleration is not None:  # q''(s)'s control points: (p - 1) / knot spans
+            geo.append((p - 1) / (tk[p + 1:p + K - 1] - tk[2:K]))
         if self.clearance is not None:  # the largest normalised time between two samples
             geo.append([float(np.max(np.diff(breaks))) / ps])
         return np.concatenate(geo)

@@ -22,7 +22,10 @@ constraints at both its ends), under
 - viscous friction ``D qd = D q'(s) sd``, linear in ``sd``, which TOPP-RA's form
   ``a sdd + b sd^2 + c`` cannot hold: it is bounded on each side by a line in ``sd^2`` (a
   tangent of the concave ``sqrt`` above it, a chord below it, :func:`_friction_lines`), so
-  that the rows stay inside the true constraint.
+  that the rows stay inside the true constraint;
+- the joint acceleration limits where ``joint_limits.yaml`` sets them
+  (``qdd = q'(s) sdd + q''(s) sd^2``, linear rows), kept by :data:`ACCELERATION_PAD` at the
+  gridpoints; the certificate checks them along the motion.
 
 The torques between the gridpoints are then checked (:data:`CHECK_POINTS` per segment,
 both sides of each acceleration jump); where they leave the set, the path is timed again
@@ -38,6 +41,7 @@ import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, rigid_body_terms
 from tocontrol_ros.core.direct.tuning import (
+    ACCELERATION_PAD,
     ADAPT_FLOOR,
     ADAPT_PASSES,
     CHECK_POINTS,
@@ -121,6 +125,14 @@ class _Coefficients:
         moving = speed > 0.0
         self.xv = np.min(np.where(moving, (v / np.where(moving, speed, 1.0)) ** 2, np.inf),
                          axis=1)
+        # joint_limits.yaml's accelerations: qdd = q'(s) sdd + q''(s) sd^2, linear in
+        # (sdd, sd^2) as TOPP-RA's rows are.
+        lim = problem.limits
+        self.accel = None
+        if lim.has_acceleration:
+            a = np.where(np.isfinite(lim.plan_acceleration),
+                         lim.plan_acceleration * (1.0 - ACCELERATION_PAD), np.inf)
+            self.accel = (d1 / a, d2 / a)
 
     def torques(self, x: np.ndarray, s: np.ndarray) -> np.ndarray:
         """``|u|`` at every gridpoint, the larger of both sides' (N + 1, n), for ``x``."""
@@ -243,6 +255,11 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
     rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
     rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
+    if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
+        d1, d2 = coef.accel
+        rows_a = np.hstack([rows_a, d1, -d1])
+        rows_b = np.hstack([rows_b, d2, -d2])
+        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
     x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
     x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
     constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)

@@ -13,7 +13,8 @@ __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SA
            "T_SETTLED", "SPAN_BUCKET", "SET_MARGIN", "INSIDE_TIE", "PAD_ROUNDS", "STRETCHES",
            "NEAR_MAX_ITER", "WARM_MU", "WARM_PUSH", "RESUME_MU", "RESTART_MAX_PERTURBATION",
            "FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "GRIDPOINTS", "ADAPT_PASSES",
-           "ADAPT_FLOOR", "MARGIN_ROUNDS", "CHECK_POINTS", "VELOCITY_PAD", "TANGENT_FLOOR",
+           "ADAPT_FLOOR", "MARGIN_ROUNDS", "CHECK_POINTS", "VELOCITY_PAD", "ACCELERATION_PAD",
+           "TANGENT_FLOOR",
            "SPEED_CAP", "X_HUGE", "SCALING_SET_MARGIN", "CANDIDATES", "FOLLOW_STEPS",
            "FOLLOW_ITERATIONS", "TIME_SCALES", "OPEN_LOOP_RTOL", "OPEN_LOOP_ATOL",
            "QUICK_GRIDPOINTS", "QUICK_IK_ITERATIONS", "QUICK_TIME_SCALES",
@@ -205,6 +206,11 @@ CHECK_POINTS = 5
 #: The velocity limits are kept by this fraction (the open-loop re-integration of the
 #: certificate, a different integrator, must stay within them).
 VELOCITY_PAD = 1e-4
+
+#: The acceleration limits are kept by this fraction at the gridpoints: between two of them
+#: TOPP-RA's path acceleration is constant while ``q'(s)`` and ``q''(s)`` vary, so the joint
+#: accelerations there may pass the gridpoints' by a little (the certificate checks them).
+ACCELERATION_PAD = 1e-2
 
 #: Friction's tangent lines are taken at no less than this fraction of the largest squared
 #: path speed of the pass before (a tangent near zero would pin the path speed there).

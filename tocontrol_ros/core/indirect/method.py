@@ -176,7 +176,9 @@ def _failure_fields(records: list[StartRecord], run: Run | None) -> dict:
 
 def _leaves_limits(problem: Problem, sample) -> bool:
     """Whether a fine sample of a solution leaves the problem's joint limits."""
-    return problem.limits.active and max(problem.limits.violations(sample.q, sample.qd)) > 0
+    return problem.limits.active and (
+        max(problem.limits.violations(sample.q, sample.qd)) > 0
+        or problem.limits.acceleration_violation(sample.qdd) > 0)
 
 
 def _offer(ctx: SolveContext, snap: tuple) -> None:

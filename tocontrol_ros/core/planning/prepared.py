@@ -190,8 +190,11 @@ class PreparedModel:
         """
         warm = np.ndim(spans) != 0 if warm is None else warm
         count = int(spans) if np.ndim(spans) == 0 else len(spans) - 1
+        # Acceleration limits add rows (a problem without them keeps the NLP it had).
+        accel = tuple(problem.limits.plan_acceleration) \
+            if problem.limits.has_acceleration else None
         key = ("flat", problem.start.kind, problem.target.kind, problem.torque_scale,
-               count, warm)
+               count, warm) + ((accel,) if accel is not None else ())
         col = problem.collision
         if col is not None:  # its own transcription: the scene's rows
             key += (col.key(), tuple(problem.limits.velocity))
@@ -201,6 +204,7 @@ class PreparedModel:
                 base = FlatTranscription(
                     self.model, count, problem.start.kind, problem.target.kind,
                     torque_scale=problem.torque_scale, warm=warm,
+                    acceleration=None if accel is None else np.array(accel),
                     clearance=None if col is None else clearance_rows(
                         col, problem.limits.velocity))
             self._direct[key] = base  # the most recently used last

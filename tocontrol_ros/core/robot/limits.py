@@ -1,15 +1,18 @@
-"""Joint position and velocity limits of a problem.
+"""Joint position, velocity and acceleration limits of a problem.
 
 They come from the URDF, may be narrowed by a MoveIt-style ``joint_limits.yaml``, and are
 shrunk by a margin.
 
 The effective limit of each joint is the tighter of the URDF's ``<limit lower upper velocity>``
 and the YAML's ``min_position``/``max_position``/``max_velocity`` (where ``has_position_limits``
-or ``has_velocity_limits`` is true): a YAML file narrows the URDF, it never widens it. A margin
-``m`` in [0, 1) plans inside them: the position range shrinks about its centre to ``1 - m`` of
-its width and the velocity limit to ``1 - m`` of its value, as the torque ``reserve`` does for
-the torque limits. Continuous joints have no position limit; a joint without a velocity limit
-has an infinite one.
+or ``has_velocity_limits`` is true): a YAML file narrows the URDF, it never widens it. The
+YAML's ``max_acceleration`` (where ``has_acceleration_limits`` is true) adds an acceleration
+limit (the URDF has none). A margin ``m`` in [0, 1) plans inside them: the position range
+shrinks about its centre to ``1 - m`` of its width and the velocity and acceleration limits to
+``1 - m`` of their values, as the torque ``reserve`` does for the torque limits. Continuous
+joints have no position limit; a joint without a velocity or acceleration limit has an
+infinite one. Jerk entries (``has_jerk_limits``, ``max_jerk``) are read as MoveIt writes them
+and not enforced (docs/limits.md, "Acceleration and jerk").
 
 Where they bind, the solver enforces them as hard bounds (see ``docs/limits.md``).
 """
@@ -24,7 +27,8 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 
-__all__ = ["JointLimits", "load_joint_limits_yaml", "parse_joint_limits_yaml", "VELOCITY_SLACK"]
+__all__ = ["JointLimits", "load_joint_limits_yaml", "narrowed_efforts",
+           "parse_joint_limits_yaml", "VELOCITY_SLACK"]
 
 #: A measured joint velocity at most this fraction above its planning limit is a tracking
 #: overshoot (a simulated or real arm driven at its limit passes it by a little): a plan from
@@ -47,6 +51,9 @@ class JointLimits:
         Velocity limits (rad/s, m/s), > 0; ``inf`` where a joint has none.
     margin : float
         Fraction in [0, 1) of each range kept free (see the module's docstring).
+    acceleration : ndarray, shape (n,), optional
+        Acceleration limits (rad/s^2, m/s^2), > 0; ``inf`` where a joint has none (the
+        default: none).
     """
 
     names: tuple[str, ...]
@@ -54,10 +61,13 @@ class JointLimits:
     upper: np.ndarray = field(repr=False)
     velocity: np.ndarray = field(repr=False)
     margin: float = 0.0
+    acceleration: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         n = len(self.names)
-        for name in ("lower", "upper", "velocity"):
+        if self.acceleration is None:
+            object.__setattr__(self, "acceleration", np.full(n, np.inf))
+        for name in ("lower", "upper", "velocity", "acceleration"):
             a = np.asarray(getattr(self, name), dtype=float)
             if a.shape != (n,) or np.any(np.isnan(a)):
                 raise ProblemError(f"`{name}` limits must have shape ({n},) without NaN, "
@@ -68,11 +78,13 @@ class JointLimits:
             i = int(bad[0])
             raise ProblemError(f"joint {self.names[i]!r}: lower position limit "
                                f"{self.lower[i]:.6g} is not below the upper {self.upper[i]:.6g}")
-        bad = np.flatnonzero(~(self.velocity > 0))
-        if bad.size:
-            i = int(bad[0])
-            raise ProblemError(f"joint {self.names[i]!r}: velocity limit must be > 0, got "
-                               f"{self.velocity[i]:.6g}")
+        for name in ("velocity", "acceleration"):
+            values = getattr(self, name)
+            bad = np.flatnonzero(~(values > 0))
+            if bad.size:
+                i = int(bad[0])
+                raise ProblemError(f"joint {self.names[i]!r}: {name} limit must be > 0, got "
+                                   f"{values[i]:.6g}")
         m = float(self.margin)
         if not (np.isfinite(m) and 0.0 <= m < 1.0):
             raise ProblemError(f"`margin` must be in [0, 1), got {self.margin!r}")
@@ -88,12 +100,14 @@ class JointLimits:
     def narrowed(self, table: Mapping[str, Mapping], source: str = "joint limits") -> JointLimits:
         """These limits narrowed by a MoveIt ``joint_limits`` table (name -> entry).
 
-        An entry may give ``has_position_limits`` with ``min_position``/``max_position`` and
-        ``has_velocity_limits`` with ``max_velocity``; other keys (accelerations, jerks,
-        efforts) are accepted and ignored. Names that are not joints of the model raise, so
-        that a typo is not silently ignored.
+        An entry may give ``has_position_limits`` with ``min_position``/``max_position``,
+        ``has_velocity_limits`` with ``max_velocity`` and ``has_acceleration_limits`` with
+        ``max_acceleration``; other keys (jerks, efforts) are accepted and not used here.
+        Names that are not joints of the model raise, so that a typo is not silently
+        ignored.
         """
         lower, upper, velocity = self.lower.copy(), self.upper.copy(), self.velocity.copy()
+        acceleration = self.acceleration.copy()
         index = {name: i for i, name in enumerate(self.names)}
         for name, entry in table.items():
             if name not in index:
@@ -120,11 +134,18 @@ class JointLimits:
                     raise ProblemError(f"{source}: joint {name!r} max_velocity must be > 0, "
                                        f"got {v:g}")
                 velocity[i] = min(velocity[i], v)
-        return JointLimits(self.names, lower, upper, velocity, self.margin)
+            if _flag(entry, "has_acceleration_limits", name, source):
+                a = _number(entry, "max_acceleration", name, source)
+                if not a > 0:
+                    raise ProblemError(f"{source}: joint {name!r} max_acceleration must be "
+                                       f"> 0, got {a:g}")
+                acceleration[i] = min(acceleration[i], a)
+        return JointLimits(self.names, lower, upper, velocity, self.margin, acceleration)
 
     def with_margin(self, margin: float) -> JointLimits:
         """The same limits with another margin."""
-        return JointLimits(self.names, self.lower, self.upper, self.velocity, margin)
+        return JointLimits(self.names, self.lower, self.upper, self.velocity, margin,
+                           self.acceleration)
 
     # ---------------------------------------------------------------- planning bounds
     @property
@@ -142,6 +163,16 @@ class JointLimits:
         """Velocity bounds the planner keeps to (margin applied), shape (n,)."""
         return (1.0 - self.margin) * self.velocity
 
+    @property
+    def plan_acceleration(self) -> np.ndarray:
+        """Acceleration bounds the planner keeps to (margin applied), shape (n,)."""
+        return (1.0 - self.margin) * self.acceleration
+
+    @property
+    def has_acceleration(self) -> bool:
+        """Whether any joint has a finite acceleration limit."""
+        return bool(np.any(np.isfinite(self.acceleration)))
+
     def _shrunk(self) -> tuple[np.ndarray, np.ndarray]:
         finite = np.isfinite(self.lower) & np.isfinite(self.upper)
         lo, hi = np.where(finite, self.lower, 0.0), np.where(finite, self.upper, 0.0)
@@ -153,9 +184,9 @@ class JointLimits:
 
     @property
     def active(self) -> bool:
-        """Whether any joint has a finite position or velocity limit."""
+        """Whether any joint has a finite position, velocity or acceleration limit."""
         return bool(np.any(np.isfinite(self.lower) | np.isfinite(self.upper))
-                    or np.any(np.isfinite(self.velocity)))
+                    or np.any(np.isfinite(self.velocity)) or self.has_acceleration)
 
     def admissible_velocity(self, qd: np.ndarray, slack: float = VELOCITY_SLACK) -> np.ndarray:
         """A measured velocity with its small overshoots of the limits taken back to them.
@@ -222,6 +253,48 @@ class JointLimits:
                                     / np.where(vfin, self.velocity, 1.0), -np.inf),
                            initial=0.0))
         return max(pos, 0.0), max(vel, 0.0)
+
+    def acceleration_violation(self, qdd: np.ndarray) -> float:
+        """Largest excess of ``|qdd|`` (K, n) over the acceleration limits, as a fraction.
+
+        The margin is NOT applied (as :meth:`violations`); 0 when within, or without limits.
+        """
+        fin = np.isfinite(self.acceleration)
+        if not np.any(fin):
+            return 0.0
+        qdd = np.atleast_2d(np.asarray(qdd, dtype=float))
+        over = (np.abs(qdd[:, fin]) - self.acceleration[fin]) / self.acceleration[fin]
+        return max(float(np.max(over, initial=0.0)), 0.0)
+
+
+def narrowed_efforts(names, tau_max: np.ndarray, table: Mapping[str, Mapping],
+                     source: str = "joint limits") -> np.ndarray:
+    """The torque limits ``tau_max`` (n,) (N m, N) narrowed by a ``joint_limits`` table.
+
+    Entries with ``has_effort_limits: true`` give ``max_effort``; the tighter of it and the
+    URDF's ``<limit effort>`` is kept (a file narrows, never widens). Unknown joint names
+    raise, as in :meth:`JointLimits.narrowed`.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    tau = np.array(tau_max, dtype=float)
+    index = {name: i for i, name in enumerate(names)}
+    for name, entry in table.items():
+        if name not in index:
+            raise ProblemError(f"{source}: joint {name!r} is not a moving joint of the "
+                               f"model (joints: {', '.join(names)})")
+        if not isinstance(entry, Mapping):
+            raise ProblemError(f"{source}: the entry of joint {name!r} must be a mapping, "
+                               f"got {entry!r}")
+        if _flag(entry, "has_effort_limits", name, source):
+            e = _number(entry, "max_effort", name, source)
+            if not e > 0:
+                raise ProblemError(f"{source}: joint {name!r} max_effort must be > 0, got "
+                                   f"{e:g}")
+            tau[index[name]] = min(tau[index[name]], e)
+    return tau
 
 
 def _flag(entry: Mapping, key: str, joint: str, source: str) -> bool:
