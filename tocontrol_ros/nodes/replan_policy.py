@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from tocontrol_ros.core.direct.first_motion import quick_motion
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.indirect.warm import WarmState
 from tocontrol_ros.core.planning.replan import (
@@ -152,7 +151,7 @@ class ReplanPolicy:
             # The parabola's time scale from the straight path's rest-to-rest time, not from
             # the time the running motion has left: along a stream of quick motions that
             # grew (each a little slower than the last: 0.5 s to 2.2 s on the paper's arm).
-            quick = quick_motion(problem, q_end, None, solver_options(config))
+            quick = service.planner.quick(problem, q_end, solver_options(config))
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(quick),
                      "replan": handoff.kind, "attempts": attempt,

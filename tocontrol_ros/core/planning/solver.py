@@ -46,6 +46,8 @@ with the best motion found so far. The steps above live in the methods' folders:
 
 from __future__ import annotations
 
+import functools
+import os
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -56,7 +58,7 @@ import numpy as np
 import tocontrol_ros.core.direct.method  # noqa: F401
 import tocontrol_ros.core.indirect.method  # noqa: F401
 from tocontrol_ros.core.checks.verification import verify
-from tocontrol_ros.core.direct.first_motion import first_motion
+from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
 from tocontrol_ros.core.methods.context import SolveContext, StopError
 from tocontrol_ros.core.methods.contract import method_named, method_owning
 from tocontrol_ros.core.planning.prepared import PreparedModel
@@ -69,6 +71,27 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "p
            "verify"]
 
 
+#: Test hook (issue 53): ``TOCONTROL_SLOW_SOLVER=f`` (f > 1) makes each solve of this module
+#: (``Planner.plan``, ``first``, ``quick``, :func:`solve_once`) take about ``f`` times as long:
+#: the solve, then a sleep of ``f - 1`` times its duration. The results are unchanged (no
+#: decision reads it); the test suite must pass with a solver that slow. Read at import.
+SLOW_SOLVER = float(os.environ.get("TOCONTROL_SLOW_SOLVER", "") or 1.0)
+
+
+def _slowed(fn):
+    """``fn`` slowed by :data:`SLOW_SOLVER` (itself when it is 1 or less)."""
+    if not SLOW_SOLVER > 1.0:
+        return fn
+
+    @functools.wraps(fn)
+    def slowed(*args, **kwargs):
+        t0 = time.perf_counter()
+        out = fn(*args, **kwargs)
+        time.sleep((SLOW_SOLVER - 1.0) * (time.perf_counter() - t0))
+        return out
+    return slowed
+
+
 class Planner(PreparedModel):
     """Holds the compiled functions of one model, reused across many solves; plans.
 
@@ -77,12 +100,24 @@ class Planner(PreparedModel):
     model : RobotModel
     """
 
+    @_slowed
     def plan(self, problem: Problem, options: SolverOptions | None = None,
              warm_start: PlanResult | None = None,
              should_stop: Callable[[], bool] | None = None) -> PlanResult:
         """See :func:`plan`."""
         return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
 
+    @_slowed
+    def quick(self, problem: Problem, q_near: np.ndarray,
+              options: SolverOptions | None = None) -> PlanResult:
+        """A replan's quick motion: the target's configuration near ``q_near`` (rad, (n,)).
+
+        :func:`~tocontrol_ros.core.direct.first_motion.quick_motion`: the path from the
+        start state timed by TOPP-RA and certified, in milliseconds.
+        """
+        return quick_motion(problem, q_near, None, options or SolverOptions())
+
+    @_slowed
     def first(self, problem: Problem, options: SolverOptions | None = None) -> PlanResult:
         """A certified motion inside every limit at once, slower than the optimum.
 
@@ -173,6 +208,7 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     return best
 
 
+@_slowed
 def solve_once(planner: Planner, problem: Problem, options: SolverOptions,
                warm_start: PlanResult | None, should_stop, deadline: float) -> PlanResult:
     """One solve by one method: warm from ``warm_start`` only, else cold.
