@@ -76,6 +76,9 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "p
 #: the solve, then a sleep of ``f - 1`` times its duration. The results are unchanged (no
 #: decision reads it); the test suite must pass with a solver that slow. Read at import.
 SLOW_SOLVER = float(os.environ.get("TOCONTROL_SLOW_SOLVER", "") or 1.0)
+#: The real clock, bound at import: a test that replaces ``time.perf_counter`` with a clock
+#: that jumps (test_determinism) must not make the hook sleep for minutes.
+_REAL_CLOCK = time.perf_counter
 
 
 def _slowed(fn):
@@ -85,9 +88,9 @@ def _slowed(fn):
 
     @functools.wraps(fn)
     def slowed(*args, **kwargs):
-        t0 = time.perf_counter()
+        t0 = _REAL_CLOCK()
         out = fn(*args, **kwargs)
-        time.sleep((SLOW_SOLVER - 1.0) * (time.perf_counter() - t0))
+        time.sleep((SLOW_SOLVER - 1.0) * (_REAL_CLOCK() - t0))
         return out
     return slowed
 
