@@ -132,9 +132,12 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
     (the running motion's end; weighted least norm, the position limits held, as
     :func:`_followed` does at each of its points), and the path from the start to it is
     timed as :func:`first_motion` times its chosen path (a straight joint line from rest,
-    a parabola along a moving start's velocity), on ``gridpoints`` TOPP-RA segments, then
-    certified open loop. No candidates are ranked: one or two TOPP-RA passes per time scale
-    tried and the certificate.
+    a parabola along a moving start's velocity, its time scale the one of least ``T`` among
+    :data:`QUICK_TIME_SCALES` multiples, each joint's speed capped at the larger of its start
+    speed and its peak on the straight path's rest-to-rest timing), on ``gridpoints``
+    TOPP-RA segments, then certified open loop. No end configurations are ranked: a pass
+    for the rest-to-rest timing, one per time scale ranked, the full timing of the chosen
+    one, and the certificate.
 
     Parameters
     ----------
@@ -144,8 +147,9 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
         A configuration near the target's (rad): where the Newton steps start.
     time_scale : float, optional
         A moving start's time scale (s): the parabola's ``tau`` is tried at
-        :data:`TIME_SCALES` multiples of it (e.g. the time the running motion had left).
-        Default: the straight path's rest-to-rest time (one more TOPP-RA pass).
+        :data:`QUICK_TIME_SCALES` multiples of it. Default: the straight path's rest-to-rest
+        time (the planner's replans use the default: the running motion's time left made
+        the motions of a stream grow).
     options : SolverOptions, optional
         The certificate's tolerances and ``verify``.
     gridpoints : int
