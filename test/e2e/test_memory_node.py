@@ -18,7 +18,7 @@ from test_planner_process import PlannerProcess
 
 from tocontrol_ros.core import Planner, Problem, SolverOptions, load_robot, point
 from tocontrol_ros.core.memory.recall import open_memory, remember
-from tocontrol_ros.core.memory.store import MotionStore
+from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import default_urdf_path
 
@@ -99,17 +99,31 @@ def test_a_corrupt_memory_is_a_warning_and_the_plan_goes_on(node, tmp_path):
     assert path_end(path)[:2] == pytest.approx((2.2, 1.5), abs=1e-6)
 
 
+def _stored_count(path, at_least: int) -> int:
+    """The motions stored in ``path`` once there are ``at_least`` (or HANG s have passed)."""
+    deadline = time.monotonic() + HANG
+    count = 0
+    while time.monotonic() < deadline:
+        if path.exists():
+            try:
+                with MotionStore(path) as store:
+                    count = store.count()
+            except MemoryFileError:  # created but its schema not yet written
+                count = 0
+            if count >= at_least:
+                return count
+        time.sleep(0.05)
+    return count
+
+
 def test_a_node_that_learns_fills_a_new_memory(node, tmp_path):
     _, client = node
     new = tmp_path / "learnt.sqlite"
     assert client.set_parameters(memory=str(new), memory_learn=True)[0].successful
     _, first, _ = client.call_plan(PAPER_START, (1.8, 2.0), timeout=HANG)
     assert first.event == "solved" and first.values["memory"] == "unavailable"
-    deadline = time.monotonic() + HANG
-    while not new.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    with MotionStore(new) as store:
-        assert store.count() == 1
+    # The plan is published before it is stored: wait for the row, not the file.
+    assert _stored_count(new, at_least=1) == 1
     _, second, _ = client.call_plan(PAPER_START, (1.82, 1.98), timeout=HANG)
     assert second.values["memory"] == "hit", second.values
     assert client.set_parameters(memory_learn=False)[0].successful
