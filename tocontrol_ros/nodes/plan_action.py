@@ -1,8 +1,8 @@
 """The planner's ``~/plan_motion`` action (``tocontrol_msgs/action/PlanMotion``).
 
 A goal gives a start (the arm's current state, or a joint state), a target (an end-effector
-point, or a joint state; an end-effector pose is refused with a clear error until the core
-plans to orientations) and options (``k``, ``time_limit``, ``limit_margin``: negative takes
+point, an end-effector pose: position and orientation, :mod:`tocontrol_ros.nodes.pose_goals`;
+or a joint state) and options (``k``, ``time_limit``, ``limit_margin``: negative takes
 the parameter; ``execute``: also publish the plan on ``~/trajectory`` and send it to
 ``controller_action``). The goal becomes a request of the planning service like a ``~/plan``
 call (newest wins: a newer request supersedes it); feedback every :data:`FEEDBACK_PERIOD`
@@ -32,6 +32,7 @@ from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.controller_client import MissingInterfaceError
 from tocontrol_ros.nodes.outcomes import certificate_values
 from tocontrol_ros.nodes.planner_config import PlannerConfig, config_from_values
+from tocontrol_ros.nodes.pose_goals import PoseTarget, pose_target
 from tocontrol_ros.nodes.requests import PlanRequest
 
 __all__ = ["FEEDBACK_PERIOD", "GoalRequest", "PlanMotionServer", "goal_request",
@@ -76,6 +77,8 @@ class GoalRequest:
         The target's end-effector point (m).
     target_q : ndarray, shape (n,) or None
         A joint-space target (rad, m).
+    target_pose : PoseTarget or None
+        A pose target (in the base frame).
     config : PlannerConfig
         The parameters with the goal's options.
     execute : bool
@@ -86,6 +89,7 @@ class GoalRequest:
     target_q: np.ndarray | None
     config: PlannerConfig
     execute: bool
+    target_pose: PoseTarget | None = None
 
 
 def _config(goal, values: dict, task_dim: int) -> PlannerConfig:
@@ -128,7 +132,7 @@ def goal_request(goal, model, frame: conv.TaskFrame, values: dict,
     else:
         raise conv.ConversionError(f"`start_type` must be START_CURRENT (0) or START_JOINTS "
                                    f"(1), got {goal.start_type}")
-    target_q = None
+    target_q = target_pose = None
     if goal.target_type == goal.TARGET_POINT:
         target = conv.point_from_msg(goal.target_point.point,
                                      goal.target_point.header.frame_id, frame,
@@ -140,15 +144,16 @@ def goal_request(goal, model, frame: conv.TaskFrame, values: dict,
                                        f"target is at rest), got {qd.tolist()}")
         target = model.point(target_q)
     elif goal.target_type == goal.TARGET_POSE:
-        raise conv.ConversionError(
-            "`target_type` TARGET_POSE: orientation targets are not planned yet (the core "
-            "plans to end-effector points and joint states); give TARGET_POINT with "
-            "target_point = the pose's position to leave the orientation free, or "
-            "TARGET_JOINTS from your IK")
+        pose = goal.target_pose.pose
+        target_pose = pose_target(
+            (pose.position.x, pose.position.y, pose.position.z),
+            (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w),
+            goal.target_pose.header.frame_id, model, frame.frame_id, start, "target_pose")
+        target = target_pose.position[list(model.task_axes)]
     else:
         raise conv.ConversionError(f"`target_type` must be TARGET_POINT (0), TARGET_POSE (1) "
                                    f"or TARGET_JOINTS (2), got {goal.target_type}")
-    return GoalRequest(start, target, target_q, config, bool(goal.execute))
+    return GoalRequest(start, target, target_q, config, bool(goal.execute), target_pose)
 
 
 class _Progress:
@@ -158,6 +163,8 @@ class _Progress:
         self.stage = "accepted"
         self.best = 0.0
         self.message = ""
+        #: A pose goal's achieved errors (the final status's values), for the result.
+        self.pose_errors: dict = {}
         self._lock = threading.Lock()
 
     def __call__(self, event: str, message: str, values: dict) -> None:
@@ -167,6 +174,8 @@ class _Progress:
                 self.best = float(values["T"])
             self.stage = event
             self.message = message
+            self.pose_errors = {f"pose_{name}": values[name] for name in
+                                ("position_error", "orientation_error") if name in values}
 
     def snapshot(self) -> tuple[str, float, str]:
         with self._lock:
@@ -230,7 +239,8 @@ class PlanMotionServer:
         progress = _Progress()
         key = bytes(handle.goal_id.uuid)
         req = PlanRequest(rid, "action", goal.start, goal.target, goal.config,
-                          received=received, target_q=goal.target_q, execute=goal.execute)
+                          received=received, target_q=goal.target_q, execute=goal.execute,
+                          target_pose=goal.target_pose)
         self._outputs.listeners[rid] = progress
         with self._lock:
             self._requests[key] = req
@@ -287,7 +297,7 @@ class PlanMotionServer:
             out.duration = float(motion.T)
             values = certificate_values(motion.certificate)
             out.certified = bool(values.pop("certified"))
-            out.certificate = conv.status_values(values)
+            out.certificate = conv.status_values({**values, **progress.pose_errors})
         if handle.is_cancel_requested and req.cancelled.is_set():
             handle.canceled()
         elif out.code == FAILED:

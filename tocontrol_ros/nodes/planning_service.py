@@ -38,6 +38,7 @@ from tocontrol_ros.nodes.planner_config import (
     plan_problem,
     solver_options,
 )
+from tocontrol_ros.nodes.pose_goals import PoseGoals
 from tocontrol_ros.nodes.replan_policy import ReplanPolicy, replanning
 from tocontrol_ros.nodes.replanning import Replanner
 from tocontrol_ros.nodes.requests import LatestSlot, PlanRequest
@@ -171,6 +172,7 @@ class PlanningService:
         self._last_result = None
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
         self._replans = ReplanPolicy(self)
+        self._poses = PoseGoals(self)
         self.memory = MemoryPolicy(lambda message: self.out.status(
             "WARN", message, {"event": "memory", "frame_id": frame_id}))
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
@@ -353,6 +355,9 @@ class PlanningService:
             self.finish(req, "WARN", *req.cancel_reason)
             return
         if req.queue and self._replans.serve(req):
+            return
+        if req.target_pose is not None:  # IK solutions, each a joint goal
+            self._poses.serve(req)
             return
         try:
             problem = self.problem(config, req.start, req.target, req.target_q)
