@@ -172,6 +172,8 @@ class _Progress:
             if event == "first" and values.get("published") == "first" and \
                     values.get("certified"):
                 self.best = float(values["T"])
+            if event == "candidates":  # a pose goal's best certified first motion
+                self.best = float(values["best_T"])
             self.stage = event
             self.message = message
             self.pose_errors = {f"pose_{name}": values[name] for name in

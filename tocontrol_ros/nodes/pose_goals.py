@@ -241,6 +241,12 @@ class PoseGoals:
         if motions:  # the best certified motion so far: what a cancel returns
             req.first = motions[0][0]
         planned = order[:config.pose_candidates]
+        times = ", ".join(f"{firsts[i].T:.4g}" if firsts[i].success else "none" for i in order)
+        service.status(req, "OK", "candidates", f"request {req.id}: {len(solutions)} IK "
+                       f"solutions of the pose, first motions T = {times} s; planning the "
+                       f"optimum to the best {len(planned)}",
+                       {"ik_solutions": len(solutions),
+                        "best_T": motions[0][0].T if motions else 0.0})
         for i in planned:
             if service.finish_stopped(req, {}):
                 return
