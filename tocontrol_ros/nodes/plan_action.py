@@ -6,9 +6,11 @@ or a joint state) and options (``k``, ``time_limit``, ``limit_margin``: negative
 the parameter; ``execute``: also publish the plan on ``~/trajectory`` and send it to
 ``controller_action``). The goal becomes a request of the planning service like a ``~/plan``
 call (newest wins: a newer request supersedes it); feedback every :data:`FEEDBACK_PERIOD`
-(stage, the best certified duration known so far, elapsed time); a cancel stops the solve at
-once (the solver's ``should_stop``) and the result carries the best certified motion known
-then (the first motion of ``publish: first_then_optimum``) or none, as its message says. The
+(stage, the best certified duration known so far, elapsed time); a cancel asks the solve to
+stop (the solver's ``should_stop``) and the result carries the best certified motion known
+then (the first motion of ``publish: first_then_optimum``, a pose goal's best first motion)
+or none, as its message says: the solve's own outcome when it stops within
+:data:`CANCEL_GRACE`, else at once, the solve stopping after it in the background. The
 result: the joint trajectory with efforts (nominal torques), its duration, status and the
 certificate's items. msg_docs/plan_motion_action.md.
 
@@ -38,9 +40,18 @@ from tocontrol_ros.nodes.requests import PlanRequest
 __all__ = ["FEEDBACK_PERIOD", "GoalRequest", "PlanMotionServer", "goal_request",
            "plan_motion_type"]
 
-#: Feedback while a goal is planned (s). The wait between two is also how often the
-#: execution looks at the node's shutdown (a cancel reaches the solve at once).
+#: Feedback while a goal is planned (s).
 FEEDBACK_PERIOD = 0.1
+#: How often the goal's execution looks at its request's outcome, its cancel and the node's
+#: shutdown (s): a cancel is answered this much after it at the latest, plus the grace.
+WAKE_PERIOD = 0.02
+#: After a cancel, the result waits this long for the solve to stop (s; it then returns the
+#: solve's own outcome); beyond it, the result goes with the best certified motion known at
+#: the cancel, and the solve stops in the background at its next check. Some units of a
+#: Panda plan check the cancel seconds apart on a loaded machine (the bounded solve's
+#: certificate, a first motion: BENCHMARKS.md "Cancel during a Panda plan"), and issue
+#: 52's bar for cancel to result is 0.5 s.
+CANCEL_GRACE = 0.2
 #: The goal's options that override a parameter of the same name when not negative.
 OPTIONS = ("k", "time_limit", "limit_margin")
 #: Result codes (``PlanMotion.Result``).
@@ -258,14 +269,25 @@ class PlanMotionServer:
         return self._finish(handle, req, progress)
 
     def _wait(self, handle, req: PlanRequest, progress: _Progress, received: float) -> None:
+        """Feedback until ``req`` has its outcome, or :data:`CANCEL_GRACE` after a cancel."""
         feedback = self._type.Feedback()
         timeout = req.config.service_timeout
-        while not req.done.wait(FEEDBACK_PERIOD):
+        next_feedback = received + FEEDBACK_PERIOD
+        cancelled_at = None
+        while not req.done.wait(WAKE_PERIOD):
             if self._node.service.stopping.is_set():
                 return
-            elapsed = time.monotonic() - received
+            now = time.monotonic()
+            if req.cancelled.is_set():
+                cancelled_at = now if cancelled_at is None else cancelled_at
+                if now - cancelled_at >= CANCEL_GRACE:
+                    return  # the result does not wait for the solve to stop
+            elapsed = now - received
             if elapsed > timeout:
                 req.cancel("timed out", f"no outcome within service_timeout = {timeout:g} s")
+            if now < next_feedback:
+                continue
+            next_feedback = now + FEEDBACK_PERIOD
             feedback.stage, feedback.best_duration, _ = progress.snapshot()
             if feedback.stage == "accepted":
                 feedback.stage = "planning"
@@ -274,7 +296,11 @@ class PlanMotionServer:
 
     def _finish(self, handle, req: PlanRequest, progress: _Progress):
         stage, _, message = progress.snapshot()
-        if not req.done.is_set():
+        if not req.done.is_set() and req.cancelled.is_set():
+            event, reason = req.cancel_reason
+            stage, message = event, (f"request {req.id} {event}: {reason}; the solve stops "
+                                     "at its next check, after this result")
+        elif not req.done.is_set():
             stage, message = "cancelled", "node shutting down"
         out = self._type.Result(code=FAILED, status=stage.upper().replace(" ", "_"))
         motion = None
