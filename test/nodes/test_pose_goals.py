@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_planning_service import WAIT, FakeClock, FakeOutputs, FakePlanner, final
+from test_planning_service import WAIT, FakeClock, FakeOutputs, FakePlanner
 
 from tocontrol_ros.core.robot.kinematics import tip_pose
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
@@ -77,6 +77,15 @@ def test_a_pose_in_a_link_frame_is_taken_at_the_start_configuration():
     np.testing.assert_allclose(target.position, pos + rot @ [0.1, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(target.rotation, rot, atol=1e-12)
     assert "link2" in accepted_frames(MODEL, "base_link")
+
+
+def final(out, req) -> dict:
+    """The final status of ``req`` (not ``accepted`` nor the IK's ``candidates``)."""
+    events = [e for e in out.statuses() if e[3].get("request_id") == req.id
+              and e[3]["event"] not in ("accepted", "candidates")]
+    assert len(events) == 1, events
+    _, level, message, values = events[0]
+    return {"level": level, "event": values["event"], "message": message, "values": values}
 
 
 class Outputs(FakeOutputs):

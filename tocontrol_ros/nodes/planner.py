@@ -147,6 +147,7 @@ class PlannerNode(Node):
             self.frame.frame_id, self._outputs, self._arm,
             Clock(now_ns=lambda: self.get_clock().now().nanoseconds))
         self.service.collision = planner_collision(config, self.model)
+        self._controller.on_refused = self.service.controller_refused
         self.add_on_set_parameters_callback(self._on_set_parameters)
         waiting = ReentrantCallbackGroup()
         inputs = MutuallyExclusiveCallbackGroup()
