@@ -174,3 +174,18 @@ def test_a_motion_whose_end_misses_the_pose_is_not_published():
         assert "trajectory" not in out.kinds()
     finally:
         service.stop()
+
+
+def test_a_start_at_rest_on_the_pose_has_nothing_to_plan():
+    service, out = _service(FakePlanner)
+    try:
+        rotation, position = tip_pose(MODEL, START_Q)
+        req = _pose_request(service, rotation, position)
+        service.submit(req)
+        assert req.done.wait(WAIT)
+        outcome = final(out, req)
+        assert outcome["event"] == "solved" and outcome["level"] == "OK"
+        assert "nothing to plan: the start at rest is on the pose" in outcome["message"]
+        assert "trajectory" not in out.kinds()
+    finally:
+        service.stop()

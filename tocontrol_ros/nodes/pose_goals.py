@@ -29,6 +29,7 @@ import numpy as np
 from tocontrol_ros.core.errors import TocontrolError
 from tocontrol_ros.core.robot.ik import ik_pose, pose_errors
 from tocontrol_ros.core.robot.kinematics import joint_transform, quaternion_from_matrix
+from tocontrol_ros.core.types.problem import REST_SPEED
 from tocontrol_ros.nodes.outcomes import result_values
 from tocontrol_ros.nodes.planner_config import solver_options
 
@@ -222,6 +223,8 @@ class PoseGoals:
         ``failed`` (unreachable, no certified motion, the end pose off the tolerances).
         """
         service, config = self.service, req.config
+        if self._at_rest_on_the_pose(req):
+            return
         try:
             solutions = self.solutions(req)
             problems = [service.problem(config, req.start, service.model.point(q), q)
@@ -235,13 +238,14 @@ class PoseGoals:
             if service.finish_stopped(req, {}):
                 return
             firsts.append(service.planner.first(problem, options))
+        timed = [f.success and f.trajectory is not None for f in firsts]
         order = sorted(range(len(problems)), key=lambda i: firsts[i].T
-                       if firsts[i].success else math.inf)
-        motions = [(firsts[i], problems[i]) for i in order if firsts[i].success]
+                       if timed[i] else math.inf)
+        motions = [(firsts[i], problems[i]) for i in order if timed[i]]
         if motions:  # the best certified motion so far: what a cancel returns
             req.first = motions[0][0]
         planned = order[:config.pose_candidates]
-        times = ", ".join(f"{firsts[i].T:.4g}" if firsts[i].success else "none" for i in order)
+        times = ", ".join(f"{firsts[i].T:.4g}" if timed[i] else "none" for i in order)
         service.status(req, "OK", "candidates", f"request {req.id}: {len(solutions)} IK "
                        f"solutions of the pose, first motions T = {times} s; planning the "
                        f"optimum to the best {len(planned)}",
@@ -258,10 +262,29 @@ class PoseGoals:
             return
         self._publish(req, motions, extra)
 
+    def _at_rest_on_the_pose(self, req) -> bool:
+        """Finish ``req`` when its start is at rest on the pose already (True): T = 0."""
+        service, config, pose = self.service, req.config, req.target_pose
+        if req.start[0] != "state" or np.max(np.abs(req.start[2]), initial=0.0) > REST_SPEED:
+            return False
+        q = np.asarray(req.start[1], dtype=float)
+        pos_err, ang_err = (float(e[0]) for e in pose_errors(service.model, q, pose.position,
+                                                              pose.rotation))
+        if pos_err > config.pose_position_tolerance or \
+                ang_err > config.pose_orientation_tolerance:
+            return False
+        service.finish(req, "OK", "solved", f"nothing to plan: the start at rest is on the pose "
+                       f"(within {pos_err:.2g} m and {ang_err:.2g} rad); T = 0, no trajectory "
+                       "published", {"position_error": pos_err, "orientation_error": ang_err,
+                                     "samples": 1},
+                       path=service.out.rest_path(service.model.point(q)))
+        return True
+
     def _publish(self, req, motions: list, extra: dict[str, Any]) -> None:
         service, config, pose = self.service, req.config, req.target_pose
-        good = [(m, p) for m, p in motions if m.success or (
-            m.status.name == "TIME_LIMIT" and m.trajectory is not None)]
+        # A motion to a solution within MIN_MOVE of the start is TRIVIAL (no trajectory).
+        good = [(m, p) for m, p in motions if m.trajectory is not None and (
+            m.success or m.status.name == "TIME_LIMIT")]
         if not good:
             why = "; ".join(dict.fromkeys(m.message for m, _ in motions)) or "no candidate"
             service.finish(req, "ERROR", "failed", f"no certified motion to the pose's IK "
