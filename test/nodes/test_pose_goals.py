@@ -189,3 +189,18 @@ def test_a_start_at_rest_on_the_pose_has_nothing_to_plan():
         assert "trajectory" not in out.kinds()
     finally:
         service.stop()
+
+
+def test_the_end_pose_check_agrees_with_the_ik_residuals():
+    """Two implementations of the errors (the check's, the IK's) on random configurations."""
+    from tocontrol_ros.core.robot.ik import pose_errors
+    from tocontrol_ros.nodes.pose_goals import PoseTarget, end_pose_errors
+
+    rng = np.random.default_rng(4)
+    goal = PoseTarget(np.array([1.0, 2.0, 0.0]), Rotation.from_rotvec([0, 0, 2.9]).as_matrix(),
+                      "base_link")
+    for q in rng.uniform(-np.pi, np.pi, size=(10, 3)):
+        pos_err, ang_err = end_pose_errors(MODEL, q, goal)
+        ref_pos, ref_ang = pose_errors(MODEL, q, goal.position, goal.rotation)
+        assert pos_err == pytest.approx(ref_pos[0], abs=1e-12)
+        assert ang_err == pytest.approx(ref_ang[0], abs=1e-9)

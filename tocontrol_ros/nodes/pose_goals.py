@@ -8,9 +8,10 @@ each distinct solution a joint goal at rest. Each is timed by the first motion (
 seed path, certified, milliseconds); the ``pose_candidates`` with the least first-motion
 ``T`` are planned to the optimum by the joint-goal route; the least-``T`` certified motion of
 them all is published, after its last sample's tip pose was checked against the goal by the
-numeric forward kinematics (an independent implementation from the solver's CasADi
-kinematics) within ``pose_position_tolerance`` and ``pose_orientation_tolerance``. Why this
-route rather than the orientation as terminal rows of the bounded solve: docs/goals.md.
+per-configuration forward kinematics (:func:`end_pose_errors`: neither the solver's CasADi
+kinematics nor the IK's batched ones) within ``pose_position_tolerance`` and
+``pose_orientation_tolerance``. Why this route rather than the orientation as terminal rows
+of the bounded solve: docs/goals.md.
 
 :func:`pose_target` converts the message's fields (the frame, a NaN, a quaternion that is
 not unit: the ROS convention of tf2, normalised within 1 % of unit length, refused beyond);
@@ -27,14 +28,14 @@ from typing import Any
 import numpy as np
 
 from tocontrol_ros.core.errors import TocontrolError
-from tocontrol_ros.core.robot.ik import ik_pose, pose_errors
-from tocontrol_ros.core.robot.kinematics import joint_transform, quaternion_from_matrix
+from tocontrol_ros.core.robot.ik import ik_pose
+from tocontrol_ros.core.robot.kinematics import joint_transform, quaternion_from_matrix, tip_pose
 from tocontrol_ros.core.types.problem import REST_SPEED
 from tocontrol_ros.nodes.outcomes import result_values
 from tocontrol_ros.nodes.planner_config import solver_options
 
 __all__ = ["QUATERNION_TOL", "PoseGoalError", "PoseTarget", "PoseGoals", "accepted_frames",
-           "ik_seeds", "pose_target", "rotation_from_quaternion"]
+           "end_pose_errors", "ik_seeds", "pose_target", "rotation_from_quaternion"]
 
 #: A quaternion is taken (and normalised) when its squared norm is within this of 1, and
 #: refused beyond: tf2's rule (``TF_DENORMALIZED_QUATERNION`` in ``BufferCore``, 0.01).
@@ -167,6 +168,21 @@ def pose_target(position, quaternion, frame_id: str, model, planner_frame: str, 
     return PoseTarget(link_pos + link_rot @ p, link_rot @ rot, frame_id)
 
 
+def end_pose_errors(model, q, pose: PoseTarget) -> tuple[float, float]:
+    """Position (m) and orientation (rad) errors of the tip at ``q`` (n,) against ``pose``.
+
+    The check before publishing, independent of the IK's own residuals
+    (:func:`~tocontrol_ros.core.robot.ik.pose_errors`): the per-configuration kinematics of
+    :func:`~tocontrol_ros.core.robot.kinematics.tip_pose`, and the angle of ``R^T R_goal``
+    from its trace and skew part (``atan2``: accurate near 0 and near pi).
+    """
+    rot, pos = tip_pose(model, q)
+    rel = rot.T @ pose.rotation
+    skew = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    angle = math.atan2(0.5 * float(np.linalg.norm(skew)), 0.5 * (float(np.trace(rel)) - 1.0))
+    return float(np.linalg.norm(pos - pose.position)), abs(angle)
+
+
 def ik_seeds(model, limits, start: tuple, count: int) -> np.ndarray:
     """The IK's seeds, shape (count, n): the start's configuration, then fixed random ones.
 
@@ -227,10 +243,18 @@ class PoseGoals:
             return
         try:
             solutions = self.solutions(req)
-            problems = [service.problem(config, req.start, service.model.point(q), q)
-                        for q in solutions]
         except TocontrolError as exc:
             service.finish(req, "ERROR", "failed", str(exc))
+            return
+        problems, refused = [], []
+        for q in solutions:  # a solution in collision (with the scene) is left out
+            try:
+                problems.append(service.problem(config, req.start, service.model.point(q), q))
+            except TocontrolError as exc:
+                refused.append(str(exc))
+        if not problems:
+            service.finish(req, "ERROR", "failed", f"none of the pose's {len(solutions)} IK "
+                           f"solutions can be planned to: {'; '.join(dict.fromkeys(refused))}")
             return
         options = solver_options(config)
         firsts = []
@@ -257,7 +281,8 @@ class PoseGoals:
             motions.append((service.planner.plan(problems[i], options,
                                                  should_stop=service.should_stop(req)),
                             problems[i]))
-        extra = {"ik_solutions": len(solutions), "pose_candidates": len(planned)}
+        extra = {"ik_solutions": len(solutions), "pose_candidates": len(planned),
+                 "ik_refused": len(refused)}
         if service.finish_stopped(req, extra):
             return
         self._publish(req, motions, extra)
@@ -268,8 +293,7 @@ class PoseGoals:
         if req.start[0] != "state" or np.max(np.abs(req.start[2]), initial=0.0) > REST_SPEED:
             return False
         q = np.asarray(req.start[1], dtype=float)
-        pos_err, ang_err = (float(e[0]) for e in pose_errors(service.model, q, pose.position,
-                                                              pose.rotation))
+        pos_err, ang_err = end_pose_errors(service.model, q, pose)
         if pos_err > config.pose_position_tolerance or \
                 ang_err > config.pose_orientation_tolerance:
             return False
@@ -292,8 +316,7 @@ class PoseGoals:
             return
         best, problem = min(good, key=lambda pair: pair[0].T)
         sample = best.trajectory.sample(config.sample_period)
-        pos_err, ang_err = (float(e[0]) for e in pose_errors(
-            service.model, sample.q[-1], pose.position, pose.rotation))
+        pos_err, ang_err = end_pose_errors(service.model, sample.q[-1], pose)
         extra = {**extra, **result_values(best), "position_error": pos_err,
                  "orientation_error": ang_err,
                  "target_orientation": pose.quaternion,
