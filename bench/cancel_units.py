@@ -25,9 +25,16 @@ DELAYS = (0.05, 0.3, 1.0, 2.5)
 
 
 def _where() -> str:
-    """The solver's frames of the calling poll, innermost first (function:line)."""
-    frames = traceback.extract_stack(limit=8)[:-2]
-    return " < ".join(f"{f.name}:{f.lineno}" for f in reversed(frames[-3:]))
+    """Where the poll came from: the solver's function that checked (function:line).
+
+    ``SolveContext.check`` names its caller; a poll from the worker pool's watcher thread
+    (``watch``) means items ran in the worker processes (their polls are not seen here).
+    """
+    frames = [f for f in traceback.extract_stack(limit=10)[:-2]
+              if f.name not in ("check", "should_stop", "_where")]
+    if frames and frames[-1].name == "watch":
+        return "the pool's watcher (items in worker processes)"
+    return f"{frames[-1].name}:{frames[-1].lineno}" if frames else "unknown"
 
 
 def main(count: int) -> None:
@@ -75,8 +82,7 @@ def main(count: int) -> None:
             at, where = seen["at"]
             cells.append(f"{delay:g} s: stop {(t1 - t0 - delay) * 1e3:.0f} ms, poll "
                          f"{(at - t0 - delay) * 1e3:.0f} ms late (before: "
-                         f"{seen.get('before', 'none').split(' < ')[0]}; at: "
-                         f"{where.split(' < ')[0]})")
+                         f"{seen.get('before', 'none')}; at: {where})")
         print(f"case {i + 1}: first motion {first * 1e3:.0f} ms; " + " | ".join(cells),
               flush=True)
 
