@@ -6,7 +6,9 @@ which bind), ``warm_start:=false`` (every goal a cold solve); a client in this p
 ``tocontrol_msgs/action/PlanMotion`` goals (a joint-state start at rest to a point: the cases
 of the best-motion section, :func:`bench.limits.draw_cases` with :mod:`bench.optimum_panda`'s
 seed) and cancels each one ``DELAYS`` s after its acceptance (in turn). Measured per goal:
-cancel request sent to result received (s), and what the result returned. A goal whose result
+cancel request sent to result received (s), what the result returned, and when the planner's
+worker had stopped the solve (the request's ``cancelled`` status on ``~/status``; the next
+goal waits for it). A goal whose result
 came before its cancel (the plan was faster) is counted apart. Two settings, alternated goal
 by goal: the default ``publish: optimum`` (a cancel returns no motion: the optimum's solve
 keeps none) and ``publish: first_then_optimum`` (the first motion, certified, returned).
@@ -32,6 +34,7 @@ from bench.common import Section, log, panda_urdf, table  # noqa: E402
 from bench.deployed import RosClient, _Process  # noqa: E402
 from bench.limits import draw_cases, robots  # noqa: E402
 from bench.optimum_panda import SEED  # noqa: E402
+from tocontrol_ros.nodes.plan_action import CANCEL_GRACE  # noqa: E402
 
 #: Issue 52's bar: cancel to result (s).
 BAR = 0.5
@@ -46,6 +49,8 @@ class _Client(RosClient):
     """``~/plan_motion`` goals to two planners (one per ``publish`` mode), and cancels."""
 
     def __init__(self, planners: dict[str, str]) -> None:
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
         from tocontrol_msgs.action import PlanMotion
 
         from tocontrol_ros.nodes.action_calls import SerialActionClient
@@ -54,6 +59,28 @@ class _Client(RosClient):
         self.PlanMotion = PlanMotion
         self.clients = {mode: SerialActionClient(self.node, PlanMotion, f"{name}/plan_motion")
                         for mode, name in planners.items()}
+        # The planners' final status of each cancelled request: when the solve stopped.
+        self._stopped = {mode: [] for mode in planners}
+        self._cond = threading.Condition()
+        for mode, name in planners.items():
+            self.node.create_subscription(
+                DiagnosticStatus, f"{name}/status",
+                lambda msg, mode=mode: self._on_status(mode, msg),
+                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _on_status(self, mode: str, msg) -> None:
+        values = {kv.key: kv.value for kv in msg.values}
+        if values.get("source") == "action" and values.get("event") == "cancelled":
+            with self._cond:
+                self._stopped[mode].append(time.perf_counter())
+                self._cond.notify_all()
+
+    def stopped_after(self, mode: str, since: float) -> float | None:
+        """When the planner's worker reported the cancelled request stopped (after ``since``)."""
+        with self._cond:
+            self._cond.wait_for(lambda: any(t > since for t in self._stopped[mode]), HANG)
+            later = [t for t in self._stopped[mode] if t > since]
+        return min(later) if later else None
 
     def goal(self, q0, names, target):
         goal = self.PlanMotion.Goal(start_type=self.PlanMotion.Goal.START_JOINTS,
@@ -115,6 +142,7 @@ def run(count: int = 12) -> Section:
                       workdir / f"{mode}.log") for mode in MODES]
     client = _Client(names)
     latencies = {mode: [] for mode in MODES}
+    stops = {mode: [] for mode in MODES}
     plan_times = {mode: [] for mode in MODES}
     returned = {mode: 0 for mode in MODES}
     before = {mode: 0 for mode in MODES}
@@ -142,10 +170,16 @@ def run(count: int = 12) -> Section:
                     continue
                 latency = box["result_at"] - box["cancel_at"]
                 latencies[mode].append(latency)
+                # The worker's own stop (the request's cancelled status), waited for so that
+                # the next goal does not queue behind a solve still stopping.
+                stopped = client.stopped_after(mode, box["cancel_at"])
+                stop = stopped - box["cancel_at"] if stopped is not None else float("nan")
+                stops[mode].append(stop)
                 got = len(result.trajectory.points) > 0
                 returned[mode] += got
                 cells[mode] = (f"{latency * 1e3:.0f} ms, "
-                               f"{'first motion' if got else 'none'} ({result.status})")
+                               f"{'first motion' if got else 'none'} ({result.status}); "
+                               f"solve stopped {stop * 1e3:.0f} ms")
             row += [f"{plan_times['optimum'][-1]:.2f}", cells["optimum"],
                     cells["first_then_optimum"]]
             rows.append(row)
@@ -163,7 +197,10 @@ def run(count: int = 12) -> Section:
                            f"cancel to result median {statistics.median(values) * 1e3:.0f} ms, "
                            f"p95 {_pct(values, 0.95) * 1e3:.0f} ms, worst "
                            f"{max(values) * 1e3:.0f} ms; a motion returned in "
-                           f"{returned[mode]}; {before[mode]} finished before the cancel")
+                           f"{returned[mode]}; {before[mode]} finished before the cancel; the "
+                           f"solve itself stopped (its `cancelled` status) a median "
+                           f"{statistics.median(stops[mode]) * 1e3:.0f} ms, worst "
+                           f"{max(stops[mode]) * 1e3:.0f} ms after the cancel")
         else:
             summary.append(f"`publish: {mode}`: every plan finished before its cancel")
     lines = [
@@ -174,7 +211,12 @@ def run(count: int = 12) -> Section:
         f"first planned to the end (its plan time below), then sent again and cancelled "
         f"{', '.join(f'{d:g}' for d in DELAYS)} s after its acceptance (in turn). Cancel to "
         f"result: the cancel request sent to the result received by the client (s); the "
-        f"machine shared with other work. " + "; ".join(summary) + ". "
+        f"result waits at most `CANCEL_GRACE` = {CANCEL_GRACE:g} s for the solve to stop, then "
+        f"goes with the best certified motion known at the cancel "
+        f"(tocontrol_ros/nodes/plan_action.py). \"Solve stopped\": the cancel to the "
+        f"planner's `cancelled` status of the request, when its worker is free again (the "
+        f"solver's units that check the cancel seconds apart: docs/speed.md, \"Cancel\"). "
+        f"The machine shared with other work. " + "; ".join(summary) + ". "
         f"Command: `scripts/dev run python -P bench/cancel.py {count}`.",
         "",
         *table(["case", "cancel after (s)", "plan (s, optimum)", "optimum: cancel to result",

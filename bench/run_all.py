@@ -10,7 +10,7 @@ Run from the repository root::
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
                 verification,deployed,replan,batch,limits,first_motion,collision,
-                memory,cancel]
+                memory,cancel,pose_goals]
         [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -47,7 +47,9 @@ OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene),
 ``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
 then 50 requests inside the cell and 20 outside through a planner node with it against one
 without, and the compiled peer from the same stored motions), ``cancel`` (a cancel during a
-Panda plan through ``~/plan_motion``: cancel to result, issue 52). Every timing is taken in
+Panda plan through ``~/plan_motion``: cancel to result, issue 52), ``pose_goals`` (pose goals
+on the Panda through the planning service against the joint goal they came from, issue 52).
+Every timing is taken in
 this one process, side by side; compiled functions go to a fresh temporary cache so that
 first-run costs are measured, not inherited.
 """
@@ -74,7 +76,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "first_use",
          "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
          "limits", "stagewise", "warm_resolve",
-         "first_motion", "collision", "memory", "cancel")
+         "first_motion", "collision", "memory", "cancel", "pose_goals")
 
 
 def _parse(argv):
@@ -169,6 +171,7 @@ def _run(args):
         paper,
         peer_compiled,
         peers,
+        pose_goals,
         profile_panda,
         random_pairs,
         reference_panda,
@@ -270,6 +273,8 @@ def _run(args):
                                    build=not args.memory_no_build))
     if "cancel" in args.only:
         section(lambda: cancel.run(4 if args.quick else 12))
+    if "pose_goals" in args.only:
+        section(lambda: pose_goals.run(2 if args.quick else 6))
     total = time.perf_counter() - t0
     load_end = common.load_text()
     info["CPU steal over the run (time the hypervisor took)"] = common.steal_text(

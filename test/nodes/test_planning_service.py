@@ -415,3 +415,24 @@ def test_a_first_motion_finished_after_a_cancel_is_kept_not_published(make_servi
     assert req.first is planner.first_result and req.result is None
     assert final(out, req)["event"] == "cancelled"
     assert "trajectory" not in out.kinds()
+
+
+def test_a_motion_the_controller_refused_is_no_longer_continued(make_service):
+    """The controller refused the last published motion: a ``refused`` status, and the
+    replanner forgets it (the next goal starts from the measured state); a refusal of an
+    older motion, replaced since, changes nothing."""
+    service, out = make_service()
+    service.planner.gate.set()
+    a, b = request(service), request(service)
+    service.submit(a)
+    wait_done(a)
+    service.submit(b)
+    wait_done(b)
+    assert service.replanner.has_motion()
+    service.controller_refused(a.id, "rejected")  # replaced by b's motion since
+    assert service.replanner.has_motion() and out.statuses("refused") == []
+    service.controller_refused(b.id, "the controller at /arm/follow rejected it")
+    assert not service.replanner.has_motion()
+    [(_, level, message, values)] = out.statuses("refused")
+    assert level == "WARN" and values["request_id"] == b.id
+    assert "not executing (the controller at /arm/follow rejected it)" in message

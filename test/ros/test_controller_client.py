@@ -1,4 +1,5 @@
-"""The planner's controller client with no server at its action: the plan is reported rejected.
+"""The planner's controller client with no server at its action: the plan is reported rejected,
+and the planner is told (``on_refused``).
 
 In-process, a private rclpy Context; the wait for the server (``SERVER_WAIT``) shortened.
 """
@@ -24,6 +25,8 @@ def test_a_plan_for_a_missing_controller_is_reported_rejected(monkeypatch):
         client = controller_client.ControllerClient(
             node, "/nobody/follow_joint_trajectory",
             lambda level, message, values: events.append((level, message, values)))
+        refused = []
+        client.on_refused = lambda rid, reason: refused.append((rid, reason))
 
         class Config:
             controller_effort = False
@@ -45,3 +48,5 @@ def test_a_plan_for_a_missing_controller_is_reported_rejected(monkeypatch):
     assert level == "ERROR" and values["event"] == "rejected" and values["request_id"] == 7
     assert "no FollowJointTrajectory server at /nobody/follow_joint_trajectory within 0.3 s" \
         in message
+    # The planner learns of it (its service then stops continuing that motion).
+    assert refused == [(7, "no controller at /nobody/follow_joint_trajectory")]

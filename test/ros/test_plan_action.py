@@ -69,6 +69,18 @@ def point_goal(xy, frame="base_link", **options):
     return goal
 
 
+def pose_goal(position, quaternion, frame="base_link", start_q=None, **options):
+    goal = PlanMotion.Goal(target_type=PlanMotion.Goal.TARGET_POSE, **options)
+    goal.target_pose.header.frame_id = frame
+    p, o = goal.target_pose.pose.position, goal.target_pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in position)
+    o.x, o.y, o.z, o.w = (float(v) for v in quaternion)
+    if start_q is not None:
+        goal.start_type = PlanMotion.Goal.START_JOINTS
+        goal.start_state = JointState(name=list(JOINTS), position=[float(v) for v in start_q])
+    return goal
+
+
 def joints_goal(q, start_q=None, names=JOINTS, **options):
     goal = PlanMotion.Goal(target_type=PlanMotion.Goal.TARGET_JOINTS, **options)
     goal.target_joints = JointState(name=list(names), position=[float(v) for v in q])
@@ -153,6 +165,33 @@ def test_joint_goal_reaches_the_joints(model):
         np.testing.assert_allclose(end, target_q, atol=1e-6)
 
 
+def test_pose_goal_reaches_the_pose_and_reports_its_errors(model):
+    """A pose in the arm's plane (that of a configuration): reached within the tolerances,
+    checked here by the forward kinematics of the result's last point."""
+    from scipy.spatial.transform import Rotation
+
+    from tocontrol_ros.core.robot.kinematics import tip_pose
+
+    rotation, position = tip_pose(model, [1.2, -0.4, 0.7])
+    quaternion = Rotation.from_matrix(rotation).as_quat()
+    with ready_planner("action_pose") as (running, client):
+        user = ActionUser(client, running.node.get_fully_qualified_name())
+        start_q = [0.3, 1.0, -0.5]
+        response = user.result(user.send(pose_goal(position, quaternion, start_q=start_q)))
+        result = response.result
+        assert response.status == 4 and result.code == PlanMotion.Result.SUCCESS, \
+            result.message
+        assert result.certified and "pose reached within" in result.message
+        end = check_motion(result, model, start_q)
+        rot, pos = tip_pose(model, end)
+        assert np.linalg.norm(pos - position) <= 1e-4
+        assert np.linalg.norm(Rotation.from_matrix(rot.T @ rotation).as_rotvec()) <= 1e-3
+        errors = {kv.key: float(kv.value) for kv in result.certificate
+                  if kv.key.startswith("pose_")}
+        assert errors["pose_position_error"] <= 1e-4
+        assert errors["pose_orientation_error"] <= 1e-3
+
+
 def test_cancel_returns_the_first_motion_or_says_there_is_none(monkeypatch, model):
     gate = SolveGate.install(monkeypatch)
     with ready_planner("action_cancel") as (running, client):
@@ -193,8 +232,13 @@ def test_cancel_returns_the_first_motion_or_says_there_is_none(monkeypatch, mode
 BAD_GOALS = [
     ("frame", lambda: point_goal(PAPER_TARGET, frame="map"), "frame_id 'map'"),
     ("nan", lambda: point_goal((float("nan"), 1.0)), "`target_point.point.x` must be finite"),
-    ("pose", lambda: PlanMotion.Goal(target_type=PlanMotion.Goal.TARGET_POSE),
-     "orientation targets are not planned yet"),
+    ("pose frame", lambda: pose_goal((2.37, 4.76, 0.0), (0.0, 0.0, 0.0, 1.0), frame="map"),
+     "`target_pose.header.frame_id` 'map' is not a frame of this planner (no tf lookup); "
+     "accepted: base_link, link1, link2, link3, tool"),
+    ("pose nan", lambda: pose_goal((2.37, 4.76, 0.0), (0.0, 0.0, float("nan"), 1.0)),
+     "`target_pose.pose.orientation` must be finite"),
+    ("pose not unit", lambda: pose_goal((2.37, 4.76, 0.0), (0.0, 0.0, 0.0, 0.0)),
+     "`target_pose.pose.orientation` is not a unit quaternion: |q| = 0"),
     ("names", lambda: joints_goal([0.1, 0.2, 0.3], names=("a", "b", "c")),
      "`target_joints.name` lacks the planner's joint(s)"),
     ("moving", lambda: PlanMotion.Goal(

@@ -145,6 +145,13 @@ class ControllerClient:
         self._client = SerialActionClient(node, control_msgs_types()[0], action_name) \
             if action_name else None
         self._publish_status = publish_status
+        #: Told ``(request_id, reason)`` when the controller refuses a plan, or aborts it
+        #: with an error (the planning service's ``controller_refused``); None: nobody.
+        self.on_refused: Callable[[int, str], None] | None = None
+
+    def _refused(self, request_id: int, reason: str) -> None:
+        if self.on_refused is not None:
+            self.on_refused(request_id, reason)
 
     def _report(self, request_id: int, level: str, event: str, message: str,
                 values: dict) -> None:
@@ -170,6 +177,7 @@ class ControllerClient:
                          f"request {request_id}: no FollowJointTrajectory server at "
                          f"{self.action_name} within {SERVER_WAIT:g} s; the plan was not "
                          f"executed", values)
+            self._refused(request_id, f"no controller at {self.action_name}")
             return
         # The clock read after the wait: a stamp still ahead now is a replan's hand-off.
         goal = controller_goal(trajectory, config.controller_effort,
@@ -187,6 +195,7 @@ class ControllerClient:
             self._report(request_id, "ERROR", "rejected",
                          f"request {request_id}: the controller at {self.action_name} "
                          f"rejected the plan (see its log for the reason)", values)
+            self._refused(request_id, f"the controller at {self.action_name} rejected it")
             return
         self._client.get_result(handle).add_done_callback(
             lambda f: self._on_result(request_id, f, values))
@@ -202,6 +211,9 @@ class ControllerClient:
                      f"({CODE_NAMES.get(code, str(code))})" + (f": {text}" if text else ""),
                      {**values, "goal_status": status, "error_code": code,
                       "error_string": text})
+        if status == "ABORTED":  # a goal preempted by a newer one ends CANCELED
+            self._refused(request_id, f"the controller at {self.action_name} ended it "
+                          f"{status.lower()} ({CODE_NAMES.get(code, str(code))})")
 
     def destroy(self) -> None:
         """Destroy the action client."""

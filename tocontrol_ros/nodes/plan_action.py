@@ -1,14 +1,16 @@
 """The planner's ``~/plan_motion`` action (``tocontrol_msgs/action/PlanMotion``).
 
 A goal gives a start (the arm's current state, or a joint state), a target (an end-effector
-point, or a joint state; an end-effector pose is refused with a clear error until the core
-plans to orientations) and options (``k``, ``time_limit``, ``limit_margin``: negative takes
+point, an end-effector pose: position and orientation, :mod:`tocontrol_ros.nodes.pose_goals`;
+or a joint state) and options (``k``, ``time_limit``, ``limit_margin``: negative takes
 the parameter; ``execute``: also publish the plan on ``~/trajectory`` and send it to
 ``controller_action``). The goal becomes a request of the planning service like a ``~/plan``
 call (newest wins: a newer request supersedes it); feedback every :data:`FEEDBACK_PERIOD`
-(stage, the best certified duration known so far, elapsed time); a cancel stops the solve at
-once (the solver's ``should_stop``) and the result carries the best certified motion known
-then (the first motion of ``publish: first_then_optimum``) or none, as its message says. The
+(stage, the best certified duration known so far, elapsed time); a cancel asks the solve to
+stop (the solver's ``should_stop``) and the result carries the best certified motion known
+then (the first motion of ``publish: first_then_optimum``, a pose goal's best first motion)
+or none, as its message says: the solve's own outcome when it stops within
+:data:`CANCEL_GRACE`, else at once, the solve stopping after it in the background. The
 result: the joint trajectory with efforts (nominal torques), its duration, status and the
 certificate's items. msg_docs/plan_motion_action.md.
 
@@ -32,14 +34,24 @@ from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.controller_client import MissingInterfaceError
 from tocontrol_ros.nodes.outcomes import certificate_values
 from tocontrol_ros.nodes.planner_config import PlannerConfig, config_from_values
+from tocontrol_ros.nodes.pose_goals import PoseTarget, pose_target
 from tocontrol_ros.nodes.requests import PlanRequest
 
 __all__ = ["FEEDBACK_PERIOD", "GoalRequest", "PlanMotionServer", "goal_request",
            "plan_motion_type"]
 
-#: Feedback while a goal is planned (s). The wait between two is also how often the
-#: execution looks at the node's shutdown (a cancel reaches the solve at once).
+#: Feedback while a goal is planned (s).
 FEEDBACK_PERIOD = 0.1
+#: How often the goal's execution looks at its request's outcome, its cancel and the node's
+#: shutdown (s): a cancel is answered this much after it at the latest, plus the grace.
+WAKE_PERIOD = 0.02
+#: After a cancel, the result waits this long for the solve to stop (s; it then returns the
+#: solve's own outcome); beyond it, the result goes with the best certified motion known at
+#: the cancel, and the solve stops in the background at its next check. Some units of a
+#: Panda plan check the cancel seconds apart on a loaded machine (the bounded solve's
+#: certificate, a first motion: BENCHMARKS.md "Cancel during a Panda plan"), and issue
+#: 52's bar for cancel to result is 0.5 s.
+CANCEL_GRACE = 0.2
 #: The goal's options that override a parameter of the same name when not negative.
 OPTIONS = ("k", "time_limit", "limit_margin")
 #: Result codes (``PlanMotion.Result``).
@@ -76,6 +88,8 @@ class GoalRequest:
         The target's end-effector point (m).
     target_q : ndarray, shape (n,) or None
         A joint-space target (rad, m).
+    target_pose : PoseTarget or None
+        A pose target (in the base frame).
     config : PlannerConfig
         The parameters with the goal's options.
     execute : bool
@@ -86,6 +100,7 @@ class GoalRequest:
     target_q: np.ndarray | None
     config: PlannerConfig
     execute: bool
+    target_pose: PoseTarget | None = None
 
 
 def _config(goal, values: dict, task_dim: int) -> PlannerConfig:
@@ -128,7 +143,7 @@ def goal_request(goal, model, frame: conv.TaskFrame, values: dict,
     else:
         raise conv.ConversionError(f"`start_type` must be START_CURRENT (0) or START_JOINTS "
                                    f"(1), got {goal.start_type}")
-    target_q = None
+    target_q = target_pose = None
     if goal.target_type == goal.TARGET_POINT:
         target = conv.point_from_msg(goal.target_point.point,
                                      goal.target_point.header.frame_id, frame,
@@ -140,15 +155,16 @@ def goal_request(goal, model, frame: conv.TaskFrame, values: dict,
                                        f"target is at rest), got {qd.tolist()}")
         target = model.point(target_q)
     elif goal.target_type == goal.TARGET_POSE:
-        raise conv.ConversionError(
-            "`target_type` TARGET_POSE: orientation targets are not planned yet (the core "
-            "plans to end-effector points and joint states); give TARGET_POINT with "
-            "target_point = the pose's position to leave the orientation free, or "
-            "TARGET_JOINTS from your IK")
+        pose = goal.target_pose.pose
+        target_pose = pose_target(
+            (pose.position.x, pose.position.y, pose.position.z),
+            (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w),
+            goal.target_pose.header.frame_id, model, frame.frame_id, start, "target_pose")
+        target = target_pose.position[list(model.task_axes)]
     else:
         raise conv.ConversionError(f"`target_type` must be TARGET_POINT (0), TARGET_POSE (1) "
                                    f"or TARGET_JOINTS (2), got {goal.target_type}")
-    return GoalRequest(start, target, target_q, config, bool(goal.execute))
+    return GoalRequest(start, target, target_q, config, bool(goal.execute), target_pose)
 
 
 class _Progress:
@@ -158,6 +174,8 @@ class _Progress:
         self.stage = "accepted"
         self.best = 0.0
         self.message = ""
+        #: A pose goal's achieved errors (the final status's values), for the result.
+        self.pose_errors: dict = {}
         self._lock = threading.Lock()
 
     def __call__(self, event: str, message: str, values: dict) -> None:
@@ -165,8 +183,12 @@ class _Progress:
             if event == "first" and values.get("published") == "first" and \
                     values.get("certified"):
                 self.best = float(values["T"])
+            if event == "candidates":  # a pose goal's best certified first motion
+                self.best = float(values["best_T"])
             self.stage = event
             self.message = message
+            self.pose_errors = {f"pose_{name}": values[name] for name in
+                                ("position_error", "orientation_error") if name in values}
 
     def snapshot(self) -> tuple[str, float, str]:
         with self._lock:
@@ -230,7 +252,8 @@ class PlanMotionServer:
         progress = _Progress()
         key = bytes(handle.goal_id.uuid)
         req = PlanRequest(rid, "action", goal.start, goal.target, goal.config,
-                          received=received, target_q=goal.target_q, execute=goal.execute)
+                          received=received, target_q=goal.target_q, execute=goal.execute,
+                          target_pose=goal.target_pose)
         self._outputs.listeners[rid] = progress
         with self._lock:
             self._requests[key] = req
@@ -246,14 +269,25 @@ class PlanMotionServer:
         return self._finish(handle, req, progress)
 
     def _wait(self, handle, req: PlanRequest, progress: _Progress, received: float) -> None:
+        """Feedback until ``req`` has its outcome, or :data:`CANCEL_GRACE` after a cancel."""
         feedback = self._type.Feedback()
         timeout = req.config.service_timeout
-        while not req.done.wait(FEEDBACK_PERIOD):
+        next_feedback = received + FEEDBACK_PERIOD
+        cancelled_at = None
+        while not req.done.wait(WAKE_PERIOD):
             if self._node.service.stopping.is_set():
                 return
-            elapsed = time.monotonic() - received
+            now = time.monotonic()
+            if req.cancelled.is_set():
+                cancelled_at = now if cancelled_at is None else cancelled_at
+                if now - cancelled_at >= CANCEL_GRACE:
+                    return  # the result does not wait for the solve to stop
+            elapsed = now - received
             if elapsed > timeout:
                 req.cancel("timed out", f"no outcome within service_timeout = {timeout:g} s")
+            if now < next_feedback:
+                continue
+            next_feedback = now + FEEDBACK_PERIOD
             feedback.stage, feedback.best_duration, _ = progress.snapshot()
             if feedback.stage == "accepted":
                 feedback.stage = "planning"
@@ -262,7 +296,11 @@ class PlanMotionServer:
 
     def _finish(self, handle, req: PlanRequest, progress: _Progress):
         stage, _, message = progress.snapshot()
-        if not req.done.is_set():
+        if not req.done.is_set() and req.cancelled.is_set():
+            event, reason = req.cancel_reason
+            stage, message = event, (f"request {req.id} {event}: {reason}; the solve stops "
+                                     "at its next check, after this result")
+        elif not req.done.is_set():
             stage, message = "cancelled", "node shutting down"
         out = self._type.Result(code=FAILED, status=stage.upper().replace(" ", "_"))
         motion = None
@@ -287,7 +325,7 @@ class PlanMotionServer:
             out.duration = float(motion.T)
             values = certificate_values(motion.certificate)
             out.certified = bool(values.pop("certified"))
-            out.certificate = conv.status_values(values)
+            out.certificate = conv.status_values({**values, **progress.pose_errors})
         if handle.is_cancel_requested and req.cancelled.is_set():
             handle.canceled()
         elif out.code == FAILED:

@@ -10,8 +10,10 @@ Run as ``ros2 run tocontrol_ros planner`` (either install route), ``tocontrol-pl
   (the latest ``sensor_msgs/msg/JointState`` on ``joint_states``);
 - topic ``~/goal_joints`` (``sensor_msgs/msg/JointState``): a joint-space target, from the
   current state;
+- topic ``~/goal_pose`` (``geometry_msgs/msg/PoseStamped``): a pose of the tip (position
+  and orientation), from the current state (:mod:`tocontrol_ros.nodes.pose_goals`);
 - action ``~/plan_motion`` (``tocontrol_msgs/action/PlanMotion``, when that package is
-  installed): start, target (point or joints) and options; feedback, cancel, the trajectory
+  installed): start, target (point, pose or joints) and options; feedback, cancel, the trajectory
   as the result (:mod:`tocontrol_ros.nodes.plan_action`);
 - published: ``~/trajectory`` (``trajectory_msgs/msg/JointTrajectory``, transient local;
   with ``publish: first_then_optimum`` first a certified motion at once, then the optimum),
@@ -39,7 +41,7 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from rcl_interfaces.msg import SetParametersResult
@@ -71,6 +73,7 @@ from tocontrol_ros.nodes.planner_config import (
 )
 from tocontrol_ros.nodes.planner_outputs import FRESH_STATE_WAIT, MeasuredArm, PlannerOutputs
 from tocontrol_ros.nodes.planning_service import JOIN_TIMEOUT, Clock, PlanningService
+from tocontrol_ros.nodes.pose_goals import pose_target
 from tocontrol_ros.nodes.requests import PlanRequest
 from tocontrol_ros.nodes.scene_markers import scene_from_markers
 
@@ -144,6 +147,7 @@ class PlannerNode(Node):
             self.frame.frame_id, self._outputs, self._arm,
             Clock(now_ns=lambda: self.get_clock().now().nanoseconds))
         self.service.collision = planner_collision(config, self.model)
+        self._controller.on_refused = self.service.controller_refused
         self.add_on_set_parameters_callback(self._on_set_parameters)
         waiting = ReentrantCallbackGroup()
         inputs = MutuallyExclusiveCallbackGroup()
@@ -154,6 +158,8 @@ class PlannerNode(Node):
         self.create_subscription(MarkerArray, "~/scene", self._on_scene, QOS_SCENE,
                                  callback_group=inputs)
         self.create_subscription(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL,
+                                 callback_group=inputs)
+        self.create_subscription(PoseStamped, "~/goal_pose", self._on_goal_pose, QOS_GOAL,
                                  callback_group=inputs)
         try:  # tocontrol_msgs only for the action: without it the rest is served
             self._plan_action = PlanMotionServer(self, self._outputs, self._arm.start,
@@ -253,6 +259,23 @@ class PlannerNode(Node):
             return
         self.service.submit(PlanRequest(rid, "goal_joints", start, self.model.point(q), config,
                                         received=received, target_q=q))
+
+    def _on_goal_pose(self, msg: PoseStamped, info) -> None:
+        received = time.monotonic()
+        since = int(info.get("received_timestamp", 0)) or time.time_ns()
+        rid = self.service.next_id()
+        config = self.config
+        try:
+            start = self._arm.start(config, since)
+            p, o = msg.pose.position, msg.pose.orientation
+            pose = pose_target((p.x, p.y, p.z), (o.x, o.y, o.z, o.w), msg.header.frame_id,
+                               self.model, self.frame.frame_id, start, "goal_pose")
+        except TocontrolError as exc:
+            self.service.reject(rid, "goal_pose", str(exc))
+            return
+        self.service.submit(PlanRequest(rid, "goal_pose", start,
+                                        pose.position[list(self.model.task_axes)], config,
+                                        received=received, target_pose=pose))
 
     def _diagnostic_state(self):
         """``/diagnostics``: readiness, requests waiting, last plan, builds, controller."""

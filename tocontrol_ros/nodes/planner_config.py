@@ -230,6 +230,23 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "goals are superseded while solving those waiting would take longer than "
                   "this (s; their count times the recent replans' median solve time): newest "
                   "wins. Solves that keep up answer every goal.", 0.0, 3600.0),
+    # Pose goals (~/goal_pose, ~/plan_motion's TARGET_POSE: tocontrol_ros/nodes/pose_goals.py).
+    ParameterSpec("pose_position_tolerance", 1e-4, "A pose goal is reached when the planned "
+                  "motion's last sample puts the tip within this distance of the pose's "
+                  "position (m), checked by forward kinematics before publishing (MoveIt's "
+                  "default goal_position_tolerance).", 1e-9, 1.0),
+    ParameterSpec("pose_orientation_tolerance", 1e-3, "... and within this angle of its "
+                  "orientation (rad; the angle of the rotation between the two; MoveIt's "
+                  "default goal_orientation_tolerance).", 1e-9, 3.14159),
+    ParameterSpec("pose_ik_seeds", 16, "A pose goal is solved to joint configurations by "
+                  "inverse kinematics from this many seeds (the start's configuration, then "
+                  "fixed pseudo-random ones within the limits: the same pose gives the same "
+                  "solutions); each distinct solution within the joint limits is a candidate "
+                  "joint goal.", 1, 256),
+    ParameterSpec("pose_candidates", 2, "Of a pose goal's IK solutions, each timed by the "
+                  "first motion (TOPP-RA, certified, milliseconds), this many with the least "
+                  "first-motion T are planned to the optimum; the least T certified motion "
+                  "(optimum or first motion) is published.", 1, 32),
     # The memory of optimal motions (tocontrol_ros/nodes/memory_policy.py, docs/memory.md).
     ParameterSpec("memory", "", "Path of a memory of optimal motions (a SQLite file that "
                   "`ros2 run tocontrol_ros memory build` made for this robot and these k, "
@@ -335,6 +352,10 @@ class PlannerConfig:
     memory_basins: int = 2
     memory_spans: int = 64
     memory_learn: bool = False
+    pose_position_tolerance: float = 1e-4
+    pose_orientation_tolerance: float = 1e-3
+    pose_ik_seeds: int = 16
+    pose_candidates: int = 2
 
 
 def _check_scalar(spec: ParameterSpec, value: Any) -> Any:

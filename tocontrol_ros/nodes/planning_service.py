@@ -38,6 +38,7 @@ from tocontrol_ros.nodes.planner_config import (
     plan_problem,
     solver_options,
 )
+from tocontrol_ros.nodes.pose_goals import PoseGoals
 from tocontrol_ros.nodes.replan_policy import ReplanPolicy, replanning
 from tocontrol_ros.nodes.replanning import Replanner
 from tocontrol_ros.nodes.requests import LatestSlot, PlanRequest
@@ -170,7 +171,9 @@ class PlanningService:
         self._ids = itertools.count(1)
         self._last_result = None
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
+        self._sent: tuple[int, Any] | None = None  # (request id, PlanResult) last published
         self._replans = ReplanPolicy(self)
+        self._poses = PoseGoals(self)
         self.memory = MemoryPolicy(lambda message: self.out.status(
             "WARN", message, {"event": "memory", "frame_id": frame_id}))
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
@@ -354,6 +357,9 @@ class PlanningService:
             return
         if req.queue and self._replans.serve(req):
             return
+        if req.target_pose is not None:  # IK solutions, each a joint goal
+            self._poses.serve(req)
+            return
         try:
             problem = self.problem(config, req.start, req.target, req.target_q)
         except TocontrolError as exc:
@@ -518,11 +524,29 @@ class PlanningService:
             return None
         self._published_at = self.clock.monotonic()
         self.replanner.published(result, stamp_ns, sample)
+        self._sent = (rid, result)
         path = self.out.path(sample, stamp_ns)
         if path is None:
             return None
         self.out.follow(rid, msg, config)
         return path, len(sample.t)
+
+    def controller_refused(self, request_id: int, reason: str) -> None:
+        """The controller refused (or aborted) the motion published for ``request_id``.
+
+        When it is the last published motion, replans stop continuing it
+        (:meth:`Replanner.not_executing`): a ``refused`` status says so, and the next goal is
+        planned from the arm's measured state. An older motion (replaced since) changes
+        nothing.
+        """
+        sent = self._sent
+        if sent is None or sent[0] != request_id or not self.replanner.not_executing(sent[1]):
+            return
+        self.out.status("WARN", f"request {request_id}: its motion is not executing "
+                        f"({reason}); the planner no longer continues it: the next goal is "
+                        "planned from the arm's measured state",
+                        {"request_id": request_id, "event": "refused",
+                         "frame_id": self.frame_id})
 
     # --------------------------------------------------------------- shutdown
     def stop(self, timeout: float = JOIN_TIMEOUT) -> None:

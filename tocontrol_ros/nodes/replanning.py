@@ -193,6 +193,20 @@ class Replanner:
         with self._lock:
             self._ahead = (result, running)
 
+    def not_executing(self, result) -> bool:
+        """``result`` is not executing (the controller refused or aborted it): forget it.
+
+        Replans then no longer continue it (no hand-off on it, no warm start from its tail);
+        the next goal is planned from the arm's measured state. Nothing happens when another
+        motion was published since (returns False).
+        """
+        with self._lock:
+            if self._executing is None or self._executing[0] is not result:
+                return False
+            self._executing = None
+            self._ahead = None
+            return True
+
     def running(self):
         """The last published motion (a PlanResult), or None."""
         with self._lock:

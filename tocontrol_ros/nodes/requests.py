@@ -45,7 +45,11 @@ class PlanRequest:
         The motion that answered the request (the optimum, or the first motion that stood),
         set before ``done``.
     first : PlanResult or None
-        The first motion of ``publish: first_then_optimum``, once known (certified).
+        The first motion of ``publish: first_then_optimum``, once known (certified); for a
+        pose goal, the best certified first motion of its IK solutions.
+    target_pose : PoseTarget or None
+        A pose goal (:mod:`tocontrol_ros.nodes.pose_goals`); ``target`` is then its
+        position's task coordinates (m).
     """
 
     id: int
@@ -70,6 +74,7 @@ class PlanRequest:
     execute: bool = True
     result: Any = None
     first: Any = None
+    target_pose: Any = None
 
     def cancel(self, event: str, reason: str) -> None:
         """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""

@@ -5,6 +5,11 @@ each end point. For a planar arm the manifold is swept by the absolute angle of 
 link (``phi = sum q`` for revolute joints about parallel axes) and the elbow sign; for the
 standard planar 3R (link offsets along each frame's x axis) this is closed form. Other arms
 use Levenberg-Marquardt (``scipy.optimize.least_squares``) from spread seeds.
+
+Poses (position and orientation of the tip frame, a spatial arm's pick): :func:`ik_pose`,
+damped least squares on the six residuals from many seeds at once, with the geometric
+Jacobian of the numeric kinematics (:mod:`~tocontrol_ros.core.robot.kinematics`), within the
+joint limits; :func:`pose_errors` measures a configuration against a pose.
 """
 
 from __future__ import annotations
@@ -13,10 +18,12 @@ import weakref
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["angle_family", "solve_ik", "ik_family", "ik_near", "wrap_angles"]
+__all__ = ["angle_family", "solve_ik", "ik_family", "ik_near", "ik_pose", "pose_errors",
+           "wrap_angles"]
 
 #: A configuration counts as reaching a point when ``|P(q) - p|`` is below this (m).
 IK_TOL = 1e-9
@@ -324,3 +331,170 @@ def _axes_parallel(model: RobotModel) -> bool:
         rot = rot @ b.rotation
         axes.append(rot @ b.axis)
     return all(abs(abs(a @ axes[0]) - 1) < 1e-9 for a in axes)
+
+
+# ---------------------------------------------------------------------------- poses
+#: A configuration reaches a pose when its position error is below this (m) and its
+#: orientation error below this (rad): the IK's own convergence, far below any goal
+#: tolerance (the goal's tolerances are checked on the planned motion, not here).
+POSE_IK_TOL = 1e-8
+#: Iterations of the damped least squares from each seed (a work count, never a clock):
+#: the Panda's seeds that converge do so in 20 to 60.
+POSE_IK_ITERATIONS = 200
+
+
+def _tip_frames_and_jacobians(model: RobotModel, q: np.ndarray):
+    """Tip frames and geometric Jacobians at many configurations (numpy only).
+
+    Parameters
+    ----------
+    q : ndarray, shape (K, n)
+
+    Returns
+    -------
+    rotation : ndarray, shape (K, 3, 3)
+    position : ndarray, shape (K, 3)
+        The tip frame in the base frame (m).
+    jacobian : ndarray, shape (K, 6, n)
+        Rows 0-2 the tip's linear velocity (m/s per joint speed), rows 3-5 its angular
+        velocity (rad/s), both in the base frame.
+    """
+    count, n = q.shape
+    rot = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()
+    pos = np.zeros((count, 3))
+    axes = np.zeros((count, n, 3))
+    origins = np.zeros((count, n, 3))
+    prismatic = np.array([b.kind == "prismatic" for b in model.bodies])
+    for i, body in enumerate(model.bodies):
+        pos = pos + rot @ body.translation
+        rot = rot @ body.rotation
+        axes[:, i] = rot @ body.axis
+        origins[:, i] = pos
+        if body.kind == "prismatic":
+            pos = pos + axes[:, i] * q[:, i:i + 1]
+        else:
+            k = _skew(body.axis)
+            s, c = np.sin(q[:, i])[:, None, None], np.cos(q[:, i])[:, None, None]
+            rot = rot @ (np.eye(3) + s * k + (1.0 - c) * (k @ k))
+    tip_pos = pos + rot @ model.tip_translation
+    tip_rot = rot @ model.tip_rotation
+    linear = np.where(prismatic[None, :, None], axes,
+                      np.cross(axes, tip_pos[:, None, :] - origins))
+    angular = np.where(prismatic[None, :, None], 0.0, axes)
+    return tip_rot, tip_pos, np.concatenate([linear, angular], axis=2).transpose(0, 2, 1)
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    """The cross-product matrix (3, 3) of a vector (3,)."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def _pose_residual(rotation, position, goal_rotation, goal_position):
+    """Residuals (K, 6): position (m), then the rotation vector of ``R R_goal^T`` (rad)."""
+    turn = Rotation.from_matrix(rotation @ goal_rotation.T).as_rotvec()
+    return np.hstack([position - goal_position, turn.reshape(-1, 3)])
+
+
+def pose_errors(model: RobotModel, q, position, rotation) -> tuple[np.ndarray, np.ndarray]:
+    """How far the tip at ``q`` is from a pose: position and orientation errors.
+
+    Parameters
+    ----------
+    model : RobotModel
+    q : array_like, shape (n,) or (K, n)
+        Configurations (rad, m).
+    position : array_like, shape (3,)
+        The pose's position in the base frame (m).
+    rotation : array_like, shape (3, 3)
+        The pose's orientation in the base frame (a rotation matrix).
+
+    Returns
+    -------
+    position_error : ndarray, shape (K,)
+        Distance between the tip's origin and ``position`` (m).
+    orientation_error : ndarray, shape (K,)
+        The angle of the rotation from the tip's orientation to ``rotation`` (rad, in
+        [0, pi]).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    rot, pos, _ = _tip_frames_and_jacobians(model, q)
+    r = _pose_residual(rot, pos, np.asarray(rotation, dtype=float),
+                       np.asarray(position, dtype=float))
+    return np.linalg.norm(r[:, :3], axis=1), np.linalg.norm(r[:, 3:], axis=1)
+
+
+def ik_pose(model: RobotModel, position, rotation, seeds, lower=None, upper=None,
+            max_iter: int = POSE_IK_ITERATIONS) -> tuple[list[np.ndarray], float, float]:
+    """Configurations within the joint limits that put the tip frame at a pose.
+
+    Damped least squares from every seed at once: steps ``dq = -J^T (J J^T + lambda I)^-1
+    r`` on the six residuals (position, rotation vector), the joints a step would push
+    through a limit held there; ``lambda`` per seed lowered after a step that reduces the
+    residual, raised otherwise; a seed whose damping grows past 1e8 is stuck.
+
+    Parameters
+    ----------
+    model : RobotModel
+    position : array_like, shape (3,)
+        The tip's position in the base frame (m).
+    rotation : array_like, shape (3, 3)
+        The tip's orientation in the base frame (rotation matrix).
+    seeds : array_like, shape (N, n)
+        Start configurations (rad, m); clipped into the limits.
+    lower, upper : array_like, shape (n,), optional
+        Position limits (rad, m; infinite: none); default the model's. The planner passes
+        its own (with ``limit_margin``).
+    max_iter : int
+        Iterations per seed.
+
+    Returns
+    -------
+    solutions : list of ndarray, shape (n,)
+        Distinct configurations reaching the pose within :data:`POSE_IK_TOL` (continuous
+        joints wrapped), in the order of their seeds; empty when none converged.
+    closest_position_error, closest_orientation_error : float
+        The errors of the seed that came closest (m, rad): how far an unreachable pose is.
+    """
+    goal_p = np.asarray(position, dtype=float).reshape(3)
+    goal_r = np.asarray(rotation, dtype=float).reshape(3, 3)
+    seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
+    lo, hi = _bounds(model)
+    lo = lo if lower is None else np.asarray(lower, dtype=float)
+    hi = hi if upper is None else np.asarray(upper, dtype=float)
+    lo = np.where(np.isfinite(lo), lo + 1e-9, -np.inf)
+    hi = np.where(np.isfinite(hi), hi - 1e-9, np.inf)
+    q = np.clip(seeds, lo, hi)
+    count = len(q)
+
+    def evaluate(qs):
+        rot, pos, jac = _tip_frames_and_jacobians(model, qs)
+        r = _pose_residual(rot, pos, goal_r, goal_p)
+        return r, np.sum(r * r, axis=1), jac
+
+    r, cost, jac = evaluate(q)
+    lam = np.full(count, 1e-3)
+    stuck = np.zeros(count, dtype=bool)
+    for _ in range(max_iter):
+        active = ~(cost <= (0.1 * POSE_IK_TOL) ** 2) & ~stuck
+        if not active.any():
+            break
+        dq = _step(jac, r, lam)
+        held = (q + dq < lo) | (q + dq > hi)
+        if held.any():
+            dq = _step(jac * ~held[:, None, :], r, lam)
+        q_new = np.where(active[:, None], np.clip(q + dq, lo, hi), q)
+        r_new, cost_new, jac_new = evaluate(q_new)
+        better = active & (cost_new < cost)
+        q[better], r[better], cost[better] = q_new[better], r_new[better], cost_new[better]
+        jac[better] = jac_new[better]
+        lam = np.where(better, np.maximum(lam / 4, 1e-12), np.where(active, lam * 8, lam))
+        stuck |= lam > 1e8
+    pos_err = np.linalg.norm(r[:, :3], axis=1)
+    ang_err = np.linalg.norm(r[:, 3:], axis=1)
+    best = int(np.argmin(pos_err + ang_err))
+    ok = (pos_err <= POSE_IK_TOL) & (ang_err <= POSE_IK_TOL)
+    kept: list[np.ndarray] = []
+    for qi in wrap_angles(q[ok], model):
+        if all(np.linalg.norm(np.angle(np.exp(1j * (qi - k)))) > 1e-6 for k in kept):
+            kept.append(qi)
+    return kept, float(pos_err[best]), float(ang_err[best])
