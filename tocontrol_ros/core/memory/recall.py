@@ -9,14 +9,22 @@ distance of at most 1 is what the warm start is made for, and the node's ``memor
 says how far beyond (or short of) that a stored motion is still tried.
 
 Among the entries within the radius, nearest first, one per *basin* (end configurations
-more than :data:`BASIN_RADIUS` apart, max-norm, rad) is kept, up to ``basins`` of them
-(several basins, as Lembono et al. 2020 found, beat any single guess); each is re-solved
-warm through the method contract (:func:`~tocontrol_ros.core.planning.solver.solve_once`:
-the method that owns the stored warm state continues it, and certifies the motion as any
-solve of it would), and the least ``T`` among the successes is returned. A bounded motion
-whose warm re-solve from its multipliers fails is solved once more from its path alone
-(:func:`~tocontrol_ros.core.memory.codec.without_multipliers`). Bounded by work: at most two
-warm solves per basin tried.
+more than :data:`BASIN_RADIUS` apart, max-norm, rad) is a candidate, up to ``basins`` of
+them (several basins, as Lembono et al. 2020 found, beat any single guess); the nearest is
+re-solved warm through the method contract
+(:func:`~tocontrol_ros.core.planning.solver.solve_once`: the method that owns the stored warm
+state continues it, and certifies the motion as any solve of it would), and the next basin
+only when it failed: the first certified re-solve is the answer.
+
+A bounded motion with a serving state (the ``serve`` blob,
+:mod:`~tocontrol_ros.core.memory.serve`: its own request solved on the ``spans`` uniform
+spans the hit is solved on, with the NLP's multipliers) continues it on that mesh: from the
+solution and its multipliers when the request is within :data:`DUAL_RADIUS` of it, from the
+solution alone (the multipliers of a farther neighbour's active set mislead IPOPT more than
+they help) beyond; if that fails, the other of the two. Without a serving state (a file not
+converted, a motion the planner learnt), from its stored path fitted to the mesh, as before;
+on its own mesh (``spans`` 0), from its path and multipliers, then its path alone. Bounded by
+work: at most two warm solves per basin tried.
 """
 
 from __future__ import annotations
@@ -45,14 +53,14 @@ from tocontrol_ros.core.types.tuning import WARM_RADIUS
 
 __all__ = ["Recall", "recall", "distances", "choose", "remember", "entry_fields", "open_memory",
            "stored_problem", "BASIN_RADIUS", "DEFAULT_BASINS", "DEFAULT_RADIUS", "DEFAULT_SPANS",
-           "SAMPLE_PERIOD"]
+           "DUAL_RADIUS", "SAMPLE_PERIOD"]
 
 #: End configurations farther apart than this (max-norm, rad) are distinct basins: the
 #: Panda's distinct optima of one request differ by tenths of a radian to radians in some
 #: joint, neighbours of one basin by far less.
 BASIN_RADIUS = 0.3
-#: Basins re-solved per request by default: the nearest and one more (each costs one warm
-#: solve; more than two rarely changed the answer in the benchmark's cell).
+#: Basins tried per request by default: the nearest, and one more when its warm re-solve
+#: failed.
 DEFAULT_BASINS = 2
 #: Default radius of a hit, in warm units (1 = the warm start's own radius).
 DEFAULT_RADIUS = 1.0
@@ -63,6 +71,11 @@ DEFAULT_RADIUS = 1.0
 #: Its T is above the refined mesh's by about 1/N^2: on three Panda requests 2-5.5e-3 at 24
 #: spans, 0.5-1.5e-3 at 48; 64 aims below the issue's 1e-3.
 DEFAULT_SPANS = 64
+#: Largest distance (warm units) at which a hit starts from the serving state's multipliers
+#: too; farther, from its solution alone. On five Panda requests of the benchmark's cell the
+#: multipliers took 18 iterations against 64 without at 0.21, and 48-78 (or failed) against
+#: 41-59 at 0.41-0.64.
+DUAL_RADIUS = 0.3
 #: Spacing of the stored trajectory's samples (s): the planner's default sample period.
 SAMPLE_PERIOD = 0.005
 
@@ -89,7 +102,13 @@ class Recall:
         One per re-solve: its outcome.
     timings : dict
         ``lookup`` (s: the distances and the choice), ``decode`` (reading and decoding the
-        warm states), ``solve`` (the warm re-solves), ``total``.
+        warm states), ``solve`` (the warm re-solves, their certificates included),
+        ``certificate`` (the certificates' part of it), ``total``.
+    iterations : int
+        IPOPT iterations of every warm re-solve together.
+    starts : tuple of str
+        What each warm re-solve started from: ``serve+multipliers``, ``serve``,
+        ``path fit`` (a stored path fitted to the mesh), ``own mesh``, ``own path``.
     """
 
     hit: bool
@@ -99,6 +118,8 @@ class Recall:
     stored_T: tuple[float, ...] = ()
     messages: tuple[str, ...] = ()
     timings: dict = field(default_factory=dict)
+    iterations: int = 0
+    starts: tuple[str, ...] = ()
 
 
 def open_memory(path, problem: Problem, method: str = "auto", create: bool = False,
@@ -208,39 +229,65 @@ def recall(planner, problem: Problem, options, store: MotionStore,
                                                "solve": 0.0, "total": t_lookup})
     deadline = t0 + options.time_limit
     warm_options = replace(options, warm_only=True, replan_spans=int(spans))
-    best, messages, t_decode, t_solve = None, [], 0.0, 0.0
+    best, messages, starts = None, [], []
+    t_decode = t_solve = t_cert = 0.0
+    iterations = 0
     for i in rows:
         t1 = time.perf_counter()
         try:
             entry = store.get(int(keys["id"][i]))
-            path = SampledPath(decode_sample(entry.trajectory, f"entry {entry.id}")) \
-                if spans and entry.warm_kind == "path" else None
-            warm = warm_result(stored_problem(problem, entry.request), entry.warm_kind,
-                               entry.warm, entry.method, f"entry {entry.id}", path)
+            tries = _warm_starts(problem, entry, spans, float(dist[i]))
         except (CodecError, MemoryFileError) as exc:
             messages.append(f"entry {int(keys['id'][i])}: {exc}")
             t_decode += time.perf_counter() - t1
             continue
         t2 = time.perf_counter()
         t_decode += t2 - t1
-        result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
-        own_mesh = not spans or entry.warm_kind != "path" or \
-            len(warm.warm_state.breaks) - 1 == spans
-        primal = without_multipliers(warm) if own_mesh and not result.success else None
-        if primal is not None and not (should_stop is not None and should_stop()):
-            result = solve_once(planner, problem, warm_options, primal, should_stop, deadline)
+        result, tried = None, []
+        for start, warm in tries:
+            if warm is None or (result is not None and result.success) or \
+                    (should_stop is not None and should_stop()):
+                continue
+            result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
+            iterations += int(result.iterations)
+            t_cert += float(result.timings.get("verify", 0.0))
+            tried.append(start)
         t_solve += time.perf_counter() - t2
-        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s): "
-                        f"{result.message}" + (" (from its path alone: its multipliers "
-                                               "failed)" if primal is not None else ""))
-        if result.success and (best is None or result.T < best.T):
+        starts.extend(tried)
+        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s, "
+                        f"from {' then '.join(tried)}): "
+                        + (result.message if result is not None else "not solved"))
+        if result is not None and result.success:
             best = result
+            break
         if should_stop is not None and should_stop():
             break
     total = time.perf_counter() - t0
     return Recall(True, nearest, best, tuple(int(keys["id"][i]) for i in rows),
                   tuple(float(keys["T"][i]) for i in rows), tuple(messages),
-                  {"lookup": t_lookup, "decode": t_decode, "solve": t_solve, "total": total})
+                  {"lookup": t_lookup, "decode": t_decode, "solve": t_solve,
+                   "certificate": t_cert, "total": total}, iterations, tuple(starts))
+
+
+def _warm_starts(problem: Problem, entry, spans: int, distance: float) -> list:
+    """``(name, warm PlanResult or None)`` to try in order for one entry (decoded here)."""
+    own = stored_problem(problem, entry.request)
+    what = f"entry {entry.id}"
+    if spans and entry.warm_kind == "path" and entry.serve is not None:
+        warm = warm_result(own, "path", entry.serve, entry.method, f"{what} (serving state)")
+        if len(warm.warm_state.breaks) - 1 == spans:
+            primal = without_multipliers(warm)
+            if distance <= DUAL_RADIUS:
+                return [("serve+multipliers", warm), ("serve", primal)]
+            return [("serve", primal), ("serve+multipliers", warm)]
+    if spans and entry.warm_kind == "path":
+        path = SampledPath(decode_sample(entry.trajectory, what))
+        warm = warm_result(own, entry.warm_kind, entry.warm, entry.method, what, path)
+        if len(warm.warm_state.breaks) - 1 != spans:
+            return [("path fit", warm)]
+        return [("own mesh", warm), ("own path", without_multipliers(warm))]
+    warm = warm_result(own, entry.warm_kind, entry.warm, entry.method, what)
+    return [("own mesh", warm), ("own path", without_multipliers(warm))]
 
 
 def entry_fields(result: PlanResult, source: str, solve_time: float,
