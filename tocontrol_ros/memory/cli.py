@@ -41,6 +41,7 @@ from tocontrol_ros.batch.ray_backend import RayBackend, RayUnavailableError
 from tocontrol_ros.batch.runner import LocalPool, Progress, run_tasks
 from tocontrol_ros.batch.tasks import TaskFileError
 from tocontrol_ros.core.memory.codec import CodecError, decode_sample
+from tocontrol_ros.core.memory.keys import options_hash, robot_hash
 from tocontrol_ros.core.memory.recall import DEFAULT_SPANS, open_memory
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, upgrade_format
 from tocontrol_ros.memory.build import MemoryLog, build_task
@@ -168,8 +169,9 @@ def _upgrade(args, stream) -> int:
         return 2
     try:
         cell = load_cell(args.cell)
-        was = upgrade_format(args.memory)
         problem = cell_problem(cell, cell.tasks[0])
+        was = upgrade_format(args.memory, robot_hash(problem.model),
+                             options_hash(problem, cell.method))
         store = open_memory(args.memory, problem, cell.method)
     except (TaskFileError, MemoryFileError) as exc:
         print(f"memory: {exc}", file=stream)
@@ -203,7 +205,8 @@ def _upgrade(args, stream) -> int:
         if out.T_change else ""
     print(f"memory: {out.converted} motions given a serving state on {args.spans} spans in "
           f"{out.seconds:.0f} s{its}{change}; {out.failed} failed (served from their path), "
-          f"{out.skipped} had one; {left} without one", file=stream)
+          f"{out.skipped} needed none (on this mesh already, or maximum-principle motions); "
+          f"{left} without one", file=stream)
     return 0
 
 

@@ -76,7 +76,7 @@ class MemoryPolicy:
         (s), ``memory_time`` (s, the lookup and re-solves), ``memory_lookup_time``,
         ``memory_decode_time``, ``memory_solve_time`` (the warm re-solves, certificates
         included), ``memory_certificate_time`` (s), ``memory_iterations`` (IPOPT, all
-        re-solves), ``memory_starts`` (what each started from).
+        re-solves), ``memory_starts`` (what each started from, comma-separated).
         """
         if not config.memory:
             return None, {"memory": OFF}
@@ -85,7 +85,8 @@ class MemoryPolicy:
             return None, {"memory": UNAVAILABLE, "memory_error": store}
         try:
             found = recall(planner, problem, options, store, config.memory_radius,
-                           config.memory_basins, should_stop, config.memory_spans)
+                           config.memory_basins, should_stop, config.memory_spans,
+                           config.memory_first_success)
         except (MemoryFileError, CodecError) as exc:
             self._warn(f"memory lookup failed, planning without it: {exc}")
             return None, {"memory": UNAVAILABLE, "memory_error": str(exc)}
@@ -105,7 +106,7 @@ class MemoryPolicy:
                           memory_solve_time=found.timings["solve"],
                           memory_certificate_time=found.timings["certificate"],
                           memory_iterations=found.iterations,
-                          memory_starts=list(found.starts))
+                          memory_starts=", ".join(found.starts))
             if found.result is None:
                 values["memory_note"] = "no warm re-solve succeeded: " + \
                     " | ".join(found.messages)

@@ -9,22 +9,27 @@ distance of at most 1 is what the warm start is made for, and the node's ``memor
 says how far beyond (or short of) that a stored motion is still tried.
 
 Among the entries within the radius, nearest first, one per *basin* (end configurations
-more than :data:`BASIN_RADIUS` apart, max-norm, rad) is a candidate, up to ``basins`` of
-them (several basins, as Lembono et al. 2020 found, beat any single guess); the nearest is
-re-solved warm through the method contract
-(:func:`~tocontrol_ros.core.planning.solver.solve_once`: the method that owns the stored warm
-state continues it, and certifies the motion as any solve of it would), and the next basin
-only when it failed: the first certified re-solve is the answer.
+more than :data:`BASIN_RADIUS` apart, max-norm, rad) is kept, up to ``basins`` of them
+(several basins, as Lembono et al. 2020 found, beat any single guess); each is re-solved
+warm through the method contract (:func:`~tocontrol_ros.core.planning.solver.solve_once`:
+the method that owns the stored warm state continues it, and certifies the motion as any
+solve of it would), and the least ``T`` among the successes is returned; with
+``first_success`` the next basin is re-solved only when the one before failed (one warm
+solve per hit, at the price of the nearest basin's ``T``: on the benchmark's Panda cell 8
+of 37 hits were then above the multistart's ``T`` by more than 1e-3, against 3 of 37 with
+two basins).
 
 A bounded motion with a serving state (the ``serve`` blob,
 :mod:`~tocontrol_ros.core.memory.serve`: its own request solved on the ``spans`` uniform
-spans the hit is solved on, with the NLP's multipliers) continues it on that mesh: from the
-solution and its multipliers when the request is within :data:`DUAL_RADIUS` of it, from the
-solution alone (the multipliers of a farther neighbour's active set mislead IPOPT more than
-they help) beyond; if that fails, the other of the two. Without a serving state (a file not
-converted, a motion the planner learnt), from its stored path fitted to the mesh, as before;
-on its own mesh (``spans`` 0), from its path and multipliers, then its path alone. Bounded by
-work: at most two warm solves per basin tried.
+spans the hit is solved on, with the NLP's multipliers) continues it on that mesh, from the
+solution and its multipliers, then (if that fails) from the solution alone. On the 37 hits
+of the benchmark's cell the multipliers took a median 78 IPOPT iterations, the solution
+alone 87 and the old start (the stored path fitted to the mesh) 87; the multipliers' gain is
+large for some requests (18 against 64) and a loss for others (4 failures in 150), with no
+distance that tells them apart. Without a serving state (a file not converted, a motion the
+planner learnt), from its stored path fitted to the mesh, as before; on its own mesh
+(``spans`` 0), from its path and multipliers, then its path alone. Bounded by work: at most
+two warm solves per basin tried.
 """
 
 from __future__ import annotations
@@ -53,14 +58,14 @@ from tocontrol_ros.core.types.tuning import WARM_RADIUS
 
 __all__ = ["Recall", "recall", "distances", "choose", "remember", "entry_fields", "open_memory",
            "stored_problem", "BASIN_RADIUS", "DEFAULT_BASINS", "DEFAULT_RADIUS", "DEFAULT_SPANS",
-           "DUAL_RADIUS", "SAMPLE_PERIOD"]
+           "SAMPLE_PERIOD"]
 
 #: End configurations farther apart than this (max-norm, rad) are distinct basins: the
 #: Panda's distinct optima of one request differ by tenths of a radian to radians in some
 #: joint, neighbours of one basin by far less.
 BASIN_RADIUS = 0.3
-#: Basins tried per request by default: the nearest, and one more when its warm re-solve
-#: failed.
+#: Basins re-solved per request by default: the nearest and one more (each costs one warm
+#: solve; more than two rarely changed the answer in the benchmark's cell).
 DEFAULT_BASINS = 2
 #: Default radius of a hit, in warm units (1 = the warm start's own radius).
 DEFAULT_RADIUS = 1.0
@@ -71,11 +76,6 @@ DEFAULT_RADIUS = 1.0
 #: Its T is above the refined mesh's by about 1/N^2: on three Panda requests 2-5.5e-3 at 24
 #: spans, 0.5-1.5e-3 at 48; 64 aims below the issue's 1e-3.
 DEFAULT_SPANS = 64
-#: Largest distance (warm units) at which a hit starts from the serving state's multipliers
-#: too; farther, from its solution alone. On five Panda requests of the benchmark's cell the
-#: multipliers took 18 iterations against 64 without at 0.21, and 48-78 (or failed) against
-#: 41-59 at 0.41-0.64.
-DUAL_RADIUS = 0.3
 #: Spacing of the stored trajectory's samples (s): the planner's default sample period.
 SAMPLE_PERIOD = 0.005
 
@@ -187,7 +187,8 @@ def stored_problem(problem: Problem, request: Request) -> Problem:
 
 def recall(planner, problem: Problem, options, store: MotionStore,
            radius: float = DEFAULT_RADIUS, basins: int = DEFAULT_BASINS,
-           should_stop=None, spans: int = DEFAULT_SPANS) -> Recall:
+           should_stop=None, spans: int = DEFAULT_SPANS,
+           first_success: bool = False) -> Recall:
     """Look ``problem`` up in ``store`` and re-solve the chosen entries warm.
 
     Parameters
@@ -208,6 +209,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     spans : int
         A bounded motion is re-solved on this many uniform spans, from its stored path
         (0: on its own mesh, from its path and multipliers).
+    first_success : bool
+        Re-solve the next basin only when the one before failed (else every one, the least
+        ``T`` returned).
 
     Returns
     -------
@@ -236,7 +240,7 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         t1 = time.perf_counter()
         try:
             entry = store.get(int(keys["id"][i]))
-            tries = _warm_starts(problem, entry, spans, float(dist[i]))
+            tries = _warm_starts(problem, entry, spans)
         except (CodecError, MemoryFileError) as exc:
             messages.append(f"entry {int(keys['id'][i])}: {exc}")
             t_decode += time.perf_counter() - t1
@@ -257,8 +261,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s, "
                         f"from {' then '.join(tried)}): "
                         + (result.message if result is not None else "not solved"))
-        if result is not None and result.success:
+        if result is not None and result.success and (best is None or result.T < best.T):
             best = result
+        if first_success and best is not None:
             break
         if should_stop is not None and should_stop():
             break
@@ -269,17 +274,14 @@ def recall(planner, problem: Problem, options, store: MotionStore,
                    "certificate": t_cert, "total": total}, iterations, tuple(starts))
 
 
-def _warm_starts(problem: Problem, entry, spans: int, distance: float) -> list:
+def _warm_starts(problem: Problem, entry, spans: int) -> list:
     """``(name, warm PlanResult or None)`` to try in order for one entry (decoded here)."""
     own = stored_problem(problem, entry.request)
     what = f"entry {entry.id}"
     if spans and entry.warm_kind == "path" and entry.serve is not None:
         warm = warm_result(own, "path", entry.serve, entry.method, f"{what} (serving state)")
         if len(warm.warm_state.breaks) - 1 == spans:
-            primal = without_multipliers(warm)
-            if distance <= DUAL_RADIUS:
-                return [("serve+multipliers", warm), ("serve", primal)]
-            return [("serve", primal), ("serve+multipliers", warm)]
+            return [("serve+multipliers", warm), ("serve", without_multipliers(warm))]
     if spans and entry.warm_kind == "path":
         path = SampledPath(decode_sample(entry.trajectory, what))
         warm = warm_result(own, entry.warm_kind, entry.warm, entry.method, what, path)

@@ -424,12 +424,14 @@ class MotionStore:
         self.close()
 
 
-def upgrade_format(path) -> str | None:
+def upgrade_format(path, robot_hash: str | None = None,
+                   options_hash: str | None = None) -> str | None:
     """Bring a memory file of an older format (:data:`OLD_FORMATS`) to :data:`FORMAT`.
 
     In one transaction: the columns the newer format adds (empty: an upgraded file's motions
     have no serving state until :func:`~tocontrol_ros.core.memory.serve.convert` fills it)
-    and ``meta.format``. Nothing is done to a file of this format.
+    and ``meta.format``. Nothing is done to a file of this format, nor to one made for
+    another robot or options than the hashes given (None: not checked).
 
     Returns
     -------
@@ -460,6 +462,13 @@ def upgrade_format(path) -> str | None:
             db.execute("ROLLBACK")
             raise MemoryFileError(f"memory {path}: not a motion memory of a known format "
                                   f"({have!r}; this planner reads {FORMAT!r})")
+        meta = dict(db.execute("SELECT key, value FROM meta"))
+        for name, want in (("robot_hash", robot_hash), ("options_hash", options_hash)):
+            if want is not None and meta.get(name) != want:
+                db.execute("ROLLBACK")
+                raise MemoryFileError(f"memory {path}: made for another "
+                                      f"{name.split('_')[0]}: its {name} is "
+                                      f"{meta.get(name)}, this planner's {want}")
         db.execute(OLD_FORMATS[have])
         db.execute("UPDATE meta SET value = ? WHERE key = 'format'", (FORMAT,))
         db.execute("COMMIT")
