@@ -162,7 +162,7 @@ def test_an_old_file_is_refused_then_upgraded(tmp_path, stored):
         upgrade_format(tmp_path / "none.sqlite")
 
 
-def test_the_build_stores_serving_states_and_the_upgrade_verb_converts(tmp_path):
+def test_the_build_stores_serving_states_and_the_upgrade_verb_converts(tmp_path, capsys):
     from tocontrol_ros.memory import cli
 
     limits = tmp_path / "limits.yaml"
@@ -204,3 +204,7 @@ def test_the_build_stores_serving_states_and_the_upgrade_verb_converts(tmp_path)
     with MotionStore(path) as store:
         entry = store.get(int(store.keys()["id"][0]))
     assert serve_spans(entry.serve) == SPANS and entry.T == built.T
+    code, _ = run("inspect", path)
+    assert code == 0 and "serving states: 1 of 1 motions" in capsys.readouterr().out
+    code, _ = run("inspect", path, entry.id)
+    assert code == 0 and f"serving state: {SPANS} uniform spans" in capsys.readouterr().out

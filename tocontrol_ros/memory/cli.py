@@ -43,6 +43,7 @@ from tocontrol_ros.batch.tasks import TaskFileError
 from tocontrol_ros.core.memory.codec import CodecError, decode_sample
 from tocontrol_ros.core.memory.keys import options_hash, robot_hash
 from tocontrol_ros.core.memory.recall import DEFAULT_SPANS, open_memory
+from tocontrol_ros.core.memory.serve import serve_spans
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, upgrade_format
 from tocontrol_ros.memory.build import MemoryLog, build_task
 from tocontrol_ros.memory.cell import cell_problem, load_cell
@@ -244,6 +245,10 @@ def _inspect(args, out) -> int:
                       f"{T.max():.4f} s; {size / 1e3:.1f} kB of blobs per motion", file=out)
             counts = Counter(t["status"] for t in tasks.values())
             print(f"  build log: {dict(counts) or 'empty'}", file=out)
+            served = int(np.sum(store.keys()["serve"]))
+            print(f"  serving states: {served} of {len(rows)} motions"
+                  + ("" if served == len(rows) else " (`memory upgrade` converts the rest)"),
+                  file=out)
             return 0
         entry = store.get(args.id)
     sample = decode_sample(entry.trajectory, f"entry {entry.id}")
@@ -257,6 +262,9 @@ def _inspect(args, out) -> int:
     print(f"  certificate: {entry.certificate.get('summary')}", file=out)
     print(f"  trajectory: {len(sample['t'])} samples; warm state {entry.warm_kind} "
           f"({len(entry.warm)} bytes)", file=out)
+    spans = serve_spans(entry.serve)
+    print("  serving state: " + (f"{spans} uniform spans with multipliers "
+                                 f"({len(entry.serve)} bytes)" if spans else "none"), file=out)
     return 0
 
 

@@ -207,8 +207,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         Most entries re-solved (distinct basins).
     should_stop : callable, optional
     spans : int
-        A bounded motion is re-solved on this many uniform spans, from its stored path
-        (0: on its own mesh, from its path and multipliers).
+        A bounded motion is re-solved on this many uniform spans, from its serving state
+        when it has one on this mesh, else from its stored path (0: on its own mesh, from
+        its path and multipliers).
     first_success : bool
         Re-solve the next basin only when the one before failed (else every one, the least
         ``T`` returned).
@@ -230,7 +231,8 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     t_lookup = time.perf_counter() - t0
     if not rows:
         return Recall(False, nearest, timings={"lookup": t_lookup, "decode": 0.0,
-                                               "solve": 0.0, "total": t_lookup})
+                                               "solve": 0.0, "certificate": 0.0,
+                                               "total": t_lookup})
     deadline = t0 + options.time_limit
     warm_options = replace(options, warm_only=True, replan_spans=int(spans))
     best, messages, starts = None, [], []
