@@ -16,9 +16,10 @@ Measured:
   file's size per 1000 motions, and the coverage: the share of 2000 targets drawn uniformly
   in the box (from a random station) with a stored motion within the hit radius.
 - *The conversion* (``ros2 run tocontrol_ros memory upgrade``: every stored motion's request
-  re-solved warm on the serving mesh with its multipliers, the state a hit continues; a no-op
-  on a file converted already): its wall time, motions converted, median iterations, the
-  serving mesh's ``T`` against the stored one.
+  re-solved warm on the serving mesh with its multipliers, the state a hit continues; run on
+  an existing file before the build resumes it; a no-op on a file converted already): its
+  wall time, motions converted, median iterations, the serving mesh's ``T`` against the
+  stored one.
 - *Serving, through the node as deployed*: three planner processes (``python -P -m
   tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default options
   otherwise: one with ``memory`` set (two basins re-solved, the least ``T``), one with
@@ -299,8 +300,11 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
     model, limits = found
     memory = Path(memory or Path(tempfile.gettempdir()) / "panda_cell.sqlite")
     load_start = load_text()
+    # An existing file first brought to this format with its serving states (a build of
+    # this code stores them with every new motion).
+    upgrade = _upgrade(memory) if memory.exists() else {
+        "wall": 0.0, "summary": "no file before the build: the build stores them"}
     build_wall = _build(memory) if build else 0.0
-    upgrade = _upgrade(memory)
     build = _build_figures(memory, model)
     log(f"memory: build {build}")
     req = yaml.safe_load(REQUESTS.read_text())
