@@ -77,3 +77,17 @@ def test_other_kinds_are_infinitely_far_and_basins_are_distinct(memory):
     assert choose(fake, d, 1.0, 3) == [0, 2], "the second is the first's basin"
     assert choose(fake, d, 0.15, 3) == [0]
     del end_q
+
+
+def test_first_success_stops_at_the_nearest_basin_that_solves(memory):
+    planner, store = memory
+    problem = Problem(MODEL, point(PAPER_START), point([2.25, 1.45]), k=4)
+    chosen = choose(store.keys(), distances(store.keys(), problem, 0.05), 10.0, 3)
+    assert len(chosen) >= 2, "the stored motions are distinct basins"
+    every = recall(planner, problem, OPTIONS, store, radius=10.0, basins=3)
+    first = recall(planner, problem, OPTIONS, store, radius=10.0, basins=3,
+                   first_success=True)
+    assert len(every.messages) == len(chosen), every.messages  # each basin re-solved
+    assert first.result is not None and len(first.messages) == 1, first.messages
+    assert first.starts == ("own mesh",) and first.iterations == first.result.iterations
+    assert every.result is not None and every.result.T <= first.result.T

@@ -46,7 +46,7 @@ import yaml
 from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["TaskFileError", "RobotSpec", "Task", "TaskSet", "load_task_file", "parse_tasks",
-           "build_problem", "load_model"]
+           "build_problem", "load_model", "content_key"]
 
 TOP_KEYS = ("robot", "k", "reserve", "sample_period", "hard_timeout", "solver", "stations",
             "motions")
@@ -81,6 +81,18 @@ class RobotSpec:
     urdf: str
     source: str
     options: tuple = ()
+
+
+def content_key(item, skip: str) -> str:
+    """A dataclass's identity: 16 hex digits of the SHA-256 of its fields but ``skip``.
+
+    The fields as sorted JSON (values JSON cannot hold as their ``str``): the batch
+    journal's and the memory build's log key their tasks by it, so a run again skips what
+    is done.
+    """
+    body = {f.name: getattr(item, f.name) for f in dataclasses.fields(item) if f.name != skip}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, default=str).encode()
+                          ).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -121,9 +133,7 @@ class Task:
     @property
     def key(self) -> str:
         """Identity of the task's content (everything but ``where``): 16 hex digits."""
-        body = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "where"}
-        return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
+        return content_key(self, "where")
 
     @property
     def name(self) -> str:

@@ -23,6 +23,19 @@ from tocontrol_ros.memory.cell import MotionTask, task_problem
 
 __all__ = ["build_task", "MemoryLog", "task_limits"]
 
+_PLANNERS: dict = {}  # this worker's Planner per model (the batch worker keeps one model)
+
+
+def _planner(model, problem, options):
+    """The :class:`~tocontrol_ros.core.planning.solver.Planner` of ``model`` in this worker."""
+    from tocontrol_ros.core.planning.solver import Planner
+
+    planner = _PLANNERS.get(id(model))
+    if planner is None or planner.model is not model or planner.stale():
+        planner = _PLANNERS[id(model)] = Planner(model)
+        planner.prepare(problem, options, shooting=False)
+    return planner
+
 
 def task_limits(task: MotionTask):
     """The :class:`~tocontrol_ros.core.robot.limits.JointLimits` a task carries."""
@@ -40,10 +53,12 @@ def build_task(robot: RobotSpec, task: MotionTask) -> dict:
     dict
         ``status`` (a Status name or ``ERROR``), ``success``, ``message``, ``T`` (s),
         ``solve_time`` (s), ``pid``, ``builds``, and ``entry``: the fields
-        :func:`~tocontrol_ros.core.memory.recall.entry_fields` stores, or None.
+        :func:`~tocontrol_ros.core.memory.recall.entry_fields` stores (with ``serve``, the
+        serving state, or None when the motion has none), or None; ``serve_message``.
     """
-    from tocontrol_ros.core.memory.recall import entry_fields
-    from tocontrol_ros.core.planning.solver import SolverOptions, plan
+    from tocontrol_ros.core.memory.recall import DEFAULT_SPANS, entry_fields
+    from tocontrol_ros.core.memory.serve import serve_result
+    from tocontrol_ros.core.planning.solver import SolverOptions
 
     t0 = time.perf_counter()
     out = {"index": task.index, "key": task.key, "pid": os.getpid(), "entry": None,
@@ -51,7 +66,9 @@ def build_task(robot: RobotSpec, task: MotionTask) -> dict:
     try:
         model = worker_model(robot)
         problem = task_problem(model, task_limits(task), task)
-        result = plan(problem, SolverOptions(**dict(task.solver)))
+        options = SolverOptions(**dict(task.solver))
+        planner = _planner(model, problem, options)
+        result = planner.plan(problem, options)
     except TocontrolError as exc:
         out.update(status=ERROR, success=False, message=str(exc),
                    solve_time=time.perf_counter() - t0, builds=batch_worker.builds)
@@ -63,6 +80,13 @@ def build_task(robot: RobotSpec, task: MotionTask) -> dict:
         return out
     solve_time = time.perf_counter() - t0
     entry = entry_fields(result, "build", solve_time, task.sample_period)
+    if entry is not None and entry["warm_kind"] == "path":
+        try:
+            served, entry["serve"] = serve_result(planner, result, options, DEFAULT_SPANS)
+            out["serve_message"] = served.message
+        except Exception as exc:  # noqa: BLE001  (the motion is stored without it)
+            entry["serve"] = None
+            out["serve_message"] = f"unexpected {type(exc).__name__}: {exc}"
     out.update(status=result.status.name, success=entry is not None,
                message=result.message, T=float(result.T), solve_time=solve_time,
                builds=batch_worker.builds, entry=entry)

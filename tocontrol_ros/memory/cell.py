@@ -35,9 +35,6 @@ options' hash); ``solver`` is only how widely the build searches. Errors are
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
-import json
 import math
 import sys
 from dataclasses import dataclass
@@ -51,6 +48,7 @@ from tocontrol_ros.batch.tasks import (
     HARD_TIMEOUT_GRACE,
     RobotSpec,
     TaskFileError,
+    content_key,
     load_model,
 )
 from tocontrol_ros.core.errors import TocontrolError
@@ -103,10 +101,7 @@ class MotionTask:
     @property
     def key(self) -> str:
         """The task's identity (16 hex digits) over everything but ``index``."""
-        body = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "index"}
-        return hashlib.sha256(json.dumps(body, sort_keys=True, default=str).encode()
-                              ).hexdigest()[:16]
+        return content_key(self, "index")
 
 
 @dataclass(frozen=True)

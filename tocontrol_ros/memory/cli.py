@@ -3,6 +3,7 @@ r"""The ``memory`` tool: build a memory of optimal motions, list, inspect, prune
 Usage::
 
     ros2 run tocontrol_ros memory build cell.yaml cell.sqlite [-j 2 | --ray local]
+    ros2 run tocontrol_ros memory upgrade cell.sqlite cell.yaml [--spans 64] [--limit N]
     ros2 run tocontrol_ros memory list cell.sqlite
     ros2 run tocontrol_ros memory inspect cell.sqlite [ID]
     ros2 run tocontrol_ros memory prune cell.sqlite --ids 3 7 | --source planner | --failed
@@ -13,7 +14,10 @@ Usage::
 machinery, on this machine's cores or a Ray cluster, with a progress line and an ETA, into
 one SQLite file (:mod:`tocontrol_ros.core.memory.store`); interrupted (Ctrl-C, a kill) and run
 again, it plans only the tasks not done. A planner node serves from the file with its
-``memory`` parameter (``docs/memory.md``). ``export`` writes the batch library's layout: one
+``memory`` parameter (``docs/memory.md``). ``upgrade`` brings a file of an older format to
+this one and gives each stored motion without one its serving state (its request re-solved
+warm on the serving mesh, with the multipliers: :mod:`tocontrol_ros.core.memory.serve`),
+resumable as a build is. ``export`` writes the batch library's layout: one
 ``trajectory_msgs/JointTrajectory`` per motion on ``/library/memory_<id>``, which ``replay``
 plays. ``figure`` draws the coverage of the target region and ``T`` over it.
 
@@ -37,8 +41,10 @@ from tocontrol_ros.batch.ray_backend import RayBackend, RayUnavailableError
 from tocontrol_ros.batch.runner import LocalPool, Progress, run_tasks
 from tocontrol_ros.batch.tasks import TaskFileError
 from tocontrol_ros.core.memory.codec import CodecError, decode_sample
-from tocontrol_ros.core.memory.recall import open_memory
-from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore
+from tocontrol_ros.core.memory.keys import options_hash, robot_hash
+from tocontrol_ros.core.memory.recall import DEFAULT_SPANS, open_memory
+from tocontrol_ros.core.memory.serve import serve_spans
+from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, upgrade_format
 from tocontrol_ros.memory.build import MemoryLog, build_task
 from tocontrol_ros.memory.cell import cell_problem, load_cell
 
@@ -64,6 +70,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--limit", type=int, default=None, metavar="N",
                    help="plan at most N of the tasks not done yet (a partial build)")
     b.add_argument("--quiet", action="store_true", help="no progress line")
+    up = sub.add_parser("upgrade", help="a file of an older format to this one, and every "
+                        "motion re-solved on the serving mesh with its multipliers")
+    up.add_argument("memory", type=Path, metavar="MEMORY.sqlite")
+    up.add_argument("cell", type=Path, metavar="CELL.yaml",
+                    help="the cell file it was built from (its robot and limits)")
+    up.add_argument("--spans", type=int, default=DEFAULT_SPANS, metavar="N",
+                    help=f"the serving mesh: the planner's memory_spans (default "
+                    f"{DEFAULT_SPANS})")
+    up.add_argument("--limit", type=int, default=None, metavar="N",
+                    help="convert at most N motions (run again to go on)")
+    up.add_argument("--quiet", action="store_true", help="no line per motion")
     ls = sub.add_parser("list", help="one line per stored motion")
     ls.add_argument("memory", type=Path, metavar="MEMORY.sqlite")
     ins = sub.add_parser("inspect", help="the memory's key and figures, or one entry")
@@ -144,6 +161,56 @@ def _build(args, stream) -> int:
     return 0
 
 
+def _upgrade(args, stream) -> int:
+    from tocontrol_ros.core.memory.serve import convert
+    from tocontrol_ros.core.planning.solver import Planner, SolverOptions
+
+    if args.spans < 1:
+        print(f"memory: --spans must be >= 1, got {args.spans}", file=stream)
+        return 2
+    try:
+        cell = load_cell(args.cell)
+        problem = cell_problem(cell, cell.tasks[0])
+        was = upgrade_format(args.memory, robot_hash(problem.model),
+                             options_hash(problem, cell.method))
+        store = open_memory(args.memory, problem, cell.method)
+    except (TaskFileError, MemoryFileError) as exc:
+        print(f"memory: {exc}", file=stream)
+        return 2
+    if was is not None:
+        print(f"memory: {args.memory}: format {was!r} upgraded", file=stream)
+    options = SolverOptions(**{**dict(cell.tasks[0].solver), "method": cell.method})
+    planner = Planner(cell.model)
+    signals = []
+    previous = {sig: signal.signal(sig, lambda *_: signals.append(True))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def progress(done, total, line):
+        if not args.quiet:
+            print(f"memory upgrade {done}/{total}: {line}", file=stream, flush=True)
+        if signals:
+            raise KeyboardInterrupt
+
+    try:
+        out = convert(store, planner, problem, options, args.spans, args.limit, progress)
+    except KeyboardInterrupt:
+        print("memory: interrupted; run the same command again to go on", file=stream)
+        return EXIT_INTERRUPTED
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        left = int(np.sum(~store.keys()["serve"]))
+        store.close()
+    its = f", median {np.median(out.iterations):.0f} iterations" if out.iterations else ""
+    change = f", T on the mesh {100 * np.median(out.T_change):+.3f} % (median)" \
+        if out.T_change else ""
+    print(f"memory: {out.converted} motions given a serving state on {args.spans} spans in "
+          f"{out.seconds:.0f} s{its}{change}; {out.failed} failed (served from their path), "
+          f"{out.skipped} needed none (on this mesh already, or maximum-principle motions); "
+          f"{left} without one", file=stream)
+    return 0
+
+
 def _open(path: Path) -> MotionStore:
     return MotionStore(path)  # the tools serve nothing: any robot's memory is read
 
@@ -178,6 +245,10 @@ def _inspect(args, out) -> int:
                       f"{T.max():.4f} s; {size / 1e3:.1f} kB of blobs per motion", file=out)
             counts = Counter(t["status"] for t in tasks.values())
             print(f"  build log: {dict(counts) or 'empty'}", file=out)
+            served = int(np.sum(store.keys()["serve"]))
+            print(f"  serving states: {served} of {len(rows)} motions"
+                  + ("" if served == len(rows) else " (`memory upgrade` converts the rest)"),
+                  file=out)
             return 0
         entry = store.get(args.id)
     sample = decode_sample(entry.trajectory, f"entry {entry.id}")
@@ -191,6 +262,9 @@ def _inspect(args, out) -> int:
     print(f"  certificate: {entry.certificate.get('summary')}", file=out)
     print(f"  trajectory: {len(sample['t'])} samples; warm state {entry.warm_kind} "
           f"({len(entry.warm)} bytes)", file=out)
+    spans = serve_spans(entry.serve)
+    print("  serving state: " + (f"{spans} uniform spans with multipliers "
+                                 f"({len(entry.serve)} bytes)" if spans else "none"), file=out)
     return 0
 
 
@@ -249,10 +323,11 @@ def _figure(args, out) -> int:
 def run(args, stream=None) -> int:
     """Run a parsed command line; the exit status."""
     stream = stream if stream is not None else sys.stderr
-    jobs = {"build": _build, "list": _list, "inspect": _inspect, "prune": _prune,
-            "export": _export, "figure": _figure}
+    jobs = {"build": _build, "upgrade": _upgrade, "list": _list, "inspect": _inspect,
+            "prune": _prune, "export": _export, "figure": _figure}
     try:
-        return jobs[args.command](args, stream if args.command == "build" else sys.stdout)
+        return jobs[args.command](args, stream if args.command in ("build", "upgrade")
+                                  else sys.stdout)
     except (MemoryFileError, CodecError) as exc:
         print(f"memory: {exc}", file=stream)
         return 2

@@ -73,7 +73,10 @@ class MemoryPolicy:
 
         The values: ``memory`` (hit, miss, off, unavailable), ``memory_distance`` (warm
         units; None without a lookup), and on a hit ``memory_entries``, ``memory_stored_T``
-        (s), ``memory_time`` (s, the lookup and re-solves), ``memory_lookup_time`` (s).
+        (s), ``memory_time`` (s, the lookup and re-solves), ``memory_lookup_time``,
+        ``memory_decode_time``, ``memory_solve_time`` (the warm re-solves, certificates
+        included), ``memory_certificate_time`` (s), ``memory_iterations`` (IPOPT, all
+        re-solves), ``memory_starts`` (what each started from, comma-separated).
         """
         if not config.memory:
             return None, {"memory": OFF}
@@ -82,7 +85,8 @@ class MemoryPolicy:
             return None, {"memory": UNAVAILABLE, "memory_error": store}
         try:
             found = recall(planner, problem, options, store, config.memory_radius,
-                           config.memory_basins, should_stop, config.memory_spans)
+                           config.memory_basins, should_stop, config.memory_spans,
+                           config.memory_first_success)
         except (MemoryFileError, CodecError) as exc:
             self._warn(f"memory lookup failed, planning without it: {exc}")
             return None, {"memory": UNAVAILABLE, "memory_error": str(exc)}
@@ -97,7 +101,12 @@ class MemoryPolicy:
             values.update(memory_entries=list(found.entries),
                           memory_stored_T=list(found.stored_T),
                           memory_time=found.timings["total"],
-                          memory_lookup_time=found.timings["lookup"])
+                          memory_lookup_time=found.timings["lookup"],
+                          memory_decode_time=found.timings["decode"],
+                          memory_solve_time=found.timings["solve"],
+                          memory_certificate_time=found.timings["certificate"],
+                          memory_iterations=found.iterations,
+                          memory_starts=", ".join(found.starts))
             if found.result is None:
                 values["memory_note"] = "no warm re-solve succeeded: " + \
                     " | ".join(found.messages)

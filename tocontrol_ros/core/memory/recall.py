@@ -13,10 +13,23 @@ more than :data:`BASIN_RADIUS` apart, max-norm, rad) is kept, up to ``basins`` o
 (several basins, as Lembono et al. 2020 found, beat any single guess); each is re-solved
 warm through the method contract (:func:`~tocontrol_ros.core.planning.solver.solve_once`:
 the method that owns the stored warm state continues it, and certifies the motion as any
-solve of it would), and the least ``T`` among the successes is returned. A bounded motion
-whose warm re-solve from its multipliers fails is solved once more from its path alone
-(:func:`~tocontrol_ros.core.memory.codec.without_multipliers`). Bounded by work: at most two
-warm solves per basin tried.
+solve of it would), and the least ``T`` among the successes is returned; with
+``first_success`` the next basin is re-solved only when the one before failed (one warm
+solve per hit, at the price of the nearest basin's ``T``: on the benchmark's Panda cell 8
+of 37 hits were then above the multistart's ``T`` by more than 1e-3, against 3 of 37 with
+two basins).
+
+A bounded motion with a serving state (the ``serve`` blob,
+:mod:`~tocontrol_ros.core.memory.serve`: its own request solved on the ``spans`` uniform
+spans the hit is solved on, with the NLP's multipliers) continues it on that mesh, from the
+solution and its multipliers, then (if that fails) from the solution alone. On the 37 hits
+of the benchmark's cell the multipliers took a median 78 IPOPT iterations, the solution
+alone 87 and the old start (the stored path fitted to the mesh) 87; the multipliers' gain is
+large for some requests (18 against 64) and a loss for others (4 failures in 150), with no
+distance that tells them apart. Without a serving state (a file not converted, a motion the
+planner learnt), from its stored path fitted to the mesh, as before; on its own mesh
+(``spans`` 0), from its path and multipliers, then its path alone. Bounded by work: at most
+two warm solves per basin tried.
 """
 
 from __future__ import annotations
@@ -89,7 +102,13 @@ class Recall:
         One per re-solve: its outcome.
     timings : dict
         ``lookup`` (s: the distances and the choice), ``decode`` (reading and decoding the
-        warm states), ``solve`` (the warm re-solves), ``total``.
+        warm states), ``solve`` (the warm re-solves, their certificates included),
+        ``certificate`` (the certificates' part of it), ``total``.
+    iterations : int
+        IPOPT iterations of every warm re-solve together.
+    starts : tuple of str
+        What each warm re-solve started from: ``serve+multipliers``, ``serve``,
+        ``path fit`` (a stored path fitted to the mesh), ``own mesh``, ``own path``.
     """
 
     hit: bool
@@ -99,6 +118,8 @@ class Recall:
     stored_T: tuple[float, ...] = ()
     messages: tuple[str, ...] = ()
     timings: dict = field(default_factory=dict)
+    iterations: int = 0
+    starts: tuple[str, ...] = ()
 
 
 def open_memory(path, problem: Problem, method: str = "auto", create: bool = False,
@@ -166,7 +187,8 @@ def stored_problem(problem: Problem, request: Request) -> Problem:
 
 def recall(planner, problem: Problem, options, store: MotionStore,
            radius: float = DEFAULT_RADIUS, basins: int = DEFAULT_BASINS,
-           should_stop=None, spans: int = DEFAULT_SPANS) -> Recall:
+           should_stop=None, spans: int = DEFAULT_SPANS,
+           first_success: bool = False) -> Recall:
     """Look ``problem`` up in ``store`` and re-solve the chosen entries warm.
 
     Parameters
@@ -185,8 +207,12 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         Most entries re-solved (distinct basins).
     should_stop : callable, optional
     spans : int
-        A bounded motion is re-solved on this many uniform spans, from its stored path
-        (0: on its own mesh, from its path and multipliers).
+        A bounded motion is re-solved on this many uniform spans, from its serving state
+        when it has one on this mesh, else from its stored path (0: on its own mesh, from
+        its path and multipliers).
+    first_success : bool
+        Re-solve the next basin only when the one before failed (else every one, the least
+        ``T`` returned).
 
     Returns
     -------
@@ -205,42 +231,67 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     t_lookup = time.perf_counter() - t0
     if not rows:
         return Recall(False, nearest, timings={"lookup": t_lookup, "decode": 0.0,
-                                               "solve": 0.0, "total": t_lookup})
+                                               "solve": 0.0, "certificate": 0.0,
+                                               "total": t_lookup})
     deadline = t0 + options.time_limit
     warm_options = replace(options, warm_only=True, replan_spans=int(spans))
-    best, messages, t_decode, t_solve = None, [], 0.0, 0.0
+    best, messages, starts = None, [], []
+    t_decode = t_solve = t_cert = 0.0
+    iterations = 0
     for i in rows:
         t1 = time.perf_counter()
         try:
             entry = store.get(int(keys["id"][i]))
-            path = SampledPath(decode_sample(entry.trajectory, f"entry {entry.id}")) \
-                if spans and entry.warm_kind == "path" else None
-            warm = warm_result(stored_problem(problem, entry.request), entry.warm_kind,
-                               entry.warm, entry.method, f"entry {entry.id}", path)
+            tries = _warm_starts(problem, entry, spans)
         except (CodecError, MemoryFileError) as exc:
             messages.append(f"entry {int(keys['id'][i])}: {exc}")
             t_decode += time.perf_counter() - t1
             continue
         t2 = time.perf_counter()
         t_decode += t2 - t1
-        result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
-        own_mesh = not spans or entry.warm_kind != "path" or \
-            len(warm.warm_state.breaks) - 1 == spans
-        primal = without_multipliers(warm) if own_mesh and not result.success else None
-        if primal is not None and not (should_stop is not None and should_stop()):
-            result = solve_once(planner, problem, warm_options, primal, should_stop, deadline)
+        result, tried = None, []
+        for start, warm in tries:
+            if warm is None or (result is not None and result.success) or \
+                    (should_stop is not None and should_stop()):
+                continue
+            result = solve_once(planner, problem, warm_options, warm, should_stop, deadline)
+            iterations += int(result.iterations)
+            t_cert += float(result.timings.get("verify", 0.0))
+            tried.append(start)
         t_solve += time.perf_counter() - t2
-        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s): "
-                        f"{result.message}" + (" (from its path alone: its multipliers "
-                                               "failed)" if primal is not None else ""))
-        if result.success and (best is None or result.T < best.T):
+        starts.extend(tried)
+        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s, "
+                        f"from {' then '.join(tried)}): "
+                        + (result.message if result is not None else "not solved"))
+        if result is not None and result.success and (best is None or result.T < best.T):
             best = result
+        if first_success and best is not None:
+            break
         if should_stop is not None and should_stop():
             break
     total = time.perf_counter() - t0
     return Recall(True, nearest, best, tuple(int(keys["id"][i]) for i in rows),
                   tuple(float(keys["T"][i]) for i in rows), tuple(messages),
-                  {"lookup": t_lookup, "decode": t_decode, "solve": t_solve, "total": total})
+                  {"lookup": t_lookup, "decode": t_decode, "solve": t_solve,
+                   "certificate": t_cert, "total": total}, iterations, tuple(starts))
+
+
+def _warm_starts(problem: Problem, entry, spans: int) -> list:
+    """``(name, warm PlanResult or None)`` to try in order for one entry (decoded here)."""
+    own = stored_problem(problem, entry.request)
+    what = f"entry {entry.id}"
+    if spans and entry.warm_kind == "path" and entry.serve is not None:
+        warm = warm_result(own, "path", entry.serve, entry.method, f"{what} (serving state)")
+        if len(warm.warm_state.breaks) - 1 == spans:
+            return [("serve+multipliers", warm), ("serve", without_multipliers(warm))]
+    if spans and entry.warm_kind == "path":
+        path = SampledPath(decode_sample(entry.trajectory, what))
+        warm = warm_result(own, entry.warm_kind, entry.warm, entry.method, what, path)
+        if len(warm.warm_state.breaks) - 1 != spans:
+            return [("path fit", warm)]
+        return [("own mesh", warm), ("own path", without_multipliers(warm))]
+    warm = warm_result(own, entry.warm_kind, entry.warm, entry.method, what)
+    return [("own mesh", warm), ("own path", without_multipliers(warm))]
 
 
 def entry_fields(result: PlanResult, source: str, solve_time: float,

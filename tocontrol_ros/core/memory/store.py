@@ -12,14 +12,18 @@ Tables:
   result's summary (``T`` s, ``status``, ``method``, ``certificate``: JSON of its figures
   and verdict), the warm state (``warm_kind``, ``warm``: npz,
   :mod:`~tocontrol_ros.core.memory.codec`), the sampled joint trajectory (``trajectory``:
-  npz), ``source`` (``build``, ``planner``...), ``solve_time`` (s), ``created``.
+  npz), ``source`` (``build``, ``planner``...), ``solve_time`` (s), ``created``, and
+  ``serve``: the same motion re-solved on the serving mesh (uniform spans) with its NLP
+  multipliers (npz, kind ``path``; NULL until converted,
+  :mod:`~tocontrol_ros.core.memory.serve`): what a hit continues.
   ``key`` (the request's hash) is unique: the same request stored twice keeps the lower T.
 - ``tasks``: the build's log, one row per finished task of a cell (its key, status,
   message, ``T``, ``solve_time``, worker): a build run again skips them (resumable).
 
 Opening checks everything before a motion is served: the file exists (unless created), is
 a database of this format, and was made for this robot and these options; anything else
-is a :class:`MemoryFileError` whose message says which and why. Writers wait up to
+is a :class:`MemoryFileError` whose message says which and why (a file of an older format
+names the command that upgrades it: :func:`upgrade_format`). Writers wait up to
 :data:`BUSY_TIMEOUT` for a lock (WAL lets readers go on meanwhile), so two processes
 writing one memory lose nothing; a lock held longer is an error, not a wait forever.
 """
@@ -39,10 +43,15 @@ import numpy as np
 from tocontrol_ros.core.errors import TocontrolError
 
 __all__ = ["MemoryFileError", "MotionStore", "StoredMotion", "Request", "FORMAT",
-           "BUSY_TIMEOUT", "request_key"]
+           "OLD_FORMATS", "BUSY_TIMEOUT", "request_key", "upgrade_format"]
 
-#: The file format this code reads and writes (``meta.format``).
-FORMAT = "tocontrol_ros motion memory 1"
+#: The file format this code reads and writes (``meta.format``). Version 2 added the
+#: column ``serve`` (the serving mesh's warm state).
+FORMAT = "tocontrol_ros motion memory 2"
+#: Formats :func:`upgrade_format` turns into :data:`FORMAT` (what the upgrade adds).
+OLD_FORMATS = {"tocontrol_ros motion memory 1": "ALTER TABLE entries ADD COLUMN serve BLOB"}
+#: How a user upgrades an old file (named in the error).
+UPGRADE_COMMAND = "ros2 run tocontrol_ros memory upgrade FILE CELL.yaml"
 #: Longest wait for another writer's lock (s): a build's commit takes milliseconds, so
 #: longer means a stuck process, reported rather than waited for.
 BUSY_TIMEOUT = 10.0
@@ -60,7 +69,8 @@ CREATE TABLE IF NOT EXISTS entries (
     T REAL NOT NULL, status TEXT NOT NULL, method TEXT NOT NULL,
     certificate TEXT NOT NULL,
     warm_kind TEXT NOT NULL, warm BLOB NOT NULL, trajectory BLOB NOT NULL,
-    source TEXT NOT NULL, solve_time REAL NOT NULL, created REAL NOT NULL
+    source TEXT NOT NULL, solve_time REAL NOT NULL, created REAL NOT NULL,
+    serve BLOB
 );
 CREATE TABLE IF NOT EXISTS tasks (
     key TEXT PRIMARY KEY, status TEXT NOT NULL, message TEXT NOT NULL, T REAL,
@@ -68,7 +78,7 @@ CREATE TABLE IF NOT EXISTS tasks (
 );
 """
 _KEY_COLUMNS = ("id", "start_kind", "start", "target_kind", "target", "start_point",
-                "target_point", "end_q", "T")
+                "target_point", "end_q", "T", "serve IS NOT NULL")
 
 
 class MemoryFileError(TocontrolError, OSError):
@@ -108,6 +118,7 @@ class StoredMotion:
     source: str
     solve_time: float
     created: float
+    serve: bytes | None = None
 
 
 def _vec(blob) -> np.ndarray:
@@ -195,6 +206,10 @@ class MotionStore:
                 db.execute("ROLLBACK")
                 raise
         self.meta = dict(db.execute("SELECT key, value FROM meta"))
+        if self.meta.get("format") in OLD_FORMATS:
+            raise MemoryFileError(f"memory {self.path}: format {self.meta['format']!r}, "
+                                  f"this planner reads {FORMAT!r}; upgrade it (its motions "
+                                  f"re-solved on the serving mesh): {UPGRADE_COMMAND}")
         if self.meta.get("format") != FORMAT:
             raise MemoryFileError(f"memory {self.path}: format {self.meta.get('format')!r}, "
                                   f"this planner reads {FORMAT!r}")
@@ -214,8 +229,11 @@ class MotionStore:
     # ------------------------------------------------------------------ writing
     def add(self, request: Request, *, start_point, target_point, end_q, T: float,
             status: str, method: str, certificate: dict, warm_kind: str, warm: bytes,
-            trajectory: bytes, source: str, solve_time: float) -> bool:
+            trajectory: bytes, source: str, solve_time: float,
+            serve: bytes | None = None) -> bool:
         """Store one motion; False when the same request is stored with a ``T`` as low.
+
+        ``serve``: its warm state on the serving mesh (None: not converted yet).
 
         Raises
         ------
@@ -228,17 +246,19 @@ class MotionStore:
                request.target_kind, _blob(request.target), _blob(start_point),
                _blob(target_point), _blob(end_q), float(T), status, method,
                json.dumps(certificate, default=_jsonable), warm_kind, bytes(warm),
-               bytes(trajectory), source, float(solve_time), time.time())
+               bytes(trajectory), source, float(solve_time), time.time(),
+               None if serve is None else bytes(serve))
         sql = ("INSERT INTO entries (key, start_kind, start, target_kind, target, start_point, "
                "target_point, end_q, T, status, method, certificate, warm_kind, warm, "
-               "trajectory, source, solve_time, created) VALUES "
-               "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
+               "trajectory, source, solve_time, created, serve) VALUES "
+               "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
                "ON CONFLICT(key) DO UPDATE SET T = excluded.T, status = excluded.status, "
                "method = excluded.method, certificate = excluded.certificate, "
                "end_q = excluded.end_q, warm_kind = excluded.warm_kind, "
                "warm = excluded.warm, trajectory = excluded.trajectory, "
                "source = excluded.source, solve_time = excluded.solve_time, "
-               "created = excluded.created WHERE excluded.T < entries.T")
+               "created = excluded.created, serve = excluded.serve "
+               "WHERE excluded.T < entries.T")
         with self._lock:
             try:
                 changed = self._db.execute(sql, row).rowcount
@@ -246,6 +266,23 @@ class MotionStore:
                 raise MemoryFileError(f"memory {self.path}: cannot store the motion "
                                       f"({_reason(exc)})") from None
         return changed > 0
+
+    def set_serve(self, entry_id: int, serve: bytes | None) -> bool:
+        """Store (or clear, None) an entry's serving-mesh warm state; False: no such entry.
+
+        Raises
+        ------
+        MemoryFileError
+            Locked beyond :data:`BUSY_TIMEOUT`, read-only, or disk full.
+        """
+        with self._lock:
+            try:
+                return self._db.execute(
+                    "UPDATE entries SET serve = ? WHERE id = ?",
+                    (None if serve is None else bytes(serve), int(entry_id))).rowcount > 0
+            except sqlite3.DatabaseError as exc:
+                raise MemoryFileError(f"memory {self.path}: cannot store the serving state "
+                                      f"({_reason(exc)})") from None
 
     def log_task(self, key: str, status: str, message: str, T: float, solve_time: float,
                  worker: str = "") -> bool:
@@ -310,12 +347,14 @@ class MotionStore:
         dict
             ``id`` (E,), ``start_kind``, ``target_kind`` (lists of E str), ``start``,
             ``target`` (lists of E vectors), ``start_point``, ``target_point`` (E, 3 or m),
-            ``end_q`` (E, n), ``T`` (E,).
+            ``end_q`` (E, n), ``T`` (E,), ``serve`` (E,) bool: a serving-mesh state is
+            stored.
         """
         with self._lock:
             try:
                 version = self._db.execute(
-                    "SELECT count(*), coalesce(max(id), 0), coalesce(sum(T), 0) FROM entries"
+                    "SELECT count(*), coalesce(max(id), 0), coalesce(sum(T), 0), "
+                    "count(serve) FROM entries"
                 ).fetchone()
                 if self._keys is not None and version == self._version:
                     return self._keys
@@ -328,7 +367,8 @@ class MotionStore:
         keys = {"id": np.array(cols[0], dtype=np.int64),
                 "start_kind": list(cols[1]), "start": [_vec(b) for b in cols[2]],
                 "target_kind": list(cols[3]), "target": [_vec(b) for b in cols[4]],
-                "T": np.array(cols[8], dtype=float)}
+                "T": np.array(cols[8], dtype=float),
+                "serve": np.array(cols[9], dtype=bool)}
         for i, name in ((5, "start_point"), (6, "target_point"), (7, "end_q")):
             vecs = [_vec(b) for b in cols[i]]
             keys[name] = np.array(vecs) if vecs else np.zeros((0, 0))
@@ -357,14 +397,16 @@ class MotionStore:
             end_q=_vec(r["end_q"]), T=float(r["T"]), status=r["status"], method=r["method"],
             certificate=json.loads(r["certificate"]), warm_kind=r["warm_kind"],
             warm=bytes(r["warm"]), trajectory=bytes(r["trajectory"]), source=r["source"],
-            solve_time=float(r["solve_time"]), created=float(r["created"]))
+            solve_time=float(r["solve_time"]), created=float(r["created"]),
+            serve=None if r["serve"] is None else bytes(r["serve"]))
 
     def summary(self) -> list[dict]:
         """One small dict per entry (no blobs): id, kinds, points, T, status, method, sizes."""
         with self._lock:
             rows = self._db.execute(
                 "SELECT id, start_kind, start_point, target_point, T, status, method, source, "
-                "solve_time, length(warm) + length(trajectory) FROM entries ORDER BY id"
+                "solve_time, length(warm) + length(trajectory) + coalesce(length(serve), 0) "
+                "FROM entries ORDER BY id"
             ).fetchall()
         return [{"id": r[0], "start_kind": r[1], "start_point": _vec(r[2]),
                  "target_point": _vec(r[3]), "T": r[4], "status": r[5], "method": r[6],
@@ -380,6 +422,63 @@ class MotionStore:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def upgrade_format(path, robot_hash: str | None = None,
+                   options_hash: str | None = None) -> str | None:
+    """Bring a memory file of an older format (:data:`OLD_FORMATS`) to :data:`FORMAT`.
+
+    In one transaction: the columns the newer format adds (empty: an upgraded file's motions
+    have no serving state until :func:`~tocontrol_ros.core.memory.serve.convert` fills it)
+    and ``meta.format``. Nothing is done to a file of this format, nor to one made for
+    another robot or options than the hashes given (None: not checked).
+
+    Returns
+    -------
+    str or None
+        The format the file had when it was upgraded; None when it was current.
+
+    Raises
+    ------
+    MemoryFileError
+        No such file, not a memory, an unknown format, or locked.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MemoryFileError(f"memory {path}: no such file")
+    db = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT, isolation_level=None)
+    try:
+        db.execute(f"PRAGMA busy_timeout = {int(BUSY_TIMEOUT * 1000)}")
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            row = db.execute("SELECT value FROM meta WHERE key = 'format'").fetchone()
+        except sqlite3.OperationalError:
+            row = None
+        have = None if row is None else row[0]
+        if have == FORMAT:
+            db.execute("ROLLBACK")
+            return None
+        if have not in OLD_FORMATS:
+            db.execute("ROLLBACK")
+            raise MemoryFileError(f"memory {path}: not a motion memory of a known format "
+                                  f"({have!r}; this planner reads {FORMAT!r})")
+        meta = dict(db.execute("SELECT key, value FROM meta"))
+        for name, want in (("robot_hash", robot_hash), ("options_hash", options_hash)):
+            if want is not None and meta.get(name) != want:
+                db.execute("ROLLBACK")
+                raise MemoryFileError(f"memory {path}: made for another "
+                                      f"{name.split('_')[0]}: its {name} is "
+                                      f"{meta.get(name)}, this planner's {want}")
+        db.execute(OLD_FORMATS[have])
+        db.execute("UPDATE meta SET value = ? WHERE key = 'format'", (FORMAT,))
+        db.execute("COMMIT")
+        return have
+    except sqlite3.DatabaseError as exc:
+        if db.in_transaction:
+            db.execute("ROLLBACK")
+        raise MemoryFileError(f"memory {path}: cannot be upgraded ({_reason(exc)})") from None
+    finally:
+        db.close()
 
 
 def _reason(exc: sqlite3.Error) -> str:
