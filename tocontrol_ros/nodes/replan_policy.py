@@ -131,6 +131,7 @@ class ReplanPolicy:
         config = req.config
         replans = service.replanner
         min_lead = 0.0
+        wait_time = clock.monotonic() - req.received  # acceptance -> the worker took it
         for attempt in range(1, REPLAN_TRIES + 1):
             t0 = clock.monotonic()
             origin, measured = self._measured(config)
@@ -151,9 +152,11 @@ class ReplanPolicy:
             # The parabola's time scale from the straight path's rest-to-rest time, not from
             # the time the running motion has left: along a stream of quick motions that
             # grew (each a little slower than the last: 0.5 s to 2.2 s on the paper's arm).
+            t_solve = clock.monotonic()
             quick = service.planner.quick(problem, q_end, solver_options(config))
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(quick),
+                     "wait_time": wait_time, "handoff_time": t_solve - t0,
                      "replan": handoff.kind, "attempts": attempt,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}

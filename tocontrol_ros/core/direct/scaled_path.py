@@ -154,6 +154,31 @@ def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: floa
     return integ
 
 
+#: model -> {(integrator id, segments): (integrator, its sweep over the segments)}.
+_SWEEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.Function:
+    """``integ`` over ``segments`` segments in a row, in one call (``mapaccum``).
+
+    ``(x0 (2n,), P (params, segments)) -> (x at each segment's end (2n, segments), x at
+    every output (2n, segments OPEN_LOOP_POINTS))``: each segment starts where the last
+    ended, as :func:`~tocontrol_ros.core.direct.flat_trajectory.integrate_segments` does
+    from Python; the same CVODES calls, one Python call instead of one per segment (on the
+    Panda's 30 segments 13 ms -> 7.6 ms on a loaded machine, the states equal to the bit).
+    Kept per model and integrator.
+    """
+    table = _SWEEPS.setdefault(model, {})
+    key = (id(integ), segments)
+    if key not in table or table[key][0] is not integ:
+        x = ca.MX.sym("x", integ.size1_in(0))
+        p = ca.MX.sym("p", integ.size1_in(2))
+        out = integ(x0=x, p=p)["xf"]
+        step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
+        table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
+    return table[key][1]
+
+
 class PolynomialPath:
     """A joint path ``q(s) = sum_j c_j s^j`` for ``s`` in [0, 1].
 
@@ -340,9 +365,18 @@ class ScaledPath(InverseDynamicsTrajectory):
         integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
+        x0 = self.state(0.0)[0, :2 * self.n]
+        times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
+        params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
+        try:  # every segment in one call
+            _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
+            return np.concatenate([[0.0], times]), \
+                np.vstack([x0[None, :], np.array(states).T]), True
+        except RuntimeError:  # a segment failed: again one by one, to say where
+            pass
         segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)
                     for j in range(len(self.h)))
-        t, x, success = integrate_segments(integ, self.state(0.0)[0, :2 * self.n], segments)
+        t, x, success = integrate_segments(integ, x0, segments)
         if not success and not stiff:
             return self.open_loop(rtol, atol, stiff=True)
         return t, x, success
