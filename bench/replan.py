@@ -368,10 +368,10 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
 
 
 #: A quick motion's latency in parts, its status's values (s): acceptance -> the worker took
-#: it, the hand-off and the problem, the solve's Newton steps, TOPP-RA and certificate (and
-#: the rest of the solve: sampling and checks), the trajectory sampled, its message sent.
-PARTS = ("wait_time", "handoff_time", "guess_time", "scaling_time", "verify_time",
-         "solve_rest", "sample_time", "send_time")
+#: it, the hand-off, the problem, the solve's Newton steps, TOPP-RA and certificate (and the
+#: rest of the solve: sampling and checks), the trajectory sampled, its message sent.
+PARTS = ("wait_time", "handoff_time", "problem_time", "guess_time", "scaling_time",
+         "verify_time", "solve_rest", "sample_time", "send_time")
 
 
 def latency_parts(published: list) -> dict:

@@ -140,6 +140,7 @@ class ReplanPolicy:
                                       measured, quick=True)
             if handoff is None or running is None or running.trajectory is None:
                 return None  # the optimum's route decides (a goal from the measured state)
+            t_problem = clock.monotonic()
             if replans.near(config, req.target):
                 replans.note_reachable(service.model, req.target)
             try:
@@ -156,7 +157,8 @@ class ReplanPolicy:
             quick = service.planner.quick(problem, q_end, solver_options(config))
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(quick),
-                     "wait_time": wait_time, "handoff_time": t_solve - t0,
+                     "wait_time": wait_time, "handoff_time": t_problem - t0,
+                     "problem_time": t_solve - t_problem,
                      "replan": handoff.kind, "attempts": attempt,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}
