@@ -290,7 +290,8 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
 
         # Trajectories published: a quick motion's ("first" status) and an optimum's.
         published = sum(s.get("published") == "optimum" for s in outcomes) + sum(
-            s.get("event") in ("first", "improved") for s in client.snapshot("planner")[since:])
+            s.get("event") in ("first", "improved") and s.get("published") != "none"
+            for s in client.snapshot("planner")[since:])
 
         def settled(spread: float):
             # Every published trajectory taken over (a splice waits for its stamp) or

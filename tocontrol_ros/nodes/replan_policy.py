@@ -165,6 +165,8 @@ class ReplanPolicy:
             if service.finish_stopped(req, extra):
                 return True
             if not quick.success or quick.trajectory is None:
+                service.status(req, "WARN", "first", f"request {req.id}: no quick motion "
+                               f"({quick.message}); the optimum follows", extra)
                 return None
             now = clock.now_ns()
             if handoff.kind == REST:
@@ -185,6 +187,8 @@ class ReplanPolicy:
                            values, path=path)
             self._improvable = (req, quick, handoff.stamp_ns, running, values)
             return True
+        service.status(req, "WARN", "first", f"request {req.id}: no quick motion in time for "
+                       f"its hand-off in {REPLAN_TRIES} tries; the optimum follows", extra)
         return None
 
     def improve(self) -> None:

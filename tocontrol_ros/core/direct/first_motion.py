@@ -295,19 +295,15 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
     random seeds, or the planner's self-motion families, end anywhere on the self-motion
     manifold; this one ends near the start, where a short joint path is.
     """
-    model, lim = problem.model, problem.limits
-    fk, jac = model.function("P"), model.function("J")
-    w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
+    fk = problem.model.function("P")
     target = problem.target.value
     x0 = np.array(fk(qa)).ravel()
     q = np.array(qa, dtype=float)
     goals = [x0 + (target - x0) * (i / FOLLOW_STEPS) for i in range(1, FOLLOW_STEPS + 1)]
     for goal in goals + [target]:
-        for _ in range(FOLLOW_ITERATIONS):
-            q = _limited_step(q, goal - np.array(fk(q)).ravel(), np.array(jac(q)), w,
-                              lim.plan_lower, lim.plan_upper)
-            if q is None:  # singular, or the free joints cannot move the tip there
-                return None
+        q = _newton(problem, q, goal, FOLLOW_ITERATIONS, early=False)
+        if q is None:  # singular, or the free joints cannot move the tip there
+            return None
     if not np.linalg.norm(np.array(fk(q)).ravel() - target) <= IK_TOL:
         return None
     return q
@@ -316,23 +312,38 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
 def _newton_near(problem: Problem, q: np.ndarray) -> np.ndarray | None:
     """The target's configuration by Newton steps from ``q`` (near it), or None.
 
-    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_limited_step`),
+    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_newton`),
     straight at the target; None unless within ``IK_TOL`` of it (the caller then follows
     the task-space line, :func:`_followed`).
+    """
+    lim, target = problem.limits, problem.target.value
+    q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
+    q = _newton(problem, q, target, QUICK_IK_ITERATIONS, early=True)
+    fk = problem.model.function("P")
+    return q if q is not None and np.linalg.norm(target - np.array(fk(q)).ravel()) <= \
+        IK_TOL else None
+
+
+def _newton(problem: Problem, q: np.ndarray, goal: np.ndarray, iterations: int,
+            early: bool) -> np.ndarray | None:
+    """``iterations`` weighted least-norm steps from ``q`` at the task point ``goal`` (m).
+
+    The steps of :func:`_followed` (at each point of its line) and :func:`_newton_near`:
+    least ``sum (dq_i / v_i)^2`` (``v`` the velocity limits), the position limits held
+    (:func:`_limited_step`). ``early``: stop once within ``IK_TOL``. None when a step
+    cannot be taken (singular, or the free joints cannot move the tip there).
     """
     model, lim = problem.model, problem.limits
     fk, jac = model.function("P"), model.function("J")
     w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
-    target = problem.target.value
-    q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
-    for _ in range(QUICK_IK_ITERATIONS):
-        r = target - np.array(fk(q)).ravel()
-        if np.linalg.norm(r) <= IK_TOL:
+    for _ in range(iterations):
+        r = goal - np.array(fk(q)).ravel()
+        if early and np.linalg.norm(r) <= IK_TOL:
             return q
         q = _limited_step(q, r, np.array(jac(q)), w, lim.plan_lower, lim.plan_upper)
         if q is None:
             return None
-    return q if np.linalg.norm(target - np.array(fk(q)).ravel()) <= IK_TOL else None
+    return q
 
 
 def _limited_step(q, r, jac, w, lo, hi) -> np.ndarray | None:
