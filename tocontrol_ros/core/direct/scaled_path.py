@@ -382,13 +382,16 @@ class ScaledPath(InverseDynamicsTrajectory):
                 power = nxt
         return out
 
-    def open_loop(self, rtol: float, atol: float, stiff: bool = False
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False, one_call: bool = True
                   ) -> tuple[np.ndarray, np.ndarray, bool]:
         """The nominal torques integrated from ``x(0)``, segment by segment (CVODES).
 
         As :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop` does
         (:func:`open_loop_integrator`): the forward dynamics under the inverse dynamics of
-        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails.
+        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails. With
+        ``one_call`` (default) every segment in one call (:func:`open_loop_sweep`), and one by
+        one from Python only when a segment fails (to say where); ``False``: one by one
+        (the benchmark's comparison).
 
         Returns
         -------
@@ -405,14 +408,15 @@ class ScaledPath(InverseDynamicsTrajectory):
         times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
         params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
         try:  # every segment in one call
-            _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
-            return np.concatenate([[0.0], times]), \
-                np.vstack([x0[None, :], np.array(states).T]), True
+            if one_call:
+                _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
+                return np.concatenate([[0.0], times]), \
+                    np.vstack([x0[None, :], np.array(states).T]), True
         except RuntimeError:  # a segment failed: again one by one, to say where
             pass
         segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)
                     for j in range(len(self.h)))
         t, x, success = integrate_segments(integ, x0, segments)
         if not success and not stiff:
-            return self.open_loop(rtol, atol, stiff=True)
+            return self.open_loop(rtol, atol, stiff=True, one_call=one_call)
         return t, x, success
