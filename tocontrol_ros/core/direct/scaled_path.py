@@ -330,6 +330,8 @@ class ScaledPath(InverseDynamicsTrajectory):
         samples.
         """
         count = len(q)
+        if count == 0:
+            return np.zeros((0, self.n))
         size = -(-count // MAP_STEP) * MAP_STEP
         pad = size - count
         cols = [np.vstack([v, np.repeat(v[-1:], pad, axis=0)]).T if pad else v.T
