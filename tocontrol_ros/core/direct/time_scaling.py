@@ -66,6 +66,7 @@ __all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", 
 #: benchmark's comparison and the tests').
 ENGINES = ("seidel", "toppra")
 
+
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
               peaks: bool = False, engine: str = "seidel") -> tuple:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
