@@ -395,3 +395,52 @@ def test_scaled_path_torques_are_the_models_inverse_dynamics(panda):
                         for q, v, a in zip(e.q, e.qd, e.qdd, strict=True)])
         assert e.tau.shape == (count, 7)
         np.testing.assert_allclose(e.tau, tau, rtol=1e-10, atol=1e-10)
+
+
+def test_stage_interval_in_closed_form_is_seidels(panda):
+    """Each stage's controllable interval by Fourier-Motzkin elimination (the fallback where
+    Seidel's solver gives no answer) against Seidel's, stage by stage on a Panda path."""
+    from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
+
+    problem = _panda_problem(panda, False)
+    n = panda.n
+    q0 = problem.start.value[:n]
+    path = PolynomialPath.parabola(q0, q0 + 0.3, np.linspace(-0.2, 0.2, n))
+    s = np.linspace(0.0, 1.0, 31)
+    coef = ts._Coefficients(problem, path, s)
+    cube = np.full((31, n), n ** (-1 / 8))
+    u0, u1, l0, l1, _ = ts._friction_lines(coef, None)
+    rows = (np.hstack([coef.a / cube, -coef.a / cube]),
+            np.hstack([(coef.b + u1) / cube, -(coef.b + l1) / cube]),
+            np.hstack([(coef.c + u0) / cube, -(coef.c + l0) / cube]),
+            np.minimum(coef.xv, 1e8))
+    wrapper = seidelWrapper([ts._constraint_class()(*rows)], ts._path_class()(n), s,
+                            solve_lp1d=True)
+    K = np.zeros((31, 2))
+    for i in range(29, -1, -1):
+        hi = wrapper.solve_stagewise_optim(i, None, np.array([1e-9, -1.0]), np.nan, np.nan,
+                                           *K[i + 1])[1]
+        lo = wrapper.solve_stagewise_optim(i, None, np.array([-1e-9, 1.0]), np.nan, np.nan,
+                                           *K[i + 1])[1]
+        closed = ts._stage_interval(rows, s, i, K[i + 1])
+        np.testing.assert_allclose(closed, (max(lo, 0.0), hi), rtol=1e-7, atol=1e-9)
+        K[i] = max(lo, 0.0), hi
+    assert K[0, 1] > 0.0
+
+
+def test_quick_motion_from_an_almost_resting_start(panda):
+    """A hand-off moving at 1e-5 rad/s (the end of a running motion, bench/replan.py's Panda):
+    the parabola's tangent at s = 0 is 1e-8, Seidel's solver gives no bound for its first
+    stage, and toppra's algorithm found no timing; the closed-form stage makes it a certified
+    quick motion from that exact state."""
+    limits = JointLimits.from_model(panda).with_margin(0.05)
+    q0 = np.array([0.0822120481, -1.19994496, 0.0932206312, -2.78194884, -0.126023813,
+                   1.7790865, 0.0741365004])
+    qd0 = np.array([-1.24099355e-05, -1.72708524e-07, -1.42019146e-05, -4.48031613e-09,
+                    -7.00615653e-06, -6.50390202e-07, 0.0])
+    problem = Problem(panda, joint_state(q0, qd0), point((0.241279919, -0.0920311382,
+                                                          0.515513206)),
+                      k=4.0, reserve=0.1, limits=limits)
+    quick = fm.quick_motion(problem, q0)
+    _check_motion(problem, quick)
+    assert not fm.quick_motion(problem, q0, engine="toppra").success

@@ -321,7 +321,7 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
     constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)
     if engine == "seidel":
-        return _seidel(constraint, coef.a.shape[1], s, sd0)
+        return _seidel(constraint, coef.a.shape[1], s, sd0, (rows_a, rows_b, rows_c, x_max))
     import toppra.algorithm
 
     algo = toppra.algorithm.TOPPRA([constraint], _path_class()(coef.a.shape[1]), gridpoints=s,
@@ -332,7 +332,7 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     return np.asarray(sd, dtype=float) ** 2, ""
 
 
-def _seidel(constraint, dof: int, s: np.ndarray, sd0: float):
+def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):
     """TOPP-RA's two sweeps over toppra's compiled Seidel solver: ``(x, "")`` or (None, why).
 
     What ``toppra.algorithm.TOPPRA.compute_parameterization(sd0, 0)`` computes with
@@ -340,7 +340,10 @@ def _seidel(constraint, dof: int, s: np.ndarray, sd0: float):
     controllable sets backward, then the greatest controllable ``x`` forward, each next
     ``x`` lowered by toppra's ``TINY`` or 0.01 % and a stage retried from a ``x`` 0.1 %
     lower when rounding makes it infeasible), without building the algorithm object per
-    pass.
+    pass. Where Seidel's solver returns no answer for a stage's bound of ``x`` (it fails on
+    rows nearly parallel to the ``u`` axis: a replan from a start moving at 1e-5 rad/s,
+    whose parabola's tangent is 1e-8 at ``s = 0``), that bound is the stage program's exact
+    one in closed form (:func:`_stage_interval`); ``rows``: :func:`_toppra`'s.
     """
     from toppra.constants import MAX_TRIES, SMALL, TINY
     from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
@@ -356,6 +359,8 @@ def _seidel(constraint, dof: int, s: np.ndarray, sd0: float):
         hi = solve(i, None, g_upper, np.nan, np.nan, K[i + 1, 0], K[i + 1, 1])[1]
         lo = solve(i, None, g_lower, np.nan, np.nan, K[i + 1, 0], K[i + 1, 1])[1]
         if np.isnan(hi) or np.isnan(lo):
+            lo, hi = _stage_interval(rows, s, i, K[i + 1])
+        if not lo <= hi:
             return None, f"the controllable set is empty at gridpoint {i} of {last}"
         K[i] = max(lo, 0.0), hi
     x = np.zeros(last + 1)
@@ -380,6 +385,37 @@ def _seidel(constraint, dof: int, s: np.ndarray, sd0: float):
         i += 1
     wrapper.close_solver()
     return x, ""
+
+
+def _stage_interval(rows: tuple, s: np.ndarray, i: int, next_set: np.ndarray
+                    ) -> tuple[float, float]:
+    """Stage ``i``'s interval of ``x`` from which ``next_set`` is reachable, in closed form.
+
+    Its rows ``alpha u + beta x <= gamma``: gridpoint ``i``'s, gridpoint ``i + 1``'s with
+    ``x_{i+1} = x + 2 delta u`` put in, ``0 <= x <= x_max_i`` and ``lo <= x + 2 delta u <=
+    hi``. Eliminating ``u`` (Fourier-Motzkin) is exact in two variables: every row bounding
+    ``u`` above paired with every row bounding it below gives one linear bound of ``x``
+    (multiplied through by ``-alpha_q alpha_p > 0``: no division by a small ``alpha``).
+    ``(lo, hi)``; ``lo > hi`` when the stage has no ``x``.
+    """
+    a, b, c, x_max = rows
+    two_d = 2.0 * (s[i + 1] - s[i])
+    alpha = np.concatenate([a[i], a[i + 1] + two_d * b[i + 1], [two_d, -two_d]])
+    beta = np.concatenate([b[i], b[i + 1], [1.0, -1.0]])
+    gamma = np.concatenate([1.0 - c[i], 1.0 - c[i + 1], [next_set[1], -next_set[0]]])
+    up, down = alpha > 0.0, alpha < 0.0
+    coef = np.concatenate([(-alpha[down][None, :] * beta[up][:, None]
+                            + alpha[up][:, None] * beta[down][None, :]).ravel(),
+                           beta[~(up | down)]])
+    rhs = np.concatenate([(-alpha[down][None, :] * gamma[up][:, None]
+                           + alpha[up][:, None] * gamma[down][None, :]).ravel(),
+                          gamma[~(up | down)]])
+    if np.any((coef == 0.0) & (rhs < 0.0)):
+        return np.inf, -np.inf
+    pos, neg = coef > 0.0, coef < 0.0
+    hi = min(float(np.min(rhs[pos] / coef[pos], initial=np.inf)), float(x_max[i]))
+    lo = max(float(np.max(rhs[neg] / coef[neg], initial=-np.inf)), 0.0)
+    return lo, hi
 
 
 _CLASSES: dict = {}
