@@ -37,13 +37,21 @@ if __name__ == "__main__":
 import numpy as np  # noqa: E402
 
 from bench.common import PANDA_LOCKED, Section, load_text, log, panda_urdf, table  # noqa: E402
+from bench.replan import (  # noqa: E402  (the node benchmark's moving targets)
+    DURATION,
+    MOVING_PANDA_LAPS,
+    MOVING_PANDA_RADIUS,
+    MOVING_PAPER_RADIUS,
+    RATE,
+    README_PANDA_Q0,
+)
 
-#: The replans' rate (Hz) and the goals per robot.
-RATE, GOALS = 10.0, 50
-#: The circles (m) and laps, as bench/replan.py --moving.
-PAPER_RADIUS, PANDA_RADIUS, PANDA_LAPS = 0.3, 0.25, 2
+#: Goals per robot, as bench/replan.py sends them.
+GOALS = int(RATE * DURATION)
+PAPER_RADIUS, PANDA_RADIUS, PANDA_LAPS = MOVING_PAPER_RADIUS, MOVING_PANDA_RADIUS, \
+    MOVING_PANDA_LAPS
+#: The paper's arm's start (bench/replan.py's).
 PAPER_Q0 = (0.3, 0.9, 0.6)
-README_PANDA_Q0 = (0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8)
 
 
 def _robot(name: str):
