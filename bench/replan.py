@@ -290,7 +290,8 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
 
         # Trajectories published: a quick motion's ("first" status) and an optimum's.
         published = sum(s.get("published") == "optimum" for s in outcomes) + sum(
-            s.get("event") in ("first", "improved") for s in client.snapshot("planner")[since:])
+            s.get("event") in ("first", "improved") and s.get("published") != "none"
+            for s in client.snapshot("planner")[since:])
 
         def settled(spread: float):
             # Every published trajectory taken over (a splice waits for its stamp) or
@@ -342,6 +343,8 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
     seen = client_latencies(client.snapshot("sent"), client.snapshot("trajectories"),
                             published)
     (workdir / f"{tag}_outcomes.json").write_text(json.dumps(outcomes, default=str))
+    (workdir / f"{tag}_statuses.json").write_text(
+        json.dumps(client.snapshot("planner")[since:], default=str))
     kinds = {}
     for s in published:
         kinds.setdefault(s.get("replan", "none"), []).append(float(s["publish_latency"]))
@@ -363,7 +366,30 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
         "jump_q": max((float(s["position_jump"]) for s in splices), default=float("nan")),
         "jump_qd": max((float(s["velocity_jump"]) for s in splices), default=float("nan")),
         "final_error": float(np.linalg.norm(ee - goals[0])), "at_rest": at_rest,
+        "parts": latency_parts(published),
     }
+
+
+#: A quick motion's latency in parts, its status's values (s): acceptance -> the worker took
+#: it, the hand-off, the problem, the solve's Newton steps, TOPP-RA and certificate (and the
+#: rest of the solve: sampling and checks), the trajectory sampled, its message sent.
+PARTS = ("wait_time", "handoff_time", "problem_time", "guess_time", "scaling_time",
+         "verify_time", "solve_rest", "sample_time", "send_time")
+
+
+def latency_parts(published: list) -> dict:
+    """Median of each of :data:`PARTS` (s) over the quick motions' statuses, and their count."""
+    quick = [s for s in published if s.get("event") == "first"
+             and all(s.get(k) is not None for k in PARTS if k != "solve_rest")]
+    out = {"count": len(quick)}
+    for key in PARTS:
+        if key == "solve_rest":
+            values = [float(s["solve_time"]) - sum(float(s[k]) for k in
+                      ("guess_time", "scaling_time", "verify_time")) for s in quick]
+        else:
+            values = [float(s[key]) for s in quick]
+        out[key] = _pct(values, 0.5)
+    return out
 
 
 def _rest_chain(name: str, count: int, variants: dict) -> tuple[float, list] | None:
@@ -553,6 +579,12 @@ def run(which: str = "both", moving: bool = False) -> Section:
                 "iterations", "per kind",
                 "splices", "jumps", "final error m"], rows),
     ]
+    if moving:
+        lines += ["", "Where a quick motion's latency goes (its status's values, median over "
+                  "the goals answered by one, ms): " + "; ".join(
+                      f"{r['robot']} ({r['parts']['count']}): " + ", ".join(
+                          f"{k.removesuffix('_time')} {1e3 * r['parts'][k]:.1f}"
+                          for k in PARTS) for r in results) + "."]
     if "paper" in names and not moving:
         log("replan: the smoothing's cost in T ...")
         lines += smoothing_cost()

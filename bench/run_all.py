@@ -9,8 +9,8 @@ Run from the repository root::
                 profile_panda,scaling,
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
-                verification,deployed,replan,batch,limits,first_motion,collision,
-                memory,cancel,pose_goals]
+                verification,deployed,replan,replan_moving,quick_motion,batch,limits,
+                first_motion,collision,memory,cancel,pose_goals]
         [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -34,6 +34,8 @@ processes: idle CPU and ~/plan round trip against the same request in-process),
 ``replan`` (a target moving at 10 Hz through planner and tracker processes: replan latency,
 splices, the paper's arm and the Panda), ``replan_moving`` (the same with targets that keep
 the arm moving, the Panda from the README's set-up, latency also as a client sees it),
+``quick_motion`` (issue 47: a replan's quick motion in process on the moving-target replans,
+its parts paired against the TOPP-RA and open loop before issue 47's cuts),
 ``stagewise`` (issue 47's stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on
 the same NLPs, 10 Panda cases), ``warm_resolve`` (one replan after a 2 cm move on 20 Panda
 cases: the warm re-solve and the quick motion),
@@ -74,7 +76,8 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "reference_panda",
          "profile_panda", "scaling", "panda_peer", "peer_compiled",
          "first_use",
-         "verification", "deployed", "deployed_panda", "replan", "replan_moving", "batch",
+         "verification", "deployed", "deployed_panda", "replan", "replan_moving",
+         "quick_motion", "batch",
          "limits", "stagewise", "warm_resolve",
          "first_motion", "collision", "memory", "cancel", "pose_goals")
 
@@ -173,6 +176,7 @@ def _run(args):
         peers,
         pose_goals,
         profile_panda,
+        quick_motion,
         random_pairs,
         reference_panda,
         reference_paper,
@@ -249,6 +253,8 @@ def _run(args):
         section(lambda: replan.run())
     if "replan_moving" in args.only:
         section(lambda: replan.run(moving=True))
+    if "quick_motion" in args.only:
+        section(lambda: quick_motion.run())
     if "stagewise" in args.only:
         section(lambda: stagewise.run(3 if args.quick else 10))
     if "warm_resolve" in args.only:

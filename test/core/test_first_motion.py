@@ -296,3 +296,151 @@ def test_quick_motion_failures_are_named(galicki):
     with pytest.raises(fm.ProblemError, match="not reachable"):
         far = Problem(galicki, joint_state(q, np.zeros(3)), point((6.0, 0.0)), k=4.0)
         fm.quick_motion(far, q)  # reach 5.5 m
+
+
+# ------------------------------------------- issue 47: the quick motion's parts, cut
+@pytest.mark.parametrize("robot, moving", [("galicki", False), ("galicki", True),
+                                           ("panda", False), ("panda", True)],
+                         ids=["paper-rest", "paper-moving", "panda-rest", "panda-moving"])
+def test_seidel_driver_times_as_toppras_algorithm_does(robot, moving, request):
+    """TOPP-RA driven over toppra's compiled Seidel solver (the default) against toppra's own
+    algorithm object on the same rows: the same squared path speeds, friction lines and
+    adapted boxes included, and the same number of passes."""
+    model = request.getfixturevalue(robot)
+    n = model.n
+    rng = np.random.default_rng(47)
+    limits = JointLimits.from_model(model)
+    lo, hi = np.nan_to_num(limits.plan_lower, nan=-2.0), np.nan_to_num(limits.plan_upper,
+                                                                          nan=2.0)
+    q0, q1 = (np.clip(0.5 * (lo + hi) + rng.uniform(-0.3, 0.3, n), lo, hi) for _ in range(2))
+    v = rng.uniform(-0.5, 0.5, n) if moving else np.zeros(n)
+    path = PolynomialPath.parabola(q0, q1, v) if moving else PolynomialPath.straight(q0, q1)
+    problem = Problem(model, joint_state(q0, v), point(model.point(q1)), k=4.0, limits=limits)
+    sd0 = 1.0 if moving else 0.0
+    new = ts.time_scaling(problem, path, sd0, 30)
+    old = ts.time_scaling(problem, path, sd0, 30, engine="toppra")
+    assert not isinstance(new[0], Status), new[1]
+    assert not isinstance(old[0], Status), old[1]
+    np.testing.assert_allclose(new[0].x, old[0].x, rtol=1e-9, atol=1e-12)
+    assert new[1] == old[1] and new[0].T == pytest.approx(old[0].T, rel=1e-12)
+
+
+def test_seidel_driver_names_an_uncontrollable_start(galicki):
+    """A start speed no deceleration within the torques can bring to rest by the end: both
+    drivers fail, the default one saying why."""
+    q0, q1 = np.array([0.3, 0.9, 0.6]), np.array([0.32, 0.9, 0.6])
+    path = PolynomialPath.straight(q0, q1)
+    problem = Problem(galicki, joint_state(q0), point(galicki.point(q1)), k=4.0)
+    out = ts.time_scaling(problem, path, 500.0, 30)
+    assert out[0] is Status.SCALING_FAILED and "not controllable" in out[1], out
+    assert ts.time_scaling(problem, path, 500.0, 30, engine="toppra")[0] is \
+        Status.SCALING_FAILED
+    with pytest.raises(ValueError, match="`engine`"):
+        ts.time_scaling(problem, path, 0.0, 30, engine="cvxpy")
+
+
+def test_first_pass_is_handed_on_only_for_its_own_path(galicki):
+    """time_scaling takes a ranking's first pass of the same path and arguments (one pass
+    fewer, the same timing) and refuses one of another path."""
+    q0, q1 = np.array([0.3, 0.9, 0.6]), np.array([0.8, 0.4, 1.0])
+    problem = Problem(galicki, joint_state(q0), point(galicki.point(q1)), k=4.0)
+    path = PolynomialPath.straight(q0, q1)
+    first = ts.first_pass(problem, path, 0.0, 30)
+    handed = ts.time_scaling(problem, path, 0.0, 30, first=first)
+    alone = ts.time_scaling(problem, path, 0.0, 30)
+    np.testing.assert_array_equal(handed[0].x, alone[0].x)
+    assert handed[1] == alone[1] - 1 and np.isfinite(first.T) and first.T >= alone[0].T
+    with pytest.raises(ValueError, match="`first`"):
+        ts.time_scaling(problem, PolynomialPath.straight(q0, q1), 0.0, 30, first=first)
+
+
+@pytest.mark.parametrize("t", [0.0, 0.2, 0.45], ids=["start", "moving", "tail"])
+def test_quick_motion_is_as_before_issue_47s_cuts(paper_optimum, t):
+    """The quick motion now (the Seidel driver, the ranking pass handed on) and with the
+    TOPP-RA before (toppra's algorithm object, the scales ranked in the full cube): the same
+    path and T on the paper example's replans."""
+    problem, optimum = paper_optimum
+    moved = _running_and_moved(problem, optimum, t, np.array([0.03, -0.025]))
+    q_end = optimum.trajectory.state(optimum.T)[0][:problem.model.n]
+    now = fm.quick_motion(moved, q_end)
+    before = fm.quick_motion(moved, q_end, engine="toppra")
+    _check_motion(moved, now)
+    assert before.success, before.message
+    assert now.T == pytest.approx(before.T, rel=1e-9)
+    assert now.iterations <= before.iterations
+
+
+def test_open_loop_in_one_call_is_the_segments_one_by_one(panda):
+    """The certificate's re-integration of a Panda quick motion: every segment in one
+    mapaccum call gives the states of the segments integrated one by one from Python, to the
+    bit."""
+    problem = _panda_problem(panda, True)
+    res = first_motion(problem)
+    assert res.success, res.message
+    one = res.trajectory.open_loop(1e-12, 1e-13)
+    each = res.trajectory.open_loop(1e-12, 1e-13, one_call=False)
+    assert one[2] and each[2]
+    np.testing.assert_array_equal(one[0], each[0])
+    np.testing.assert_array_equal(one[1], each[1])
+
+
+def test_scaled_path_torques_are_the_models_inverse_dynamics(panda):
+    """The compiled inverse dynamics, mapped over a multiple of MAP_STEP samples (padded):
+    the model's own (CasADi's virtual machine) at every sample, whatever their count."""
+    problem = _panda_problem(panda, True)
+    traj = first_motion(problem).trajectory
+    for count in (1, 31, 32, 33, 70):
+        e = traj.evaluate(np.linspace(0.0, traj.T, count))
+        tau = np.array([panda.inverse_dynamics(q, v, a)
+                        for q, v, a in zip(e.q, e.qd, e.qdd, strict=True)])
+        assert e.tau.shape == (count, 7)
+        np.testing.assert_allclose(e.tau, tau, rtol=1e-10, atol=1e-10)
+
+
+def test_stage_interval_in_closed_form_is_seidels(panda):
+    """Each stage's controllable interval by Fourier-Motzkin elimination (the fallback where
+    Seidel's solver gives no answer) against Seidel's, stage by stage on a Panda path."""
+    from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
+
+    problem = _panda_problem(panda, False)
+    n = panda.n
+    q0 = problem.start.value[:n]
+    path = PolynomialPath.parabola(q0, q0 + 0.3, np.linspace(-0.2, 0.2, n))
+    s = np.linspace(0.0, 1.0, 31)
+    coef = ts._Coefficients(problem, path, s)
+    cube = np.full((31, n), n ** (-1 / 8))
+    u0, u1, l0, l1, _ = ts._friction_lines(coef, None)
+    rows = (np.hstack([coef.a / cube, -coef.a / cube]),
+            np.hstack([(coef.b + u1) / cube, -(coef.b + l1) / cube]),
+            np.hstack([(coef.c + u0) / cube, -(coef.c + l0) / cube]),
+            np.minimum(coef.xv, 1e8))
+    wrapper = seidelWrapper([ts._constraint_class()(*rows)], ts._path_class()(n), s,
+                            solve_lp1d=True)
+    K = np.zeros((31, 2))
+    for i in range(29, -1, -1):
+        hi = wrapper.solve_stagewise_optim(i, None, np.array([1e-9, -1.0]), np.nan, np.nan,
+                                           *K[i + 1])[1]
+        lo = wrapper.solve_stagewise_optim(i, None, np.array([-1e-9, 1.0]), np.nan, np.nan,
+                                           *K[i + 1])[1]
+        closed = ts._stage_interval(rows, s, i, K[i + 1])
+        np.testing.assert_allclose(closed, (max(lo, 0.0), hi), rtol=1e-7, atol=1e-9)
+        K[i] = max(lo, 0.0), hi
+    assert K[0, 1] > 0.0
+
+
+def test_quick_motion_from_an_almost_resting_start(panda):
+    """A hand-off moving at 1e-5 rad/s (the end of a running motion, bench/replan.py's Panda):
+    the parabola's tangent at s = 0 is 1e-8, Seidel's solver gives no bound for its first
+    stage, and toppra's algorithm found no timing; the closed-form stage makes it a certified
+    quick motion from that exact state."""
+    limits = JointLimits.from_model(panda).with_margin(0.05)
+    q0 = np.array([0.0822120481, -1.19994496, 0.0932206312, -2.78194884, -0.126023813,
+                   1.7790865, 0.0741365004])
+    qd0 = np.array([-1.24099355e-05, -1.72708524e-07, -1.42019146e-05, -4.48031613e-09,
+                    -7.00615653e-06, -6.50390202e-07, 0.0])
+    problem = Problem(panda, joint_state(q0, qd0), point((0.241279919, -0.0920311382,
+                                                          0.515513206)),
+                      k=4.0, reserve=0.1, limits=limits)
+    quick = fm.quick_motion(problem, q0)
+    _check_motion(problem, quick)
+    assert not fm.quick_motion(problem, q0, engine="toppra").success

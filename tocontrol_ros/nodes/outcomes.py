@@ -58,15 +58,29 @@ def result_values(result) -> dict[str, object]:
     -------
     dict
         ``T`` (s), ``iterations``, ``solve_time`` (s), ``residual``, ``max_abs_u``,
-        ``solver_status``, ``method``, ``verify_time`` (s; None without a certificate) and
-        the certificate's (:func:`certificate_values`).
+        ``solver_status``, ``method``, ``verify_time`` (s; None without a certificate),
+        the certificate's (:func:`certificate_values`) and a first motion's
+        ``guess_time`` and ``scaling_time`` (s).
     """
     return {"T": result.T, "iterations": result.iterations,
             "solve_time": result.timings.get("total"), "residual": result.residual,
             "max_abs_u": result.max_abs_u, "solver_status": result.status.name,
             "method": result.method,
             "verify_time": result.timings.get("verify") if result.certificate else None,
-            **certificate_values(result.certificate), **_clearance_values(result)}
+            **certificate_values(result.certificate), **_clearance_values(result),
+            **_first_values(result)}
+
+
+def _first_values(result) -> dict[str, object]:
+    """A first (or quick) motion's parts of ``solve_time`` (s).
+
+    ``guess_time`` (its end configuration: seed pairs, or a quick motion's Newton steps) and
+    ``scaling_time`` (TOPP-RA).
+    """
+    if result.method != "first" or "scaling" not in result.timings:
+        return {}
+    return {"guess_time": result.timings.get("guess"),
+            "scaling_time": result.timings.get("scaling")}
 
 
 def _clearance_values(result) -> dict[str, object]:

@@ -172,6 +172,8 @@ class PlanningService:
         self._last_result = None
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
         self._sent: tuple[int, Any] | None = None  # (request id, PlanResult) last published
+        #: The last publication's parts (s): the trajectory sampled, its message sent.
+        self._publish_parts = {"sample_time": 0.0, "send_time": 0.0}
         self._replans = ReplanPolicy(self)
         self._poses = PoseGoals(self)
         self.memory = MemoryPolicy(lambda message: self.out.status(
@@ -497,7 +499,7 @@ class PlanningService:
             return None
         path, samples = published
         level, message = result_message(result)
-        values = {**extra, "published": "first", "samples": samples,
+        values = {**extra, "published": "first", "samples": samples, **self._publish_parts,
                   "latency": self._published_at - req.received,
                   "publish_latency": self._published_at - req.received}
         self.status(req, level, "first", f"request {req.id} first motion published: "
@@ -513,16 +515,19 @@ class PlanningService:
         rest do not hold it up. ``execute`` False (a plan only): nothing is published, and
         the path is None.
         """
+        t0 = self.clock.monotonic()
         sample = result.trajectory.sample(config.sample_period)
         if not execute:
             return None, len(sample.t)
         if stamp_ns is None:
             stamp_ns = self.clock.now_ns()
         stamp_ns = int(stamp_ns)
+        t1 = self.clock.monotonic()
         msg = self.out.trajectory(sample, stamp_ns)
         if msg is None:
             return None
         self._published_at = self.clock.monotonic()
+        self._publish_parts = {"sample_time": t1 - t0, "send_time": self._published_at - t1}
         self.replanner.published(result, stamp_ns, sample)
         self._sent = (rid, result)
         path = self.out.path(sample, stamp_ns)

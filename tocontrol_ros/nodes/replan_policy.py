@@ -131,6 +131,7 @@ class ReplanPolicy:
         config = req.config
         replans = service.replanner
         min_lead = 0.0
+        wait_time = clock.monotonic() - req.received  # acceptance -> the worker took it
         for attempt in range(1, REPLAN_TRIES + 1):
             t0 = clock.monotonic()
             origin, measured = self._measured(config)
@@ -139,6 +140,7 @@ class ReplanPolicy:
                                       measured, quick=True)
             if handoff is None or running is None or running.trajectory is None:
                 return None  # the optimum's route decides (a goal from the measured state)
+            t_problem = clock.monotonic()
             if replans.near(config, req.target):
                 replans.note_reachable(service.model, req.target)
             try:
@@ -151,15 +153,20 @@ class ReplanPolicy:
             # The parabola's time scale from the straight path's rest-to-rest time, not from
             # the time the running motion has left: along a stream of quick motions that
             # grew (each a little slower than the last: 0.5 s to 2.2 s on the paper's arm).
+            t_solve = clock.monotonic()
             quick = service.planner.quick(problem, q_end, solver_options(config))
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(quick),
+                     "wait_time": wait_time, "handoff_time": t_problem - t0,
+                     "problem_time": t_solve - t_problem,
                      "replan": handoff.kind, "attempts": attempt,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}
             if service.finish_stopped(req, extra):
                 return True
             if not quick.success or quick.trajectory is None:
+                service.status(req, "WARN", "first", f"request {req.id}: no quick motion "
+                               f"({quick.message}); the optimum follows", extra)
                 return None
             now = clock.now_ns()
             if handoff.kind == REST:
@@ -180,6 +187,8 @@ class ReplanPolicy:
                            values, path=path)
             self._improvable = (req, quick, handoff.stamp_ns, running, values)
             return True
+        service.status(req, "WARN", "first", f"request {req.id}: no quick motion in time for "
+                       f"its hand-off in {REPLAN_TRIES} tries; the optimum follows", extra)
         return None
 
     def improve(self) -> None:

@@ -47,7 +47,12 @@ import numpy as np
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath
-from tocontrol_ros.core.direct.time_scaling import cube_time, rest_time, time_scaling
+from tocontrol_ros.core.direct.time_scaling import (
+    cube_time,
+    first_pass,
+    rest_time,
+    time_scaling,
+)
 from tocontrol_ros.core.direct.tuning import (
     CANDIDATES,
     FOLLOW_ITERATIONS,
@@ -124,7 +129,7 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
 
 def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None = None,
                  options: SolverOptions | None = None,
-                 gridpoints: int = QUICK_GRIDPOINTS) -> PlanResult:
+                 gridpoints: int = QUICK_GRIDPOINTS, engine: str = "seidel") -> PlanResult:
     """A first motion whose end is known to be near ``q_near``: a replan's, in milliseconds.
 
     A replan of a running motion to a target near its own needs no search for the end
@@ -154,6 +159,9 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
         The certificate's tolerances and ``verify``.
     gridpoints : int
         TOPP-RA's segments along the path (:data:`QUICK_GRIDPOINTS`).
+    engine : str
+        TOPP-RA's driver (:data:`~tocontrol_ros.core.direct.time_scaling.ENGINES`; the
+        benchmark compares them).
 
     Returns
     -------
@@ -185,7 +193,7 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
     label = "the target near the running motion's end"
     qd0 = np.asarray(problem.start.value[n:], dtype=float)
     if not np.any(qd0):
-        found = _timed(problem, q0, qb, 0.0, label, gridpoints)
+        found = _timed(problem, q0, qb, 0.0, label, gridpoints, engine=engine)
     else:
         # The straight path's rest-to-rest timing sets the parabola's time scale and caps
         # the joint speeds at the larger of the start's and its peaks: timed optimally along
@@ -194,7 +202,7 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
         # paper's arm on a 0.15 m circle, goals 1.9 cm and 0.1 s apart: from 0.7 to 4.8
         # rad/s, T from 0.5 to 2.3 s).
         rest_T, why, peak = rest_time(problem, PolynomialPath.straight(q0, qb), gridpoints,
-                                      peaks=True)
+                                      peaks=True, engine=engine)
         if rest_T is None:
             return _failure(problem, Status.SCALING_FAILED, f"the straight path could not be "
                             f"timed at rest ({why})", timings, t_start)
@@ -203,7 +211,7 @@ def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None 
         scale = time_scale if time_scale is not None and np.isfinite(time_scale) and \
             time_scale > 0.0 else rest_T
         found = _timed(problem, q0, qb, float(scale), label, gridpoints, QUICK_TIME_SCALES,
-                       fastest=True, speed_cap=cap)
+                       fastest=True, speed_cap=cap, engine=engine)
     timings["scaling"] = time.perf_counter() - t0
     if isinstance(found[0], Status):
         return _failure(problem, *found, timings, t_start)
@@ -287,19 +295,15 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
     random seeds, or the planner's self-motion families, end anywhere on the self-motion
     manifold; this one ends near the start, where a short joint path is.
     """
-    model, lim = problem.model, problem.limits
-    fk, jac = model.function("P"), model.function("J")
-    w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
+    fk = problem.model.function("P")
     target = problem.target.value
     x0 = np.array(fk(qa)).ravel()
     q = np.array(qa, dtype=float)
     goals = [x0 + (target - x0) * (i / FOLLOW_STEPS) for i in range(1, FOLLOW_STEPS + 1)]
     for goal in goals + [target]:
-        for _ in range(FOLLOW_ITERATIONS):
-            q = _limited_step(q, goal - np.array(fk(q)).ravel(), np.array(jac(q)), w,
-                              lim.plan_lower, lim.plan_upper)
-            if q is None:  # singular, or the free joints cannot move the tip there
-                return None
+        q = _newton(problem, q, goal, FOLLOW_ITERATIONS, early=False)
+        if q is None:  # singular, or the free joints cannot move the tip there
+            return None
     if not np.linalg.norm(np.array(fk(q)).ravel() - target) <= IK_TOL:
         return None
     return q
@@ -308,23 +312,38 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
 def _newton_near(problem: Problem, q: np.ndarray) -> np.ndarray | None:
     """The target's configuration by Newton steps from ``q`` (near it), or None.
 
-    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_limited_step`),
+    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_newton`),
     straight at the target; None unless within ``IK_TOL`` of it (the caller then follows
     the task-space line, :func:`_followed`).
+    """
+    lim, target = problem.limits, problem.target.value
+    q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
+    q = _newton(problem, q, target, QUICK_IK_ITERATIONS, early=True)
+    fk = problem.model.function("P")
+    return q if q is not None and np.linalg.norm(target - np.array(fk(q)).ravel()) <= \
+        IK_TOL else None
+
+
+def _newton(problem: Problem, q: np.ndarray, goal: np.ndarray, iterations: int,
+            early: bool) -> np.ndarray | None:
+    """``iterations`` weighted least-norm steps from ``q`` at the task point ``goal`` (m).
+
+    The steps of :func:`_followed` (at each point of its line) and :func:`_newton_near`:
+    least ``sum (dq_i / v_i)^2`` (``v`` the velocity limits), the position limits held
+    (:func:`_limited_step`). ``early``: stop once within ``IK_TOL``. None when a step
+    cannot be taken (singular, or the free joints cannot move the tip there).
     """
     model, lim = problem.model, problem.limits
     fk, jac = model.function("P"), model.function("J")
     w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
-    target = problem.target.value
-    q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
-    for _ in range(QUICK_IK_ITERATIONS):
-        r = target - np.array(fk(q)).ravel()
-        if np.linalg.norm(r) <= IK_TOL:
+    for _ in range(iterations):
+        r = goal - np.array(fk(q)).ravel()
+        if early and np.linalg.norm(r) <= IK_TOL:
             return q
         q = _limited_step(q, r, np.array(jac(q)), w, lim.plan_lower, lim.plan_upper)
         if q is None:
             return None
-    return q if np.linalg.norm(target - np.array(fk(q)).ravel()) <= IK_TOL else None
+    return q
 
 
 def _limited_step(q, r, jac, w, lo, hi) -> np.ndarray | None:
@@ -368,35 +387,38 @@ def _estimates(problem: Problem, cands: list) -> np.ndarray:
 
 def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, label: str,
            gridpoints: int = GRIDPOINTS, scales: tuple = TIME_SCALES, fastest: bool = False,
-           speed_cap: np.ndarray | None = None):
+           speed_cap: np.ndarray | None = None, engine: str = "seidel"):
     """The timed path between ``qa`` and ``qb``: ``(ScaledPath, passes, note)``.
 
     Or ``(status, why)`` when there is none. ``rest_T`` (s) sets a moving start's time scale;
     its parabola is the first of ``scales`` that can be timed, or with ``fastest`` the one
-    of least ``T`` among them. ``speed_cap``: :func:`time_scaling`'s.
+    of least ``T`` among them. ``speed_cap``, ``engine``: :func:`time_scaling`'s.
     """
     n = problem.model.n
     lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
     qd0 = problem.start.value[n:] if problem.start.kind == "state" else np.zeros(n)
     if not np.any(qd0):
         out = time_scaling(problem, PolynomialPath.straight(qa, qb), 0.0, gridpoints,
-                           speed_cap)
+                           speed_cap, engine)
         if isinstance(out[0], Status):
             return out
         return (*out, f"first motion: the straight joint path to {label}, timed by TOPP-RA")
     why, timed, passes = [], {}, 0
+
+    ranked: dict = {}  # scale index -> (its path, its first pass), with fastest
 
     def attempt(i: int):
         """The path of scale ``scales[i]`` timed, or None (why noted); memoised."""
         nonlocal passes
         if i not in timed:
             tau = scales[i] * rest_T
-            path = PolynomialPath.parabola(qa, qb, qd0 * tau)
+            path, first = ranked.get(i, (PolynomialPath.parabola(qa, qb, qd0 * tau), None))
             timed[i] = None
             if not _inside(path, lo, hi):
                 why.append(f"tau = {tau:.3g} s: leaves the position limits")
             else:
-                out = time_scaling(problem, path, 1.0 / tau, gridpoints, speed_cap)
+                out = time_scaling(problem, path, 1.0 / tau, gridpoints, speed_cap, engine,
+                                   first)
                 if isinstance(out[0], Status):
                     why.append(f"tau = {tau:.3g} s: {out[1]}")
                 else:
@@ -407,18 +429,27 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
     if not fastest:
         best = next((r for r in map(attempt, range(len(scales))) if r is not None), None)
     else:
-        # The least T: each scale's parabola ranked by one TOPP-RA pass in the cube
-        # (cube_time), from the middle scale down while it falls, else up while it falls
-        # (unimodal in the scale on the cases measured); then timed in full in that order
-        # until one can be.
+        # The least T: each scale's parabola ranked by one TOPP-RA pass in the cube, from
+        # the middle scale down while it falls, else up while it falls (unimodal in the
+        # scale on the cases measured); then timed in full in that order until one can be.
+        # That pass is time_scaling's first (first_pass: the cube shrunk by its margin),
+        # handed on, not done again (with engine "toppra", the implementation before
+        # issue 47: cube_time, the full cube, and time_scaling starts over).
         estimate: dict = {}
 
         def rank(i: int) -> float:
             if i not in estimate:
                 tau = scales[i] * rest_T
                 path = PolynomialPath.parabola(qa, qb, qd0 * tau)
-                estimate[i] = cube_time(problem, path, 1.0 / tau, gridpoints, speed_cap) \
-                    if _inside(path, lo, hi) else np.inf
+                if not _inside(path, lo, hi):
+                    estimate[i] = np.inf
+                elif engine == "toppra":
+                    estimate[i] = cube_time(problem, path, 1.0 / tau, gridpoints, speed_cap,
+                                            engine)
+                else:
+                    ranked[i] = (path, first_pass(problem, path, 1.0 / tau, gridpoints,
+                                                  speed_cap, engine))
+                    estimate[i] = ranked[i][1].T
             return estimate[i]
 
         mid = len(scales) // 2

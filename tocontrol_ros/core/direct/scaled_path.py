@@ -38,7 +38,7 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES",
-           "rigid_body_terms"]
+           "rigid_body_terms", "inverse_dynamics", "open_loop_sweep", "MAP_STEP"]
 
 #: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
 _MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -57,6 +57,10 @@ def mapped(model: RobotModel, name: str, count: int,
         table[key] = (build() if build else model.function(name)).map(count)
     return table[key]
 
+
+#: The inverse dynamics are mapped over a multiple of this many samples
+#: (:meth:`ScaledPath._controls`): a few sizes, each mapped once.
+MAP_STEP = 32
 
 #: Degrees in time of the segments' polynomials whose open-loop right-hand sides are
 #: compiled (one library per model): a straight path's (2) and a parabola's (4).
@@ -85,14 +89,18 @@ def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
 def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
     """The right-hand sides of :data:`COMPILED_DEGREES` and their Jacobians, one library.
 
-    CVODES asks for the Jacobians at set-up, whichever iteration it uses. Last, the
-    inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`).
+    CVODES asks for the Jacobians at set-up, whichever iteration it uses. Then the
+    inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`), last the
+    inverse dynamics (friction included) that a :class:`ScaledPath`'s torques are
+    (:func:`inverse_dynamics`).
     """
     out = []
     for degree in COMPILED_DEGREES:
         rhs = _open_loop_rhs(model, degree)
         out += [rhs, rhs.jacobian()]
-    return out + [_rigid_body_terms(model)]
+    q, qd, qdd = (ca.SX.sym(name, model.n) for name in ("q", "qd", "qdd"))
+    return out + [_rigid_body_terms(model),
+                  ca.Function("inverse_dynamics", [q, qd, qdd], [model.rnea_sym(q, qd, qdd)])]
 
 
 def _rigid_body_terms(model: RobotModel) -> ca.Function:
@@ -115,12 +123,29 @@ def rigid_body_terms(model: RobotModel, count: int) -> ca.Function:
     The first motion's and the quick replan's coefficients evaluate it on every path they
     time (in CasADi's virtual machine about 1 ms on the Panda at 31 gridpoints).
     """
+    return _compiled_mapped(model, -2, "rigid_body_terms", count)
+
+
+def inverse_dynamics(model: RobotModel, count: int) -> ca.Function:
+    """``model.function("id")`` compiled with the open loop's library, mapped over ``count``.
+
+    A :class:`ScaledPath`'s torques at its samples (the fine sampling of every check, the
+    published samples): in CasADi's virtual machine 2.3 ms for 256 samples of the Panda.
+    """
+    return _compiled_mapped(model, -1, "inverse_dynamics", count)
+
+
+def _compiled_mapped(model: RobotModel, index: int, name: str, count: int) -> ca.Function:
+    """Function ``index`` of the open loop's library mapped over ``count``, kept per model.
+
+    Made again when the optimised build of the library lands.
+    """
     funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
                             lambda: _compiled_rhs(model))
     table = _MAPPED.setdefault(model, {})
-    key = ("rigid_body_terms", count)
-    if key not in table or table[key][0] is not funs[-1]:
-        table[key] = (funs[-1], funs[-1].map(count))
+    key = (name, count)
+    if key not in table or table[key][0] is not funs[index]:
+        table[key] = (funs[index], funs[index].map(count))
     return table[key][1]
 
 
@@ -154,6 +179,31 @@ def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: floa
     return integ
 
 
+#: model -> {(integrator id, segments): (integrator, its sweep over the segments)}.
+_SWEEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.Function:
+    """``integ`` over ``segments`` segments in a row, in one call (``mapaccum``).
+
+    ``(x0 (2n,), P (params, segments)) -> (x at each segment's end (2n, segments), x at
+    every output (2n, segments OPEN_LOOP_POINTS))``: each segment starts where the last
+    ended, as :func:`~tocontrol_ros.core.direct.flat_trajectory.integrate_segments` does
+    from Python; the same CVODES calls, one Python call instead of one per segment (on the
+    Panda's 30 segments 13 ms -> 7.6 ms on a loaded machine, the states equal to the bit).
+    Kept per model and integrator.
+    """
+    table = _SWEEPS.setdefault(model, {})
+    key = (id(integ), segments)
+    if key not in table or table[key][0] is not integ:
+        x = ca.MX.sym("x", integ.size1_in(0))
+        p = ca.MX.sym("p", integ.size1_in(2))
+        out = integ(x0=x, p=p)["xf"]
+        step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
+        table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
+    return table[key][1]
+
+
 class PolynomialPath:
     """A joint path ``q(s) = sum_j c_j s^j`` for ``s`` in [0, 1].
 
@@ -167,6 +217,7 @@ class PolynomialPath:
         self.c = np.atleast_2d(np.asarray(coefficients, dtype=float))
         self.degree = self.c.shape[0] - 1
         self.n = self.c.shape[1]
+        self._derivatives = [self.c]
 
     @classmethod
     def straight(cls, qa: np.ndarray, qb: np.ndarray) -> PolynomialPath:
@@ -183,8 +234,11 @@ class PolynomialPath:
     def __call__(self, s, order: int = 0) -> np.ndarray:
         """``d^order q / ds^order`` at ``s`` (K,), shape (K, n)."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
-        c = poly.polyder(self.c, order, axis=0) if order else self.c
-        return poly.polyval(s, c).T
+        while len(self._derivatives) <= order:  # each derivative's coefficients once
+            self._derivatives.append(poly.polyder(self._derivatives[-1], 1, axis=0)
+                                     if len(self._derivatives[-1]) > 1 else
+                                     np.zeros((1, self.n)))
+        return poly.polyval(s, self._derivatives[order]).T
 
     def position_range(self) -> tuple[np.ndarray, np.ndarray]:
         """Each joint's least and greatest position on [0, 1], shapes (n,) (rad, m)."""
@@ -245,7 +299,6 @@ class ScaledPath(InverseDynamicsTrajectory):
         self.t_grid = np.concatenate([[0.0], np.cumsum(self.h)])
         self.T = float(self.t_grid[-1])
         self._scale = model.tau_max * torque_scale
-        self._id = model.function("id")
         q, qd, _ = self._path(self.t_grid)
         self.z_grid = np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
 
@@ -269,11 +322,21 @@ class ScaledPath(InverseDynamicsTrajectory):
         return q, qd, qdd
 
     def _controls(self, q, qd, qdd) -> np.ndarray:
-        """Normalised torques ``u = tau / (tau_max torque_scale)`` (K, n)."""
-        if len(q) == 1:
-            tau = np.array(self._id(q[0], qd[0], qdd[0])).T
-        else:
-            tau = np.array(mapped(self._model, "id", len(q))(q.T, qd.T, qdd.T)).T
+        """Normalised torques ``u = tau / (tau_max torque_scale)`` (K, n).
+
+        The compiled inverse dynamics (:func:`inverse_dynamics`), mapped over the next
+        multiple of :data:`MAP_STEP` samples (the last one repeated): a sampling's length
+        changes with ``T``, and a new mapping costs as much as evaluating a hundred
+        samples.
+        """
+        count = len(q)
+        if count == 0:
+            return np.zeros((0, self.n))
+        size = -(-count // MAP_STEP) * MAP_STEP
+        pad = size - count
+        cols = [np.vstack([v, np.repeat(v[-1:], pad, axis=0)]).T if pad else v.T
+                for v in (q, qd, qdd)]
+        tau = np.array(inverse_dynamics(self._model, size)(*cols)).T[:count]
         return tau / self._scale
 
     def segment_samples(self, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -321,13 +384,16 @@ class ScaledPath(InverseDynamicsTrajectory):
                 power = nxt
         return out
 
-    def open_loop(self, rtol: float, atol: float, stiff: bool = False
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False, one_call: bool = True
                   ) -> tuple[np.ndarray, np.ndarray, bool]:
         """The nominal torques integrated from ``x(0)``, segment by segment (CVODES).
 
         As :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop` does
         (:func:`open_loop_integrator`): the forward dynamics under the inverse dynamics of
-        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails.
+        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails. With
+        ``one_call`` (default) every segment in one call (:func:`open_loop_sweep`), and one by
+        one from Python only when a segment fails (to say where); ``False``: one by one
+        (the benchmark's comparison).
 
         Returns
         -------
@@ -340,9 +406,19 @@ class ScaledPath(InverseDynamicsTrajectory):
         integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
+        x0 = self.state(0.0)[0, :2 * self.n]
+        times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
+        params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
+        try:  # every segment in one call
+            if one_call:
+                _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
+                return np.concatenate([[0.0], times]), \
+                    np.vstack([x0[None, :], np.array(states).T]), True
+        except RuntimeError:  # a segment failed: again one by one, to say where
+            pass
         segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)
                     for j in range(len(self.h)))
-        t, x, success = integrate_segments(integ, self.state(0.0)[0, :2 * self.n], segments)
+        t, x, success = integrate_segments(integ, x0, segments)
         if not success and not stiff:
-            return self.open_loop(rtol, atol, stiff=True)
+            return self.open_loop(rtol, atol, stiff=True, one_call=one_call)
         return t, x, success

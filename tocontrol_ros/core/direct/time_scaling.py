@@ -36,6 +36,7 @@ clock.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -56,21 +57,29 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "cube_time", "time_scaling"]
+__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES"]
+
+#: TOPP-RA's drivers: ``"seidel"`` (the default: toppra's compiled Seidel solver driven
+#: stage by stage here, its two sweeps as toppra's own; issue 47) and ``"toppra"`` (the
+#: library's ``TOPPRA`` algorithm object, built per pass: the same numbers, about 1 ms a pass
+#: more (it scans the installed packages for solvers on every construction); kept for the
+#: benchmark's comparison and the tests').
+ENGINES = ("seidel", "toppra")
+
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
-              peaks: bool = False) -> tuple:
+              peaks: bool = False, engine: str = "seidel") -> tuple:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
 
     What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
     TOPP-RA finds no timing. ``gridpoints``: TOPP-RA's segments along the path. With
     ``peaks``: ``(T, why, peak)``, ``peak`` (n,) each joint's largest speed on that timing
-    at the gridpoints (rad/s; None without a timing).
+    at the gridpoints (rad/s; None without a timing). ``engine``: one of :data:`ENGINES`.
     """
     n = problem.model.n
     s = np.linspace(0.0, 1.0, gridpoints + 1)
     cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
-    x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None)
+    x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None, engine)
     T = None if x is None else _duration(x, s)
     if not peaks:
         return (None, why) if x is None else (T, "")
@@ -80,7 +89,8 @@ def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOIN
 
 
 def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
-              gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None) -> float:
+              gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
+              engine: str = "seidel") -> float:
     """The time (s) of ``path`` from path speed ``sd0`` to rest in the cube (one pass).
 
     As :func:`rest_time`, from a moving start and with :func:`time_scaling`'s
@@ -90,8 +100,45 @@ def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
     n = problem.model.n
     s = np.linspace(0.0, 1.0, gridpoints + 1)
     cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
-    x, _ = _toppra(_Coefficients(problem, path, s, speed_cap), s, sd0, cube, None)
+    x, _ = _toppra(_Coefficients(problem, path, s, speed_cap), s, sd0, cube, None, engine)
     return np.inf if x is None else _duration(x, s)
+
+
+@dataclass(frozen=True)
+class FirstPass:
+    """:func:`time_scaling`'s first pass of a path, done ahead (:func:`first_pass`).
+
+    Attributes
+    ----------
+    T : float
+        Its time (s); ``inf`` when TOPP-RA found no timing.
+    why : str
+        Why not, or "".
+    """
+
+    T: float
+    why: str
+    coef: object
+    x: np.ndarray | None
+    key: tuple
+
+
+def first_pass(problem: Problem, path: PolynomialPath, sd0: float,
+               gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
+               engine: str = "seidel") -> FirstPass:
+    """The first pass :func:`time_scaling` would make of ``path``, ranked before it is run.
+
+    The cube shrunk by :data:`SCALING_SET_MARGIN`, friction left out (one pass): what ranks
+    a moving start's candidate paths (as :func:`cube_time`), and then, given to
+    :func:`time_scaling` as ``first``, its first pass and coefficients, not computed twice.
+    """
+    n = problem.model.n
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    coef = _Coefficients(problem, path, s, speed_cap)
+    x, why = _toppra(coef, s, sd0, cube * (1.0 - SCALING_SET_MARGIN), None, engine)
+    return FirstPass(np.inf if x is None else _duration(x, s), why, coef, x,
+                     (id(path), sd0, gridpoints, engine))
 
 
 class _Coefficients:
@@ -144,11 +191,14 @@ class _Coefficients:
 
 
 def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
-                 gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None):
+                 gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
+                 engine: str = "seidel", first: FirstPass | None = None):
     """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
 
     ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer);
-    ``speed_cap`` (n,): joint speeds held below it too (rad/s, m/s), as the velocity limits.
+    ``speed_cap`` (n,): joint speeds held below it too (rad/s, m/s), as the velocity limits;
+    ``engine``: one of :data:`ENGINES`; ``first``: :func:`first_pass` of this ``path`` with
+    these arguments (it is not counted again in the passes).
 
     Returns
     -------
@@ -156,10 +206,13 @@ def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
         The timed path and the TOPP-RA passes it took, or ``SCALING_FAILED`` and why.
     """
     s = np.linspace(0.0, 1.0, gridpoints + 1)
-    coef = _Coefficients(problem, path, s, speed_cap)
+    if first is not None and first.key != (id(path), sd0, gridpoints, engine):
+        raise ValueError("`first` must be first_pass of the same path and arguments")
+    coef = first.coef if first is not None else _Coefficients(problem, path, s, speed_cap)
     margin, passes = SCALING_SET_MARGIN, 0
     for _ in range(MARGIN_ROUNDS + 1):
-        x, count = _best_scaling(problem, coef, s, sd0, margin)
+        x, count = _best_scaling(problem, coef, s, sd0, margin, engine,
+                                 first if margin == SCALING_SET_MARGIN else None)
         passes += count
         if isinstance(x, str):
             return Status.SCALING_FAILED, x
@@ -174,28 +227,31 @@ def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
 
 
 def _best_scaling(problem: Problem, coef: _Coefficients, s: np.ndarray, sd0: float,
-                  margin: float):
+                  margin: float, engine: str, first: FirstPass | None = None):
     """The fastest of the passes (squared path speeds (N + 1,)) and their count.
 
-    Or a message when the first pass fails.
+    Or a message when the first pass fails. ``first``: that pass, done already.
     """
     n = problem.model.n
     friction = bool(np.any(coef.f))
     cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
     # Without friction the first pass is exact; with it, its speeds only place the lines.
-    x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), None)
-    passes = 1
+    if first is not None:
+        x, why, passes = first.x, first.why, 0
+    else:
+        x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), None, engine)
+        passes = 1
     if x is None:
         return f"TOPP-RA found no timing inside the cube |u_i| <= n^(-1/(2k)) ({why})", passes
     if friction:
-        x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), x)
+        x, why = _toppra(coef, s, sd0, cube * (1.0 - margin), x, engine)
         passes += 1
         if x is None:
             return f"TOPP-RA found no timing with friction bounded ({why})", passes
     best = x
     for _ in range(ADAPT_PASSES):
         boxes = _boxes(coef.torques(best, s), problem.k) * (1.0 - margin)
-        x, _ = _toppra(coef, s, sd0, boxes, best if friction else None)
+        x, _ = _toppra(coef, s, sd0, boxes, best if friction else None, engine)
         passes += 1
         if x is None or _duration(x, s) >= _duration(best, s):
             break
@@ -243,14 +299,15 @@ def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
 
 
 def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
-            x_prev: np.ndarray | None):
+            x_prev: np.ndarray | None, engine: str = "seidel"):
     """One TOPP-RA pass: squared path speeds (N + 1,) to rest at ``s = 1``, or (None, why).
 
     The torque rows ``-box_i <= u_i <= box_i`` (friction by :func:`_friction_lines`),
     divided by the box so that TOPP-RA's ``F v <= g`` is the same at every gridpoint.
+    ``engine``: one of :data:`ENGINES`.
     """
-    import toppra.algorithm
-
+    if engine not in ENGINES:
+        raise ValueError(f"`engine` must be one of {ENGINES}, got {engine!r}")
     u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
     rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
     rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
@@ -263,12 +320,102 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
     x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
     constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)
+    if engine == "seidel":
+        return _seidel(constraint, coef.a.shape[1], s, sd0, (rows_a, rows_b, rows_c, x_max))
+    import toppra.algorithm
+
     algo = toppra.algorithm.TOPPRA([constraint], _path_class()(coef.a.shape[1]), gridpoints=s,
                                    solver_wrapper="seidel")
     _, sd, _ = algo.compute_parameterization(sd0, 0.0)
     if sd is None or not np.all(np.isfinite(sd)):
         return None, algo.problem_data.return_code.value
     return np.asarray(sd, dtype=float) ** 2, ""
+
+
+def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):
+    """TOPP-RA's two sweeps over toppra's compiled Seidel solver: ``(x, "")`` or (None, why).
+
+    What ``toppra.algorithm.TOPPRA.compute_parameterization(sd0, 0)`` computes with
+    ``solver_wrapper="seidel"`` (the same stage programs, objectives and safeguards: the
+    controllable sets backward, then the greatest controllable ``x`` forward, each next
+    ``x`` lowered by toppra's ``TINY`` or 0.01 % and a stage retried from a ``x`` 0.1 %
+    lower when rounding makes it infeasible), without building the algorithm object per
+    pass. Where Seidel's solver returns no answer for a stage's bound of ``x`` (it fails on
+    rows nearly parallel to the ``u`` axis: a replan from a start moving at 1e-5 rad/s,
+    whose parabola's tangent is 1e-8 at ``s = 0``), that bound is the stage program's exact
+    one in closed form (:func:`_stage_interval`); ``rows``: :func:`_toppra`'s.
+    """
+    from toppra.constants import MAX_TRIES, SMALL, TINY
+    from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
+
+    wrapper = seidelWrapper([constraint], _path_class()(dof), s, solve_lp1d=True)
+    solve = wrapper.solve_stagewise_optim
+    deltas = wrapper.get_deltas()
+    last = len(s) - 1
+    K = np.zeros((last + 1, 2))
+    g_upper, g_lower = np.array([1e-9, -1.0]), np.array([-1e-9, 1.0])
+    wrapper.setup_solver()
+    for i in range(last - 1, -1, -1):
+        hi = solve(i, None, g_upper, np.nan, np.nan, K[i + 1, 0], K[i + 1, 1])[1]
+        lo = solve(i, None, g_lower, np.nan, np.nan, K[i + 1, 0], K[i + 1, 1])[1]
+        if np.isnan(hi) or np.isnan(lo):
+            lo, hi = _stage_interval(rows, s, i, K[i + 1])
+        if not lo <= hi:
+            return None, f"the controllable set is empty at gridpoint {i} of {last}"
+        K[i] = max(lo, 0.0), hi
+    x = np.zeros(last + 1)
+    x[0] = sd0 ** 2
+    if x[0] + SMALL < K[0, 0] or K[0, 1] + SMALL < x[0]:
+        return None, f"the start's path speed is not controllable (sd^2 = {x[0]:.6g} " \
+            f"outside [{K[0, 0]:.6g}, {K[0, 1]:.6g}])"
+    tries, i = 0, 0
+    while i < last:
+        g = np.array([-2.0 * deltas[i], -1.0])
+        u = solve(i, None, g, x[i], x[i], K[i + 1, 0], K[i + 1, 1])[0]
+        if np.isnan(u):
+            if tries >= MAX_TRIES:
+                return None, f"the forward sweep failed at gridpoint {i} of {last}"
+            x[i] = max(x[i] - TINY, 0.999 * x[i])
+            tries += 1
+            continue
+        tries = 0
+        x_next = x[i] + 2.0 * deltas[i] * u
+        x_next = max(x_next - TINY, 0.9999 * x_next)
+        x[i + 1] = min(K[i + 1, 1], max(K[i + 1, 0], x_next))
+        i += 1
+    wrapper.close_solver()
+    return x, ""
+
+
+def _stage_interval(rows: tuple, s: np.ndarray, i: int, next_set: np.ndarray
+                    ) -> tuple[float, float]:
+    """Stage ``i``'s interval of ``x`` from which ``next_set`` is reachable, in closed form.
+
+    Its rows ``alpha u + beta x <= gamma``: gridpoint ``i``'s, gridpoint ``i + 1``'s with
+    ``x_{i+1} = x + 2 delta u`` put in, ``0 <= x <= x_max_i`` and ``lo <= x + 2 delta u <=
+    hi``. Eliminating ``u`` (Fourier-Motzkin) is exact in two variables: every row bounding
+    ``u`` above paired with every row bounding it below gives one linear bound of ``x``
+    (multiplied through by ``-alpha_q alpha_p > 0``: no division by a small ``alpha``).
+    ``(lo, hi)``; ``lo > hi`` when the stage has no ``x``.
+    """
+    a, b, c, x_max = rows
+    two_d = 2.0 * (s[i + 1] - s[i])
+    alpha = np.concatenate([a[i], a[i + 1] + two_d * b[i + 1], [two_d, -two_d]])
+    beta = np.concatenate([b[i], b[i + 1], [1.0, -1.0]])
+    gamma = np.concatenate([1.0 - c[i], 1.0 - c[i + 1], [next_set[1], -next_set[0]]])
+    up, down = alpha > 0.0, alpha < 0.0
+    coef = np.concatenate([(-alpha[down][None, :] * beta[up][:, None]
+                            + alpha[up][:, None] * beta[down][None, :]).ravel(),
+                           beta[~(up | down)]])
+    rhs = np.concatenate([(-alpha[down][None, :] * gamma[up][:, None]
+                           + alpha[up][:, None] * gamma[down][None, :]).ravel(),
+                          gamma[~(up | down)]])
+    if np.any((coef == 0.0) & (rhs < 0.0)):
+        return np.inf, -np.inf
+    pos, neg = coef > 0.0, coef < 0.0
+    hi = min(float(np.min(rhs[pos] / coef[pos], initial=np.inf)), float(x_max[i]))
+    lo = max(float(np.max(rhs[neg] / coef[neg], initial=-np.inf)), 0.0)
+    return lo, hi
 
 
 _CLASSES: dict = {}

@@ -98,7 +98,17 @@ def cache_dir() -> Path:
 def _compiler() -> str | None:
     if os.environ.get("TOCONTROL_COMPILE", "1") == "0":
         return None
-    return os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    return _found_compiler(os.environ.get("CC"), os.environ.get("PATH"))
+
+
+@functools.lru_cache(maxsize=8)
+def _found_compiler(cc: str | None, path: str | None) -> str | None:
+    """``cc``, else gcc or cc on ``path``: looked up once per environment.
+
+    A search of the ``PATH`` costs 0.2-0.4 ms, and every call of a compiled function's
+    owner asks.
+    """
+    return cc or shutil.which("gcc", path=path) or shutil.which("cc", path=path)
 
 
 @functools.cache

@@ -1,0 +1,208 @@
+"""A replan's quick motion in process, its parts, paired against the implementation before
+issue 47's cuts in the same run.
+
+The cases are the replans of ``bench/replan.py --moving``, made here in one process: the
+paper's arm after goals on its 0.3 m circle, the Panda in the README's set-up (start
+configuration, limit margin 0.05) after goals twice around its 0.25 m circle, 10 Hz; each
+replan starts from the last quick motion's state 0.1 s after it was published (at rest when
+it was over by then), ``q_near`` its end (what the planner node passes), k = 4, reserve 0.1
+(the node's defaults). Per case, alternately (so that both see the same load):
+
+- *now*: :func:`~tocontrol_ros.core.direct.first_motion.quick_motion` as the planner calls
+  it (TOPP-RA over toppra's compiled Seidel solver driven directly, the ranking pass handed
+  on, the certificate's open loop in one call, the compiled inverse dynamics);
+- *before*: ``engine="toppra"`` (toppra's algorithm object per pass, the time scales ranked
+  in the full cube and timed again from scratch: the TOPP-RA of main before issue 47); the
+  rest is the present code's;
+- the certificate's open loop of the same motion, CVODES segment by segment from Python
+  (``ScaledPath.open_loop(..., one_call=False)``, main's) against one ``mapaccum`` call
+  (:func:`~tocontrol_ros.core.direct.scaled_path.open_loop_sweep`), the states compared.
+
+Figures: medians over the cases (ms), the ratio before / now of the medians, ``T`` now /
+before per case (median, min, max), successes. Run alone:
+``scripts/dev run python -P bench/quick_motion.py [paper|panda|both]`` (prints the section).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from bench.common import PANDA_LOCKED, Section, load_text, log, panda_urdf, table  # noqa: E402
+from bench.replan import (  # noqa: E402  (the node benchmark's moving targets)
+    DURATION,
+    MOVING_PANDA_LAPS,
+    MOVING_PANDA_RADIUS,
+    MOVING_PAPER_RADIUS,
+    RATE,
+    README_PANDA_Q0,
+)
+
+#: Goals per robot, as bench/replan.py sends them.
+GOALS = int(RATE * DURATION)
+PAPER_RADIUS, PANDA_RADIUS, PANDA_LAPS = MOVING_PAPER_RADIUS, MOVING_PANDA_RADIUS, \
+    MOVING_PANDA_LAPS
+#: The paper's arm's start (bench/replan.py's).
+PAPER_Q0 = (0.3, 0.9, 0.6)
+
+
+def _robot(name: str):
+    """(model, start configuration, circle radius, laps, limits) or None."""
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+
+    if name == "paper":
+        model = load_robot(default_urdf_path())
+        return model, np.array(PAPER_Q0), PAPER_RADIUS, 1, JointLimits.from_model(model)
+    urdf = panda_urdf()
+    if urdf is None:
+        return None
+    model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
+    return (model, np.array(README_PANDA_Q0), PANDA_RADIUS, PANDA_LAPS,
+            JointLimits.from_model(model).with_margin(0.05))
+
+
+def replans(name: str) -> list | None:
+    """The chain's ``(problem, q_near)``, each from the last quick motion (see the module)."""
+    from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
+
+    found = _robot(name)
+    if found is None:
+        return None
+    model, q0, radius, laps, limits = found
+    n, centre = model.n, model.point(q0)
+    goals = []
+    for a in np.linspace(0.0, 2.0 * math.pi * laps, GOALS + 1)[:-1]:
+        p = np.array(centre, dtype=float)
+        p[:2] += radius * np.array([math.cos(a), math.sin(a)])
+        goals.append(p)
+    running = first_motion(Problem(model, joint_state(q0), point(goals[0]), k=4.0,
+                                   reserve=0.1, limits=limits))
+    if not running.success:
+        raise RuntimeError(f"{name}: the first motion onto the circle failed: "
+                           f"{running.message}")
+    out = []
+    for goal in goals[1:]:
+        t = min(1.0 / RATE, running.T)
+        z = running.trajectory.state(t)[0]
+        qd = limits.admissible_velocity(z[n:2 * n]) if t < running.T else np.zeros(n)
+        problem = Problem(model, joint_state(z[:n], qd), point(goal), k=4.0, reserve=0.1,
+                          limits=limits)
+        q_near = running.trajectory.state(running.T)[0][:n]
+        out.append((problem, q_near))
+        quick = quick_motion(problem, q_near)
+        if quick.success:
+            running = quick
+    return out
+
+
+def _open_loops(traj) -> tuple[float, float, float]:
+    """The open loop of ``traj`` segment by segment and in one call: times (s), difference."""
+    from tocontrol_ros.core.direct.tuning import OPEN_LOOP_ATOL, OPEN_LOOP_RTOL
+
+    t0 = time.perf_counter()
+    _, x_old, ok_old = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, one_call=False)
+    t1 = time.perf_counter()
+    _, x_new, ok_new = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
+    t2 = time.perf_counter()
+    diff = float(np.max(np.abs(x_new - x_old))) if ok_old and ok_new else float("nan")
+    return t1 - t0, t2 - t1, diff
+
+
+def measure(name: str) -> dict | None:
+    """One robot's paired figures (see the module), or None without the robot."""
+    from tocontrol_ros.core.direct.first_motion import quick_motion
+    from tocontrol_ros.core.robot import compiled
+
+    cases = replans(name)
+    if cases is None:
+        return None
+    for problem, q_near in cases[:3]:  # warm-up: builds, mappings
+        for engine in ("seidel", "toppra"):
+            quick_motion(problem, q_near, engine=engine)
+    compiled.wait_for_builds()
+    rows = {"seidel": [], "toppra": []}
+    loops = []
+    for problem, q_near in cases:
+        for engine in ("seidel", "toppra"):
+            rows[engine].append(quick_motion(problem, q_near, engine=engine))
+        now = rows["seidel"][-1]
+        if now.success:
+            loops.append(_open_loops(now.trajectory))
+    moving = sum(bool(np.any(p.start.value[p.model.n:])) for p, _ in cases)
+
+    def med(engine: str, key: str) -> float:
+        return statistics.median(r.timings[key] for r in rows[engine])
+
+    ratios = [a.T / b.T for a, b in zip(rows["seidel"], rows["toppra"], strict=True)
+              if a.success and b.success]
+    return {
+        "robot": name, "cases": len(cases), "moving": moving,
+        "ok": {e: sum(r.success for r in rs) for e, rs in rows.items()},
+        "parts": {e: {k: med(e, k) for k in ("guess", "scaling", "verify", "total")}
+                  for e in rows},
+        "passes": {e: statistics.median(r.iterations for r in rs) for e, rs in rows.items()},
+        "T_ratio": (statistics.median(ratios), min(ratios), max(ratios)),
+        "loop": (statistics.median(v[0] for v in loops), statistics.median(v[1] for v in loops),
+                 max(v[2] for v in loops)),
+    }
+
+
+def run(which: str = "both") -> Section:
+    names = ("paper", "panda") if which == "both" else (which,)
+    load0 = load_text()
+    results = []
+    for name in names:
+        log(f"quick motion: {name} ...")
+        out = measure(name)
+        if out is None:
+            log(f"quick motion: {name} skipped (example-robot-data is not installed)")
+            continue
+        results.append(out)
+        log(f"quick motion {name}: {out}")
+    rows = []
+    for r in results:
+        now, before = r["parts"]["seidel"], r["parts"]["toppra"]
+        rows.append([
+            f"{r['robot']} ({r['moving']}/{r['cases']} moving)",
+            f"{r['ok']['seidel']} / {r['ok']['toppra']}",
+            *(f"{1e3 * before[k]:.2f} -> {1e3 * now[k]:.2f} ({before[k] / now[k]:.2f}x)"
+              for k in ("scaling", "verify", "total")),
+            f"{r['passes']['toppra']:.0f} -> {r['passes']['seidel']:.0f}",
+            "{:.4f} [{:.4f}, {:.4f}]".format(*r["T_ratio"]),
+            f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} "
+            f"({r['loop'][0] / r['loop'][1]:.2f}x; max diff {r['loop'][2]:.1e})"])
+    lines = [
+        "A replan's quick motion in one process (`first_motion.quick_motion`), the replans "
+        "of `bench/replan.py --moving` (each from the last quick motion's state 0.1 s "
+        "after it, k = 4, reserve 0.1), paired per case against the TOPP-RA before issue "
+        "47's cuts (`engine=\"toppra\"`: toppra's algorithm object per pass, the time "
+        "scales ranked in the full cube and timed again from scratch), alternately. "
+        "Medians in ms, before -> now; scaling: TOPP-RA; verify: the certificate (the "
+        "present one in both columns); open loop: the certificate's re-integration of the "
+        "same motion segment by segment from Python (main's) -> one `mapaccum` call, the "
+        "largest difference of their states. T now / before per case: median [min, max]. "
+        f"Load before: {load0}; after: {load_text()}. Command: `scripts/dev run python -P "
+        f"bench/quick_motion.py {which}`.",
+        "",
+        *table(["robot", "certified now / before", "scaling ms", "verify ms", "total ms",
+                "passes", "T now / before", "open loop ms"], rows),
+    ]
+    return Section("Replanning: the quick motion's parts in process (issue 47)", lines, [])
+
+
+if __name__ == "__main__":
+    which = sys.argv[1] if len(sys.argv) > 1 else "both"
+    if which not in ("paper", "panda", "both"):
+        raise SystemExit(f"usage: bench/quick_motion.py [paper|panda|both], got {which!r}")
+    section = run(which)
+    print("\n".join(section.lines))
