@@ -274,9 +274,8 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     step, _ = sensitivity_solve(flat, w0, warm.lam_g, warm.lam_x, *values, *bounds, SET_PAD,
                                 should_stop=ctx.should_stop)
     ctx.check()
-    timings["shooting"] += time.perf_counter() - t0
     why = step.message
-    if not step.success:
+    if not step.success:  # the caller's solve time counts from t0 on
         return None, why
     traj = FlatTrajectory(flat, step, problem.k)
     if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
@@ -287,9 +286,12 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
              f"previous solution on its mesh of {flat.spans} spans by the {why} (route: "
              f"parametric)"]
+    elapsed = time.perf_counter() - t0
+    timings["shooting"] += elapsed
     done = _result(ctx, step, traj, [], notes, timings, t_start)
     if done.success:
         return done, why
+    timings["shooting"] -= elapsed
     return None, f"{why}, but not certified ({done.message})"
 
 

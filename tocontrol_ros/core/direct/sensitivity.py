@@ -281,7 +281,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
         if should_stop is not None and should_stop():
             reason = "cancelled"
             break
-        if err > CONTRACTION * last and full and hessians <= REFRESHES:
+        if steps > 0 and (not full or err > CONTRACTION * last) and hessians <= REFRESHES:
             hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
             hessians += 1
         last = err
