@@ -12,18 +12,21 @@ multipliers, so no active set has to be guessed from the interior-point solution
 matrix's sparsity never changes. The first Newton step from the old solution on the new
 parameters is the tangent predictor; the correctors are further Newton steps, the
 Lagrangian's Hessian kept from the first (chord steps: the rows, their Jacobian and the
-barrier terms evaluated again each step; the Hessian re-evaluated at most
-:data:`REFRESHES` times when a step does not cut the residual by :data:`CONTRACTION`), each
-cut by the fraction-to-the-boundary rule, so slacks and multipliers stay positive and every
-inequality holds strictly. Where the move changes the active set, the slacks and
-multipliers of those rows change places over a few steps. At most :data:`MAX_STEPS` steps:
+barrier terms evaluated again each step; the Hessian re-evaluated, at most
+:data:`REFRESHES` times, after a step cut by the boundary or one that did not cut the
+residual by :data:`CONTRACTION`), each cut by the fraction-to-the-boundary rule, so slacks
+and multipliers stay positive and every inequality holds strictly. Where the move changes
+the active set the slacks and multipliers of those rows must change places; measured, the
+steps are then often cut to a small fraction of their length and do not converge within
+the budget (docs/limits.md, "Warm re-solves by the parametric step"). At most
+:data:`MAX_STEPS` steps:
 the solver decides by work, never by the clock; a solve that has not converged then is a
 failure with its reason, and the caller re-solves with IPOPT
 (:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`).
 
-The first idea tried was a pure active-set Newton (strongly active rows as equalities,
-the others checked after); it failed on the planner's solutions: they are degenerate
-(docs/limits.md, "Warm re-solves by the parametric step").
+A Newton step on a guessed active set (strongly active rows as equalities, the others
+checked after) failed on the planner's solutions: many rows are weakly active, and dropping
+their small multipliers left the stationarity residual at 0.24 (docs/limits.md).
 
 The KKT matrix ``[[H + S_x, J^T], [J, -D]]`` is ordered along the path (each control
 point's variables, then the rows that touch it), which makes it banded (a band of about
@@ -44,9 +47,9 @@ from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 
 __all__ = ["MAX_STEPS", "MU", "SensitivityOutcome", "sensitivity_solve"]
 
-#: The barrier parameter the steps hold (IPOPT's last one at its tolerance 1e-8 is about
-#: 1e-9): ``T`` lies above the optimum by at most about ``MU`` times the number of rows and
-#: bounds over the multipliers' scale (on the Panda's 24 spans ``< 1e-6`` relative).
+#: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
+#: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
+#: converged equals IPOPT's converged re-solve of the same NLP to about 1e-8 (relative).
 MU = 1e-9
 #: Newton steps at most (the predictor included).
 MAX_STEPS = 12
@@ -76,8 +79,8 @@ class SensitivityOutcome:
         Evaluations of the Lagrangian's Hessian (each followed by a factorisation; every
         step factorises the matrix with its new barrier terms).
     changed : int
-        Rows and bounds whose activity changed (slack below ``1e-6`` of its scale at the
-        start and not at the end, or the other way).
+        Rows whose activity changed (slack below ``1e-6`` at the start and not at the end,
+        or the other way).
     reason : str
         "converged", or why it stopped.
     """
