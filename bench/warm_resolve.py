@@ -79,8 +79,7 @@ def run(count: int = CASES) -> Section:
     from tocontrol_ros.core.types.options import SolverOptions
     from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
-    title = ("One replan after a 2 cm move on the Panda: parametric step, IPOPT warm, "
-             "quick motion (issue 47)")
+    title = "One replan after a 2 cm move on the Panda: warm re-solve and quick motion (issue 47)"
     urdf = panda_urdf()
     if urdf is None:
         return Section(title, ["example-robot-data is not installed: skipped."])
@@ -95,7 +94,8 @@ def run(count: int = CASES) -> Section:
     rows = []
     m = {key: [] for key in ("p_solve", "p_total", "p_gap", "p_cold", "i_solve", "i_total",
                              "t_solve", "r_total", "q_total", "q_gap", "p_steps", "i_it",
-                             "t_it", "r_it")}
+                             "t_it", "r_it", "p_solve_ok", "p_total_ok", "i_solve_ok",
+                             "i_total_ok")}
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
@@ -151,10 +151,15 @@ def run(count: int = CASES) -> Section:
         if par.success:
             m["p_solve"].append(p_solve)
             m["p_total"].append(tp)
-            m["p_gap"].append(gap)
             m["p_cold"].append(gap_cold)
         if route == "parametric":
             m["p_steps"].append(par.iterations)
+            m["p_gap"].append(gap)
+            m["p_solve_ok"].append(p_solve)
+            m["p_total_ok"].append(tp)
+            if ipo.success:
+                m["i_solve_ok"].append(i_solve)
+                m["i_total_ok"].append(ti)
         if ipo.success:
             m["i_solve"].append(i_solve)
             m["i_total"].append(ti)
@@ -172,7 +177,7 @@ def run(count: int = CASES) -> Section:
             str(i + 1), "moving" if np.any(qd0) else "rest",
             f"{route} ({par.iterations})" if par.success else "failed",
             f"{1e3 * p_solve:.1f} / {1e3 * tp:.1f}",
-            f"{gap:.1e}", f"{gap_cold:.1e}",
+            f"{gap:.1e}" if route == "parametric" else "(ipopt's)", f"{gap_cold:.1e}",
             f"{1e3 * i_solve:.1f} / {1e3 * ti:.1f} ({ipo.iterations})" if ipo.success
             else "failed",
             f"{1e3 * tt:.1f} ({tight.iterations})" if tight.success else "failed",
@@ -215,9 +220,12 @@ def run(count: int = CASES) -> Section:
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps), {counts['ipopt (fallback)']}/{n} fell back "
         f"to IPOPT, {counts['certified']}/{n} certified; solve median {ms('p_solve')}, "
-        f"total {ms('p_total')}; |T gap| to the same NLP's optimum median "
-        f"{_med(gaps):.1e}, max {max(gaps, default=float('nan')):.1e}; to the cold plan "
-        f"median {_med(m['p_cold']):.1e}. IPOPT warm with multipliers: "
+        f"total {ms('p_total')}; on the parametric route |T gap| to the same NLP's optimum "
+        f"median {_med(gaps):.1e}, max {max(gaps, default=float('nan')):.1e}; every route's "
+        f"T to the cold plan's median {_med(m['p_cold']):.1e} (the 24-span mesh). Where "
+        f"the parametric step converged: solve median {ms('p_solve_ok')}, total "
+        f"{ms('p_total_ok')}, ipopt on those cases {ms('i_solve_ok')} and "
+        f"{ms('i_total_ok')}. IPOPT warm with multipliers: "
         f"{counts['ipopt_ok']}/{n}, median {_med(m['i_it']):.0f} iterations, solve "
         f"{ms('i_solve')}, total {ms('i_total')}. Tight IPOPT: {counts['tight_ok']}/{n}, "
         f"median {_med(m['t_it']):.0f} iterations, {ms('t_solve')}. Refit: "
@@ -227,13 +235,21 @@ def run(count: int = CASES) -> Section:
     ]
     p_solve, p_total = _med(m["p_solve"]), _med(m["p_total"])
     gap_ok = bool(gaps) and max(gaps) <= BAR_GAP
+    q_gaps = [g for g in m["q_gap"] if np.isfinite(g)]
     targets = [
-        ("warm re-solve after a 2 cm move: median <= 10 ms, T within 1e-3 (the solve)",
+        ("warm re-solve after a 2 cm move: median <= 10 ms, T within 1e-3 (the solve; "
+         "parametric route, IPOPT where it fails)",
          ("**yes**" if p_solve <= BAR_TIME and gap_ok else "**no**")
-         + f": {1e3 * p_solve:.1f} ms, |T gap| max {max(gaps, default=float('nan')):.1e}"),
-        ("the same with its certificate (the whole call)",
+         + f": {1e3 * p_solve:.1f} ms ({counts['parametric']}/{n} parametric, "
+           f"{1e3 * _med(m['p_solve_ok']):.1f} ms on those), |T gap| to the same NLP "
+           f"max {max(gaps, default=float('nan')):.1e}, to the cold plan median "
+           f"{_med(m['p_cold']):.1e}"),
+        ("warm re-solve after a 2 cm move with its certificate: median <= 10 ms",
          ("**yes**" if p_total <= BAR_TIME and gap_ok else "**no**")
          + f": {1e3 * p_total:.1f} ms"),
+        ("quick motion after a 2 cm move: median <= 10 ms with T within 1e-3",
+         ("**yes**" if _med(m["q_total"]) <= BAR_TIME and q_gaps and max(q_gaps) <= BAR_GAP
+          else "**no**") + f": {ms('q_total')}, T gap median {_med(q_gaps):.3g}"),
     ]
     return Section(title, lines, targets)
 

@@ -55,6 +55,10 @@ MU = 1e-9
 MAX_STEPS = 12
 #: Hessian re-evaluations at most, when a step cuts the residual by less than this factor.
 REFRESHES, CONTRACTION = 4, 0.1
+#: Steps cut below this fraction by the boundary this many times in a row: the active set
+#: is changing and the steps would not converge within the budget (measured: they never
+#: did); stopped there, so that the fallback starts sooner.
+BLOCKED_FRACTION, BLOCKED_STEPS = 0.1, 3
 #: Fraction-to-the-boundary factor (IPOPT's ``tau_min``).
 TAU = 0.99
 #: Convergence: stationarity (units of the objective ``T``, s), primal rows (their units)
@@ -259,7 +263,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     active0 = (np.minimum(room_lg, room_ug) < 1e-6)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {MAX_STEPS} steps"
     hv = np.array(hess.nonzeros())
-    full = False
+    full, blocked = False, 0
     ineq = ~eq
     while True:
         jv = np.array(jac.nonzeros())
@@ -280,6 +284,10 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             reason = "converged"
             break
         if steps >= MAX_STEPS:
+            break
+        if blocked >= BLOCKED_STEPS:
+            reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
+                      f"length by the bounds (the active set changes)")
             break
         if should_stop is not None and should_stop():
             reason = "cancelled"
@@ -319,6 +327,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
         a_d = min(_boundary_step(zl, dzl, zl + ~has_lg), _boundary_step(zu, dzu, zu + ~has_ug),
                   _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
         full = a_p == 1.0
+        blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
         w = w + a_p * dw
         s = s + a_p * ds
         y = y + a_p * dy
