@@ -54,6 +54,7 @@ from tocontrol_ros.core.direct.tuning import (
     RESTART_MAX_PERTURBATION,
     RESUME_MU,
     SET_PAD,
+    TIGHT_MU,
     WARM_MU,
     WARM_PUSH,
 )
@@ -199,6 +200,12 @@ def _warm_options(warm: bool | str) -> dict:
     if warm == "dual":
         return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": WARM_MU,
                 "ipopt.warm_start_init_point": "yes"}
+    if warm == "dual_tight":  # the multipliers' start pushed 1e-9 into its bounds, not 1e-3
+        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": TIGHT_MU,
+                "ipopt.warm_start_init_point": "yes", **{
+                    f"ipopt.warm_start_{key}": TIGHT_MU for key in (
+                        "bound_push", "bound_frac", "slack_bound_push", "slack_bound_frac",
+                        "mult_bound_push")}}
     if not warm or warm == "restart":  # IPOPT's default start
         return cap
     mu = RESUME_MU if warm == "resume" else WARM_MU
@@ -332,13 +339,18 @@ class FlatTranscription:
                                                   lam_g[ng - self._ng_clear:])
         self._nw, self._iT, self._ng = nw, iT, ng
         allp = ca.vertcat(par, geo)
+        jac_fun = ca.Function("jac_g", [w, allp], [g_eval, jac], ["x", "p"], ["g", "jac"])
+        hess_fun = ca.Function("hess_l", [w, allp, lam_f, lam_g], [hess],
+                               ["x", "p", "lam_f", "lam_g"], ["hess"])
+        # The same derivatives for the parametric step (sensitivity.py): rows with their
+        # Jacobian, the Lagrangian's Hessian (upper triangle; the objective T is linear).
+        self.kkt_functions = (jac_fun, hess_fun)
+        self.kkt_cache: dict = {}  # the KKT matrix's ordering, shared by the views (on)
         opts = ipopt_options(
             tol, max_iter,
             ca.Function("grad_f", [w, allp], [T, ca.DM([0.0] * iT + [1.0])], ["x", "p"],
                         ["f", "grad"]),
-            ca.Function("jac_g", [w, allp], [g_eval, jac], ["x", "p"], ["g", "jac"]),
-            ca.Function("hess_l", [w, allp, lam_f, lam_g], [hess],
-                        ["x", "p", "lam_f", "lam_g"], ["hess"]))
+            jac_fun, hess_fun)
         opts.update(_warm_options(warm))
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
@@ -569,7 +581,7 @@ class FlatTranscription:
         FlatResult
         """
         n = self.model.n
-        par = self._parameters(start_value, target_value, k)
+        par = self.parameters(start_value, target_value, k)
         lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
         t0 = time.perf_counter()
@@ -597,11 +609,13 @@ class FlatTranscription:
 
         Parameters as in :meth:`solve` (``P`` (K, n) control points, ``T`` in s).
         """
-        par = self._parameters(start_value, target_value, k)
+        par = self.parameters(start_value, target_value, k)
         w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
         return self._residual(w, par, *self.bounds(lower, upper, set_pad))
 
-    def _parameters(self, start_value, target_value, k) -> np.ndarray:
+    def parameters(self, start_value: np.ndarray, target_value: np.ndarray, k: float
+                   ) -> np.ndarray:
+        """The NLP's parameter vector: start, target, ``k``, then the mesh's geometry."""
         return np.concatenate([start_value, target_value, [k], self._geo])
 
     def _geometry(self, breaks: np.ndarray) -> np.ndarray:

@@ -35,6 +35,7 @@ from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, 
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
+from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
 from tocontrol_ros.core.direct.tuning import (
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
@@ -226,6 +227,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
     spans, P, duals, mesh = ctx.options.replan_spans, warm.P, {}, "its mesh"
+    route = []
     if spans and trajectory is not None and len(warm.breaks) - 1 != spans:
         flat, mesh = planner.flat(problem, spans, warm=True), "a uniform mesh"
         path = trajectory.evaluate(np.linspace(0.0, warm.T, 4 * flat.K))
@@ -236,6 +238,11 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
             flat = planner.flat(problem, warm.breaks, warm="dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
+            if ctx.options.warm_parametric:
+                done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0)
+                if done is not None:
+                    return done
+                route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
     out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
     ctx.check()
@@ -249,8 +256,43 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                            timings, t_start, residual=out.residual,
                            iterations=out.iterations, intervals=flat.spans)
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
-             f"previous solution on {mesh} of {flat.spans} spans"]
+             f"previous solution on {mesh} of {flat.spans} spans", *route]
     return _result(ctx, out, traj, [], notes, timings, t_start)
+
+
+def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState, bounds,
+                values, timings: dict, t_start: float, t0: float
+                ) -> tuple[PlanResult | None, str]:
+    """The warm re-solve by the parametric step (:mod:`~.sensitivity`), certified.
+
+    The certified result, or None and why not: the steps did not converge within their
+    work budget, the torques leave the set between the samples even slowed down, or the
+    certificate failed. The caller then re-solves with IPOPT.
+    """
+    problem = ctx.problem
+    w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
+    step, _ = sensitivity_solve(flat, w0, warm.lam_g, warm.lam_x, *values, *bounds, SET_PAD,
+                                should_stop=ctx.should_stop)
+    ctx.check()
+    why = step.message
+    if not step.success:  # the caller's solve time counts from t0 on
+        return None, why
+    traj = FlatTrajectory(flat, step, problem.k)
+    if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
+        slower = _stretched(flat, step, traj, values, bounds)
+        if slower is None:
+            return None, f"{why}, but its torques leave the set between the samples"
+        step, traj = slower
+    notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
+             f"previous solution on its mesh of {flat.spans} spans by the {why} (route: "
+             f"parametric)"]
+    elapsed = time.perf_counter() - t0
+    timings["shooting"] += elapsed
+    done = _result(ctx, step, traj, [], notes, timings, t_start)
+    if done.success:
+        return done, why
+    timings["shooting"] -= elapsed
+    return None, f"{why}, but not certified ({done.message})"
 
 
 def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,

@@ -11,7 +11,8 @@ patches it on the module that reads it (``monkeypatch.setattr(limited, "LEVEL_WI
 __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SAME_T",
            "GUESS_WINDOW", "REFINEMENTS", "REFINE_JUMP", "REFINE_WINDOW", "LEVEL_WINDOWS",
            "T_SETTLED", "SPAN_BUCKET", "SET_MARGIN", "INSIDE_TIE", "PAD_ROUNDS", "STRETCHES",
-           "NEAR_MAX_ITER", "WARM_MU", "WARM_PUSH", "RESUME_MU", "RESTART_MAX_PERTURBATION",
+           "NEAR_MAX_ITER", "WARM_MU", "TIGHT_MU", "WARM_PUSH", "RESUME_MU",
+           "RESTART_MAX_PERTURBATION",
            "FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "GRIDPOINTS", "ADAPT_PASSES",
            "ADAPT_FLOOR", "MARGIN_ROUNDS", "CHECK_POINTS", "VELOCITY_PAD", "ACCELERATION_PAD",
            "TANGENT_FLOOR",
@@ -139,6 +140,10 @@ NEAR_MAX_ITER = 150
 #: same T on every problem.
 WARM_MU = 1e-7
 WARM_PUSH = 1e-6
+#: A warm re-solve from a converged solution and its multipliers on the same mesh
+#: (``FlatTranscription(warm="dual_tight")``, issue 47): IPOPT's barrier starts at this and
+#: its warm start's pushes into the bounds (default 1e-3) are this too.
+TIGHT_MU = 1e-9
 
 #: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
 #: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its

@@ -130,6 +130,14 @@ class SolverOptions:
         replans use :data:`~tocontrol_ros.core.planning.tuning.REPLAN_SPANS`: a replan's motion is
         short, IPOPT's iterations on a refined mesh of 56-128 spans cost 3-4 times more, and
         ``T`` stays within about 1e-3 (BENCHMARKS.md "Replanning").
+    warm_parametric : bool
+        A bounded warm start with multipliers on its own mesh (a ``"direct"`` solution of a
+        nearby problem, e.g. a previous replan's on ``replan_spans``) is first carried to
+        this problem by the parametric primal-dual step
+        (:mod:`~tocontrol_ros.core.direct.sensitivity`: Newton steps on the barrier KKT
+        system from the converged point, a work budget of steps), certified as every plan;
+        when it does not converge or is not certified, IPOPT re-solves warm as before (the
+        result's warnings say which route). Default True; False: IPOPT alone.
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -176,6 +184,7 @@ class SolverOptions:
     warm_only: bool = False
     warm_joint_radius: float = WARM_JOINT_RADIUS
     replan_spans: int = 0
+    warm_parametric: bool = True
     workers: int = 1
     method: str = "auto"
 
@@ -197,6 +206,9 @@ class SolverOptions:
                 and (self.replan_spans == 0 or self.replan_spans >= MIN_REPLAN_SPANS)):
             raise ProblemError(f"`replan_spans` must be 0 or an integer >= "
                                f"{MIN_REPLAN_SPANS}, got {self.replan_spans!r}")
+        if not isinstance(self.warm_parametric, (bool, np.bool_)):
+            raise ProblemError(f"`warm_parametric` must be True or False, got "
+                               f"{self.warm_parametric!r}")
         if not (isinstance(self.workers, (int, np.integer)) and not isinstance(self.workers, bool)
                 and self.workers >= 0):
             raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "

@@ -1,0 +1,355 @@
+"""A converged bounded solve carried to a nearby problem: a parametric primal-dual step.
+
+At the primal-dual solution ``(w*, lam*)`` of the bounded B-spline NLP
+(:class:`~tocontrol_ros.core.direct.flat.FlatTranscription`) for parameters ``p0`` (start,
+target, ``k``), the solution of a nearby problem ``p1`` (a moved target) is, under strict
+complementarity and second-order sufficiency, ``w(p1) = w* + dw + O(|p1 - p0|^2)`` with
+``dw`` from one solve with the KKT matrix at ``(w*, lam*)`` (Fiacco; Bonnans and Shapiro,
+ch. 5). Here the KKT system is IPOPT's own primal-dual barrier system at a fixed barrier
+parameter :data:`MU` (as sIPOPT, Pirnay, Lopez-Negrete and Biegler 2012, and the advanced-
+step controller of Zavala and Biegler 2009 do): every row keeps a slack and bound
+multipliers, so no active set has to be guessed from the interior-point solution, and the
+matrix's sparsity never changes. The first Newton step from the old solution on the new
+parameters is the tangent predictor; the correctors are further Newton steps, the
+Lagrangian's Hessian kept from the first (chord steps: the rows, their Jacobian and the
+barrier terms evaluated again each step; the Hessian re-evaluated, at most
+:data:`REFRESHES` times, after a step cut by the boundary or one that did not cut the
+residual by :data:`CONTRACTION`), each cut by the fraction-to-the-boundary rule, so slacks
+and multipliers stay positive and every inequality holds strictly. Where the move changes
+the active set the slacks and multipliers of those rows must change places; measured, the
+steps are then often cut to a small fraction of their length and do not converge within
+the budget (docs/limits.md, "Warm re-solves by the parametric step"). At most
+:data:`MAX_STEPS` steps:
+the solver decides by work, never by the clock; a solve that has not converged then is a
+failure with its reason, and the caller re-solves with IPOPT
+(:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`).
+
+A Newton step on a guessed active set (strongly active rows as equalities, the others
+checked after) failed on the planner's solutions: many rows are weakly active, and dropping
+their small multipliers left the stationarity residual at 0.24 (docs/limits.md).
+
+The KKT matrix ``[[H + S_x, J^T], [J, -D]]`` is ordered along the path (each control
+point's variables, then the rows that touch it), which makes it banded (a band of about
+``10 n`` on each side) bordered by ``T``'s row and column: factorised by LAPACK's banded
+LU with partial pivoting (``dgbtrf``), ``T`` by a Schur complement: about 1 ms at 24 spans
+on the Panda.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import lapack
+
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+
+__all__ = ["MAX_STEPS", "MU", "SensitivityOutcome", "sensitivity_solve"]
+
+#: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
+#: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
+#: converged equals IPOPT's converged re-solve of the same NLP to about 1e-8 (relative).
+MU = 1e-9
+#: Newton steps at most (the predictor included).
+MAX_STEPS = 12
+#: Hessian re-evaluations at most, when a step cuts the residual by less than this factor.
+REFRESHES, CONTRACTION = 4, 0.1
+#: Steps cut below this fraction by the boundary this many times in a row: the active set
+#: is changing and the steps would not converge within the budget (measured: they never
+#: did); stopped there, so that the fallback starts sooner.
+BLOCKED_FRACTION, BLOCKED_STEPS = 0.1, 3
+#: Fraction-to-the-boundary factor (IPOPT's ``tau_min``).
+TAU = 0.99
+#: Convergence: stationarity (units of the objective ``T``, s), primal rows (their units)
+#: and complementarity within this factor of ``MU``.
+STAT_TOL, PRIMAL_TOL, COMPL_FACTOR = 1e-6, 1e-9, 10.0
+#: Regularisation of the Hessian block (the redundant arm's self-motion where nothing
+#: holds it) and of the equality rows' block; the residuals are judged unregularised.
+PRIMAL_REG, DUAL_REG = 1e-10, 1e-12
+#: Bounds of magnitude at least this are absent (IPOPT's ``nlp_lower_bound_inf``).
+INF = 1e19
+
+
+@dataclass(frozen=True)
+class SensitivityOutcome:
+    """What the parametric step did, beside its :class:`FlatResult`.
+
+    Attributes
+    ----------
+    steps : int
+        Newton steps taken (the predictor and the correctors).
+    hessians : int
+        Evaluations of the Lagrangian's Hessian (each followed by a factorisation; every
+        step factorises the matrix with its new barrier terms).
+    changed : int
+        Rows whose activity changed (slack below ``1e-6`` at the start and not at the end,
+        or the other way).
+    reason : str
+        "converged", or why it stopped.
+    """
+
+    steps: int
+    hessians: int
+    changed: int
+    reason: str
+
+
+class _Banded:
+    """The KKT matrix's ordering along the path, its band, built once per sparsity."""
+
+    def __init__(self, jac_rc: tuple, hess_rc: tuple, nw: int, ng: int, n: int) -> None:
+        jr, jc = jac_rc
+        hr, hc = hess_rc
+        self.jr, self.jc = jr, jc
+        iT, N = nw - 1, nw + ng
+        # Each unknown's place along the path: a control point's index, a row's the mean of
+        # its control points'; T (the last variable) is the border.
+        key_w = np.arange(nw, dtype=float) // n
+        path = jc != iT
+        tot, cnt = np.zeros(ng), np.zeros(ng)
+        np.add.at(tot, jr[path], key_w[jc[path]])
+        np.add.at(cnt, jr[path], 1.0)
+        key_g = np.where(cnt > 0, tot / np.maximum(cnt, 1.0), 0.0)
+        core = np.concatenate([np.arange(iT), nw + np.arange(ng)])
+        keys = np.concatenate([key_w[:iT], key_g + 0.5])  # a row after its variables
+        order = core[np.argsort(keys, kind="stable")]
+        pos = np.full(N, -1)
+        pos[order] = np.arange(len(order))
+        self.pos, self.iT, self.nw, self.ng, self.M = pos, iT, nw, ng, len(order)
+        # The matrix's entries: H (upper triangle, mirrored), the diagonal, J and J^T.
+        off = hr != hc
+        rows = np.concatenate([hr, hc[off], np.arange(N), nw + jr, jc])
+        cols = np.concatenate([hc, hr[off], np.arange(N), jc, nw + jr])
+        self.parts = (len(hr), int(off.sum()), N, len(jr))
+        self.off = off
+        pr, pc = pos[rows], pos[cols]
+        inner = (pr >= 0) & (pc >= 0)
+        self.kl = int(np.max(pr[inner] - pc[inner]))
+        self.ku = int(np.max(pc[inner] - pr[inner]))
+        rows_ab = 2 * self.kl + self.ku + 1
+        self.shape_ab = (rows_ab, self.M)
+        self.inner = inner
+        self.lin = (self.kl + self.ku + pr[inner] - pc[inner]) * self.M + pc[inner]
+        # The border: T's column (rows of the core) and T's diagonal entry.
+        col_T = (cols == iT) & (pr >= 0)
+        self.col_T, self.col_T_at = col_T, pr[col_T]
+        self.diag_T = (rows == iT) & (cols == iT)
+
+    def factor(self, hess: np.ndarray, diag: np.ndarray, jac: np.ndarray):
+        """LU of the core band and the border's Schur complement; None if singular."""
+        data = np.concatenate([hess, hess[self.off], diag, jac, jac])
+        ab = np.bincount(self.lin, weights=data[self.inner],
+                         minlength=self.shape_ab[0] * self.M).reshape(self.shape_ab)
+        b = np.bincount(self.col_T_at, weights=data[self.col_T], minlength=self.M)
+        d = float(np.sum(data[self.diag_T]))
+        lub, piv, info = lapack.dgbtrf(np.asfortranarray(ab), self.kl, self.ku)
+        if info != 0:
+            return None
+        u, info = lapack.dgbtrs(lub, self.kl, self.ku, b, piv)
+        schur = d - float(b @ u)
+        if info != 0 or not np.isfinite(schur) or schur == 0.0:
+            return None
+        return lub, piv, b, u, schur
+
+    def solve(self, fact, rhs: np.ndarray) -> np.ndarray:
+        """The solution (N,) of the factorised system for ``rhs`` (N,), original order."""
+        lub, piv, b, u, schur = fact
+        r1 = np.empty(self.M)
+        core = self.pos >= 0
+        r1[self.pos[core]] = rhs[core]
+        v, _ = lapack.dgbtrs(lub, self.kl, self.ku, r1, piv)
+        xT = (rhs[self.iT] - float(b @ v)) / schur
+        x1 = v - u * xT
+        out = np.empty_like(rhs)
+        out[core] = x1[self.pos[core]]
+        out[self.iT] = xT
+        return out
+
+
+def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
+    r, c = fn_out.sparsity().get_triplet()
+    return np.asarray(r, dtype=int), np.asarray(c, dtype=int)
+
+
+def _split(lam: np.ndarray, room: np.ndarray, has: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """A bound's multiplier and slack from IPOPT's, their product at least :data:`MU`."""
+    room = np.maximum(room, MU / np.maximum(lam, np.sqrt(MU)))
+    lam = np.maximum(lam, MU / room)
+    return np.where(has, lam, 0.0), np.where(has, room, 1.0)
+
+
+def _boundary_step(x, dx, room) -> float:
+    """Largest ``a`` in (0, 1] with ``room + a dx >= (1 - TAU) room`` where ``dx < 0``."""
+    neg = dx < 0.0
+    if not np.any(neg):
+        return 1.0
+    return float(min(1.0, np.min(-TAU * room[neg] / dx[neg])))
+
+
+def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray,
+                      lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
+                      k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
+                      should_stop=None) -> tuple[FlatResult, SensitivityOutcome]:
+    """The new problem's solution from a converged one on the same mesh (see the module).
+
+    Parameters
+    ----------
+    flat : FlatTranscription
+        The NLP on the old solution's mesh.
+    w0 : ndarray, shape (K n + 1,)
+        The old solution: control points (row by row), then ``T`` (s).
+    lam_g0, lam_x0 : ndarray, shapes (rows,), (K n + 1,)
+        Its multipliers (IPOPT's convention: positive at an upper bound).
+    start_value, target_value : ndarray
+        The new problem's start (joint state (2n,) or point) and target (point (m,) or
+        joint state).
+    k : float
+    lower, upper : ndarray, shape (2n,)
+        State bounds, as for :meth:`FlatTranscription.solve`.
+    set_pad : float
+    should_stop : callable, optional
+        Polled every step; True stops (a failure, "cancelled").
+
+    Returns
+    -------
+    FlatResult
+        ``success`` only when the barrier KKT conditions hold to the tolerances;
+        ``iterations``: Newton steps; ``message``: the route and the reason.
+    SensitivityOutcome
+    """
+    t0 = time.perf_counter()
+    jac_fun, hess_fun = flat.kkt_functions
+    par = flat.parameters(start_value, target_value, k)
+    lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad)
+    nw, ng = len(w0), len(lbg)
+    w = np.array(w0, dtype=float)
+    eq = lbg == ubg
+    has_lg, has_ug = (lbg > -INF) & ~eq, (ubg < INF) & ~eq
+    has_lx, has_ux = lbx > -INF, ubx < INF
+    grad_f = np.zeros(nw)
+    grad_f[-1] = 1.0
+    g, jac = jac_fun(w, par)
+    g = np.array(g).ravel()
+    key = ("kkt", nw, ng)
+    banded = flat.kkt_cache.get(key)
+    hess = hess_fun(w, par, 1.0, np.asarray(lam_g0, dtype=float))
+    if banded is None:
+        banded = _Banded(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
+        flat.kkt_cache[key] = banded
+    # The barrier's variables from IPOPT's point: the bounds' multipliers split by sign,
+    # slacks (the rows' values) inside their bounds with a product of at least MU (IPOPT
+    # returns points on its relaxed bounds: a slack of 1e-14 would make the multiplier
+    # MU / 1e-14 and break stationarity).
+    lam_g0 = np.asarray(lam_g0, dtype=float)
+    lam_x0 = np.asarray(lam_x0, dtype=float)
+    zl, room_lg = _split(np.maximum(-lam_g0, 0.0), g - lbg, has_lg)
+    zu, room_ug = _split(np.maximum(lam_g0, 0.0), ubg - g, has_ug)
+    vl, room_lx = _split(np.maximum(-lam_x0, 0.0), w - lbx, has_lx)
+    vu, room_ux = _split(np.maximum(lam_x0, 0.0), ubx - w, has_ux)
+    y = np.where(eq, lam_g0, zu - zl)
+    s = np.where(eq, lbg, g)
+    s = np.where(has_lg, np.maximum(s, lbg + room_lg), s)
+    s = np.where(has_ug, np.minimum(s, ubg - room_ug), s)
+    w = np.where(has_lx, np.maximum(w, lbx + room_lx), w)
+    w = np.where(has_ux, np.minimum(w, ubx - room_ux), w)
+    room_lg = np.where(has_lg, s - lbg, 1.0)
+    room_ug = np.where(has_ug, ubg - s, 1.0)
+    room_lx = np.where(has_lx, w - lbx, 1.0)
+    room_ux = np.where(has_ux, ubx - w, 1.0)
+    g, jac = jac_fun(w, par)
+    g = np.array(g).ravel()
+    active0 = (np.minimum(room_lg, room_ug) < 1e-6)
+    hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {MAX_STEPS} steps"
+    hv = np.array(hess.nonzeros())
+    full, blocked = False, 0
+    ineq = ~eq
+    while True:
+        jv = np.array(jac.nonzeros())
+        r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
+            + vu - vl
+        r_s = np.where(ineq, -y - zl + zu, 0.0)
+        r_y = np.where(eq, g - lbg, g - s)
+        r_zl = np.where(has_lg, zl * room_lg - MU, 0.0)
+        r_zu = np.where(has_ug, zu * room_ug - MU, 0.0)
+        r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
+        r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
+        err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
+                  float(np.max(np.abs(r_s))) / STAT_TOL,
+                  float(np.max(np.abs(r_y))) / PRIMAL_TOL,
+                  float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
+                  / (COMPL_FACTOR * MU))
+        if err <= 1.0:
+            reason = "converged"
+            break
+        if steps >= MAX_STEPS:
+            break
+        if blocked >= BLOCKED_STEPS:
+            reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
+                      f"length by the bounds (the active set changes)")
+            break
+        if should_stop is not None and should_stop():
+            reason = "cancelled"
+            break
+        if steps > 0 and (not full or err > CONTRACTION * last) and hessians <= REFRESHES:
+            hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
+            hessians += 1
+        last = err
+        sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
+        sig_s = np.where(has_lg, zl / room_lg, 0.0) + np.where(has_ug, zu / room_ug, 0.0)
+        with np.errstate(divide="ignore"):
+            d_row = np.where(eq, DUAL_REG, 1.0 / np.where(ineq, sig_s, 1.0))
+        diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
+        fact = banded.factor(hv, diag, jv)
+        if fact is None:
+            reason = "KKT matrix singular"
+            break
+        rt_s = r_s + np.where(has_lg, r_zl / room_lg, 0.0) \
+            - np.where(has_ug, r_zu / room_ug, 0.0)
+        rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
+            + np.where(has_ux, r_vu / room_ux, 0.0)
+        rhs_y = np.where(eq, -r_y, -r_y - rt_s * d_row)
+        sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
+        if not np.all(np.isfinite(sol)):
+            reason = "KKT step not finite"
+            break
+        dw, dy = sol[:nw], sol[nw:]
+        ds = np.where(ineq, (dy - rt_s) * d_row, 0.0)
+        dzl = np.where(has_lg, (-r_zl - zl * ds) / room_lg, 0.0)
+        dzu = np.where(has_ug, (-r_zu + zu * ds) / room_ug, 0.0)
+        dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
+        dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
+        a_p = min(_boundary_step(s, np.where(has_lg, ds, 0.0), room_lg),
+                  _boundary_step(s, np.where(has_ug, -ds, 0.0), room_ug),
+                  _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
+                  _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
+        a_d = min(_boundary_step(zl, dzl, zl + ~has_lg), _boundary_step(zu, dzu, zu + ~has_ug),
+                  _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
+        full = a_p == 1.0
+        blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
+        w = w + a_p * dw
+        s = s + a_p * ds
+        y = y + a_p * dy
+        zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
+        room_lg = np.where(has_lg, s - lbg, 1.0)
+        room_ug = np.where(has_ug, ubg - s, 1.0)
+        room_lx = np.where(has_lx, w - lbx, 1.0)
+        room_ux = np.where(has_ux, ubx - w, 1.0)
+        steps += 1
+        g, jac = jac_fun(w, par)
+        g = np.array(g).ravel()
+    active1 = np.minimum(room_lg, room_ug) < 1e-6
+    outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason)
+    lam_g = np.where(eq, y, zu - zl)
+    lam_x = vu - vl
+    residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                         np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+    ok = reason == "converged"
+    message = (f"parametric step: {reason} after {steps} Newton steps "
+               f"({hessians} Hessians, {outcome.changed} rows changed activity)")
+    return FlatResult(
+        success=ok, message=message if ok else f"{message}: failed", T=float(w[-1]),
+        P=w[:-1].reshape(flat.K, flat.model.n), residual=residual if ok else np.inf,
+        iterations=steps, solve_time=time.perf_counter() - t0, lam_g=lam_g,
+        lam_x=lam_x), outcome
