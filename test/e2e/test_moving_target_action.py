@@ -125,9 +125,17 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
     assert not [s["message"] for s in tracker_status if "rejected" in s["message"]]
     # Replans reached the controller as replans: stamped ahead, spliced in by the tracker.
     assert replans and splices
-    jumps_q = [float(s["position_jump"]) for s in splices]
-    jumps_qd = [float(s["velocity_jump"]) for s in splices]
-    print(f"largest jumps {max(jumps_q):.2e} rad, {max(jumps_qd):.2e} rad/s")
+    # A goal delivered after its hand-off joins as far along as its stamp says (`late`, as a
+    # JTC drops the points past): reported; every splice that came in time is held to the bar.
+    on_time = [s for s in splices if s.get("late") == "false"]
+    for s in splices:
+        if s.get("late") == "true":
+            print("late splice", s["message"], s["stamp"])
+    assert on_time, [s["message"] for s in splices]
+    jumps_q = [float(s["position_jump"]) for s in on_time]
+    jumps_qd = [float(s["velocity_jump"]) for s in on_time]
+    print(f"largest jumps {max(jumps_q):.2e} rad, {max(jumps_qd):.2e} rad/s "
+          f"({len(on_time)} of {len(splices)} splices in time)")
     assert max(jumps_q) < 1e-3 and max(jumps_qd) < 1e-2
     error = float(np.linalg.norm(model.point(np.array(states[-1])) - last))
     assert error < 1e-4

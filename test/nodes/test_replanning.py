@@ -10,7 +10,24 @@ from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.nodes.planner_config import config_from_values
 from tocontrol_ros.nodes.replanning import COLD, REST, WARM, Replanner, align
 from tocontrol_ros.nodes.requests import LatestSlot
-from tocontrol_ros.nodes.splice import SPLICE_HORIZON, Splice, jumps, schedule, splice_instant
+from tocontrol_ros.nodes.splice import (
+    SPLICE_HORIZON,
+    Splice,
+    joins_late,
+    jumps,
+    schedule,
+    splice_instant,
+)
+
+
+def test_a_stamp_just_passed_joins_late_and_other_clocks_do_not():
+    # epoch 100 s, simulation time 5 s: the tracker's clock reads 105 s.
+    assert joins_late(104.98, 100.0, 5.0)  # 20 ms past: delivered after its hand-off
+    assert joins_late(105.0, 100.0, 5.0)
+    assert not joins_late(105.01, 100.0, 5.0)  # ahead: a splice, not late
+    assert not joins_late(0.0, 100.0, 5.0)  # stamp 0: "now"
+    assert not joins_late(105.0 - SPLICE_HORIZON - 1.0, 100.0, 5.0)  # another clock
+    assert not joins_late(float("nan"), 100.0, 5.0)
 
 
 def test_splice_instant_on_the_control_grid():

@@ -3,8 +3,12 @@
 A ``trajectory_msgs/JointTrajectory`` whose ``header.stamp`` lies ahead of the tracker's
 clock (by at most :data:`SPLICE_HORIZON`) is a splice: the running trajectory goes on up to
 that instant and the new one takes over there (a replan from where the arm will be, see
-``msg_docs/tracker_trajectory_input.md``). A stamp at or before the tracker's time, zero, or
-farther ahead (another clock) starts the trajectory at once, as before. No ROS here.
+``msg_docs/tracker_trajectory_input.md``). One whose stamp has just passed (by at most
+:data:`SPLICE_HORIZON`: :func:`joins_late`) while a trajectory runs takes over at the next
+control instant as far along as its stamp says, as a JTC does: a replan delivered after its
+hand-off then follows the motion its planner assumed, and the next replan's splice matches
+it. A stamp of zero, one farther off (another clock), or one at or before the tracker's time
+while it holds, starts the trajectory at once from its start. No ROS here.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "jumps", "schedule"]
+__all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "joins_late", "jumps", "schedule"]
 
 #: A stamp at most this far (s) ahead of the tracker's time is a splice instant; farther,
 #: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock:
@@ -84,6 +88,20 @@ def splice_instant(stamp: float, epoch: float, now: float, h: float, late: bool 
         return None
     at = math.ceil(t / h - GRID_SLACK / h) * h
     return at, max(at - t, 0.0)
+
+
+def joins_late(stamp: float, epoch: float, now: float) -> bool:
+    """Whether a trajectory stamped ``stamp`` (s) joins a running one late.
+
+    True when its stamp is on the tracker's clock and has passed by at most
+    :data:`SPLICE_HORIZON` at simulation time ``now`` (s; ``epoch``: the stamp of time 0):
+    the trajectory was meant to take over then and was delivered (or parsed) after it.
+    Stamp 0 ("now") and stamps farther in the past (another clock) do not.
+    """
+    if stamp <= 0.0 or not math.isfinite(stamp):
+        return False
+    passed = now - (stamp - epoch)
+    return 0.0 <= passed <= SPLICE_HORIZON
 
 
 def jumps(old: tuple[np.ndarray, np.ndarray], new: tuple[np.ndarray, np.ndarray]

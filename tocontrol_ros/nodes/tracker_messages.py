@@ -274,16 +274,22 @@ def rest_row(t: float, q: np.ndarray, qd: np.ndarray) -> dict[str, object]:
             "tau": zero}
 
 
-def splice_event(splice, dq: float, dqd: float, start_time: float) -> tuple[str, dict]:
+def splice_event(splice, dq: float, dqd: float, start_time: float, h: float
+                 ) -> tuple[str, dict]:
     """The message and values of a stamped trajectory spliced in, on ``~/status``.
 
     ``splice``: a :class:`~tocontrol_ros.nodes.splice.Splice`; ``dq``, ``dqd``: the
-    command's jumps (rad, rad/s); ``start_time``: now on the stamps' clock (s).
+    command's jumps (rad, rad/s); ``start_time``: now on the stamps' clock (s); ``h``: the
+    control period (s). ``late`` is ``true`` when it took over a control period or more
+    after its stamp (it came after its hand-off: joined as far along as the stamp says).
     """
     nominal = splice.nominal
-    message = (f"executing trajectory spliced in at its stamp: {len(nominal)} points, T = "
+    late = splice.elapsed >= h
+    when = f"{splice.elapsed:.4f} s after its stamp (late)" if late else "at its stamp"
+    message = (f"executing trajectory spliced in {when}: {len(nominal)} points, T = "
                f"{nominal.duration:.4f} s; command jumps {dq:.3g} rad, {dqd:.3g} rad/s")
     return message, {"event": "spliced", "points": str(len(nominal)),
                      "duration": f"{nominal.duration:.9g}", "stamp": f"{splice.stamp:.9f}",
                      "start_time": f"{start_time:.9f}", "position_jump": f"{dq:.9g}",
-                     "velocity_jump": f"{dqd:.9g}"}
+                     "velocity_jump": f"{dqd:.9g}", "late": "true" if late else "false",
+                     "elapsed": f"{splice.elapsed:.9f}"}
