@@ -17,6 +17,7 @@ from tocontrol_ros.nodes.splice import (
     jumps,
     schedule,
     splice_instant,
+    take_over_instant,
 )
 
 
@@ -28,6 +29,12 @@ def test_a_stamp_just_passed_joins_late_and_other_clocks_do_not():
     assert not joins_late(0.0, 100.0, 5.0)  # stamp 0: "now"
     assert not joins_late(105.0 - SPLICE_HORIZON - 1.0, 100.0, 5.0)  # another clock
     assert not joins_late(float("nan"), 100.0, 5.0)
+    # The tracker's rule: a topic trajectory joins late only while one runs; a goal always.
+    h = 1e-3
+    at, elapsed = take_over_instant(104.98, 100.0, 5.0, h, running=True, goal=False)
+    assert at == pytest.approx(5.001) and elapsed == pytest.approx(0.021)  # next instant
+    assert take_over_instant(104.98, 100.0, 5.0, h, running=False, goal=False) is None
+    assert take_over_instant(104.98, 100.0, 5.0, h, running=False, goal=True) is not None
 
 
 def test_splice_instant_on_the_control_grid():

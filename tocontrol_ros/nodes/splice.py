@@ -18,7 +18,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "joins_late", "jumps", "schedule"]
+__all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "joins_late", "take_over_instant",
+           "jumps", "schedule"]
 
 #: A stamp at most this far (s) ahead of the tracker's time is a splice instant; farther,
 #: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock:
@@ -102,6 +103,19 @@ def joins_late(stamp: float, epoch: float, now: float) -> bool:
         return False
     passed = now - (stamp - epoch)
     return 0.0 <= passed <= SPLICE_HORIZON
+
+
+def take_over_instant(stamp: float, epoch: float, now: float, h: float, running: bool,
+                      goal: bool) -> tuple[float, float] | None:
+    """:func:`splice_instant` with the tracker's rule for a stamp already past.
+
+    A ``FollowJointTrajectory`` goal's (``goal``) joins as far along as its stamp says, as a
+    JTC drops the points past; a topic trajectory's the same while one runs (``running``)
+    and its stamp has just passed (:func:`joins_late`: a replan delivered after its
+    hand-off). Otherwise a past stamp starts the trajectory at once (None).
+    """
+    late = goal or (running and joins_late(stamp, epoch, now))
+    return splice_instant(stamp, epoch, now, h, late)
 
 
 def jumps(old: tuple[np.ndarray, np.ndarray], new: tuple[np.ndarray, np.ndarray]

@@ -74,7 +74,7 @@ from tocontrol_ros.nodes.params import (
     parameters_parser,
     robot_from_topic,
 )
-from tocontrol_ros.nodes.splice import Splice, joins_late, jumps, schedule, splice_instant
+from tocontrol_ros.nodes.splice import Splice, jumps, schedule, take_over_instant
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig, plant_text
 from tocontrol_ros.nodes.tracker_messages import (
     ResetRequest,
@@ -281,15 +281,9 @@ class TrackerNode(Node):
 
     def _schedule_splice(self, nominal: NominalTrajectory, stamp: float, record=None) -> bool:
         """A stamp ahead of now: queue the trajectory (and its goal) for then (True)."""
-        now = self._target_time()
-        if now is None or self._place_at_start:
-            return False
-        now = max(now, self.tracker.t)
-        # A goal's stamp already past: as a JTC (points past dropped). A topic's: the same
-        # while a trajectory runs (a replan delivered after its hand-off; splice.joins_late).
-        late = record is not None or (self.tracker.running
-                                      and joins_late(stamp, self.epoch, now))
-        instant = splice_instant(stamp, self.epoch, now, self.tracker.h, late)
+        now, tracker = self._target_time(), self.tracker
+        instant = None if now is None or self._place_at_start else take_over_instant(
+            stamp, self.epoch, max(now, tracker.t), tracker.h, tracker.running, record is not None)
         if instant is None:
             return False
         self._splices, dropped = schedule(self._splices,
@@ -318,9 +312,8 @@ class TrackerNode(Node):
             return
         self.publish_summary(tracker.start(splice.nominal, elapsed))  # the one preempted
         self._follow.started(splice.record, splice.nominal, elapsed=elapsed)
-        self.publish_status(DiagnosticStatus.OK, *splice_event(splice, dq, dqd,
-                                                               self.epoch + tracker.t,
-                                                               tracker.h))
+        self.publish_status(DiagnosticStatus.OK,
+                            *splice_event(splice, dq, dqd, self.epoch + tracker.t, tracker.h))
 
     def _on_reset(self, msg: JointState) -> None:
         # Through the parsing thread's queue: a reset takes effect after the trajectories
