@@ -186,6 +186,24 @@ class PlannerClient:
             return self.node.get_clock().now().nanoseconds > end
         self.wait_for(over, timeout, "the last published motion to end")
 
+    def wait_joint_states(self, timeout: float) -> None:
+        """Wait until the planner's ``/diagnostics`` says it is receiving ``joint_states``: a
+        goal sent before then may start from ``default_start`` (msg_docs/joint_states_input.md)."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        seen = []
+
+        def on_array(msg) -> None:
+            for st in msg.status:
+                if st.name == self.planner:
+                    seen.append({kv.key: kv.value for kv in st.values}.get("joint_states", ""))
+        sub = self.node.create_subscription(DiagnosticArray, "/diagnostics", on_array, 10)
+        try:
+            self.wait_for(lambda: any(v.startswith("receiving") for v in list(seen)), timeout,
+                          f"the planner receiving joint states (its diagnostics: {seen[-1:]})")
+        finally:
+            self.node.destroy_subscription(sub)
+
     def status_list(self) -> list[Status]:
         with self._lock:
             return list(self.statuses)

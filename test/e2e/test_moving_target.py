@@ -79,6 +79,7 @@ def test_moving_target_followed_with_spliced_replans(tmp_path, quick):
                         "the planner's warm-up")
         client.wait_subscribed(client.goal_pub)
         client.wait_for(lambda: states, 30.0, "joint states")
+        client.wait_joint_states(180.0)
         since = len(client.status_list())
         t_next = time.monotonic()
         for goal in goals:  # 10 Hz: the next goal does not wait for an answer

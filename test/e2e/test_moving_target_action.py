@@ -73,6 +73,7 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
                         "the planner's warm-up")
         client.wait_subscribed(client.goal_pub)
         client.wait_for(lambda: states, 30.0, "joint states")
+        client.wait_joint_states(HANG)
         since = len(client.status_list())
         t_next = time.monotonic()
         for goal in goals:

@@ -235,10 +235,10 @@ def test_goal_plans_from_a_joint_state_received_after_it(planner, client, monkey
         waiting = threading.Event()
         real_newest = latest_message.LatestMessage.newest
 
-        def newest(self, since_ns, max_age, wait):
+        def newest(self, since_ns, max_age, wait, first_wait=0.0):
             if self is joint_states and wait > 0.0:
                 waiting.set()
-            return real_newest(self, since_ns, max_age, wait)
+            return real_newest(self, since_ns, max_age, wait, first_wait)
 
         monkeypatch.setattr(latest_message.LatestMessage, "newest", newest)
         monkeypatch.setattr(planner_outputs, "FRESH_STATE_WAIT", HANG)
@@ -251,6 +251,76 @@ def test_goal_plans_from_a_joint_state_received_after_it(planner, client, monkey
         client.set_parameters(joint_state_timeout=1.0)
     assert status.event == "solved", status.message
     np.testing.assert_allclose(status.vector("start_q"), new_q, atol=1e-9)
+
+
+def _fresh_arm(planner, topic):
+    """A MeasuredArm on a topic of its own in the planner's node, a publisher matched to it
+    that has sent nothing yet, and the warnings it gives."""
+    from sensor_msgs.msg import JointState
+
+    from tocontrol_ros.nodes.latest_message import LatestMessage
+    from tocontrol_ros.nodes.planner import QOS_JOINT_STATES
+    from tocontrol_ros.nodes.planner_outputs import MeasuredArm
+
+    node = planner.node
+    latest = LatestMessage(node, JointState, topic, QOS_JOINT_STATES)
+    pub = node.create_publisher(JointState, topic, 10)
+    deadline = time.monotonic() + HANG
+    while latest.publisher_count() == 0:
+        assert time.monotonic() < deadline, "the publisher never matched"
+        time.sleep(0.01)
+    warnings = []
+    return MeasuredArm(latest, node.model, warnings.append), latest, pub, warnings
+
+
+def test_a_goal_waits_for_the_first_joint_state_of_a_matched_publisher(planner):
+    """A joint_states publisher matched but nothing received yet (a tracker just discovered):
+    the goal waits for its first state (up to joint_state_timeout) instead of starting from
+    default_start elsewhere (a CI failure: the controller then refused every replan)."""
+    import dataclasses
+
+    from sensor_msgs.msg import JointState
+
+    arm, latest, pub, warnings = _fresh_arm(planner, f"first_state_{os.getpid()}")
+    config = dataclasses.replace(planner.node.config, joint_state_timeout=HANG)
+    assert arm.describe(config).startswith("none received (1 publishers)")
+    q = [0.3, 1.2, -0.5]
+    polled = threading.Event()
+    real_count = latest.publisher_count
+
+    def count():  # the wait for the first state polls this: publish only once it waits
+        polled.set()
+        return real_count()
+    latest.publisher_count = count
+
+    def publish():
+        assert polled.wait(HANG)
+        pub.publish(JointState(name=["joint1", "joint2", "joint3"], position=q,
+                               velocity=[0.0, 0.0, 0.0]))
+    thread = threading.Thread(target=publish)
+    thread.start()
+    try:
+        start = arm.start(config, time.time_ns(), fresh=False)
+    finally:
+        thread.join(HANG)
+        latest.destroy()
+    assert start[0] == "state", start
+    np.testing.assert_allclose(start[1], q, atol=1e-12)
+    assert not warnings
+
+
+def test_a_fallback_to_default_start_with_a_publisher_is_a_warning(planner):
+    import dataclasses
+
+    arm, latest, _pub, warnings = _fresh_arm(planner, f"silent_state_{os.getpid()}")
+    try:
+        config = dataclasses.replace(planner.node.config, joint_state_timeout=0.0)
+        start = arm.start(config, time.time_ns(), fresh=False)
+    finally:
+        latest.destroy()
+    assert start[0] == "point"
+    assert len(warnings) == 1 and "1 publisher(s) are matched (none received yet" in \
+        warnings[0], warnings
 
 
 def test_goal_without_recent_joint_state_starts_from_default(planner, client):

@@ -66,15 +66,22 @@ class LatestMessage:
             msg, info = taken
             self._latest = (msg, int(info.get("received_timestamp", 0)) or time.time_ns())
 
-    def newest(self, since_ns: int, max_age: float, wait: float):
+    def newest(self, since_ns: int, max_age: float, wait: float, first_wait: float = 0.0):
         """The newest message not older than ``max_age`` s, or None.
 
         When the newest one is recent but received before ``since_ns`` (``time.time_ns()``
-        scale), wait up to ``wait`` s for a newer one.
+        scale), wait up to ``wait`` s for a newer one. When none was ever received but the
+        topic has a matched publisher (its first messages still on their way: a publisher
+        discovered moments ago, a loaded machine), wait up to ``first_wait`` s for the first.
         """
         deadline = time.monotonic() + wait
         with self._lock:
             self._take()
+            first_deadline = time.monotonic() + first_wait
+            while (self._latest is None and time.monotonic() < first_deadline
+                   and self.publisher_count() > 0):
+                time.sleep(STATE_POLL)
+                self._take()
             while (self._latest is not None and self._latest[1] < since_ns
                    and time.time_ns() - self._latest[1] <= max_age * 1e9
                    and time.monotonic() < deadline):
@@ -84,6 +91,20 @@ class LatestMessage:
         if latest is None or time.time_ns() - latest[1] > max_age * 1e9:
             return None
         return latest[0]
+
+    def publisher_count(self) -> int:
+        """The topic's publishers matched by the subscription (0 once it is destroyed)."""
+        try:
+            return int(self._sub.get_publisher_count())
+        except Exception:  # noqa: BLE001  (subscription gone during shutdown)
+            return 0
+
+    def age(self) -> float | None:
+        """Seconds since the newest message was received (queued ones taken), None: none yet."""
+        with self._lock:
+            self._take()
+            latest = self._latest
+        return None if latest is None else (time.time_ns() - latest[1]) * 1e-9
 
     def destroy(self) -> None:
         """Destroy the helper node."""

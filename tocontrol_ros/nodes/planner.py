@@ -127,7 +127,7 @@ class PlannerNode(Node):
         self.frame = conv.task_frame(self.model, config.frame_id or self.model.base_link)
 
         self._joint_states = LatestMessage(self, JointState, "joint_states", QOS_JOINT_STATES)
-        self._arm = MeasuredArm(self._joint_states, self.model)
+        self._arm = MeasuredArm(self._joint_states, self.model, self.get_logger().warning)
         self._pub_trajectory = self.create_publisher(JointTrajectory, "~/trajectory", QOS_LATCHED)
         publishers = {
             "trajectory": self._pub_trajectory,
@@ -288,7 +288,8 @@ class PlannerNode(Node):
                   "last_T": last.T if last is not None else "",
                   "last_status": last.status.name if last is not None else "",
                   "controller_action": self.config.controller_action,
-                  "plan_motion": "served" if self._plan_action is not None else "not served"}
+                  "plan_motion": "served" if self._plan_action is not None else "not served",
+                  "joint_states": self._arm.describe(self.config)}
         if not ready:
             return "WARN", "warming up (compiling the model's functions)", values
         return "OK", "ready", values

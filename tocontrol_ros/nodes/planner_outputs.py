@@ -141,9 +141,12 @@ class MeasuredArm:
     model : RobotModel
     """
 
-    def __init__(self, joint_states: LatestMessage, model) -> None:
+    def __init__(self, joint_states: LatestMessage, model, warn=None) -> None:
         self.joint_states = joint_states
         self._model = model
+        #: Called with a message when a goal starts from ``default_start`` although the
+        #: topic has a publisher (the node's logger; None: silent).
+        self.warn = warn
 
     def start(self, config: PlannerConfig, since_ns: int, fresh: bool = True) -> tuple:
         """The robot's current state if a recent joint state is there, else default_start.
@@ -163,11 +166,22 @@ class MeasuredArm:
         ConversionError
             Neither a recent joint state of this arm's joints nor ``default_start``.
         """
+        # A publisher matched but nothing received yet (its first states on their way):
+        # wait for one up to joint_state_timeout rather than plan from default_start.
         latest = self.joint_states.newest(since_ns, config.joint_state_timeout,
-                                          FRESH_STATE_WAIT if fresh else 0.0)
+                                          FRESH_STATE_WAIT if fresh else 0.0,
+                                          first_wait=config.joint_state_timeout)
         if latest is not None:
             q, qd = conv.joint_state_from_msg(latest, self._model.joint_names)
             return ("state", q, qd)
+        publishers = self.joint_states.publisher_count()
+        if publishers and config.default_start and self.warn is not None:
+            age = self.joint_states.age()
+            self.warn(f"no recent joint state on joint_states although {publishers} "
+                      f"publisher(s) are matched ("
+                      + ("none received yet" if age is None else f"the newest {age:.2f} s old")
+                      + f", joint_state_timeout = {config.joint_state_timeout:g} s): the goal "
+                      "starts from default_start, not from where the arm is")
         if not config.default_start:
             raise conv.ConversionError(
                 f"no recent joint state on joint_states (within "
@@ -175,6 +189,18 @@ class MeasuredArm:
                 f"`default_start` for this arm: publish its joint states, set default_start "
                 f"({self._model.m} values) or give the start in the request")
         return ("point", np.array(config.default_start))
+
+    def describe(self, config: PlannerConfig) -> str:
+        """The joint states as ``/diagnostics`` reports them.
+
+        ``receiving``, ``stale`` (the newest older than ``joint_state_timeout``) or ``none
+        received``, with the newest one's age (s) and the publishers matched.
+        """
+        age, publishers = self.joint_states.age(), self.joint_states.publisher_count()
+        if age is None:
+            return f"none received ({publishers} publishers)"
+        kind = "receiving" if age <= config.joint_state_timeout else "stale"
+        return f"{kind} (newest {age:.2f} s old, {publishers} publishers)"
 
     def latest(self, config: PlannerConfig) -> tuple[int, np.ndarray | None]:
         """The latest joint state's stamp (ns, 0: none) and positions (None: not this arm's)."""
