@@ -131,6 +131,7 @@ def move(q0, dq, duration: float, points: int = 21, names=JOINTS) -> JointTrajec
 def test_the_planners_plan_executes_on_the_trackers_action(nodes):
     client = nodes.client
     nodes.q()  # the tracker is up: the planner plans from its joint states
+    client.wait_joint_states(120.0)  # once it receives them
     since = len(client.status_list())
     client.send_goal(PAPER_TARGET)
     solved = client.final_status(since, 120.0)

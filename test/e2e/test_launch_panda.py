@@ -87,6 +87,7 @@ def test_launch_with_the_panda_plans_and_executes_a_goal(tmp_path, monkeypatch):
                                         tracker_status.append, qos.status_profile(20, True))
         client.wait_for(lambda: len(states) >= 5, 120.0, "the tracker's joint states")
         client.wait_subscribed(client.goal_pub, 60.0)
+        client.wait_joint_states(120.0)
         since = len(client.status_list())
         model = load_robot(str(urdf), tip_link="panda_hand")
         client.send_goal(model.point(np.array(Q1)), frame="panda_link0")

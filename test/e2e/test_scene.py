@@ -108,6 +108,7 @@ def test_a_goal_behind_an_obstacle_is_planned_around_it_and_tracked_clear(tmp_pa
                                         qos.status_profile(20, latched=True))
         client.wait_subscribed(client.goal_pub, 60.0)
         client.wait_for(lambda: len(states) >= 5, FIRST_PLAN, "the tracker's joint states")
+        client.wait_joint_states(FIRST_PLAN)
         since = len(client.status_list())
         start = len(states)
         client.send_goal(goal, frame="panda_link0")

@@ -84,6 +84,7 @@ def test_two_arms_in_two_namespaces_plan_execute_and_report(monkeypatch, tmp_pat
         since = {ns: len(c.status_list()) for ns, c in clients.items()}
         for c in clients.values():
             c.wait_subscribed(c.goal_pub, HANG)
+            c.wait_joint_states(HANG)
             c.send_goal(PAPER_TARGET)
         for ns, c in clients.items():
             status = c.final_status(since[ns], HANG)

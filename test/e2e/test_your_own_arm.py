@@ -85,7 +85,7 @@ def test_panda_from_robot_description_plans_within_limits_and_is_tracked(tmp_pat
         client.node.create_subscription(JointState, "/joint_states", states.append,
                                         qos.RELIABLE)
         client.wait_for(lambda: len(states) >= 5, FIRST_PLAN, "the tracker's joint states")
-        time.sleep(1.0)
+        client.wait_joint_states(FIRST_PLAN)
         client.send_goal(goal, frame="panda_link0")
         status = client.final_status(since, FIRST_PLAN + 60.0)
         assert status.event == "solved", (status.message, planner.log.read_text()[-3000:])
