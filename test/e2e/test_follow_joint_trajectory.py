@@ -257,3 +257,21 @@ def test_an_accepted_goal_the_tracker_cannot_run_is_aborted(nodes):
     assert result.status == GoalStatus.STATUS_ABORTED
     assert result.result.error_code == jtc.INVALID_GOAL
     assert "exceeds its torque limit" in result.result.error_string
+
+
+def test_a_reset_ends_a_goal_waiting_for_its_stamp(nodes):
+    """A goal stamped ahead waits for its instant; a ~/reset before then drops it, and its
+    client gets ABORTED with the reason (it was left active forever before)."""
+    q = nodes.q()
+    trajectory = move(q, [0.1, 0.0, 0.0], 1.0)
+    ahead = nodes.client.node.get_clock().now().nanoseconds + 20 * 10**9  # within the horizon
+    trajectory.header.stamp = conv.time_from_seconds(ahead * 1e-9)
+    handle = nodes.send(FollowJointTrajectory.Goal(trajectory=trajectory))
+    assert handle.accepted
+    reset = nodes.client.node.create_publisher(JointState, f"{nodes.ns}/tracker/reset", 10)
+    nodes.client.wait_for(lambda: reset.get_subscription_count() > 0, 30.0, "~/reset")
+    reset.publish(JointState(name=JOINTS, position=q.tolist()))
+    result = nodes.result(handle)
+    assert result.status == GoalStatus.STATUS_ABORTED
+    assert result.result.error_code == jtc.INVALID_GOAL
+    assert "stopped by ~/reset before it took over" in result.result.error_string

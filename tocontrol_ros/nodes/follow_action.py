@@ -204,9 +204,14 @@ class FollowServer:
             self._finish(record, "canceled", jtc.INVALID_GOAL,
                          f"preempted by a goal stamped {stamp:.6f} before it took over")
 
-    def stopped(self, reason: str) -> None:
-        """The trajectory was stopped (``~/reset``): abort the active goal."""
-        if self.active is not None:
+    def stopped(self, reason: str, record: GoalRecord | None = None) -> None:
+        """The trajectory was stopped (``~/reset``): abort the active goal, or ``record``.
+
+        ``record``: a goal waiting for its stamp, dropped by the reset before it took over.
+        """
+        if record is not None:
+            self._finish(record, "abort", jtc.INVALID_GOAL, reason)
+        elif self.active is not None:
             self._finish(self.active, "abort", jtc.INVALID_GOAL, reason)
 
     def shutdown(self) -> None:

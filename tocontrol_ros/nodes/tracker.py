@@ -336,8 +336,9 @@ class TrackerNode(Node):
             return
         q, qd = item.q, item.qd
         self._place_at_start = False
-        self._splices = []
-        preempted = self.tracker.reset(q, qd)
+        for record in [s.record for s in self._splices if s.record is not None]:
+            self._follow.stopped("stopped by ~/reset before it took over", record)
+        self._splices, preempted = [], self.tracker.reset(q, qd)
         if preempted is not None:
             self.publish_summary(preempted)
         self._follow.stopped("stopped by ~/reset")
