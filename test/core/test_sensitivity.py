@@ -172,3 +172,38 @@ def test_warm_parametric_is_validated(value):
 
     with pytest.raises(ProblemError, match="warm_parametric"):
         SolverOptions(warm_parametric=value)
+
+
+def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
+    """The banded LU with T's Schur complement (BandedKKT, shared with the active-set
+    experiment in bench/) solves the Panda's KKT matrix as a dense LU of the same matrix,
+    assembled here from the Hessian's upper triangle and the Jacobian's triplets."""
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    par = flat.parameters(moved.start.value, moved.target.value, moved.k)
+    w = np.concatenate([ws.P.ravel(), [ws.T]])
+    jac_fun, hess_fun = flat.kkt_functions
+    _, jac = jac_fun(w, par)
+    hess = hess_fun(w, par, 1.0, ws.lam_g)
+    banded = sensitivity.banded_kkt(flat, jac, hess)
+    assert sensitivity.banded_kkt(flat, jac, hess) is banded  # built once per sparsity
+    nw, ng = len(w), flat.rows
+    hv, jv = np.array(hess.nonzeros()), np.array(jac.nonzeros())
+    rng = np.random.default_rng(5)
+    diag = np.concatenate([rng.uniform(0.0, 1.0, nw), -rng.uniform(1e-3, 1.0, ng)])
+    fact = banded.factor(hv, diag, jv)
+    assert fact is not None
+    dense = np.zeros((nw + ng, nw + ng))
+    np.add.at(dense, (banded.hr, banded.hc), hv)
+    off = banded.hr != banded.hc
+    np.add.at(dense, (banded.hc[off], banded.hr[off]), hv[off])
+    dense[np.arange(nw + ng), np.arange(nw + ng)] += diag
+    np.add.at(dense, (nw + banded.jr, banded.jc), jv)
+    np.add.at(dense, (banded.jc, nw + banded.jr), jv)
+    rhs = rng.normal(size=nw + ng)
+    x = banded.solve(fact, rhs)
+    ref = np.linalg.solve(dense, rhs)
+    assert np.max(np.abs(x - ref)) <= 1e-8 * max(1.0, np.max(np.abs(ref)))
+    assert np.max(np.abs(dense @ x - rhs)) <= 1e-8 * max(1.0, np.max(np.abs(rhs)))

@@ -45,7 +45,8 @@ from scipy.linalg import lapack
 
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 
-__all__ = ["MAX_STEPS", "MU", "SensitivityOutcome", "sensitivity_solve"]
+__all__ = ["MAX_STEPS", "MU", "BandedKKT", "SensitivityOutcome", "banded_kkt",
+           "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -95,13 +96,20 @@ class SensitivityOutcome:
     reason: str
 
 
-class _Banded:
-    """The KKT matrix's ordering along the path, its band, built once per sparsity."""
+class BandedKKT:
+    """The KKT matrix's ordering along the path, its band, built once per sparsity.
+
+    ``[[H + diag_w, J^T], [J, diag_g]]`` for the Lagrangian's Hessian ``H`` (upper triangle
+    as CasADi gives it) and the rows' Jacobian ``J``, both by their nonzeros; ordered along
+    the path (each control point's variables, then the rows that touch it), banded,
+    bordered by ``T`` (the last variable). Also used by the active-set route
+    (:mod:`~tocontrol_ros.core.direct.active_set`).
+    """
 
     def __init__(self, jac_rc: tuple, hess_rc: tuple, nw: int, ng: int, n: int) -> None:
         jr, jc = jac_rc
         hr, hc = hess_rc
-        self.jr, self.jc = jr, jc
+        self.jr, self.jc, self.hr, self.hc = jr, jc, hr, hc
         iT, N = nw - 1, nw + ng
         # Each unknown's place along the path: a control point's index, a row's the mean of
         # its control points'; T (the last variable) is the border.
@@ -167,6 +175,25 @@ class _Banded:
         return out
 
 
+def banded_kkt(flat: FlatTranscription, jac, hess) -> BandedKKT:
+    """The :class:`BandedKKT` of ``flat``'s NLP, built at its first use and kept.
+
+    Parameters
+    ----------
+    flat : FlatTranscription
+    jac, hess : casadi.DM
+        The rows' Jacobian and the Lagrangian's Hessian as ``flat.kkt_functions`` return
+        them (only their sparsity is read).
+    """
+    nw, ng = hess.size1(), jac.size1()
+    key = ("kkt", nw, ng)
+    banded = flat.kkt_cache.get(key)
+    if banded is None:
+        banded = BandedKKT(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
+        flat.kkt_cache[key] = banded
+    return banded
+
+
 def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
     r, c = fn_out.sparsity().get_triplet()
     return np.asarray(r, dtype=int), np.asarray(c, dtype=int)
@@ -223,7 +250,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     jac_fun, hess_fun = flat.kkt_functions
     par = flat.parameters(start_value, target_value, k)
     lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad)
-    nw, ng = len(w0), len(lbg)
+    nw = len(w0)
     w = np.array(w0, dtype=float)
     eq = lbg == ubg
     has_lg, has_ug = (lbg > -INF) & ~eq, (ubg < INF) & ~eq
@@ -232,12 +259,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     grad_f[-1] = 1.0
     g, jac = jac_fun(w, par)
     g = np.array(g).ravel()
-    key = ("kkt", nw, ng)
-    banded = flat.kkt_cache.get(key)
     hess = hess_fun(w, par, 1.0, np.asarray(lam_g0, dtype=float))
-    if banded is None:
-        banded = _Banded(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
-        flat.kkt_cache[key] = banded
+    banded = banded_kkt(flat, jac, hess)
     # The barrier's variables from IPOPT's point: the bounds' multipliers split by sign,
     # slacks (the rows' values) inside their bounds with a product of at least MU (IPOPT
     # returns points on its relaxed bounds: a slack of 1e-14 would make the multiplier
