@@ -18,6 +18,8 @@ one run, each timed after a warm-up of the same call (median of 3):
 - **refit**: ``warm_replan`` from the default plan, its path fitted on 24 spans, IPOPT
   without multipliers: what the node's replans did before;
 - **quick**: the quick motion (``first_motion.quick_motion``);
+- **barrier alone**: the parametric step without holding the rows that block it
+  (``sensitivity_solve(..., hold=False)``: the route before), the solve alone;
 - **active set** (tried, not kept: bench/warm_active_set.py): SQP on a working set with
   primal-dual active-set corrections from the serving solution, the solve alone;
 - **from step**: where the parametric step failed, IPOPT warm (``warm="dual"``) from the
@@ -103,17 +105,17 @@ def run(count: int = CASES) -> Section:
                              "t_solve", "r_total", "q_total", "q_gap", "p_steps", "i_it",
                              "t_it", "r_it", "p_solve_ok", "p_total_ok", "i_solve_ok",
                              "i_total_ok", "a_solve", "a_gap", "s_total", "s_it",
-                             "s_ipopt_it")}
+                             "s_ipopt_it", "b_solve", "b_steps", "b_gap", "p_holds")}
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
-              "active_ok": 0, "active_close": 0, "step_failed": 0}
+              "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
         serving = warm_replan(planner, problem, [base], ropts) if base.success else base
         if not serving.success or serving.warm_state is None:
             rows.append([str(i + 1), "plan failed" if not base.success else
-                         "serving solve failed"] + [""] * 12)
+                         "serving solve failed"] + [""] * 13)
             continue
         moved = None
         for _ in range(10):  # a direction whose moved target the arm reaches
@@ -126,7 +128,7 @@ def run(count: int = CASES) -> Section:
             except ProblemError:
                 continue
         if moved is None:
-            rows.append([str(i + 1), "no reachable move"] + [""] * 12)
+            rows.append([str(i + 1), "no reachable move"] + [""] * 13)
             continue
         counts["answered"] += 1
         par, tp, par_all = _timed(lambda: planner.plan(  # noqa: B023
@@ -142,6 +144,9 @@ def run(count: int = CASES) -> Section:
         dual_flat = planner.flat(moved, ws.breaks, warm="dual")
         w0 = np.concatenate([ws.P.ravel(), [ws.T]])
         values = (moved.start.value, moved.target.value, moved.k)
+        (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
+            dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD,  # noqa: B023
+            hold=False))
         (act, act_out), ta, _ = _timed(lambda: active_set_solve(  # noqa: B023
             dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD))  # noqa: B023
 
@@ -168,6 +173,12 @@ def run(count: int = CASES) -> Section:
         counts["refit_ok"] += bool(refit.success)
         counts["quick_ok"] += bool(quick.success)
         a_gap = act.T / ipo.T - 1.0 if act.success and ipo.success else float("nan")
+        b_gap = bar.T / ipo.T - 1.0 if bar.success and ipo.success else float("nan")
+        counts["barrier_ok"] += bool(bar.success)
+        if bar.success:
+            m["b_solve"].append(tb)
+            m["b_steps"].append(bar.iterations)
+            m["b_gap"].append(abs(b_gap))
         counts["active_ok"] += bool(act.success)
         counts["active_close"] += bool(abs(a_gap) <= BAR_GAP)
         if act.success:
@@ -219,6 +230,8 @@ def run(count: int = CASES) -> Section:
             f"{1e3 * tt:.1f} ({tight.iterations})" if tight.success else "failed",
             f"{1e3 * tr:.1f} ({refit.iterations})" if refit.success else "failed",
             f"{1e3 * tq:.1f}" if quick.success else "failed", f"{q_gap:.1e}",
+            f"{1e3 * tb:.1f} ({bar.iterations}) {b_gap:.1e}" if bar.success
+            else f"failed ({bar.iterations})",
             f"{1e3 * ta:.1f} ({act.iterations}) {a_gap:.1e}" if act.success
             else f"{act_out.reason.split(' in ')[0]} ({act.iterations})",
             "(converged)" if again is None else
@@ -241,12 +254,18 @@ def run(count: int = CASES) -> Section:
         f"24 uniform spans, converged, with multipliers: what a previous replan leaves), "
         f"then the target moved {100 * MOVE:g} cm in a random direction and answered side "
         f"by side: *parametric*: `Planner.plan(moved, replan_options(...), "
-        f"warm_start=serving)`, the parametric primal-dual step (route taken and its Newton "
-        f"steps; IPOPT where it failed); *ipopt*: the same with `warm_parametric=False` "
+        f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
+        f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
+        f"failed); *ipopt*: the same with `warm_parametric=False` "
         f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
-        f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion. "
+        f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion; "
+        f"*barrier alone*: the parametric step without holding rows (`hold=False`, the "
+        f"route before), the solve alone; *active set*: SQP on a working set with "
+        f"primal-dual active-set corrections (bench/warm_active_set.py, tried and not "
+        f"kept), the solve alone, its KKT solves and T gap; *from step*: where the "
+        f"parametric step failed, IPOPT warm from its last iterate (the step included). "
         f"Times: median of 3 calls after one, *solve / total* (the NLP solve, "
         f"`timings[\"shooting\"]`, and the whole call with its certificate). *gap*: the "
         f"parametric route's T over the ipopt route's (the same NLP's optimum) and over the "
@@ -258,7 +277,8 @@ def run(count: int = CASES) -> Section:
         *table(["case", "start", "parametric route (steps)", "parametric ms solve / total",
                 "gap (same NLP)", "gap (cold plan)", "ipopt ms solve / total (it)",
                 "tight ms (it)", "refit ms (it)", "quick ms", "quick gap",
-                "active set ms (KKT solves) gap", "from step ms (it)"], rows),
+                "barrier alone ms (steps) gap", "active set ms (KKT solves) gap",
+                "from step ms (it)"], rows),
         "",
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps), {counts['ipopt (fallback)']}/{n} fell back "
@@ -274,7 +294,10 @@ def run(count: int = CASES) -> Section:
         f"median {_med(m['t_it']):.0f} iterations, {ms('t_solve')}. Refit: "
         f"{counts['refit_ok']}/{n}, median {_med(m['r_it']):.0f} iterations, "
         f"{ms('r_total')}. Quick motion: {counts['quick_ok']}/{n}, {ms('q_total')}, T gap "
-        f"median {_med(m['q_gap']):.2g}. Active set (not kept): converged on "
+        f"median {_med(m['q_gap']):.2g}. Barrier alone (the route before): converged on "
+        f"{counts['barrier_ok']}/{n}, median {_med(m['b_steps']):.0f} steps, "
+        f"{ms('b_solve')}, |T gap| max {max(m['b_gap'], default=float('nan')):.1e}. "
+        f"Active set (not kept): converged on "
         f"{counts['active_ok']}/{n} ({counts['active_close']} within {BAR_GAP:g} of the "
         f"ipopt route's T), median {ms('a_solve')} there. From step: where the "
         f"parametric step failed ({counts['step_failed']}/{n}), IPOPT from its last "
