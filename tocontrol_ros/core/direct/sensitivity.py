@@ -320,118 +320,120 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
     side = np.zeros(ng, dtype=np.int8)
-    while True:
-        held = side != 0
-        heq = eq | held
-        hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
-        b_held = np.where(side > 0, ubg, lbg)
-        jv = np.array(jac.nonzeros())
-        r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
-            + vu - vl
-        r_s = np.where(hin, -y - zl + zu, 0.0)
-        r_y = np.where(eq, g - lbg, np.where(held, g - b_held, g - s))
-        r_zl = np.where(hlg, zl * room_lg - MU, 0.0)
-        r_zu = np.where(hug, zu * room_ug - MU, 0.0)
-        r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
-        r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
-        wrong = (side > 0) & (y < -SIGN_TOL) | (side < 0) & (y > SIGN_TOL)
-        err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
-                  float(np.max(np.abs(r_s))) / STAT_TOL,
-                  float(np.max(np.abs(r_y))) / PRIMAL_TOL,
-                  float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
-                  / (COMPL_FACTOR * MU))
-        if err <= 1.0 and not np.any(wrong):
-            reason = "converged"
-            break
-        if steps >= MAX_STEPS:
-            break
-        if solves >= MAX_SOLVES:
-            reason = f"not converged in {MAX_SOLVES} KKT solves"
-            break
-        if blocked >= BLOCKED_STEPS:
-            reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
-                      f"length by the bounds (the active set changes)")
-            break
-        if should_stop is not None and should_stop():
-            reason = "cancelled"
-            break
-        if np.any(wrong) and full and err <= RELEASE_ERR:
-            # A held row whose multiplier has turned: back to the barrier, a little inside.
-            s = np.where(wrong, b_held - side * RELEASE_ROOM, s)
-            zu = np.where(wrong & (side > 0), MU / RELEASE_ROOM, zu)
-            zl = np.where(wrong & (side < 0), MU / RELEASE_ROOM, zl)
-            side = np.where(wrong, 0, side).astype(np.int8)
-            room_lg = np.where(has_lg & (side == 0), s - lbg, 1.0)
-            room_ug = np.where(has_ug & (side == 0), ubg - s, 1.0)
-            released += int(np.sum(wrong))
-            continue
-        if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
-                and hessians <= REFRESHES:
-            hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
-            hessians += 1
-        last = err
-        sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
-        sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
-        with np.errstate(divide="ignore"):
-            d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
-        diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
-        fact = banded.factor(hv, diag, jv)
-        solves += 1
-        if fact is None:
-            reason = "KKT matrix singular"
-            break
-        rt_s = r_s + np.where(hlg, r_zl / room_lg, 0.0) \
-            - np.where(hug, r_zu / room_ug, 0.0)
-        rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
-            + np.where(has_ux, r_vu / room_ux, 0.0)
-        rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
-        sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
-        if not np.all(np.isfinite(sol)):
-            reason = "KKT step not finite"
-            break
-        dw, dy = sol[:nw], sol[nw:]
-        ds = np.where(hin, (dy - rt_s) * d_row, 0.0)
-        dzl = np.where(hlg, (-r_zl - zl * ds) / room_lg, 0.0)
-        dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
-        dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
-        dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
-        a_p = min(_boundary_step(s, np.where(hlg, ds, 0.0), room_lg),
-                  _boundary_step(s, np.where(hug, -ds, 0.0), room_ug),
-                  _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
-                  _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
-        retry = False
-        if hold and a_p < HOLD_BELOW:
-            # Rows the whole step would carry across their bounds: held there, the step
-            # solved again (the same Hessian).
-            with np.errstate(divide="ignore", invalid="ignore"):
-                reach = HOLD_SPREAD * a_p
-                cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
-                cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
-            if np.any(cross_u | cross_l):
-                side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
-                held = side != 0
-                s = np.where(cross_u, ubg, np.where(cross_l, lbg, s))
-                zl, zu = np.where(held, 0.0, zl), np.where(held, 0.0, zu)
-                room_lg = np.where(has_lg & ~held, s - lbg, 1.0)
-                room_ug = np.where(has_ug & ~held, ubg - s, 1.0)
-                holds += int(np.sum(cross_u | cross_l))
-                retry = True
+    # A zero room or a step that is not finite ends as a failure ("KKT step not finite").
+    with np.errstate(divide="ignore", invalid="ignore"):
+        while True:
+            held = side != 0
+            heq = eq | held
+            hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
+            b_held = np.where(side > 0, ubg, lbg)
+            jv = np.array(jac.nonzeros())
+            r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
+                + vu - vl
+            r_s = np.where(hin, -y - zl + zu, 0.0)
+            r_y = np.where(eq, g - lbg, np.where(held, g - b_held, g - s))
+            r_zl = np.where(hlg, zl * room_lg - MU, 0.0)
+            r_zu = np.where(hug, zu * room_ug - MU, 0.0)
+            r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
+            r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
+            wrong = (side > 0) & (y < -SIGN_TOL) | (side < 0) & (y > SIGN_TOL)
+            err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
+                      float(np.max(np.abs(r_s))) / STAT_TOL,
+                      float(np.max(np.abs(r_y))) / PRIMAL_TOL,
+                      float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
+                      / (COMPL_FACTOR * MU))
+            if err <= 1.0 and not np.any(wrong):
+                reason = "converged"
+                break
+            if steps >= MAX_STEPS:
+                break
+            if solves >= MAX_SOLVES:
+                reason = f"not converged in {MAX_SOLVES} KKT solves"
+                break
+            if blocked >= BLOCKED_STEPS:
+                reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
+                          f"length by the bounds (the active set changes)")
+                break
+            if should_stop is not None and should_stop():
+                reason = "cancelled"
+                break
+            if np.any(wrong) and full and err <= RELEASE_ERR:
+                # A held row whose multiplier has turned: back to the barrier, a little inside.
+                s = np.where(wrong, b_held - side * RELEASE_ROOM, s)
+                zu = np.where(wrong & (side > 0), MU / RELEASE_ROOM, zu)
+                zl = np.where(wrong & (side < 0), MU / RELEASE_ROOM, zl)
+                side = np.where(wrong, 0, side).astype(np.int8)
+                room_lg = np.where(has_lg & (side == 0), s - lbg, 1.0)
+                room_ug = np.where(has_ug & (side == 0), ubg - s, 1.0)
+                released += int(np.sum(wrong))
                 continue
-        a_d = min(_boundary_step(zl, dzl, zl + ~hlg), _boundary_step(zu, dzu, zu + ~hug),
-                  _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
-        full = a_p == 1.0
-        blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
-        w = w + a_p * dw
-        s = s + a_p * ds
-        y = y + a_p * dy
-        zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
-        room_lg = np.where(hlg, s - lbg, 1.0)
-        room_ug = np.where(hug, ubg - s, 1.0)
-        room_lx = np.where(has_lx, w - lbx, 1.0)
-        room_ux = np.where(has_ux, ubx - w, 1.0)
-        steps += 1
-        g, jac = jac_fun(w, par)
-        g = np.array(g).ravel()
+            if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
+                    and hessians <= REFRESHES:
+                hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
+                hessians += 1
+            last = err
+            sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
+            sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
+            with np.errstate(divide="ignore"):
+                d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
+            diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
+            fact = banded.factor(hv, diag, jv)
+            solves += 1
+            if fact is None:
+                reason = "KKT matrix singular"
+                break
+            rt_s = r_s + np.where(hlg, r_zl / room_lg, 0.0) \
+                - np.where(hug, r_zu / room_ug, 0.0)
+            rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
+                + np.where(has_ux, r_vu / room_ux, 0.0)
+            rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
+            sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
+            if not np.all(np.isfinite(sol)):
+                reason = "KKT step not finite"
+                break
+            dw, dy = sol[:nw], sol[nw:]
+            ds = np.where(hin, (dy - rt_s) * d_row, 0.0)
+            dzl = np.where(hlg, (-r_zl - zl * ds) / room_lg, 0.0)
+            dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
+            dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
+            dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
+            a_p = min(_boundary_step(s, np.where(hlg, ds, 0.0), room_lg),
+                      _boundary_step(s, np.where(hug, -ds, 0.0), room_ug),
+                      _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
+                      _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
+            retry = False
+            if hold and a_p < HOLD_BELOW:
+                # Rows the whole step would carry across their bounds: held there, the step
+                # solved again (the same Hessian).
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    reach = HOLD_SPREAD * a_p
+                    cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
+                    cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
+                if np.any(cross_u | cross_l):
+                    side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
+                    held = side != 0
+                    s = np.where(cross_u, ubg, np.where(cross_l, lbg, s))
+                    zl, zu = np.where(held, 0.0, zl), np.where(held, 0.0, zu)
+                    room_lg = np.where(has_lg & ~held, s - lbg, 1.0)
+                    room_ug = np.where(has_ug & ~held, ubg - s, 1.0)
+                    holds += int(np.sum(cross_u | cross_l))
+                    retry = True
+                    continue
+            a_d = min(_boundary_step(zl, dzl, zl + ~hlg), _boundary_step(zu, dzu, zu + ~hug),
+                      _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
+            full = a_p == 1.0
+            blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
+            w = w + a_p * dw
+            s = s + a_p * ds
+            y = y + a_p * dy
+            zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
+            room_lg = np.where(hlg, s - lbg, 1.0)
+            room_ug = np.where(hug, ubg - s, 1.0)
+            room_lx = np.where(has_lx, w - lbx, 1.0)
+            room_ux = np.where(has_ux, ubx - w, 1.0)
+            steps += 1
+            g, jac = jac_fun(w, par)
+            g = np.array(g).ravel()
     active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
     outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason,
                                  holds, released, solves)
