@@ -374,8 +374,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             last = err
             sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
             sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
-            with np.errstate(divide="ignore"):
-                d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
+            d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
             diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
             fact = banded.factor(hv, diag, jv)
             solves += 1
@@ -405,10 +404,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             if hold and a_p < HOLD_BELOW:
                 # Rows the whole step would carry across their bounds: held there, the step
                 # solved again (the same Hessian).
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    reach = HOLD_SPREAD * a_p
-                    cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
-                    cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
+                reach = HOLD_SPREAD * a_p
+                cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
+                cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
                 if np.any(cross_u | cross_l):
                     side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
                     held = side != 0
