@@ -39,7 +39,8 @@ its parts paired against the TOPP-RA and open loop before issue 47's cuts),
 ``stagewise`` (issue 47's stage-wise transcription: IPOPT, Fatrop and an SQP with HPIPM on
 the same NLPs, 10 Panda cases), ``warm_resolve`` (one replan after a 2 cm move on 20 Panda
 cases: the parametric step, IPOPT warm with multipliers, IPOPT with tight warm options,
-the path refit and the quick motion, side by side),
+the path refit, the quick motion, the barrier step alone, the active-set SQP tried and not
+kept (bench/warm_active_set.py) and IPOPT from a failed step's iterate, side by side),
 ``batch`` (batch
 planning throughput: loop, process pool, Ray), ``limits`` (random cases with joint limits
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the

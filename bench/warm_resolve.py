@@ -17,7 +17,14 @@ one run, each timed after a warm-up of the same call (median of 3):
   barrier at 1e-9 (``warm="dual_tight"``), the solve alone (no certificate);
 - **refit**: ``warm_replan`` from the default plan, its path fitted on 24 spans, IPOPT
   without multipliers: what the node's replans did before;
-- **quick**: the quick motion (``first_motion.quick_motion``).
+- **quick**: the quick motion (``first_motion.quick_motion``);
+- **barrier alone**: the parametric step without holding the rows that block it
+  (``sensitivity_solve(..., hold=False)``: the route before), the solve alone;
+- **active set** (tried, not kept: bench/warm_active_set.py): SQP on a working set with
+  primal-dual active-set corrections from the serving solution, the solve alone;
+- **from step**: where the parametric step failed, IPOPT warm (``warm="dual"``) from the
+  step's last iterate and multipliers instead of the serving solution (the step's time
+  included), the solve alone: does the failed step give IPOPT a better start?
 
 References: the ipopt route's ``T`` (IPOPT converged on the same 24-span NLP: its optimum)
 and the default cold plan of the moved problem (``Planner.plan``: its refined mesh, a
@@ -68,9 +75,11 @@ def _med(v: list) -> float:
 
 def run(count: int = CASES) -> Section:
     from bench.limits import draw_cases
+    from bench.warm_active_set import active_set_solve
     from tocontrol_ros.core.direct.first_motion import quick_motion
     from tocontrol_ros.core.direct.limited import state_bounds
-    from tocontrol_ros.core.direct.tuning import PAD
+    from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
+    from tocontrol_ros.core.direct.tuning import PAD, SET_PAD
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.planning.replan import replan_options, warm_replan
     from tocontrol_ros.core.planning.solver import Planner
@@ -95,16 +104,18 @@ def run(count: int = CASES) -> Section:
     m = {key: [] for key in ("p_solve", "p_total", "p_gap", "p_cold", "i_solve", "i_total",
                              "t_solve", "r_total", "q_total", "q_gap", "p_steps", "i_it",
                              "t_it", "r_it", "p_solve_ok", "p_total_ok", "i_solve_ok",
-                             "i_total_ok")}
+                             "i_total_ok", "a_solve", "a_gap", "s_total", "s_it",
+                             "s_ipopt_it", "b_solve", "b_steps", "b_gap", "p_holds")}
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
-              "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0}
+              "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
+              "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
         serving = warm_replan(planner, problem, [base], ropts) if base.success else base
         if not serving.success or serving.warm_state is None:
             rows.append([str(i + 1), "plan failed" if not base.success else
-                         "serving solve failed"] + [""] * 10)
+                         "serving solve failed"] + [""] * 13)
             continue
         moved = None
         for _ in range(10):  # a direction whose moved target the arm reaches
@@ -117,7 +128,7 @@ def run(count: int = CASES) -> Section:
             except ProblemError:
                 continue
         if moved is None:
-            rows.append([str(i + 1), "no reachable move"] + [""] * 10)
+            rows.append([str(i + 1), "no reachable move"] + [""] * 13)
             continue
         counts["answered"] += 1
         par, tp, par_all = _timed(lambda: planner.plan(  # noqa: B023
@@ -130,6 +141,24 @@ def run(count: int = CASES) -> Section:
         tight, tt, _ = _timed(lambda: tight_flat.solve(  # noqa: B023
             moved.start.value, moved.target.value, moved.k, ws.T, ws.P, *bounds,  # noqa: B023
             lam_g0=ws.lam_g, lam_x0=ws.lam_x))  # noqa: B023
+        dual_flat = planner.flat(moved, ws.breaks, warm="dual")
+        w0 = np.concatenate([ws.P.ravel(), [ws.T]])
+        values = (moved.start.value, moved.target.value, moved.k)
+        (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
+            dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD,  # noqa: B023
+            hold=False))
+        (act, act_out), ta, _ = _timed(lambda: active_set_solve(  # noqa: B023
+            dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD))  # noqa: B023
+
+        def from_step():
+            step, _ = sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
+                                        *values, *bounds, SET_PAD)  # noqa: B023
+            if step.success:
+                return step, None
+            return step, dual_flat.solve(*values, step.T, step.P, *bounds,  # noqa: B023
+                                         lam_g0=step.lam_g, lam_x0=step.lam_x)
+
+        (step, again), ts, _ = _timed(from_step)
         refit, tr, _ = _timed(lambda: warm_replan(  # noqa: B023
             planner, moved, [base], ropts))  # noqa: B023
         q_end = base.trajectory.state(base.T)[0][:model.n]
@@ -143,6 +172,24 @@ def run(count: int = CASES) -> Section:
         counts["tight_ok"] += bool(tight.success)
         counts["refit_ok"] += bool(refit.success)
         counts["quick_ok"] += bool(quick.success)
+        a_gap = act.T / ipo.T - 1.0 if act.success and ipo.success else float("nan")
+        b_gap = bar.T / ipo.T - 1.0 if bar.success and ipo.success else float("nan")
+        counts["barrier_ok"] += bool(bar.success)
+        if bar.success:
+            m["b_solve"].append(tb)
+            m["b_steps"].append(bar.iterations)
+            m["b_gap"].append(abs(b_gap))
+        counts["active_ok"] += bool(act.success)
+        counts["active_close"] += bool(abs(a_gap) <= BAR_GAP)
+        if act.success:
+            m["a_solve"].append(ta)
+            m["a_gap"].append(abs(a_gap))
+        if again is not None:
+            counts["step_failed"] += 1
+            if again.success:
+                m["s_total"].append(ts)
+                m["s_it"].append(again.iterations)
+                m["s_ipopt_it"].append(ipo.iterations)
         p_solve = _med([r.timings["shooting"] for r in par_all])
         i_solve = _med([r.timings["shooting"] for r in ipo_all])
         gap = par.T / ipo.T - 1.0 if par.success and ipo.success else float("nan")
@@ -182,11 +229,19 @@ def run(count: int = CASES) -> Section:
             else "failed",
             f"{1e3 * tt:.1f} ({tight.iterations})" if tight.success else "failed",
             f"{1e3 * tr:.1f} ({refit.iterations})" if refit.success else "failed",
-            f"{1e3 * tq:.1f}" if quick.success else "failed", f"{q_gap:.1e}"])
+            f"{1e3 * tq:.1f}" if quick.success else "failed", f"{q_gap:.1e}",
+            f"{1e3 * tb:.1f} ({bar.iterations}) {b_gap:.1e}" if bar.success
+            else f"failed ({bar.iterations})",
+            f"{1e3 * ta:.1f} ({act.iterations}) {a_gap:.1e}" if act.success
+            else f"{act_out.reason.split(' in ')[0]} ({act.iterations})",
+            "(converged)" if again is None else
+            f"{1e3 * ts:.1f} ({again.iterations})" if again.success else "failed"])
         log(f"warm_resolve {i + 1}: {route} {1e3 * p_solve:.1f}/{1e3 * tp:.1f} ms "
             f"({par.iterations}) gap {gap:.1e}; ipopt {1e3 * i_solve:.1f}/{1e3 * ti:.1f} ms "
             f"({ipo.iterations}); tight {1e3 * tt:.1f} ms ({tight.iterations}); refit "
-            f"{1e3 * tr:.1f} ms ({refit.iterations})")
+            f"{1e3 * tr:.1f} ms ({refit.iterations}); active set {act_out.reason} "
+            f"({act.iterations}) gap {a_gap:.1e}; from step "
+            f"{'-' if again is None else again.iterations}")
     n = counts["answered"]
 
     def ms(key: str) -> str:
@@ -199,12 +254,18 @@ def run(count: int = CASES) -> Section:
         f"24 uniform spans, converged, with multipliers: what a previous replan leaves), "
         f"then the target moved {100 * MOVE:g} cm in a random direction and answered side "
         f"by side: *parametric*: `Planner.plan(moved, replan_options(...), "
-        f"warm_start=serving)`, the parametric primal-dual step (route taken and its Newton "
-        f"steps; IPOPT where it failed); *ipopt*: the same with `warm_parametric=False` "
+        f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
+        f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
+        f"failed); *ipopt*: the same with `warm_parametric=False` "
         f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
-        f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion. "
+        f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion; "
+        f"*barrier alone*: the parametric step without holding rows (`hold=False`, the "
+        f"route before), the solve alone; *active set*: SQP on a working set with "
+        f"primal-dual active-set corrections (bench/warm_active_set.py, tried and not "
+        f"kept), the solve alone, its KKT solves and T gap; *from step*: where the "
+        f"parametric step failed, IPOPT warm from its last iterate (the step included). "
         f"Times: median of 3 calls after one, *solve / total* (the NLP solve, "
         f"`timings[\"shooting\"]`, and the whole call with its certificate). *gap*: the "
         f"parametric route's T over the ipopt route's (the same NLP's optimum) and over the "
@@ -215,7 +276,9 @@ def run(count: int = CASES) -> Section:
         "",
         *table(["case", "start", "parametric route (steps)", "parametric ms solve / total",
                 "gap (same NLP)", "gap (cold plan)", "ipopt ms solve / total (it)",
-                "tight ms (it)", "refit ms (it)", "quick ms", "quick gap"], rows),
+                "tight ms (it)", "refit ms (it)", "quick ms", "quick gap",
+                "barrier alone ms (steps) gap", "active set ms (KKT solves) gap",
+                "from step ms (it)"], rows),
         "",
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps), {counts['ipopt (fallback)']}/{n} fell back "
@@ -231,7 +294,15 @@ def run(count: int = CASES) -> Section:
         f"median {_med(m['t_it']):.0f} iterations, {ms('t_solve')}. Refit: "
         f"{counts['refit_ok']}/{n}, median {_med(m['r_it']):.0f} iterations, "
         f"{ms('r_total')}. Quick motion: {counts['quick_ok']}/{n}, {ms('q_total')}, T gap "
-        f"median {_med(m['q_gap']):.2g}.",
+        f"median {_med(m['q_gap']):.2g}. Barrier alone (the route before): converged on "
+        f"{counts['barrier_ok']}/{n}, median {_med(m['b_steps']):.0f} steps, "
+        f"{ms('b_solve')}, |T gap| max {max(m['b_gap'], default=float('nan')):.1e}. "
+        f"Active set (not kept): converged on "
+        f"{counts['active_ok']}/{n} ({counts['active_close']} within {BAR_GAP:g} of the "
+        f"ipopt route's T), median {ms('a_solve')} there. From step: where the "
+        f"parametric step failed ({counts['step_failed']}/{n}), IPOPT from its last "
+        f"iterate took a median {_med(m['s_it']):.0f} iterations ({ms('s_total')}, the step "
+        f"included) against {_med(m['s_ipopt_it']):.0f} from the serving solution.",
     ]
     p_solve, p_total = _med(m["p_solve"]), _med(m["p_total"])
     gap_ok = bool(gaps) and max(gaps) <= BAR_GAP

@@ -132,6 +132,59 @@ def test_a_move_that_changes_the_active_set_converges_or_falls_back_saying_why(p
         assert par.T == pytest.approx(ipopt.T, rel=1e-6)
 
 
+#: bench/warm_resolve.py's case 2 (a moving start) and its 2 cm move: the move makes two
+#: rows block the barrier's steps (the active set changes).
+HOLD_Q0 = np.array([2.3918396377373012, 1.538876765530094, 0.8516076787069186,
+                    -2.4797175030377803, -0.5480556869667632, 1.1142377565041506,
+                    2.3763812546418017])
+HOLD_QD0 = np.array([0.23400553637193297, 0.10681930882760937, -0.5526385562529377,
+                     0.299999739750907, 0.27244649958753814, 0.4728266786776917,
+                     -0.5497733414936288])
+HOLD_TARGET = np.array([0.0363844797615219, -0.45428216747540395, 0.20757390108044987])
+HOLD_MOVED = np.array([0.02104013966431273, -0.4654382020789454, 0.20124190937911562])
+
+
+def test_rows_that_block_the_step_are_held_and_the_answer_is_the_optimum(panda):
+    """Where the move changes the active set (rows 1e-3 below their bounds become
+    active), the blocking rows are held at their bounds: the parametric route converges,
+    the plan is certified, its T within 1e-3 (here 1e-6) of IPOPT's converged re-solve of
+    the same NLP from the same point, its KKT residuals small; the barrier alone (``hold
+    =False``) needs more Newton steps there (measured 9 against 5), or fails saying why."""
+    planner = Planner(panda)
+    limits = JointLimits.from_model(panda)
+    problem = Problem(panda, joint_state(HOLD_Q0, HOLD_QD0), point(HOLD_TARGET), k=4.0,
+                      limits=limits)
+    base = planner.plan(problem, SolverOptions(time_limit=SLOW_OK))
+    assert base.success, base.message
+    serving = warm_replan(planner, problem, [base], SERVE)
+    assert serving.success and serving.intervals == 24, serving.message
+    moved = _moved(problem, HOLD_MOVED - HOLD_TARGET)
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x,
+            moved.start.value, moved.target.value, moved.k, *state_bounds(moved, PAD),
+            SET_PAD)
+    res, outcome = sensitivity.sensitivity_solve(*args)
+    assert res.success and outcome.reason == "converged", res.message
+    assert outcome.holds >= 1 and outcome.changed >= 1, outcome
+    assert f"{outcome.holds} held at their bounds" in res.message
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    ipopt = planner.plan(moved, replace(SERVE, warm_parametric=False), warm_start=serving)
+    assert par.success and ipopt.success, (par.message, ipopt.message)
+    assert _route(par) == "parametric", par.warnings
+    assert par.certificate is not None and par.certificate.passed
+    assert abs(par.T / ipopt.T - 1.0) <= 1e-6, (par.T, ipopt.T)
+    stat, primal = _kkt_residuals(planner, moved, par)
+    assert stat <= 1e-5 and primal <= 1e-8, (stat, primal)
+    alone, out_alone = sensitivity.sensitivity_solve(*args, hold=False)
+    assert out_alone.holds == 0
+    if alone.success:
+        assert out_alone.steps > outcome.steps, (out_alone, outcome)
+        assert alone.T == pytest.approx(res.T, rel=1e-6)
+    else:
+        assert alone.residual == np.inf and "failed" in alone.message
+
+
 def test_a_parametric_step_out_of_work_falls_back_to_ipopt(panda_case, monkeypatch):
     """With a budget of one Newton step the parametric solve stops unconverged: a failure
     with its reason (never a result); the plan falls back to IPOPT, says so, certified."""
@@ -172,3 +225,38 @@ def test_warm_parametric_is_validated(value):
 
     with pytest.raises(ProblemError, match="warm_parametric"):
         SolverOptions(warm_parametric=value)
+
+
+def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
+    """The banded LU with T's Schur complement (BandedKKT, shared with the active-set
+    experiment in bench/) solves the Panda's KKT matrix as a dense LU of the same matrix,
+    assembled here from the Hessian's upper triangle and the Jacobian's triplets."""
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    par = flat.parameters(moved.start.value, moved.target.value, moved.k)
+    w = np.concatenate([ws.P.ravel(), [ws.T]])
+    jac_fun, hess_fun = flat.kkt_functions
+    _, jac = jac_fun(w, par)
+    hess = hess_fun(w, par, 1.0, ws.lam_g)
+    banded = sensitivity.banded_kkt(flat, jac, hess)
+    assert sensitivity.banded_kkt(flat, jac, hess) is banded  # built once per sparsity
+    nw, ng = len(w), flat.rows
+    hv, jv = np.array(hess.nonzeros()), np.array(jac.nonzeros())
+    rng = np.random.default_rng(5)
+    diag = np.concatenate([rng.uniform(0.0, 1.0, nw), -rng.uniform(1e-3, 1.0, ng)])
+    fact = banded.factor(hv, diag, jv)
+    assert fact is not None
+    dense = np.zeros((nw + ng, nw + ng))
+    np.add.at(dense, (banded.hr, banded.hc), hv)
+    off = banded.hr != banded.hc
+    np.add.at(dense, (banded.hc[off], banded.hr[off]), hv[off])
+    dense[np.arange(nw + ng), np.arange(nw + ng)] += diag
+    np.add.at(dense, (nw + banded.jr, banded.jc), jv)
+    np.add.at(dense, (banded.jc, nw + banded.jr), jv)
+    rhs = rng.normal(size=nw + ng)
+    x = banded.solve(fact, rhs)
+    ref = np.linalg.solve(dense, rhs)
+    assert np.max(np.abs(x - ref)) <= 1e-8 * max(1.0, np.max(np.abs(ref)))
+    assert np.max(np.abs(dense @ x - rhs)) <= 1e-8 * max(1.0, np.max(np.abs(rhs)))

@@ -278,11 +278,28 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     if not step.success:  # the caller's solve time counts from t0 on
         return None, why
     traj = FlatTrajectory(flat, step, problem.k)
-    if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
-        slower = _stretched(flat, step, traj, values, bounds)
-        if slower is None:
-            return None, f"{why}, but its torques leave the set between the samples"
-        step, traj = slower
+    excess, pad = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN), SET_PAD
+    slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 else (step, traj)
+    for _ in range(PAD_ROUNDS if slower is None else 0):
+        # As _inside_set does with IPOPT: the set's pad widened, the step carried there
+        # from its own answer (the rows held at the old pad move with it).
+        pad += 2.0 * excess
+        w1 = np.concatenate([step.P.ravel(), [step.T]])
+        again, _ = sensitivity_solve(flat, w1, step.lam_g, step.lam_x, *values, *bounds, pad,
+                                     should_stop=ctx.should_stop)
+        ctx.check()
+        if not again.success:
+            break
+        step, traj = again, FlatTrajectory(flat, again, problem.k)
+        excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
+        why = f"{why}; pad {pad:.2g}: {again.message}"
+        slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 \
+            else (step, traj)
+        if slower is not None:
+            break
+    if slower is None:
+        return None, f"{why}, but its torques leave the set between the samples"
+    step, traj = slower
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
              f"previous solution on its mesh of {flat.spans} spans by the {why} (route: "
              f"parametric)"]

@@ -16,12 +16,17 @@ barrier terms evaluated again each step; the Hessian re-evaluated, at most
 :data:`REFRESHES` times, after a step cut by the boundary or one that did not cut the
 residual by :data:`CONTRACTION`), each cut by the fraction-to-the-boundary rule, so slacks
 and multipliers stay positive and every inequality holds strictly. Where the move changes
-the active set the slacks and multipliers of those rows must change places; measured, the
-steps are then often cut to a small fraction of their length and do not converge within
-the budget (docs/limits.md, "Warm re-solves by the parametric step"). At most
-:data:`MAX_STEPS` steps:
-the solver decides by work, never by the clock; a solve that has not converged then is a
-failure with its reason, and the caller re-solves with IPOPT
+the active set the slacks and multipliers of those rows must change places: the barrier
+alone then cut its steps to 1e-4-1e-2 of their length and did not converge within the
+budget (docs/limits.md, "Warm re-solves by the parametric step"). So a step cut below
+:data:`HOLD_BELOW` of its length is solved again with the rows that block it first held at
+their bounds as equalities (their slack gone, their multiplier free), the primal active-set
+method's move inside the barrier step; a held row whose multiplier turns to the wrong sign
+once the step is nearly converged goes back to the barrier (:data:`RELEASE_ROOM` inside
+its bound). The answer is then a KKT point with those rows exactly at their bounds and the
+others' complementarity at ``MU``. At most :data:`MAX_STEPS` steps and :data:`MAX_SOLVES`
+factorisations: the solver decides by work, never by the clock; a solve that has not
+converged then is a failure with its reason, and the caller re-solves with IPOPT
 (:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`).
 
 A Newton step on a guessed active set (strongly active rows as equalities, the others
@@ -45,7 +50,8 @@ from scipy.linalg import lapack
 
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 
-__all__ = ["MAX_STEPS", "MU", "SensitivityOutcome", "sensitivity_solve"]
+__all__ = ["MAX_STEPS", "MU", "BandedKKT", "SensitivityOutcome", "banded_kkt",
+           "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -69,6 +75,19 @@ STAT_TOL, PRIMAL_TOL, COMPL_FACTOR = 1e-6, 1e-9, 10.0
 PRIMAL_REG, DUAL_REG = 1e-10, 1e-12
 #: Bounds of magnitude at least this are absent (IPOPT's ``nlp_lower_bound_inf``).
 INF = 1e19
+#: A step cut below :data:`HOLD_BELOW` of its length by the bounds: the rows that the
+#: whole step would carry across their bounds within :data:`HOLD_SPREAD` times that cut
+#: (the ones that block first) are held at their bounds and the step solved again
+#: (docs/limits.md; on the 20 moves of bench/warm_resolve.py a spread of 2 converged on
+#: 13, 1.2 on 11, 5 on 10, 10 on 8: then rows that only the linearisation carries across
+#: are held too).
+HOLD_BELOW, HOLD_SPREAD = 0.5, 2.0
+#: KKT factorisations at most (the steps and the re-solves after rows are held).
+MAX_SOLVES = 16
+#: A held row's multiplier of the wrong sign by more than this, once the residual is below
+#: ``RELEASE_ERR`` (in units of the tolerances) after a whole step, releases it to the
+#: barrier, ``RELEASE_ROOM`` inside its bound.
+SIGN_TOL, RELEASE_ERR, RELEASE_ROOM = 1e-9, 1e6, 1e-4
 
 
 @dataclass(frozen=True)
@@ -83,8 +102,13 @@ class SensitivityOutcome:
         Evaluations of the Lagrangian's Hessian (each followed by a factorisation; every
         step factorises the matrix with its new barrier terms).
     changed : int
-        Rows whose activity changed (slack below ``1e-6`` at the start and not at the end,
-        or the other way).
+        Rows whose activity changed (slack below ``1e-6`` or held at the start and not at
+        the end, or the other way).
+    holds, released : int
+        Rows held at their bounds because they blocked a step, and held rows released to
+        the barrier again (their multiplier of the wrong sign).
+    solves : int
+        KKT factorisations (the steps and the re-solves after rows were held).
     reason : str
         "converged", or why it stopped.
     """
@@ -93,15 +117,25 @@ class SensitivityOutcome:
     hessians: int
     changed: int
     reason: str
+    holds: int = 0
+    released: int = 0
+    solves: int = 0
 
 
-class _Banded:
-    """The KKT matrix's ordering along the path, its band, built once per sparsity."""
+class BandedKKT:
+    """The KKT matrix's ordering along the path, its band, built once per sparsity.
+
+    ``[[H + diag_w, J^T], [J, diag_g]]`` for the Lagrangian's Hessian ``H`` (upper triangle
+    as CasADi gives it) and the rows' Jacobian ``J``, both by their nonzeros; ordered along
+    the path (each control point's variables, then the rows that touch it), banded,
+    bordered by ``T`` (the last variable). Also used by the active-set route
+    (:mod:`~tocontrol_ros.core.direct.active_set`).
+    """
 
     def __init__(self, jac_rc: tuple, hess_rc: tuple, nw: int, ng: int, n: int) -> None:
         jr, jc = jac_rc
         hr, hc = hess_rc
-        self.jr, self.jc = jr, jc
+        self.jr, self.jc, self.hr, self.hc = jr, jc, hr, hc
         iT, N = nw - 1, nw + ng
         # Each unknown's place along the path: a control point's index, a row's the mean of
         # its control points'; T (the last variable) is the border.
@@ -167,6 +201,25 @@ class _Banded:
         return out
 
 
+def banded_kkt(flat: FlatTranscription, jac, hess) -> BandedKKT:
+    """The :class:`BandedKKT` of ``flat``'s NLP, built at its first use and kept.
+
+    Parameters
+    ----------
+    flat : FlatTranscription
+    jac, hess : casadi.DM
+        The rows' Jacobian and the Lagrangian's Hessian as ``flat.kkt_functions`` return
+        them (only their sparsity is read).
+    """
+    nw, ng = hess.size1(), jac.size1()
+    key = ("kkt", nw, ng)
+    banded = flat.kkt_cache.get(key)
+    if banded is None:
+        banded = BandedKKT(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
+        flat.kkt_cache[key] = banded
+    return banded
+
+
 def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
     r, c = fn_out.sparsity().get_triplet()
     return np.asarray(r, dtype=int), np.asarray(c, dtype=int)
@@ -191,7 +244,8 @@ def _boundary_step(x, dx, room) -> float:
 def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray,
                       lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
                       k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
-                      should_stop=None) -> tuple[FlatResult, SensitivityOutcome]:
+                      should_stop=None, hold: bool = True
+                      ) -> tuple[FlatResult, SensitivityOutcome]:
     """The new problem's solution from a converged one on the same mesh (see the module).
 
     Parameters
@@ -211,6 +265,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     set_pad : float
     should_stop : callable, optional
         Polled every step; True stops (a failure, "cancelled").
+    hold : bool
+        Hold the rows that block a step at their bounds (:data:`HOLD_BELOW`); False: the
+        barrier alone (the route before; bench/warm_resolve.py's comparison).
 
     Returns
     -------
@@ -232,12 +289,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     grad_f[-1] = 1.0
     g, jac = jac_fun(w, par)
     g = np.array(g).ravel()
-    key = ("kkt", nw, ng)
-    banded = flat.kkt_cache.get(key)
     hess = hess_fun(w, par, 1.0, np.asarray(lam_g0, dtype=float))
-    if banded is None:
-        banded = _Banded(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
-        flat.kkt_cache[key] = banded
+    banded = banded_kkt(flat, jac, hess)
     # The barrier's variables from IPOPT's point: the bounds' multipliers split by sign,
     # slacks (the rows' values) inside their bounds with a product of at least MU (IPOPT
     # returns points on its relaxed bounds: a slack of 1e-14 would make the multiplier
@@ -263,91 +316,133 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     active0 = (np.minimum(room_lg, room_ug) < 1e-6)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {MAX_STEPS} steps"
     hv = np.array(hess.nonzeros())
-    full, blocked = False, 0
-    ineq = ~eq
-    while True:
-        jv = np.array(jac.nonzeros())
-        r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
-            + vu - vl
-        r_s = np.where(ineq, -y - zl + zu, 0.0)
-        r_y = np.where(eq, g - lbg, g - s)
-        r_zl = np.where(has_lg, zl * room_lg - MU, 0.0)
-        r_zu = np.where(has_ug, zu * room_ug - MU, 0.0)
-        r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
-        r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
-        err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
-                  float(np.max(np.abs(r_s))) / STAT_TOL,
-                  float(np.max(np.abs(r_y))) / PRIMAL_TOL,
-                  float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
-                  / (COMPL_FACTOR * MU))
-        if err <= 1.0:
-            reason = "converged"
-            break
-        if steps >= MAX_STEPS:
-            break
-        if blocked >= BLOCKED_STEPS:
-            reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
-                      f"length by the bounds (the active set changes)")
-            break
-        if should_stop is not None and should_stop():
-            reason = "cancelled"
-            break
-        if steps > 0 and (not full or err > CONTRACTION * last) and hessians <= REFRESHES:
-            hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
-            hessians += 1
-        last = err
-        sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
-        sig_s = np.where(has_lg, zl / room_lg, 0.0) + np.where(has_ug, zu / room_ug, 0.0)
-        with np.errstate(divide="ignore"):
-            d_row = np.where(eq, DUAL_REG, 1.0 / np.where(ineq, sig_s, 1.0))
-        diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
-        fact = banded.factor(hv, diag, jv)
-        if fact is None:
-            reason = "KKT matrix singular"
-            break
-        rt_s = r_s + np.where(has_lg, r_zl / room_lg, 0.0) \
-            - np.where(has_ug, r_zu / room_ug, 0.0)
-        rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
-            + np.where(has_ux, r_vu / room_ux, 0.0)
-        rhs_y = np.where(eq, -r_y, -r_y - rt_s * d_row)
-        sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
-        if not np.all(np.isfinite(sol)):
-            reason = "KKT step not finite"
-            break
-        dw, dy = sol[:nw], sol[nw:]
-        ds = np.where(ineq, (dy - rt_s) * d_row, 0.0)
-        dzl = np.where(has_lg, (-r_zl - zl * ds) / room_lg, 0.0)
-        dzu = np.where(has_ug, (-r_zu + zu * ds) / room_ug, 0.0)
-        dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
-        dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
-        a_p = min(_boundary_step(s, np.where(has_lg, ds, 0.0), room_lg),
-                  _boundary_step(s, np.where(has_ug, -ds, 0.0), room_ug),
-                  _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
-                  _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
-        a_d = min(_boundary_step(zl, dzl, zl + ~has_lg), _boundary_step(zu, dzu, zu + ~has_ug),
-                  _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
-        full = a_p == 1.0
-        blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
-        w = w + a_p * dw
-        s = s + a_p * ds
-        y = y + a_p * dy
-        zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
-        room_lg = np.where(has_lg, s - lbg, 1.0)
-        room_ug = np.where(has_ug, ubg - s, 1.0)
-        room_lx = np.where(has_lx, w - lbx, 1.0)
-        room_ux = np.where(has_ux, ubx - w, 1.0)
-        steps += 1
-        g, jac = jac_fun(w, par)
-        g = np.array(g).ravel()
-    active1 = np.minimum(room_lg, room_ug) < 1e-6
-    outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason)
-    lam_g = np.where(eq, y, zu - zl)
+    full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
+    # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
+    # a step, held there as an equality while its multiplier has the right sign.
+    side = np.zeros(ng, dtype=np.int8)
+    # A zero room or a step that is not finite ends as a failure ("KKT step not finite").
+    with np.errstate(divide="ignore", invalid="ignore"):
+        while True:
+            held = side != 0
+            heq = eq | held
+            hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
+            b_held = np.where(side > 0, ubg, lbg)
+            jv = np.array(jac.nonzeros())
+            r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
+                + vu - vl
+            r_s = np.where(hin, -y - zl + zu, 0.0)
+            r_y = np.where(eq, g - lbg, np.where(held, g - b_held, g - s))
+            r_zl = np.where(hlg, zl * room_lg - MU, 0.0)
+            r_zu = np.where(hug, zu * room_ug - MU, 0.0)
+            r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
+            r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
+            wrong = (side > 0) & (y < -SIGN_TOL) | (side < 0) & (y > SIGN_TOL)
+            err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
+                      float(np.max(np.abs(r_s))) / STAT_TOL,
+                      float(np.max(np.abs(r_y))) / PRIMAL_TOL,
+                      float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
+                      / (COMPL_FACTOR * MU))
+            if err <= 1.0 and not np.any(wrong):
+                reason = "converged"
+                break
+            if steps >= MAX_STEPS:
+                break
+            if solves >= MAX_SOLVES:
+                reason = f"not converged in {MAX_SOLVES} KKT solves"
+                break
+            if blocked >= BLOCKED_STEPS:
+                reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
+                          f"length by the bounds (the active set changes)")
+                break
+            if should_stop is not None and should_stop():
+                reason = "cancelled"
+                break
+            if np.any(wrong) and full and err <= RELEASE_ERR:
+                # A held row whose multiplier has turned: back to the barrier, a little inside.
+                s = np.where(wrong, b_held - side * RELEASE_ROOM, s)
+                zu = np.where(wrong & (side > 0), MU / RELEASE_ROOM, zu)
+                zl = np.where(wrong & (side < 0), MU / RELEASE_ROOM, zl)
+                side = np.where(wrong, 0, side).astype(np.int8)
+                room_lg = np.where(has_lg & (side == 0), s - lbg, 1.0)
+                room_ug = np.where(has_ug & (side == 0), ubg - s, 1.0)
+                released += int(np.sum(wrong))
+                continue
+            if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
+                    and hessians <= REFRESHES:
+                hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
+                hessians += 1
+            last = err
+            sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
+            sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
+            d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
+            diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
+            fact = banded.factor(hv, diag, jv)
+            solves += 1
+            if fact is None:
+                reason = "KKT matrix singular"
+                break
+            rt_s = r_s + np.where(hlg, r_zl / room_lg, 0.0) \
+                - np.where(hug, r_zu / room_ug, 0.0)
+            rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
+                + np.where(has_ux, r_vu / room_ux, 0.0)
+            rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
+            sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
+            if not np.all(np.isfinite(sol)):
+                reason = "KKT step not finite"
+                break
+            dw, dy = sol[:nw], sol[nw:]
+            ds = np.where(hin, (dy - rt_s) * d_row, 0.0)
+            dzl = np.where(hlg, (-r_zl - zl * ds) / room_lg, 0.0)
+            dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
+            dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
+            dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
+            a_p = min(_boundary_step(s, np.where(hlg, ds, 0.0), room_lg),
+                      _boundary_step(s, np.where(hug, -ds, 0.0), room_ug),
+                      _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
+                      _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
+            retry = False
+            if hold and a_p < HOLD_BELOW:
+                # Rows the whole step would carry across their bounds: held there, the step
+                # solved again (the same Hessian).
+                reach = HOLD_SPREAD * a_p
+                cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
+                cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
+                if np.any(cross_u | cross_l):
+                    side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
+                    held = side != 0
+                    s = np.where(cross_u, ubg, np.where(cross_l, lbg, s))
+                    zl, zu = np.where(held, 0.0, zl), np.where(held, 0.0, zu)
+                    room_lg = np.where(has_lg & ~held, s - lbg, 1.0)
+                    room_ug = np.where(has_ug & ~held, ubg - s, 1.0)
+                    holds += int(np.sum(cross_u | cross_l))
+                    retry = True
+                    continue
+            a_d = min(_boundary_step(zl, dzl, zl + ~hlg), _boundary_step(zu, dzu, zu + ~hug),
+                      _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
+            full = a_p == 1.0
+            blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
+            w = w + a_p * dw
+            s = s + a_p * ds
+            y = y + a_p * dy
+            zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
+            room_lg = np.where(hlg, s - lbg, 1.0)
+            room_ug = np.where(hug, ubg - s, 1.0)
+            room_lx = np.where(has_lx, w - lbx, 1.0)
+            room_ux = np.where(has_ux, ubx - w, 1.0)
+            steps += 1
+            g, jac = jac_fun(w, par)
+            g = np.array(g).ravel()
+    active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
+    outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason,
+                                 holds, released, solves)
+    lam_g = np.where(eq | (side != 0), y, zu - zl)
     lam_x = vu - vl
     residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
                          np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
     ok = reason == "converged"
     message = (f"parametric step: {reason} after {steps} Newton steps "
-               f"({hessians} Hessians, {outcome.changed} rows changed activity)")
+               f"({solves} KKT solves, {hessians} Hessians, {outcome.changed} rows changed "
+               f"activity, {holds} held at their bounds, {released} released)")
     return FlatResult(
         success=ok, message=message if ok else f"{message}: failed", T=float(w[-1]),
         P=w[:-1].reshape(flat.K, flat.model.n), residual=residual if ok else np.inf,

@@ -135,7 +135,8 @@ class SolverOptions:
         nearby problem, e.g. a previous replan's on ``replan_spans``) is first carried to
         this problem by the parametric primal-dual step
         (:mod:`~tocontrol_ros.core.direct.sensitivity`: Newton steps on the barrier KKT
-        system from the converged point, a work budget of steps), certified as every plan;
+        system from the converged point, the rows that block a step held at their bounds,
+        a work budget of steps), certified as every plan;
         when it does not converge or is not certified, IPOPT re-solves warm as before (the
         result's warnings say which route). Default True; False: IPOPT alone.
     workers : int
