@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, rigid_body_terms
+from tocontrol_ros.core.direct.sweeps import controllable_and_forward
 from tocontrol_ros.core.direct.tuning import (
     ACCELERATION_PAD,
     ADAPT_FLOOR,
@@ -64,7 +65,7 @@ __all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", 
 #: library's ``TOPPRA`` algorithm object, built per pass: the same numbers, about 1 ms a pass
 #: more (it scans the installed packages for solvers on every construction); kept for the
 #: benchmark's comparison and the tests').
-ENGINES = ("seidel", "toppra")
+ENGINES = ("seidel", "toppra", "compiled")
 
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
@@ -158,6 +159,7 @@ class _Coefficients:
         self.a = (a - c) / scale
         self.b = (b - c) / scale
         self.c = c / scale
+        self.model = model
         self.f = model.damping * d1 / scale
         # |q'(s)| is linear on a segment and sd^2 too (sdd is constant there): bounding
         # sd^2 at a gridpoint by the larger |q'| of its two segments keeps the speeds
@@ -319,6 +321,11 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
         rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
     x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
     x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    if engine == "compiled":
+        out = _compiled(coef.model, s, sd0, (rows_a, rows_b, rows_c, x_max))
+        if out is not None:
+            return out
+        engine = "seidel"  # a forward step toppra would retry (see _compiled)
     constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)
     if engine == "seidel":
         return _seidel(constraint, coef.a.shape[1], s, sd0, (rows_a, rows_b, rows_c, x_max))
@@ -330,6 +337,30 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     if sd is None or not np.all(np.isfinite(sd)):
         return None, algo.problem_data.return_code.value
     return np.asarray(sd, dtype=float) ** 2, ""
+
+
+def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
+    """TOPP-RA's two sweeps in one compiled call: ``(x, "")``, (None, why) or None.
+
+    :mod:`~tocontrol_ros.core.direct.sweeps` (each stage's LP in closed form): the same
+    sets and timing as :func:`_seidel`, the same failures with the same messages. None
+    when a forward step's greatest ``u`` is not feasible at the stage's ``x`` (rounding at
+    a set's edge), where toppra lowers ``x`` and tries again: the caller then runs
+    :func:`_seidel`, which does. ``rows``: :func:`_toppra`'s.
+    """
+    from toppra.constants import SMALL
+
+    a, b, c, x_max = rows
+    K, x, feasible = controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)
+    last = len(s) - 1
+    empty = ~(K[:last, 0] <= K[:last, 1])
+    if np.any(empty):
+        i = int(np.flatnonzero(empty)[-1])
+        return None, f"the controllable set is empty at gridpoint {i} of {last}"
+    if x[0] + SMALL < K[0, 0] or K[0, 1] + SMALL < x[0]:
+        return None, f"the start's path speed is not controllable (sd^2 = {x[0]:.6g} " \
+            f"outside [{K[0, 0]:.6g}, {K[0, 1]:.6g}])"
+    return (x, "") if feasible else None
 
 
 def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):

@@ -1,0 +1,188 @@
+"""TOPP-RA's two sweeps in one compiled call: each stage's 2-variable LP in closed form.
+
+A TOPP-RA pass (:mod:`~tocontrol_ros.core.direct.time_scaling`) is a backward sweep (the
+controllable sets ``K_i = [lo_i, hi_i]`` of ``x = sd^2``) and a forward sweep (the greatest
+controllable ``x``), each over the ``N`` stages of the path; a stage is a linear program in
+two variables ``u = sdd`` and ``x``: its rows ``alpha u + beta x <= gamma`` (gridpoint
+``i``'s, gridpoint ``i + 1``'s with ``x_{i+1} = x + 2 delta u`` put in, as toppra's
+interpolation discretisation gives them), ``|u| <= U_BOUND`` and ``0 <= x <= x_max_i``
+(toppra's Seidel solver's bounds), and the next stage's set ``K_{i+1}`` as two more rows.
+Driven stage by stage from Python over toppra's Seidel solver, the per-stage calls are most
+of a quick replan's scaling time; here both sweeps are one CasADi function compiled to C:
+
+- a stage's ``x`` range is the projection of its polygon on ``x``, by Fourier-Motzkin
+  elimination (exact in two variables): the rows with ``alpha = 0`` as they are, and every
+  pair of rows with opposite signs of ``alpha`` combined into one bound of ``x`` (multiplied
+  through by ``|alpha|``, no division by a small ``alpha``). Branch-free: a min / max over
+  the pairs with ``if_else`` on the signs, vector operations that the generated C runs as
+  loops; a stage without ``x`` (``lo > hi``, or a row ``0 <= rhs < 0``) gives
+  ``(inf, -inf)``;
+- the forward sweep's greedy ``u`` at the stage's ``x`` is the least upper bound of the rows
+  with ``alpha > 0``; it reports whether that ``u`` is feasible (rounding can leave the
+  start's ``x`` a hair outside its set, where toppra retries from a slightly lower ``x``:
+  the caller then runs the Seidel driver, which does);
+- the backward sweep is a ``mapaccum`` of the stage over the reversed stages, the forward
+  sweep a ``mapaccum`` over the stages, both in one function whose inputs are the rows:
+  one library per row count and grid size serves every problem of a robot, cached by
+  :func:`~tocontrol_ros.core.robot.compiled.compile_owned` (without a compiler, CasADi's
+  virtual machine: the same numbers).
+
+Decided by work: a fixed number of stages and rows, no clock.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from tocontrol_ros.core.robot.compiled import compile_owned
+
+__all__ = ["U_BOUND", "sweeps_function", "controllable_and_forward"]
+
+#: ``|u| = |sdd|`` bound of every stage: toppra's Seidel solver's ``VAR_MIN`` / ``VAR_MAX``
+#: on its variables (kept so that a stage whose rows do not bound ``u`` gives its numbers).
+U_BOUND = 1e8
+
+def _stage_rows(a: ca.SX, b: ca.SX, g: ca.SX, two_d: ca.SX, k_next: ca.SX):
+    """A stage's rows with the next set's two and the ``u`` bounds: (alpha, beta, gamma)."""
+    one = ca.DM.ones(1, 1)
+    alpha = ca.vertcat(a, two_d, -two_d, one, -one)
+    beta = ca.vertcat(b, one, -one, 0.0, 0.0)
+    gamma = ca.vertcat(g, k_next[1], -k_next[0], U_BOUND, U_BOUND)
+    return alpha, beta, gamma
+
+
+def _backward_stage(rows: int) -> ca.Function:
+    """``(K_{i+1} (2,), alpha, beta, gamma (rows,), x_max_i, 2 delta_i) -> K_i (2,)``."""
+    a, b, g = (ca.SX.sym(name, rows) for name in ("a", "b", "g"))
+    k_next, x_max, two_d = ca.SX.sym("k_next", 2), ca.SX.sym("x_max"), ca.SX.sym("two_d")
+    alpha, beta, gamma = _stage_rows(a, b, g, two_d, k_next)
+    total = rows + 4
+    p, q = np.triu_indices(total, 1)
+    ap, aq = alpha[p.tolist()], alpha[q.tolist()]
+    # Opposite signs (a product could underflow to 0 for two tiny alphas).
+    opposite = ca.logic_or(ca.logic_and(ap > 0.0, aq < 0.0), ca.logic_and(ap < 0.0, aq > 0.0))
+    wp, wq = ca.fabs(aq), ca.fabs(ap)
+    coef = ca.vertcat(wp * beta[p.tolist()] + wq * beta[q.tolist()], beta)
+    rhs = ca.vertcat(wp * gamma[p.tolist()] + wq * gamma[q.tolist()], gamma)
+    valid = ca.vertcat(opposite, alpha == 0.0)
+    hi = ca.fmin(ca.mmin(ca.if_else(ca.logic_and(valid, coef > 0.0), rhs / coef, ca.inf)),
+                 x_max)
+    lo = ca.fmax(ca.mmax(ca.if_else(ca.logic_and(valid, coef < 0.0), rhs / coef, -ca.inf)),
+                 0.0)
+    contradiction = ca.mmax(ca.if_else(
+        ca.logic_and(ca.logic_and(valid, coef == 0.0), rhs < 0.0), 1.0, 0.0))
+    k = ca.if_else(contradiction > 0.0, ca.vertcat(ca.inf, -ca.inf), ca.vertcat(lo, hi))
+    return ca.Function("toppra_back_stage", [k_next, a, b, g, x_max, two_d], [k])
+
+
+def _forward_stage(rows: int, tiny: float) -> ca.Function:
+    """``(x_i, alpha, beta, gamma, x_max_i, 2 delta_i, K_{i+1}) -> (x_{i+1}, feasible)``.
+
+    ``x_{i+1}``: ``x_i + 2 delta_i u`` with the greatest feasible ``u``, lowered by
+    ``tiny`` or 0.01 % and put into ``K_{i+1}`` (toppra's forward step).
+    """
+    a, b, g = (ca.SX.sym(name, rows) for name in ("a", "b", "g"))
+    x, x_max, two_d = ca.SX.sym("x"), ca.SX.sym("x_max"), ca.SX.sym("two_d")
+    k_next = ca.SX.sym("k_next", 2)
+    alpha, beta, gamma = _stage_rows(a, b, g, two_d, k_next)
+    r = gamma - beta * x
+    u_hi = ca.mmin(ca.if_else(alpha > 0.0, r / alpha, ca.inf))
+    u_lo = ca.mmax(ca.if_else(alpha < 0.0, r / alpha, -ca.inf))
+    flat_bad = ca.mmax(ca.if_else(ca.logic_and(alpha == 0.0, r < 0.0), 1.0, 0.0))
+    feasible = ca.logic_and(ca.logic_and(u_lo <= u_hi, flat_bad == 0.0),
+                            ca.logic_and(x >= 0.0, x <= x_max))
+    x_next = x + two_d * u_hi
+    x_next = ca.fmax(x_next - tiny, 0.9999 * x_next)
+    x_next = ca.fmin(k_next[1], ca.fmax(k_next[0], x_next))
+    return ca.Function("toppra_fwd_stage", [x, a, b, g, x_max, two_d, k_next],
+                       [x_next, feasible])
+
+
+def _sweeps(rows: int, stages: int, tiny: float) -> ca.Function:
+    """Both sweeps: ``(A, B, G (rows, N), x_max (1, N), 2 delta (1, N), x_0) -> (K, x, ok)``.
+
+    ``K`` (2, N + 1): the controllable sets (``K_N = [0, 0]``: rest at the end); ``x``
+    (1, N): ``x_1 ... x_N`` of the forward sweep from ``x_0``; ``ok`` (1, N): whether each
+    stage's greedy ``u`` was feasible.
+    """
+    A, B, G = (ca.MX.sym(name, rows, stages) for name in ("A", "B", "G"))
+    x_max, two_d, x0 = ca.MX.sym("x_max", 1, stages), ca.MX.sym("two_d", 1, stages), \
+        ca.MX.sym("x0")
+    back = _backward_stage(rows).mapaccum("toppra_back", stages)
+    rev = list(range(stages - 1, -1, -1))
+    k_rev = back(ca.DM.zeros(2, 1), A[:, rev], B[:, rev], G[:, rev], x_max[:, rev],
+                 two_d[:, rev])
+    K = ca.horzcat(k_rev[:, rev], ca.DM.zeros(2, 1))
+    fwd = _forward_stage(rows, tiny).mapaccum("toppra_fwd", stages)
+    x, ok = fwd(x0, A, B, G, x_max, two_d, K[:, 1:])
+    return ca.Function(f"toppra_sweeps_{rows}x{stages}", [A, B, G, x_max, two_d, x0],
+                       [K, x, ok], ["A", "B", "G", "x_max", "two_d", "x0"],
+                       ["K", "x", "ok"])
+
+
+def sweeps_function(model: object, rows: int, stages: int) -> ca.Function:
+    """Both sweeps for ``rows`` rows per stage and ``stages`` stages, compiled, per model.
+
+    Parameters
+    ----------
+    model : object
+        Owner of the library (a :class:`~tocontrol_ros.core.robot.model.RobotModel`, held
+        weakly); the cache on disk is keyed by the source, which depends only on ``rows`` and
+        ``stages``, so every robot with as many rows shares the file.
+    rows : int
+        Rows of a stage (gridpoint ``i``'s and ``i + 1``'s), without the four added.
+    stages : int
+        ``N``: the path's segments.
+
+    Returns
+    -------
+    casadi.Function
+        ``(A, B, G (rows, N), x_max (1, N), two_d (1, N), x0) -> (K (2, N + 1), x (1, N),
+        ok (1, N))`` (see :func:`controllable_and_forward`).
+    """
+    from toppra.constants import TINY
+
+    funs, _ = compile_owned(model, ("toppra_sweeps", rows, stages),
+                            f"toppra_sweeps_{rows}x{stages}",
+                            lambda: [_sweeps(rows, stages, TINY)])
+    return funs[0]
+
+
+def controllable_and_forward(model: object, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                             x_max: np.ndarray, s: np.ndarray, x0: float
+                             ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """One TOPP-RA pass's sweeps on rows ``a u + b x + c <= 1`` per gridpoint.
+
+    Parameters
+    ----------
+    model : object
+        The robot model (owner of the compiled library).
+    a, b, c : ndarray, shape (N + 1, m)
+        The rows at the gridpoints (normalised: ``<= 1``), as
+        :func:`~tocontrol_ros.core.direct.time_scaling.time_scaling` builds them.
+    x_max : ndarray, shape (N + 1,)
+        Upper bound of ``x = sd^2`` at each gridpoint (1/s^2).
+    s : ndarray, shape (N + 1,)
+        The gridpoints (path parameter, increasing).
+    x0 : float
+        The start's ``x`` (1/s^2).
+
+    Returns
+    -------
+    K : ndarray, shape (N + 1, 2)
+        The controllable sets ``[lo, hi]`` (1/s^2); a stage without one has ``lo > hi`` or
+        NaN there, and so do the stages before it.
+    x : ndarray, shape (N + 1,)
+        The forward sweep's ``x`` from ``x0`` (meaningless where ``K`` is empty).
+    feasible : bool
+        Whether every forward step's ``u`` was feasible.
+    """
+    two_d = 2.0 * np.diff(s)
+    A = np.hstack([a[:-1], a[1:] + two_d[:, None] * b[1:]]).T
+    B = np.hstack([b[:-1], b[1:]]).T
+    G = np.hstack([1.0 - c[:-1], 1.0 - c[1:]]).T
+    fun = sweeps_function(model, A.shape[0], A.shape[1])
+    K, x, ok = fun(A, B, G, x_max[None, :-1], two_d[None, :], x0)
+    return np.asarray(K).T, np.concatenate([[x0], np.asarray(x).ravel()]), \
+        bool(np.all(np.asarray(ok)))
