@@ -351,7 +351,12 @@ def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
     from toppra.constants import SMALL
 
     a, b, c, x_max = rows
-    K, x, feasible = controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)
+    m = a.shape[1]
+    # Partners half a row apart: [torque+, acceleration+, torque-, acceleration-].
+    order = np.arange(m) if m == 2 * model.n else \
+        np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
+    K, x, feasible, _ = controllable_and_forward(model, a[:, order], b[:, order],
+                                                 c[:, order], x_max, s, sd0 ** 2)
     last = len(s) - 1
     empty = ~(K[:last, 0] <= K[:last, 1])
     if np.any(empty):
