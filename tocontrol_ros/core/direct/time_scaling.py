@@ -58,18 +58,23 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES"]
+__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES",
+           "DEFAULT_ENGINE"]
 
-#: TOPP-RA's drivers: ``"seidel"`` (the default: toppra's compiled Seidel solver driven
-#: stage by stage here, its two sweeps as toppra's own; issue 47) and ``"toppra"`` (the
-#: library's ``TOPPRA`` algorithm object, built per pass: the same numbers, about 1 ms a pass
-#: more (it scans the installed packages for solvers on every construction); kept for the
-#: benchmark's comparison and the tests').
-ENGINES = ("seidel", "toppra", "compiled")
+#: TOPP-RA's drivers: ``"compiled"`` (the default: both sweeps in one compiled call, each
+#: stage's LP in closed form, :mod:`~tocontrol_ros.core.direct.sweeps`; issue 47), ``"seidel"``
+#: (toppra's compiled Seidel solver driven stage by stage from Python, its two sweeps as
+#: toppra's own: the same numbers to rounding, 2-3 times the CPU time a pass) and
+#: ``"toppra"`` (the library's ``TOPPRA`` algorithm object, built per pass: the same numbers,
+#: about 1 ms a pass more than ``"seidel"``: it scans the installed packages for solvers on
+#: every construction); the last two kept for the benchmark's comparison and the tests'.
+ENGINES = ("compiled", "seidel", "toppra")
+#: The driver used unless one is named.
+DEFAULT_ENGINE = "compiled"
 
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
-              peaks: bool = False, engine: str = "seidel") -> tuple:
+              peaks: bool = False, engine: str = DEFAULT_ENGINE) -> tuple:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
 
     What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
@@ -91,7 +96,7 @@ def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOIN
 
 def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
               gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-              engine: str = "seidel") -> float:
+              engine: str = DEFAULT_ENGINE) -> float:
     """The time (s) of ``path`` from path speed ``sd0`` to rest in the cube (one pass).
 
     As :func:`rest_time`, from a moving start and with :func:`time_scaling`'s
@@ -126,7 +131,7 @@ class FirstPass:
 
 def first_pass(problem: Problem, path: PolynomialPath, sd0: float,
                gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-               engine: str = "seidel") -> FirstPass:
+               engine: str = DEFAULT_ENGINE) -> FirstPass:
     """The first pass :func:`time_scaling` would make of ``path``, ranked before it is run.
 
     The cube shrunk by :data:`SCALING_SET_MARGIN`, friction left out (one pass): what ranks
@@ -194,7 +199,7 @@ class _Coefficients:
 
 def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
                  gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-                 engine: str = "seidel", first: FirstPass | None = None):
+                 engine: str = DEFAULT_ENGINE, first: FirstPass | None = None):
     """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
 
     ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer);
@@ -301,7 +306,7 @@ def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
 
 
 def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
-            x_prev: np.ndarray | None, engine: str = "seidel"):
+            x_prev: np.ndarray | None, engine: str = DEFAULT_ENGINE):
     """One TOPP-RA pass: squared path speeds (N + 1,) to rest at ``s = 1``, or (None, why).
 
     The torque rows ``-box_i <= u_i <= box_i`` (friction by :func:`_friction_lines`),
@@ -310,17 +315,7 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     """
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {ENGINES}, got {engine!r}")
-    u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
-    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
-    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
-    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
-    if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
-        d1, d2 = coef.accel
-        rows_a = np.hstack([rows_a, d1, -d1])
-        rows_b = np.hstack([rows_b, d2, -d2])
-        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
-    x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
-    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    rows_a, rows_b, rows_c, x_max = _rows(coef, sd0, boxes, x_prev)
     if engine == "compiled":
         out = _compiled(coef.model, s, sd0, (rows_a, rows_b, rows_c, x_max))
         if out is not None:
@@ -337,6 +332,27 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     if sd is None or not np.all(np.isfinite(sd)):
         return None, algo.problem_data.return_code.value
     return np.asarray(sd, dtype=float) ** 2, ""
+
+
+def _rows(coef: _Coefficients, sd0: float, boxes: np.ndarray, x_prev: np.ndarray | None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A pass's rows ``a u + b x + c <= 1`` (N + 1, m) and bounds ``x_max`` (N + 1,).
+
+    Columns: the torques' upper bounds, their lower bounds (then the accelerations' upper
+    and lower bounds where set): see :func:`_toppra`.
+    """
+    u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
+    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
+    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
+    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
+    if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
+        d1, d2 = coef.accel
+        rows_a = np.hstack([rows_a, d1, -d1])
+        rows_b = np.hstack([rows_b, d2, -d2])
+        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
+    x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
+    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    return rows_a, rows_b, rows_c, x_max
 
 
 def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
