@@ -45,7 +45,7 @@ __all__ = ["U_BOUND", "sweeps_function", "controllable_and_forward"]
 #: on its variables (kept so that a stage whose rows do not bound ``u`` gives its numbers).
 U_BOUND = 1e8
 
-def _stage_rows(a: ca.SX, b: ca.SX, g: ca.SX, two_d: ca.SX, k_next: ca.SX):
+def _stage_rows(a, b, g, two_d, k_next):
     """A stage's rows with the next set's two and the ``u`` bounds: (alpha, beta, gamma)."""
     one = ca.DM.ones(1, 1)
     alpha = ca.vertcat(a, two_d, -two_d, one, -one)
@@ -54,27 +54,38 @@ def _stage_rows(a: ca.SX, b: ca.SX, g: ca.SX, two_d: ca.SX, k_next: ca.SX):
     return alpha, beta, gamma
 
 
+def _all_rows(total: int) -> ca.Function:
+    """Every row both as an up row and as a down row (zeroed where it is not one).
+
+    ``(alpha, beta, gamma (total,)) -> (up, down (3, total), singles (3,))``: an up row
+    weighs ``max(alpha, 0)``, a down row ``max(-alpha, 0)``, and a row of weight 0 has its
+    ``beta`` and ``gamma`` set to 0, so that a pair without a true up row and a true down
+    row is ``0 x <= 0``; ``singles``: ``(hi, lo, flat)`` of the rows with ``alpha = 0``.
+    """
+    alpha, beta, gamma = (ca.SX.sym(name, total) for name in ("a", "b", "g"))
+    up, down = alpha > 0.0, alpha < 0.0
+    rows_up = ca.horzcat(ca.fmax(alpha, 0.0), ca.if_else(up, beta, 0.0),
+                         ca.if_else(up, gamma, 0.0)).T
+    rows_down = ca.horzcat(ca.fmax(-alpha, 0.0), ca.if_else(down, beta, 0.0),
+                           ca.if_else(down, gamma, 0.0)).T
+    return ca.Function("toppra_all_rows", [alpha, beta, gamma],
+                       [rows_up, rows_down, ca.vertcat(*_bounds(beta, gamma, alpha == 0.0))])
+
+
 def _backward_stage(rows: int) -> ca.Function:
-    """``(K_{i+1} (2,), alpha, beta, gamma (rows,), x_max_i, 2 delta_i) -> K_i (2,)``."""
-    a, b, g = (ca.SX.sym(name, rows) for name in ("a", "b", "g"))
-    k_next, x_max, two_d = ca.SX.sym("k_next", 2), ca.SX.sym("x_max"), ca.SX.sym("two_d")
+    """``(K_{i+1} (2,), alpha, beta, gamma (rows,), x_max_i, 2 delta_i) -> K_i (2,)``.
+
+    Every up row with every down row of the stage (the next set's and the ``u`` bounds
+    included): Fourier-Motzkin for any signs of ``alpha``.
+    """
+    a, b, g = (ca.MX.sym(name, rows) for name in ("a", "b", "g"))
+    k_next, x_max, two_d = ca.MX.sym("k_next", 2), ca.MX.sym("x_max"), ca.MX.sym("two_d")
     alpha, beta, gamma = _stage_rows(a, b, g, two_d, k_next)
     total = rows + 4
-    p, q = np.triu_indices(total, 1)
-    ap, aq = alpha[p.tolist()], alpha[q.tolist()]
-    # Opposite signs (a product could underflow to 0 for two tiny alphas).
-    opposite = ca.logic_or(ca.logic_and(ap > 0.0, aq < 0.0), ca.logic_and(ap < 0.0, aq > 0.0))
-    wp, wq = ca.fabs(aq), ca.fabs(ap)
-    coef = ca.vertcat(wp * beta[p.tolist()] + wq * beta[q.tolist()], beta)
-    rhs = ca.vertcat(wp * gamma[p.tolist()] + wq * gamma[q.tolist()], gamma)
-    valid = ca.vertcat(opposite, alpha == 0.0)
-    hi = ca.fmin(ca.mmin(ca.if_else(ca.logic_and(valid, coef > 0.0), rhs / coef, ca.inf)),
-                 x_max)
-    lo = ca.fmax(ca.mmax(ca.if_else(ca.logic_and(valid, coef < 0.0), rhs / coef, -ca.inf)),
-                 0.0)
-    contradiction = ca.mmax(ca.if_else(
-        ca.logic_and(ca.logic_and(valid, coef == 0.0), rhs < 0.0), 1.0, 0.0))
-    k = ca.if_else(contradiction > 0.0, ca.vertcat(ca.inf, -ca.inf), ca.vertcat(lo, hi))
+    up, down, singles = _all_rows(total)(alpha, beta, gamma)
+    own = _own_pairs(total)(up, down, singles)
+    hi, lo = ca.fmin(own[0], x_max), ca.fmax(own[1], 0.0)
+    k = ca.if_else(own[2] > 0.0, ca.vertcat(ca.inf, -ca.inf), ca.vertcat(lo, hi))
     return ca.Function("toppra_back_stage", [k_next, a, b, g, x_max, two_d], [k])
 
 
@@ -171,26 +182,48 @@ def _own_rows(rows: int) -> ca.Function:
                         ca.vertcat(*singles), exact])
 
 
+def _up_row_pairs(count: int) -> ca.Function:
+    """One up row with every down row: ``(up_p (3,), down (3, count)) -> (hi, lo, flat)``.
+
+    ``count`` pairs, by selects rather than C's ``fmin`` (a library call); mapped over the
+    up rows (:func:`_own_pairs`), so that the C source grows with the rows, not with their
+    pairs.
+    """
+    up, down = ca.SX.sym("up", 3), ca.SX.sym("down", 3, count)
+    coef = down[0, :].T * up[1] + up[0] * down[1, :].T
+    rhs = down[0, :].T * up[2] + up[0] * down[2, :].T
+    ratio = rhs / coef
+    hi, lo, flat = ca.SX(ca.inf), ca.SX(-ca.inf), ca.SX(0.0)
+    for k in range(count):
+        c, r = coef[k], ratio[k]
+        hi = ca.if_else(ca.logic_and(c > 0.0, r < hi), r, hi)
+        lo = ca.if_else(ca.logic_and(c < 0.0, r > lo), r, lo)
+        flat = ca.logic_or(flat, ca.logic_and(c == 0.0, rhs[k] < 0.0))
+    return ca.Function("toppra_up_row_pairs", [up, down], [ca.vertcat(hi, lo, flat)])
+
+
+def _reduce(count: int) -> ca.Function:
+    """``(partial (3, count), singles (3,)) -> (hi, lo, flat) (3,)``: the up rows' bounds."""
+    part, singles = ca.SX.sym("part", 3, count), ca.SX.sym("singles", 3)
+    hi, lo, flat = singles[0], singles[1], singles[2]
+    for k in range(count):
+        hi = ca.if_else(part[0, k] < hi, part[0, k], hi)
+        lo = ca.if_else(part[1, k] > lo, part[1, k], lo)
+        flat = ca.logic_or(flat, part[2, k])
+    return ca.Function("toppra_reduce", [part, singles], [ca.vertcat(hi, lo, flat)])
+
+
 def _own_pairs(count: int) -> ca.Function:
     """Every up row with every down row: ``(up, down (3, count), singles (3,)) -> (3,)``.
 
     ``(hi, lo, flat)`` of the ``count^2`` pairs and the singles (about a quarter of every
-    pair of a stage's rows), by selects rather than C's ``fmin`` (a library call).
+    pair of a stage's rows).
     """
-    up, down, singles = ca.SX.sym("up", 3, count), ca.SX.sym("down", 3, count), \
-        ca.SX.sym("singles", 3)
-    coef = ca.vec(ca.mtimes(up[1, :].T, down[0, :]) + ca.mtimes(up[0, :].T, down[1, :]))
-    rhs = ca.vec(ca.mtimes(up[2, :].T, down[0, :]) + ca.mtimes(up[0, :].T, down[2, :]))
-    ratio = rhs / coef
-    hi, lo, flat = singles[0], singles[1], singles[2]
-    for k in range(coef.numel()):
-        c, r = coef[k], ratio[k]
-        take = ca.logic_and(c > 0.0, r < hi)
-        hi = ca.if_else(take, r, hi)
-        take = ca.logic_and(c < 0.0, r > lo)
-        lo = ca.if_else(take, r, lo)
-        flat = ca.logic_or(flat, ca.logic_and(c == 0.0, rhs[k] < 0.0))
-    return ca.Function("toppra_own_pairs", [up, down, singles], [ca.vertcat(hi, lo, flat)])
+    up, down, singles = ca.MX.sym("up", 3, count), ca.MX.sym("down", 3, count), \
+        ca.MX.sym("singles", 3)
+    part = _up_row_pairs(count).map(count, [False, True], [False])(up, down)
+    return ca.Function("toppra_own_pairs", [up, down, singles],
+                       [_reduce(count)(part, singles)])
 
 
 def _paired_stage(count: int) -> ca.Function:

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, rigid_body_terms
-from tocontrol_ros.core.direct.sweeps import controllable_and_forward
+from tocontrol_ros.core.direct.sweeps import controllable_and_forward, sweeps_function
 from tocontrol_ros.core.direct.tuning import (
     ACCELERATION_PAD,
     ADAPT_FLOOR,
@@ -49,6 +49,7 @@ from tocontrol_ros.core.direct.tuning import (
     CHECK_POINTS,
     GRIDPOINTS,
     MARGIN_ROUNDS,
+    QUICK_GRIDPOINTS,
     SCALING_SET_MARGIN,
     SPEED_CAP,
     TANGENT_FLOOR,
@@ -59,7 +60,7 @@ from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
 __all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES",
-           "DEFAULT_ENGINE"]
+           "DEFAULT_ENGINE", "compile_sweeps"]
 
 #: TOPP-RA's drivers: ``"compiled"`` (the default: both sweeps in one compiled call, each
 #: stage's LP in closed form, :mod:`~tocontrol_ros.core.direct.sweeps`; issue 47), ``"seidel"``
@@ -71,6 +72,20 @@ __all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", 
 ENGINES = ("compiled", "seidel", "toppra")
 #: The driver used unless one is named.
 DEFAULT_ENGINE = "compiled"
+
+
+def compile_sweeps(problem: Problem, grids: tuple = (QUICK_GRIDPOINTS, GRIDPOINTS)) -> None:
+    """Build the compiled sweeps (:data:`DEFAULT_ENGINE`) that ``problem``'s passes use.
+
+    One library per row count (the robot's joints; twice as many rows with acceleration
+    limits) and grid size (``grids``: the quick replans' and the first motion's segments),
+    so that no replan pays for generating or compiling it: the planner's warm-up calls this
+    (inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds` it only starts the
+    builds).
+    """
+    m = 2 * problem.model.n * (2 if problem.limits.has_acceleration else 1)
+    for gridpoints in grids:
+        sweeps_function(problem.model, 2 * m, gridpoints)
 
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
