@@ -1,5 +1,5 @@
-"""A replan's quick motion in process, its parts, paired against the implementation before
-issue 47's cuts in the same run.
+"""A replan's quick motion in process, its parts, against TOPP-RA's drivers before issue 47's
+cuts, in the same run.
 
 The cases are the replans of ``bench/replan.py --moving``, made here in one process: the
 paper's arm after goals on its 0.3 m circle, the Panda in the README's set-up (start
@@ -9,8 +9,10 @@ it was over by then), ``q_near`` its end (what the planner node passes), k = 4, 
 (the node's defaults). Per case, alternately (so that both see the same load):
 
 - *now*: :func:`~tocontrol_ros.core.direct.first_motion.quick_motion` as the planner calls
-  it (TOPP-RA over toppra's compiled Seidel solver driven directly, the ranking pass handed
-  on, the certificate's open loop in one call, the compiled inverse dynamics);
+  it (TOPP-RA's two sweeps in one compiled call, ``engine="compiled"``; the ranking pass
+  handed on, the certificate's open loop in one call, the compiled inverse dynamics);
+- *seidel*: ``engine="seidel"`` (toppra's compiled Seidel solver driven stage by stage from
+  Python: the TOPP-RA of main before the compiled sweeps);
 - *before*: ``engine="toppra"`` (toppra's algorithm object per pass, the time scales ranked
   in the full cube and timed again from scratch: the TOPP-RA of main before issue 47); the
   rest is the present code's;
@@ -18,8 +20,9 @@ it was over by then), ``q_near`` its end (what the planner node passes), k = 4, 
   (``ScaledPath.open_loop(..., one_call=False)``, main's) against one ``mapaccum`` call
   (:func:`~tocontrol_ros.core.direct.scaled_path.open_loop_sweep`), the states compared.
 
-Figures: medians over the cases (ms), the ratio before / now of the medians, ``T`` now /
-before per case (median, min, max), successes. Run alone:
+Figures: medians over the cases (ms), before -> seidel -> now and the ratio seidel / now of
+the medians, ``T`` now / before per case (median, min, max), the largest relative difference
+of ``T`` now against seidel, successes. Run alone:
 ``scripts/dev run python -P bench/quick_motion.py [paper|panda|both]`` (prints the section).
 """
 
@@ -46,6 +49,8 @@ from bench.replan import (  # noqa: E402  (the node benchmark's moving targets)
     README_PANDA_Q0,
 )
 
+#: TOPP-RA's drivers compared, the default first.
+ENGINES = ("compiled", "seidel", "toppra")
 #: Goals per robot, as bench/replan.py sends them.
 GOALS = int(RATE * DURATION)
 PAPER_RADIUS, PANDA_RADIUS, PANDA_LAPS = MOVING_PAPER_RADIUS, MOVING_PANDA_RADIUS, \
@@ -127,15 +132,15 @@ def measure(name: str) -> dict | None:
     if cases is None:
         return None
     for problem, q_near in cases[:3]:  # warm-up: builds, mappings
-        for engine in ("seidel", "toppra"):
+        for engine in ENGINES:
             quick_motion(problem, q_near, engine=engine)
     compiled.wait_for_builds()
-    rows = {"seidel": [], "toppra": []}
+    rows = {engine: [] for engine in ENGINES}
     loops = []
     for problem, q_near in cases:
-        for engine in ("seidel", "toppra"):
+        for engine in ENGINES:
             rows[engine].append(quick_motion(problem, q_near, engine=engine))
-        now = rows["seidel"][-1]
+        now = rows["compiled"][-1]
         if now.success:
             loops.append(_open_loops(now.trajectory))
     moving = sum(bool(np.any(p.start.value[p.model.n:])) for p, _ in cases)
@@ -143,8 +148,12 @@ def measure(name: str) -> dict | None:
     def med(engine: str, key: str) -> float:
         return statistics.median(r.timings[key] for r in rows[engine])
 
-    ratios = [a.T / b.T for a, b in zip(rows["seidel"], rows["toppra"], strict=True)
-              if a.success and b.success]
+    def both(a: str, b: str) -> list:
+        return [(x, y) for x, y in zip(rows[a], rows[b], strict=True)
+                if x.success and y.success]
+
+    ratios = [a.T / b.T for a, b in both("compiled", "toppra")]
+    seidel = max((abs(a.T / b.T - 1.0) for a, b in both("compiled", "seidel")), default=0.0)
     return {
         "robot": name, "cases": len(cases), "moving": moving,
         "ok": {e: sum(r.success for r in rs) for e, rs in rows.items()},
@@ -152,6 +161,7 @@ def measure(name: str) -> dict | None:
                   for e in rows},
         "passes": {e: statistics.median(r.iterations for r in rs) for e, rs in rows.items()},
         "T_ratio": (statistics.median(ratios), min(ratios), max(ratios)),
+        "T_seidel": seidel,
         "loop": (statistics.median(v[0] for v in loops), statistics.median(v[1] for v in loops),
                  max(v[2] for v in loops)),
     }
@@ -171,31 +181,37 @@ def run(which: str = "both") -> Section:
         log(f"quick motion {name}: {out}")
     rows = []
     for r in results:
-        now, before = r["parts"]["seidel"], r["parts"]["toppra"]
+        now, seidel, before = (r["parts"][e] for e in ("compiled", "seidel", "toppra"))
         rows.append([
             f"{r['robot']} ({r['moving']}/{r['cases']} moving)",
-            f"{r['ok']['seidel']} / {r['ok']['toppra']}",
-            *(f"{1e3 * before[k]:.2f} -> {1e3 * now[k]:.2f} ({before[k] / now[k]:.2f}x)"
-              for k in ("scaling", "verify", "total")),
-            f"{r['passes']['toppra']:.0f} -> {r['passes']['seidel']:.0f}",
+            "{} / {} / {}".format(*(r["ok"][e] for e in ("compiled", "seidel", "toppra"))),
+            *(f"{1e3 * before[k]:.2f} -> {1e3 * seidel[k]:.2f} -> {1e3 * now[k]:.2f} "
+              f"({seidel[k] / now[k]:.2f}x)" for k in ("scaling", "verify", "total")),
+            f"{r['passes']['toppra']:.0f} -> {r['passes']['compiled']:.0f}",
             "{:.4f} [{:.4f}, {:.4f}]".format(*r["T_ratio"]),
+            f"{r['T_seidel']:.1e}",
             f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} "
             f"({r['loop'][0] / r['loop'][1]:.2f}x; max diff {r['loop'][2]:.1e})"])
     lines = [
         "A replan's quick motion in one process (`first_motion.quick_motion`), the replans "
         "of `bench/replan.py --moving` (each from the last quick motion's state 0.1 s "
-        "after it, k = 4, reserve 0.1), paired per case against the TOPP-RA before issue "
-        "47's cuts (`engine=\"toppra\"`: toppra's algorithm object per pass, the time "
-        "scales ranked in the full cube and timed again from scratch), alternately. "
-        "Medians in ms, before -> now; scaling: TOPP-RA; verify: the certificate (the "
-        "present one in both columns); open loop: the certificate's re-integration of the "
-        "same motion segment by segment from Python (main's) -> one `mapaccum` call, the "
-        "largest difference of their states. T now / before per case: median [min, max]. "
+        "after it, k = 4, reserve 0.1), per case with each TOPP-RA driver in turn: "
+        "*before* (`engine=\"toppra\"`: toppra's algorithm object per pass, the time "
+        "scales ranked in the full cube and timed again from scratch: main before issue "
+        "47's cuts), *seidel* (`engine=\"seidel\"`: toppra's Seidel solver driven stage by "
+        "stage from Python) and *now* (`engine=\"compiled\"`, the default: both sweeps in "
+        "one compiled call, each stage's LP in closed form). Medians in ms, before -> "
+        "seidel -> now (seidel / now); scaling: TOPP-RA and the check between gridpoints; "
+        "verify: the certificate (the present one in every column); open loop: the "
+        "certificate's re-integration of the same motion segment by segment from Python "
+        "(main's) -> one `mapaccum` call, the largest difference of their states. T now / "
+        "before per case: median [min, max]; T vs seidel: the largest relative difference. "
         f"Load before: {load0}; after: {load_text()}. Command: `scripts/dev run python -P "
         f"bench/quick_motion.py {which}`.",
         "",
-        *table(["robot", "certified now / before", "scaling ms", "verify ms", "total ms",
-                "passes", "T now / before", "open loop ms"], rows),
+        *table(["robot", "certified now / seidel / before", "scaling ms", "verify ms",
+                "total ms", "passes", "T now / before", "T vs seidel", "open loop ms"],
+               rows),
     ]
     return Section("Replanning: the quick motion's parts in process (issue 47)", lines, [])
 

@@ -48,6 +48,7 @@ from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath
 from tocontrol_ros.core.direct.time_scaling import (
+    DEFAULT_ENGINE,
     cube_time,
     first_pass,
     rest_time,
@@ -129,7 +130,7 @@ def first_motion(problem: Problem, options: SolverOptions | None = None,
 
 def quick_motion(problem: Problem, q_near: np.ndarray, time_scale: float | None = None,
                  options: SolverOptions | None = None,
-                 gridpoints: int = QUICK_GRIDPOINTS, engine: str = "seidel") -> PlanResult:
+                 gridpoints: int = QUICK_GRIDPOINTS, engine: str = DEFAULT_ENGINE) -> PlanResult:
     """A first motion whose end is known to be near ``q_near``: a replan's, in milliseconds.
 
     A replan of a running motion to a target near its own needs no search for the end
@@ -387,7 +388,7 @@ def _estimates(problem: Problem, cands: list) -> np.ndarray:
 
 def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, label: str,
            gridpoints: int = GRIDPOINTS, scales: tuple = TIME_SCALES, fastest: bool = False,
-           speed_cap: np.ndarray | None = None, engine: str = "seidel"):
+           speed_cap: np.ndarray | None = None, engine: str = DEFAULT_ENGINE):
     """The timed path between ``qa`` and ``qb``: ``(ScaledPath, passes, note)``.
 
     Or ``(status, why)`` when there is none. ``rest_T`` (s) sets a moving start's time scale;

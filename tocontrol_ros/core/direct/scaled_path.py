@@ -32,7 +32,7 @@ from tocontrol_ros.core.direct.flat_trajectory import (
     integrate_segments,
     polynomial_segment_ode,
 )
-from tocontrol_ros.core.robot.compiled import compile_owned
+from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
@@ -117,8 +117,10 @@ def _rigid_body_terms(model: RobotModel) -> ca.Function:
                         rnea(q, d1, d2, friction=False)])
 
 
-def rigid_body_terms(model: RobotModel, count: int) -> ca.Function:
+def rigid_body_terms(model: RobotModel, count: int) -> BufferedFunction:
     """:func:`_rigid_body_terms` compiled with the open loop's library, mapped over ``count``.
+
+    Called through numpy buffers: ``(q, d1, d2 (n, count)) -> [c, a, b (n, count)]``.
 
     The first motion's and the quick replan's coefficients evaluate it on every path they
     time (in CasADi's virtual machine about 1 ms on the Panda at 31 gridpoints).
@@ -126,8 +128,10 @@ def rigid_body_terms(model: RobotModel, count: int) -> ca.Function:
     return _compiled_mapped(model, -2, "rigid_body_terms", count)
 
 
-def inverse_dynamics(model: RobotModel, count: int) -> ca.Function:
+def inverse_dynamics(model: RobotModel, count: int) -> BufferedFunction:
     """``model.function("id")`` compiled with the open loop's library, mapped over ``count``.
+
+    Called through numpy buffers: ``(q, qd, qdd (n, count)) -> [tau (n, count)]``.
 
     A :class:`ScaledPath`'s torques at its samples (the fine sampling of every check, the
     published samples): in CasADi's virtual machine 2.3 ms for 256 samples of the Panda.
@@ -135,17 +139,20 @@ def inverse_dynamics(model: RobotModel, count: int) -> ca.Function:
     return _compiled_mapped(model, -1, "inverse_dynamics", count)
 
 
-def _compiled_mapped(model: RobotModel, index: int, name: str, count: int) -> ca.Function:
+def _compiled_mapped(model: RobotModel, index: int, name: str, count: int
+                     ) -> BufferedFunction:
     """Function ``index`` of the open loop's library mapped over ``count``, kept per model.
 
-    Made again when the optimised build of the library lands.
+    Called through numpy buffers (a plain call converts every argument to CasADi's DM and
+    back: about half of a 31-point call on the Panda). Made again when the optimised build
+    of the library lands.
     """
     funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
                             lambda: _compiled_rhs(model))
     table = _MAPPED.setdefault(model, {})
     key = (name, count)
     if key not in table or table[key][0] is not funs[index]:
-        table[key] = (funs[index], funs[index].map(count))
+        table[key] = (funs[index], BufferedFunction(funs[index].map(count)))
     return table[key][1]
 
 
@@ -336,7 +343,7 @@ class ScaledPath(InverseDynamicsTrajectory):
         pad = size - count
         cols = [np.vstack([v, np.repeat(v[-1:], pad, axis=0)]).T if pad else v.T
                 for v in (q, qd, qdd)]
-        tau = np.array(inverse_dynamics(self._model, size)(*cols)).T[:count]
+        tau = inverse_dynamics(self._model, size)(*cols)[0].T[:count]
         return tau / self._scale
 
     def segment_samples(self, points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

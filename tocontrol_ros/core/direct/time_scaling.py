@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, rigid_body_terms
+from tocontrol_ros.core.direct.sweeps import controllable_and_forward, sweeps_function
 from tocontrol_ros.core.direct.tuning import (
     ACCELERATION_PAD,
     ADAPT_FLOOR,
@@ -48,6 +49,7 @@ from tocontrol_ros.core.direct.tuning import (
     CHECK_POINTS,
     GRIDPOINTS,
     MARGIN_ROUNDS,
+    QUICK_GRIDPOINTS,
     SCALING_SET_MARGIN,
     SPEED_CAP,
     TANGENT_FLOOR,
@@ -57,18 +59,37 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES"]
+__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES",
+           "DEFAULT_ENGINE", "compile_sweeps"]
 
-#: TOPP-RA's drivers: ``"seidel"`` (the default: toppra's compiled Seidel solver driven
-#: stage by stage here, its two sweeps as toppra's own; issue 47) and ``"toppra"`` (the
-#: library's ``TOPPRA`` algorithm object, built per pass: the same numbers, about 1 ms a pass
-#: more (it scans the installed packages for solvers on every construction); kept for the
-#: benchmark's comparison and the tests').
-ENGINES = ("seidel", "toppra")
+#: TOPP-RA's drivers: ``"compiled"`` (the default: both sweeps in one compiled call, each
+#: stage's LP in closed form, :mod:`~tocontrol_ros.core.direct.sweeps`; issue 47), ``"seidel"``
+#: (toppra's compiled Seidel solver driven stage by stage from Python, its two sweeps as
+#: toppra's own: the same numbers to rounding, 2-3 times the CPU time a pass) and
+#: ``"toppra"`` (the library's ``TOPPRA`` algorithm object, built per pass: the same numbers,
+#: about 1 ms a pass more than ``"seidel"``: it scans the installed packages for solvers on
+#: every construction); the last two kept for the benchmark's comparison and the tests'.
+ENGINES = ("compiled", "seidel", "toppra")
+#: The driver used unless one is named.
+DEFAULT_ENGINE = "compiled"
+
+
+def compile_sweeps(problem: Problem, grids: tuple = (QUICK_GRIDPOINTS, GRIDPOINTS)) -> None:
+    """Build the compiled sweeps (:data:`DEFAULT_ENGINE`) that ``problem``'s passes use.
+
+    One library per row count (the robot's joints; twice as many rows with acceleration
+    limits) and grid size (``grids``: the quick replans' and the first motion's segments),
+    so that no replan pays for generating or compiling it: the planner's warm-up calls this
+    (inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds` it only starts the
+    builds).
+    """
+    m = 2 * problem.model.n * (2 if problem.limits.has_acceleration else 1)
+    for gridpoints in grids:
+        sweeps_function(problem.model, 2 * m, gridpoints)
 
 
 def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOINTS,
-              peaks: bool = False, engine: str = "seidel") -> tuple:
+              peaks: bool = False, engine: str = DEFAULT_ENGINE) -> tuple:
     """The time (s) of ``path`` from rest to rest in the cube, friction left out (one pass).
 
     What ranks candidate paths and sets a moving start's time scale; ``(None, why)`` when
@@ -90,7 +111,7 @@ def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOIN
 
 def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
               gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-              engine: str = "seidel") -> float:
+              engine: str = DEFAULT_ENGINE) -> float:
     """The time (s) of ``path`` from path speed ``sd0`` to rest in the cube (one pass).
 
     As :func:`rest_time`, from a moving start and with :func:`time_scaling`'s
@@ -125,7 +146,7 @@ class FirstPass:
 
 def first_pass(problem: Problem, path: PolynomialPath, sd0: float,
                gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-               engine: str = "seidel") -> FirstPass:
+               engine: str = DEFAULT_ENGINE) -> FirstPass:
     """The first pass :func:`time_scaling` would make of ``path``, ranked before it is run.
 
     The cube shrunk by :data:`SCALING_SET_MARGIN`, friction left out (one pass): what ranks
@@ -158,6 +179,7 @@ class _Coefficients:
         self.a = (a - c) / scale
         self.b = (b - c) / scale
         self.c = c / scale
+        self.model = model
         self.f = model.damping * d1 / scale
         # |q'(s)| is linear on a segment and sd^2 too (sdd is constant there): bounding
         # sd^2 at a gridpoint by the larger |q'| of its two segments keeps the speeds
@@ -192,7 +214,7 @@ class _Coefficients:
 
 def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
                  gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
-                 engine: str = "seidel", first: FirstPass | None = None):
+                 engine: str = DEFAULT_ENGINE, first: FirstPass | None = None):
     """``path`` timed from path speed ``sd0`` (1/s) to rest (see the module).
 
     ``gridpoints``: TOPP-RA's segments along the path (the quick replans' take fewer);
@@ -299,7 +321,7 @@ def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
 
 
 def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
-            x_prev: np.ndarray | None, engine: str = "seidel"):
+            x_prev: np.ndarray | None, engine: str = DEFAULT_ENGINE):
     """One TOPP-RA pass: squared path speeds (N + 1,) to rest at ``s = 1``, or (None, why).
 
     The torque rows ``-box_i <= u_i <= box_i`` (friction by :func:`_friction_lines`),
@@ -308,17 +330,12 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     """
     if engine not in ENGINES:
         raise ValueError(f"`engine` must be one of {ENGINES}, got {engine!r}")
-    u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
-    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
-    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
-    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
-    if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
-        d1, d2 = coef.accel
-        rows_a = np.hstack([rows_a, d1, -d1])
-        rows_b = np.hstack([rows_b, d2, -d2])
-        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
-    x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
-    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    rows_a, rows_b, rows_c, x_max = _rows(coef, sd0, boxes, x_prev)
+    if engine == "compiled":
+        out = _compiled(coef.model, s, sd0, (rows_a, rows_b, rows_c, x_max))
+        if out is not None:
+            return out
+        engine = "seidel"  # a forward step toppra would retry (see _compiled)
     constraint = _constraint_class()(rows_a, rows_b, rows_c, x_max)
     if engine == "seidel":
         return _seidel(constraint, coef.a.shape[1], s, sd0, (rows_a, rows_b, rows_c, x_max))
@@ -330,6 +347,56 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     if sd is None or not np.all(np.isfinite(sd)):
         return None, algo.problem_data.return_code.value
     return np.asarray(sd, dtype=float) ** 2, ""
+
+
+def _rows(coef: _Coefficients, sd0: float, boxes: np.ndarray, x_prev: np.ndarray | None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A pass's rows ``a u + b x + c <= 1`` (N + 1, m) and bounds ``x_max`` (N + 1,).
+
+    Columns: the torques' upper bounds, their lower bounds (then the accelerations' upper
+    and lower bounds where set): see :func:`_toppra`.
+    """
+    u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
+    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
+    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
+    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
+    if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
+        d1, d2 = coef.accel
+        rows_a = np.hstack([rows_a, d1, -d1])
+        rows_b = np.hstack([rows_b, d2, -d2])
+        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
+    x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
+    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    return rows_a, rows_b, rows_c, x_max
+
+
+def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
+    """TOPP-RA's two sweeps in one compiled call: ``(x, "")``, (None, why) or None.
+
+    :mod:`~tocontrol_ros.core.direct.sweeps` (each stage's LP in closed form): the same
+    sets and timing as :func:`_seidel`, the same failures with the same messages. None
+    when a forward step's greatest ``u`` is not feasible at the stage's ``x`` (rounding at
+    a set's edge), where toppra lowers ``x`` and tries again: the caller then runs
+    :func:`_seidel`, which does. ``rows``: :func:`_toppra`'s.
+    """
+    from toppra.constants import SMALL
+
+    a, b, c, x_max = rows
+    m = a.shape[1]
+    # Partners half a row apart: [torque+, acceleration+, torque-, acceleration-].
+    order = np.arange(m) if m == 2 * model.n else \
+        np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
+    K, x, feasible, _ = controllable_and_forward(model, a[:, order], b[:, order],
+                                                 c[:, order], x_max, s, sd0 ** 2)
+    last = len(s) - 1
+    empty = ~(K[:last, 0] <= K[:last, 1])
+    if np.any(empty):
+        i = int(np.flatnonzero(empty)[-1])
+        return None, f"the controllable set is empty at gridpoint {i} of {last}"
+    if x[0] + SMALL < K[0, 0] or K[0, 1] + SMALL < x[0]:
+        return None, f"the start's path speed is not controllable (sd^2 = {x[0]:.6g} " \
+            f"outside [{K[0, 0]:.6g}, {K[0, 1]:.6g}])"
+    return (x, "") if feasible else None
 
 
 def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):

@@ -31,7 +31,12 @@ from collections import OrderedDict
 import casadi as ca
 import numpy as np
 
-from tocontrol_ros.core.robot.compiled import c_name, compile_function
+from tocontrol_ros.core.robot.compiled import (
+    BufferedFunction,
+    bind_buffers,
+    c_name,
+    compile_function,
+)
 from tocontrol_ros.core.robot.model import RobotModel, spd_solve
 
 __all__ = ["BufferedFunction", "CanonicalSystem", "control_law"]
@@ -183,7 +188,8 @@ class CanonicalSystem:
             return _chunked(lambda zc: self.pointwise_batch(zc, par), z)
         count, n = len(z), self.n
         with self._buffer_lock:
-            _, evaluate, (zin, pin), outs = self.sized(("pointwise_buffer", count), lambda: _bind(
+            _, evaluate, (zin, pin), outs = self.sized(("pointwise_buffer", count),
+                                                       lambda: bind_buffers(
                 self.pointwise_map(count),
                 (np.zeros((count, 4 * n)), np.zeros((count, 3))),
                 (np.zeros((count, 4 * n)), np.zeros((count, n)), np.zeros((count, n)),
@@ -356,7 +362,7 @@ class CanonicalSystem:
             else:  # (z0, h, par) -> states after every step
                 ins = [np.zeros((count, nz)), np.zeros((count, steps)), np.zeros((count, 3))]
                 outs = [np.zeros((count, steps, nz))]
-            return _bind(fun, ins, outs)
+            return bind_buffers(fun, ins, outs)
 
         with self._buffer_lock:
             _, evaluate, ins, outs = self.sized(("interval_buffer", count, steps, sensitivities),
@@ -406,7 +412,7 @@ class CanonicalSystem:
             outs = [np.zeros((count, nz))]
             if sensitivities:
                 outs += [np.zeros((count, nz, nz)), np.zeros((count, nz))]
-            return _bind(self.step_map(count, sensitivities), ins, outs)
+            return bind_buffers(self.step_map(count, sensitivities), ins, outs)
 
         return self.sized(("buffer", count, sensitivities), bind)
 
@@ -531,54 +537,7 @@ def _chunked(fn, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
-def _bind(fun: ca.Function, ins, outs) -> tuple:
-    """An evaluation buffer of ``fun`` reading ``ins`` and writing ``outs`` (numpy arrays)."""
-    buf, evaluate = fun.buffer()
-    for i, arr in enumerate(ins):
-        buf.set_arg(i, memoryview(arr))
-    for i, arr in enumerate(outs):
-        buf.set_res(i, memoryview(arr))
-    return buf, evaluate, ins, outs
 #: Per-size mapped functions and buffers kept (least recently used evicted first).
 SIZED_CACHE = 64
 #: Operations of the whole-step Jacobian above which it is chained stage by stage.
 WHOLE_STEP_LIMIT = 200_000
-
-
-class BufferedFunction:
-    """Call a CasADi function with dense inputs and outputs through numpy buffers.
-
-    A plain call converts every argument to and from CasADi's ``DM`` (tens of microseconds
-    a call); this binds fixed numpy arrays once and only copies values in and out.
-
-    Parameters
-    ----------
-    fun : casadi.Function
-        Every input and output dense.
-
-    Notes
-    -----
-    Calls are serialised by a lock (the buffers are shared).
-    """
-
-    def __init__(self, fun: ca.Function) -> None:
-        def layout(sparsity):
-            if not sparsity.is_dense():
-                raise ValueError(f"{fun.name()}: sparse input or output")
-            return sparsity.size2(), sparsity.size1()  # column-major: (cols, rows) in C order
-
-        ins = [np.zeros(layout(fun.sparsity_in(i))) for i in range(fun.n_in())]
-        outs = [np.zeros(layout(fun.sparsity_out(i))) for i in range(fun.n_out())]
-        self._shapes = [fun.size_out(i) for i in range(fun.n_out())]
-        self._buf, self._evaluate, self._ins, self._outs = _bind(fun, ins, outs)
-        self._lock = threading.Lock()
-
-    def __call__(self, *args) -> list[np.ndarray]:
-        """Outputs as arrays of the function's shapes, (rows, cols); column vectors 1-D."""
-        with self._lock:
-            for buf, arg in zip(self._ins, args, strict=True):
-                arr = np.asarray(arg, dtype=float)
-                buf[:] = arr.T if arr.ndim == 2 else arr.reshape(buf.shape)
-            self._evaluate()
-            return [out[0].copy() if cols == 1 else out.T.copy()
-                    for out, (_, cols) in zip(self._outs, self._shapes, strict=True)]

@@ -21,6 +21,7 @@ from tocontrol_ros.core.direct.collocation import (
     compile_direct,
 )
 from tocontrol_ros.core.direct.flat import FlatTranscription, compile_flat
+from tocontrol_ros.core.direct.time_scaling import compile_sweeps
 from tocontrol_ros.core.direct.tuning import SPANS
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
 from tocontrol_ros.core.indirect.shooting import ShootingGrid
@@ -86,6 +87,7 @@ class PreparedModel:
                     compile_direct(model, options.guess_intervals, *kinds)
                     if problem.limits.active:
                         compile_flat(model)
+                    compile_sweeps(problem)  # the first motion's and quick replans' TOPP-RA
             self.direct(problem, options.guess_intervals, tol=options.guess_tol)
             self._prepared.add(key)
         if shooting:
