@@ -21,6 +21,7 @@ from tocontrol_ros.core.examples import PAPER_START, PAPER_TARGET
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 from tocontrol_ros.nodes.planner_config import config_from_values, planner_limits
 from tocontrol_ros.nodes.planning_service import Clock, PlanningService, replanning
+from tocontrol_ros.nodes.replanning import REST_RESERVE
 from tocontrol_ros.nodes.requests import PlanRequest
 
 #: Bound of every wait in these tests (s): a failure, never a slow pass.
@@ -269,9 +270,12 @@ def test_replanning_goals_queue_behind_the_running_one(make_service):
     assert [e[3]["request_id"] for e in solved] == [1, 2, 3]
     assert [p.target_point.tolist() for p in service.planner.solved] == \
         [t.tolist() for t in targets]
-    # A goal's plan is stamped replan_min_lead ahead of the wall clock of the tracker's
-    # stamps (the fake clock's whole seconds; no joint state, so no grid to align to).
-    lead = int(service.config.replan_min_lead * 1e9)
+    # A goal's plan is stamped the lead of motions from rest ahead of the wall clock of the
+    # tracker's stamps (the fake clock's whole seconds; no joint state, so no grid to align
+    # to): replan_min_lead plus the delivery reserve, at most REST_RESERVE more.
+    lead = int(service.replanner.rest_lead(service.config) * 1e9)
+    assert service.config.replan_min_lead * 1e9 < lead <= \
+        (service.config.replan_min_lead + REST_RESERVE) * 1e9
     stamps = [e[2] for e in out.events if e[0] == "trajectory"]
     assert len(stamps) == 3 and all(s % 10**9 == lead for s in stamps)
     assert stamps == sorted(stamps)

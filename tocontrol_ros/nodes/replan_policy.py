@@ -83,13 +83,15 @@ class ReplanPolicy:
     def goal_stamp(self, req: PlanRequest) -> int | None:
         """The stamp of a goal's plan (ns), or None (now).
 
-        With replanning, a little ahead on the tracker's control grid, so that a replan from
-        it knows when it took over.
+        With replanning, a little ahead on the tracker's control grid (the lead of motions
+        from rest, :meth:`~tocontrol_ros.nodes.replanning.Replanner.rest_lead`), so that a
+        replan from it knows when it took over.
         """
         if not req.queue:
             return None
         config = req.config
-        t_ns = self.service.clock.wall_ns() + int(config.replan_min_lead * 1e9)
+        lead = self.service.replanner.rest_lead(config)
+        t_ns = self.service.clock.wall_ns() + int(lead * 1e9)
         origin = self.service.arm.latest(config)[0]
         return align(t_ns, origin or t_ns, config.handoff_grid)
 

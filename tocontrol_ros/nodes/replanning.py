@@ -318,6 +318,19 @@ class Replanner:
             q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
         return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
 
+    def rest_lead(self, config: PlannerConfig) -> float:
+        """The lead (s) of a motion that starts at rest.
+
+        ``replan_min_lead`` plus ``replan_margin`` times the recent rest solves' latencies,
+        at most :data:`REST_RESERVE` more than ``replan_min_lead``. A delivery reserve that
+        grows with a loaded machine: a motion from rest delivered
+        after its stamp starts late on a holding controller, from its start, and a replan
+        planned from where its planner expected it then jumps by the speed times that
+        lateness (a goal's first motion stamped ``replan_min_lead`` ahead: 5e-3 rad at the
+        next splice in a loaded CI run).
+        """
+        return min(self.estimate(config, REST).lead(), config.replan_min_lead + REST_RESERVE)
+
     def rest_stamp(self, config: PlannerConfig, handoff: Handoff, now_ns: int,
                    origin_ns: int) -> int:
         """The stamp of a ``"rest"`` replan published at ``now_ns`` (ns).
@@ -329,8 +342,7 @@ class Replanner:
         running motion's end from the hand-off on, so a later take-over starts from the same
         state: a rest replan is never late, however long its solve took.
         """
-        lead = min(self.estimate(config, REST).lead(), config.replan_min_lead + REST_RESERVE)
-        stamp = max(handoff.stamp_ns, now_ns + int(lead * 1e9))
+        stamp = max(handoff.stamp_ns, now_ns + int(self.rest_lead(config) * 1e9))
         return align(stamp, origin_ns or handoff.stamp_ns, config.handoff_grid)
 
     def forget(self) -> None:
