@@ -5,15 +5,36 @@ B-spline transcription (:mod:`~tocontrol_ros.core.direct.flat`) gets, at each of
 times, one row per moving body and obstacle: the smooth minimum (:func:`_grouped`) over the
 body's link spheres (less the allowed pairs) of
 
-    sdf_o(c(q)) - r - margin - v T ds / 2 >= 0,
+    sdf_o(c(q(s))) - r - margin - h sum_j rho_j max_k |Q'_jk| >= 0,
 
 ``sdf_o`` the obstacle's exact signed distance function, ``c(q)`` the sphere's centre, ``r``
-its radius, ``v`` a bound of how fast the sphere moves under the joint velocity limits
-(:meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.speed_bounds`, held at every
-time by the velocity rows) and ``T ds`` the largest time between two samples: between the
+its radius. The last term bounds how far the distance can fall between two samples, from
+the motion itself: on a span of the B-spline ``q(s)`` (``s`` in [0, 1], ``t = T s``) the
+path derivative ``q_j'(s)`` (rad per unit ``s``) lies in the convex hull of the span's
+derivative control points ``Q'_jk`` (the span's ``p`` of them), so the centre moves at most
+``sum_j rho_j max_k |Q'_jk|`` (m per unit ``s``; ``rho_j`` (m/rad) the lever arms of
+:meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.lever_arms` at the centre's
+distance from its body's origin). In time that is a speed of ``sum_j rho_j max_k |Q'_jk| /
+T`` over a time step ``T ds``: ``T`` cancels, the term is ``ds sum_j rho_j max_k |Q'_jk|``
+in metres, with no ``T`` in it. The distance of the sphere is 1-Lipschitz in its centre,
+so between samples ``a`` and ``b`` of one span (``ds`` apart) it is at least the mean of
+the two ends less half that term: ``h = ds / 2`` at every sample whose two neighbouring
+steps lie in its span; the last sample of a span before the next one's first protects its
+step forward alone, with ``h = ds`` (the next span's bound may be smaller). Between the
 samples the distance cannot fall below the margin, and the spheres cover the link's
 geometry, so the exact clearance is at least the margin at every time. The certificate
 checks it independently (Coal on the URDF's own geometry).
+
+``max_k |x_k|`` is bounded above by the smooth ``sqrt(sum_k x_k^2 + eps^2)`` (at most
+``sqrt(p)`` times the maximum, 1.73 for a cubic, plus ``eps`` = :data:`SPEED_EPS`): the
+bound stays a bound, and the rows stay twice differentiable. Measured on the bench's case
+0, shelf (one solve warm from the obstacle-free optimum): the fourth-power norm with
+``eps`` 1e-3 rad ended in IPOPT's restoration failure after 50 iterations, with ``eps``
+0.05 at 300 iterations unconverged; the Euclidean norm with 0.05 converged (276).
+
+Before issue 51's session 29 the term was ``v T ds / 2`` with ``v`` the link's speed bound
+under the joint velocity limits (9.8 m/s for the Panda's hand: 2.9 cm at every sample, the
+start's included): a start 1-3.9 cm from an obstacle made the NLP infeasible.
 
 The arm's own pairs are not rows (hundreds of sphere pairs per sample on the Panda): the
 certificate checks them, and a motion whose links come closer than the margin fails it.
@@ -44,6 +65,23 @@ SDF_EPS = 1e-6
 #: conservative error; sharper makes the rows' curvature larger.
 SOFTMIN_SHARPNESS = 1000.0
 
+#: The smoothing of the speed term's ``max_k |Q'_jk|`` (rad per unit ``s``): it adds at
+#: most ``SPEED_EPS`` to each joint's bound (conservative; with the Panda's lever arms
+#: and ``ds / 2`` about 1/200, about 1 mm); smaller made IPOPT's steps fail.
+SPEED_EPS = 0.05
+
+#: The room above its spheres' clearance that a row group close to a start (or joint state
+#: target) is given at it (m): the speed term of the first span's samples, when the ends'
+#: allowance (``FlatTranscription.clearance_allowance``) lowers the row.
+END_ROOM = 0.005
+
+#: The power of the smooth maximum of ``|Q'_jk|`` (an even integer): ``(sum x^p)^(1/p)``
+#: is at most ``degree^(1/p)`` times the maximum; 4 made IPOPT's steps fail (see above).
+SPEED_NORM = 2
+
+#: The version of the rows' formula (part of the compiled library's name).
+ROWS_VERSION = 2
+
 
 @dataclass(frozen=True)
 class ClearanceRows:
@@ -55,8 +93,9 @@ class ClearanceRows:
     center : ndarray, shape (R, 3)
         Sphere centres in their body's frame (m).
     radius : ndarray, shape (R,)
-    rate : ndarray, shape (R,)
-        Speed bounds of the spheres' links (m/s).
+    lever : ndarray, shape (R, n)
+        Lever arms of the spheres' centres per joint (m/rad,
+        :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.lever_arms`).
     obstacle : tuple of (kind, size, rotation, translation), length R
     margin : float
     names : tuple of (str, str), length R
@@ -66,15 +105,16 @@ class ClearanceRows:
     body: np.ndarray
     center: np.ndarray
     radius: np.ndarray
-    rate: np.ndarray
+    lever: np.ndarray
     obstacle: tuple
     margin: float
     names: tuple
 
     def digest(self) -> str:
         """A short hash of everything the rows compute (names a compiled library)."""
-        h = hashlib.sha1()
-        for arr in (self.body, self.center, self.radius, self.rate):
+        h = hashlib.sha1(f"rows{ROWS_VERSION} {SOFTMIN_SHARPNESS!r} {SPEED_EPS!r} "
+                         f"{SPEED_NORM}".encode())
+        for arr in (self.body, self.center, self.radius, self.lever):
             h.update(np.ascontiguousarray(arr, dtype=float).tobytes())
         for kind, size, rot, pos in self.obstacle:
             h.update(kind.encode())
@@ -97,13 +137,13 @@ class ClearanceRows:
         return [np.flatnonzero([k == key for k in keys]) for key in order]
 
 
-def clearance_rows(collision: CollisionModel, velocity: np.ndarray) -> ClearanceRows:
-    """The rows of ``collision``'s scene under joint speed limits ``velocity`` (n,) (rad/s).
+def clearance_rows(collision: CollisionModel) -> ClearanceRows:
+    """The rows of ``collision``'s scene.
 
     Links on the base (body -1) do not move: their pairs are constant and left to the
     certificate (a start in collision is refused before).
     """
-    speeds = collision.speed_bounds(velocity)
+    n = collision.model.n
     obstacles = {o.name: o for o in collision.scene.obstacles}
     rows = []
     for link, name in collision.obstacle_pairs():
@@ -112,13 +152,14 @@ def clearance_rows(collision: CollisionModel, velocity: np.ndarray) -> Clearance
             continue
         ob = obstacles[name]
         for c, r in zip(spheres.centers, spheres.radii, strict=True):
-            rows.append((spheres.body, c, r, speeds[link],
+            lever = collision.lever_arms(spheres.body, float(np.linalg.norm(c)))
+            rows.append((spheres.body, c, r, lever,
                          (ob.kind, tuple(ob.size), ob.rotation, ob.translation), (link, name)))
     if not rows:
-        return ClearanceRows(np.zeros(0, int), np.zeros((0, 3)), np.zeros(0), np.zeros(0), (),
-                             collision.margin, ())
-    body, center, radius, rate, obstacle, names = zip(*rows, strict=True)
-    return ClearanceRows(np.array(body), np.array(center), np.array(radius), np.array(rate),
+        return ClearanceRows(np.zeros(0, int), np.zeros((0, 3)), np.zeros(0), np.zeros((0, n)),
+                             (), collision.margin, ())
+    body, center, radius, lever, obstacle, names = zip(*rows, strict=True)
+    return ClearanceRows(np.array(body), np.array(center), np.array(radius), np.array(lever),
                          tuple(obstacle), collision.margin, tuple(names))
 
 
@@ -155,23 +196,39 @@ def _sdf(kind: str, size, local):
     return outside + ca.fmin(ca.mmax(d), 0)
 
 
+def _span_speed(P, coef):
+    """Smooth upper bounds (n,) of ``max_k |Q'_jk|`` on a span (rad per unit ``s``).
+
+    ``P`` (n, p + 1) the span's control points, ``coef`` (p,) the derivative's coefficients
+    (``Q'_k = coef_k (P_{k+1} - P_k)``).
+    """
+    p = P.shape[1] - 1
+    total = SPEED_EPS ** SPEED_NORM
+    for k in range(p):
+        total = total + (coef[k] * (P[:, k + 1] - P[:, k])) ** SPEED_NORM
+    return total ** (1.0 / SPEED_NORM)
+
+
 def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
                         ) -> list[ca.Function]:
     """Per-sample functions (SX) of the rows: values, with their gradient, the weighted Hessian.
 
     Inputs ``P`` (n, degree + 1) (the span's control points), ``T`` (s), ``b`` (1,
-    degree + 1) (the sample's basis values), ``ds`` (the largest normalised time between
-    samples); the Hessian also ``lam`` (R,). The variables ``z = (vec P, T)``.
+    degree + 1) (the sample's basis values), ``geo`` (degree + 1,): the sample's step
+    weight ``h`` (``ds / 2`` or ``ds``, normalised time) then its span's derivative
+    coefficients; the Hessian also ``lam`` (R,). The variables ``z = (vec P, T)`` (the rows
+    do not depend on ``T``; it stays in ``z`` for the scatter's layout).
     """
     n, d1 = model.n, degree + 1
     P = ca.SX.sym("P", n, d1)
     T = ca.SX.sym("T")
     b = ca.SX.sym("b", 1, d1)
-    ds = ca.SX.sym("ds")
+    geo = ca.SX.sym("geo", d1)
     lam = ca.SX.sym("lam", len(rows.groups()))
     z = ca.vertcat(ca.vec(P), T)
     q = ca.mtimes(P, b.T)
     frames = model.body_frames_sym(q)
+    speed = _span_speed(P, geo[1:])
     g = []
     for i in range(rows.count):
         rot, pos = frames[int(rows.body[i])]
@@ -179,14 +236,14 @@ def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
         kind, size, o_rot, o_pos = rows.obstacle[i]
         local = ca.mtimes(ca.DM(o_rot).T, c - ca.DM(o_pos))
         g.append(_sdf(kind, size, local) - float(rows.radius[i]) - rows.margin
-                 - float(rows.rate[i]) * T * ds / 2)
+                 - geo[0] * ca.dot(ca.DM(rows.lever[i]), speed))
     g = _grouped(ca.vertcat(*g), rows)
     hess = ca.hessian(ca.dot(lam, g), z)[0]
     dz = z.numel()
     upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
-    return [ca.Function("clear", [P, T, b, ds], [g]),
-            ca.Function("clear_grad", [P, T, b, ds], [g, ca.densify(ca.jacobian(g, z))]),
-            ca.Function("clear_hess", [P, T, b, ds, lam], [ca.densify(ca.cse(upper))])]
+    return [ca.Function("clear", [P, T, b, geo], [g]),
+            ca.Function("clear_grad", [P, T, b, geo], [g, ca.densify(ca.jacobian(g, z))]),
+            ca.Function("clear_hess", [P, T, b, geo, lam], [ca.densify(ca.cse(upper))])]
 
 
 def compile_clearance(model: RobotModel, rows: ClearanceRows, degree: int = 3

@@ -47,7 +47,7 @@ from scipy.interpolate import CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
-from tocontrol_ros.core.direct.clearance import ClearanceRows, compile_clearance
+from tocontrol_ros.core.direct.clearance import END_ROOM, ClearanceRows, compile_clearance
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.direct.tuning import (
@@ -299,7 +299,8 @@ class FlatTranscription:
         bcat = ca.reshape(geo[:nb], 3, (p + 1) * S)  # each sample's (3, p + 1), side by side
         cvec = geo[nb:nb + K - 1]
         b_start_vel = geo[nb + K - 1:nb + K + p]
-        # then the acceleration rows' (K - 2,) when held, then the clearance rows' ds, if any
+        # then the acceleration rows' (K - 2,) when held, then the clearance rows' per-sample
+        # step weights and derivative coefficients ((p + 1) S,), if any
         b_end_vel = geo[nb + K + p:nb + K + 2 * p + 1]
         c2vec = geo[nb + K + 2 * p + 1:nb + K + 2 * p + 1 + K - 2] \
             if self.acceleration is not None else None
@@ -326,7 +327,8 @@ class FlatTranscription:
         g_eval, jac = self._constraint_jacobian(set_grad, local, zvars, w, g_lin, g_b)
         self._ng_clear = 0
         if self.clearance is not None:
-            clear_local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat[0, :], geo[-1])
+            clear_local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat[0, :],
+                           ca.reshape(geo[len(self._geo) - (p + 1) * S:], p + 1, S))
             clear = self._clearance_rows(clear_local, zvars, w)
             g, g_eval, jac = (ca.vertcat(g, clear[0]), ca.vertcat(g_eval, clear[1]),
                               ca.vertcat(jac, clear[2]))
@@ -398,7 +400,7 @@ class FlatTranscription:
         """
         rows = self.clearance
         funs, _ = compile_clearance(self.model, rows, self.degree)
-        self._clear_hess = funs[2]
+        self._clear_value, self._clear_hess = funs[0], funs[2]
         S, R = len(zvars), len(rows.groups())
         self._ng_clear = S * R
         values = ca.vec(funs[0].map(S)(*local))
@@ -407,6 +409,34 @@ class FlatTranscription:
         for r in range(S):
             scat.block(np.arange(r * R, (r + 1) * R), np.concatenate([zvars[r], [w.numel() - 1]]))
         return values, ca.vec(cs), scat.apply(ca.vec(grads))
+
+    def clearance_allowance(self, start_value: np.ndarray, target_value: np.ndarray
+                            ) -> np.ndarray:
+        """How far below zero each clearance row may go (m), shape (groups,).
+
+        The rows ask the spheres for the margin, and the spheres stand up to their worst
+        gap (1.5-3.8 cm on the Panda) outside the link's geometry: a start (or a joint
+        state target) that the exact check accepts can have spheres closer than the
+        margin, and its rows could not hold at the first sample whatever the motion. A
+        row group whose spheres at an end are closer than ``margin +``
+        :data:`~tocontrol_ros.core.direct.clearance.END_ROOM` is lowered by the shortfall
+        on the whole motion (0 for every other group); the certificate checks the exact
+        clearance against the full margin (nothing closer is published).
+        """
+        n, d1 = self.model.n, self.degree + 1
+        ends = [np.asarray(start_value, dtype=float)]
+        if self.target_kind != "point":
+            ends.append(np.asarray(target_value, dtype=float))
+        allow = np.zeros(len(self.clearance.groups()))
+        for value in ends:
+            if len(value) < n:
+                continue
+            q = np.tile(value[:n, None], (1, d1))
+            b = np.zeros((1, d1))
+            b[0, 0] = 1.0
+            g = np.array(self._clear_value(q, 1.0, b, np.zeros(d1))).ravel()
+            allow = np.maximum(allow, END_ROOM - g)
+        return allow
 
     def _clearance_hessian(self, local: tuple, zvars: np.ndarray, w: ca.MX, lam: ca.MX
                            ) -> ca.MX:
@@ -491,12 +521,14 @@ class FlatTranscription:
         """Rows of the NLP (its constraints; ``lam_g`` has as many)."""
         return self._ng
 
-    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD
+    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD,
+               ends: tuple | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``lbg``, ``ubg``, ``lbx``, ``ubx`` for state bounds (2n,) (infinite entries: none).
 
         The position bounds are bounds on the control points (variables, not rows); ``T``
-        is at least 1 ms.
+        is at least 1 ms. ``ends``: (start value, target value) of the solve, for the
+        clearance rows' allowance (:meth:`clearance_allowance`); without it none.
         """
         n = self.model.n
         ng_set, ng_lin, ng_b = self._rows
@@ -507,8 +539,10 @@ class FlatTranscription:
         if self.acceleration is not None:
             v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
-        if self._ng_clear:  # clearance rows: >= 0
-            lbg = np.concatenate([lbg, np.zeros(self._ng_clear)])
+        if self._ng_clear:  # clearance rows: >= 0, less the ends' allowance
+            allow = np.zeros(len(self.clearance.groups())) if ends is None \
+                else self.clearance_allowance(*ends)
+            lbg = np.concatenate([lbg, np.tile(-allow, self._ng_clear // len(allow))])
             ubg = np.concatenate([ubg, np.full(self._ng_clear, np.inf)])
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
         ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
@@ -582,7 +616,7 @@ class FlatTranscription:
         """
         n = self.model.n
         par = self.parameters(start_value, target_value, k)
-        lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad)
+        lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad, (start_value, target_value))
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
         t0 = time.perf_counter()
         self._interrupt.arm(deadline, should_stop, max_iter)
@@ -611,7 +645,8 @@ class FlatTranscription:
         """
         par = self.parameters(start_value, target_value, k)
         w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
-        return self._residual(w, par, *self.bounds(lower, upper, set_pad))
+        return self._residual(w, par, *self.bounds(lower, upper, set_pad,
+                                                   (start_value, target_value)))
 
     def parameters(self, start_value: np.ndarray, target_value: np.ndarray, k: float
                    ) -> np.ndarray:
@@ -639,8 +674,15 @@ class FlatTranscription:
         geo = [bcat.ravel(order="F"), c, b[0, 1], b[-1, 1]]
         if self.acceleration is not None:  # q''(s)'s control points: (p - 1) / knot spans
             geo.append((p - 1) / (tk[p + 1:p + K - 1] - tk[2:K]))
-        if self.clearance is not None:  # the largest normalised time between two samples
-            geo.append([float(np.max(np.diff(breaks))) / ps])
+        if self.clearance is not None:  # per sample: its step weight, its span's c (p,)
+            S = len(s)
+            ds = np.diff(breaks)[span] / ps
+            # the last sample of a span (not the last span) protects its step forward alone
+            last = np.zeros(S, bool)
+            last[:-1] = span[1:] != span[:-1]
+            h = np.where(last, ds, ds / 2)
+            cs = c[span[:, None] + np.arange(p)[None, :]]
+            geo.append(np.concatenate([h[:, None], cs], axis=1).ravel())
         return np.concatenate(geo)
 
     def on(self, breaks: np.ndarray) -> FlatTranscription:

@@ -279,7 +279,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     t0 = time.perf_counter()
     jac_fun, hess_fun = flat.kkt_functions
     par = flat.parameters(start_value, target_value, k)
-    lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad)
+    lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad, (start_value, target_value))
     nw, ng = len(w0), len(lbg)
     w = np.array(w0, dtype=float)
     eq = lbg == ubg

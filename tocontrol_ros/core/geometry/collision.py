@@ -215,32 +215,44 @@ class CollisionModel:
         """The spheres' worst gap over the links (m)."""
         return max((s.gap for s in self.spheres), default=0.0)
 
-    def speed_bounds(self, velocity: np.ndarray) -> dict[str, float]:
-        """How fast any point of each link can move under joint speeds ``velocity`` (n,).
+    def lever_arms(self, body: int, reach: float) -> np.ndarray:
+        """How fast a point of ``body`` at most ``reach`` (m) from its origin moves per joint.
 
         A point of body ``b`` at ``p`` moves at most ``sum_{j <= b} |qd_j| rho_jb``, with
         ``rho_jb`` the distance from joint ``j``'s axis bounded by the joint origins'
         offsets along the chain plus the point's distance from its body's origin (a
-        prismatic joint adds ``|qd_j|`` and its stroke to the offsets). Returns link ->
-        m/s (``inf`` with an infinite joint speed).
+        prismatic joint adds its stroke to the offsets and moves the point at ``|qd_j|``).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``rho_jb`` (m/rad; 1 for a prismatic joint ``j``, 0 for ``j > b``).
         """
         model = self.model
-        velocity = np.abs(np.asarray(velocity, dtype=float))
         offsets = [float(np.linalg.norm(b.translation)) for b in model.bodies]
         stroke = [max(abs(lo), abs(hi)) if b.kind == "prismatic" else 0.0
                   for b, lo, hi in zip(model.bodies, model.q_lower, model.q_upper,
                                        strict=True)]
+        out = np.zeros(model.n)
+        for j in range(body + 1):
+            rho = sum(offsets[j + 1:body + 1]) + sum(stroke[j:body + 1]) + reach
+            out[j] = 1.0 if model.bodies[j].kind == "prismatic" else rho
+        return out
+
+    def speed_bounds(self, velocity: np.ndarray) -> dict[str, float]:
+        """How fast any point of each link can move under joint speeds ``velocity`` (n,).
+
+        ``sum_j |qd_j| rho_jb`` with :meth:`lever_arms` at the link's farthest surface
+        point. Returns link -> m/s (``inf`` with an infinite joint speed).
+        """
+        velocity = np.abs(np.asarray(velocity, dtype=float))
         out = {}
         for link_spheres in self.spheres:
-            b = link_spheres.body
             reach = max((float(np.linalg.norm(s.points(SURFACE_SPACING), axis=1).max())
                          for s in self.shapes if s.link == link_spheres.link), default=0.0)
-            speed = 0.0
-            for j in range(b + 1):
-                rho = sum(offsets[j + 1:b + 1]) + sum(stroke[j:b + 1]) + reach
-                lever = 1.0 if model.bodies[j].kind == "prismatic" else rho
-                speed += velocity[j] * lever if velocity[j] > 0 else 0.0
-            out[link_spheres.link] = speed
+            lever = self.lever_arms(link_spheres.body, reach)
+            out[link_spheres.link] = float(sum(v * r for v, r in zip(velocity, lever,
+                                                                       strict=True) if v > 0))
         return out
 
     def clearance(self, q: np.ndarray) -> Clearance:

@@ -199,7 +199,7 @@ class PreparedModel:
                count, warm) + ((accel,) if accel is not None else ())
         col = problem.collision
         if col is not None:  # its own transcription: the scene's rows
-            key += (col.key(), tuple(problem.limits.velocity))
+            key += (col.key(),)
         with self._lock:
             base = self._direct.pop(key, None)
             if base is None:
@@ -207,8 +207,7 @@ class PreparedModel:
                     self.model, count, problem.start.kind, problem.target.kind,
                     torque_scale=problem.torque_scale, warm=warm,
                     acceleration=None if accel is None else np.array(accel),
-                    clearance=None if col is None else clearance_rows(
-                        col, problem.limits.velocity))
+                    clearance=None if col is None else clearance_rows(col))
             self._direct[key] = base  # the most recently used last
             for old in [k for k in self._direct if k[0] == "flat"][:-FLAT_CACHE]:
                 del self._direct[old]
