@@ -95,6 +95,34 @@ def rss_kib(pid: int | str = "self") -> int:
     raise RuntimeError("no VmRSS in /proc status")
 
 
+#: The jump bar of a splice that came in time (rad, rad/s): the moving-target tests'.
+SPLICE_JUMP_BAR = (1e-3, 1e-2)
+
+
+def hold_splices_to_the_bar(splices: list[dict]) -> None:
+    """Hold every splice that came in time to :data:`SPLICE_JUMP_BAR`; report the late ones.
+
+    ``splices``: the tracker's ``spliced`` status values. A trajectory delivered after its
+    hand-off joins as far along as its stamp says (``late``, as a JTC drops the points past):
+    its own jump grows with its lateness (a loaded machine), but the motion then is the one
+    its planner assumed, so every splice in time, those after it included, is held.
+    """
+    on_time = [s for s in splices if s.get("late") == "false"]
+    late = [s for s in splices if s.get("late") == "true"]
+    assert len(on_time) + len(late) == len(splices)
+    for s in late:
+        print("late splice", s["message"], s["stamp"])
+    assert on_time, [s["message"] for s in splices]
+    jumps_q = [float(s["position_jump"]) for s in on_time]
+    jumps_qd = [float(s["velocity_jump"]) for s in on_time]
+    print(f"largest jumps {max(jumps_q):.2e} rad, {max(jumps_qd):.2e} rad/s "
+          f"({len(on_time)} splices in time, {len(late)} late)")
+    for s in on_time:
+        if float(s["velocity_jump"]) > 1e-3 or float(s["position_jump"]) > 1e-4:
+            print("large splice", s["message"], s["stamp"])
+    assert max(jumps_q) < SPLICE_JUMP_BAR[0] and max(jumps_qd) < SPLICE_JUMP_BAR[1]
+
+
 class PlannerClient:
     """A node that talks to one planner: calls, goals, joint states, parameters, status.
 

@@ -47,6 +47,14 @@ def panda_urdf() -> Path:
     missing("example-robot-data (pip install '.[test]')")
 
 
+def panda_srdf() -> Path:
+    """example-robot-data's Panda SRDF (beside its URDF); else :func:`missing`."""
+    srdf = panda_urdf().parent.parent / "srdf" / "panda.srdf"
+    if not srdf.is_file():
+        missing("example-robot-data's panda.srdf (pip install '.[test]')")
+    return srdf
+
+
 def _reason(report) -> str:
     longrepr = report.longrepr
     if isinstance(longrepr, tuple) and len(longrepr) == 3:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from skip_policy import missing, panda_urdf
+from skip_policy import panda_srdf, panda_urdf
 
 coal = pytest.importorskip("coal")
 
@@ -32,9 +32,7 @@ OLD_TERM = 0.028
 def panda():
     urdf = panda_urdf()
     model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    srdf = urdf.parent.parent / "srdf" / "panda.srdf"
-    if not srdf.is_file():
-        missing("example-robot-data's panda.srdf (pip install '.[test]')")
+    srdf = panda_srdf()
     return model, collision_model(model, urdf, srdf)
 
 

@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 import pytest
-from skip_policy import missing, panda_urdf
+from skip_policy import panda_srdf, panda_urdf
 
 from tocontrol_ros.core.errors import ModelError, ProblemError
 
@@ -31,9 +31,7 @@ Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
 def panda():
     urdf = panda_urdf()
     model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    srdf = urdf.parent.parent / "srdf" / "panda.srdf"
-    if not srdf.is_file():
-        missing("example-robot-data's panda.srdf (pip install '.[test]')")
+    srdf = panda_srdf()
     return model, urdf, srdf, collision_model(model, urdf, srdf)
 
 

@@ -19,7 +19,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from node_process import NodeProcess
 from planner_harness import PlannerClient
 from sensor_msgs.msg import JointState
-from skip_policy import missing, panda_urdf
+from skip_policy import panda_srdf, panda_urdf
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -54,9 +54,7 @@ def _ball(center) -> Marker:
 
 def test_a_goal_behind_an_obstacle_is_planned_around_it_and_tracked_clear(tmp_path):
     urdf_path = panda_urdf()
-    srdf = urdf_path.parent.parent / "srdf" / "panda.srdf"
-    if not srdf.is_file():
-        missing("example-robot-data's panda.srdf (pip install '.[test]')")
+    srdf = panda_srdf()
     model = load_robot(str(urdf_path), tip_link="panda_hand")
     goal = model.point(np.array(Q1))
     free = plan(Problem(model, joint_state(Q0), point(goal), k=K, reserve=RESERVE),
