@@ -271,3 +271,34 @@ def test_limits_that_never_bind_leave_the_multistart_unchanged(galicki):
     res, ref = plan(default), plan(free)
     assert res.success and ref.success, (res.message, ref.message)
     assert res.T == pytest.approx(ref.T, rel=1e-9)
+
+
+def test_the_slow_solver_hook_slows_a_nested_solve_once(monkeypatch):
+    """``TOCONTROL_SLOW_SOLVER=f`` makes a plan f times as long, not f squared (issue 53).
+
+    ``Planner.plan`` runs ``solve_once``, both slowed: only the outermost call sleeps, for
+    ``f - 1`` times the whole call's duration. A fake clock and a recording sleep: no time
+    passes in this test.
+    """
+    from tocontrol_ros.core.planning import solver
+
+    now = [0.0]
+    sleeps = []
+    monkeypatch.setattr(solver, "SLOW_SOLVER", 5.0)
+    monkeypatch.setattr(solver, "_REAL_CLOCK", lambda: now[0])
+    monkeypatch.setattr(solver, "_SLEEP", sleeps.append)
+
+    @solver._slowed
+    def inner():
+        now[0] += 1.0
+        return "inner"
+
+    @solver._slowed
+    def outer():
+        now[0] += 2.0
+        return inner()
+
+    assert outer() == "inner"
+    assert sleeps == [4.0 * 3.0]  # the whole call's 3 s, once; not 4 * 1 s inside as well
+    assert inner() == "inner"
+    assert sleeps == [12.0, 4.0]  # called alone, the inner solve is slowed itself

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -73,12 +74,17 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "p
 
 #: Test hook (issue 53): ``TOCONTROL_SLOW_SOLVER=f`` (f > 1) makes each solve of this module
 #: (``Planner.plan``, ``first``, ``quick``, :func:`solve_once`) take about ``f`` times as long:
-#: the solve, then a sleep of ``f - 1`` times its duration. The results are unchanged (no
-#: decision reads it); the test suite must pass with a solver that slow. Read at import.
+#: the solve, then a sleep of ``f - 1`` times its duration. A solve called inside another
+#: (``Planner.plan`` runs :func:`solve_once`) is not slowed again: ``f`` times, not ``f``
+#: squared. The results are unchanged (no decision reads it); the test suite must pass with
+#: a solver that slow. Read at import.
 SLOW_SOLVER = float(os.environ.get("TOCONTROL_SLOW_SOLVER", "") or 1.0)
 #: The real clock, bound at import: a test that replaces ``time.perf_counter`` with a clock
 #: that jumps (test_determinism) must not make the hook sleep for minutes.
 _REAL_CLOCK = time.perf_counter
+_SLEEP = time.sleep
+#: How deep the calling thread is in slowed solves (only the outermost one sleeps).
+_SLOWED_DEPTH = threading.local()
 
 
 def _slowed(fn):
@@ -88,9 +94,15 @@ def _slowed(fn):
 
     @functools.wraps(fn)
     def slowed(*args, **kwargs):
+        depth = getattr(_SLOWED_DEPTH, "depth", 0)
+        _SLOWED_DEPTH.depth = depth + 1
         t0 = _REAL_CLOCK()
-        out = fn(*args, **kwargs)
-        time.sleep((SLOW_SOLVER - 1.0) * (_REAL_CLOCK() - t0))
+        try:
+            out = fn(*args, **kwargs)
+        finally:
+            _SLOWED_DEPTH.depth = depth
+        if depth == 0:
+            _SLEEP((SLOW_SOLVER - 1.0) * (_REAL_CLOCK() - t0))
         return out
     return slowed
 
