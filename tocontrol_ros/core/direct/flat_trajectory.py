@@ -17,18 +17,20 @@ from scipy.interpolate import BSpline
 from tocontrol_ros.core.direct.bspline import knots
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.tuning import REFINE_JUMP
+from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "integrate_segments", "open_loop_sweep",
-           "polynomial_segment_ode", "refined_breaks"]
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
+           "open_loop_sweep", "polynomial_segment_ode", "refined_breaks"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
 
 
-#: CVODES integrators of the open loop, per model, degree and tolerances.
+#: CVODES integrators of the open loop, per model, degree and tolerances (with the DAE
+#: function they were made from).
 _OPEN_LOOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -124,6 +126,36 @@ def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.
 
 
 
+def compile_open_loop(model: RobotModel, degree: int = 3) -> tuple[ca.Function, str]:
+    """The open loop's right-hand side compiled, once per model and degree.
+
+    :func:`polynomial_segment_ode` as a CasADi DAE function (``t, x, z, p, u -> ode, alg,
+    quad, zero``) and its Jacobian (what CVODES asks for, and Newton's iteration uses),
+    compiled through :func:`~tocontrol_ros.core.robot.compiled.compile_owned`: CVODES
+    evaluates it thousands of times a certificate, and CasADi's virtual machine ran it
+    seven times slower (4.1 ms a Panda span against 0.56 ms, the states equal to the bit).
+    Inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds` this only starts the
+    build.
+
+    Returns
+    -------
+    function, how
+        The DAE function (compiled, or symbolic while it builds or without a compiler) and
+        how it was obtained (:func:`~tocontrol_ros.core.robot.compiled.compile_owned`).
+    """
+    def build() -> list[ca.Function]:
+        sig, x, c, h, ode = polynomial_segment_ode(model, degree)
+        none = ca.SX(0, 1)
+        dae = ca.Function(f"flat_open_loop_ode{degree}", [sig, x, none,
+                                                          ca.vertcat(ca.vec(c), h), none],
+                          [ode, none, none, none], ca.dyn_in(), ca.dyn_out())
+        return [dae, dae.jacobian()]
+
+    funs, how = compile_owned(model, ("flat_open_loop", degree),
+                              f"flat_open_loop{model.n}p{degree}", build)
+    return funs[0], how
+
+
 def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: float,
                           stiff: bool = False) -> ca.Function:
     """CVODES over one span: the model's forward dynamics under the span's torques.
@@ -134,21 +166,22 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
     ``dx/dsigma = h f(x, tau)`` (forward dynamics through the factorised mass matrix, not
     the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
     Adams with functional iteration (no Jacobians: the motion is not stiff), or BDF with
-    Newton iteration when ``stiff``.
+    Newton iteration when ``stiff``. The right-hand side compiled
+    (:func:`compile_open_loop`); an integrator made while its library builds is not kept.
     """
     key = (degree, rtol, atol, stiff)
     cached = _OPEN_LOOP.setdefault(model, {})
-    if key in cached:
-        return cached[key]
-    sig, x, c, h, ode = polynomial_segment_ode(model, degree)
+    dae, how = compile_open_loop(model, degree)
+    if key in cached and cached[key][0] is dae:
+        return cached[key][1]
     grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
     method = {} if stiff else {"linear_multistep_method": "adams",
                                "nonlinear_solver_iteration": "functional"}
-    cached[key] = ca.integrator("flat_open_loop", "cvodes",
-                                {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode},
-                                0.0, grid.tolist(), {"reltol": rtol, "abstol": atol,
-                                                     "max_num_steps": 100000, **method})
-    return cached[key]
+    integ = ca.integrator("flat_open_loop", "cvodes", dae, 0.0, grid.tolist(),
+                          {"reltol": rtol, "abstol": atol, "max_num_steps": 100000, **method})
+    if how.startswith(("cached", "compiled")):
+        cached[key] = (dae, integ)
+    return integ
 
 
 class FlatTrajectory(InverseDynamicsTrajectory):
@@ -191,7 +224,6 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
         self._d1 = self._spl.derivative(1)
         self._d2 = self._spl.derivative(2)
-        self._maps: dict = {}
         self.t_grid = self.breaks * self.T
         x = self._path(self.t_grid)[:2]
         self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
@@ -220,9 +252,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     def _controls(self, q, qd, qdd) -> np.ndarray:
         if len(q) == 1:  # the integrators' path: one time per call
             return np.array(self._id(q[0], qd[0], qdd[0], self._scale)).T
-        if len(q) not in self._maps:
-            self._maps[len(q)] = self._id.map(len(q))
-        return np.array(self._maps[len(q)](q.T, qd.T, qdd.T, self._scale)).T
+        return _mapped_id(self._model, self._id, len(q))(q.T, qd.T, qdd.T, self._scale)[0].T
 
     def open_loop(self, rtol: float, atol: float, stiff: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -275,6 +305,25 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     def control_at(self, t: np.ndarray) -> np.ndarray:
         """Normalised controls at times ``t`` (K,), shape (K, n)."""
         return self._controls(*self._path(t))
+
+
+#: model -> {count: (its inverse dynamics function, mapped over count times and buffered)}.
+_MAPPED_ID: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _mapped_id(model: RobotModel, fun: ca.Function, count: int) -> BufferedFunction:
+    """``fun`` (the normalised inverse dynamics) mapped over ``count`` times, buffered.
+
+    Kept per model and count: made per trajectory, the map and the conversion of its
+    arguments to ``DM`` cost more than the evaluation (the between-samples check's 768
+    times on the Panda's 24 spans).
+    """
+    table = _MAPPED_ID.setdefault(model, {})
+    if count not in table or table[count][0] is not fun:
+        # The torque scale (the last argument) is the same at every time: not repeated.
+        table[count] = (fun, BufferedFunction(fun.map(f"{fun.name()}_map", "serial", count,
+                                                      [fun.n_in() - 1], [])))
+    return table[count][1]
 
 
 def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
