@@ -23,7 +23,7 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
-           "open_loop_sweep", "polynomial_segment_ode", "refined_breaks"]
+           "mapped_controls", "open_loop_sweep", "polynomial_segment_ode", "refined_breaks"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
@@ -252,7 +252,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     def _controls(self, q, qd, qdd) -> np.ndarray:
         if len(q) == 1:  # the integrators' path: one time per call
             return np.array(self._id(q[0], qd[0], qdd[0], self._scale)).T
-        return _mapped_id(self._model, self._id, len(q))(q.T, qd.T, qdd.T, self._scale)[0].T
+        return mapped_controls(self._model, self._id, len(q))(q.T, qd.T, qdd.T, self._scale)[0].T
 
     def open_loop(self, rtol: float, atol: float, stiff: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -308,17 +308,18 @@ class FlatTrajectory(InverseDynamicsTrajectory):
 
 
 #: model -> {count: (its inverse dynamics function, mapped over count times and buffered)}.
-_MAPPED_ID: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_MAPPED_CONTROLS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _mapped_id(model: RobotModel, fun: ca.Function, count: int) -> BufferedFunction:
+def mapped_controls(model: RobotModel, fun: ca.Function, count: int) -> BufferedFunction:
     """``fun`` (the normalised inverse dynamics) mapped over ``count`` times, buffered.
 
-    Kept per model and count: made per trajectory, the map and the conversion of its
-    arguments to ``DM`` cost more than the evaluation (the between-samples check's 768
-    times on the Panda's 24 spans).
+    ``(q (n, count), qd, qdd, scale (n,)) -> [u (n, count)]``. Kept per model and count:
+    made per trajectory, the map and the conversion of its arguments to ``DM`` cost more
+    than the evaluation (the between-samples check's 768 times on the Panda's 24 spans:
+    1.9 ms, 0.4 ms buffered, the same bits).
     """
-    table = _MAPPED_ID.setdefault(model, {})
+    table = _MAPPED_CONTROLS.setdefault(model, {})
     if count not in table or table[count][0] is not fun:
         # The torque scale (the last argument) is the same at every time: not repeated.
         table[count] = (fun, BufferedFunction(fun.map(f"{fun.name()}_map", "serial", count,

@@ -40,12 +40,15 @@ class KKTDerivatives:
 
     Attributes
     ----------
+    functions : tuple of casadi.Function
+        ``(jac_fun, hess_fun)``, as given.
     jac_sparsity, hess_sparsity : casadi.Sparsity
         Of ``J`` (rows, K n + 1) and of ``H`` (K n + 1, K n + 1); the nonzeros returned are
         in their column-major order (as ``DM.nonzeros()``).
     """
 
     def __init__(self, jac_fun: ca.Function, hess_fun: ca.Function) -> None:
+        self.functions = (jac_fun, hess_fun)
         self.jac_sparsity = jac_fun.sparsity_out(1)
         self.hess_sparsity = hess_fun.sparsity_out(0)
         w = ca.MX.sym("w", jac_fun.size1_in(0))
