@@ -221,6 +221,14 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
     assert np.max(np.abs(b.P - a.P)) <= 1e-7
     with pytest.raises(ValueError, match="spans"):
         uniform.on(np.linspace(0.0, 1.0, len(breaks) + 1))
+    # Views on breakpoints asked for before reuse their geometry (kept per transcription):
+    # the same parameters as the first view's and the built transcription's, others not.
+    par = built.parameters(*values)
+    again, other = uniform.on(breaks.copy()), uniform.on(np.linspace(0.0, 1.0, len(breaks)))
+    assert np.array_equal(again.parameters(*values), par)
+    assert np.array_equal(view.parameters(*values), par)
+    assert not np.array_equal(other.parameters(*values), par)
+    assert np.array_equal(uniform.on(breaks).parameters(*values), par)
 
 
 def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):
