@@ -236,7 +236,7 @@ def _split(lam: np.ndarray, room: np.ndarray, has: np.ndarray
     return np.where(has, lam, 0.0), np.where(has, room, 1.0)
 
 
-def _boundary_step(x, dx, room) -> float:
+def _boundary_step(dx, room) -> float:
     """Largest ``a`` in (0, 1] with ``room + a dx >= (1 - TAU) room`` where ``dx < 0``."""
     neg = dx < 0.0
     if not np.any(neg):
@@ -395,10 +395,12 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
             dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
             dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
-            a_p = min(_boundary_step(s, np.where(hlg, ds, 0.0), room_lg),
-                      _boundary_step(s, np.where(hug, -ds, 0.0), room_ug),
-                      _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
-                      _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
+            # The four kinds of bounds in one pass (the same minimum as four).
+            a_p = _boundary_step(np.concatenate([np.where(hlg, ds, 0.0),
+                                                       np.where(hug, -ds, 0.0),
+                                                       np.where(has_lx, dw, 0.0),
+                                                       np.where(has_ux, -dw, 0.0)]),
+                                 np.concatenate([room_lg, room_ug, room_lx, room_ux]))
             retry = False
             if hold and a_p < HOLD_BELOW:
                 # Rows the whole step would carry across their bounds: held there, the step
@@ -416,8 +418,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                     holds += int(np.sum(cross_u | cross_l))
                     retry = True
                     continue
-            a_d = min(_boundary_step(zl, dzl, zl + ~hlg), _boundary_step(zu, dzu, zu + ~hug),
-                      _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
+            a_d = _boundary_step(np.concatenate([dzl, dzu, dvl, dvu]),
+                                 np.concatenate([zl + ~hlg, zu + ~hug, vl + ~has_lx,
+                                                 vu + ~has_ux]))
             full = a_p == 1.0
             blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
             w = w + a_p * dw
