@@ -167,11 +167,12 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
     the inverse dynamics that made the torques), output at :data:`OPEN_LOOP_POINTS` times.
     Adams with functional iteration (no Jacobians: the motion is not stiff), or BDF with
     Newton iteration when ``stiff``. The right-hand side compiled
-    (:func:`compile_open_loop`); an integrator made while its library builds is not kept.
+    (:func:`compile_open_loop`); kept with the function it was made from, and made again
+    when that changes (the library landed after a quick build or while it was built).
     """
     key = (degree, rtol, atol, stiff)
     cached = _OPEN_LOOP.setdefault(model, {})
-    dae, how = compile_open_loop(model, degree)
+    dae, _ = compile_open_loop(model, degree)
     if key in cached and cached[key][0] is dae:
         return cached[key][1]
     grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
@@ -179,8 +180,7 @@ def _open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: flo
                                "nonlinear_solver_iteration": "functional"}
     integ = ca.integrator("flat_open_loop", "cvodes", dae, 0.0, grid.tolist(),
                           {"reltol": rtol, "abstol": atol, "max_num_steps": 100000, **method})
-    if how.startswith(("cached", "compiled")):
-        cached[key] = (dae, integ)
+    cached[key] = (dae, integ)  # made again once the library (another function) has landed
     return integ
 
 
