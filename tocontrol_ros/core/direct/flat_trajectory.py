@@ -8,6 +8,7 @@ for the certificate; :func:`refined_breaks` halves the spans at junctions of arc
 from __future__ import annotations
 
 import copy
+import threading
 import weakref
 
 import casadi as ca
@@ -123,7 +124,6 @@ def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.
         step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
         table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
     return table[key][1]
-
 
 
 def compile_open_loop(model: RobotModel, degree: int = 3) -> tuple[ca.Function, str]:
@@ -307,8 +307,11 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         return self._controls(*self._path(t))
 
 
-#: model -> {count: (its inverse dynamics function, mapped over count times and buffered)}.
+#: model -> {count: (its inverse dynamics function, mapped over count times and buffered)},
+#: the :data:`MAPPED_KEEP` most recently made per model (sampled motions have any length).
 _MAPPED_CONTROLS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_MAPPED_LOCK = threading.Lock()
+MAPPED_KEEP = 16
 
 
 def mapped_controls(model: RobotModel, fun: ca.Function, count: int) -> BufferedFunction:
@@ -319,12 +322,17 @@ def mapped_controls(model: RobotModel, fun: ca.Function, count: int) -> Buffered
     than the evaluation (the between-samples check's 768 times on the Panda's 24 spans:
     1.9 ms, 0.4 ms buffered, the same bits).
     """
-    table = _MAPPED_CONTROLS.setdefault(model, {})
-    if count not in table or table[count][0] is not fun:
-        # The torque scale (the last argument) is the same at every time: not repeated.
-        table[count] = (fun, BufferedFunction(fun.map(f"{fun.name()}_map", "serial", count,
-                                                      [fun.n_in() - 1], [])))
-    return table[count][1]
+    with _MAPPED_LOCK:
+        table = _MAPPED_CONTROLS.setdefault(model, {})
+        entry = table.pop(count, None)
+        if entry is None or entry[0] is not fun:
+            # The torque scale (the last argument) is the same at every time: not repeated.
+            entry = (fun, BufferedFunction(fun.map(f"{fun.name()}_map", "serial", count,
+                                                   [fun.n_in() - 1], [])))
+        table[count] = entry  # the most recently used last
+        while len(table) > MAPPED_KEEP:
+            del table[next(iter(table))]
+        return entry[1]
 
 
 def refined_breaks(trajectory: FlatTrajectory, threshold: float = REFINE_JUMP) -> np.ndarray:
