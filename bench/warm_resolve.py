@@ -11,6 +11,11 @@ one run, each timed after a warm-up of the same call (median of 3):
   ``warm_parametric`` (the default): the parametric primal-dual step from the serving
   solution (core/direct/sensitivity.py), certified; IPOPT where it fails (the route taken
   is read from the result's warnings);
+- **before**: the same call as the code was before its calls were compiled and buffered
+  (:func:`as_before`: the step's derivatives called as CasADi functions with ``DM``
+  conversions, the certificate's CVODES on the virtual machine's right-hand side span by
+  span, the inverse dynamics mapped per trajectory): the same numbers (checked: the same
+  ``T`` to the bit), the time it took;
 - **ipopt**: the same call with ``warm_parametric=False``: IPOPT warm from the serving
   solution and its multipliers (``warm="dual"``, its barrier from 1e-7);
 - **tight**: IPOPT on the same NLP from the same point with its warm start's pushes and
@@ -37,6 +42,7 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -67,6 +73,71 @@ def _route(result) -> str:
     text = " ".join(result.warnings)
     return "parametric" if "(route: parametric)" in text else \
         "ipopt (fallback)" if "(route: ipopt)" in text else "ipopt"
+
+
+@contextmanager
+def as_before():
+    """The parametric route's calls as they were before (issue 47), for the side by side.
+
+    The derivatives of the step called as CasADi functions (every argument converted to and
+    from ``DM``, the sparse results copied out by ``nonzeros()``); the certificate's CVODES
+    on the symbolic right-hand side (CasADi's virtual machine), span by span from Python;
+    the inverse dynamics mapped once per context (before: once per trajectory, of which a
+    plan makes several) and called with ``DM``. The same graphs: the same numbers. Where
+    it is kinder to the old code than the old code was (the maps shared by a plan's
+    trajectories, the spans' Taylor coefficients computed as now) the *before* figures are
+    lower than the old code's.
+    """
+    import casadi as ca
+
+    import tocontrol_ros.core.direct.flat_trajectory as ft
+    import tocontrol_ros.core.direct.kkt_step as ks
+
+    saved = (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
+             ft.open_loop_sweep, ft.mapped_controls)
+    symbolic: dict = {}
+
+    def rows(self, w, p):
+        g, jac = self.functions[0](w, p)
+        return np.array(g).ravel(), np.array(jac.nonzeros())
+
+    def hessian(self, w, p, lam_g):
+        return np.array(self.functions[1](w, p, 1.0, lam_g).nonzeros())
+
+    def compile_open_loop(model, degree=3):
+        if (model, degree) not in symbolic:  # the expressions, as the integrator had them
+            sig, x, c, h, ode = ft.polynomial_segment_ode(model, degree)
+            symbolic[(model, degree)] = {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig,
+                                         "ode": ode}
+        return symbolic[(model, degree)], "cached (before: the virtual machine)"
+
+    def open_loop_sweep(model, integ, segments):
+        def one_by_one(*_):
+            raise RuntimeError("before: span by span")
+        return one_by_one
+
+    maps: dict = {}
+
+    def mapped_controls(model, fun, count):  # made once per call (before: per trajectory)
+        key = (id(fun), count)
+        if key not in maps:
+            maps[key] = fun.map(count)
+        return lambda *args: [np.array(maps[key](*args))]
+
+    (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
+     ft.open_loop_sweep, ft.mapped_controls) = (rows, hessian, compile_open_loop,
+                                                open_loop_sweep, mapped_controls)
+    try:
+        yield
+    finally:
+        (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
+         ft.open_loop_sweep, ft.mapped_controls) = saved
+
+
+def _before(fn):
+    """``fn()`` inside :func:`as_before`."""
+    with as_before():
+        return fn()
 
 
 def _med(v: list) -> float:
@@ -105,17 +176,20 @@ def run(count: int = CASES) -> Section:
                              "t_solve", "r_total", "q_total", "q_gap", "p_steps", "i_it",
                              "t_it", "r_it", "p_solve_ok", "p_total_ok", "i_solve_ok",
                              "i_total_ok", "a_solve", "a_gap", "s_total", "s_it",
-                             "s_ipopt_it", "b_solve", "b_steps", "b_gap", "p_holds")}
+                             "s_ipopt_it", "b_solve", "b_steps", "b_gap", "p_holds",
+                             "o_solve", "o_total", "o_solve_ok", "o_total_ok", "step",
+                             "set_check", "cert")}
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
-              "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0}
+              "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0,
+              "same": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
         serving = warm_replan(planner, problem, [base], ropts) if base.success else base
         if not serving.success or serving.warm_state is None:
             rows.append([str(i + 1), "plan failed" if not base.success else
-                         "serving solve failed"] + [""] * 13)
+                         "serving solve failed"] + [""] * 15)
             continue
         moved = None
         for _ in range(10):  # a direction whose moved target the arm reaches
@@ -128,11 +202,13 @@ def run(count: int = CASES) -> Section:
             except ProblemError:
                 continue
         if moved is None:
-            rows.append([str(i + 1), "no reachable move"] + [""] * 13)
+            rows.append([str(i + 1), "no reachable move"] + [""] * 15)
             continue
         counts["answered"] += 1
         par, tp, par_all = _timed(lambda: planner.plan(  # noqa: B023
             moved, ropts, warm_start=serving))  # noqa: B023
+        old, to, old_all = _timed(lambda: _before(lambda: planner.plan(  # noqa: B023
+            moved, ropts, warm_start=serving)))  # noqa: B023
         ipo, ti, ipo_all = _timed(lambda: planner.plan(  # noqa: B023
             moved, ropts_ipopt, warm_start=serving))  # noqa: B023
         ws = serving.warm_state
@@ -144,6 +220,8 @@ def run(count: int = CASES) -> Section:
         dual_flat = planner.flat(moved, ws.breaks, warm="dual")
         w0 = np.concatenate([ws.P.ravel(), [ws.T]])
         values = (moved.start.value, moved.target.value, moved.k)
+        (alone, _), t_step, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
+            dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD))  # noqa: B023
         (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
             dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD,  # noqa: B023
             hold=False))
@@ -195,11 +273,22 @@ def run(count: int = CASES) -> Section:
         gap = par.T / ipo.T - 1.0 if par.success and ipo.success else float("nan")
         gap_cold = par.T / cold.T - 1.0 if par.success and cold.success else float("nan")
         q_gap = quick.T / ipo.T - 1.0 if quick.success and ipo.success else float("nan")
+        o_solve = _med([r.timings["shooting"] for r in old_all])
+        same = bool(old.success == par.success and old.T == par.T and _route(old) == route)
+        counts["same"] += same
         if par.success:
             m["p_solve"].append(p_solve)
             m["p_total"].append(tp)
             m["p_cold"].append(gap_cold)
+        if old.success:
+            m["o_solve"].append(o_solve)
+            m["o_total"].append(to)
         if route == "parametric":
+            m["o_solve_ok"].append(o_solve)
+            m["o_total_ok"].append(to)
+            m["step"].append(t_step)
+            m["set_check"].append(p_solve - t_step)
+            m["cert"].append(_med([r.timings["verify"] for r in par_all]))
             m["p_steps"].append(par.iterations)
             m["p_gap"].append(gap)
             m["p_solve_ok"].append(p_solve)
@@ -224,6 +313,8 @@ def run(count: int = CASES) -> Section:
             str(i + 1), "moving" if np.any(qd0) else "rest",
             f"{route} ({par.iterations})" if par.success else "failed",
             f"{1e3 * p_solve:.1f} / {1e3 * tp:.1f}",
+            f"{1e3 * o_solve:.1f} / {1e3 * to:.1f}{'' if same else ' (differs)'}",
+            f"{1e3 * t_step:.1f}" if alone.success else "failed",
             f"{gap:.1e}" if route == "parametric" else "(ipopt's)", f"{gap_cold:.1e}",
             f"{1e3 * i_solve:.1f} / {1e3 * ti:.1f} ({ipo.iterations})" if ipo.success
             else "failed",
@@ -256,7 +347,13 @@ def run(count: int = CASES) -> Section:
         f"by side: *parametric*: `Planner.plan(moved, replan_options(...), "
         f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
         f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
-        f"failed); *ipopt*: the same with `warm_parametric=False` "
+        f"failed); *before*: the same call with the calls as they were before they were "
+        f"compiled and buffered (`as_before` in bench/warm_resolve.py: the step's "
+        f"derivatives through CasADi's DM, the certificate's CVODES on the virtual "
+        f"machine's right-hand side span by span, the inverse dynamics mapped with DM; "
+        f"'differs' where its route or T is not the parametric column's to the bit); "
+        f"*step alone*: `sensitivity_solve` by itself (no trajectory, no certificate); "
+        f"*ipopt*: the same with `warm_parametric=False` "
         f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
@@ -275,6 +372,7 @@ def run(count: int = CASES) -> Section:
         f"bench/warm_resolve.py`.",
         "",
         *table(["case", "start", "parametric route (steps)", "parametric ms solve / total",
+                "before ms solve / total", "step alone ms",
                 "gap (same NLP)", "gap (cold plan)", "ipopt ms solve / total (it)",
                 "tight ms (it)", "refit ms (it)", "quick ms", "quick gap",
                 "barrier alone ms (steps) gap", "active set ms (KKT solves) gap",
@@ -283,11 +381,17 @@ def run(count: int = CASES) -> Section:
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps), {counts['ipopt (fallback)']}/{n} fell back "
         f"to IPOPT, {counts['certified']}/{n} certified; solve median {ms('p_solve')}, "
-        f"total {ms('p_total')}; on the parametric route |T gap| to the same NLP's optimum "
+        f"total {ms('p_total')} (before: {ms('o_solve')} and {ms('o_total')}, the same route "
+        f"and T to the bit on {counts['same']}/{n}). Where the parametric step converged, "
+        f"its parts (medians): the step alone {ms('step')}, the rest of the solve (the "
+        f"between-samples check and what it asks for: the time stretch, or a pad round of "
+        f"further steps; the trajectory, the mesh's views) {ms('set_check')}, the "
+        f"certificate {ms('cert')}; solve / total "
+        f"{ms('p_solve_ok')} / {ms('p_total_ok')} against {ms('o_solve_ok')} / "
+        f"{ms('o_total_ok')} before. On the parametric route |T gap| to the same NLP's optimum "
         f"median {_med(gaps):.1e}, max {max(gaps, default=float('nan')):.1e}; every route's "
         f"T to the cold plan's median {_med(m['p_cold']):.1e} (the 24-span mesh). Where "
-        f"the parametric step converged: solve median {ms('p_solve_ok')}, total "
-        f"{ms('p_total_ok')}, ipopt on those cases {ms('i_solve_ok')} and "
+        f"the parametric step converged: ipopt on those cases {ms('i_solve_ok')} and "
         f"{ms('i_total_ok')}. IPOPT warm with multipliers: "
         f"{counts['ipopt_ok']}/{n}, median {_med(m['i_it']):.0f} iterations, solve "
         f"{ms('i_solve')}, total {ms('i_total')}. Tight IPOPT: {counts['tight_ok']}/{n}, "

@@ -221,6 +221,14 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
     assert np.max(np.abs(b.P - a.P)) <= 1e-7
     with pytest.raises(ValueError, match="spans"):
         uniform.on(np.linspace(0.0, 1.0, len(breaks) + 1))
+    # Views on breakpoints asked for before reuse their geometry (kept per transcription):
+    # the same parameters as the first view's and the built transcription's, others not.
+    par = built.parameters(*values)
+    again, other = uniform.on(breaks.copy()), uniform.on(np.linspace(0.0, 1.0, len(breaks)))
+    assert np.array_equal(again.parameters(*values), par)
+    assert np.array_equal(view.parameters(*values), par)
+    assert not np.array_equal(other.parameters(*values), par)
+    assert np.array_equal(uniform.on(breaks).parameters(*values), par)
 
 
 def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):
@@ -526,3 +534,27 @@ def test_leaving_candidates_behind_keeps_the_best_motion(panda, monkeypatch):
     # Narrow: only the best after the first level goes on (fewer solves), T still near.
     assert runs["narrow"][1] < runs["none"][1]
     assert runs["narrow"][0] == pytest.approx(runs["none"][0], rel=2e-3)
+
+
+def test_mapped_controls_are_kept_for_the_most_recent_counts(panda):
+    """The buffered maps of the inverse dynamics (one per number of times) are reused for
+    a count asked for again, equal the map called with DM, and only the MAPPED_KEEP most
+    recently used are kept (sampled motions have any length: no growth without bound)."""
+    import casadi as ca
+
+    from tocontrol_ros.core.direct import flat_trajectory as ft
+
+    q, qd, qdd, sc = (ca.SX.sym(name, 2) for name in ("q", "qd", "qdd", "scale"))
+    fun = ca.Function("toy_id", [q, qd, qdd, sc], [(ca.sin(q) * qd + qdd) / sc])
+    rng = np.random.default_rng(3)
+    args = [rng.normal(size=(2, 5)) for _ in range(3)] + [np.array([2.0, 4.0])]
+    first = ft.mapped_controls(panda, fun, 5)
+    np.testing.assert_array_equal(first(*args)[0], np.array(fun.map(5)(*args)))
+    assert ft.mapped_controls(panda, fun, 5) is first
+    for count in range(6, 6 + ft.MAPPED_KEEP):
+        ft.mapped_controls(panda, fun, count)
+    again = ft.mapped_controls(panda, fun, 5)
+    assert again is not first  # evicted, made again: the same values
+    np.testing.assert_array_equal(again(*args)[0], first(*args)[0])
+    assert ft.mapped_controls(panda, fun, 6 + ft.MAPPED_KEEP - 1) is \
+        ft.mapped_controls(panda, fun, 6 + ft.MAPPED_KEEP - 1)

@@ -260,3 +260,105 @@ def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
     ref = np.linalg.solve(dense, rhs)
     assert np.max(np.abs(x - ref)) <= 1e-8 * max(1.0, np.max(np.abs(ref)))
     assert np.max(np.abs(dense @ x - rhs)) <= 1e-8 * max(1.0, np.max(np.abs(rhs)))
+
+
+def _called_as_functions(monkeypatch) -> None:
+    """The step's derivatives called as the transcription's CasADi functions (DM in and
+    out, the sparse results' nonzeros copied out): the route before KKTDerivatives."""
+    from tocontrol_ros.core.direct import kkt_step
+
+    def rows(self, w, p):
+        g, jac = self.functions[0](w, p)
+        return np.array(g).ravel(), np.array(jac.nonzeros())
+
+    def hessian(self, w, p, lam_g):
+        return np.array(self.functions[1](w, p, 1.0, lam_g).nonzeros())
+
+    monkeypatch.setattr(kkt_step.KKTDerivatives, "rows", rows)
+    monkeypatch.setattr(kkt_step.KKTDerivatives, "hessian", hessian)
+
+
+def test_the_buffered_derivatives_and_steps_equal_the_functions_calls(panda_case,
+                                                                       monkeypatch):
+    """The rows, Jacobian and Hessian through NumPy buffers (KKTDerivatives) are the
+    transcription's own functions' values; the parametric solve through them takes the
+    same steps to the same answer (T, control points, multipliers to 1e-9) as through the
+    functions called with DM conversions (the route before)."""
+    from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    par = flat.parameters(moved.start.value, moved.target.value, moved.k)
+    w = np.concatenate([ws.P.ravel(), [ws.T]])
+    der = kkt_derivatives(flat)
+    assert kkt_derivatives(flat) is der  # built once per transcription
+    jac_fun, hess_fun = flat.kkt_functions
+    g_ref, jac_ref = jac_fun(w, par)
+    g, jv = der.rows(w, par)
+    np.testing.assert_allclose(g, np.array(g_ref).ravel(), rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(jv, np.array(jac_ref.nonzeros()), rtol=0.0, atol=1e-12)
+    hv = der.hessian(w, par, ws.lam_g)
+    np.testing.assert_allclose(hv, np.array(hess_fun(w, par, 1.0, ws.lam_g).nonzeros()),
+                               rtol=0.0, atol=1e-9 * np.max(np.abs(hv)))
+    args = (flat, w, ws.lam_g, ws.lam_x, moved.start.value, moved.target.value, moved.k,
+            *state_bounds(moved, PAD), SET_PAD)
+    new, out_new = sensitivity.sensitivity_solve(*args)
+    with monkeypatch.context() as m:
+        _called_as_functions(m)
+        old, out_old = sensitivity.sensitivity_solve(*args)
+    assert new.success and old.success, (new.message, old.message)
+    assert (out_new.steps, out_new.solves, out_new.hessians, out_new.holds) == \
+        (out_old.steps, out_old.solves, out_old.hessians, out_old.holds)
+    assert abs(new.T - old.T) <= 1e-9 * old.T
+    np.testing.assert_allclose(new.P, old.P, rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(new.lam_g, old.lam_g, rtol=0.0,
+                               atol=1e-9 * max(1.0, np.max(np.abs(old.lam_g))))
+
+
+def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, monkeypatch):
+    """The bounded motion's re-integration in one call on the compiled right-hand side
+    equals CVODES span by span on the symbolic one (the route before) to 1e-12, and the
+    between-samples check through the buffered map equals the map called with DM; the
+    plan through both routes has the same T, certificate and set values."""
+    import casadi as ca
+
+    import tocontrol_ros.core.direct.flat_trajectory as ft
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    assert par.success and _route(par) == "parametric", par.warnings
+    traj = par.trajectory
+    assert isinstance(traj, ft.FlatTrajectory)
+    t, x, ok = traj.open_loop(1e-8, 1e-10)
+    u = traj.set_values()
+    symbolic: dict = {}
+
+    def compile_open_loop(model, degree=3):
+        if not symbolic:
+            sig, xs, c, h, ode = ft.polynomial_segment_ode(model, degree)
+            symbolic["dae"] = {"x": xs, "p": ca.vertcat(ca.vec(c), h), "t": sig, "ode": ode}
+        return symbolic["dae"], "cached (the test's symbolic)"
+
+    def span_by_span(model, integ, segments):
+        def fail(*_):
+            raise RuntimeError("span by span")
+        return fail
+
+    with monkeypatch.context() as m:
+        m.setattr(ft, "compile_open_loop", compile_open_loop)
+        m.setattr(ft, "open_loop_sweep", span_by_span)
+        m.setattr(ft, "mapped_controls",
+                  lambda model, fun, count: lambda *a: [np.array(fun.map(count)(*a))])
+        t_old, x_old, ok_old = traj.open_loop(1e-8, 1e-10)
+        u_old = traj.set_values()
+        before = planner.plan(moved, SERVE, warm_start=serving)
+    assert ok and ok_old
+    np.testing.assert_array_equal(t, t_old)
+    np.testing.assert_allclose(x, x_old, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(u, u_old, rtol=0.0, atol=1e-12)
+    assert before.success and before.certificate.passed
+    assert abs(before.T - par.T) <= 1e-12 * par.T
+    assert before.certificate.passed == par.certificate.passed

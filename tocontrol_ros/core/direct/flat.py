@@ -119,6 +119,10 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
                     [model.rnea_sym(qs, qds, qdds) / scale])]
 
 
+#: Geometries (the breakpoints' basis values) kept per transcription and its views.
+GEOMETRIES = 16
+
+
 def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function], str]:
     """The per-sample functions compiled, once per model and degree (see ``compile_owned``).
 
@@ -286,6 +290,9 @@ class FlatTranscription:
         # the breakpoints.
         self._span = np.minimum(np.arange(S) // per_span, L - 1)
         self._geo = self._geometry(br)
+        # Breakpoints (their bytes) -> their geometry, shared by the views (on): a replan
+        # on the serving mesh asks for the same uniform breakpoints every time.
+        self._geo_cache: dict = {br.tobytes(): self._geo}
         nw = K * n + 1
         iT = nw - 1
         d = (p + 1) * n + 1
@@ -704,7 +711,14 @@ class FlatTranscription:
                              f"{self.spans}")
         other = copy.copy(self)
         other.breaks = breaks
-        other._geo = other._geometry(breaks)
+        key = breaks.tobytes()
+        geo = self._geo_cache.get(key)
+        if geo is None:
+            geo = other._geometry(breaks)
+            if len(self._geo_cache) >= GEOMETRIES:
+                self._geo_cache.clear()
+            self._geo_cache[key] = geo
+        other._geo = geo
         return other
 
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:

@@ -30,6 +30,7 @@ from numpy.polynomial import polynomial as poly
 from tocontrol_ros.core.direct.flat_trajectory import (
     OPEN_LOOP_POINTS,
     integrate_segments,
+    open_loop_sweep,
     polynomial_segment_ode,
 )
 from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
@@ -184,31 +185,6 @@ def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: floa
                           {"reltol": rtol, "abstol": atol, "max_num_steps": 100000, **method})
     table[key] = (rhs, integ)
     return integ
-
-
-#: model -> {(integrator id, segments): (integrator, its sweep over the segments)}.
-_SWEEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.Function:
-    """``integ`` over ``segments`` segments in a row, in one call (``mapaccum``).
-
-    ``(x0 (2n,), P (params, segments)) -> (x at each segment's end (2n, segments), x at
-    every output (2n, segments OPEN_LOOP_POINTS))``: each segment starts where the last
-    ended, as :func:`~tocontrol_ros.core.direct.flat_trajectory.integrate_segments` does
-    from Python; the same CVODES calls, one Python call instead of one per segment (on the
-    Panda's 30 segments 13 ms -> 7.6 ms on a loaded machine, the states equal to the bit).
-    Kept per model and integrator.
-    """
-    table = _SWEEPS.setdefault(model, {})
-    key = (id(integ), segments)
-    if key not in table or table[key][0] is not integ:
-        x = ca.MX.sym("x", integ.size1_in(0))
-        p = ca.MX.sym("p", integ.size1_in(2))
-        out = integ(x0=x, p=p)["xf"]
-        step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
-        table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
-    return table[key][1]
 
 
 class PolynomialPath:

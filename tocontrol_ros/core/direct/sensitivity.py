@@ -45,10 +45,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 from scipy.linalg import lapack
 
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
 __all__ = ["MAX_STEPS", "MU", "BandedKKT", "SensitivityOutcome", "banded_kkt",
            "sensitivity_solve"]
@@ -207,9 +209,9 @@ def banded_kkt(flat: FlatTranscription, jac, hess) -> BandedKKT:
     Parameters
     ----------
     flat : FlatTranscription
-    jac, hess : casadi.DM
+    jac, hess : casadi.DM or casadi.Sparsity
         The rows' Jacobian and the Lagrangian's Hessian as ``flat.kkt_functions`` return
-        them (only their sparsity is read).
+        them, or their sparsities (only the sparsity is read).
     """
     nw, ng = hess.size1(), jac.size1()
     key = ("kkt", nw, ng)
@@ -221,7 +223,8 @@ def banded_kkt(flat: FlatTranscription, jac, hess) -> BandedKKT:
 
 
 def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
-    r, c = fn_out.sparsity().get_triplet()
+    sp = fn_out if isinstance(fn_out, ca.Sparsity) else fn_out.sparsity()
+    r, c = sp.get_triplet()
     return np.asarray(r, dtype=int), np.asarray(c, dtype=int)
 
 
@@ -233,7 +236,7 @@ def _split(lam: np.ndarray, room: np.ndarray, has: np.ndarray
     return np.where(has, lam, 0.0), np.where(has, room, 1.0)
 
 
-def _boundary_step(x, dx, room) -> float:
+def _boundary_step(dx, room) -> float:
     """Largest ``a`` in (0, 1] with ``room + a dx >= (1 - TAU) room`` where ``dx < 0``."""
     neg = dx < 0.0
     if not np.any(neg):
@@ -277,7 +280,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     SensitivityOutcome
     """
     t0 = time.perf_counter()
-    jac_fun, hess_fun = flat.kkt_functions
+    der = kkt_derivatives(flat)
     par = flat.parameters(start_value, target_value, k)
     lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad, (start_value, target_value))
     nw, ng = len(w0), len(lbg)
@@ -287,10 +290,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     has_lx, has_ux = lbx > -INF, ubx < INF
     grad_f = np.zeros(nw)
     grad_f[-1] = 1.0
-    g, jac = jac_fun(w, par)
-    g = np.array(g).ravel()
-    hess = hess_fun(w, par, 1.0, np.asarray(lam_g0, dtype=float))
-    banded = banded_kkt(flat, jac, hess)
+    g, jv = der.rows(w, par)
+    hv = der.hessian(w, par, np.asarray(lam_g0, dtype=float))
+    banded = banded_kkt(flat, der.jac_sparsity, der.hess_sparsity)
     # The barrier's variables from IPOPT's point: the bounds' multipliers split by sign,
     # slacks (the rows' values) inside their bounds with a product of at least MU (IPOPT
     # returns points on its relaxed bounds: a slack of 1e-14 would make the multiplier
@@ -311,11 +313,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     room_ug = np.where(has_ug, ubg - s, 1.0)
     room_lx = np.where(has_lx, w - lbx, 1.0)
     room_ux = np.where(has_ux, ubx - w, 1.0)
-    g, jac = jac_fun(w, par)
-    g = np.array(g).ravel()
+    g, jv = der.rows(w, par)
     active0 = (np.minimum(room_lg, room_ug) < 1e-6)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {MAX_STEPS} steps"
-    hv = np.array(hess.nonzeros())
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
@@ -327,7 +327,6 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             heq = eq | held
             hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
             b_held = np.where(side > 0, ubg, lbg)
-            jv = np.array(jac.nonzeros())
             r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
                 + vu - vl
             r_s = np.where(hin, -y - zl + zu, 0.0)
@@ -369,23 +368,23 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 continue
             if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
                     and hessians <= REFRESHES:
-                hv = np.array(hess_fun(w, par, 1.0, y).nonzeros())
+                hv = der.hessian(w, par, y)
                 hessians += 1
             last = err
             sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
             sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
             d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
             diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
-            fact = banded.factor(hv, diag, jv)
-            solves += 1
-            if fact is None:
-                reason = "KKT matrix singular"
-                break
             rt_s = r_s + np.where(hlg, r_zl / room_lg, 0.0) \
                 - np.where(hug, r_zu / room_ug, 0.0)
             rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
                 + np.where(has_ux, r_vu / room_ux, 0.0)
             rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
+            fact = banded.factor(hv, diag, jv)
+            solves += 1
+            if fact is None:
+                reason = "KKT matrix singular"
+                break
             sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
             if not np.all(np.isfinite(sol)):
                 reason = "KKT step not finite"
@@ -396,10 +395,12 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
             dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
             dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
-            a_p = min(_boundary_step(s, np.where(hlg, ds, 0.0), room_lg),
-                      _boundary_step(s, np.where(hug, -ds, 0.0), room_ug),
-                      _boundary_step(w, np.where(has_lx, dw, 0.0), room_lx),
-                      _boundary_step(w, np.where(has_ux, -dw, 0.0), room_ux))
+            # The four kinds of bounds in one pass (the same minimum as four).
+            a_p = _boundary_step(np.concatenate([np.where(hlg, ds, 0.0),
+                                                       np.where(hug, -ds, 0.0),
+                                                       np.where(has_lx, dw, 0.0),
+                                                       np.where(has_ux, -dw, 0.0)]),
+                                 np.concatenate([room_lg, room_ug, room_lx, room_ux]))
             retry = False
             if hold and a_p < HOLD_BELOW:
                 # Rows the whole step would carry across their bounds: held there, the step
@@ -417,8 +418,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                     holds += int(np.sum(cross_u | cross_l))
                     retry = True
                     continue
-            a_d = min(_boundary_step(zl, dzl, zl + ~hlg), _boundary_step(zu, dzu, zu + ~hug),
-                      _boundary_step(vl, dvl, vl + ~has_lx), _boundary_step(vu, dvu, vu + ~has_ux))
+            a_d = _boundary_step(np.concatenate([dzl, dzu, dvl, dvu]),
+                                 np.concatenate([zl + ~hlg, zu + ~hug, vl + ~has_lx,
+                                                 vu + ~has_ux]))
             full = a_p == 1.0
             blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
             w = w + a_p * dw
@@ -430,8 +432,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             room_lx = np.where(has_lx, w - lbx, 1.0)
             room_ux = np.where(has_ux, ubx - w, 1.0)
             steps += 1
-            g, jac = jac_fun(w, par)
-            g = np.array(g).ravel()
+            g, jv = der.rows(w, par)
     active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
     outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason,
                                  holds, released, solves)

@@ -21,6 +21,7 @@ from tocontrol_ros.core.direct.collocation import (
     compile_direct,
 )
 from tocontrol_ros.core.direct.flat import FlatTranscription, compile_flat
+from tocontrol_ros.core.direct.flat_trajectory import compile_open_loop
 from tocontrol_ros.core.direct.time_scaling import compile_sweeps
 from tocontrol_ros.core.direct.tuning import SPANS
 from tocontrol_ros.core.indirect.pmp import CanonicalSystem
@@ -74,8 +75,11 @@ class PreparedModel:
         and compiled on every core at once
         (:func:`~tocontrol_ros.core.robot.compiled.parallel_builds`), then loaded. Without
         ``shooting`` the bounded transcription is only started: its library builds while
-        the guesses are solved, and the first bounded solve waits for it. (The
-        certificate's functions are built on their first use.)
+        the guesses are solved, and the first bounded solve waits for it. The bounded
+        motion's re-integration (its certificate's right-hand side,
+        :func:`~tocontrol_ros.core.direct.flat_trajectory.compile_open_loop`) is built
+        beside the bounded transcription; the other certificate functions on their first
+        use.
         """
         options = options or SolverOptions()
         key = ("guess", problem.start.kind, problem.target.kind, options.guess_intervals,
@@ -87,6 +91,7 @@ class PreparedModel:
                     compile_direct(model, options.guess_intervals, *kinds)
                     if problem.limits.active:
                         compile_flat(model)
+                        compile_open_loop(model)  # the certificate's re-integration
                     compile_sweeps(problem)  # the first motion's and quick replans' TOPP-RA
             self.direct(problem, options.guess_intervals, tol=options.guess_tol)
             self._prepared.add(key)
