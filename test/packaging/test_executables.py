@@ -8,6 +8,7 @@ import ast
 import os
 import shutil
 import subprocess
+import sys
 
 import pytest
 
@@ -89,3 +90,37 @@ def test_wrapper_picks_interpreter(repo, tmp_path, route):
     ).stdout.strip()
     expected = "prefix-python" if route == "pip" else "path-python"
     assert out == f"{expected} -m tocontrol_ros.demo --urdf a b.urdf"
+
+
+#: The node executables: one BLAS thread unless the user set it, before numpy loads.
+SINGLE_BLAS = ("planner", "tracker", "recorder", "replay")
+WATCH_BLAS = """
+import importlib.abc, os, sys
+seen = {}
+class Watch(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name in ("numpy", "casadi") and name not in seen:
+            seen[name] = os.environ.get("OPENBLAS_NUM_THREADS")
+sys.meta_path.insert(0, Watch())
+import tocontrol_ros.%s
+print(seen.get("numpy"), seen.get("casadi"))
+"""
+
+
+@pytest.mark.parametrize("module", SINGLE_BLAS)
+@pytest.mark.parametrize("user", [None, "3"], ids=["unset", "user_set"])
+def test_node_executables_load_blas_single_threaded(module, user):
+    """A node's BLAS loads with one thread, unless the user set ``OPENBLAS_NUM_THREADS``.
+
+    Under load the solves' small banded factorisations were 12 times slower with the two
+    threads OpenBLAS takes by default on two cores (docs/speed.md). What numpy and CasADi
+    see is recorded at the moment they are first imported, in a fresh interpreter.
+    """
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if user is not None:
+        env["OPENBLAS_NUM_THREADS"] = user
+    out = subprocess.run([sys.executable, "-P", "-c", WATCH_BLAS % module], env=env,
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    seen_numpy, seen_casadi = out.split()[-2:]
+    assert seen_numpy == (user or "1"), out
+    assert seen_casadi in (user or "1", "None"), out  # the recorder and replay need no CasADi
