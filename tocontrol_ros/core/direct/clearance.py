@@ -40,9 +40,10 @@ The arm's own pairs (:attr:`~tocontrol_ros.core.geometry.collision.CollisionMode
 self_pairs`) are rows only for the model's ``row_pairs`` (all of them would be 285 sphere
 pairs a sample on the Panda): one row per pair of bodies, the smooth minimum of
 
-    |c_a - c_b| - r_a - r_b - margin - h sum_j (rho_aj + rho_bj) max_k |Q'_jk| >= 0
+    |c_a - c_b| - r_a - r_b - margin - h sum_{j > a} rho_bj max_k |Q'_jk| >= 0
 
-over their sphere pairs (both centres move, the bound adds both lever arms). The planner
+over their sphere pairs (``a`` the earlier body: the joints up to it move both centres
+alike, the later ones move ``c_b`` relative to body ``a`` with its lever arms). The planner
 adds the pairs a motion refused by the certificate brought within
 ``SELF_ROW_BAND`` of the margin and plans again (``core/planning/solver.py``); the
 certificate checks every self pair.
@@ -98,7 +99,7 @@ ROWS_VERSION = 3
 #: A self pair that a motion refused by the certificate brings closer than the margin
 #: plus this (m, Coal's exact distance) becomes rows of the next solve
 #: (``core/planning/solver.py``).
-SELF_ROW_BAND = 0.02
+SELF_ROW_BAND = 0.005
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,10 @@ class ClearanceRows:
         The two bodies of each self sphere pair (-1: the base).
     pair_center : ndarray, shape (Q, 2, 3)
     pair_radius : ndarray, shape (Q, 2)
-    pair_lever : ndarray, shape (Q, 2, n)
+    pair_lever : ndarray, shape (Q, n)
+        How fast the distance of each sphere pair changes per joint (m/rad): the lever
+        arms of the later body's centre for the joints after the earlier body (the joints
+        before move both centres alike).
     pair_names : tuple of (str, str), length Q
         (link, link) of each sphere pair.
     """
@@ -137,7 +141,7 @@ class ClearanceRows:
     pair_body: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), int))
     pair_center: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
     pair_radius: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    pair_lever: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 0)))
+    pair_lever: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     pair_names: tuple = ()
 
     def digest(self) -> str:
@@ -208,12 +212,14 @@ def _self_rows(collision: CollisionModel) -> dict:
             sa, sb = sb, sa
         for ca_, ra in zip(sa.centers, sa.radii, strict=True):
             for cb, rb in zip(sb.centers, sb.radii, strict=True):
-                rows.append(((sa.body, sb.body), (ca_, cb), (ra, rb),
-                             (collision.lever_arms(sa.body, float(np.linalg.norm(ca_))),
-                              collision.lever_arms(sb.body, float(np.linalg.norm(cb)))),
+                # joints up to sa's body move both centres alike: only those after it
+                # change the distance, moving sb's centre relative to sa's body
+                lever = collision.lever_arms(sb.body, float(np.linalg.norm(cb)))
+                lever[:sa.body + 1] = 0.0
+                rows.append(((sa.body, sb.body), (ca_, cb), (ra, rb), lever,
                              (sa.link, sb.link)))
     if not rows:
-        return {"pair_lever": np.zeros((0, 2, n))}
+        return {"pair_lever": np.zeros((0, n))}
     body, center, radius, lever, names = zip(*rows, strict=True)
     return {"pair_body": np.array(body, int), "pair_center": np.array(center),
             "pair_radius": np.array(radius), "pair_lever": np.array(lever),
@@ -306,7 +312,7 @@ def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
                 ends.append(pos + ca.mtimes(rot, centre))
         dist = ca.sqrt(ca.sumsqr(ends[0] - ends[1]) + SDF_EPS ** 2)
         g.append(dist - float(rows.pair_radius[i].sum()) - rows.margin
-                 - geo[0] * ca.dot(ca.DM(rows.pair_lever[i].sum(axis=0)), speed))
+                 - geo[0] * ca.dot(ca.DM(rows.pair_lever[i]), speed))
     g = _grouped(ca.vertcat(*g), rows)
     hess = ca.hessian(ca.dot(lam, g), z)[0]
     dz = z.numel()

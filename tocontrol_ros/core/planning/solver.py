@@ -61,6 +61,8 @@ import tocontrol_ros.core.indirect.method  # noqa: F401
 from tocontrol_ros.core.checks.verification import verify
 from tocontrol_ros.core.direct.clearance import SELF_ROW_BAND
 from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
+from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
+from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.geometry.scene import Scene
 from tocontrol_ros.core.methods.context import SolveContext, StopError
 from tocontrol_ros.core.methods.contract import method_named, method_owning
@@ -233,19 +235,23 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
     """The cold solve; with a collision model, again with self rows while the certificate asks.
 
     The arm's own pairs are rows of the bounded solve only for
-    ``problem.collision.row_pairs``. A motion refused by its certificate whose self pairs
-    come within :data:`~tocontrol_ros.core.direct.clearance.SELF_ROW_BAND` of the margin
-    (Coal's exact distances at 401 times) is solved again (cold) with those pairs as rows
-    as well, at most :data:`SELF_ROW_ROUNDS` times; a round that adds no pair stops. The
-    result carries the caller's problem; its message names the pairs added.
+    ``problem.collision.row_pairs``. A bounded-solve motion refused by its certificate whose
+    self pairs come within :data:`~tocontrol_ros.core.direct.clearance.SELF_ROW_BAND` of the
+    margin (Coal's exact distances at 401 times) is solved again with those pairs as rows
+    as well, warm from the refused motion (its mesh and path), at most
+    :data:`SELF_ROW_ROUNDS` times; a round that adds no pair, or whose solve fails, stops.
+    The result carries the caller's problem; its message names the pairs added, and a
+    failed round keeps the refused result (its status and message, and why the round
+    failed).
     """
     out = solve_once(planner, problem, options, None, should_stop, deadline)
-    col, added = problem.collision, []
+    col, added, note = problem.collision, [], ""
     for _ in range(SELF_ROW_ROUNDS):
-        if col is None or out.status is not Status.VERIFICATION_FAILED \
-                or out.trajectory is None or not col.self_pairs:
+        traj = out.trajectory
+        if col is None or out.status is not Status.VERIFICATION_FAILED or \
+                not isinstance(traj, FlatTrajectory) or not col.self_pairs:
             break
-        q = out.trajectory.evaluate(np.linspace(0.0, out.T, 401)).q
+        q = traj.evaluate(np.linspace(0.0, out.T, 401)).q
         near = replace(col, scene=Scene()).clearance(q).pair_distances  # self pairs only
         new = [p for p in col.self_pairs if p not in col.row_pairs and p in near
                and float(np.min(near[p])) < col.margin + SELF_ROW_BAND]
@@ -253,11 +259,20 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
             break
         col = col.with_row_pairs(new)
         added += new
-        out = solve_once(planner, replace(problem, collision=col), options, None,
-                         should_stop, deadline)
+        warm = replace(out, warm_state=PathWarmState(np.array(traj.breaks),
+                                                     np.array(traj.result.P), traj.T,
+                                                     None, None))
+        again = solve_once(planner, replace(problem, collision=col), options, warm,
+                           should_stop, deadline)
+        if again.status in (Status.SUCCESS, Status.VERIFICATION_FAILED):
+            out = again
+        else:
+            note = f"; with them as rows, warm from it: {again.message}"
+            break
     if not added:
         return out
-    note = f"self pairs as rows after a refused motion: {['/'.join(p) for p in added]}"
+    note = f"self pairs made rows after a refused motion: " \
+        f"{['/'.join(p) for p in added]}{note}"
     return replace(out, problem=problem if out.problem is not None else None,
                    message=f"{out.message} ({note})", warnings=out.warnings + (note,))
 
