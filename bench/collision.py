@@ -219,6 +219,11 @@ def run(count: int = CASES) -> Section:
                 st["ours"].append(ours_time)
             log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
                 f"{clear:.4f} ({ours_time:.1f} s)")
+            if not res.success:  # what refused it: the message, the certificate's pair
+                fig = res.certificate.figures if res.certificate is not None else {}
+                log(f"collision: case {i} {name}: {res.message}; closest "
+                    f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
+                    f"{fig.get('closest_time')} s")
             peer = _peer(problem, col)
             if peer["ok"]:
                 st["peer"] += 1

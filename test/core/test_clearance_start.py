@@ -82,6 +82,38 @@ def test_speed_term_bounds_how_fast_each_sphere_moves(panda):
     assert worst > 0.2  # the bound is not vacuous: some sphere comes within 5x of it
 
 
+def test_the_ends_allowance_fades_away_from_the_start(panda):
+    """A start whose spheres are 0.3 cm from a ball: room at the start, none past END_SPAN.
+
+    The row group (hand, ball) is lowered by its shortfall below ``margin + END_ROOM`` at
+    ``s = 0``, by ``shortfall (1 - (s / END_SPAN)^2)`` after, and not at all from
+    ``END_SPAN`` of the motion on (before session 30 the room held on the whole motion);
+    the other groups keep the full margin everywhere.
+    """
+    from tocontrol_ros.core.direct.clearance import END_ROOM, END_SPAN
+    from tocontrol_ros.core.direct.tuning import SPANS
+    from tocontrol_ros.core.planning.solver import Planner
+
+    model, col = panda
+    scene_col = col.with_scene(_ball([0.396, -0.154, 0.662]))
+    problem = Problem(model, joint_state(Q0), point(TARGET),
+                      limits=JointLimits.from_model(model), collision=scene_col)
+    flat = Planner(model).flat(problem, SPANS)
+    allow = flat.clearance_allowance(problem.start.value, problem.target.value)
+    s = flat.samples
+    assert allow.shape == (len(s), len(flat.clearance.groups()))
+    spheres = _sphere_clearance(model, col, Q0, np.array([0.396, -0.154, 0.662]), 0.04)
+    first = allow[0]
+    assert np.count_nonzero(first) >= 1
+    # the closest group's room at the start: at least its spheres' shortfall
+    assert first.max() >= col.margin + END_ROOM - spheres - 1e-9, (first.max(), spheres)
+    assert np.all(allow[s >= END_SPAN] == 0.0)
+    inside = (s > 0) & (s < END_SPAN)
+    expected = first[None, :] * (1.0 - (s[inside] / END_SPAN) ** 2)[:, None]
+    assert np.allclose(allow[inside], expected)
+    assert np.all(np.diff(allow.max(axis=1)) <= 0.0)  # never more room further on
+
+
 @pytest.mark.parametrize("where, tight", [
     # 2 cm from the left finger by Coal, its spheres 1.2 cm: above the margin, below the
     # margin plus the former speed term (the NLP was infeasible at its first sample)
@@ -110,3 +142,11 @@ def test_a_start_2cm_from_an_obstacle_plans_and_is_clear(panda, where, tight):
     sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
     exact = scene_col.clearance(sample.q)
     assert exact.minimum >= col.margin, (exact.minimum, exact.pair)
+    if not tight:  # the allowance fades: past END_SPAN of the motion the spheres keep it all
+        from tocontrol_ros.core.direct.clearance import END_SPAN
+
+        late = sample.t >= END_SPAN * res.T
+        spheres = min(_sphere_clearance(model, col, q, np.array(where), 0.04)
+                      for q in sample.q[late][::4])
+        # the rows hold at and between the samples (IPOPT's tolerance: 1e-6 m)
+        assert spheres >= col.margin - 1e-6, spheres

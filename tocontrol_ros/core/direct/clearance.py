@@ -36,14 +36,23 @@ Before issue 51's session 29 the term was ``v T ds / 2`` with ``v`` the link's s
 under the joint velocity limits (9.8 m/s for the Panda's hand: 2.9 cm at every sample, the
 start's included): a start 1-3.9 cm from an obstacle made the NLP infeasible.
 
-The arm's own pairs are not rows (hundreds of sphere pairs per sample on the Panda): the
-certificate checks them, and a motion whose links come closer than the margin fails it.
+The arm's own pairs (:attr:`~tocontrol_ros.core.geometry.collision.CollisionModel.
+self_pairs`) are rows only for the model's ``row_pairs`` (all of them would be 285 sphere
+pairs a sample on the Panda): one row per pair of bodies, the smooth minimum of
+
+    |c_a - c_b| - r_a - r_b - margin - h sum_{j > a} rho_bj max_k |Q'_jk| >= 0
+
+over their sphere pairs (``a`` the earlier body: the joints up to it move both centres
+alike, the later ones move ``c_b`` relative to body ``a`` with its lever arms). The planner
+adds the pairs a motion refused by the certificate brought within
+``SELF_ROW_BAND`` of the margin and plans again (``core/planning/solver.py``); the
+certificate checks every self pair.
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -75,12 +84,22 @@ SPEED_EPS = 0.05
 #: allowance (``FlatTranscription.clearance_allowance``) lowers the row.
 END_ROOM = 0.005
 
+#: The share of the motion (in ``s``) over which an end's allowance fades to none: the
+#: allowance is ``shortfall (1 - (s / END_SPAN)^2)`` near the start (``1 - s`` for a
+#: joint-state target's), zero beyond (``FlatTranscription.clearance_allowance``).
+END_SPAN = 0.25
+
 #: The power of the smooth maximum of ``|Q'_jk|`` (an even integer): ``(sum x^p)^(1/p)``
 #: is at most ``degree^(1/p)`` times the maximum; 4 made IPOPT's steps fail (see above).
 SPEED_NORM = 2
 
 #: The version of the rows' formula (part of the compiled library's name).
-ROWS_VERSION = 2
+ROWS_VERSION = 3
+
+#: A self pair that a motion refused by the certificate brings closer than the margin
+#: plus this (m, Coal's exact distance) becomes rows of the next solve
+#: (``core/planning/solver.py``).
+SELF_ROW_BAND = 0.005
 
 
 @dataclass(frozen=True)
@@ -100,6 +119,16 @@ class ClearanceRows:
     margin : float
     names : tuple of (str, str), length R
         (link, obstacle) of each row.
+    pair_body : ndarray of int, shape (Q, 2)
+        The two bodies of each self sphere pair (-1: the base).
+    pair_center : ndarray, shape (Q, 2, 3)
+    pair_radius : ndarray, shape (Q, 2)
+    pair_lever : ndarray, shape (Q, n)
+        How fast the distance of each sphere pair changes per joint (m/rad): the lever
+        arms of the later body's centre for the joints after the earlier body (the joints
+        before move both centres alike).
+    pair_names : tuple of (str, str), length Q
+        (link, link) of each sphere pair.
     """
 
     body: np.ndarray
@@ -109,12 +138,18 @@ class ClearanceRows:
     obstacle: tuple
     margin: float
     names: tuple
+    pair_body: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), int))
+    pair_center: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
+    pair_radius: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    pair_lever: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    pair_names: tuple = ()
 
     def digest(self) -> str:
         """A short hash of everything the rows compute (names a compiled library)."""
         h = hashlib.sha1(f"rows{ROWS_VERSION} {SOFTMIN_SHARPNESS!r} {SPEED_EPS!r} "
                          f"{SPEED_NORM}".encode())
-        for arr in (self.body, self.center, self.radius, self.lever):
+        for arr in (self.body, self.center, self.radius, self.lever, self.pair_body,
+                    self.pair_center, self.pair_radius, self.pair_lever):
             h.update(np.ascontiguousarray(arr, dtype=float).tobytes())
         for kind, size, rot, pos in self.obstacle:
             h.update(kind.encode())
@@ -124,24 +159,26 @@ class ClearanceRows:
 
     @property
     def count(self) -> int:
-        """Spheres against obstacles (the rows are :meth:`groups`)."""
-        return len(self.radius)
+        """Spheres against obstacles and self sphere pairs (the rows are :meth:`groups`)."""
+        return len(self.radius) + len(self.pair_radius)
 
     def groups(self) -> list[np.ndarray]:
         """The NLP's rows: the sphere pairs of one body and one obstacle, each an index array.
 
-        In order of first appearance.
+        In order of first appearance; then the self sphere pairs of two bodies (indices
+        after the obstacles' ``R``).
         """
         keys = [(int(b), n[1]) for b, n in zip(self.body, self.names, strict=True)]
+        keys += [("self", int(a), int(b)) for a, b in self.pair_body]
         order = list(dict.fromkeys(keys))
         return [np.flatnonzero([k == key for k in keys]) for key in order]
 
 
 def clearance_rows(collision: CollisionModel) -> ClearanceRows:
-    """The rows of ``collision``'s scene.
+    """The rows of ``collision``'s scene and of its ``row_pairs``.
 
-    Links on the base (body -1) do not move: their pairs are constant and left to the
-    certificate (a start in collision is refused before).
+    Links on the base (body -1) do not move: their obstacle pairs are constant and left to
+    the certificate (a start in collision is refused before).
     """
     n = collision.model.n
     obstacles = {o.name: o for o in collision.scene.obstacles}
@@ -155,12 +192,38 @@ def clearance_rows(collision: CollisionModel) -> ClearanceRows:
             lever = collision.lever_arms(spheres.body, float(np.linalg.norm(c)))
             rows.append((spheres.body, c, r, lever,
                          (ob.kind, tuple(ob.size), ob.rotation, ob.translation), (link, name)))
+    pairs = _self_rows(collision)
     if not rows:
         return ClearanceRows(np.zeros(0, int), np.zeros((0, 3)), np.zeros(0), np.zeros((0, n)),
-                             (), collision.margin, ())
+                             (), collision.margin, (), **pairs)
     body, center, radius, lever, obstacle, names = zip(*rows, strict=True)
     return ClearanceRows(np.array(body), np.array(center), np.array(radius), np.array(lever),
-                         tuple(obstacle), collision.margin, tuple(names))
+                         tuple(obstacle), collision.margin, tuple(names), **pairs)
+
+
+def _self_rows(collision: CollisionModel) -> dict:
+    """The sphere pairs of ``collision.row_pairs`` (:class:`ClearanceRows`' ``pair_*``)."""
+    n = collision.model.n
+    by_link = {s.link: s for s in collision.spheres}
+    rows = []
+    for a, b in collision.row_pairs:
+        sa, sb = by_link[a], by_link[b]
+        if sa.body > sb.body:
+            sa, sb = sb, sa
+        for ca_, ra in zip(sa.centers, sa.radii, strict=True):
+            for cb, rb in zip(sb.centers, sb.radii, strict=True):
+                # joints up to sa's body move both centres alike: only those after it
+                # change the distance, moving sb's centre relative to sa's body
+                lever = collision.lever_arms(sb.body, float(np.linalg.norm(cb)))
+                lever[:sa.body + 1] = 0.0
+                rows.append(((sa.body, sb.body), (ca_, cb), (ra, rb), lever,
+                             (sa.link, sb.link)))
+    if not rows:
+        return {"pair_lever": np.zeros((0, n))}
+    body, center, radius, lever, names = zip(*rows, strict=True)
+    return {"pair_body": np.array(body, int), "pair_center": np.array(center),
+            "pair_radius": np.array(radius), "pair_lever": np.array(lever),
+            "pair_names": tuple(names)}
 
 
 def _grouped(g, rows: ClearanceRows):
@@ -230,13 +293,26 @@ def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
     frames = model.body_frames_sym(q)
     speed = _span_speed(P, geo[1:])
     g = []
-    for i in range(rows.count):
+    for i in range(len(rows.radius)):
         rot, pos = frames[int(rows.body[i])]
         c = pos + ca.mtimes(rot, ca.DM(rows.center[i]))
         kind, size, o_rot, o_pos = rows.obstacle[i]
         local = ca.mtimes(ca.DM(o_rot).T, c - ca.DM(o_pos))
         g.append(_sdf(kind, size, local) - float(rows.radius[i]) - rows.margin
                  - geo[0] * ca.dot(ca.DM(rows.lever[i]), speed))
+    for i in range(len(rows.pair_radius)):
+        ends = []
+        for k in range(2):
+            body = int(rows.pair_body[i, k])
+            centre = ca.DM(rows.pair_center[i, k])
+            if body < 0:  # the base
+                ends.append(centre)
+            else:
+                rot, pos = frames[body]
+                ends.append(pos + ca.mtimes(rot, centre))
+        dist = ca.sqrt(ca.sumsqr(ends[0] - ends[1]) + SDF_EPS ** 2)
+        g.append(dist - float(rows.pair_radius[i].sum()) - rows.margin
+                 - geo[0] * ca.dot(ca.DM(rows.pair_lever[i]), speed))
     g = _grouped(ca.vertcat(*g), rows)
     hess = ca.hessian(ca.dot(lam, g), z)[0]
     dz = z.numel()

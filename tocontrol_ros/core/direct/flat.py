@@ -47,7 +47,12 @@ from scipy.interpolate import CubicHermiteSpline
 from scipy.sparse.linalg import spsolve
 
 from tocontrol_ros.core.direct.bspline import basis, breakpoints, knots
-from tocontrol_ros.core.direct.clearance import END_ROOM, ClearanceRows, compile_clearance
+from tocontrol_ros.core.direct.clearance import (
+    END_ROOM,
+    END_SPAN,
+    ClearanceRows,
+    compile_clearance,
+)
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.direct.tuning import (
@@ -419,7 +424,7 @@ class FlatTranscription:
 
     def clearance_allowance(self, start_value: np.ndarray, target_value: np.ndarray
                             ) -> np.ndarray:
-        """How far below zero each clearance row may go (m), shape (groups,).
+        """How far below zero each clearance row may go (m), shape (S, groups).
 
         The rows ask the spheres for the margin, and the spheres stand up to their worst
         gap (1.5-3.8 cm on the Panda) outside the link's geometry: a start (or a joint
@@ -427,22 +432,30 @@ class FlatTranscription:
         margin, and its rows could not hold at the first sample whatever the motion. A
         row group whose spheres at an end are closer than ``margin +``
         :data:`~tocontrol_ros.core.direct.clearance.END_ROOM` is lowered by the shortfall
-        on the whole motion (0 for every other group); the certificate checks the exact
-        clearance against the full margin (nothing closer is published).
+        at that end, and by less and less away from it: by the shortfall times
+        ``1 - (s / END_SPAN)^2`` at a sample ``s`` (the target's: ``1 - s``), none from
+        :data:`~tocontrol_ros.core.direct.clearance.END_SPAN` of the motion on (every
+        other group keeps the full margin everywhere). The motion has to leave the end's
+        neighbourhood to use no room mid-motion (before session 30 the room held on the
+        whole motion, and a motion could come closer than the margin mid-motion where the
+        certificate refused it). The certificate checks the exact clearance against the
+        full margin (nothing closer is published).
         """
         n, d1 = self.model.n, self.degree + 1
-        ends = [np.asarray(start_value, dtype=float)]
+        s = self.samples
+        ends = [(np.asarray(start_value, dtype=float), s)]
         if self.target_kind != "point":
-            ends.append(np.asarray(target_value, dtype=float))
-        allow = np.zeros(len(self.clearance.groups()))
-        for value in ends:
+            ends.append((np.asarray(target_value, dtype=float), 1.0 - s))
+        allow = np.zeros((len(s), len(self.clearance.groups())))
+        for value, away in ends:
             if len(value) < n:
                 continue
             q = np.tile(value[:n, None], (1, d1))
             b = np.zeros((1, d1))
             b[0, 0] = 1.0
             g = np.array(self._clear_value(q, 1.0, b, np.zeros(d1))).ravel()
-            allow = np.maximum(allow, END_ROOM - g)
+            fade = np.clip(1.0 - (away / END_SPAN) ** 2, 0.0, 1.0)
+            allow = np.maximum(allow, fade[:, None] * np.maximum(END_ROOM - g, 0.0)[None, :])
         return allow
 
     def _clearance_hessian(self, local: tuple, zvars: np.ndarray, w: ca.MX, lam: ca.MX
@@ -547,9 +560,9 @@ class FlatTranscription:
             v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
         if self._ng_clear:  # clearance rows: >= 0, less the ends' allowance
-            allow = np.zeros(len(self.clearance.groups())) if ends is None \
-                else self.clearance_allowance(*ends)
-            lbg = np.concatenate([lbg, np.tile(-allow, self._ng_clear // len(allow))])
+            allow = np.zeros(self._ng_clear) if ends is None \
+                else self.clearance_allowance(*ends).ravel()  # sample by sample
+            lbg = np.concatenate([lbg, -allow])
             ubg = np.concatenate([ubg, np.full(self._ng_clear, np.inf)])
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
         ubx = np.concatenate([np.tile(upper[:n], self.K), [np.inf]])
@@ -673,6 +686,7 @@ class FlatTranscription:
         span, b = basis(breaks, p, s)
         if not np.array_equal(span, self._span):
             raise ValueError("breakpoints too close together for the samples' spans")
+        self.samples = s  # the samples' s (S,): the clearance allowance's fade
         tk = knots(breaks, p)
         K = L + p
         c = p / (tk[p + 1:p + K] - tk[1:K])

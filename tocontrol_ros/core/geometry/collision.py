@@ -173,6 +173,11 @@ class CollisionModel:
         The clearance every motion keeps (m).
     source : tuple
         ``(urdf, srdf, package_dirs)`` it was built from (pickled as these).
+    row_pairs : tuple of (str, str)
+        Self pairs that are also rows of the bounded solve (sphere pairs,
+        :func:`~tocontrol_ros.core.direct.clearance.clearance_rows`); the others are
+        checked by the certificate only. Default none: the planner adds the pairs a refused
+        motion brought close (:meth:`with_row_pairs`).
     """
 
     model: RobotModel
@@ -182,14 +187,34 @@ class CollisionModel:
     scene: Scene
     margin: float
     source: tuple = field(repr=False)
+    row_pairs: tuple[tuple[str, str], ...] = ()
 
     def __reduce__(self):
         urdf, srdf, dirs = self.source
-        return (_rebuilt, (self.model, urdf, srdf, self.scene, self.margin, dirs))
+        return (_rebuilt, (self.model, urdf, srdf, self.scene, self.margin, dirs,
+                           self.row_pairs))
 
     def key(self) -> tuple:
-        """What decides a plan: the geometry's source, the scene and the margin."""
-        return (self.source, self.scene.key(), self.margin)
+        """What decides a plan: the geometry's source, the scene, the margin, the row pairs."""
+        return (self.source, self.scene.key(), self.margin) + \
+            ((self.row_pairs,) if self.row_pairs else ())
+
+    def with_row_pairs(self, pairs) -> CollisionModel:
+        """The same model with ``pairs`` (self pairs, any order) added to :attr:`row_pairs`.
+
+        Raises
+        ------
+        ValueError
+            A pair that is not one of :attr:`self_pairs`.
+        """
+        known = {frozenset(p): p for p in self.self_pairs}
+        add = []
+        for pair in pairs:
+            if frozenset(pair) not in known:
+                raise ValueError(f"{tuple(pair)} is not a checked self pair")
+            add.append(known[frozenset(pair)])
+        rows = tuple(p for p in self.self_pairs if p in set(self.row_pairs) | set(add))
+        return replace(self, row_pairs=rows)
 
     @property
     def links(self) -> tuple[str, ...]:
@@ -204,7 +229,8 @@ class CollisionModel:
         _check_allowed(scene, self.links)
         pairs = _self_pairs(self.spheres, frozenset(), scene)
         pairs = tuple(p for p in self.self_pairs if p in pairs)
-        return replace(self, scene=scene, margin=margin, self_pairs=pairs)
+        return replace(self, scene=scene, margin=margin, self_pairs=pairs,
+                       row_pairs=tuple(p for p in self.row_pairs if p in pairs))
 
     def obstacle_pairs(self) -> tuple[tuple[str, str], ...]:
         """(link, obstacle) pairs checked: all but the scene's allowed ones."""
@@ -452,11 +478,11 @@ _REBUILT: dict = {}
 _REBUILT_LOCK = threading.Lock()
 
 
-def _rebuilt(model, urdf, srdf, scene, margin, dirs) -> CollisionModel:
+def _rebuilt(model, urdf, srdf, scene, margin, dirs, row_pairs=()) -> CollisionModel:
     key = (model.name, model.joint_names, model.base_link, model.tip_link, model.locked,
            urdf, srdf, dirs)
     with _REBUILT_LOCK:
         base = _REBUILT.get(key)
         if base is None:
             base = _REBUILT[key] = collision_model(model, urdf, srdf, None, margin, dirs)
-    return replace(base, model=model).with_scene(scene, margin)
+    return replace(base, model=model).with_scene(scene, margin).with_row_pairs(row_pairs)

@@ -59,7 +59,11 @@ import numpy as np
 import tocontrol_ros.core.direct.method  # noqa: F401
 import tocontrol_ros.core.indirect.method  # noqa: F401
 from tocontrol_ros.core.checks.verification import verify
+from tocontrol_ros.core.direct.clearance import SELF_ROW_BAND
 from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
+from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
+from tocontrol_ros.core.direct.warm import PathWarmState
+from tocontrol_ros.core.geometry.scene import Scene
 from tocontrol_ros.core.methods.context import SolveContext, StopError
 from tocontrol_ros.core.methods.contract import method_named, method_owning
 from tocontrol_ros.core.planning.prepared import PreparedModel
@@ -78,6 +82,9 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "p
 #: (``Planner.plan`` runs :func:`solve_once`) is not slowed again: ``f`` times, not ``f``
 #: squared. The results are unchanged (no decision reads it); the test suite must pass with
 #: a solver that slow. Read at import.
+#: At most this many re-solves with more self pairs as rows (:func:`_with_self_rows`).
+SELF_ROW_ROUNDS = 2
+
 SLOW_SOLVER = float(os.environ.get("TOCONTROL_SLOW_SOLVER", "") or 1.0)
 #: The real clock, bound at import: a test that replaces ``time.perf_counter`` with a clock
 #: that jumps (test_determinism) must not make the hook sleep for minutes.
@@ -208,7 +215,7 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
             best = replace(warm, starts=(replace(record, status="returned"),))
             best.timings["total"] = time.perf_counter() - t_start
             return best
-    cold = solve_once(planner, problem, options, None, should_stop, deadline)
+    cold = _with_self_rows(planner, problem, options, should_stop, deadline)
     best = cold
     if warm is not None:
         better = warm.success and (not cold.success or warm.T < cold.T * (1 - WARM_GAIN))
@@ -221,6 +228,53 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         best = replace(best, starts=(record,) + starts, timings=timings)
     best.timings["total"] = time.perf_counter() - t_start
     return best
+
+
+def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
+                    should_stop, deadline: float) -> PlanResult:
+    """The cold solve; with a collision model, again with self rows while the certificate asks.
+
+    The arm's own pairs are rows of the bounded solve only for
+    ``problem.collision.row_pairs``. A bounded-solve motion refused by its certificate whose
+    self pairs come within :data:`~tocontrol_ros.core.direct.clearance.SELF_ROW_BAND` of the
+    margin (Coal's exact distances at 401 times) is solved again with those pairs as rows
+    as well, warm from the refused motion (its mesh and path), at most
+    :data:`SELF_ROW_ROUNDS` times; a round that adds no pair, or whose solve fails, stops.
+    The result carries the caller's problem; its message names the pairs added, and a
+    failed round keeps the refused result (its status and message, and why the round
+    failed).
+    """
+    out = solve_once(planner, problem, options, None, should_stop, deadline)
+    col, added, note = problem.collision, [], ""
+    for _ in range(SELF_ROW_ROUNDS):
+        traj = out.trajectory
+        if col is None or out.status is not Status.VERIFICATION_FAILED or \
+                not isinstance(traj, FlatTrajectory) or not col.self_pairs:
+            break
+        q = traj.evaluate(np.linspace(0.0, out.T, 401)).q
+        near = replace(col, scene=Scene()).clearance(q).pair_distances  # self pairs only
+        new = [p for p in col.self_pairs if p not in col.row_pairs and p in near
+               and float(np.min(near[p])) < col.margin + SELF_ROW_BAND]
+        if not new:
+            break
+        col = col.with_row_pairs(new)
+        added += new
+        warm = replace(out, warm_state=PathWarmState(np.array(traj.breaks),
+                                                     np.array(traj.result.P), traj.T,
+                                                     None, None))
+        again = solve_once(planner, replace(problem, collision=col), options, warm,
+                           should_stop, deadline)
+        if again.status in (Status.SUCCESS, Status.VERIFICATION_FAILED):
+            out = again
+        else:
+            note = f"; with them as rows, warm from it: {again.message}"
+            break
+    if not added:
+        return out
+    note = f"self pairs made rows after a refused motion: " \
+        f"{['/'.join(p) for p in added]}{note}"
+    return replace(out, problem=problem if out.problem is not None else None,
+                   message=f"{out.message} ({note})", warnings=out.warnings + (note,))
 
 
 @_slowed

@@ -1,0 +1,76 @@
+"""The arm's own pairs as rows of the bounded solve (issue 51).
+
+A self pair is a row only when the collision model's ``row_pairs`` names it (the planner
+adds the pairs a motion refused by the certificate brought close); the rows are the
+smooth minimum over the two links' sphere pairs of their distance less the margin.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from skip_policy import panda_srdf, panda_urdf
+
+coal = pytest.importorskip("coal")
+
+from tocontrol_ros.core.direct.clearance import (  # noqa: E402
+    SOFTMIN_SHARPNESS,
+    clearance_functions,
+    clearance_rows,
+)
+from tocontrol_ros.core.geometry.collision import body_frames, collision_model  # noqa: E402
+from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
+
+LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
+Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
+PAIRS = [("panda_link6", "panda_link1"), ("panda_link0", "panda_hand")]
+
+
+@pytest.fixture(scope="module")
+def panda():
+    urdf = panda_urdf()
+    model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
+    return model, collision_model(model, urdf, panda_srdf())
+
+
+def test_row_pairs_are_checked_self_pairs_and_part_of_the_key(panda):
+    _, col = panda
+    assert col.row_pairs == ()
+    rows = col.with_row_pairs(PAIRS)
+    # either order; stored as the model lists them
+    assert set(rows.row_pairs) == {("panda_link1", "panda_link6"),
+                                   ("panda_link0", "panda_hand")}
+    assert rows.key() != col.key()
+    assert rows.with_row_pairs(PAIRS[:1]).row_pairs == rows.row_pairs  # no duplicate
+    with pytest.raises(ValueError, match="panda_link5.*not a checked self pair"):
+        col.with_row_pairs([("panda_link5", "panda_link6")])  # adjacent: never checked
+    again = pickle.loads(pickle.dumps(rows))  # a worker process's copy keeps them
+    assert again.row_pairs == rows.row_pairs and again.key() == rows.key()
+    assert col.with_scene(col.scene).row_pairs == ()
+
+
+def test_self_rows_are_the_sphere_pairs_distance_less_the_margin(panda):
+    """At rest (no speed term) each pair row is the smooth minimum of its sphere pairs'
+    distances less the margin: at most the least of them, within log(count) / sharpness."""
+    model, col = panda
+    rows = clearance_rows(col.with_row_pairs(PAIRS))
+    assert len(rows.radius) == 0 and len(rows.pair_radius) == rows.count > 0
+    groups = rows.groups()
+    assert len(groups) == 2  # one row per pair of bodies
+    value = clearance_functions(model, rows, 3)[0]
+    rng = np.random.default_rng(5)
+    for q in [Q0, *(Q0 + rng.uniform(-0.8, 0.8, size=(3, model.n)))]:
+        b = np.zeros((1, 4))
+        b[0, 0] = 1.0
+        g = np.array(value(np.tile(q[:, None], (1, 4)), 1.0, b, np.zeros(4))).ravel()
+        rots, poss = body_frames(model, q[None])
+        for gi, idx in zip(g, groups, strict=True):
+            d = []
+            for i in idx:
+                ends = [poss[0, body + 1] + rots[0, body + 1] @ rows.pair_center[i, k]
+                        for k, body in enumerate(rows.pair_body[i])]
+                d.append(np.linalg.norm(ends[0] - ends[1]) - rows.pair_radius[i].sum()
+                         - col.margin)
+            assert min(d) - np.log(len(idx)) / SOFTMIN_SHARPNESS - 1e-9 <= gi <= min(d) + 1e-9
