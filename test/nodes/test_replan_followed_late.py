@@ -1,0 +1,154 @@
+"""A goal while the arm runs the last motion late: answered from the lagged hand-off.
+
+The planning service with the real planner on the paper's arm, no ROS: the arm (the
+joint states the service reads) and the node's clock are the test's, so that the arm runs
+the published motion a fixed lag behind its stamp (a holding tracker that took over a late
+publication from its start), deterministically, without sleeping. Before issue 47's fix the
+next goal was then "not followed" and became a new motion from the measured state: on the
+Panda with its limits the cold multistart, seconds of IPOPT while a stream's goals waited.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from tocontrol_ros.core.examples import PAPER_TARGET
+from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+from tocontrol_ros.core.sim.nominal import NominalTrajectory
+from tocontrol_ros.nodes.planner_config import config_from_values, planner_limits
+from tocontrol_ros.nodes.planning_service import Clock, PlanningService
+from tocontrol_ros.nodes.replanning import COLD, FOLLOWING, WARM
+
+#: Bound of every wait (s): the warm-up's builds on a loaded machine, then each solve.
+WAIT = 600.0
+MODEL = load_robot(default_urdf_path())
+Q0 = np.array([0.3, 0.9, 0.6])
+#: The node's clock at the first goal (ns): any time on the 1 ms grid.
+T0 = 1_000 * 10**9
+
+
+class Outputs:
+    """Records the statuses and each trajectory published with its stamp."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.statuses: list[tuple[str, str, dict]] = []
+        self.trajectories: list[tuple] = []  # (sample, stamp_ns)
+
+    def status(self, level, message, values, routine=False) -> None:
+        with self._lock:
+            self.statuses.append((level, message, dict(values)))
+
+    def log_error(self, message) -> None:
+        raise AssertionError(message)
+
+    def trajectory(self, sample, stamp_ns):
+        with self._lock:
+            self.trajectories.append((sample, stamp_ns))
+        return ("trajectory", stamp_ns)
+
+    def path(self, sample, stamp_ns):
+        return ("path", stamp_ns)
+
+    def follow(self, request_id, trajectory, config) -> None:
+        pass
+
+    def markers(self, result, path, config, start_point, target) -> None:
+        pass
+
+    def rest_path(self, point):
+        return ("rest", tuple(point))
+
+    def of(self, rid: int) -> list[tuple[str, str, dict]]:
+        with self._lock:
+            return [s for s in self.statuses if s[2].get("request_id") == rid]
+
+
+class Arm:
+    """The joint states the service reads: the test sets the latest (positions, stamp)."""
+
+    def __init__(self) -> None:
+        self.q, self.stamp_ns = Q0.copy(), T0 - 5 * 10**6
+
+    def start(self, config, since_ns, fresh=True) -> tuple:
+        return ("state", self.q.copy(), np.zeros_like(self.q))
+
+    def latest(self, config) -> tuple:
+        return self.stamp_ns, self.q.copy()
+
+
+class Now:
+    """The node's clock (ns), moved by the test only."""
+
+    def __init__(self) -> None:
+        self.ns = T0
+
+    def __call__(self) -> int:
+        return self.ns
+
+
+@pytest.fixture(scope="module")
+def service():
+    config = config_from_values({}, task_dim=MODEL.m)
+    assert config.replan and config.replan_quick  # the defaults this test is about
+    out, arm, now = Outputs(), Arm(), Now()
+    service = PlanningService(MODEL, planner_limits(config, MODEL), config, "base_link", out,
+                              arm, Clock(now_ns=now, wall_ns=now))
+    service.start()
+    assert service.ready.wait(WAIT), "no warm-up"
+    yield service, out, arm, now
+    service.stop()
+
+
+def _goal(service, out, target) -> tuple[int, list]:
+    rid = service.next_id()
+    service.goal(rid, np.asarray(target, dtype=float), 0, time.monotonic())
+    deadline = time.monotonic() + WAIT
+    while not any(s[2]["event"] in ("solved", "failed", "superseded")
+                  for s in out.of(rid)):
+        assert time.monotonic() < deadline, f"request {rid} got no outcome"
+        time.sleep(0.01)
+    return rid, out.of(rid)
+
+
+def test_a_goal_while_the_arm_runs_the_motion_late_gets_a_quick_motion(service):
+    service, out, arm, now = service
+    # The first goal: a new motion from rest (the cold multistart), stamped ahead.
+    rid, statuses = _goal(service, out, PAPER_TARGET)
+    assert [s[2]["event"] for s in statuses][-1] == "solved", statuses
+    sample, stamp = out.trajectories[-1]
+    first = NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
+    T = float(sample.t[-1])
+    # The arm runs it 0.2 s late (started when its stamp was 0.2 s past); measured
+    # 40 % into it, on the 1 ms control grid.
+    lag_ms, own_ms = 200, int(0.4 * T * 1e3)
+    arm.stamp_ns = stamp + (own_ms + lag_ms) * 10**6
+    arm.q = first.evaluate(own_ms * 1e-3).q[0]
+    now.ns = arm.stamp_ns + 3 * 10**6
+    # The premise: at its stamp's time the command is far from the arm.
+    assert np.max(np.abs(first.evaluate((own_ms + lag_ms) * 1e-3).q[0] - arm.q)) > FOLLOWING
+    before = len(out.trajectories)
+    near = np.asarray(PAPER_TARGET) + np.array([0.03, -0.02])
+    rid, statuses = _goal(service, out, near)
+    level, message, values = statuses[-1]
+    assert level == "OK" and values["event"] == "solved", statuses
+    # A replan from the moving hand-off (a quick motion, or where the quick path from the
+    # time-optimal state cannot be timed, the optimum warm from the running motion's
+    # tail), not a new motion from the measured state (which has no hand-off).
+    assert values["replan"] in (WARM, COLD), statuses
+    assert values["published"] in ("first", "optimum"), values
+    # Its hand-off is on the motion shifted by the lag: the arm's command then.
+    assert len(out.trajectories) == before + 1
+    sample2, stamp2 = out.trajectories[before]
+    on_lagged = first.evaluate((stamp2 - stamp) * 1e-9 - lag_ms * 1e-3)
+    np.testing.assert_allclose(sample2.q[0], on_lagged.q[0], atol=1e-9)
+    np.testing.assert_allclose(sample2.qd[0], on_lagged.qd[0], atol=1e-6)
+    np.testing.assert_allclose(values["start_q"], on_lagged.q[0], atol=1e-12)
+    # Published ahead of its hand-off (the node's clock stood still) and certified.
+    assert stamp2 > now.ns
+    published = statuses[-2][1] if values["published"] == "first" else message
+    assert published.endswith("certified") or "certified;" in published, published
