@@ -38,6 +38,8 @@ class Outputs:
         self._lock = threading.Lock()
         self.statuses: list[tuple[str, str, dict]] = []
         self.trajectories: list[tuple] = []  # (sample, stamp_ns)
+        #: Called with the stamp of each trajectory as it is published (a test's hook).
+        self.on_trajectory = None
 
     def status(self, level, message, values, routine=False) -> None:
         with self._lock:
@@ -49,6 +51,8 @@ class Outputs:
     def trajectory(self, sample, stamp_ns):
         with self._lock:
             self.trajectories.append((sample, stamp_ns))
+        if self.on_trajectory is not None:
+            self.on_trajectory(stamp_ns)
         return ("trajectory", stamp_ns)
 
     def path(self, sample, stamp_ns):
@@ -91,7 +95,7 @@ class Now:
         return self.ns
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def service():
     config = config_from_values({}, task_dim=MODEL.m)
     assert config.replan and config.replan_quick  # the defaults this test is about
@@ -102,6 +106,10 @@ def service():
     assert service.ready.wait(WAIT), "no warm-up"
     yield service, out, arm, now
     service.stop()
+
+
+def _nominal(sample) -> NominalTrajectory:
+    return NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
 
 
 def _goal(service, out, target) -> tuple[int, list]:
@@ -115,13 +123,13 @@ def _goal(service, out, target) -> tuple[int, list]:
     return rid, out.of(rid)
 
 
-def test_a_goal_while_the_arm_runs_the_motion_late_gets_a_quick_motion(service):
+def test_a_goal_while_the_arm_runs_the_motion_late_is_replanned_from_the_lagged_handoff(service):
     service, out, arm, now = service
     # The first goal: a new motion from rest (the cold multistart), stamped ahead.
     rid, statuses = _goal(service, out, PAPER_TARGET)
     assert [s[2]["event"] for s in statuses][-1] == "solved", statuses
     sample, stamp = out.trajectories[-1]
-    first = NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
+    first = _nominal(sample)
     T = float(sample.t[-1])
     # The arm runs it 0.2 s late (started when its stamp was 0.2 s past); measured
     # 40 % into it, on the 1 ms control grid.
@@ -152,3 +160,54 @@ def test_a_goal_while_the_arm_runs_the_motion_late_gets_a_quick_motion(service):
     assert stamp2 > now.ns
     published = statuses[-2][1] if values["published"] == "first" else message
     assert published.endswith("certified") or "certified;" in published, published
+
+
+def test_a_motion_published_after_its_stamp_to_a_holding_arm_is_continued_from_its_send(
+        service):
+    """A quick motion from rest whose publication ended 0.1 s after its stamp (a loaded
+    machine), the arm still holding at its start when the next goal comes: the tracker
+    starts it on arrival, so the next replan hands off on it as started then, at the
+    earliest when the arm was measured still at its start (main handed off on it as started
+    at its stamp: a splice 0.1 s ahead of the arm's command; with a longer lateness, not
+    followed and a new motion from the measured state)."""
+    service, out, arm, now = service
+    rid, statuses = _goal(service, out, PAPER_TARGET)
+    assert statuses[-1][2]["event"] == "solved", statuses
+    sample, stamp = out.trajectories[-1]
+    first = _nominal(sample)
+    # The arm ran it in time and holds its end.
+    end_ms = int(float(sample.t[-1]) * 1e3) + 1
+    arm.q = first.evaluate(end_ms * 1e-3).q[0]
+    arm.stamp_ns = stamp + (end_ms + 50) * 10**6
+    now.ns = arm.stamp_ns + 3 * 10**6
+    sent = {}
+
+    def late(stamp_ns: int) -> None:  # the publication ends 0.1 s after its stamp
+        now.ns = sent["ns"] = stamp_ns + 100 * 10**6
+
+    out.on_trajectory = late
+    rid, statuses = _goal(service, out, np.asarray(PAPER_TARGET) + np.array([0.03, -0.02]))
+    out.on_trajectory = None
+    assert statuses[-1][2]["event"] == "solved" and statuses[-1][2]["replan"] == "rest", \
+        statuses
+    sample2, stamp2 = out.trajectories[-1]
+    assert sent["ns"] > stamp2
+    second = _nominal(sample2)
+    # The next goal: the arm still at its start, measured after it was sent.
+    arm.stamp_ns = sent["ns"] + 2 * 10**6
+    now.ns = arm.stamp_ns + 2 * 10**6
+    before = len(out.trajectories)
+    rid, statuses = _goal(service, out, np.asarray(PAPER_TARGET) + np.array([0.05, -0.03]))
+    level, message, values = statuses[-1]
+    assert level == "OK" and values["event"] == "solved", statuses
+    assert values["replan"] in (WARM, COLD), statuses  # from the moving hand-off on it
+    sample3, stamp3 = out.trajectories[before]
+    # From the arm's own start time, the later of its send and the measurement (still at
+    # rest): within a joint state's period of when the tracker starts it.
+    on_sent = second.evaluate((stamp3 - arm.stamp_ns) * 1e-9)
+    np.testing.assert_allclose(sample3.q[0], on_sent.q[0], atol=1e-9)
+    # The premise: from its stamp (main's hand-off) the splice would jump by more than the
+    # moving-target tests' bar (planner_harness.SPLICE_JUMP_BAR: 1e-3 rad).
+    on_stamp = second.evaluate((stamp3 - stamp2) * 1e-9)
+    assert np.max(np.abs(on_stamp.q[0] - on_sent.q[0])) > 1e-3
+    assert service.replanner.executing_start() is not None
