@@ -211,3 +211,33 @@ def test_a_motion_published_after_its_stamp_to_a_holding_arm_is_continued_from_i
     on_stamp = second.evaluate((stamp3 - stamp2) * 1e-9)
     assert np.max(np.abs(on_stamp.q[0] - on_sent.q[0])) > 1e-3
     assert service.replanner.executing_start() is not None
+
+
+def test_a_near_goal_while_the_arm_holds_off_the_motion_gets_a_quick_motion_from_there(
+        service):
+    """The arm never ran the last motion (a tracker that refused it, or a reset: it holds at
+    the motion's start long after the motion would be over): a near goal gets a quick
+    motion from the held state (``replan: held``), certified, not the cold multistart of a
+    new motion; a goal while the arm moves off every known motion is a new motion, as
+    before."""
+    service, out, arm, now = service
+    rid, statuses = _goal(service, out, PAPER_TARGET)
+    assert statuses[-1][2]["event"] == "solved", statuses
+    sample, stamp = out.trajectories[-1]
+    first = _nominal(sample)
+    T = float(sample.t[-1])
+    arm.q = first.evaluate(0.0).q[0]  # still where it started, at rest
+    arm.stamp_ns = stamp + int((T + 1.0) * 1e3) * 10**6
+    now.ns = arm.stamp_ns + 3 * 10**6
+    before = len(out.trajectories)
+    near = np.asarray(PAPER_TARGET) + np.array([0.03, -0.02])
+    rid, statuses = _goal(service, out, near)
+    level, message, values = statuses[-1]
+    assert level == "OK" and values["event"] == "solved", statuses
+    assert values["replan"] == "held" and values["published"] == "first", statuses
+    assert "from the held arm" in message and statuses[-2][1].endswith(
+        "certified; the optimum follows"), statuses
+    held_sample, held_stamp = out.trajectories[before]
+    np.testing.assert_allclose(held_sample.q[0], arm.q, atol=1e-12)
+    np.testing.assert_allclose(held_sample.qd[0], 0.0, atol=1e-12)
+    assert held_stamp > now.ns
