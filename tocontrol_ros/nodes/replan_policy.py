@@ -175,6 +175,7 @@ class ReplanPolicy:
                      "wait_time": wait_time, "handoff_time": t_problem - t0,
                      "problem_time": t_solve - t_problem,
                      "replan": handoff.kind, "attempts": attempt,
+                     "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}
             if service.finish_stopped(req, extra):
@@ -412,6 +413,7 @@ class ReplanPolicy:
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
+                     "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns),
                      "warm_start": any(w is not None for w in warm),
                      "published": "none"}

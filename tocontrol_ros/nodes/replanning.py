@@ -118,7 +118,10 @@ class Handoff(NamedTuple):
         The running motion's state then (rad, rad/s).
     warm : PlanResult or None
         Its tail from then on, as a warm start (a goal within ``replan_radius``), or None.
-    kind : {"warm", "cold"}
+    kind : {"warm", "cold", "rest"}
+    lag_ns : int
+        How much later (ns; negative: earlier) than its stamp the arm started the running
+        motion, as its joint states show (:func:`lag_start`); 0 when it follows it in time.
     """
 
     stamp_ns: int
@@ -126,6 +129,7 @@ class Handoff(NamedTuple):
     qd: np.ndarray
     warm: object
     kind: str
+    lag_ns: int = 0
 
 
 def lag_start(nominal: NominalTrajectory, start_ns: int, q: np.ndarray, stamp_ns: int,
@@ -529,7 +533,8 @@ class Replanner:
                 end = start_ns + math.ceil(result.T * 1e9)
                 stamp = align(max(now_ns, end), origin_ns or start_ns, config.handoff_grid)
                 q_end = result.trajectory.state(result.T)[0][:n]
-                return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
+                return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST,
+                               start_ns - executing[4])
             warm = tail_warm_start(result, t) if kind == WARM else None
             if kind == WARM and warm is None and not quick:
                 continue
@@ -538,5 +543,6 @@ class Replanner:
             if nominal is not None:
                 des = nominal.evaluate(t)
                 q, qd = des.q[0], des.qd[0]
-            return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD)
+            return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD,
+                           start_ns - executing[4])
         return None
