@@ -384,6 +384,37 @@ def test_open_loop_in_one_call_is_the_segments_one_by_one(panda):
     np.testing.assert_array_equal(one[1], each[1])
 
 
+def test_open_loop_of_the_deviation_is_the_open_loop_of_the_state(panda):
+    """The certificate's re-integration as the deviation from each segment's path (the
+    default) against the state itself (before): the same states to the integrators'
+    accuracy on a Panda quick motion, its end on the path's end; and a real integration, not
+    an identity: from a start 1e-3 off the path, one segment of each form gives the same
+    perturbed states, which leave the path."""
+    from tocontrol_ros.core.direct.scaled_path import open_loop_integrator
+
+    problem = _panda_problem(panda, True)
+    traj = first_motion(problem).trajectory
+    n = panda.n
+    t_dev, x_dev, ok_dev = traj.open_loop(1e-12, 1e-13)
+    t_x, x_x, ok_x = traj.open_loop(1e-12, 1e-13, deviation=False)
+    assert ok_dev and ok_x
+    np.testing.assert_array_equal(t_dev, t_x)
+    np.testing.assert_allclose(x_dev, x_x, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(x_dev[-1], traj.state(traj.T)[0, :2 * n], rtol=0, atol=1e-10)
+    # One segment from a perturbed start, both forms.
+    coefs = traj._segment_polynomials()
+    j = 7
+    p = np.concatenate([coefs[j].ravel(order="F"), [traj.h[j]]])
+    x0 = traj.state(traj.t_grid[j])[0, :2 * n] + 1e-3
+    degree = 2 * traj.path.degree
+    dev = np.array(open_loop_integrator(panda, degree, 1e-12, 1e-13)(x0=x0, p=p)["xf"])
+    state = np.array(open_loop_integrator(panda, degree, 1e-12, 1e-13,
+                                          deviation=False)(x0=x0, p=p)["xf"])
+    np.testing.assert_allclose(dev, state, rtol=0, atol=1e-10)
+    on_path = traj.state(traj.t_grid[j + 1])[0, :2 * n]
+    assert np.max(np.abs(dev[:, -1] - on_path)) > 1e-3  # it moved off the path
+
+
 def test_scaled_path_torques_are_the_models_inverse_dynamics(panda):
     """The compiled inverse dynamics, mapped over a multiple of MAP_STEP samples (padded):
     the model's own (CasADi's virtual machine) at every sample, whatever their count."""
