@@ -124,20 +124,30 @@ def _deviation_rhs(model: RobotModel, degree: int) -> ca.Function:
                        ["ode", "alg", "quad", "zero"])
 
 
-def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
-    """The right-hand sides of :data:`COMPILED_DEGREES` and their Jacobians, one library.
+def _rhs_pairs(model: RobotModel, make: Callable[[RobotModel, int], ca.Function]
+               ) -> list[ca.Function]:
+    """``make``'s right-hand side and its Jacobian for each of :data:`COMPILED_DEGREES`.
 
-    CVODES asks for the Jacobians at set-up, whichever iteration it uses. First the open
-    loop's (:func:`_open_loop_rhs`), then its deviation's (:func:`_deviation_rhs`), then the
-    inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`), last the
-    inverse dynamics (friction included) that a :class:`ScaledPath`'s torques are
-    (:func:`inverse_dynamics`).
+    CVODES asks for the Jacobian at set-up, whichever iteration it uses.
     """
     out = []
-    for make in (_open_loop_rhs, _deviation_rhs):
-        for degree in COMPILED_DEGREES:
-            rhs = make(model, degree)
-            out += [rhs, rhs.jacobian()]
+    for degree in COMPILED_DEGREES:
+        rhs = make(model, degree)
+        out += [rhs, rhs.jacobian()]
+    return out
+
+
+def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
+    """The certificate's right-hand sides and the timing's dynamics, one library.
+
+    First the open loop's deviation's (:func:`_deviation_rhs`) with their Jacobians, then
+    the inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`), last
+    the inverse dynamics (friction included) that a :class:`ScaledPath`'s torques are
+    (:func:`inverse_dynamics`). The state's right-hand sides (:func:`_open_loop_rhs`, the
+    benchmark's comparison) are a library of their own, built when first asked for: this
+    one, built by every planner's warm-up, stays the size it had.
+    """
+    out = _rhs_pairs(model, _deviation_rhs)
     q, qd, qdd = (ca.SX.sym(name, model.n) for name in ("q", "qd", "qdd"))
     return out + [_rigid_body_terms(model),
                   ca.Function("inverse_dynamics", [q, qd, qdd], [model.rnea_sym(q, qd, qdd)])]
@@ -215,10 +225,14 @@ def open_loop_integrator(model: RobotModel, degree: int, rtol: float, atol: floa
     made again when the optimised build of the library lands.
     """
     if degree in COMPILED_DEGREES:
-        funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
-                                lambda: _compiled_rhs(model))
-        offset = 2 * len(COMPILED_DEGREES) if deviation else 0
-        rhs = funs[offset + 2 * COMPILED_DEGREES.index(degree)]
+        if deviation:
+            funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
+                                    lambda: _compiled_rhs(model))
+        else:
+            funs, _ = compile_owned(model, "first_open_loop_state",
+                                    f"first_open_loop_state{model.n}",
+                                    lambda: _rhs_pairs(model, _open_loop_rhs))
+        rhs = funs[2 * COMPILED_DEGREES.index(degree)]
     else:
         rhs = None
     table = _INTEGRATORS.setdefault(model, {})
