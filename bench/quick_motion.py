@@ -16,9 +16,11 @@ it was over by then), ``q_near`` its end (what the planner node passes), k = 4, 
 - *before*: ``engine="toppra"`` (toppra's algorithm object per pass, the time scales ranked
   in the full cube and timed again from scratch: the TOPP-RA of main before issue 47); the
   rest is the present code's;
-- the certificate's open loop of the same motion, CVODES segment by segment from Python
-  (``ScaledPath.open_loop(..., one_call=False)``, main's) against one ``mapaccum`` call
-  (:func:`~tocontrol_ros.core.direct.scaled_path.open_loop_sweep`), the states compared.
+- the certificate's open loop of the same motion: the state by CVODES segment by segment
+  from Python (``ScaledPath.open_loop(..., one_call=False, deviation=False)``, main's before
+  issue 47), the state in one ``mapaccum`` call
+  (:func:`~tocontrol_ros.core.direct.scaled_path.open_loop_sweep`), and the deviation from
+  each segment's path in one call (the default since), the states compared.
 
 Figures: medians over the cases (ms), before -> seidel -> now and the ratio seidel / now of
 the medians, ``T`` now / before per case (median, min, max), the largest relative difference
@@ -110,17 +112,24 @@ def replans(name: str) -> list | None:
     return out
 
 
-def _open_loops(traj) -> tuple[float, float, float]:
-    """The open loop of ``traj`` segment by segment and in one call: times (s), difference."""
+def _open_loops(traj) -> tuple[float, float, float, float, float]:
+    """The open loop of ``traj``: the state segment by segment (main's), the state in one
+    call, the deviation from the path in one call (now): times (s), and the largest
+    differences of the one-call states and of the deviation's from the segment by segment."""
     from tocontrol_ros.core.direct.tuning import OPEN_LOOP_ATOL, OPEN_LOOP_RTOL
 
     t0 = time.perf_counter()
-    _, x_old, ok_old = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, one_call=False)
+    _, x_old, ok_old = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, one_call=False,
+                                      deviation=False)
     t1 = time.perf_counter()
-    _, x_new, ok_new = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
+    _, x_one, ok_one = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, deviation=False)
     t2 = time.perf_counter()
-    diff = float(np.max(np.abs(x_new - x_old))) if ok_old and ok_new else float("nan")
-    return t1 - t0, t2 - t1, diff
+    _, x_new, ok_new = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
+    t3 = time.perf_counter()
+    ok = ok_old and ok_one and ok_new
+    one = float(np.max(np.abs(x_one - x_old))) if ok else float("nan")
+    diff = float(np.max(np.abs(x_new - x_old))) if ok else float("nan")
+    return t1 - t0, t2 - t1, t3 - t2, one, diff
 
 
 def measure(name: str) -> dict | None:
@@ -162,8 +171,8 @@ def measure(name: str) -> dict | None:
         "passes": {e: statistics.median(r.iterations for r in rs) for e, rs in rows.items()},
         "T_ratio": (statistics.median(ratios), min(ratios), max(ratios)),
         "T_seidel": seidel,
-        "loop": (statistics.median(v[0] for v in loops), statistics.median(v[1] for v in loops),
-                 max(v[2] for v in loops)),
+        "loop": tuple(statistics.median(v[i] for v in loops) for i in range(3))
+        + (max(v[3] for v in loops), max(v[4] for v in loops)),
     }
 
 
@@ -190,8 +199,9 @@ def run(which: str = "both") -> Section:
             f"{r['passes']['toppra']:.0f} -> {r['passes']['compiled']:.0f}",
             "{:.4f} [{:.4f}, {:.4f}]".format(*r["T_ratio"]),
             f"{r['T_seidel']:.1e}",
-            f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} "
-            f"({r['loop'][0] / r['loop'][1]:.2f}x; max diff {r['loop'][2]:.1e})"])
+            f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} -> "
+            f"{1e3 * r['loop'][2]:.2f} ({r['loop'][1] / r['loop'][2]:.2f}x; max diff "
+            f"{r['loop'][3]:.1e} / {r['loop'][4]:.1e})"])
     lines = [
         "A replan's quick motion in one process (`first_motion.quick_motion`), the replans "
         "of `bench/replan.py --moving` (each from the last quick motion's state 0.1 s "
@@ -203,8 +213,11 @@ def run(which: str = "both") -> Section:
         "one compiled call, each stage's LP in closed form). Medians in ms, before -> "
         "seidel -> now (seidel / now); scaling: TOPP-RA and the check between gridpoints; "
         "verify: the certificate (the present one in every column); open loop: the "
-        "certificate's re-integration of the same motion segment by segment from Python "
-        "(main's) -> one `mapaccum` call, the largest difference of their states. T now / "
+        "certificate's re-integration of the same motion, the state segment by segment from "
+        "Python (main's before issue 47) -> the state in one `mapaccum` call -> the "
+        "deviation from each segment's path in one call (now; `ScaledPath.open_loop`'s "
+        "`deviation`), (state in one call / deviation), the largest difference of the "
+        "one-call state's and of the deviation's states from the first. T now / "
         "before per case: median [min, max]; T vs seidel: the largest relative difference. "
         f"Load before: {load0}; after: {load_text()}. Command: `scripts/dev run python -P "
         f"bench/quick_motion.py {which}`.",

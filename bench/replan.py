@@ -367,6 +367,10 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
         "jump_qd": max((float(s["velocity_jump"]) for s in splices), default=float("nan")),
         "final_error": float(np.linalg.norm(ee - goals[0])), "at_rest": at_rest,
         "parts": latency_parts(published),
+        # Hand-offs on a motion the arm ran late (or early): its start from the joint states.
+        "lagged": [float(s["follow_lag"]) for s in published
+                   if s.get("follow_lag") is not None and float(s["follow_lag"]) != 0.0],
+        "late_splices": sum(s.get("late") == "true" for s in splices),
     }
 
 
@@ -533,6 +537,10 @@ def run(which: str = "both", moving: bool = False) -> Section:
     for r in results:
         kinds = "; ".join(f"{k} {n}: {1e3 * m:.1f} / {1e3 * p:.1f} ms"
                           for k, (n, m, p) in sorted(r["kinds"].items()))
+        lagged = r.get("lagged", [])
+        kinds += f"; followed late {len(lagged)}" + (
+            f" (lag up to {1e3 * max(lagged, key=abs):.0f} ms)" if lagged else "")
+        kinds += f"; late splices {r.get('late_splices', 0)}"
         rows.append([r["robot"], f"{r['answered']}/{r['goals']} ({r['superseded']} "
                      f"superseded; {r['improved']} improved)",
                      f"{1e3 * r['median']:.1f} ({1e3 * r['status_median']:.1f})",
@@ -557,7 +565,12 @@ def run(which: str = "both", moving: bool = False) -> Section:
         f"(TOPP-RA passes for a quick motion), median (the rest of a latency is waiting for "
         f"the worker, the hand-off and the problem, and publication). Per kind: count, "
         f"median / p95 (kind of the first publication's hand-off: `rest` from the end of a "
-        f"motion over by then, `warm` or `cold` from a moving state). "
+        f"motion over by then, `warm` or `cold` from a moving state, `held` from the arm's "
+        f"measured state held still off the last motion, `none` a new motion from the "
+        f"measured state: the cold multistart); *followed late*: hand-offs on a motion the "
+        f"arm started later (or earlier) than its stamp, as its joint states showed, and the "
+        f"largest such lag; *late splices*: trajectories the tracker joined after their "
+        f"stamp. "
         f"Jumps: the tracker's largest command jump at a splice (rad / rad/s). Final "
         f"error: end effector at rest (the mean of the last 10 joint states, within 1e-9 "
         f"rad of each other, or within {SETTLED:g} rad when that did not come in "

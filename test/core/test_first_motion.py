@@ -384,6 +384,52 @@ def test_open_loop_in_one_call_is_the_segments_one_by_one(panda):
     np.testing.assert_array_equal(one[1], each[1])
 
 
+def test_open_loop_of_the_deviation_is_the_open_loop_of_the_state(panda):
+    """The certificate's re-integration as the deviation from each segment's path (the
+    default) against CVODES on the state itself (before; here in CasADi's virtual machine,
+    the same equation and tolerances): the same states to the integrators' accuracy on a
+    Panda quick motion, its end on the path's end; and a real integration, not an identity:
+    from a start 1e-3 off the path, one segment of each gives the same perturbed states,
+    which leave the path."""
+    import casadi as ca
+
+    from tocontrol_ros.core.direct.flat_trajectory import (
+        OPEN_LOOP_POINTS,
+        integrate_segments,
+        polynomial_segment_ode,
+    )
+    from tocontrol_ros.core.direct.scaled_path import open_loop_integrator
+
+    problem = _panda_problem(panda, True)
+    traj = first_motion(problem).trajectory
+    n, degree = panda.n, 2 * traj.path.degree
+    sig, x, c, h, ode = polynomial_segment_ode(panda, degree)
+    grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+    state = ca.integrator("state", "cvodes", {"t": sig, "x": x, "p": ca.vertcat(ca.vec(c), h),
+                                              "ode": ode}, 0.0, grid.tolist(),
+                          {"reltol": 1e-12, "abstol": 1e-13, "max_num_steps": 100000,
+                           "linear_multistep_method": "adams",
+                           "nonlinear_solver_iteration": "functional"})
+    coefs = traj._segment_polynomials()
+    t_dev, x_dev, ok_dev = traj.open_loop(1e-12, 1e-13)
+    t_x, x_x, ok_x = integrate_segments(
+        state, traj.state(0.0)[0, :2 * n],
+        ((coefs[j], traj.h[j], traj.t_grid[j] + traj.h[j] * grid) for j in range(len(traj.h))))
+    assert ok_dev and ok_x
+    np.testing.assert_allclose(t_dev, t_x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(x_dev, x_x, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(x_dev[-1], traj.state(traj.T)[0, :2 * n], rtol=0, atol=1e-10)
+    # One segment from a perturbed start, both forms.
+    j = 7
+    p = np.concatenate([coefs[j].ravel(order="F"), [traj.h[j]]])
+    x0 = traj.state(traj.t_grid[j])[0, :2 * n] + 1e-3
+    dev = np.array(open_loop_integrator(panda, degree, 1e-12, 1e-13)(x0=x0, p=p)["xf"])
+    off = np.array(state(x0=x0, p=p)["xf"])
+    np.testing.assert_allclose(dev, off, rtol=0, atol=1e-10)
+    on_path = traj.state(traj.t_grid[j + 1])[0, :2 * n]
+    assert np.max(np.abs(dev[:, -1] - on_path)) > 1e-3  # it moved off the path
+
+
 def test_scaled_path_torques_are_the_models_inverse_dynamics(panda):
     """The compiled inverse dynamics, mapped over a multiple of MAP_STEP samples (padded):
     the model's own (CasADi's virtual machine) at every sample, whatever their count."""

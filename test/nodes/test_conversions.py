@@ -140,6 +140,20 @@ def test_trajectory_msg(model):
         np.testing.assert_array_equal(point.effort, sample.tau[i])
 
 
+def test_trajectory_msg_times_are_duration_from_seconds_to_the_nanosecond(model):
+    """The vectorised message: each point's time as duration_from_seconds gives it (whole
+    nanoseconds, rounded half to even), over seconds and at values that round."""
+    t = np.array([0.0, 1e-9, 0.4999999995, 0.9999999996, 1.0, 1.0000000005, 2.345678901,
+                  12.5, 3600.0000000015])
+    sample = SimpleNamespace(t=t, q=np.zeros((t.size, model.n)), qd=np.zeros((t.size, model.n)),
+                             qdd=np.zeros((t.size, model.n)), tau=np.zeros((t.size, model.n)))
+    msg = conv.trajectory_msg(sample, model.joint_names, "base_link", conv.time_from_seconds(1.0))
+    for ti, point in zip(t, msg.points, strict=True):
+        expect = conv.duration_from_seconds(float(ti))
+        assert (point.time_from_start.sec, point.time_from_start.nanosec) == \
+            (expect.sec, expect.nanosec), ti
+
+
 def test_path_and_markers(model):
     sample = _fake_sample(model)
     stamp = conv.time_from_seconds(100.0)

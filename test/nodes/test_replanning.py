@@ -302,3 +302,90 @@ def test_a_late_goal_joins_as_far_along_as_its_stamp_says():
     at, elapsed = splice_instant(104.0, 100.0, 5.0004, h, late=True)
     assert at == pytest.approx(5.001) and elapsed == pytest.approx(1.001)
     assert splice_instant(0.0, 100.0, 5.0, h, late=True) is None  # stamp 0: now
+
+
+def _nominal(sample):
+    from tocontrol_ros.core.sim.nominal import NominalTrajectory
+
+    return NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
+
+
+def test_a_motion_followed_late_is_followed_from_where_the_arm_is(motion):
+    """A tracker that started the motion 0.2 s after its stamp (a holding tracker starts a
+    late delivery from its beginning): the hand-off is on the motion shifted by that lag,
+    found from the measured positions on the control grid, and kept for the next goal. A lag
+    beyond FOLLOW_LAG, or an arm off the motion, is not followed (planned from the measured
+    state, as before)."""
+    from tocontrol_ros.nodes.replanning import FOLLOW_LAG, FOLLOWING, lag_start
+
+    config = config_from_values({})
+    sample = motion.trajectory.sample(0.01)
+    nominal = _nominal(sample)
+    start = 10**9
+    near = np.asarray(PAPER_TARGET) + np.array([0.02, 0.0])
+    own, lag = 0.3 * motion.T, 0.2
+    measured_ns = start + int(round((own + lag) * 1e3)) * 10**6  # on the 1 ms grid
+    q = nominal.evaluate(own).q[0]
+    # The premise: at its stamp's time the command is far from the arm (not followed so).
+    assert np.max(np.abs(nominal.evaluate(own + lag).q[0] - q)) > FOLLOWING
+    shifted = start + int(round(lag * 1e3)) * 10**6
+    assert lag_start(nominal, start, q, measured_ns, config.handoff_grid) == shifted
+    replans = Replanner()
+    replans.published(motion, start, sample)
+    h = replans.handoff(config, near, measured_ns, 0, measured=(q, measured_ns))
+    assert h is not None and h.kind in (WARM, COLD)
+    assert replans.executing_start() == shifted
+    expect = nominal.evaluate((h.stamp_ns - shifted) * 1e-9)
+    np.testing.assert_allclose(h.q, expect.q[0], atol=1e-12)
+    np.testing.assert_allclose(h.qd, expect.qd[0], atol=1e-12)
+    # The next goal, the arm on the shifted motion: followed as it is, same start.
+    later = measured_ns + 20 * 10**6
+    q2 = nominal.evaluate((later - shifted) * 1e-9).q[0]
+    assert replans.handoff(config, near, later, 0, measured=(q2, later)) is not None
+    assert replans.executing_start() == shifted
+    # Too late to count as this motion's, or off it: not followed.
+    too_late = Replanner()
+    too_late.published(motion, start, sample)
+    far_ns = start + int(round((own + FOLLOW_LAG + 0.05) * 1e3)) * 10**6
+    assert too_late.handoff(config, near, far_ns, 0, measured=(q, far_ns)) is None
+    assert too_late.handoff(config, near, measured_ns, 0,
+                            measured=(q + 2 * FOLLOWING, measured_ns)) is None
+    assert lag_start(nominal, start, q + 2 * FOLLOWING, measured_ns, 1e-3) is None
+
+
+def test_a_late_publication_to_a_holding_tracker_is_expected_to_start_when_sent(motion):
+    """Sent after its stamp while nothing runs (the tracker holds and starts it on arrival):
+    its start is expected when it was sent, a guess that the measured arm corrects (still at
+    the start: the measurement's stamp at the earliest; moving: where it is on the motion).
+    Sent late while the motion before it still runs (the tracker joins it as far along as
+    its stamp says), or through a JTC (no sent time), it starts at its stamp."""
+    config = config_from_values({})
+    sample = motion.trajectory.sample(0.01)
+    nominal = _nominal(sample)
+    stamp = 10**9
+    sent = stamp + 3 * 10**8
+    near = np.asarray(PAPER_TARGET) + np.array([0.02, 0.0])
+    q0 = nominal.evaluate(0.0).q[0]
+    replans = Replanner()
+    replans.published(motion, stamp, sample, sent_ns=sent)
+    assert replans.executing_start() == sent
+    # Measured before it was sent, at its start: the guess stands.
+    assert replans.handoff(config, near, sent, 0, measured=(q0, sent - 10**7)) is not None
+    assert replans.executing_start() == sent
+    # Still at its start after it was sent: not taken over yet, no earlier than then.
+    at = sent + 4 * 10**6
+    assert replans.handoff(config, near, at, 0, measured=(q0, at)) is not None
+    assert replans.executing_start() == at
+    # Moving: taken over 12 ms after it was sent; found and no longer a guess.
+    own = 0.25 * motion.T
+    moving = sent + 12 * 10**6 + int(round(own * 1e3)) * 10**6
+    h = replans.handoff(config, near, moving, 0,
+                        measured=(nominal.evaluate(own).q[0], moving))
+    assert h is not None and replans.executing_start() == sent + 12 * 10**6
+    # In time, or late behind a motion that still runs, or to a JTC: its stamp.
+    for before, sent_ns in ((None, stamp - 10**7), (motion, sent), (None, None)):
+        replans = Replanner()
+        if before is not None:
+            replans.published(before, stamp - 10**8, sample)  # runs until after `sent`
+        replans.published(motion, stamp, sample, sent_ns=sent_ns)
+        assert replans.executing_start() == stamp

@@ -528,7 +528,10 @@ class PlanningService:
             return None
         self._published_at = self.clock.monotonic()
         self._publish_parts = {"sample_time": t1 - t0, "send_time": self._published_at - t1}
-        self.replanner.published(result, stamp_ns, sample)
+        # Sent after its stamp to a tracker that holds, it starts when it arrives, not at
+        # its stamp (a JTC, controller_action, drops the points past instead).
+        sent_ns = None if config.controller_action else self.clock.now_ns()
+        self.replanner.published(result, stamp_ns, sample, sent_ns=sent_ns)
         self._sent = (rid, result)
         path = self.out.path(sample, stamp_ns)
         if path is None:

@@ -34,7 +34,15 @@ from tocontrol_ros.nodes.replanning import (
 )
 from tocontrol_ros.nodes.requests import PlanRequest
 
-__all__ = ["ReplanPolicy", "replanning"]
+__all__ = ["ReplanPolicy", "replanning", "HELD", "HELD_SPEED"]
+
+#: The kind (``replan`` status value) of a quick motion from the arm's measured state, held
+#: still off the last published motion (:meth:`ReplanPolicy.serve_quick_held`).
+HELD = "held"
+#: The arm holds still when every joint's measured speed is within this (rad/s, m/s): a
+#: holding tracker's PD leaves speeds of order 1e-9 with the planning model, and a motion's
+#: command moves faster than this except within a few milliseconds of its ends.
+HELD_SPEED = 1e-3
 
 
 def replanning(config: PlannerConfig) -> bool:
@@ -140,6 +148,11 @@ class ReplanPolicy:
             running = replans.running()
             handoff = replans.handoff(config, req.target, clock.now_ns(), origin, min_lead,
                                       measured, quick=True)
+            if handoff is None and attempt == 1:
+                # The arm does not follow the last motion (late beyond FOLLOW_LAG, refused,
+                # reset): from its measured state if it holds still, never the cold
+                # multistart while a stream's near goals come.
+                return self.serve_quick_held(req, wait_time)
             if handoff is None or running is None or running.trajectory is None:
                 return None  # the optimum's route decides (a goal from the measured state)
             t_problem = clock.monotonic()
@@ -162,6 +175,7 @@ class ReplanPolicy:
                      "wait_time": wait_time, "handoff_time": t_problem - t0,
                      "problem_time": t_solve - t_problem,
                      "replan": handoff.kind, "attempts": attempt,
+                     "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}
             if service.finish_stopped(req, extra):
@@ -192,6 +206,66 @@ class ReplanPolicy:
         service.status(req, "WARN", "first", f"request {req.id}: no quick motion in time for "
                        f"its hand-off in {REPLAN_TRIES} tries; the optimum follows", extra)
         return None
+
+    def serve_quick_held(self, req: PlanRequest, wait_time: float) -> bool | None:
+        """A near goal while the arm holds still off the last published motion: a quick motion.
+
+        The arm does not follow the last motion (no hand-off on it: late by more than
+        :data:`~tocontrol_ros.nodes.replanning.FOLLOW_LAG`, refused by the tracker, a reset)
+        but holds still (its latest joint state's speeds within :data:`HELD_SPEED`): the
+        quick motion from there at rest, the target's configuration found near the last
+        motion's end, certified, stamped as a goal's first motion from rest
+        (:meth:`goal_stamp`: nothing runs that it must join) and published with a ``first``
+        status (``replan: held``); its optimum follows when the worker is idle
+        (:meth:`improve`). A moving arm that follows no known motion cannot be predicted to
+        a stamp: None, and so for no joint state or a failed quick motion; the caller then
+        plans the goal as a new motion from the measured state, as before.
+        """
+        service = self.service
+        clock = service.clock
+        config = req.config
+        running = service.replanner.running()
+        if running is None or running.trajectory is None or running.problem is None:
+            return None
+        t0 = clock.monotonic()
+        try:
+            measured = service.arm.start(config, 0, fresh=False)
+        except TocontrolError:
+            return None
+        if measured[0] != "state" or np.max(np.abs(measured[2])) > HELD_SPEED:
+            return None
+        q = np.asarray(measured[1], dtype=float)
+        t_problem = clock.monotonic()
+        try:
+            problem = service.problem(config, ("state", q, np.zeros_like(q)), req.target)
+        except TocontrolError:
+            return None  # the new motion's route says why
+        n = problem.model.n
+        q_end = running.trajectory.state(running.T)[0][:n]
+        t_solve = clock.monotonic()
+        quick = service.planner.quick(problem, q_end, solver_options(config))
+        extra = {"start": problem.start_point, "start_q": q, "start_qd": np.zeros_like(q),
+                 **result_values(quick), "wait_time": wait_time,
+                 "handoff_time": t_problem - t0, "problem_time": t_solve - t_problem,
+                 "replan": HELD, "attempts": 1, "warm_start": False, "published": "none"}
+        if service.finish_stopped(req, extra):
+            return True
+        if not quick.success or quick.trajectory is None:
+            service.status(req, "WARN", "first", f"request {req.id}: no quick motion from "
+                           f"the held arm ({quick.message}); a new motion follows", extra)
+            return None
+        stamp_ns = self.goal_stamp(req)
+        extra["handoff"] = stamp_text(stamp_ns)
+        published = service.publish_first(req, quick, stamp_ns, extra)
+        if published is None:  # shutdown
+            req.done.set()
+            return True
+        path, values = published
+        service.finish(req, "OK", "solved", f"the quick motion published from the held arm "
+                       f"(T = {quick.T:.6g} s; the arm did not follow the last motion); its "
+                       "optimum follows when the worker is idle", values, path=path)
+        self._improvable = (req, quick, stamp_ns, running, values)
+        return True
 
     def improve(self) -> None:
         """The optimum after the last quick motion, when the worker is idle; or it stands.
@@ -339,6 +413,7 @@ class ReplanPolicy:
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
+                     "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns),
                      "warm_start": any(w is not None for w in warm),
                      "published": "none"}

@@ -26,7 +26,7 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
            "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
-           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD"]
+           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD", "FOLLOWING", "FOLLOW_LAG", "lag_start"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -46,6 +46,14 @@ QUICK, IMPROVE = "quick", "improve"
 #: The arm follows a published motion when its measured positions are this close (rad, m;
 #: any joint) to the command at their stamp: tracking error plus a control period's motion.
 FOLLOWING = 0.05
+#: A published motion the arm follows late (or early) is still followed: the measured arm
+#: within :data:`FOLLOWING` of its command up to this long (s) before or after the time its
+#: recorded start says (:func:`lag_start`). A holding tracker starts a motion delivered after
+#: its stamp at once from its beginning (as a JTC holding its position would): under load a
+#: quick motion's publication took 266 ms, its stamp passed, the tracker ran it that late,
+#: and the next goal, its hand-off refused, became a cold multistart (8.4 s of IPOPT on the
+#: Panda) while the stream's goals waited behind it.
+FOLLOW_LAG = 0.5
 #: Latency assumed before any was measured (s). A warm replan at 0.05 was often late at a
 #: stream's first goals (its solve and publication took 60-180 ms): solved again from a later
 #: hand-off, it held up the goals behind it, and the backlog kept the goal solved ahead from
@@ -110,7 +118,10 @@ class Handoff(NamedTuple):
         The running motion's state then (rad, rad/s).
     warm : PlanResult or None
         Its tail from then on, as a warm start (a goal within ``replan_radius``), or None.
-    kind : {"warm", "cold"}
+    kind : {"warm", "cold", "rest"}
+    lag_ns : int
+        How much later (ns; negative: earlier) than its stamp the arm started the running
+        motion, as its joint states show (:func:`lag_start`); 0 when it follows it in time.
     """
 
     stamp_ns: int
@@ -118,6 +129,58 @@ class Handoff(NamedTuple):
     qd: np.ndarray
     warm: object
     kind: str
+    lag_ns: int = 0
+
+
+def lag_start(nominal: NominalTrajectory, start_ns: int, q: np.ndarray, stamp_ns: int,
+              grid: float) -> int | None:
+    """The start (ns) from which a motion runs that puts the arm at ``q`` at ``stamp_ns``.
+
+    The published motion's own times within :data:`FOLLOW_LAG` of the one its stamp
+    ``start_ns`` gives, on the control grid (a tracker starts a motion at a control instant,
+    and the joint states are stamped on those instants): the one whose command is nearest to
+    ``q`` (max-norm over the joints; of equally near ones, the nearest to the recorded
+    start), when within :data:`FOLLOWING`. The arm still at the motion's start (not taken
+    over yet) gives ``stamp_ns``: the earliest it can start. The window is around the stamp,
+    not around a start found before: a motion never taken over (a tracker that refused it)
+    is not followed once its stamp is :data:`FOLLOW_LAG` past.
+
+    Parameters
+    ----------
+    nominal : NominalTrajectory
+        The published samples' interpolant (what the tracker commands).
+    start_ns : int
+        The trajectory's stamp (ns).
+    q : ndarray, shape (n,)
+        The measured positions (rad, m).
+    stamp_ns : int
+        Their stamp (ns).
+    grid : float
+        The control period (s, ``handoff_grid``).
+
+    Returns
+    -------
+    int or None
+        The start (ns), ``start_ns`` plus a whole number of ``grid``; None when no time
+        within :data:`FOLLOW_LAG` puts the command within :data:`FOLLOWING` of ``q``.
+    """
+    step = max(int(round(grid * 1e9)), 1)
+    t_ns = stamp_ns - start_ns
+    k_max = int(FOLLOW_LAG * 1e9) // step
+    lags = np.arange(-k_max, k_max + 1)  # start later by lags * step
+    own = (t_ns - lags * step) * 1e-9  # the motion's own time at the measurement
+    keep = own >= 0.0  # before its start the arm is where it starts: the latest such is own 0
+    if not np.any(keep):
+        return None
+    lags, own = lags[keep], own[keep]
+    errors = np.max(np.abs(nominal.evaluate(own).q - np.asarray(q, dtype=float)), axis=1)
+    best = float(np.min(errors))
+    if best > FOLLOWING:
+        return None
+    # Of the equally near ones (within rounding), the nearest to the recorded start.
+    tied = np.flatnonzero(errors <= best + 1e-12)
+    k = int(lags[tied[np.argmin(np.abs(lags[tied]))]])
+    return start_ns + k * step
 
 
 def align(t_ns: int, origin_ns: int, grid: float) -> int:
@@ -182,7 +245,9 @@ class Replanner:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._executing = None  # (PlanResult, stamp_ns, NominalTrajectory or None)
+        # (PlanResult, start ns, NominalTrajectory or None, whether the start is a guess,
+        # its stamp ns)
+        self._executing = None
         self._from_rest = None  # the last published PlanResult that started at rest
         self._ahead = None  # (PlanResult solved ahead, the running PlanResult it continues)
         self._latency: dict[str, LatencyEstimate] = {}
@@ -232,23 +297,46 @@ class Replanner:
             return max((self._latency[kind].typical() for kind in (WARM, REST)
                         if kind in self._latency), default=0.0)
 
-    def published(self, result, stamp_ns: int, sample=None) -> None:
+    def published(self, result, stamp_ns: int, sample=None, sent_ns: int | None = None
+                  ) -> None:
         """``result`` was published, taking over at ``stamp_ns`` (ns), as ``sample``.
 
         The hand-off state is the published samples' interpolant (what the tracker
         commands), so that the splice does not jump by the interpolation error.
+
+        ``sent_ns``: when its publication ended (ns), for a tracker that starts a motion
+        delivered after its stamp at once from its beginning while it holds (the topic; not
+        a JTC, which drops the points past: None). Sent after its stamp while nothing runs
+        then (the motion before it over), it is expected to start when sent, not at its
+        stamp: a guess that the next measured joint states correct (:meth:`handoff`).
         """
         nominal = None
         if sample is not None:
             nominal = NominalTrajectory(sample.t, sample.q, sample.qd, sample.qdd, sample.tau)
         with self._lock:
-            self._executing = (result, int(stamp_ns), nominal) \
+            start, guessed = int(stamp_ns), False
+            if sent_ns is not None and sent_ns > start:
+                before = self._executing
+                holds = before is None or before[0].trajectory is None or \
+                    before[1] + math.ceil(before[0].T * 1e9) <= sent_ns
+                if holds:
+                    start, guessed = int(sent_ns), True
+            self._executing = (result, start, nominal, guessed, int(stamp_ns)) \
                 if result.trajectory is not None else None
             problem = result.problem
             if result.warm_state is not None and problem is not None and \
                     problem.start.kind == "state" and \
                     np.max(np.abs(problem.start.value[problem.model.n:])) <= REST_SPEED:
                 self._from_rest = result
+
+    def executing_start(self) -> int | None:
+        """When the last published motion started, or is expected to (ns); None: none.
+
+        Its stamp, or where a late start was seen (or expected) the start found
+        (:func:`lag_start`).
+        """
+        with self._lock:
+            return self._executing[1] if self._executing is not None else None
 
     def warm_starts(self, tail=None) -> list:
         """The warm starts of a near goal's replan, in the order to try them.
@@ -302,21 +390,43 @@ class Replanner:
         gap = np.linalg.norm(np.asarray(target) - executing[0].problem.target_point)
         return bool(gap <= config.replan_radius)
 
-    @staticmethod
-    def _followed(result, start_ns: int, nominal, measured) -> bool:
-        """Whether the measured arm is where the published motion commands it."""
+    def _follow_start(self, executing: tuple, measured, grid: float) -> int | None:
+        """When the measured arm shows the published motion started (ns), or None.
+
+        Its recorded start when the arm is within :data:`FOLLOWING` of the command then
+        (or the measurement is from before it), unless that start is a guess (sent after
+        its stamp to a holding tracker: :meth:`published`); else, and for a guess, the start
+        the measured positions give (:func:`lag_start`: the motion followed late or early),
+        kept for the next hand-offs; None when the arm does not follow it at all (no
+        executor, a rejected trajectory, a reset).
+        """
         if measured is None:
-            return False
-        q, stamp_ns = measured
-        t = (stamp_ns - start_ns) * 1e-9
+            return None
+        result, start_ns, nominal, guessed, stamp = executing
+        q, measured_ns = measured
+        t = (measured_ns - start_ns) * 1e-9
         if t < 0.0:  # before the motion takes over: the previous command (not kept) runs
-            return True
-        n = result.problem.model.n
-        if nominal is not None:
-            q_cmd = nominal.evaluate(t).q[0]
-        else:
-            q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
-        return bool(np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING)
+            return start_ns
+        if not guessed:
+            n = result.problem.model.n
+            if nominal is not None:
+                q_cmd = nominal.evaluate(t).q[0]
+            else:
+                q_cmd = result.trajectory.state(min(t, result.T))[0][:n]
+            if np.max(np.abs(np.asarray(q, dtype=float) - q_cmd)) <= FOLLOWING:
+                return start_ns
+        if nominal is None:
+            return None
+        start = lag_start(nominal, stamp, q, measured_ns, grid)
+        if start is None:
+            return None
+        # Found from a moving arm (it left the start): no longer a guess; the arm still at
+        # the start: the earliest it can start, refined by the next measurements.
+        guess = start >= measured_ns
+        with self._lock:
+            if self._executing is executing:
+                self._executing = (result, start, nominal, guess, stamp)
+        return start
 
     def rest_lead(self, config: PlannerConfig) -> float:
         """The lead (s) of a motion that starts at rest.
@@ -369,7 +479,9 @@ class Replanner:
         measured : (ndarray, int), optional
             The arm's latest measured positions (rad) and their stamp (ns): the published
             motion counts as executing only when they are within :data:`FOLLOWING` of its
-            command then (no executor, a rejected trajectory or a reset: not followed).
+            command then, or of its command up to :data:`FOLLOW_LAG` earlier or later (a
+            motion started late: the hand-off is then on the motion shifted by that lag,
+            :func:`lag_start`); no executor, a rejected trajectory or a reset: not followed.
 
         quick : bool
             For a quick motion (``replan_quick``): the lead of the quick motions, and a
@@ -394,8 +506,9 @@ class Replanner:
             executing = self._executing
         if executing is None:
             return None
-        result, start_ns, nominal = executing
-        if not self._followed(result, start_ns, nominal, measured):
+        result, nominal = executing[0], executing[2]
+        start_ns = self._follow_start(executing, measured, config.handoff_grid)
+        if start_ns is None:
             return None
         near = float(np.linalg.norm(np.asarray(target) - result.problem.target_point)) \
             <= config.replan_radius
@@ -420,7 +533,8 @@ class Replanner:
                 end = start_ns + math.ceil(result.T * 1e9)
                 stamp = align(max(now_ns, end), origin_ns or start_ns, config.handoff_grid)
                 q_end = result.trajectory.state(result.T)[0][:n]
-                return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST)
+                return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST,
+                               start_ns - executing[4])
             warm = tail_warm_start(result, t) if kind == WARM else None
             if kind == WARM and warm is None and not quick:
                 continue
@@ -429,5 +543,6 @@ class Replanner:
             if nominal is not None:
                 des = nominal.evaluate(t)
                 q, qd = des.q[0], des.qd[0]
-            return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD)
+            return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD,
+                           start_ns - executing[4])
         return None

@@ -118,8 +118,8 @@ def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.
     table = _SWEEPS.setdefault(model, {})
     key = (id(integ), segments)
     if key not in table or table[key][0] is not integ:
-        x = ca.MX.sym("x", integ.size1_in(0))
-        p = ca.MX.sym("p", integ.size1_in(2))
+        x = ca.MX.sym("x", integ.size1_in("x0"))
+        p = ca.MX.sym("p", integ.size1_in("p"))
         out = integ(x0=x, p=p)["xf"]
         step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
         table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
