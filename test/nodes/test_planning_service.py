@@ -440,3 +440,26 @@ def test_a_motion_the_controller_refused_is_no_longer_continued(make_service):
     [(_, level, message, values)] = out.statuses("refused")
     assert level == "WARN" and values["request_id"] == b.id
     assert "not executing (the controller at /arm/follow rejected it)" in message
+
+
+def test_a_motion_the_tracker_rejected_on_the_topic_is_no_longer_continued(make_service):
+    """A tracker's ``rejected`` status with the stamp of the last published trajectory: as a
+    controller's refusal (a ``refused`` status, the replanner forgets the motion); another
+    stamp (an older trajectory, or one never published) changes nothing."""
+    service, out = make_service()
+    service.planner.gate.set()
+    a, b = request(service), request(service)
+    service.submit(a)
+    wait_done(a)
+    service.submit(b)
+    wait_done(b)
+    stamps = [e[2] for e in out.events if e[0] == "trajectory"]
+    assert len(stamps) == 2 and service.replanner.has_motion()
+    service.tracker_rejected(stamps[0] * 1e-9, "an older one")
+    service.tracker_rejected(stamps[1] * 1e-9 + 1e-3, "another stamp")
+    assert service.replanner.has_motion() and out.statuses("refused") == []
+    service.tracker_rejected(stamps[1] * 1e-9, "at its take-over its position is 0.2 rad off")
+    assert not service.replanner.has_motion()
+    [(_, level, message, values)] = out.statuses("refused")
+    assert level == "WARN" and values["request_id"] == b.id
+    assert "the tracker rejected it: at its take-over its position is 0.2 rad off" in message

@@ -153,6 +153,40 @@ def test_service_round_trip_paper_example(planner, client):
     assert 0.0 < float(status.values["publish_latency"]) <= float(status.values["latency"])
 
 
+def test_a_trajectory_the_tracker_rejected_is_no_longer_continued(planner, client):
+    """The tracker's ``rejected`` status (on ``tracker/status`` beside the planner) with the
+    stamp of the planner's last trajectory: a ``refused`` status, and the planner no longer
+    continues that motion; a rejection of another stamp changes nothing."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    pub = client.node.create_publisher(DiagnosticStatus, f"{NAMESPACE}/tracker/status", 10)
+    client.wait_subscribed(pub)
+    _, status, _ = client.call_plan(PAPER_START, PAPER_TARGET)
+    assert status.event == "solved", status.message
+    msg = client.wait_for(lambda: client.trajectories and client.trajectories[-1], HANG,
+                          "the trajectory")
+    stamp = seconds(msg.header.stamp)
+    assert planner.node.service.replanner.has_motion()
+
+    def rejected(at, why):
+        return DiagnosticStatus(level=DiagnosticStatus.ERROR, name="tracker",
+                                message=f"trajectory rejected: {why}; holding",
+                                values=[KeyValue(key="event", value="rejected"),
+                                        KeyValue(key="stamp", value=f"{at:.9f}")])
+
+    since = len(client.status_list())
+    # In order on one publisher: another stamp's first; had it counted, the one refusal
+    # (a motion is refused once) would name it.
+    pub.publish(rejected(stamp + 0.5, "another stamp"))
+    pub.publish(rejected(stamp, "off"))
+    refused = client.wait_for(lambda: next((s for s in client.status_list()[since:]
+                                            if s.event == "refused"), None), HANG,
+                              "the refused status")
+    assert refused.values["request_id"] == status.values["request_id"]
+    assert "the tracker rejected it: trajectory rejected: off" in refused.message
+    assert not planner.node.service.replanner.has_motion()
+
+
 def test_trajectory_matches_solver_result(planner, client):
     client.call_plan(PAPER_START, PAPER_TARGET)
     result = planner.node.last_result

@@ -450,9 +450,14 @@ def test_after_a_reset_the_positions_before_it_are_no_start(harness):
     q0 = np.array(PAPER_START_Q)
     reset.publish(_reset_msg(q0 + [0.4, -0.4, 0.4]))
     harness.status_with("reset to")
-    harness.pub.publish(motion_msg(harness.node.model, q0, [0.05, 0.0, -0.05], 0.5))
+    msg = motion_msg(harness.node.model, q0, [0.05, 0.0, -0.05], 0.5)
+    harness.pub.publish(msg)
     status = harness.status_with("trajectory rejected")
     assert "more than start_tolerance" in status.message, status.message
+    # Its header stamp, for a planner to match with its publication (a zero stamp: now).
+    values = _values(status)
+    assert values["event"] == "rejected"
+    assert float(values["stamp"]) == msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 @pytest.mark.parametrize("reset_first", [False, True], ids=["first_plan", "after_reset"])

@@ -161,6 +161,10 @@ class PlannerNode(Node):
                                  callback_group=inputs)
         self.create_subscription(PoseStamped, "~/goal_pose", self._on_goal_pose, QOS_GOAL,
                                  callback_group=inputs)
+        # The tracker's refusals of topic trajectories (relative: the launch file's tracker
+        # beside this planner; remap it to another executor's status topic).
+        self.create_subscription(DiagnosticStatus, "tracker/status", self._on_tracker_status,
+                                 QOS_STATUS, callback_group=inputs)
         try:  # tocontrol_msgs only for the action: without it the rest is served
             self._plan_action = PlanMotionServer(self, self._outputs, self._arm.start,
                                                  self._parameter_values)
@@ -276,6 +280,16 @@ class PlannerNode(Node):
         self.service.submit(PlanRequest(rid, "goal_pose", start,
                                         pose.position[list(self.model.task_axes)], config,
                                         received=received, target_pose=pose))
+
+    def _on_tracker_status(self, msg: DiagnosticStatus) -> None:
+        values = {kv.key: kv.value for kv in msg.values}
+        if values.get("event") != "rejected" or "stamp" not in values:
+            return
+        try:
+            stamp = float(values["stamp"])
+        except ValueError:
+            return
+        self.service.tracker_rejected(stamp, msg.message)
 
     def _diagnostic_state(self):
         """``/diagnostics``: readiness, requests waiting, last plan, builds, controller."""

@@ -171,7 +171,8 @@ class PlanningService:
         self._ids = itertools.count(1)
         self._last_result = None
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
-        self._sent: tuple[int, Any] | None = None  # (request id, PlanResult) last published
+        # (request id, PlanResult, its stamp ns) last published
+        self._sent: tuple[int, Any, int] | None = None
         #: The last publication's parts (s): the trajectory sampled, its message sent.
         self._publish_parts = {"sample_time": 0.0, "send_time": 0.0}
         self._replans = ReplanPolicy(self)
@@ -532,7 +533,7 @@ class PlanningService:
         # its stamp (a JTC, controller_action, drops the points past instead).
         sent_ns = None if config.controller_action else self.clock.now_ns()
         self.replanner.published(result, stamp_ns, sample, sent_ns=sent_ns)
-        self._sent = (rid, result)
+        self._sent = (rid, result, stamp_ns)
         path = self.out.path(sample, stamp_ns)
         if path is None:
             return None
@@ -555,6 +556,16 @@ class PlanningService:
                         "planned from the arm's measured state",
                         {"request_id": request_id, "event": "refused",
                          "frame_id": self.frame_id})
+
+    def tracker_rejected(self, stamp: float, reason: str) -> None:
+        """A tracker rejected the trajectory stamped ``stamp`` (s) that it got on the topic.
+
+        When that is the last published motion (its stamp within 1 us), as
+        :meth:`controller_refused`: replans stop continuing a motion that does not run.
+        """
+        sent = self._sent
+        if sent is not None and abs(sent[2] * 1e-9 - stamp) <= 1e-6:
+            self.controller_refused(sent[0], f"the tracker rejected it: {reason}")
 
     # --------------------------------------------------------------- shutdown
     def stop(self, timeout: float = JOIN_TIMEOUT) -> None:

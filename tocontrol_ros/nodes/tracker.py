@@ -81,6 +81,7 @@ from tocontrol_ros.nodes.tracker_messages import (
     TrajectoryRejectedError,
     check_limits,
     nominal_from_msg,
+    rejected_status,
     reset_request,
     reset_state_from_msg,
     rest_row,
@@ -234,12 +235,12 @@ class TrackerNode(Node):
         with self._parsed_lock:
             self._parsed.append(item)
 
-    def _reject(self, reason: str, record: GoalRecord | None = None) -> None:
+    def _reject(self, reason: str, record: GoalRecord | None = None, stamp=None) -> None:
+        text = f"trajectory rejected: {reason}"
         if record is not None:
-            self._follow.rejected(record, f"trajectory rejected: {reason}")
-        running = "continuing the current trajectory" if self.tracker.running else "holding"
-        self.publish_status(DiagnosticStatus.ERROR, f"trajectory rejected: {reason}; {running}")
-        self.get_logger().warning(f"trajectory rejected: {reason}")
+            self._follow.rejected(record, text)
+        self.publish_status(*rejected_status(text, self.tracker.running, stamp))
+        self.get_logger().warning(text)
 
     def _start_parsed(self) -> None:
         """Start (or reject) the trajectories parsed since the last tick, in arrival order."""
@@ -268,7 +269,7 @@ class TrackerNode(Node):
                                                       self.config.start_tolerance,
                                                       self.joint_names)
             if refused and not placed:
-                self._reject(refused, record)
+                self._reject(refused, record, stamp)
                 continue
             # The state it starts from, for re-execution (the status is latched: a recorder
             # that subscribes late still gets it).
@@ -308,7 +309,7 @@ class TrackerNode(Node):
         if dq > self.config.start_tolerance:
             self._reject(f"stamped {splice.stamp:.6f}: at its take-over its position is "
                          f"{dq:.3g} rad from the commanded one, more than start_tolerance = "
-                         f"{self.config.start_tolerance:g}", splice.record)
+                         f"{self.config.start_tolerance:g}", splice.record, splice.stamp)
             return
         self.publish_summary(tracker.start(splice.nominal, elapsed))  # the one preempted
         self._follow.started(splice.record, splice.nominal, elapsed=elapsed)

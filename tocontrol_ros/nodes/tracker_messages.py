@@ -26,7 +26,7 @@ __all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "jtc_
            "check_limits",
            "reset_state_from_msg", "summary_status",
            "start_event", "start_state_values", "state_msgs", "status_msg", "ResetRequest",
-           "reset_request", "rest_row", "splice_event"]
+           "reset_request", "rest_row", "splice_event", "rejected_status"]
 
 
 class TrajectoryRejectedError(ProblemError):
@@ -272,6 +272,20 @@ def rest_row(t: float, q: np.ndarray, qd: np.ndarray) -> dict[str, object]:
     zero = np.zeros(len(q))
     return {"t": t, "q": q, "qd": qd, "error": zero, "error_rate": zero, "feedback": zero,
             "tau": zero}
+
+
+def rejected_status(text: str, running: bool, stamp: float | None
+                    ) -> tuple[bytes, str, dict[str, str]]:
+    """A ``trajectory rejected`` status: (level, message, values) for ``publish_status``.
+
+    ``text``: ``trajectory rejected: <reason>``; ``running``: whether the tracker goes on
+    with the current trajectory (else it holds). The values: ``event`` ``rejected`` and, when
+    known, ``stamp``: the refused trajectory's ``header.stamp`` (s), known once it was
+    parsed; a planner matches it with its last publication (msg_docs/tracker_status.md).
+    """
+    message = f"{text}; {'continuing the current trajectory' if running else 'holding'}"
+    values = {"event": "rejected"} | ({} if stamp is None else {"stamp": f"{stamp:.9f}"})
+    return DiagnosticStatus.ERROR, message, values
 
 
 def splice_event(splice, dq: float, dqd: float, start_time: float, h: float
