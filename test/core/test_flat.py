@@ -229,6 +229,9 @@ def test_a_transcription_on_other_breakpoints_solves_as_one_built_for_them(panda
     assert np.array_equal(view.parameters(*values), par)
     assert not np.array_equal(other.parameters(*values), par)
     assert np.array_equal(uniform.on(breaks).parameters(*values), par)
+    # The samples (the clearance allowance's fade) are a view's own, its geometry cached.
+    np.testing.assert_array_equal(uniform.on(breaks).samples, built.samples)
+    assert not np.array_equal(built.samples, uniform.samples)
 
 
 def test_refined_meshes_are_built_once_per_number_of_spans(panda_limited, monkeypatch):

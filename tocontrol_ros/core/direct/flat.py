@@ -673,6 +673,17 @@ class FlatTranscription:
         """The NLP's parameter vector: start, target, ``k``, then the mesh's geometry."""
         return np.concatenate([start_value, target_value, [k], self._geo])
 
+    def _sample_positions(self, breaks: np.ndarray) -> np.ndarray:
+        """The samples' ``s`` in [0, 1] on ``breaks`` (S,): ``per_span`` a span, then 1."""
+        frac = np.arange(self.per_span) / self.per_span
+        return np.concatenate([(breaks[:-1, None] + frac[None, :] * np.diff(breaks)[:, None])
+                               .ravel(), [1.0]])
+
+    @property
+    def samples(self) -> np.ndarray:
+        """The samples' ``s`` on this transcription's breakpoints (S,): the allowance's fade."""
+        return self._sample_positions(self.breaks)
+
     def _geometry(self, breaks: np.ndarray) -> np.ndarray:
         """The NLP's parameters that depend on the breakpoints (L + 1,).
 
@@ -680,13 +691,10 @@ class FlatTranscription:
         structure, ``self._span``).
         """
         p, L, ps = self.degree, len(breaks) - 1, self.per_span
-        frac = np.arange(ps) / ps
-        s = np.concatenate([(breaks[:-1, None] + frac[None, :] * np.diff(breaks)[:, None])
-                            .ravel(), [1.0]])
+        s = self._sample_positions(breaks)
         span, b = basis(breaks, p, s)
         if not np.array_equal(span, self._span):
             raise ValueError("breakpoints too close together for the samples' spans")
-        self.samples = s  # the samples' s (S,): the clearance allowance's fade
         tk = knots(breaks, p)
         K = L + p
         c = p / (tk[p + 1:p + K] - tk[1:K])
