@@ -19,7 +19,7 @@ it was over by then), ``q_near`` its end (what the planner node passes), k = 4, 
 - the certificate's open loop of the same motion: the state by CVODES segment by segment
   from Python (``ScaledPath.open_loop(..., one_call=False, deviation=False)``, main's before
   issue 47), the state in one ``mapaccum`` call
-  (:func:`~tocontrol_ros.core.direct.scaled_path.open_loop_sweep`), and the deviation from
+  (:func:`~tocontrol_ros.core.direct.flat_trajectory.open_loop_sweep`), and the deviation from
   each segment's path in one call (the default since), the states compared.
 
 Figures: medians over the cases (ms), before -> seidel -> now and the ratio seidel / now of

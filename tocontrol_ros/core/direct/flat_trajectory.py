@@ -24,7 +24,8 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
-           "mapped_controls", "open_loop_sweep", "polynomial_segment_ode", "refined_breaks"]
+           "mapped_controls", "open_loop_sweep", "polynomial_path", "polynomial_segment_ode",
+           "refined_breaks", "segment_dae"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
@@ -52,12 +53,35 @@ def polynomial_segment_ode(model: RobotModel, degree: int
     n, d1 = model.n, degree + 1
     x, c, h = ca.SX.sym("x", 2 * n), ca.SX.sym("c", n, d1), ca.SX.sym("h")
     sig = ca.SX.sym("sigma")
+    q, qd, qdd = polynomial_path(c, sig, h)
+    tau = model.rnea_sym(q, qd, qdd)
+    return sig, x, c, h, h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+
+
+def polynomial_path(c: ca.SX, sig: ca.SX, h: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """The path ``q(sigma) = sum_j c_j sigma^j`` and its time derivatives (SX).
+
+    ``c`` of shape (n, degree + 1), ``sigma`` the segment's normalised time in [0, 1], ``h``
+    its duration (s). Returns ``q, dq/dt, d2q/dt2``, each (n,).
+    """
+    d1 = c.shape[1]
     pw = [sig ** j for j in range(d1)]
     q = sum(c[:, j] * pw[j] for j in range(d1))
     qd = sum(j * c[:, j] * pw[j - 1] for j in range(1, d1)) / h
     qdd = sum(j * (j - 1) * c[:, j] * pw[j - 2] for j in range(2, d1)) / h ** 2
-    tau = model.rnea_sym(q, qd, qdd)
-    return sig, x, c, h, h * ca.vertcat(x[n:], model.forward_dynamics_sym(x[:n], x[n:], tau))
+    return q, qd, qdd
+
+
+def segment_dae(name: str, sig: ca.SX, state: ca.SX, c: ca.SX, h: ca.SX, ode: ca.SX
+                ) -> ca.Function:
+    """``ode`` (``d state / d sigma``) as a segment's CasADi DAE function, what CVODES takes.
+
+    The dynamics signature ``t, x, z, p, u -> ode, alg, quad, zero`` with ``t = sigma``,
+    ``x = state``, ``p = (vec c, h)`` and no ``z`` nor ``u``.
+    """
+    none = ca.SX(0, 1)
+    return ca.Function(name, [sig, state, none, ca.vertcat(ca.vec(c), h), none],
+                       [ode, none, none, none], ca.dyn_in(), ca.dyn_out())
 
 
 def integrate_segments(integ: ca.Function, x0: np.ndarray, segments
@@ -144,11 +168,8 @@ def compile_open_loop(model: RobotModel, degree: int = 3) -> tuple[ca.Function, 
         how it was obtained (:func:`~tocontrol_ros.core.robot.compiled.compile_owned`).
     """
     def build() -> list[ca.Function]:
-        sig, x, c, h, ode = polynomial_segment_ode(model, degree)
-        none = ca.SX(0, 1)
-        dae = ca.Function(f"flat_open_loop_ode{degree}", [sig, x, none,
-                                                          ca.vertcat(ca.vec(c), h), none],
-                          [ode, none, none, none], ca.dyn_in(), ca.dyn_out())
+        dae = segment_dae(f"flat_open_loop_ode{degree}",
+                          *polynomial_segment_ode(model, degree))
         return [dae, dae.jacobian()]
 
     funs, how = compile_owned(model, ("flat_open_loop", degree),

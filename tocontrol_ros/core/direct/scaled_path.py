@@ -31,7 +31,9 @@ from tocontrol_ros.core.direct.flat_trajectory import (
     OPEN_LOOP_POINTS,
     integrate_segments,
     open_loop_sweep,
+    polynomial_path,
     polynomial_segment_ode,
+    segment_dae,
 )
 from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
@@ -39,7 +41,7 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES",
-           "rigid_body_terms", "inverse_dynamics", "open_loop_sweep", "MAP_STEP"]
+           "rigid_body_terms", "inverse_dynamics", "MAP_STEP"]
 
 #: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
 _MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -78,13 +80,7 @@ def _open_loop_rhs(model: RobotModel, degree: int) -> ca.Function:
     dynamics signature (``t, x, z, p, u -> ode, alg, quad, zero``) so that a compiled copy
     can drive CVODES.
     """
-    sig, x, c, h, ode = polynomial_segment_ode(model, degree)
-    empty = ca.SX(0, 1)
-    return ca.Function(f"first_open_loop{degree}", [sig, x, ca.SX.sym("z", 0),
-                                                    ca.vertcat(ca.vec(c), h),
-                                                    ca.SX.sym("u", 0)],
-                       [ode, empty, empty, empty], ["t", "x", "z", "p", "u"],
-                       ["ode", "alg", "quad", "zero"])
+    return segment_dae(f"first_open_loop{degree}", *polynomial_segment_ode(model, degree))
 
 
 def _segment_path(model: RobotModel, degree: int) -> ca.Function:
@@ -92,10 +88,8 @@ def _segment_path(model: RobotModel, degree: int) -> ca.Function:
 
     ``p = (vec c, h)`` as for :func:`_open_loop_rhs`; ``x_path = (q, dq/dt)`` (rad, rad/s).
     """
-    n, d1 = model.n, degree + 1
-    sig, c, h = ca.SX.sym("sigma"), ca.SX.sym("c", n, d1), ca.SX.sym("h")
-    q = sum(c[:, j] * sig ** j for j in range(d1))
-    qd = sum(j * c[:, j] * sig ** (j - 1) for j in range(1, d1)) / h
+    sig, c, h = ca.SX.sym("sigma"), ca.SX.sym("c", model.n, degree + 1), ca.SX.sym("h")
+    q, qd, _ = polynomial_path(c, sig, h)
     return ca.Function(f"segment_path{degree}", [sig, ca.vertcat(ca.vec(c), h)],
                        [ca.vertcat(q, qd)])
 
@@ -111,18 +105,10 @@ def _deviation_rhs(model: RobotModel, degree: int) -> ca.Function:
     torques with the forward dynamics drives ``e`` and is integrated as before.
     """
     sig, x, c, h, ode = polynomial_segment_ode(model, degree)
-    n, d1 = model.n, degree + 1
-    e = ca.SX.sym("e", 2 * n)
-    q = sum(c[:, j] * sig ** j for j in range(d1))
-    qd = sum(j * c[:, j] * sig ** (j - 1) for j in range(1, d1)) / h
-    qdd = sum(j * (j - 1) * c[:, j] * sig ** (j - 2) for j in range(2, d1)) / h ** 2
+    e = ca.SX.sym("e", 2 * model.n)
+    q, qd, qdd = polynomial_path(c, sig, h)
     ode_e = ca.substitute(ode, x, ca.vertcat(q, qd) + e) - h * ca.vertcat(qd, qdd)
-    empty = ca.SX(0, 1)
-    return ca.Function(f"first_open_loop_dev{degree}", [sig, e, ca.SX.sym("z", 0),
-                                                        ca.vertcat(ca.vec(c), h),
-                                                        ca.SX.sym("u", 0)],
-                       [ode_e, empty, empty, empty], ["t", "x", "z", "p", "u"],
-                       ["ode", "alg", "quad", "zero"])
+    return segment_dae(f"first_open_loop_dev{degree}", sig, e, c, h, ode_e)
 
 
 def _rhs_pairs(model: RobotModel, make: Callable[[RobotModel, int], ca.Function]
