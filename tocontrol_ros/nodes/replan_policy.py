@@ -193,16 +193,7 @@ class ReplanPolicy:
             if now > handoff.stamp_ns - int(config.replan_min_lead * 1e9):
                 min_lead = config.replan_min_lead + 2.0 * (clock.monotonic() - t0)
                 continue
-            published = service.publish_first(req, quick, handoff.stamp_ns, extra)
-            if published is None:  # shutdown
-                req.done.set()
-                return True
-            path, values = published
-            service.finish(req, "OK", "solved", f"the quick motion published (T = "
-                           f"{quick.T:.6g} s); its optimum follows when the worker is idle",
-                           values, path=path)
-            self._improvable = (req, quick, handoff.stamp_ns, running, values)
-            return True
+            return self._publish_quick(req, quick, handoff.stamp_ns, running, extra)
         service.status(req, "WARN", "first", f"request {req.id}: no quick motion in time for "
                        f"its hand-off in {REPLAN_TRIES} tries; the optimum follows", extra)
         return None
@@ -256,14 +247,25 @@ class ReplanPolicy:
             return None
         stamp_ns = self.goal_stamp(req)
         extra["handoff"] = stamp_text(stamp_ns)
+        return self._publish_quick(req, quick, stamp_ns, running, extra, " from the held arm",
+                                   "; the arm did not follow the last motion")
+
+    def _publish_quick(self, req: PlanRequest, quick, stamp_ns: int, running, extra: dict,
+                       where: str = "", why: str = "") -> bool:
+        """Publish ``quick`` stamped ``stamp_ns``, finish ``req`` with it, keep it improvable.
+
+        ``running``: the motion it follows; ``where``, ``why``: said in the ``solved`` status.
+        Returns True (the request is answered, or the node shuts down).
+        """
+        service = self.service
         published = service.publish_first(req, quick, stamp_ns, extra)
         if published is None:  # shutdown
             req.done.set()
             return True
         path, values = published
-        service.finish(req, "OK", "solved", f"the quick motion published from the held arm "
-                       f"(T = {quick.T:.6g} s; the arm did not follow the last motion); its "
-                       "optimum follows when the worker is idle", values, path=path)
+        service.finish(req, "OK", "solved", f"the quick motion published{where} (T = "
+                       f"{quick.T:.6g} s{why}); its optimum follows when the worker is idle",
+                       values, path=path)
         self._improvable = (req, quick, stamp_ns, running, values)
         return True
 
