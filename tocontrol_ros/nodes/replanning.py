@@ -26,7 +26,8 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
            "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
-           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD", "FOLLOWING", "FOLLOW_LAG", "lag_start"]
+           "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD", "FOLLOWING", "FOLLOW_LAG", "lag_start",
+           "Executing"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -130,6 +131,16 @@ class Handoff(NamedTuple):
     warm: object
     kind: str
     lag_ns: int = 0
+
+
+class Executing(NamedTuple):
+    """The last published motion as the replanner keeps it."""
+
+    result: object  # the PlanResult published
+    start_ns: int  # when it started or is expected to (its stamp, or a late start found)
+    nominal: object  # NominalTrajectory of the published samples, or None
+    guessed: bool  # the start a guess (sent after its stamp to a holding tracker)
+    stamp_ns: int  # its trajectory's header stamp
 
 
 def lag_start(nominal: NominalTrajectory, start_ns: int, q: np.ndarray, stamp_ns: int,
@@ -245,9 +256,7 @@ class Replanner:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        # (PlanResult, start ns, NominalTrajectory or None, whether the start is a guess,
-        # its stamp ns)
-        self._executing = None
+        self._executing: Executing | None = None
         self._from_rest = None  # the last published PlanResult that started at rest
         self._ahead = None  # (PlanResult solved ahead, the running PlanResult it continues)
         self._latency: dict[str, LatencyEstimate] = {}
@@ -266,7 +275,7 @@ class Replanner:
         motion was published since (returns False).
         """
         with self._lock:
-            if self._executing is None or self._executing[0] is not result:
+            if self._executing is None or self._executing.result is not result:
                 return False
             self._executing = None
             self._ahead = None
@@ -275,7 +284,7 @@ class Replanner:
     def running(self):
         """The last published motion (a PlanResult), or None."""
         with self._lock:
-            return self._executing[0] if self._executing is not None else None
+            return self._executing.result if self._executing is not None else None
 
     def estimate(self, config: PlannerConfig, kind: str) -> LatencyEstimate:
         """The latency estimate of one kind of solve (made with the config's margins)."""
@@ -317,11 +326,11 @@ class Replanner:
             start, guessed = int(stamp_ns), False
             if sent_ns is not None and sent_ns > start:
                 before = self._executing
-                holds = before is None or before[0].trajectory is None or \
-                    before[1] + math.ceil(before[0].T * 1e9) <= sent_ns
+                holds = before is None or before.result.trajectory is None or \
+                    before.start_ns + math.ceil(before.result.T * 1e9) <= sent_ns
                 if holds:
                     start, guessed = int(sent_ns), True
-            self._executing = (result, start, nominal, guessed, int(stamp_ns)) \
+            self._executing = Executing(result, start, nominal, guessed, int(stamp_ns)) \
                 if result.trajectory is not None else None
             problem = result.problem
             if result.warm_state is not None and problem is not None and \
@@ -336,7 +345,7 @@ class Replanner:
         (:func:`lag_start`).
         """
         with self._lock:
-            return self._executing[1] if self._executing is not None else None
+            return self._executing.start_ns if self._executing is not None else None
 
     def warm_starts(self, tail=None) -> list:
         """The warm starts of a near goal's replan, in the order to try them.
@@ -352,7 +361,7 @@ class Replanner:
         """
         with self._lock:
             executing, from_rest, ahead = self._executing, self._from_rest, self._ahead
-        last = executing[0] if executing is not None else None
+        last = executing.result if executing is not None else None
         # Solved ahead from the motion that still runs: a prediction error from this goal.
         first = ahead[0] if ahead is not None and last is not None and ahead[1] is last \
             else None
@@ -369,7 +378,7 @@ class Replanner:
         """
         with self._lock:
             ends = [r for r in (self._ahead[0] if self._ahead else None,
-                                self._executing[0] if self._executing else None)
+                                self._executing.result if self._executing else None)
                     if r is not None and r.trajectory is not None and r.problem is not None]
         if not ends:
             return False
@@ -385,12 +394,12 @@ class Replanner:
         """Whether ``target`` is within ``replan_radius`` of the last published motion's."""
         with self._lock:
             executing = self._executing
-        if executing is None or executing[0].problem is None:
+        if executing is None or executing.result.problem is None:
             return False
-        gap = np.linalg.norm(np.asarray(target) - executing[0].problem.target_point)
+        gap = np.linalg.norm(np.asarray(target) - executing.result.problem.target_point)
         return bool(gap <= config.replan_radius)
 
-    def _follow_start(self, executing: tuple, measured, grid: float) -> int | None:
+    def _follow_start(self, executing: Executing, measured, grid: float) -> int | None:
         """When the measured arm shows the published motion started (ns), or None.
 
         Its recorded start when the arm is within :data:`FOLLOWING` of the command then
@@ -425,7 +434,7 @@ class Replanner:
         guess = start >= measured_ns
         with self._lock:
             if self._executing is executing:
-                self._executing = (result, start, nominal, guess, stamp)
+                self._executing = executing._replace(start_ns=start, guessed=guess)
         return start
 
     def rest_lead(self, config: PlannerConfig) -> float:
@@ -506,7 +515,7 @@ class Replanner:
             executing = self._executing
         if executing is None:
             return None
-        result, nominal = executing[0], executing[2]
+        result, nominal = executing.result, executing.nominal
         start_ns = self._follow_start(executing, measured, config.handoff_grid)
         if start_ns is None:
             return None
@@ -534,7 +543,7 @@ class Replanner:
                 stamp = align(max(now_ns, end), origin_ns or start_ns, config.handoff_grid)
                 q_end = result.trajectory.state(result.T)[0][:n]
                 return Handoff(stamp, q_end.copy(), np.zeros(n), None, REST,
-                               start_ns - executing[4])
+                               start_ns - executing.stamp_ns)
             warm = tail_warm_start(result, t) if kind == WARM else None
             if kind == WARM and warm is None and not quick:
                 continue
@@ -544,5 +553,5 @@ class Replanner:
                 des = nominal.evaluate(t)
                 q, qd = des.q[0], des.qd[0]
             return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD,
-                           start_ns - executing[4])
+                           start_ns - executing.stamp_ns)
         return None
