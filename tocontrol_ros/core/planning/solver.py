@@ -82,9 +82,6 @@ __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "p
 #: (``Planner.plan`` runs :func:`solve_once`) is not slowed again: ``f`` times, not ``f``
 #: squared. The results are unchanged (no decision reads it); the test suite must pass with
 #: a solver that slow. Read at import.
-#: At most this many re-solves with more self pairs as rows (:func:`_with_self_rows`).
-SELF_ROW_ROUNDS = 2
-
 SLOW_SOLVER = float(os.environ.get("TOCONTROL_SLOW_SOLVER", "") or 1.0)
 #: The real clock, bound at import: a test that replaces ``time.perf_counter`` with a clock
 #: that jumps (test_determinism) must not make the hook sleep for minutes.
@@ -228,6 +225,10 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
         best = replace(best, starts=(record,) + starts, timings=timings)
     best.timings["total"] = time.perf_counter() - t_start
     return best
+
+
+#: At most this many re-solves with more self pairs as rows (:func:`_with_self_rows`).
+SELF_ROW_ROUNDS = 2
 
 
 def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
