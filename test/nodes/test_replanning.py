@@ -13,10 +13,12 @@ from tocontrol_ros.nodes.requests import LatestSlot
 from tocontrol_ros.nodes.splice import (
     SPLICE_HORIZON,
     Splice,
+    is_late,
     joins_late,
     jumps,
     schedule,
     splice_instant,
+    take_over_elapsed,
     take_over_instant,
 )
 
@@ -302,6 +304,30 @@ def test_a_late_goal_joins_as_far_along_as_its_stamp_says():
     at, elapsed = splice_instant(104.0, 100.0, 5.0004, h, late=True)
     assert at == pytest.approx(5.001) and elapsed == pytest.approx(1.001)
     assert splice_instant(0.0, 100.0, 5.0, h, late=True) is None  # stamp 0: now
+
+
+def test_a_late_splice_keeps_its_stamps_timeline_when_the_motion_it_joins_has_ended():
+    """A replan delivered after its hand-off is scheduled to join the running motion at the
+    next control instant, as far along as its stamp says. When that motion ends before the
+    instant (a rest replan stamped at its end, delivered a little late), the tracker used to
+    start the replan from its beginning: a lag its planner did not know, and the next
+    replan's splice, on time, jumped (1.1e-2 rad/s, 5.3e-3 rad in loaded CI runs). It keeps
+    the stamp's timeline now; only an on-time splice onto a holding arm starts from 0."""
+    h = 0.002
+    at, elapsed = splice_instant(100.0 + 4.992, 100.0, 5.0004, h, late=True)
+    late = Splice(None, at, elapsed, 104.992)
+    assert is_late(late, h) and elapsed == pytest.approx(0.010)
+    assert take_over_elapsed(late, running=True, h=h) == pytest.approx(0.010)
+    assert take_over_elapsed(late, running=False, h=h) == pytest.approx(0.010)
+    at, elapsed = splice_instant(100.0 + 5.1, 100.0, 5.0, h)  # ahead: on time
+    on_time = Splice(None, at, elapsed, 105.1)
+    assert not is_late(on_time, h)
+    assert take_over_elapsed(on_time, running=False, h=h) == 0.0
+    # A stamp between two control instants: on time, within a period of it.
+    at, elapsed = splice_instant(100.0 + 5.1005, 100.0, 5.0, h)
+    grid = Splice(None, at, elapsed, 105.1005)
+    assert not is_late(grid, h) and take_over_elapsed(grid, False, h) == 0.0
+    assert take_over_elapsed(grid, True, h) == pytest.approx(0.0015)
 
 
 def _nominal(sample):

@@ -300,6 +300,51 @@ def test_a_new_trajectory_preempts_from_the_current_state(model):
         h.stop()
 
 
+def test_stamps_within_a_ticks_stretch_take_over_at_their_instants_in_order(model, monkeypatch):
+    """Two trajectories taken in one tick that advances the simulation past both stamps: a
+    first motion stamped 0.05 s ahead and the replan from its end (0.5 s later), stamped
+    there. Each takes
+    over at its own stamp, in order, without a jump: the timeline the planner assumed. (The
+    tick counted stamps up to its target as past: the first started at once, off its stamp,
+    and the second joined it late; in a loaded CI run a replan started at once from a holding
+    arm was then overridden by a splice pending before it, and the next splice, on time,
+    jumped by 6e-3 rad.) The test drives the tick itself: the node's timer is cancelled
+    and its target time set, so nothing here depends on the machine's speed."""
+    h = Harness([Parameter("use_sim_time", value=True)])
+    try:
+        node = h.node
+        for timer in node.timers:
+            timer.cancel()
+        t0 = node.tracker.t
+        target = [t0 + 1.2]
+        monkeypatch.setattr(node, "_target_time", lambda: target[0])
+        q0, dq = np.array(PAPER_START_Q), np.array([0.02, -0.01, 0.02])
+        first, second = motion_msg(model, q0, dq, 0.5), motion_msg(model, q0 + dq, -dq, 0.5)
+        for msg, at in ((first, 0.05), (second, 0.55)):
+            ns = int(round((node.epoch + t0 + at) * 1e9))
+            msg.header.stamp = Time(sec=ns // 10**9, nanosec=ns % 10**9)
+            node._parse(msg)  # what the parsing thread does, here in order
+        node._on_timer()
+        target[0] += 0.1  # and one more tick: whatever was left pending takes over
+        node._on_timer()
+        h.wait(lambda: len([s for s in h.statuses if _values(s).get("event") == "spliced"
+                            or "executing trajectory:" in s.message
+                            or "trajectory rejected" in s.message]) >= 2,
+               "both take-overs reported", HANG)
+        with h.lock:
+            spliced = [_values(s) for s in h.statuses if _values(s).get("event") == "spliced"]
+            other = [s.message for s in h.statuses if "executing trajectory:" in s.message
+                     or "trajectory rejected" in s.message]
+        assert not other, other  # neither started at once nor refused
+        assert [float(v["start_time"]) - node.epoch - t0 for v in spliced] == \
+            pytest.approx([0.05, 0.55], abs=1e-9)
+        assert all(v["late"] == "false" and float(v["position_jump"]) < 1e-9
+                   and float(v["velocity_jump"]) < 1e-9 for v in spliced), spliced
+        np.testing.assert_allclose(node.tracker.commanded(node.tracker.t)[0], q0, atol=1e-9)
+    finally:
+        h.stop()
+
+
 def test_trajectories_published_between_two_takes_are_all_executed(model):
     """Replans published faster than the tracker takes them (its executor busy on a loaded
     machine) are all parsed and started in order, not only the newest: the planner's

@@ -5,10 +5,11 @@ clock (by at most :data:`SPLICE_HORIZON`) is a splice: the running trajectory go
 that instant and the new one takes over there (a replan from where the arm will be, see
 ``msg_docs/tracker_trajectory_input.md``). One whose stamp has just passed (by at most
 :data:`SPLICE_HORIZON`: :func:`joins_late`) while a trajectory runs takes over at the next
-control instant as far along as its stamp says, as a JTC does: a replan delivered after its
-hand-off then follows the motion its planner assumed, and the next replan's splice matches
-it. A stamp of zero, one farther off (another clock), or one at or before the tracker's time
-while it holds, starts the trajectory at once from its start. No ROS here.
+control instant as far along as its stamp says, as a JTC does (also when the running one
+ends before that instant: :func:`take_over_elapsed`): a replan delivered after its hand-off
+then follows the motion its planner assumed, and the next replan's splice matches it. A
+stamp of zero, one farther off (another clock), or one at or before the tracker's time while
+it holds, starts the trajectory at once from its start. No ROS here.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["Splice", "SPLICE_HORIZON", "splice_instant", "joins_late", "take_over_instant",
-           "jumps", "schedule"]
+           "is_late", "take_over_elapsed", "jumps", "schedule"]
 
 #: A stamp at most this far (s) ahead of the tracker's time is a splice instant; farther,
 #: the stamp is taken to be on another clock (a planner on wall time, a tracker on /clock:
@@ -116,6 +117,24 @@ def take_over_instant(stamp: float, epoch: float, now: float, h: float, running:
     """
     late = goal or (running and joins_late(stamp, epoch, now))
     return splice_instant(stamp, epoch, now, h, late)
+
+
+def is_late(splice: Splice, h: float) -> bool:
+    """Whether ``splice`` takes over a control period ``h`` (s) or more after its stamp."""
+    return splice.elapsed >= h - GRID_SLACK
+
+
+def take_over_elapsed(splice: Splice, running: bool, h: float) -> float:
+    """The trajectory's own time (s) at which ``splice`` takes over.
+
+    Joining a running trajectory (``running``), or late (:func:`is_late`: delivered after
+    its hand-off): as far along as its stamp says, as a JTC drops the points past. So a late
+    replan keeps the timeline its planner assumed, and the next replan's splice matches it,
+    also when the motion it was to join ended between its delivery and its take-over (it
+    used to start from its beginning then, a lag the planner did not know: the next splice
+    jumped). Holding, on time: from its beginning (0).
+    """
+    return splice.elapsed if running or is_late(splice, h) else 0.0
 
 
 def jumps(old: tuple[np.ndarray, np.ndarray], new: tuple[np.ndarray, np.ndarray]

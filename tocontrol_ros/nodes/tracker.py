@@ -74,7 +74,13 @@ from tocontrol_ros.nodes.params import (
     parameters_parser,
     robot_from_topic,
 )
-from tocontrol_ros.nodes.splice import Splice, jumps, schedule, take_over_instant
+from tocontrol_ros.nodes.splice import (
+    Splice,
+    jumps,
+    schedule,
+    take_over_elapsed,
+    take_over_instant,
+)
 from tocontrol_ros.nodes.tracker_config import PARAMETERS, TrackerConfig, plant_text
 from tocontrol_ros.nodes.tracker_messages import (
     ResetRequest,
@@ -82,6 +88,7 @@ from tocontrol_ros.nodes.tracker_messages import (
     check_limits,
     nominal_from_msg,
     rejected_status,
+    replaced_status,
     reset_request,
     reset_state_from_msg,
     rest_row,
@@ -160,8 +167,7 @@ class TrackerNode(Node):
         self.trajectories_received = 0
         self._parser = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-parse")
         self._parsed_lock = threading.Lock()
-        # NominalTrajectory, TrajectoryRejectedError or a reset request, in arrival order
-        self._parsed: list = []
+        self._parsed: list = []  # NominalTrajectory, rejection or reset, in arrival order
         self._splices: list[Splice] = []  # stamped trajectories waiting for their instant
         self._history = PositionHistory(START_HISTORY)  # positions published
         # Until the first motion or reset: the next trajectory places the arm at its start.
@@ -275,35 +281,36 @@ class TrackerNode(Node):
             # that subscribes late still gets it).
             state = start_state_values(self.joint_names, self.tracker.q, self.tracker.qd)
             self._place_at_start = False
+            self._drop_pending(self._splices, stamp)  # planned before it: it replaces them
+            self._splices = []
             self.publish_summary(self.tracker.start(nominal))  # the one it preempted
             self._follow.started(record, nominal)
             self.publish_status(DiagnosticStatus.OK, *start_event(
                 nominal, stamp, offset, placed, self.epoch + self.tracker.t, state))
 
     def _schedule_splice(self, nominal: NominalTrajectory, stamp: float, record=None) -> bool:
-        """A stamp ahead of now: queue the trajectory (and its goal) for then (True)."""
-        now, tracker = self._target_time(), self.tracker
-        instant = None if now is None or self._place_at_start else take_over_instant(
-            stamp, self.epoch, max(now, tracker.t), tracker.h, tracker.running, record is not None)
+        """A stamp ahead of the simulation's time: queue it (and its goal) for then (True)."""
+        t = self.tracker  # its time, not the tick's target: a stamp within the tick is ahead
+        instant = None if self._target_time() is None or self._place_at_start else \
+            take_over_instant(stamp, self.epoch, t.t, t.h, t.running, record is not None)
         if instant is None:
             return False
         self._splices, dropped = schedule(self._splices,
                                           Splice(nominal, instant[0], instant[1], stamp, record))
+        self._drop_pending(dropped, stamp)
+        return True
+
+    def _drop_pending(self, dropped: list[Splice], stamp: float) -> None:
+        """Report pending splices replaced by a trajectory stamped ``stamp`` (s)."""
         for old in dropped:
             self._follow.replaced(old.record, stamp)  # a JTC's newer goal preempts it
-            self.publish_status(DiagnosticStatus.WARN,
-                                f"trajectory stamped {old.stamp:.6f} replaced before it took "
-                                f"over by one stamped {stamp:.6f}",
-                                {"event": "splice_replaced", "stamp": f"{old.stamp:.9f}"})
-        return True
+            self.publish_status(DiagnosticStatus.WARN, *replaced_status(old.stamp, stamp))
 
     def _splice(self, splice: Splice) -> None:
         """The stamped trajectory takes over now (the tracker is at its instant)."""
         tracker = self.tracker
         old = tracker.commanded(tracker.t)
-        # Joining a running trajectory: the new one as far along as its stamp says. Holding
-        # (nothing to join): it starts from its beginning at this control instant.
-        elapsed = splice.elapsed if tracker.running else 0.0
+        elapsed = take_over_elapsed(splice, tracker.running, tracker.h)
         des = splice.nominal.evaluate(elapsed)
         dq, dqd = jumps(old, (des.q[0], des.qd[0]))
         if dq > self.config.start_tolerance:

@@ -21,12 +21,13 @@ from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.sim.tracking import NominalTrajectory, TrackingSummary
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.jtc_interpolation import jtc_samples
+from tocontrol_ros.nodes.splice import is_late
 
 __all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "jtc_completed",
            "check_limits",
            "reset_state_from_msg", "summary_status",
            "start_event", "start_state_values", "state_msgs", "status_msg", "ResetRequest",
-           "reset_request", "rest_row", "splice_event", "rejected_status"]
+           "reset_request", "rest_row", "splice_event", "rejected_status", "replaced_status"]
 
 
 class TrajectoryRejectedError(ProblemError):
@@ -288,6 +289,15 @@ def rejected_status(text: str, running: bool, stamp: float | None
     return DiagnosticStatus.ERROR, message, values
 
 
+def replaced_status(old_stamp: float, stamp: float) -> tuple[str, dict]:
+    """The message and values of a pending splice replaced before it took over, on ``~/status``.
+
+    ``old_stamp``: its stamp (s); ``stamp``: the newer trajectory's (s).
+    """
+    return (f"trajectory stamped {old_stamp:.6f} replaced before it took over by one stamped "
+            f"{stamp:.6f}", {"event": "splice_replaced", "stamp": f"{old_stamp:.9f}"})
+
+
 def splice_event(splice, dq: float, dqd: float, start_time: float, h: float
                  ) -> tuple[str, dict]:
     """The message and values of a stamped trajectory spliced in, on ``~/status``.
@@ -298,7 +308,7 @@ def splice_event(splice, dq: float, dqd: float, start_time: float, h: float
     after its stamp (it came after its hand-off: joined as far along as the stamp says).
     """
     nominal = splice.nominal
-    late = splice.elapsed >= h
+    late = is_late(splice, h)
     when = f"{splice.elapsed:.4f} s after its stamp (late)" if late else "at its stamp"
     message = (f"executing trajectory spliced in {when}: {len(nominal)} points, T = "
                f"{nominal.duration:.4f} s; command jumps {dq:.3g} rad, {dqd:.3g} rad/s")
