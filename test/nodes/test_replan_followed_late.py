@@ -3,7 +3,8 @@
 The planning service with the real planner on the paper's arm, no ROS: the arm (the
 joint states the service reads) and the node's clock are the test's, so that the arm runs
 the published motion a fixed lag behind its stamp (a holding tracker that took over a late
-publication from its start), deterministically, without sleeping. Before issue 47's fix the
+publication from its start), deterministically, without sleeping; its monotonic clock stands
+still (no measured latency moves a hand-off). Before issue 47's fix the
 next goal was then "not followed" and became a new motion from the measured state: on the
 Panda with its limits the cold multistart, seconds of IPOPT while a stream's goals waited.
 """
@@ -95,13 +96,20 @@ class Now:
         return self.ns
 
 
+#: The service's monotonic clock (s), standing still: every latency it measures is 0, so the
+#: hand-offs' leads are the configured floors whatever the machine's speed (with the real
+#: clock a loaded run measured slow solves, put the hand-off past the motion's end and
+#: answered "rest" where the test expects a moving hand-off: it failed one run in two).
+MONOTONIC = 1000.0
+
+
 @pytest.fixture
 def service():
     config = config_from_values({}, task_dim=MODEL.m)
     assert config.replan and config.replan_quick  # the defaults this test is about
     out, arm, now = Outputs(), Arm(), Now()
     service = PlanningService(MODEL, planner_limits(config, MODEL), config, "base_link", out,
-                              arm, Clock(now_ns=now, wall_ns=now))
+                              arm, Clock(now_ns=now, wall_ns=now, monotonic=lambda: MONOTONIC))
     service.start()
     assert service.ready.wait(WAIT), "no warm-up"
     yield service, out, arm, now
@@ -114,7 +122,7 @@ def _nominal(sample) -> NominalTrajectory:
 
 def _goal(service, out, target) -> tuple[int, list]:
     rid = service.next_id()
-    service.goal(rid, np.asarray(target, dtype=float), 0, time.monotonic())
+    service.goal(rid, np.asarray(target, dtype=float), 0, MONOTONIC)
     deadline = time.monotonic() + WAIT
     while not any(s[2]["event"] in ("solved", "failed", "superseded")
                   for s in out.of(rid)):
