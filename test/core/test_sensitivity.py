@@ -370,7 +370,7 @@ def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, mo
 
 #: bench/warm_resolve.py's case 11 (a start at rest, T about 0.35 s) and its 2 cm move: the
 #: whole move's steps hold 81 rows and do not converge within their budget; followed in
-#: sub-moves they do (measured: 27 Newton steps in 4 sub-moves).
+#: sub-moves they do (measured: 17 Newton steps in 2 sub-moves).
 PATH_Q0 = np.array([-1.1742763114692718, 1.0107897399553536, 1.6684353899250255,
                     -1.5668126401648266, -1.1222968863705987, 2.3766565048871007,
                     -2.138492659095167])
@@ -441,7 +441,8 @@ def test_the_plan_takes_the_sub_moves_where_the_whole_move_fails(path_case, monk
     assert par.success and ipopt.success, (par.message, ipopt.message)
     assert _route(par) == "parametric", par.warnings
     text = " ".join(par.warnings)
-    assert "failed; parametric step in 4 sub-moves: converged" in text, par.warnings
+    assert f"failed; parametric step in {sensitivity.PATH_SUBMOVES} sub-moves: converged" \
+        in text, par.warnings
     assert par.certificate is not None and par.certificate.passed
     assert abs(par.T / ipopt.T - 1.0) <= 1e-6, (par.T, ipopt.T)
     with monkeypatch.context() as m:
@@ -455,5 +456,5 @@ def test_the_plan_takes_the_sub_moves_where_the_whole_move_fails(path_case, monk
         short = planner.plan(moved, SERVE, warm_start=serving)
     assert short.success and short.certificate.passed, short.message
     assert _route(short) == "ipopt", short.warnings
-    assert any("in 4 sub-moves: not converged in 2 steps" in w
+    assert any(f"in {sensitivity.PATH_SUBMOVES} sub-moves: not converged in 2 steps" in w
                and "solved by IPOPT instead" in w for w in short.warnings), short.warnings

@@ -94,11 +94,12 @@ SIGN_TOL, RELEASE_ERR, RELEASE_ROOM = 1e-9, 1e6, 1e-4
 #: this many times the tolerances.
 SUB_TOL = 1e3
 #: Where the whole move's steps do not converge, the move is followed in this many
-#: sub-moves within these budgets (Newton steps, KKT factorisations). Measured on the 20
-#: moves of bench/warm_resolve.py (docs/limits.md): in 8 sub-moves 3 of the 7 moves whose
-#: whole-move steps failed converged (32-44 steps), 4 sub-moves 3, 16 sub-moves 1 within 100
-#: factorisations; each sub-move needs its own Hessians (with the whole move's 5 none did).
-PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 4, 40, 48
+#: sub-moves within these budgets (Newton steps, KKT factorisations). Measured in process on
+#: the 20 moves of bench/warm_resolve.py (docs/limits.md): of the 7 moves whose whole-move
+#: steps failed, 2 sub-moves converged on 3 (17-21 steps, 37-45 ms), 3 sub-moves on 1, 4
+#: on 3 (27-38 steps), 8 on 3 (32-44 steps); each sub-move needs Hessians of its own (with
+#: the whole move's 5 none converged; with 1 or 2 a sub-move, fewer).
+PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 24, 40
 
 
 @dataclass(frozen=True)
