@@ -110,6 +110,7 @@ def run(count: int = CASES) -> Section:
     from tocontrol_ros.core.direct.sensitivity import (
         PATH_SOLVES,
         PATH_STEPS,
+        PATH_SUB_BUDGET,
         PATH_SUBMOVES,
         sensitivity_solve,
     )
@@ -192,7 +193,7 @@ def run(count: int = CASES) -> Section:
             return sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
                                      *values, *bounds, SET_PAD,  # noqa: B023
                                      submoves=PATH_SUBMOVES, max_steps=PATH_STEPS,
-                                     max_solves=PATH_SOLVES)
+                                     max_solves=PATH_SOLVES, sub_budget=PATH_SUB_BUDGET)
 
         (alone, _), t_step, _ = _timed(steps_alone)
         (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023

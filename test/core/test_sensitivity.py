@@ -412,11 +412,15 @@ def test_a_move_whose_whole_steps_fail_is_followed_in_sub_moves(path_case):
     assert out_same == out_whole
     path, out_path = sensitivity.sensitivity_solve(
         *args, submoves=sensitivity.PATH_SUBMOVES, max_steps=sensitivity.PATH_STEPS,
-        max_solves=sensitivity.PATH_SOLVES)
+        max_solves=sensitivity.PATH_SOLVES, sub_budget=sensitivity.PATH_SUB_BUDGET)
     assert path.success and out_path.reason == "converged", path.message
     assert f"in {sensitivity.PATH_SUBMOVES} sub-moves: converged" in path.message
     assert out_path.steps <= sensitivity.PATH_STEPS
     assert out_path.solves <= sensitivity.PATH_SOLVES
+    stopped, out_stopped = sensitivity.sensitivity_solve(
+        *args, submoves=sensitivity.PATH_SUBMOVES, sub_budget=(2, 40))
+    assert not stopped.success and out_stopped.steps == 2, out_stopped
+    assert out_stopped.reason == "sub-move 1 not done within its budget (2 steps, 40 KKT solves)"
     ref = flat.solve(*values, ws.T, ws.P, *bounds, lam_g0=ws.lam_g, lam_x0=ws.lam_x)
     assert ref.success, ref.message
     assert abs(path.T / ref.T - 1.0) <= 1e-6, (path.T, ref.T)

@@ -38,6 +38,7 @@ from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_br
 from tocontrol_ros.core.direct.sensitivity import (
     PATH_SOLVES,
     PATH_STEPS,
+    PATH_SUB_BUDGET,
     PATH_SUBMOVES,
     sensitivity_solve,
 )
@@ -330,7 +331,8 @@ def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np
         return step
     again, _ = sensitivity_solve(flat, w0, lam_g, lam_x, *values, *bounds, pad,
                                  should_stop=ctx.should_stop, submoves=PATH_SUBMOVES,
-                                 max_steps=PATH_STEPS, max_solves=PATH_SOLVES)
+                                 max_steps=PATH_STEPS, max_solves=PATH_SOLVES,
+                                 sub_budget=PATH_SUB_BUDGET)
     ctx.check()
     return replace(again, message=f"{step.message}; {again.message}",
                    solve_time=step.solve_time + again.solve_time)

@@ -26,8 +26,12 @@ once the step is nearly converged goes back to the barrier (:data:`RELEASE_ROOM`
 its bound). The answer is then a KKT point with those rows exactly at their bounds and the
 others' complementarity at ``MU``. At most :data:`MAX_STEPS` steps and :data:`MAX_SOLVES`
 factorisations: the solver decides by work, never by the clock; a solve that has not
-converged then is a failure with its reason, and the caller re-solves with IPOPT
-(:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`).
+converged then is a failure with its reason. The caller
+(:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`) then follows the move in
+:data:`PATH_SUBMOVES` sub-moves (``submoves``: a Newton homotopy that takes off a share of
+the old point's KKT residual on the new parameters at a time, each sub-move's first step
+the tangent predictor to the next point of the path, the next ones its correctors; its own
+budget), and re-solves with IPOPT where that fails too.
 
 A Newton step on a guessed active set (strongly active rows as equalities, the others
 checked after) failed on the planner's solutions: many rows are weakly active, and dropping
@@ -52,8 +56,8 @@ from scipy.linalg import lapack
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES", "BandedKKT",
-           "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
+__all__ = ["MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET",
+           "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -94,12 +98,16 @@ SIGN_TOL, RELEASE_ERR, RELEASE_ROOM = 1e-9, 1e6, 1e-4
 #: this many times the tolerances.
 SUB_TOL = 1e3
 #: Where the whole move's steps do not converge, the move is followed in this many
-#: sub-moves within these budgets (Newton steps, KKT factorisations). Measured in process on
-#: the 20 moves of bench/warm_resolve.py (docs/limits.md): of the 7 moves whose whole-move
-#: steps failed, 2 sub-moves converged on 3 (17-21 steps, 37-45 ms), 3 sub-moves on 1, 4
-#: on 3 (27-38 steps), 8 on 3 (32-44 steps); each sub-move needs Hessians of its own (with
-#: the whole move's 5 none converged; with 1 or 2 a sub-move, fewer).
-PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 24, 40
+#: sub-moves within these budgets (Newton steps, KKT factorisations: in all, and within
+#: each sub-move). Measured in process on the 20 moves of bench/warm_resolve.py
+#: (docs/limits.md): of the 7 moves whose whole-move steps failed, 2 sub-moves converged
+#: on 3 (17-21 steps, 37-45 ms; each sub-move within 12 steps and 20 factorisations), 3
+#: sub-moves on 1, 4 on 3 (27-38 steps), 8 on 3 (32-44 steps); each sub-move needs
+#: Hessians of its own (with the whole move's 5, 2 sub-moves converged on one). The moves
+#: that failed in 2 sub-moves never ended the first: the budget of a sub-move stops them
+#: after 14 steps or 24 factorisations instead of the whole budget.
+PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 28, 48
+PATH_SUB_BUDGET = (14, 24)
 
 
 @dataclass(frozen=True)
@@ -258,7 +266,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
                       k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
                       should_stop=None, hold: bool = True, submoves: int = 1,
-                      max_steps: int | None = None, max_solves: int | None = None
+                      max_steps: int | None = None, max_solves: int | None = None,
+                      sub_budget: tuple[int, int] | None = None
                       ) -> tuple[FlatResult, SensitivityOutcome]:
     """The new problem's solution from a converged one on the same mesh (see the module).
 
@@ -289,6 +298,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     max_steps, max_solves : int, optional
         The work budget: Newton steps and KKT factorisations at most (default
         :data:`MAX_STEPS`, :data:`MAX_SOLVES`).
+    sub_budget : tuple of int, optional
+        Newton steps and factorisations at most within each sub-move (default: only the
+        totals): a sub-move that has not ended within them stops the solve.
 
     Returns
     -------
@@ -343,7 +355,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     # SUB_TOL times the tolerances (the held rows carried on), the last one converged.
     r_w0 = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) + vu - vl
     r_y0 = np.where(eq, g - lbg, g - s)
-    sub, fresh = 1, 1
+    sub, fresh, sub_from = 1, 1, (0, 0)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
@@ -375,7 +387,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       / (COMPL_FACTOR * MU))
             if sub < submoves and err <= SUB_TOL:
                 sub += 1
-                blocked, full, last, fresh = 0, False, np.inf, 0
+                blocked, full, last, fresh, sub_from = 0, False, np.inf, 0, (steps, solves)
                 continue
             if err <= 1.0 and not np.any(wrong):
                 reason = "converged"
@@ -384,6 +396,11 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 break
             if solves >= max_solves:
                 reason = f"not converged in {max_solves} KKT solves"
+                break
+            if sub_budget is not None and (steps - sub_from[0] >= sub_budget[0]
+                                           or solves - sub_from[1] >= sub_budget[1]):
+                reason = (f"sub-move {sub} not done within its budget ({sub_budget[0]} "
+                          f"steps, {sub_budget[1]} KKT solves)")
                 break
             if blocked >= BLOCKED_STEPS:
                 reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
