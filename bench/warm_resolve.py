@@ -11,11 +11,10 @@ one run, each timed after a warm-up of the same call (median of 3):
   ``warm_parametric`` (the default): the parametric primal-dual step from the serving
   solution (core/direct/sensitivity.py), certified; IPOPT where it fails (the route taken
   is read from the result's warnings);
-- **before**: the same call as the code was before its calls were compiled and buffered
-  (:func:`as_before`: the step's derivatives called as CasADi functions with ``DM``
-  conversions, the certificate's CVODES on the virtual machine's right-hand side span by
-  span, the inverse dynamics mapped per trajectory): the same numbers (checked: the same
-  ``T`` to the bit), the time it took;
+- **before**: the same call without the path-following in sub-moves (:func:`as_before`:
+  ``PATH_SUBMOVES`` 1, the route before it; where the whole move's steps fail it falls
+  back to IPOPT at once), in the same run; where the whole move's steps converge the two
+  take the same steps (checked: the same ``T`` to the bit there);
 - **ipopt**: the same call with ``warm_parametric=False``: IPOPT warm from the serving
   solution and its multipliers (``warm="dual"``, its barrier from 1e-7);
 - **tight**: IPOPT on the same NLP from the same point with its warm start's pushes and
@@ -77,61 +76,20 @@ def _route(result) -> str:
 
 @contextmanager
 def as_before():
-    """The parametric route's calls as they were before (issue 47), for the side by side.
+    """The parametric route as it was before the sub-moves (issue 47), for the side by side.
 
-    The derivatives of the step called as CasADi functions (every argument converted to and
-    from ``DM``, the sparse results copied out by ``nonzeros()``); the certificate's CVODES
-    on the symbolic right-hand side (CasADi's virtual machine), span by span from Python;
-    the inverse dynamics mapped once per context (before: once per trajectory, of which a
-    plan makes several) and called with ``DM``. The same graphs: the same numbers. Where
-    it is kinder to the old code than the old code was (the maps shared by a plan's
-    trajectories, the spans' Taylor coefficients computed as now) the *before* figures are
-    lower than the old code's.
+    ``core.direct.limited.PATH_SUBMOVES`` set to 1: where the whole move's Newton steps do
+    not converge, IPOPT re-solves at once (no path-following in the parameter); everything
+    else is the same code.
     """
-    import casadi as ca
+    import tocontrol_ros.core.direct.limited as limited
 
-    import tocontrol_ros.core.direct.flat_trajectory as ft
-    import tocontrol_ros.core.direct.kkt_step as ks
-
-    saved = (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
-             ft.open_loop_sweep, ft.mapped_controls)
-    symbolic: dict = {}
-
-    def rows(self, w, p):
-        g, jac = self.functions[0](w, p)
-        return np.array(g).ravel(), np.array(jac.nonzeros())
-
-    def hessian(self, w, p, lam_g):
-        return np.array(self.functions[1](w, p, 1.0, lam_g).nonzeros())
-
-    def compile_open_loop(model, degree=3):
-        if (model, degree) not in symbolic:  # the expressions, as the integrator had them
-            sig, x, c, h, ode = ft.polynomial_segment_ode(model, degree)
-            symbolic[(model, degree)] = {"x": x, "p": ca.vertcat(ca.vec(c), h), "t": sig,
-                                         "ode": ode}
-        return symbolic[(model, degree)], "cached (before: the virtual machine)"
-
-    def open_loop_sweep(model, integ, segments):
-        def one_by_one(*_):
-            raise RuntimeError("before: span by span")
-        return one_by_one
-
-    maps: dict = {}
-
-    def mapped_controls(model, fun, count):  # made once per call (before: per trajectory)
-        key = (id(fun), count)
-        if key not in maps:
-            maps[key] = fun.map(count)
-        return lambda *args: [np.array(maps[key](*args))]
-
-    (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
-     ft.open_loop_sweep, ft.mapped_controls) = (rows, hessian, compile_open_loop,
-                                                open_loop_sweep, mapped_controls)
+    saved = limited.PATH_SUBMOVES
+    limited.PATH_SUBMOVES = 1
     try:
         yield
     finally:
-        (ks.KKTDerivatives.rows, ks.KKTDerivatives.hessian, ft.compile_open_loop,
-         ft.open_loop_sweep, ft.mapped_controls) = saved
+        limited.PATH_SUBMOVES = saved
 
 
 def _before(fn):
@@ -149,7 +107,13 @@ def run(count: int = CASES) -> Section:
     from bench.warm_active_set import active_set_solve
     from tocontrol_ros.core.direct.first_motion import quick_motion
     from tocontrol_ros.core.direct.limited import state_bounds
-    from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
+    from tocontrol_ros.core.direct.sensitivity import (
+        PATH_SOLVES,
+        PATH_STEPS,
+        PATH_SUB_BUDGET,
+        PATH_SUBMOVES,
+        sensitivity_solve,
+    )
     from tocontrol_ros.core.direct.tuning import PAD, SET_PAD
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.planning.replan import replan_options, warm_replan
@@ -182,7 +146,7 @@ def run(count: int = CASES) -> Section:
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
               "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0,
-              "same": 0}
+              "same": 0, "sub_moves": 0, "before_parametric": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
@@ -220,8 +184,18 @@ def run(count: int = CASES) -> Section:
         dual_flat = planner.flat(moved, ws.breaks, warm="dual")
         w0 = np.concatenate([ws.P.ravel(), [ws.T]])
         values = (moved.start.value, moved.target.value, moved.k)
-        (alone, _), t_step, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
-            dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD))  # noqa: B023
+
+        def steps_alone():  # the route's steps: the whole move, then the sub-moves
+            out = sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
+                                    *values, *bounds, SET_PAD)  # noqa: B023
+            if out[0].success:
+                return out
+            return sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
+                                     *values, *bounds, SET_PAD,  # noqa: B023
+                                     submoves=PATH_SUBMOVES, max_steps=PATH_STEPS,
+                                     max_solves=PATH_SOLVES, sub_budget=PATH_SUB_BUDGET)
+
+        (alone, _), t_step, _ = _timed(steps_alone)
         (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
             dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD,  # noqa: B023
             hold=False))
@@ -244,6 +218,9 @@ def run(count: int = CASES) -> Section:
         cold = planner.plan(moved, options)
         route = _route(par)
         counts[route] += 1
+        sub = route == "parametric" and "sub-moves: converged" in " ".join(par.warnings)
+        counts["sub_moves"] += sub
+        counts["before_parametric"] += _route(old) == "parametric"
         counts["certified"] += bool(par.success and par.certificate is not None
                                     and par.certificate.passed)
         counts["ipopt_ok"] += bool(ipo.success)
@@ -311,7 +288,8 @@ def run(count: int = CASES) -> Section:
             m["q_gap"].append(q_gap)
         rows.append([
             str(i + 1), "moving" if np.any(qd0) else "rest",
-            f"{route} ({par.iterations})" if par.success else "failed",
+            (f"{route} ({par.iterations}{', sub-moves' if sub else ''})" if par.success
+             else "failed"),
             f"{1e3 * p_solve:.1f} / {1e3 * tp:.1f}",
             f"{1e3 * o_solve:.1f} / {1e3 * to:.1f}{'' if same else ' (differs)'}",
             f"{1e3 * t_step:.1f}" if alone.success else "failed",
@@ -347,12 +325,13 @@ def run(count: int = CASES) -> Section:
         f"by side: *parametric*: `Planner.plan(moved, replan_options(...), "
         f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
         f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
-        f"failed); *before*: the same call with the calls as they were before they were "
-        f"compiled and buffered (`as_before` in bench/warm_resolve.py: the step's "
-        f"derivatives through CasADi's DM, the certificate's CVODES on the virtual "
-        f"machine's right-hand side span by span, the inverse dynamics mapped with DM; "
-        f"'differs' where its route or T is not the parametric column's to the bit); "
-        f"*step alone*: `sensitivity_solve` by itself (no trajectory, no certificate); "
+        f"failed; 'sub-moves' where the whole move's steps failed and the move followed in "
+        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call without the "
+        f"sub-moves (`as_before` in bench/warm_resolve.py: IPOPT at once where the whole "
+        f"move's steps fail; 'differs' where its route or T is not the parametric column's "
+        f"to the bit); "
+        f"*step alone*: `sensitivity_solve` by itself, the whole move then, where it "
+        f"failed, the sub-moves (no trajectory, no certificate); "
         f"*ipopt*: the same with `warm_parametric=False` "
         f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
@@ -379,10 +358,13 @@ def run(count: int = CASES) -> Section:
                 "from step ms (it)"], rows),
         "",
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
-        f"{_med(m['p_steps']):.0f} Newton steps), {counts['ipopt (fallback)']}/{n} fell back "
-        f"to IPOPT, {counts['certified']}/{n} certified; solve median {ms('p_solve')}, "
-        f"total {ms('p_total')} (before: {ms('o_solve')} and {ms('o_total')}, the same route "
-        f"and T to the bit on {counts['same']}/{n}). Where the parametric step converged, "
+        f"{_med(m['p_steps']):.0f} Newton steps; {counts['sub_moves']} of them in "
+        f"{PATH_SUBMOVES} sub-moves after the whole move's steps failed), "
+        f"{counts['ipopt (fallback)']}/{n} fell back to IPOPT, {counts['certified']}/{n} "
+        f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, without "
+        f"the sub-moves: {counts['before_parametric']}/{n} parametric, {ms('o_solve')} and "
+        f"{ms('o_total')}, the same route and T to the bit on {counts['same']}/{n}). Where "
+        f"the parametric step converged, "
         f"its parts (medians): the step alone {ms('step')}, the rest of the solve (the "
         f"between-samples check and what it asks for: the time stretch, or a pad round of "
         f"further steps; the trajectory, the mesh's views) {ms('set_check')}, the "

@@ -187,8 +187,12 @@ def test_rows_that_block_the_step_are_held_and_the_answer_is_the_optimum(panda):
 
 def test_a_parametric_step_out_of_work_falls_back_to_ipopt(panda_case, monkeypatch):
     """With a budget of one Newton step the parametric solve stops unconverged: a failure
-    with its reason (never a result); the plan falls back to IPOPT, says so, certified."""
+    with its reason (never a result); the plan (without the sub-moves that would follow)
+    falls back to IPOPT, says so, certified."""
+    import tocontrol_ros.core.direct.limited as limited
+
     planner, problem, serving = panda_case
+    monkeypatch.setattr(limited, "PATH_SUBMOVES", 1)
     moved = _moved(problem, MOVE)
     ws = serving.warm_state
     flat = planner.flat(moved, ws.breaks, warm="dual")
@@ -362,3 +366,99 @@ def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, mo
     assert before.success and before.certificate.passed
     assert abs(before.T - par.T) <= 1e-12 * par.T
     assert before.certificate.passed == par.certificate.passed
+
+
+#: bench/warm_resolve.py's case 11 (a start at rest, T about 0.35 s) and its 2 cm move: the
+#: whole move's steps hold 81 rows and do not converge within their budget; followed in
+#: sub-moves they do (measured: 17 Newton steps in 2 sub-moves).
+PATH_Q0 = np.array([-1.1742763114692718, 1.0107897399553536, 1.6684353899250255,
+                    -1.5668126401648266, -1.1222968863705987, 2.3766565048871007,
+                    -2.138492659095167])
+PATH_TARGET = np.array([0.26702422914005974, -0.3556075299390175, 0.18870281698592256])
+PATH_MOVED = np.array([0.27940271925408733, -0.3655689775058824, 0.17655610776615763])
+
+
+@pytest.fixture(scope="module")
+def path_case(panda):
+    """Case 11's default plan, its serving solution and the moved problem."""
+    planner = Planner(panda)
+    limits = JointLimits.from_model(panda)
+    problem = Problem(panda, joint_state(PATH_Q0, np.zeros(7)), point(PATH_TARGET), k=4.0,
+                      limits=limits)
+    base = planner.plan(problem, SolverOptions(time_limit=SLOW_OK))
+    assert base.success, base.message
+    serving = warm_replan(planner, problem, [base], SERVE)
+    assert serving.success and serving.intervals == 24, serving.message
+    return planner, serving, _moved(problem, PATH_MOVED - PATH_TARGET)
+
+
+def test_a_move_whose_whole_steps_fail_is_followed_in_sub_moves(path_case):
+    """Where the whole move's steps do not converge, the move followed in sub-moves does
+    (the path-following in the parameter: a Newton homotopy from the old point): the
+    answer is a KKT point of the moved NLP (its residuals evaluated here), T within 1e-6 of
+    IPOPT converged on the same NLP from the same point (a second method; the bar is
+    1e-3); one sub-move is the whole move, the same steps to the bit."""
+    planner, serving, moved = path_case
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    bounds = state_bounds(moved, PAD)
+    values = (moved.start.value, moved.target.value, moved.k)
+    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x, *values,
+            *bounds, SET_PAD)
+    whole, out_whole = sensitivity.sensitivity_solve(*args)
+    assert not whole.success and out_whole.reason != "converged", whole.message
+    same, out_same = sensitivity.sensitivity_solve(*args, submoves=1)
+    assert same.T == whole.T and np.array_equal(same.P, whole.P)
+    assert out_same == out_whole
+    path, out_path = sensitivity.sensitivity_solve(
+        *args, submoves=sensitivity.PATH_SUBMOVES, max_steps=sensitivity.PATH_STEPS,
+        max_solves=sensitivity.PATH_SOLVES, sub_budget=sensitivity.PATH_SUB_BUDGET)
+    assert path.success and out_path.reason == "converged", path.message
+    assert f"in {sensitivity.PATH_SUBMOVES} sub-moves: converged" in path.message
+    assert out_path.steps <= sensitivity.PATH_STEPS
+    assert out_path.solves <= sensitivity.PATH_SOLVES
+    stopped, out_stopped = sensitivity.sensitivity_solve(
+        *args, submoves=sensitivity.PATH_SUBMOVES, sub_budget=(2, 40))
+    assert not stopped.success and out_stopped.steps == 2, out_stopped
+    assert out_stopped.reason == "sub-move 1 not done within its budget (2 steps, 40 KKT solves)"
+    ref = flat.solve(*values, ws.T, ws.P, *bounds, lam_g0=ws.lam_g, lam_x0=ws.lam_x)
+    assert ref.success, ref.message
+    assert abs(path.T / ref.T - 1.0) <= 1e-6, (path.T, ref.T)
+    assert path.T != ws.T
+    answer = replace(serving, warm_state=replace(ws, P=path.P, T=path.T, lam_g=path.lam_g,
+                                                 lam_x=path.lam_x))
+    stat, primal = _kkt_residuals(planner, moved, answer)
+    assert stat <= 1e-6 and primal <= 1e-9, (stat, primal)
+
+
+def test_the_plan_takes_the_sub_moves_where_the_whole_move_fails(path_case, monkeypatch):
+    """The plan: the whole move's failure, then the sub-moves' convergence, in its warnings
+    (route: parametric), certified, T within 1e-6 of the IPOPT route's (both slowed down
+    by the same time stretch to hold the set between the samples); without the sub-moves
+    (the route before) IPOPT answers the same T; sub-moves out of work fall back to IPOPT
+    and say why."""
+    import tocontrol_ros.core.direct.limited as limited
+
+    planner, serving, moved = path_case
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    ipopt = planner.plan(moved, replace(SERVE, warm_parametric=False), warm_start=serving)
+    assert par.success and ipopt.success, (par.message, ipopt.message)
+    assert _route(par) == "parametric", par.warnings
+    text = " ".join(par.warnings)
+    assert f"failed; parametric step in {sensitivity.PATH_SUBMOVES} sub-moves: converged" \
+        in text, par.warnings
+    assert par.certificate is not None and par.certificate.passed
+    assert abs(par.T / ipopt.T - 1.0) <= 1e-6, (par.T, ipopt.T)
+    with monkeypatch.context() as m:
+        m.setattr(limited, "PATH_SUBMOVES", 1)
+        before = planner.plan(moved, SERVE, warm_start=serving)
+    assert before.success and _route(before) == "ipopt", before.warnings
+    assert "sub-moves" not in " ".join(before.warnings)
+    assert before.T == pytest.approx(par.T, rel=1e-6)
+    with monkeypatch.context() as m:
+        m.setattr(limited, "PATH_STEPS", 2)
+        short = planner.plan(moved, SERVE, warm_start=serving)
+    assert short.success and short.certificate.passed, short.message
+    assert _route(short) == "ipopt", short.warnings
+    assert any(f"in {sensitivity.PATH_SUBMOVES} sub-moves: not converged in 2 steps" in w
+               and "solved by IPOPT instead" in w for w in short.warnings), short.warnings

@@ -35,7 +35,13 @@ from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, 
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
-from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
+from tocontrol_ros.core.direct.sensitivity import (
+    PATH_SOLVES,
+    PATH_STEPS,
+    PATH_SUB_BUDGET,
+    PATH_SUBMOVES,
+    sensitivity_solve,
+)
 from tocontrol_ros.core.direct.tuning import (
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
@@ -271,9 +277,7 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     """
     problem = ctx.problem
     w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
-    step, _ = sensitivity_solve(flat, w0, warm.lam_g, warm.lam_x, *values, *bounds, SET_PAD,
-                                should_stop=ctx.should_stop)
-    ctx.check()
+    step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, SET_PAD)
     why = step.message
     if not step.success:  # the caller's solve time counts from t0 on
         return None, why
@@ -285,10 +289,9 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
         # from its own answer (the rows held at the old pad move with it).
         pad += 2.0 * excess
         w1 = np.concatenate([step.P.ravel(), [step.T]])
-        again, _ = sensitivity_solve(flat, w1, step.lam_g, step.lam_x, *values, *bounds, pad,
-                                     should_stop=ctx.should_stop)
-        ctx.check()
+        again = _steps(ctx, flat, w1, step.lam_g, step.lam_x, values, bounds, pad)
         if not again.success:
+            why = f"{why}; pad {pad:.2g}: {again.message}"
             break
         step, traj = again, FlatTrajectory(flat, again, problem.k)
         excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
@@ -310,6 +313,29 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
         return done, why
     timings["shooting"] -= elapsed
     return None, f"{why}, but not certified ({done.message})"
+
+
+def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np.ndarray,
+           lam_x: np.ndarray, values, bounds, pad: float) -> FlatResult:
+    """The parametric steps to ``values`` from the solution ``w0`` with its multipliers.
+
+    The whole move first (:func:`~.sensitivity.sensitivity_solve`); where its steps do not
+    converge, the move followed in :data:`~.sensitivity.PATH_SUBMOVES` sub-moves from the
+    same point (path-following in the parameter, its own budget of steps and
+    factorisations). The result's message says what each did.
+    """
+    step, out = sensitivity_solve(flat, w0, lam_g, lam_x, *values, *bounds, pad,
+                                  should_stop=ctx.should_stop)
+    ctx.check()
+    if step.success or out.reason == "cancelled" or PATH_SUBMOVES <= 1:
+        return step
+    again, _ = sensitivity_solve(flat, w0, lam_g, lam_x, *values, *bounds, pad,
+                                 should_stop=ctx.should_stop, submoves=PATH_SUBMOVES,
+                                 max_steps=PATH_STEPS, max_solves=PATH_SOLVES,
+                                 sub_budget=PATH_SUB_BUDGET)
+    ctx.check()
+    return replace(again, message=f"{step.message}; {again.message}",
+                   solve_time=step.solve_time + again.solve_time)
 
 
 def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,

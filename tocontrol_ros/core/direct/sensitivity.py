@@ -26,8 +26,12 @@ once the step is nearly converged goes back to the barrier (:data:`RELEASE_ROOM`
 its bound). The answer is then a KKT point with those rows exactly at their bounds and the
 others' complementarity at ``MU``. At most :data:`MAX_STEPS` steps and :data:`MAX_SOLVES`
 factorisations: the solver decides by work, never by the clock; a solve that has not
-converged then is a failure with its reason, and the caller re-solves with IPOPT
-(:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`).
+converged then is a failure with its reason. The caller
+(:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`) then follows the move in
+:data:`PATH_SUBMOVES` sub-moves (``submoves``: a Newton homotopy that takes off a share of
+the old point's KKT residual on the new parameters at a time, each sub-move's first step
+the tangent predictor to the next point of the path, the next ones its correctors; its own
+budget), and re-solves with IPOPT where that fails too.
 
 A Newton step on a guessed active set (strongly active rows as equalities, the others
 checked after) failed on the planner's solutions: many rows are weakly active, and dropping
@@ -52,8 +56,8 @@ from scipy.linalg import lapack
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["MAX_STEPS", "MU", "BandedKKT", "SensitivityOutcome", "banded_kkt",
-           "sensitivity_solve"]
+__all__ = ["MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET",
+           "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -90,6 +94,20 @@ MAX_SOLVES = 16
 #: ``RELEASE_ERR`` (in units of the tolerances) after a whole step, releases it to the
 #: barrier, ``RELEASE_ROOM`` inside its bound.
 SIGN_TOL, RELEASE_ERR, RELEASE_ROOM = 1e-9, 1e6, 1e-4
+#: A sub-move of the path-following (``submoves`` > 1) is done when its residual is within
+#: this many times the tolerances.
+SUB_TOL = 1e3
+#: Where the whole move's steps do not converge, the move is followed in this many
+#: sub-moves within these budgets (Newton steps, KKT factorisations: in all, and within
+#: each sub-move). Measured in process on the 20 moves of bench/warm_resolve.py
+#: (docs/limits.md): of the 7 moves whose whole-move steps failed, 2 sub-moves converged
+#: on 3 (17-21 steps, 37-45 ms; each sub-move within 12 steps and 20 factorisations), 3
+#: sub-moves on 1, 4 on 3 (27-38 steps), 8 on 3 (32-44 steps); each sub-move needs
+#: Hessians of its own (with the whole move's 5, 2 sub-moves converged on one). The moves
+#: that failed in 2 sub-moves never ended the first: the budget of a sub-move stops them
+#: after 14 steps or 24 factorisations instead of the whole budget.
+PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 28, 48
+PATH_SUB_BUDGET = (14, 24)
 
 
 @dataclass(frozen=True)
@@ -247,7 +265,9 @@ def _boundary_step(dx, room) -> float:
 def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray,
                       lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
                       k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
-                      should_stop=None, hold: bool = True
+                      should_stop=None, hold: bool = True, submoves: int = 1,
+                      max_steps: int | None = None, max_solves: int | None = None,
+                      sub_budget: tuple[int, int] | None = None
                       ) -> tuple[FlatResult, SensitivityOutcome]:
     """The new problem's solution from a converged one on the same mesh (see the module).
 
@@ -271,6 +291,16 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     hold : bool
         Hold the rows that block a step at their bounds (:data:`HOLD_BELOW`); False: the
         barrier alone (the route before; bench/warm_resolve.py's comparison).
+    submoves : int
+        The move in this many equal sub-moves (path-following, :data:`PATH_SUBMOVES`; 1:
+        the whole move at once, the steps as before to the bit). Each sub-move has its own
+        :data:`REFRESHES` Hessian re-evaluations.
+    max_steps, max_solves : int, optional
+        The work budget: Newton steps and KKT factorisations at most (default
+        :data:`MAX_STEPS`, :data:`MAX_SOLVES`).
+    sub_budget : tuple of int, optional
+        Newton steps and factorisations at most within each sub-move (default: only the
+        totals): a sub-move that has not ended within them stops the solve.
 
     Returns
     -------
@@ -280,6 +310,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     SensitivityOutcome
     """
     t0 = time.perf_counter()
+    max_steps = MAX_STEPS if max_steps is None else max_steps
+    max_solves = MAX_SOLVES if max_solves is None else max_solves
     der = kkt_derivatives(flat)
     par = flat.parameters(start_value, target_value, k)
     lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad, (start_value, target_value))
@@ -315,7 +347,16 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     room_ux = np.where(has_ux, ubx - w, 1.0)
     g, jv = der.rows(w, par)
     active0 = (np.minimum(room_lg, room_ug) < 1e-6)
-    hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {MAX_STEPS} steps"
+    # The move in sub-moves (a Newton homotopy, the path-following in the parameter):
+    # sub-move j of m solves the KKT conditions less (1 - j / m) of their residual at the
+    # old point on the new parameters (j = 0: the old point, solved; j = m: the new
+    # problem). Each sub-move's first step is the tangent predictor to the next point of
+    # the path, the following ones its correctors; it is done when its residual is within
+    # SUB_TOL times the tolerances (the held rows carried on), the last one converged.
+    r_w0 = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) + vu - vl
+    r_y0 = np.where(eq, g - lbg, g - s)
+    sub, fresh, sub_from = 1, 1, (0, 0)
+    hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
@@ -331,6 +372,9 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 + vu - vl
             r_s = np.where(hin, -y - zl + zu, 0.0)
             r_y = np.where(eq, g - lbg, np.where(held, g - b_held, g - s))
+            if sub < submoves:  # the homotopy's share of the old point's residual
+                r_w = r_w - (1.0 - sub / submoves) * r_w0
+                r_y = r_y - (1.0 - sub / submoves) * r_y0
             r_zl = np.where(hlg, zl * room_lg - MU, 0.0)
             r_zu = np.where(hug, zu * room_ug - MU, 0.0)
             r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
@@ -341,13 +385,22 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       float(np.max(np.abs(r_y))) / PRIMAL_TOL,
                       float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
                       / (COMPL_FACTOR * MU))
+            if sub < submoves and err <= SUB_TOL:
+                sub += 1
+                blocked, full, last, fresh, sub_from = 0, False, np.inf, 0, (steps, solves)
+                continue
             if err <= 1.0 and not np.any(wrong):
                 reason = "converged"
                 break
-            if steps >= MAX_STEPS:
+            if steps >= max_steps:
                 break
-            if solves >= MAX_SOLVES:
-                reason = f"not converged in {MAX_SOLVES} KKT solves"
+            if solves >= max_solves:
+                reason = f"not converged in {max_solves} KKT solves"
+                break
+            if sub_budget is not None and (steps - sub_from[0] >= sub_budget[0]
+                                           or solves - sub_from[1] >= sub_budget[1]):
+                reason = (f"sub-move {sub} not done within its budget ({sub_budget[0]} "
+                          f"steps, {sub_budget[1]} KKT solves)")
                 break
             if blocked >= BLOCKED_STEPS:
                 reason = (f"{blocked} steps in a row cut below {BLOCKED_FRACTION:g} of their "
@@ -367,9 +420,10 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 released += int(np.sum(wrong))
                 continue
             if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
-                    and hessians <= REFRESHES:
+                    and fresh <= REFRESHES:
                 hv = der.hessian(w, par, y)
                 hessians += 1
+                fresh += 1
             last = err
             sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
             sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
@@ -441,7 +495,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
                          np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
     ok = reason == "converged"
-    message = (f"parametric step: {reason} after {steps} Newton steps "
+    moves = f" in {submoves} sub-moves" if submoves > 1 else ""
+    message = (f"parametric step{moves}: {reason} after {steps} Newton steps "
                f"({solves} KKT solves, {hessians} Hessians, {outcome.changed} rows changed "
                f"activity, {holds} held at their bounds, {released} released)")
     return FlatResult(
