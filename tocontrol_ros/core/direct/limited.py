@@ -35,6 +35,7 @@ from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, 
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
+from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
 from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
 from tocontrol_ros.core.direct.tuning import (
     FINE_GUESS_INTERVALS,
@@ -212,7 +213,8 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
 
 
 def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
-                      timings: dict, t_start: float, trajectory=None) -> PlanResult:
+                      timings: dict, t_start: float, trajectory=None,
+                      solved: Problem | None = None) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
     On its mesh, from its path, ``T`` and, where they fit this NLP (same kinds of start and
@@ -221,6 +223,12 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     mesh has another number, from its path fitted there (``warm=True``). Within
     :data:`NEAR_MAX_ITER`, then held inside the control set between the samples and verified
     as :func:`plan_limited` does. A failure is reported (the caller then solves cold).
+
+    With multipliers that fit (and ``ctx.options.warm_parametric``) the parametric step is
+    tried first; with ``ctx.options.warm_follow`` and ``solved``, the problem the warm state
+    solves, of the same kinds of ends, it walks from it in sub-moves
+    (:func:`~.path_following.follow`: a memory's hit, 2-8 cm from its stored neighbour),
+    else in one move (a replan).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
@@ -239,7 +247,8 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
             flat = planner.flat(problem, warm.breaks, warm="dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
             if ctx.options.warm_parametric:
-                done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0)
+                done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
+                                        solved)
                 if done is not None:
                     return done
                 route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
@@ -261,9 +270,15 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
 
 
 def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState, bounds,
-                values, timings: dict, t_start: float, t0: float
-                ) -> tuple[PlanResult | None, str]:
+                values, timings: dict, t_start: float, t0: float,
+                solved: Problem | None = None) -> tuple[PlanResult | None, str]:
     """The warm re-solve by the parametric step (:mod:`~.sensitivity`), certified.
+
+    With ``options.warm_follow``, from ``solved`` (the warm state's own problem) when its
+    ends are of the same kinds and shapes as ``ctx.problem``'s and the move needs 2 to
+    :data:`~.path_following.MAX_MOVES` sub-moves: in sub-moves
+    (:func:`~.path_following.follow`); else in one move, as before (a replan's 2 cm, or a
+    move too far to walk).
 
     The certified result, or None and why not: the steps did not converge within their
     work budget, the torques leave the set between the samples even slowed down, or the
@@ -271,8 +286,14 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     """
     problem = ctx.problem
     w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
-    step, _ = sensitivity_solve(flat, w0, warm.lam_g, warm.lam_x, *values, *bounds, SET_PAD,
-                                should_stop=ctx.should_stop)
+    old = (solved.start.value, solved.target.value, solved.k) \
+        if ctx.options.warm_follow and _same_kinds(solved, problem) else None
+    if old is not None and 1 < sub_moves(old, values) <= MAX_MOVES:
+        step, _ = follow(flat, w0, warm.lam_g, warm.lam_x, old, values, *bounds, SET_PAD,
+                         should_stop=ctx.should_stop)
+    else:
+        step, _ = sensitivity_solve(flat, w0, warm.lam_g, warm.lam_x, *values, *bounds,
+                                    SET_PAD, should_stop=ctx.should_stop)
     ctx.check()
     why = step.message
     if not step.success:  # the caller's solve time counts from t0 on
@@ -310,6 +331,13 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
         return done, why
     timings["shooting"] -= elapsed
     return None, f"{why}, but not certified ({done.message})"
+
+
+def _same_kinds(solved: Problem | None, problem: Problem) -> bool:
+    """``solved`` is given and its ends have ``problem``'s kinds and shapes."""
+    return solved is not None and all(
+        a.kind == b.kind and np.shape(a.value) == np.shape(b.value)
+        for a, b in ((solved.start, problem.start), (solved.target, problem.target)))
 
 
 def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,

@@ -139,6 +139,14 @@ class SolverOptions:
         a work budget of steps), certified as every plan;
         when it does not converge or is not certified, IPOPT re-solves warm as before (the
         result's warnings say which route). Default True; False: IPOPT alone.
+    warm_follow : bool
+        With ``warm_parametric``: a warm start whose own problem (``PlanResult.problem``)
+        is farther than one sub-move from this one (more than 2 cm of a point end, 0.05 rad
+        of a joint state end: a memory's hit) is walked to it in sub-moves, the parametric
+        step from each sub-move's answer (:mod:`~tocontrol_ros.core.direct.path_following`),
+        instead of one step; IPOPT as above when the walk does not arrive. Default False:
+        on the Panda's 64-span serving mesh the walk arrived on few hits (docs/memory.md,
+        "Hits by parametric path following").
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -186,6 +194,7 @@ class SolverOptions:
     warm_joint_radius: float = WARM_JOINT_RADIUS
     replan_spans: int = 0
     warm_parametric: bool = True
+    warm_follow: bool = False
     workers: int = 1
     method: str = "auto"
 
@@ -207,9 +216,10 @@ class SolverOptions:
                 and (self.replan_spans == 0 or self.replan_spans >= MIN_REPLAN_SPANS)):
             raise ProblemError(f"`replan_spans` must be 0 or an integer >= "
                                f"{MIN_REPLAN_SPANS}, got {self.replan_spans!r}")
-        if not isinstance(self.warm_parametric, (bool, np.bool_)):
-            raise ProblemError(f"`warm_parametric` must be True or False, got "
-                               f"{self.warm_parametric!r}")
+        for name in ("warm_parametric", "warm_follow"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ProblemError(f"`{name}` must be True or False, got "
+                                   f"{getattr(self, name)!r}")
         if not (isinstance(self.workers, (int, np.integer)) and not isinstance(self.workers, bool)
                 and self.workers >= 0):
             raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "
