@@ -1,19 +1,24 @@
-"""A memory's hits re-solved in process: IPOPT warm against the parametric walk (issue 50).
+"""A memory's hits re-solved in process: IPOPT warm, its distant start, the walk (issue 50).
 
 For each inside request of ``bench/memory_cell/requests.yaml`` with a stored motion within
 the hit radius of a memory file (its serving states converted: ``memory upgrade``), the
 nearest stored motion (one basin, as ``memory_first_success``) is re-solved warm through
 the method contract (``solve_once``) on its serving mesh, side by side in one process:
 
-- **today**: ``warm_follow=False`` (the default): one parametric step from the stored
-  solution and its multipliers (core/direct/sensitivity.py), IPOPT warm (``warm="dual"``)
-  where it does not converge;
+- **today**: as a replan's warm start (``warm_far`` and ``warm_follow`` off: what a hit
+  did before): one parametric step from the stored solution and its multipliers
+  (core/direct/sensitivity.py), IPOPT warm (``warm="dual"``) where it does not converge;
+- **far**: ``warm_far=True`` (what ``recall`` now asks): IPOPT warm from the stored
+  solution and its multipliers with its barrier from 1e-5 and the start pushed as far into
+  its bounds (``warm="dual_far"``), without the single parametric step;
 - **walk**: ``warm_follow=True``: the stored request's parameters walked to the new ones in
   sub-moves of at most 2 cm, the parametric step per sub-move
   (core/direct/path_following.py), IPOPT warm from the stored state where the walk does not
   arrive.
 
-Each column: the route (``parametric`` or ``ipopt``, read from the result's warnings),
+Then the node's core call, ``recall`` with its defaults (two basins, the solution alone
+after a failure from the multipliers), as before (``far=False``) and now. Each column: the
+route (``parametric`` or ``ipopt``, read from the result's warnings),
 success and certificate, ``T``, the work (IPOPT iterations or Newton steps), the solve
 (``timings["shooting"]``), the certificate (``timings["verify"]``) and the whole call. Also
 the lookup (distances and the choice over the file's keys), the decoding of the entry's
@@ -23,7 +28,8 @@ not a small perturbation). With ``--cold`` the default cold plan of each request
 full multistart: 15-60 s each on two shared cores), the reference of the issue's 1e-3.
 
 Command: ``scripts/dev run python -P bench/memory_follow.py --memory FILE [--count N]
-[--cold] [--spans N]`` (FILE: a copy; it is only read). Figures from one run are in docs/memory.md.
+[--cold] [--spans N]`` (FILE: a copy; it is only read). Figures from one run are in
+docs/memory.md.
 """
 
 from __future__ import annotations
@@ -67,6 +73,7 @@ def run(memory: Path, count: int, cold: bool, spans: int = 0) -> list[dict]:
         DEFAULT_SPANS,
         choose,
         distances,
+        recall,
         stored_problem,
     )
     from tocontrol_ros.core.memory.serve import serve_spans
@@ -107,9 +114,10 @@ def run(memory: Path, count: int, cold: bool, spans: int = 0) -> list[dict]:
                                entry.method, f"entry {entry.id}")
             t_decode = time.perf_counter() - t1
             row = {"case": case, "d": float(dist[i]), "lookup": t_lookup, "decode": t_decode}
-            for name, follow in (("today", False), ("walk", True)):
+            for name, follow, far in (("today", False, False), ("far", False, True),
+                                      ("walk", True, False)):
                 options = replace(base, warm_only=True, replan_spans=spans,
-                                  warm_follow=follow, time_limit=600.0)
+                                  warm_follow=follow, warm_far=far, time_limit=600.0)
                 if not warmed:  # the first call builds the serving mesh's transcription
                     solve_once(planner, problem, options, warm, None,
                                time.perf_counter() + 600.0)
@@ -130,14 +138,24 @@ def run(memory: Path, count: int, cold: bool, spans: int = 0) -> list[dict]:
                     row["changed"] = int(np.sum(_active(res.warm_state.lam_g)
                                                 != _active(warm.warm_state.lam_g)))
                     row["rows"] = len(res.warm_state.lam_g)
+            for name, far in (("recall before", False), ("recall", True)):
+                # The node's core call (two basins, the solution alone after a failure).
+                t2 = time.perf_counter()
+                found = recall(planner, problem, replace(base, time_limit=600.0), store,
+                               spans=spans, far=far)
+                total = time.perf_counter() - t2
+                res = found.result
+                row[name] = {"ok": bool(res is not None and res.success),
+                             "T": float(res.T) if res is not None else np.nan,
+                             "work": int(found.iterations), "total": total}
             if cold:
                 ref = planner.plan(problem, base)
                 row["cold"] = float(ref.T) if ref.success else np.nan
             rows.append(row)
-            log(f"memory follow {case}: d {row['d']:.3g} today {row['today']['route']} "
-                f"{row['today']['total']:.3f} s T {row['today']['T']:.6f} | walk "
-                f"{row['walk']['route']} {row['walk']['total']:.3f} s T "
-                f"{row['walk']['T']:.6f}")
+            log(f"memory follow {case}: d {row['d']:.3g} "
+                + " | ".join(f"{k} {row[k].get('route', '')} {row[k]['total']:.3f} s T "
+                             f"{row[k]['T']:.6f}" for k in ("today", "far", "walk",
+                                                            "recall before", "recall")))
     return rows
 
 
@@ -149,32 +167,51 @@ def report(rows: list[dict], load: tuple[str, str]) -> str:
 
     lines = [f"Load average {load[0]} at the start, {load[1]} at the end (two cores "
              f"shared); {len(rows)} hits."]
-    for name in ("today", "walk"):
+    for name in ("today", "far", "walk"):
         cols = [r[name] for r in rows]
         para = sum(c["route"] == "parametric" for c in cols)
         lines.append(f"- **{name}**: certified {sum(c['ok'] for c in cols)}/{len(cols)}, "
-                     f"parametric route {para}/{len(cols)}; whole call median "
+                     f"parametric route {para}/{len(cols)}; work median "
+                     f"{med([c['work'] for c in cols]):.0f}, sum "
+                     f"{sum(c['work'] for c in cols)}; whole call median "
                      f"{med([c['total'] for c in cols]) * 1e3:.0f} ms, solve "
                      f"{med([c['solve'] for c in cols]) * 1e3:.0f} ms, certificate "
                      f"{med([c['verify'] for c in cols]) * 1e3:.1f} ms.")
+    for name in ("recall before", "recall"):
+        cols = [r[name] for r in rows]
+        within = ""
+        if any("cold" in r for r in rows):
+            gaps = [r[name]["T"] / r["cold"] - 1 for r in rows if "cold" in r]
+            within = (f"; `T` within 1e-3 of the cold plan's (or below) "
+                      f"{sum(bool(g <= 1e-3) for g in gaps)}/{len(gaps)}, worst "
+                      f"{np.nanmax(gaps):+.1e}")
+        lines.append(f"- **{name}** (two basins): answered {sum(c['ok'] for c in cols)}/"
+                     f"{len(cols)}; IPOPT iterations median {med([c['work'] for c in cols]):.0f}"
+                     f"; whole call median {med([c['total'] for c in cols]) * 1e3:.0f} ms, "
+                     f"p95 {np.nanpercentile([c['total'] for c in cols], 95) * 1e3:.0f} ms"
+                     f"{within}.")
     lines.append(f"- lookup median {med([r['lookup'] for r in rows]) * 1e3:.1f} ms, decoding "
                  f"{med([r['decode'] for r in rows]) * 1e3:.1f} ms; rows that changed "
                  f"activity (of {rows[0].get('rows', 0) if rows else 0}) median "
                  f"{med([r.get('changed', np.nan) for r in rows]):.0f}.")
-    head = ["case", "d", "changed", "today route", "it", "today ms", "walk route", "steps",
-            "walk ms", "T today", "walk/today - 1"]
+    head = ["case", "d", "changed", "today route", "it", "today ms", "far it", "far ms",
+            "walk route", "steps", "walk ms", "T today", "far/today - 1", "walk/today - 1",
+            "recall before ms", "recall ms", "recall T"]
     if any("cold" in r for r in rows):
-        head += ["today/cold - 1"]
+        head += ["recall before/cold - 1", "recall/cold - 1"]
     body = []
     for r in rows:
-        a, b = r["today"], r["walk"]
+        a, f, b = r["today"], r["far"], r["walk"]
+        rb, rn = r["recall before"], r["recall"]
         line = [str(r["case"]), f"{r['d']:.2f}", str(r.get("changed", "")),
                 a["route"] + ("" if a["ok"] else " (failed)"), str(a["work"]),
-                f"{a['total'] * 1e3:.0f}", b["route"] + ("" if b["ok"] else " (failed)"),
+                f"{a['total'] * 1e3:.0f}", str(f["work"]) + ("" if f["ok"] else " (failed)"),
+                f"{f['total'] * 1e3:.0f}", b["route"] + ("" if b["ok"] else " (failed)"),
                 str(b["work"]), f"{b['total'] * 1e3:.0f}", f"{a['T']:.6f}",
-                f"{b['T'] / a['T'] - 1:+.1e}"]
+                f"{f['T'] / a['T'] - 1:+.1e}", f"{b['T'] / a['T'] - 1:+.1e}",
+                f"{rb['total'] * 1e3:.0f}", f"{rn['total'] * 1e3:.0f}", f"{rn['T']:.6f}"]
         if "cold" in r:
-            line.append(f"{a['T'] / r['cold'] - 1:+.1e}")
+            line += [f"{rb['T'] / r['cold'] - 1:+.1e}", f"{rn['T'] / r['cold'] - 1:+.1e}"]
         body.append(line)
     return "\n".join(lines) + "\n\n" + "\n".join(table(head, body))
 

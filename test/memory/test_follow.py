@@ -7,7 +7,9 @@ not converge there (rows change activity), the walk in sub-moves does. Checked: 
 the plan's warnings name, the certificate and an independent re-integration, ``T`` against
 the cold multistart's (the issue's 1e-3) and against IPOPT converged on the same NLP from the
 same stored state (a second method); a walk that cannot arrive falls back to IPOPT and says
-why; and :func:`follow` on the transcription itself against IPOPT.
+why; :func:`follow` on the transcription itself against IPOPT; and the distant warm start
+that recall now asks (``warm_far``: IPOPT's barrier from 1e-5, no single step), the same
+optimum as the replans' route.
 """
 
 from __future__ import annotations
@@ -137,3 +139,45 @@ def test_follow_on_the_transcription_matches_ipopt(served):
     assert res.T == pytest.approx(ipopt.T, rel=1e-6)
     # The rows hold at the answer (its own residual, IPOPT's measure).
     assert res.residual < 1e-6
+
+
+def test_a_distant_warm_start_goes_to_ipopt_with_its_wider_barrier(served):
+    """``warm_far`` (what recall asks): IPOPT from the multipliers with its barrier from
+    FAR_MU, no single parametric step; the same optimum of the same NLP as the replans'
+    route, certified."""
+    planner, serve = served
+    options = replace(OPTIONS, warm_only=True, replan_spans=SPANS, warm_far=True,
+                      time_limit=SLOW_OK)
+    far = solve_once(planner, problem(NEAR), options, serve, None,
+                     time.perf_counter() + SLOW_OK)
+    assert far.success and far.certificate.passed, far.message
+    text = " ".join(far.warnings)
+    assert "a distant warm start (warm_far)" in text and "(route: ipopt)" in text
+    assert "parametric step" not in text
+    near = problem(NEAR)
+    assert certify_open_loop(near, far.trajectory, far.certificate.options).passed
+    single = _warm(planner, serve, NEAR, follow=False)
+    assert far.T == pytest.approx(single.T, rel=1e-6)
+
+
+def test_recall_re_solves_a_hit_as_a_distant_warm_start(served, tmp_path):
+    from tocontrol_ros.core.memory.recall import open_memory, recall, remember
+    from tocontrol_ros.core.memory.serve import convert
+
+    planner, serve = served
+    stored = planner.plan(problem(STORED), OPTIONS)
+    with open_memory(tmp_path / "m.sqlite", stored.problem, create=True) as store:
+        assert remember(store, stored, "test", 0.0)
+        done = convert(store, planner, stored.problem, replace(OPTIONS, time_limit=SLOW_OK),
+                       SPANS)
+        assert done.converted == 1, done.messages
+        found = recall(planner, problem(NEAR), replace(OPTIONS, time_limit=SLOW_OK), store,
+                       spans=SPANS)
+        before = recall(planner, problem(NEAR), replace(OPTIONS, time_limit=SLOW_OK), store,
+                        spans=SPANS, far=False)
+    assert found.hit and found.result is not None and found.result.success, found.messages
+    assert found.starts[0] == "serve+multipliers"
+    assert any("warm_far" in w for w in found.result.warnings)
+    assert before.result is not None and before.result.success, before.messages
+    assert not any("warm_far" in w for w in before.result.warnings)
+    assert found.result.T == pytest.approx(before.result.T, rel=1e-6)

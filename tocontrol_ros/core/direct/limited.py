@@ -38,6 +38,7 @@ from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_br
 from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
 from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
 from tocontrol_ros.core.direct.tuning import (
+    FAR_MU,
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
     GUESS_WINDOW,
@@ -228,7 +229,11 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     tried first; with ``ctx.options.warm_follow`` and ``solved``, the problem the warm state
     solves, of the same kinds of ends, it walks from it in sub-moves
     (:func:`~.path_following.follow`: a memory's hit, 2-8 cm from its stored neighbour),
-    else in one move (a replan).
+    else in one move (a replan). With ``ctx.options.warm_far`` (a memory's hit) and a move
+    from ``solved`` of more than one sub-move (more than 2 cm of a point end, or ``solved``
+    not comparable), IPOPT starts from the multipliers as
+    ``FlatTranscription(warm="dual_far")`` does, and the single step is not tried (the walk
+    is, with ``warm_follow``).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
@@ -244,14 +249,22 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
         flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
-            flat = planner.flat(problem, warm.breaks, warm="dual")
+            # A distant warm start (a memory's hit) farther than one sub-move; a move of a
+            # replan's size keeps the replans' start (the wider barrier costs it iterations).
+            far = ctx.options.warm_far and not (
+                _same_kinds(solved, problem) and sub_moves(
+                    (solved.start.value, solved.target.value, solved.k), values) <= 1)
+            flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-            if ctx.options.warm_parametric:
+            if ctx.options.warm_parametric and (ctx.options.warm_follow or not far):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
                                         solved)
                 if done is not None:
                     return done
                 route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
+            elif far:
+                route = [f"a distant warm start (warm_far): IPOPT from its multipliers, the "
+                         f"barrier from {FAR_MU:g} (route: ipopt)"]
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
     out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
     ctx.check()

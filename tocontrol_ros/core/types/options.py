@@ -147,6 +147,17 @@ class SolverOptions:
         instead of one step; IPOPT as above when the walk does not arrive. Default False:
         on the Panda's 64-span serving mesh the walk arrived on few hits (docs/memory.md,
         "Hits by parametric path following").
+    warm_far : bool
+        The warm start is a stored neighbour a few centimetres away (a memory's hit, which
+        :func:`~tocontrol_ros.core.memory.recall.recall` sets), not a replan's small move: a
+        bounded warm start with multipliers whose own problem is more than one sub-move
+        away (2 cm of a point end, 0.05 rad of a joint state end; a nearer one keeps the
+        replans' start, which the wider barrier costs iterations there) goes straight to
+        IPOPT, its barrier from
+        :data:`~tocontrol_ros.core.direct.tuning.FAR_MU` and its start pushed as far inside
+        its bounds (``FlatTranscription(warm="dual_far")``; on the Panda cell's hits half
+        the iterations of the default's, none failed), without the single parametric step
+        (which arrived on none of them; ``warm_follow`` walks when asked). Default False.
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -195,6 +206,7 @@ class SolverOptions:
     replan_spans: int = 0
     warm_parametric: bool = True
     warm_follow: bool = False
+    warm_far: bool = False
     workers: int = 1
     method: str = "auto"
 
@@ -216,7 +228,7 @@ class SolverOptions:
                 and (self.replan_spans == 0 or self.replan_spans >= MIN_REPLAN_SPANS)):
             raise ProblemError(f"`replan_spans` must be 0 or an integer >= "
                                f"{MIN_REPLAN_SPANS}, got {self.replan_spans!r}")
-        for name in ("warm_parametric", "warm_follow"):
+        for name in ("warm_parametric", "warm_follow", "warm_far"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ProblemError(f"`{name}` must be True or False, got "
                                    f"{getattr(self, name)!r}")
