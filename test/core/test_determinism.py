@@ -64,6 +64,7 @@ CLOCK_SITES = {
     ("limited.py", "_infeasible"): "timings",
     ("limited.py", "_parametric"): "timings",
     ("sensitivity.py", "sensitivity_solve"): "timings (FlatResult.solve_time)",
+    ("path_following.py", "follow"): "timings (FlatResult.solve_time)",
     ("flat.py", "solve"): "timings (FlatResult.solve_time)",
     ("collocation.py", "solve"): "timings (DirectResult.solve_time)",
     ("compiled.py", "_gcc"): "timings of the compiler (progress reports)",

@@ -305,7 +305,7 @@ def test_a_bounded_warm_start_is_one_candidate_next_to_the_multistart(limited):
 def test_a_failed_warm_start_falls_back_to_the_multistart(limited, monkeypatch):
     from tocontrol_ros.core.direct import method as solver
 
-    def failing(planner, ctx, warm, timings, t_start, trajectory=None):
+    def failing(planner, ctx, warm, timings, t_start, trajectory=None, solved=None):
         return replace(limited, success=False, status=Status.LIMITS_INFEASIBLE,
                        message="the warm bounded solve failed (test)", problem=ctx.problem)
 

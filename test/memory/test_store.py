@@ -189,3 +189,22 @@ def test_two_writers_lose_nothing(tmp_path, results):
         rows = store.summary()
     assert len(rows) == 120
     assert sorted(r["source"] for r in rows) == ["writer0"] * 60 + ["writer1000"] * 60
+
+
+def test_the_keys_are_read_again_after_any_connections_write(tmp_path, results):
+    """Kept between lookups, re-read after this store's writes and another connection's."""
+    path = tmp_path / "m.sqlite"
+    with open_memory(path, results[0].problem, create=True) as store, \
+            open_memory(path, results[0].problem) as other:
+        assert len(store.keys()["id"]) == 0
+        assert remember(store, results[0], "test", 0.5)
+        first = store.keys()
+        assert len(first["id"]) == 1 and not first["serve"][0]
+        assert store.keys() is first  # unchanged file: the same arrays
+        assert remember(other, results[1], "test", 0.5)  # another connection's commit
+        assert sorted(store.keys()["T"]) == sorted([results[0].T, results[1].T])
+        assert store.set_serve(int(first["id"][0]), encode_warm_blob())
+        assert store.keys()["serve"].tolist() == [True, False]
+        assert len(other.keys()["id"]) == 2 and other.keys()["serve"].tolist() == [True, False]
+        assert store.delete([int(first["id"][0])]) == 1
+        assert len(other.keys()["id"]) == 1 and len(store.keys()["id"]) == 1

@@ -56,6 +56,7 @@ from tocontrol_ros.core.direct.clearance import (
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
 from tocontrol_ros.core.direct.tuning import (
+    FAR_MU,
     RESTART_MAX_PERTURBATION,
     RESUME_MU,
     SET_PAD,
@@ -215,6 +216,12 @@ def _warm_options(warm: bool | str) -> dict:
                     f"ipopt.warm_start_{key}": TIGHT_MU for key in (
                         "bound_push", "bound_frac", "slack_bound_push", "slack_bound_frac",
                         "mult_bound_push")}}
+    if warm == "dual_far":  # a stored neighbour centimetres away: the barrier from 1e-5
+        return {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": FAR_MU,
+                "ipopt.warm_start_init_point": "yes", **{
+                    f"ipopt.warm_start_{key}": FAR_MU for key in (
+                        "bound_push", "bound_frac", "slack_bound_push", "slack_bound_frac",
+                        "mult_bound_push")}}
     if not warm or warm == "restart":  # IPOPT's default start
         return cap
     mu = RESUME_MU if warm == "resume" else WARM_MU
@@ -241,7 +248,7 @@ class FlatTranscription:
         ``1 - reserve``.
     tol, max_iter : float, int
         IPOPT's tolerance and iteration limit (:func:`~.ipopt.ipopt_options`).
-    warm : bool or "resume" or "dual" or "restart"
+    warm : bool or "resume" or "dual" or "dual_far" or "restart"
         False: IPOPT's default start, its Hessian regularisation capped at
         :data:`RESTART_MAX_PERTURBATION` (the uniform mesh's first solves). True: every
         solve starts at a solution of a nearby problem (a refined mesh, solved from the
@@ -259,6 +266,9 @@ class FlatTranscription:
         29, 29 and 22 from the solution solved again alone, where the barrier from
         1e-9, 1e-8, 1e-6, 1e-5: 53-65, 36-51, 47-52, 77-128; IPOPT's adaptive barrier
         58-104; its warm-start pushes of 1e-6 or 1e-9 instead of 1e-3: within 3).
+        ``"dual_far"``: as ``"dual"`` from a stored neighbour a few centimetres away (a
+        memory's hit), the barrier from :data:`FAR_MU` and the warm start pushed that far
+        inside its bounds (:data:`FAR_MU`'s measurements).
         ``"restart"``: as False (the last resort of a re-solve with a wider pad).
     clearance : ClearanceRows, optional
         The clearance rows (:func:`~tocontrol_ros.core.direct.clearance.clearance_rows`);

@@ -35,6 +35,7 @@ from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, 
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
+from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
 from tocontrol_ros.core.direct.sensitivity import (
     PATH_SOLVES,
     PATH_STEPS,
@@ -43,6 +44,7 @@ from tocontrol_ros.core.direct.sensitivity import (
     sensitivity_solve,
 )
 from tocontrol_ros.core.direct.tuning import (
+    FAR_MU,
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
     GUESS_WINDOW,
@@ -218,7 +220,8 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
 
 
 def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
-                      timings: dict, t_start: float, trajectory=None) -> PlanResult:
+                      timings: dict, t_start: float, trajectory=None,
+                      solved: Problem | None = None) -> PlanResult:
     """The bounded solve of ``ctx.problem`` from a previous ``"direct"`` solution.
 
     On its mesh, from its path, ``T`` and, where they fit this NLP (same kinds of start and
@@ -227,6 +230,16 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     mesh has another number, from its path fitted there (``warm=True``). Within
     :data:`NEAR_MAX_ITER`, then held inside the control set between the samples and verified
     as :func:`plan_limited` does. A failure is reported (the caller then solves cold).
+
+    With multipliers that fit (and ``ctx.options.warm_parametric``) the parametric step is
+    tried first; with ``ctx.options.warm_follow`` and ``solved``, the problem the warm state
+    solves, of the same kinds of ends, it walks from it in sub-moves
+    (:func:`~.path_following.follow`: a memory's hit, 2-8 cm from its stored neighbour),
+    else in one move (a replan). With ``ctx.options.warm_far`` (a memory's hit) and a move
+    from ``solved`` of more than one sub-move (more than 2 cm of a point end, or ``solved``
+    not comparable), IPOPT starts from the multipliers as
+    ``FlatTranscription(warm="dual_far")`` does, and the single step is not tried (the walk
+    is, with ``warm_follow``).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
@@ -242,13 +255,22 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
         flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
-            flat = planner.flat(problem, warm.breaks, warm="dual")
+            # A distant warm start (a memory's hit) farther than one sub-move; a move of a
+            # replan's size keeps the replans' start (the wider barrier costs it iterations).
+            far = ctx.options.warm_far and not (
+                _same_kinds(solved, problem) and sub_moves(
+                    (solved.start.value, solved.target.value, solved.k), values) <= 1)
+            flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-            if ctx.options.warm_parametric:
-                done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0)
+            if ctx.options.warm_parametric and (ctx.options.warm_follow or not far):
+                done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
+                                        solved)
                 if done is not None:
                     return done
                 route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
+            elif far:
+                route = [f"a distant warm start (warm_far): IPOPT from its multipliers, the "
+                         f"barrier from {FAR_MU:g} (route: ipopt)"]
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
     out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
     ctx.check()
@@ -267,9 +289,15 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
 
 
 def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState, bounds,
-                values, timings: dict, t_start: float, t0: float
-                ) -> tuple[PlanResult | None, str]:
+                values, timings: dict, t_start: float, t0: float,
+                solved: Problem | None = None) -> tuple[PlanResult | None, str]:
     """The warm re-solve by the parametric step (:mod:`~.sensitivity`), certified.
+
+    With ``options.warm_follow``, from ``solved`` (the warm state's own problem) when its
+    ends are of the same kinds and shapes as ``ctx.problem``'s and the move needs 2 to
+    :data:`~.path_following.MAX_MOVES` sub-moves: in sub-moves
+    (:func:`~.path_following.follow`); else in one move, as before (a replan's 2 cm, or a
+    move too far to walk).
 
     The certified result, or None and why not: the steps did not converge within their
     work budget, the torques leave the set between the samples even slowed down, or the
@@ -277,7 +305,15 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     """
     problem = ctx.problem
     w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
-    step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, SET_PAD)
+    old = (solved.start.value, solved.target.value, solved.k) \
+        if ctx.options.warm_follow and _same_kinds(solved, problem) else None
+    if old is not None and 1 < sub_moves(old, values) <= MAX_MOVES:
+        # The walk in the request's parameters (warm_follow: a memory hit's distant start).
+        step, _ = follow(flat, w0, warm.lam_g, warm.lam_x, old, values, *bounds, SET_PAD,
+                         should_stop=ctx.should_stop)
+        ctx.check()
+    else:
+        step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, SET_PAD)
     why = step.message
     if not step.success:  # the caller's solve time counts from t0 on
         return None, why
@@ -336,6 +372,13 @@ def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np
     ctx.check()
     return replace(again, message=f"{step.message}; {again.message}",
                    solve_time=step.solve_time + again.solve_time)
+
+
+def _same_kinds(solved: Problem | None, problem: Problem) -> bool:
+    """``solved`` is given and its ends have ``problem``'s kinds and shapes."""
+    return solved is not None and all(
+        a.kind == b.kind and np.shape(a.value) == np.shape(b.value)
+        for a, b in ((solved.start, problem.start), (solved.target, problem.target)))
 
 
 def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,

@@ -54,9 +54,9 @@ class BoundedPath(_OpenLoopCertified):
 
     def warm_start(self, compiled: Compiled, ctx: SolveContext, previous: PlanResult,
                    timings: dict, t_start: float) -> PlanResult:
-        """On the previous solution's mesh, from its path and multipliers."""
+        """On the previous solution's mesh, from its path and multipliers (and problem)."""
         return plan_limited_warm(compiled, ctx, previous.warm_state, timings, t_start,
-                                 previous.trajectory)
+                                 previous.trajectory, previous.problem)
 
 
 class FirstMotion(_OpenLoopCertified):

@@ -144,6 +144,16 @@ WARM_PUSH = 1e-6
 #: (``FlatTranscription(warm="dual_tight")``, issue 47): IPOPT's barrier starts at this and
 #: its warm start's pushes into the bounds (default 1e-3) are this too.
 TIGHT_MU = 1e-9
+#: A warm re-solve from a stored neighbour a few centimetres away (a memory's hit:
+#: ``FlatTranscription(warm="dual_far")``, ``SolverOptions.warm_far``, issue 50): IPOPT's
+#: barrier starts at this and its warm start's pushes into the bounds are this too. Between
+#: the stored solution and the new optimum a median 55 of the 675 rows of the Panda's
+#: 64-span NLP change activity; from :data:`WARM_MU` (pushes 1e-3) IPOPT took 18-150
+#: iterations on the cell's 14 hits (median 89, 3 failed at 150), from 1e-5 (pushes 1e-5)
+#: 30-99 (median 41, none failed); 1e-6: 13/14, median 40; 3e-6: 14/14, median 39 but more
+#: in all; 1e-4: median 70; 1e-5 with the default pushes: 13/14, median 55; IPOPT's
+#: adaptive barrier from 1e-3: 13/14, median 63 (docs/memory.md).
+FAR_MU = 1e-5
 
 #: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
 #: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its

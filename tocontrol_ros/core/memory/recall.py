@@ -26,8 +26,13 @@ solution and its multipliers, then (if that fails) from the solution alone. On t
 of the benchmark's cell the multipliers took a median 78 IPOPT iterations, the solution
 alone 87 and the old start (the stored path fitted to the mesh) 87; the multipliers' gain is
 large for some requests (18 against 64) and a loss for others (4 failures in 150), with no
-distance that tells them apart. Without a serving state (a file not converted, a motion the
-planner learnt), from its stored path fitted to the mesh, as before; on its own mesh
+distance that tells them apart. Since issue 50's measurements (docs/memory.md) the
+re-solves are *distant* warm starts (``SolverOptions.warm_far``): IPOPT's barrier from
+1e-5 and the start pushed as far into its bounds, not the replans' 1e-7 and 1e-3: on the
+cell's 14 hits of the first 20 requests a median 41 iterations instead of 89, none failing
+(3 did), and the single parametric step (which arrived on none) not tried. Without a
+serving state (a file not converted, a motion the planner learnt), from its stored path
+fitted to the mesh, as before; on its own mesh
 (``spans`` 0), from its path and multipliers, then its path alone. Bounded by work: at most
 two warm solves per basin tried.
 """
@@ -188,7 +193,7 @@ def stored_problem(problem: Problem, request: Request) -> Problem:
 def recall(planner, problem: Problem, options, store: MotionStore,
            radius: float = DEFAULT_RADIUS, basins: int = DEFAULT_BASINS,
            should_stop=None, spans: int = DEFAULT_SPANS,
-           first_success: bool = False) -> Recall:
+           first_success: bool = False, far: bool = True) -> Recall:
     """Look ``problem`` up in ``store`` and re-solve the chosen entries warm.
 
     Parameters
@@ -213,6 +218,9 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     first_success : bool
         Re-solve the next basin only when the one before failed (else every one, the least
         ``T`` returned).
+    far : bool
+        Re-solve as a distant warm start (``SolverOptions.warm_far``: IPOPT's barrier from
+        1e-5, no single parametric step); False: as a replan's (the route before).
 
     Returns
     -------
@@ -234,7 +242,8 @@ def recall(planner, problem: Problem, options, store: MotionStore,
                                                "solve": 0.0, "certificate": 0.0,
                                                "total": t_lookup})
     deadline = t0 + options.time_limit
-    warm_options = replace(options, warm_only=True, replan_spans=int(spans))
+    warm_options = replace(options, warm_only=True, replan_spans=int(spans),
+                           warm_far=bool(far))
     best, messages, starts = None, [], []
     t_decode = t_solve = t_cert = 0.0
     iterations = 0

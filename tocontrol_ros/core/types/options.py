@@ -139,6 +139,25 @@ class SolverOptions:
         a work budget of steps), certified as every plan;
         when it does not converge or is not certified, IPOPT re-solves warm as before (the
         result's warnings say which route). Default True; False: IPOPT alone.
+    warm_follow : bool
+        With ``warm_parametric``: a warm start whose own problem (``PlanResult.problem``)
+        is farther than one sub-move from this one (more than 2 cm of a point end, 0.05 rad
+        of a joint state end: a memory's hit) is walked to it in sub-moves, the parametric
+        step from each sub-move's answer (:mod:`~tocontrol_ros.core.direct.path_following`),
+        instead of one step; IPOPT as above when the walk does not arrive. Default False:
+        on the Panda's 64-span serving mesh the walk arrived on few hits (docs/memory.md,
+        "Hits by parametric path following").
+    warm_far : bool
+        The warm start is a stored neighbour a few centimetres away (a memory's hit, which
+        :func:`~tocontrol_ros.core.memory.recall.recall` sets), not a replan's small move: a
+        bounded warm start with multipliers whose own problem is more than one sub-move
+        away (2 cm of a point end, 0.05 rad of a joint state end; a nearer one keeps the
+        replans' start, which the wider barrier costs iterations there) goes straight to
+        IPOPT, its barrier from
+        :data:`~tocontrol_ros.core.direct.tuning.FAR_MU` and its start pushed as far inside
+        its bounds (``FlatTranscription(warm="dual_far")``; on the Panda cell's hits half
+        the iterations of the default's, none failed), without the single parametric step
+        (which arrived on none of them; ``warm_follow`` walks when asked). Default False.
     workers : int
         Processes that solve a plan's independent pieces side by side, the caller's
         included: the bounded solve's candidates on the uniform mesh and each level of
@@ -186,6 +205,8 @@ class SolverOptions:
     warm_joint_radius: float = WARM_JOINT_RADIUS
     replan_spans: int = 0
     warm_parametric: bool = True
+    warm_follow: bool = False
+    warm_far: bool = False
     workers: int = 1
     method: str = "auto"
 
@@ -207,9 +228,10 @@ class SolverOptions:
                 and (self.replan_spans == 0 or self.replan_spans >= MIN_REPLAN_SPANS)):
             raise ProblemError(f"`replan_spans` must be 0 or an integer >= "
                                f"{MIN_REPLAN_SPANS}, got {self.replan_spans!r}")
-        if not isinstance(self.warm_parametric, (bool, np.bool_)):
-            raise ProblemError(f"`warm_parametric` must be True or False, got "
-                               f"{self.warm_parametric!r}")
+        for name in ("warm_parametric", "warm_follow", "warm_far"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ProblemError(f"`{name}` must be True or False, got "
+                                   f"{getattr(self, name)!r}")
         if not (isinstance(self.workers, (int, np.integer)) and not isinstance(self.workers, bool)
                 and self.workers >= 0):
             raise ProblemError(f"`workers` must be an integer >= 0 (0: one per core), got "
