@@ -53,7 +53,8 @@ LAYERS = (
     ("memory tools", ("tocontrol_ros.memory",)),
     ("entry points", ("tocontrol_ros.demo", "tocontrol_ros.planner", "tocontrol_ros.tracker",
                       "tocontrol_ros.recorder", "tocontrol_ros.replay", "tocontrol_ros.report",
-                      "tocontrol_ros.figures", "tocontrol_ros.reindex")),
+                      "tocontrol_ros.figures", "tocontrol_ros.reindex",
+                      "tocontrol_ros.single_blas")),
 )
 
 

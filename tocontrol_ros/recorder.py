@@ -4,14 +4,10 @@ An entry point only (``setup.py``'s ``EXECUTABLES``); the code is
 :mod:`tocontrol_ros.recording.recorder`.
 """
 
-import os
 import sys
 
-# Before numpy and CasADi load their BLAS: one thread unless the user set it (the solves
-# factor small banded and sparse matrices, where BLAS threads only cost; docs/speed.md).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-from tocontrol_ros.recording.recorder import main  # noqa: E402
+import tocontrol_ros.single_blas  # noqa: F401  (first: one BLAS thread, before numpy loads)
+from tocontrol_ros.recording.recorder import main
 
 __all__ = ["main"]
 
