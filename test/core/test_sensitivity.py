@@ -231,16 +231,22 @@ def test_warm_parametric_is_validated(value):
         SolverOptions(warm_parametric=value)
 
 
-def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
-    """The banded LU with T's Schur complement (BandedKKT, shared with the active-set
-    experiment in bench/) solves the Panda's KKT matrix as a dense LU of the same matrix,
-    assembled here from the Hessian's upper triangle and the Jacobian's triplets."""
+def _moved_nlp(panda_case):
+    """The serving mesh's NLP of the Panda case moved by MOVE: ``(moved problem, flat,
+    parameters, w, warm state)``, ``w`` the serving solution (control points and T)."""
     planner, problem, serving = panda_case
     moved = _moved(problem, MOVE)
     ws = serving.warm_state
     flat = planner.flat(moved, ws.breaks, warm="dual")
     par = flat.parameters(moved.start.value, moved.target.value, moved.k)
-    w = np.concatenate([ws.P.ravel(), [ws.T]])
+    return moved, flat, par, np.concatenate([ws.P.ravel(), [ws.T]]), ws
+
+
+def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
+    """The banded LU with T's Schur complement (BandedKKT, shared with the active-set
+    experiment in bench/) solves the Panda's KKT matrix as a dense LU of the same matrix,
+    assembled here from the Hessian's upper triangle and the Jacobian's triplets."""
+    moved, flat, par, w, ws = _moved_nlp(panda_case)
     jac_fun, hess_fun = flat.kkt_functions
     _, jac = jac_fun(w, par)
     hess = hess_fun(w, par, 1.0, ws.lam_g)
@@ -290,12 +296,7 @@ def test_the_buffered_derivatives_and_steps_equal_the_functions_calls(panda_case
     functions called with DM conversions (the route before)."""
     from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-    planner, problem, serving = panda_case
-    moved = _moved(problem, MOVE)
-    ws = serving.warm_state
-    flat = planner.flat(moved, ws.breaks, warm="dual")
-    par = flat.parameters(moved.start.value, moved.target.value, moved.k)
-    w = np.concatenate([ws.P.ravel(), [ws.T]])
+    moved, flat, par, w, ws = _moved_nlp(panda_case)
     der = kkt_derivatives(flat)
     assert kkt_derivatives(flat) is der  # built once per transcription
     jac_fun, hess_fun = flat.kkt_functions

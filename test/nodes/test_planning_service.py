@@ -421,10 +421,9 @@ def test_a_first_motion_finished_after_a_cancel_is_kept_not_published(make_servi
     assert "trajectory" not in out.kinds()
 
 
-def test_a_motion_the_controller_refused_is_no_longer_continued(make_service):
-    """The controller refused the last published motion: a ``refused`` status, and the
-    replanner forgets it (the next goal starts from the measured state); a refusal of an
-    older motion, replaced since, changes nothing."""
+def two_motions(make_service):
+    """A service that published two motions, one request after the other: ``(service, out,
+    a, b)``, ``b``'s motion the last published."""
     service, out = make_service()
     service.planner.gate.set()
     a, b = request(service), request(service)
@@ -432,6 +431,14 @@ def test_a_motion_the_controller_refused_is_no_longer_continued(make_service):
     wait_done(a)
     service.submit(b)
     wait_done(b)
+    return service, out, a, b
+
+
+def test_a_motion_the_controller_refused_is_no_longer_continued(make_service):
+    """The controller refused the last published motion: a ``refused`` status, and the
+    replanner forgets it (the next goal starts from the measured state); a refusal of an
+    older motion, replaced since, changes nothing."""
+    service, out, a, b = two_motions(make_service)
     assert service.replanner.has_motion()
     service.controller_refused(a.id, "rejected")  # replaced by b's motion since
     assert service.replanner.has_motion() and out.statuses("refused") == []
@@ -446,13 +453,7 @@ def test_a_motion_the_tracker_rejected_on_the_topic_is_no_longer_continued(make_
     """A tracker's ``rejected`` status with the stamp of the last published trajectory: as a
     controller's refusal (a ``refused`` status, the replanner forgets the motion); another
     stamp (an older trajectory, or one never published) changes nothing."""
-    service, out = make_service()
-    service.planner.gate.set()
-    a, b = request(service), request(service)
-    service.submit(a)
-    wait_done(a)
-    service.submit(b)
-    wait_done(b)
+    service, out, a, b = two_motions(make_service)
     stamps = [e[2] for e in out.events if e[0] == "trajectory"]
     assert len(stamps) == 2 and service.replanner.has_motion()
     service.tracker_rejected(stamps[0] * 1e-9, "an older one")
