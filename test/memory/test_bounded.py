@@ -11,25 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from limited_arm import MODEL, OPTIONS, problem
 
-from tocontrol_ros.core import Planner, Problem, SolverOptions, load_robot, point
+from tocontrol_ros.core import Planner
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.warm import PathWarmState
-from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.memory.codec import decode_warm
 from tocontrol_ros.core.memory.recall import open_memory, recall, remember
-from tocontrol_ros.core.robot.limits import JointLimits
-from tocontrol_ros.core.robot.model import default_urdf_path
-
-MODEL = load_robot(default_urdf_path())
-BASE = JointLimits.from_model(MODEL)
-LIMITS = JointLimits(BASE.names, np.array([-2.5, -np.inf, -np.inf]),
-                     np.array([2.5, np.inf, np.inf]), np.array([0.4, 1.0, 1.0]))
-OPTIONS = SolverOptions(starts=4, candidates=2)
-
-
-def problem(target):
-    return Problem(MODEL, point(PAPER_START), point(target), k=4, limits=LIMITS)
 
 
 def test_a_bounded_motion_is_stored_and_recalled(tmp_path):

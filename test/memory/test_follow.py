@@ -19,34 +19,22 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from limited_arm import MODEL, OPTIONS, SPANS, problem
 
 import tocontrol_ros.core.direct.path_following as path_following
-from tocontrol_ros.core import Planner, Problem, SolverOptions, load_robot, point
+from tocontrol_ros.core import Planner, SolverOptions
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.limited import state_bounds
 from tocontrol_ros.core.direct.tuning import PAD, SET_PAD
 from tocontrol_ros.core.errors import ProblemError
-from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.memory.serve import serve_result
 from tocontrol_ros.core.planning.solver import solve_once
-from tocontrol_ros.core.robot.limits import JointLimits
-from tocontrol_ros.core.robot.model import default_urdf_path
 
-MODEL = load_robot(default_urdf_path())
-BASE = JointLimits.from_model(MODEL)
-LIMITS = JointLimits(BASE.names, np.array([-2.5, -np.inf, -np.inf]),
-                     np.array([2.5, np.inf, np.inf]), np.array([0.4, 1.0, 1.0]))
-OPTIONS = SolverOptions(starts=4, candidates=2)
-SPANS = 64
 STORED = np.array([2.2, 1.5])
 #: 5 cm from the stored target: 3 sub-moves of at most 2 cm.
 NEAR = STORED + np.array([0.04, 0.03])
 #: Generous: the first solve of a kind compiles its NLP (an event bound, not a timing).
 SLOW_OK = 600.0
-
-
-def problem(target) -> Problem:
-    return Problem(MODEL, point(PAPER_START), point(target), k=4, limits=LIMITS)
 
 
 def _route(result) -> str:

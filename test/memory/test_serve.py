@@ -20,8 +20,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import yaml
+from limited_arm import BASE, LIMITS, MODEL, OPTIONS, SPANS, problem
 
-from tocontrol_ros.core import Planner, Problem, SolverOptions, load_robot, point
+from tocontrol_ros.core import Planner
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.examples import PAPER_START
@@ -37,20 +38,9 @@ from tocontrol_ros.core.memory.recall import (
 from tocontrol_ros.core.memory.serve import convert, serve_spans
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, upgrade_format
 from tocontrol_ros.core.planning.solver import solve_once
-from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import default_urdf_path
 
-MODEL = load_robot(default_urdf_path())
-BASE = JointLimits.from_model(MODEL)
-LIMITS = JointLimits(BASE.names, np.array([-2.5, -np.inf, -np.inf]),
-                     np.array([2.5, np.inf, np.inf]), np.array([0.4, 1.0, 1.0]))
-OPTIONS = SolverOptions(starts=4, candidates=2)
-SPANS = 64
 STORED, NEAR = [2.2, 1.5], [2.21, 1.508]
-
-
-def problem(target):
-    return Problem(MODEL, point(PAPER_START), point(target), k=4, limits=LIMITS)
 
 
 @pytest.fixture(scope="module")
