@@ -42,7 +42,10 @@ class Sent(NamedTuple):
     frame_id: str
 
     def message(self) -> JointTrajectory:
-        """The ``JointTrajectory`` it was published as (:attr:`data` deserialized)."""
+        """The ``JointTrajectory`` it was published as, built again from the samples.
+
+        The same contents as :attr:`data` (``test/nodes/test_trajectory_cdr.py``).
+        """
         return conv.trajectory_msg(self.sample, self.joint_names, self.frame_id,
                                    conv.time_from_ns(self.stamp_ns))
 
