@@ -57,6 +57,8 @@ ENGINES = ("compiled", "seidel", "toppra")
 GOALS = int(RATE * DURATION)
 PAPER_RADIUS, PANDA_RADIUS, PANDA_LAPS = MOVING_PAPER_RADIUS, MOVING_PANDA_RADIUS, \
     MOVING_PANDA_LAPS
+#: The pause before each case of the paused run (s): one goal period of the stream.
+PAUSE = 1.0 / RATE
 #: The paper's arm's start (bench/replan.py's).
 PAPER_Q0 = (0.3, 0.9, 0.6)
 
@@ -152,6 +154,12 @@ def measure(name: str) -> dict | None:
         now = rows["compiled"][-1]
         if now.success:
             loops.append(_open_loops(now.trajectory))
+    # As the planner node meets them: one replan per goal period, the worker asleep between
+    # them (its caches cold by then on a machine with other work), the same motions again.
+    paused = []
+    for problem, q_near in cases:
+        time.sleep(PAUSE)
+        paused.append(quick_motion(problem, q_near))
     moving = sum(bool(np.any(p.start.value[p.model.n:])) for p, _ in cases)
 
     def med(engine: str, key: str) -> float:
@@ -168,6 +176,8 @@ def measure(name: str) -> dict | None:
         "ok": {e: sum(r.success for r in rs) for e, rs in rows.items()},
         "parts": {e: {k: med(e, k) for k in ("guess", "scaling", "verify", "total")}
                   for e in rows},
+        "paused": {k: statistics.median(r.timings[k] for r in paused)
+                   for k in ("guess", "scaling", "verify", "total")},
         "passes": {e: statistics.median(r.iterations for r in rs) for e, rs in rows.items()},
         "T_ratio": (statistics.median(ratios), min(ratios), max(ratios)),
         "T_seidel": seidel,
@@ -201,7 +211,9 @@ def run(which: str = "both") -> Section:
             f"{r['T_seidel']:.1e}",
             f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} -> "
             f"{1e3 * r['loop'][2]:.2f} ({r['loop'][1] / r['loop'][2]:.2f}x; max diff "
-            f"{r['loop'][3]:.1e} / {r['loop'][4]:.1e})"])
+            f"{r['loop'][3]:.1e} / {r['loop'][4]:.1e})",
+            " / ".join(f"{1e3 * r['paused'][k]:.2f}" for k in ("guess", "scaling", "verify",
+                                                                "total"))])
     lines = [
         "A replan's quick motion in one process (`first_motion.quick_motion`), the replans "
         "of `bench/replan.py --moving` (each from the last quick motion's state 0.1 s "
@@ -219,11 +231,15 @@ def run(which: str = "both") -> Section:
         "`deviation`), (state in one call / deviation), the largest difference of the "
         "one-call state's and of the deviation's states from the first. T now / "
         "before per case: median [min, max]; T vs seidel: the largest relative difference. "
+        f"*Paused*: the same quick motions (now) again, each after a pause of {PAUSE:g} s, "
+        "as the planner node's worker meets them (asleep between goals, its caches cold "
+        "on a machine with other work): guess / scaling / verify / total, medians in ms. "
         f"Load before: {load0}; after: {load_text()}. Command: `scripts/dev run python -P "
         f"bench/quick_motion.py {which}`.",
         "",
         *table(["robot", "certified now / seidel / before", "scaling ms", "verify ms",
-                "total ms", "passes", "T now / before", "T vs seidel", "open loop ms"],
+                "total ms", "passes", "T now / before", "T vs seidel", "open loop ms",
+                "paused ms"],
                rows),
     ]
     return Section("Replanning: the quick motion's parts in process (issue 47)", lines, [])

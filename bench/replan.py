@@ -382,17 +382,29 @@ PARTS = ("wait_time", "handoff_time", "problem_time", "guess_time", "scaling_tim
 
 
 def latency_parts(published: list) -> dict:
-    """Median of each of :data:`PARTS` (s) over the quick motions' statuses, and their count."""
+    """Median of each of :data:`PARTS` (s) over the quick motions' statuses, and their count.
+
+    Also ``unaccounted``: the median of each ``publish_latency`` minus the sum of its parts
+    (what no part holds: the lines between them), ``sum_of_medians`` and ``median`` (of the
+    ``publish_latency`` of the same statuses): a median of sums is not the sum of the
+    medians when the parts' tails come on different goals.
+    """
     quick = [s for s in published if s.get("event") == "first"
              and all(s.get(k) is not None for k in PARTS if k != "solve_rest")]
     out = {"count": len(quick)}
-    for key in PARTS:
+
+    def part(s: dict, key: str) -> float:
         if key == "solve_rest":
-            values = [float(s["solve_time"]) - sum(float(s[k]) for k in
-                      ("guess_time", "scaling_time", "verify_time")) for s in quick]
-        else:
-            values = [float(s[key]) for s in quick]
-        out[key] = _pct(values, 0.5)
+            return float(s["solve_time"]) - sum(float(s[k]) for k in
+                                                ("guess_time", "scaling_time", "verify_time"))
+        return float(s[key])
+
+    for key in PARTS:
+        out[key] = _pct([part(s, key) for s in quick], 0.5)
+    out["unaccounted"] = _pct([float(s["publish_latency"]) - sum(part(s, k) for k in PARTS)
+                               for s in quick], 0.5)
+    out["sum_of_medians"] = sum(out[k] for k in PARTS)
+    out["median"] = _pct([float(s["publish_latency"]) for s in quick], 0.5)
     return out
 
 
@@ -594,10 +606,15 @@ def run(which: str = "both", moving: bool = False) -> Section:
     ]
     if moving:
         lines += ["", "Where a quick motion's latency goes (its status's values, median over "
-                  "the goals answered by one, ms): " + "; ".join(
+                  "the goals answered by one, ms; *unaccounted*: the median of each latency "
+                  "minus its parts; then the parts' medians summed against the latencies' "
+                  "median: docs/speed.md, \"A paper replan's latency through the nodes\"): "
+                  + "; ".join(
                       f"{r['robot']} ({r['parts']['count']}): " + ", ".join(
                           f"{k.removesuffix('_time')} {1e3 * r['parts'][k]:.1f}"
-                          for k in PARTS) for r in results) + "."]
+                          for k in (*PARTS, "unaccounted"))
+                      + f" (sum {1e3 * r['parts']['sum_of_medians']:.1f} against median "
+                      f"{1e3 * r['parts']['median']:.1f})" for r in results) + "."]
     if "paper" in names and not moving:
         log("replan: the smoothing's cost in T ...")
         lines += smoothing_cost()

@@ -162,6 +162,31 @@ def test_owned_functions_are_built_once_and_move_to_the_optimised_library(privat
         np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-12, atol=1e-14)
 
 
+def test_a_loaded_optimised_library_is_returned_without_looking_at_files(private_cache,
+                                                                          monkeypatch):
+    """Once the optimised library is loaded, a call returns it as it is: no compiler lookup,
+    no check of the cache's files (issue 47: a replan's quick motion asks about 13 times);
+    with TOCONTROL_COMPILE=0 the symbolic functions, as before."""
+    from pathlib import Path
+
+    class Owner:
+        pass
+
+    owner, funs = Owner(), [_function("owned_loaded_probe")]
+    compiled.compile_owned(owner, 1, "owned_loaded", lambda: funs)
+    assert compiled.wait_for_builds(120.0)
+    optimised, how = compiled.compile_owned(owner, 1, "owned_loaded", lambda: funs)
+    assert how in ("compiled", "cached") and optimised[0] is not funs[0]
+    looked = []
+    monkeypatch.setattr(Path, "is_file", lambda self: looked.append(self) or True)
+    monkeypatch.setattr(compiled, "_compiler", lambda: looked.append("cc") or None)
+    again, how_again = compiled.compile_owned(owner, 1, "owned_loaded", lambda: funs)
+    assert again is optimised and how_again == how and looked == []
+    monkeypatch.setenv("TOCONTROL_COMPILE", "0")
+    symbolic, how = compiled.compile_owned(owner, 1, "owned_loaded", lambda: funs)
+    assert symbolic == funs and "TOCONTROL_COMPILE=0" in how
+
+
 def test_owned_builds_started_in_parallel_are_loaded_without_generating_again(
         private_cache, monkeypatch):
     generated = []

@@ -219,3 +219,18 @@ def test_ik_family_spans_both_elbows_and_reaches_the_point(galicki):
     assert 0 < len(near) < 16
     assert np.max(np.linalg.norm([galicki.point(q) - edge for q in near], axis=1)) < 1e-9
     assert ik_family(galicki, np.array([6.0, 0.0]), 8) == []  # out of reach
+
+
+@pytest.mark.parametrize("robot", ["galicki", "panda"])
+def test_point_and_jacobian_are_point_and_jacobian_to_the_bit(robot, request):
+    """One buffered evaluation of both (issue 47: the Newton steps of a replan's inverse
+    kinematics) gives what the two calls give, bit for bit, so that a quick motion's end
+    configuration did not change."""
+    model = request.getfixturevalue(robot)
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        q = rng.uniform(np.maximum(model.q_lower, -np.pi), np.minimum(model.q_upper, np.pi))
+        point, jac = model.point_and_jacobian(q)
+        assert point.shape == (model.m,) and jac.shape == (model.m, model.n)
+        np.testing.assert_array_equal(point, model.point(q))
+        np.testing.assert_array_equal(jac, model.jacobian(q))

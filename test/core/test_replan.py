@@ -73,6 +73,20 @@ def test_latency_estimate_lead():
     assert est.lead() > 0.02 + 2 * 0.4
 
 
+def test_latency_estimate_lead_is_numpys_quantile():
+    """The lead's high quantile, in plain Python since issue 47, is numpy's (linear)."""
+    from tocontrol_ros.core.planning.tuning import HIGH_QUANTILE
+
+    rng = np.random.default_rng(3)
+    for size in (1, 2, 3, 7, 10, 15):
+        est = LatencyEstimate(1.5, 0.02, window=10, initial=0.1)
+        values = rng.exponential(0.02, size)
+        for v in values:
+            est.record(v)
+        expect = 0.02 + 1.5 * np.quantile(values[-10:], HIGH_QUANTILE)
+        assert est.lead() == pytest.approx(expect, rel=1e-12, abs=1e-15)
+
+
 @pytest.mark.parametrize("args, match", [
     ((0.5, 0.02), "`margin` must be a finite number >= 1"),
     ((2.0, 0.0), "`floor` must be a finite time > 0"),

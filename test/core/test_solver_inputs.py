@@ -176,3 +176,37 @@ def test_a_point_near_a_known_configuration_is_shown_reachable_without_ik(galick
     assert not note_reachable(galicki, p, q[:2])
     with pytest.raises(ProblemError, match="not reachable"):
         Problem(galicki, point(p), point((10.0, 0.0)))
+
+
+def test_note_reachable_decides_as_gauss_newton_by_lstsq_and_svd(galicki):
+    """The steps solved with J J^T and the singularity test on its eigenvalues (issue 47:
+    a replan's reachability check in fewer operations) give the verdict of the form before
+    them, lstsq steps and the SVD of J, over random ends and offsets up to out of reach and
+    at the stretched arm's boundary."""
+    import tocontrol_ros.core.types.problem as problem_module
+    from tocontrol_ros.core.robot.ik import IK_TOL
+
+    def before(model, p, q):
+        for _ in range(problem_module.NEAR_STEPS):
+            e = model.point(q) - p
+            if np.linalg.norm(e) < 1e-3 * IK_TOL:
+                break
+            q = q - np.linalg.lstsq(model.jacobian(q), e, rcond=None)[0]
+        sigma = np.linalg.svd(model.jacobian(q), compute_uv=False)
+        singular = sigma.size < model.m or \
+            sigma[-1] < problem_module.SINGULAR_TOL * model.reach()
+        return bool(np.linalg.norm(model.point(q) - p) < IK_TOL
+                    and np.all(np.isfinite(q)) and not singular)
+
+    rng = np.random.default_rng(47)
+    cases = [(np.zeros(3), galicki.point(np.zeros(3)))]  # stretched: singular
+    for scale in (1e-4, 1e-2, 0.05, 0.3, 3.0):
+        for _ in range(12):
+            q = rng.uniform(-math.pi, math.pi, 3)
+            cases.append((q, galicki.point(q) + rng.normal(size=2) * scale))
+    verdicts = []
+    for q, p in cases:  # each point new (none remembered: drawn here only)
+        expect = before(galicki, p, q.copy())
+        assert problem_module.note_reachable(galicki, p, q) == expect, (q, p)
+        verdicts.append(expect)
+    assert any(verdicts) and not all(verdicts)

@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[2]
 PURE = ("planning_service", "replan_policy", "warm_up", "requests", "replanning",
         "planner_config", "parameter_specs", "outcomes", "splice", "tracker_time",
         "jtc_interpolation", "memory_policy",
-        "tracker_config")
+        "tracker_config", "trajectory_cdr")
 
 #: Imports the given module and prints the ROS packages in ``sys.modules`` after it: rclpy,
 #: rosidl and any message package (``*_msgs``, ``*_interfaces``).

@@ -25,7 +25,9 @@ from planner_harness import (
 )
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from solve_gate import SolveGate
+from trajectory_msgs.msg import JointTrajectory
 
 from tocontrol_ros.core.errors import ModelError, TocontrolError
 from tocontrol_ros.core.robot import compiled
@@ -83,10 +85,11 @@ class PublishedAtTheNode:
         real = planner_outputs.PlannerOutputs.trajectory
 
         def trajectory(outputs, sample, stamp_ns):
-            msg = real(outputs, sample, stamp_ns)
-            if msg is not None:
+            sent = real(outputs, sample, stamp_ns)
+            if sent is not None:  # the bytes published, as a subscriber decodes them
+                msg = deserialize_message(sent.data, JointTrajectory)
                 self._by.setdefault(id(outputs), []).append(msg)
-            return msg
+            return sent
 
         monkeypatch.setattr(planner_outputs.PlannerOutputs, "trajectory", trajectory)
 

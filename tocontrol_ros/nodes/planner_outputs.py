@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from nav_msgs.msg import Path
@@ -21,14 +21,33 @@ from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.planner_config import PlannerConfig
 from tocontrol_ros.nodes.scene_markers import scene_marker_list
+from tocontrol_ros.nodes.trajectory_cdr import trajectory_cdr
 
-__all__ = ["FRESH_STATE_WAIT", "MeasuredArm", "PlannerOutputs"]
+__all__ = ["FRESH_STATE_WAIT", "MeasuredArm", "PlannerOutputs", "Sent"]
 
 #: A request that starts from the robot's current state waits up to this long (s) for a joint
 #: state that arrived after it (a goal: received after the goal; a service request: processed
 #: after the request), so that a state still queued when the request came is not used while
 #: the arm moves. Else the newest one within ``joint_state_timeout`` is used after the wait.
 FRESH_STATE_WAIT = 0.1
+
+
+class Sent(NamedTuple):
+    """A trajectory published on ``~/trajectory``: its bytes, samples, stamp, names, frame."""
+
+    data: bytes
+    sample: Any
+    stamp_ns: int
+    joint_names: tuple
+    frame_id: str
+
+    def message(self) -> JointTrajectory:
+        """The ``JointTrajectory`` it was published as, built again from the samples.
+
+        The same contents as :attr:`data` (``test/nodes/test_trajectory_cdr.py``).
+        """
+        return conv.trajectory_msg(self.sample, self.joint_names, self.frame_id,
+                                   conv.time_from_ns(self.stamp_ns))
 
 
 class PlannerOutputs:
@@ -85,11 +104,18 @@ class PlannerOutputs:
         """An error in the node's log."""
         self._node.get_logger().error(message)
 
-    def trajectory(self, sample, stamp_ns: int) -> JointTrajectory | None:
-        """``~/trajectory``, stamped ``stamp_ns``; the message, None in shutdown."""
-        msg = conv.trajectory_msg(sample, self._model.joint_names, self._frame.frame_id,
-                                  conv.time_from_ns(stamp_ns))
-        return msg if self._publish("trajectory", msg) else None
+    def trajectory(self, sample, stamp_ns: int) -> Sent | None:
+        """``~/trajectory``, stamped ``stamp_ns``; what was sent, None in shutdown.
+
+        Published as its CDR bytes (:func:`~tocontrol_ros.nodes.trajectory_cdr.trajectory_cdr`,
+        the message a subscriber receives, built in numpy: a replan's publication waits for
+        no message objects); the ``JointTrajectory`` object is built only for a controller
+        (:meth:`follow`).
+        """
+        names, frame = tuple(self._model.joint_names), self._frame.frame_id
+        data = trajectory_cdr(sample, names, frame, stamp_ns)
+        sent = Sent(data, sample, int(stamp_ns), names, frame)
+        return sent if self._publish("trajectory", data) else None
 
     def path(self, sample, stamp_ns: int) -> Path | None:
         """``~/ee_path``, stamped ``stamp_ns``; the path, None in shutdown."""
@@ -97,11 +123,10 @@ class PlannerOutputs:
                              conv.time_from_ns(stamp_ns))
         return path if self._publish("path", path) else None
 
-    def follow(self, request_id: int, trajectory: JointTrajectory,
-               config: PlannerConfig) -> None:
-        """The plan to ``controller_action`` (nothing without one)."""
+    def follow(self, request_id: int, trajectory: Sent, config: PlannerConfig) -> None:
+        """The plan to ``controller_action`` (nothing without one): the published message."""
         if self.controller is not None:
-            self.controller.send(request_id, trajectory, config)
+            self.controller.send(request_id, trajectory.message(), config)
 
     def markers(self, result, path: Path, config: PlannerConfig, start_point: np.ndarray,
                 target: np.ndarray) -> None:

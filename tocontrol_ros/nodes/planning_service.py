@@ -70,7 +70,10 @@ class Outputs(Protocol):
         """An error in the log only (an internal error, before its ``failed`` status)."""
 
     def trajectory(self, sample: Any, stamp_ns: int) -> Any:
-        """Publish ``sample`` (a sampled trajectory) on ``~/trajectory``; the message, or None."""
+        """Publish ``sample`` (a sampled trajectory) on ``~/trajectory``.
+
+        Returns what was sent (handed to :meth:`follow`), or None.
+        """
 
     def path(self, sample: Any, stamp_ns: int) -> Any:
         """Publish its end-effector path on ``~/ee_path``; the path (a ``~/plan`` answer)."""

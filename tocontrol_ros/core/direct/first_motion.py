@@ -320,9 +320,8 @@ def _newton_near(problem: Problem, q: np.ndarray) -> np.ndarray | None:
     lim, target = problem.limits, problem.target.value
     q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
     q = _newton(problem, q, target, QUICK_IK_ITERATIONS, early=True)
-    fk = problem.model.function("P")
-    return q if q is not None and np.linalg.norm(target - np.array(fk(q)).ravel()) <= \
-        IK_TOL else None
+    return q if q is not None and np.linalg.norm(
+        target - problem.model.point_and_jacobian(q)[0]) <= IK_TOL else None
 
 
 def _newton(problem: Problem, q: np.ndarray, goal: np.ndarray, iterations: int,
@@ -335,13 +334,13 @@ def _newton(problem: Problem, q: np.ndarray, goal: np.ndarray, iterations: int,
     cannot be taken (singular, or the free joints cannot move the tip there).
     """
     model, lim = problem.model, problem.limits
-    fk, jac = model.function("P"), model.function("J")
     w = np.where(np.isfinite(lim.plan_velocity), lim.plan_velocity, 1.0)
     for _ in range(iterations):
-        r = goal - np.array(fk(q)).ravel()
+        p, jac = model.point_and_jacobian(q)  # P and J as model.point/jacobian, one call
+        r = goal - p
         if early and np.linalg.norm(r) <= IK_TOL:
             return q
-        q = _limited_step(q, r, np.array(jac(q)), w, lim.plan_lower, lim.plan_upper)
+        q = _limited_step(q, r, jac, w, lim.plan_lower, lim.plan_upper)
         if q is None:
             return None
     return q

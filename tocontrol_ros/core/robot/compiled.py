@@ -471,6 +471,12 @@ def compile_owned(owner: object, key: object, name: str,
         if entry is None:
             entry = entries[key] = _Owned(funs=[])
     with entry.lock:
+        if entry.build is None and entry.paths is not None and \
+                entry.loaded == entry.paths[0] and \
+                os.environ.get("TOCONTROL_COMPILE", "1") != "0":
+            # The optimised library is loaded: nothing replaces it. No compiler lookup and
+            # no file check: a replan's quick motion asks about 13 times (0.5-1 ms of it).
+            return entry.compiled, entry.how
         if not entry.funs:
             entry.funs = list(build())
         funs = entry.funs

@@ -315,16 +315,32 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
         return False
     if _known_reachable(model, p):  # e.g. a replan solved again from a later hand-off
         return True
-    for _ in range(NEAR_STEPS):
-        e = model.point(q) - p
-        if np.linalg.norm(e) < 1e-3 * IK_TOL:
+    # P and J in one buffered call, the steps' least-norm solve and the singularity test
+    # on the m x m matrix J J^T (m <= 3 task axes): the verdict is the IK tolerance's and
+    # SINGULAR_TOL's; the configuration itself is not kept. Two CasADi calls, lstsq and an
+    # SVD per step cost about 0.5-1 ms more a replan through the nodes.
+    for step in range(NEAR_STEPS + 1):
+        point, j = model.point_and_jacobian(q)
+        e = point - p
+        err = float(np.linalg.norm(e))
+        if not err >= 1e-3 * IK_TOL or step == NEAR_STEPS:  # there, NaN, or the last
             break
-        q = q - np.linalg.lstsq(model.jacobian(q), e, rcond=None)[0]
-    if not (np.linalg.norm(model.point(q) - p) < IK_TOL and np.all(np.isfinite(q))) \
-            or _singular(model, q):
+        try:
+            q = q - j.T @ np.linalg.solve(j @ j.T, e)
+        except np.linalg.LinAlgError:
+            return False
+    if not (err < IK_TOL and np.all(np.isfinite(q))) or _singular_near(model, j):
         return False
     _remember_reachable(model, p)
     return True
+
+
+def _singular_near(model: RobotModel, j: np.ndarray) -> bool:
+    """:func:`_singular` of the Jacobian ``j`` (m, n), from the eigenvalues of ``J J^T``."""
+    if j.shape[0] > j.shape[1]:
+        return True
+    lowest = float(np.linalg.eigvalsh(j @ j.T)[0])
+    return not lowest >= (SINGULAR_TOL * model.reach()) ** 2
 
 
 #: A configuration is singular for :func:`_check_reachable` when the smallest singular value
