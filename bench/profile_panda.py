@@ -336,8 +336,15 @@ def run_cores(count: int, workers: int = 2) -> Section:
             res = plan(problem, options)
             out[options.workers] = (time.perf_counter() - t0, res)
         (t1, r1), (tw, rw) = out[1], out[workers]
-        equal = _fingerprint(r1) == _fingerprint(rw)
+        f1, fw = _fingerprint(r1), _fingerprint(rw)
+        equal = f1 == fw
         same += equal
+        if not equal:  # which part differs, for the log
+            parts = [name for name, a, b in zip(("status", "T", "trajectory", "starts"), f1, fw,
+                                                strict=True) if a != b]
+            log(f"cores Panda {i + 1}: not the same plan: {', '.join(parts)} differ "
+                f"(T {r1.T!r} / {rw.T!r}); start records that differ: " + "; ".join(
+                    f"{a} / {b}" for a, b in zip(f1[3], fw[3], strict=False) if a != b))
         ratios.append(t1 / tw)
         rows.append([str(i + 1), problem.start.kind, r1.status.name, f"{r1.T:.6f}",
                      f"{t1:.2f}", f"{tw:.2f}", f"{t1 / tw:.2f}", "yes" if equal else "NO"])
