@@ -49,6 +49,7 @@ from bench.optimum_panda import SEED, K  # noqa: E402
 from tocontrol_ros.core import Problem, SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.direct import collocation, flat  # noqa: E402
 from tocontrol_ros.core.direct.tuning import SPANS  # noqa: E402
+from tocontrol_ros.core.planning.prepared import PreparedModel  # noqa: E402
 from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
 #: CasADi's per-solve wall-time counters (s), by what they time.
@@ -60,11 +61,16 @@ STAGES = ("guesses (Hermite-Simpson, k = 4)", "bounded: uniform", "bounded: refi
 
 
 class Recorder:
-    """Wraps the transcriptions' ``solve`` and ``__init__`` and keeps what they cost."""
+    """Wraps the transcriptions' ``solve`` and ``__init__`` and keeps what they cost.
+
+    Also the planner's shared pieces (``PreparedModel.map``, one process): each call's
+    pieces' wall times and the solves they made (``groups``), for :func:`two_core_path`.
+    """
 
     def __init__(self) -> None:
         self.solves: list[dict] = []
         self.builds: collections.Counter = collections.Counter()
+        self.groups: list[dict] = []
         self._undo = []
 
     def __enter__(self) -> Recorder:
@@ -72,7 +78,27 @@ class Recorder:
                          (flat.FlatTranscription, "flat")):
             self._wrap_solve(cls, tag)
             self._wrap_init(cls, tag)
+        self._wrap_map()
         return self
+
+    def _wrap_map(self) -> None:
+        orig = PreparedModel.map
+        recorder = self
+
+        def map_(obj, fn, ctx, items):
+            if (ctx.options.workers or 2) > 1:  # pieces in other processes: not timed here
+                yield from orig(obj, fn, ctx, items)
+                return
+            group = {"items": [], "first_solve": len(recorder.solves)}
+            recorder.groups.append(group)
+            for item in items:
+                t0 = time.perf_counter()
+                out = fn(obj, ctx, *item)
+                group["items"].append(time.perf_counter() - t0)
+                yield out
+
+        self._undo.append((PreparedModel, "map", orig))
+        PreparedModel.map = map_
 
     def __exit__(self, *exc) -> None:
         for cls, name, orig in self._undo:
@@ -110,6 +136,44 @@ class Recorder:
         cls.__init__ = init
 
 
+def makespan(pieces: list[float], processes: int = 2) -> float:
+    """Wall time of ``pieces`` (s, in order) taken from one queue by ``processes`` processes.
+
+    Each piece goes to the process that is free first, as
+    :class:`~tocontrol_ros.core.planning.pool.WorkerPool` shares them out (the caller's
+    process takes pieces too); no start-up or transfer costs.
+    """
+    free = [0.0] * processes
+    for piece in pieces:
+        i = free.index(min(free))
+        free[i] += piece
+    return max(free)
+
+
+def two_core_path(wall: float, groups: list[dict], solves: list[dict],
+                  processes: int = 2) -> dict:
+    """One plan's time (one process) split by what ``processes`` cores could share.
+
+    ``groups``: the plan's shared pieces (:class:`Recorder`), each attributed to the stage
+    of its first solve. Returns, by stage, ``(one process, estimate on processes)`` in
+    seconds, and under ``"not shared"`` the rest of the plan (the first guess, the pad's
+    re-solves, seeding, fits, certificate), the same on any number of cores.
+    """
+    out: dict = {}
+    shared = 0.0
+    for group in groups:
+        if not group["items"]:
+            continue
+        first = group["first_solve"]
+        stage = solves[first]["stage"] if first < len(solves) else "other"
+        one, many = sum(group["items"]), makespan(group["items"], processes)
+        shared += one
+        a, b = out.get(stage, (0.0, 0.0))
+        out[stage] = (a + one, b + many)
+    out["not shared"] = (wall - shared, wall - shared)
+    return out
+
+
 def _stage(tag: str, obj) -> str:
     if tag == "guess":
         return STAGES[0]
@@ -136,12 +200,16 @@ def run(count: int) -> Section:
     with Recorder() as rec:
         for i, problem in enumerate(problems):
             first, builds = len(rec.solves), dict(rec.builds)
+            groups = len(rec.groups)
             t0 = time.perf_counter()
             res = plan(problem, options)
             wall = time.perf_counter() - t0
             solves = rec.solves[first:]
             build = sum(rec.builds[k] - builds.get(k, 0.0) for k in ("guess", "flat"))
+            groups = [dict(g, first_solve=g["first_solve"] - first)
+                      for g in rec.groups[groups:]]
             plans.append({"wall": wall, "solves": solves, "build": build,
+                          "path": two_core_path(wall, groups, solves),
                           "verify": res.timings.get("verify", 0.0), "ok": res.success})
             log(f"profile Panda {i + 1}/{count}: {res.status.name} T {res.T:.6f} in "
                 f"{wall:.2f} s, {len(solves)} IPOPT solves")
@@ -199,7 +267,39 @@ def _section(plans: list, options: SolverOptions) -> Section:
         ["certificate (re-integration, checks)", f"{100 * verify / total:.0f} %"],
         ["the rest (Python: seeding, IK, fits, trajectories)", f"{100 * rest / total:.0f} %"],
     ])]
+    lines += ["", *_path_lines(plans)]
     return Section("Where a Panda plan's time goes", lines, [])
+
+
+def _path_lines(plans: list) -> list[str]:
+    """The table of what two cores could share (:func:`two_core_path`), per plan medians."""
+    stages = [*STAGES, "other", "not shared"]
+    path_total = sum(sum(v[1] for v in p["path"].values()) for p in plans)
+    rows = []
+    for stage in stages:
+        ones = [p["path"].get(stage, (0.0, 0.0))[0] for p in plans]
+        twos = [p["path"].get(stage, (0.0, 0.0))[1] for p in plans]
+        if not any(ones):
+            continue
+        rows.append([stage if stage != "not shared" else
+                     "not shared (first guess, pad re-solves, seeding, fits, certificate)",
+                     f"{sum(ones) / len(plans):.2f}", f"{sum(twos) / len(plans):.2f}",
+                     f"{100 * sum(twos) / path_total:.0f} %"])
+    ratios = [p["wall"] / sum(v[1] for v in p["path"].values()) for p in plans]
+    return [
+        "The same plans on two cores, estimated from these one-process timings: the pieces "
+        "the planner shares out (`Compiled.map`: the guesses after the first, the "
+        "candidates' uniform solves, each refinement level's solves) taken from one queue "
+        "by two processes, each piece to the one free first (as `core/planning/pool.py` "
+        "does, without its start-up and transfer costs), the rest of the plan in one "
+        "process. Seconds per plan (means), and each stage's share of the two-core path. "
+        f"Estimated speed-up on two cores: median {statistics.median(ratios):.2f} "
+        f"(min {min(ratios):.2f}, max {max(ratios):.2f}); what the planner reaches is "
+        "measured in the next section.",
+        "",
+        *table(["stage", "one process (s)", "two cores, estimate (s)", "of the two-core path"],
+               rows),
+    ]
 
 
 def _fingerprint(res) -> tuple:
@@ -236,8 +336,15 @@ def run_cores(count: int, workers: int = 2) -> Section:
             res = plan(problem, options)
             out[options.workers] = (time.perf_counter() - t0, res)
         (t1, r1), (tw, rw) = out[1], out[workers]
-        equal = _fingerprint(r1) == _fingerprint(rw)
+        f1, fw = _fingerprint(r1), _fingerprint(rw)
+        equal = f1 == fw
         same += equal
+        if not equal:  # which part differs, for the log
+            parts = [name for name, a, b in zip(("status", "T", "trajectory", "starts"), f1, fw,
+                                                strict=True) if a != b]
+            log(f"cores Panda {i + 1}: not the same plan: {', '.join(parts)} differ "
+                f"(T {r1.T!r} / {rw.T!r}); start records that differ: " + "; ".join(
+                    f"{a} / {b}" for a, b in zip(f1[3], fw[3], strict=False) if a != b))
         ratios.append(t1 / tw)
         rows.append([str(i + 1), problem.start.kind, r1.status.name, f"{r1.T:.6f}",
                      f"{t1:.2f}", f"{tw:.2f}", f"{t1 / tw:.2f}", "yes" if equal else "NO"])
