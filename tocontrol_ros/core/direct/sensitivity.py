@@ -184,7 +184,9 @@ class BandedKKT:
         rows_ab = 2 * self.kl + self.ku + 1
         self.shape_ab = (rows_ab, self.M)
         self.inner = inner
-        self.lin = (self.kl + self.ku + pr[inner] - pc[inner]) * self.M + pc[inner]
+        # Each entry's place in LAPACK's band storage, column-major (Fortran order, as
+        # dgbtrf takes it: assembled there, no copy; the same sums as row-major's).
+        self.lin = (self.kl + self.ku + pr[inner] - pc[inner]) + pc[inner] * rows_ab
         # The border: T's column (rows of the core) and T's diagonal entry.
         col_T = (cols == iT) & (pr >= 0)
         self.col_T, self.col_T_at = col_T, pr[col_T]
@@ -194,10 +196,10 @@ class BandedKKT:
         """LU of the core band and the border's Schur complement; None if singular."""
         data = np.concatenate([hess, hess[self.off], diag, jac, jac])
         ab = np.bincount(self.lin, weights=data[self.inner],
-                         minlength=self.shape_ab[0] * self.M).reshape(self.shape_ab)
+                         minlength=self.shape_ab[0] * self.M).reshape(self.shape_ab, order="F")
         b = np.bincount(self.col_T_at, weights=data[self.col_T], minlength=self.M)
         d = float(np.sum(data[self.diag_T]))
-        lub, piv, info = lapack.dgbtrf(np.asfortranarray(ab), self.kl, self.ku)
+        lub, piv, info = lapack.dgbtrf(ab, self.kl, self.ku, overwrite_ab=True)
         if info != 0:
             return None
         u, info = lapack.dgbtrs(lub, self.kl, self.ku, b, piv)
