@@ -95,7 +95,7 @@ MAX_SOLVES = 16
 #: Re-solves after holding rows within one step at most: one more and the step's rows to
 #: hold keep growing (the linearisation carries ever more rows across: on the 20 moves of
 #: bench/warm_resolve.py the steps that converged held rows at most 3 times within a step,
-#: those that failed up to 13 times, or cycled releasing and holding one row); the solve
+#: those that failed up to 12 times, or cycled releasing and holding one row); the solve
 #: stops there, a failure, so that what follows starts sooner (docs/limits.md).
 HOLD_ROUNDS = 4
 #: A held row's multiplier of the wrong sign by more than this, once the residual is below
