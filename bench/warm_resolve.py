@@ -29,7 +29,9 @@ one run, each timed after a warm-up of the same call (median of 3):
   primal-dual active-set corrections from the serving solution, the solve alone;
 - **from step**: where the parametric step failed, IPOPT warm (``warm="dual"``) from the
   step's last iterate and multipliers instead of the serving solution (the step's time
-  included), the solve alone: does the failed step give IPOPT a better start?
+  included), the solve alone: does the failed step give IPOPT a better start? (One solve:
+  the *ipopt* column's iterations are its route's last solve, the pad round's where the
+  answer needed one, so compare with the route's first solve: docs/limits.md.)
 - **factorisation** and **stretch check**, before/after in the same process: one KKT
   factorisation at the serving point (the band assembled row-major and copied, against
   assembled in LAPACK's column-major band storage and factorised in place), and the six
@@ -411,7 +413,8 @@ def run(count: int = CASES) -> Section:
         f"*step alone*: `sensitivity_solve` by itself, the whole move then, where it "
         f"failed, the sub-moves (no trajectory, no certificate); "
         f"*ipopt*: the same with `warm_parametric=False` "
-        f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
+        f"(IPOPT warm with the multipliers; the iterations of its last solve: the pad "
+        f"round's where it has one); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
         f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion; "
@@ -419,7 +422,8 @@ def run(count: int = CASES) -> Section:
         f"route before), the solve alone; *active set*: SQP on a working set with "
         f"primal-dual active-set corrections (bench/warm_active_set.py, tried and not "
         f"kept), the solve alone, its KKT solves and T gap; *from step*: where the "
-        f"parametric step failed, IPOPT warm from its last iterate (the step included). "
+        f"parametric step failed, IPOPT warm from its last iterate (the step included; "
+        f"one solve, no pad round). "
         f"Times: median of 3 calls after one, *solve / total* (the NLP solve, "
         f"`timings[\"shooting\"]`, and the whole call with its certificate). *gap*: the "
         f"parametric route's T over the ipopt route's (the same NLP's optimum) and over the "
@@ -471,7 +475,9 @@ def run(count: int = CASES) -> Section:
         f"ipopt route's T), median {ms('a_solve')} there. From step: where the "
         f"parametric step failed ({counts['step_failed']}/{n}), IPOPT from its last "
         f"iterate took a median {_med(m['s_it']):.0f} iterations ({ms('s_total')}, the step "
-        f"included) against {_med(m['s_ipopt_it']):.0f} from the serving solution.",
+        f"included; one solve) against {_med(m['s_ipopt_it']):.0f} in the ipopt route's "
+        f"last solve (its pad round's where it has one: not the same solve, "
+        f"docs/limits.md).",
     ]
     p_solve, p_total = _med(m["p_solve"]), _med(m["p_total"])
     gap_ok = bool(gaps) and max(gaps) <= BAR_GAP
