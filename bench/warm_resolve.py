@@ -11,10 +11,11 @@ one run, each timed after a warm-up of the same call (median of 3):
   ``warm_parametric`` (the default): the parametric primal-dual step from the serving
   solution (core/direct/sensitivity.py), certified; IPOPT where it fails (the route taken
   is read from the result's warnings);
-- **before**: the same call without the path-following in sub-moves (:func:`as_before`:
-  ``PATH_SUBMOVES`` 1, the route before it; where the whole move's steps fail it falls
-  back to IPOPT at once), in the same run; where the whole move's steps converge the two
-  take the same steps (checked: the same ``T`` to the bit there);
+- **before**: the same call without the cap on re-solves with rows held within a step
+  (:func:`as_before`: ``HOLD_ROUNDS`` lifted, the route before it; where a step's rows to
+  hold keep growing it re-solves until the budget ends, then the sub-moves, then IPOPT),
+  in the same run; where no step reaches the cap the two take the same steps (checked: the
+  same ``T`` to the bit there);
 - **ipopt**: the same call with ``warm_parametric=False``: IPOPT warm from the serving
   solution and its multipliers (``warm="dual"``, its barrier from 1e-7);
 - **tight**: IPOPT on the same NLP from the same point with its warm start's pushes and
@@ -28,7 +29,15 @@ one run, each timed after a warm-up of the same call (median of 3):
   primal-dual active-set corrections from the serving solution, the solve alone;
 - **from step**: where the parametric step failed, IPOPT warm (``warm="dual"``) from the
   step's last iterate and multipliers instead of the serving solution (the step's time
-  included), the solve alone: does the failed step give IPOPT a better start?
+  included), the solve alone: does the failed step give IPOPT a better start? (One solve:
+  the *ipopt* column's iterations are its route's last solve, the pad round's where the
+  answer needed one, so compare with the route's first solve: docs/limits.md.)
+- **factorisation** and **stretch check**, before/after in the same process: one KKT
+  factorisation at the serving point (the band assembled row-major and copied, against
+  assembled in LAPACK's column-major band storage and factorised in place), and the six
+  time stretches' set check of the step's answer (one trajectory and one inverse-dynamics
+  call per stretch, against one call for all): median ms of 20 each, the same numbers to
+  the bit checked.
 
 References: the ipopt route's ``T`` (IPOPT converged on the same 24-span NLP: its optimum)
 and the default cold plan of the moved problem (``Planner.plan``: its refined mesh, a
@@ -76,20 +85,74 @@ def _route(result) -> str:
 
 @contextmanager
 def as_before():
-    """The parametric route as it was before the sub-moves (issue 47), for the side by side.
+    """The parametric route as it was before the cap on re-solves with rows held (issue 47).
 
-    ``core.direct.limited.PATH_SUBMOVES`` set to 1: where the whole move's Newton steps do
-    not converge, IPOPT re-solves at once (no path-following in the parameter); everything
-    else is the same code.
+    ``core.direct.sensitivity.HOLD_ROUNDS`` lifted: a step whose rows to hold keep growing
+    goes on re-solving until the solve's budget of factorisations ends; everything else is
+    the same code (the band's in-place factorisation and the stretches checked in one call
+    change no number: their own before/after is :func:`_parts_pair`).
     """
-    import tocontrol_ros.core.direct.limited as limited
+    import tocontrol_ros.core.direct.sensitivity as sensitivity
 
-    saved = limited.PATH_SUBMOVES
-    limited.PATH_SUBMOVES = 1
+    saved = sensitivity.HOLD_ROUNDS
+    sensitivity.HOLD_ROUNDS = 10 ** 9
     try:
         yield
     finally:
-        limited.PATH_SUBMOVES = saved
+        sensitivity.HOLD_ROUNDS = saved
+
+
+def _rowmajor_factor(banded, hess, diag, jac):
+    """The band's factorisation as before issue 47's change: assembled row-major, copied to
+    Fortran order, factorised on a copy (the LU the same to the bit as ``banded.factor``)."""
+    from scipy.linalg import lapack
+
+    rows_ab = banded.shape_ab[0]
+    data = np.concatenate([hess, hess[banded.off], diag, jac, jac])
+    place = (banded.lin % rows_ab) * banded.M + banded.lin // rows_ab
+    ab = np.bincount(place, weights=data[banded.inner],
+                     minlength=rows_ab * banded.M).reshape(banded.shape_ab)
+    return lapack.dgbtrf(np.asfortranarray(ab), banded.kl, banded.ku)
+
+
+def _parts_pair(flat, w0, lam_g, values, step, repeats: int = 20) -> tuple:
+    """Before/after in one process: one KKT factorisation at the serving point (row-major
+    assembly and a copy against the band in place) and the six time stretches' set check of
+    the step's answer (one by one against one call), median ms of ``repeats``; and whether
+    each pair gives the same numbers to the bit."""
+    from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
+    from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
+    from tocontrol_ros.core.direct.sensitivity import banded_kkt
+    from tocontrol_ros.core.direct.tuning import STRETCHES
+
+    der = kkt_derivatives(flat)
+    par = flat.parameters(*values)
+    _, jv = der.rows(w0, par)
+    hv = der.hessian(w0, par, lam_g)
+    banded = banded_kkt(flat, der.jac_sparsity, der.hess_sparsity)
+    diag = np.concatenate([np.ones(banded.nw), -np.ones(banded.ng)])
+    traj = FlatTrajectory(flat, step, values[2])
+    durations = [step.T * (1.0 + e) for e in STRETCHES]
+
+    def one_by_one():
+        return np.array([traj.with_result(replace(step, T=T)).set_values()
+                         for T in durations])
+
+    pairs = ((lambda: _rowmajor_factor(banded, hv, diag, jv),
+              lambda: banded.factor(hv, diag, jv)),
+             (one_by_one, lambda: traj.slower_set_values(durations)))
+    out = []
+    for old, new in pairs:
+        times = {old: [], new: []}
+        for _ in range(repeats):
+            for fn in (old, new):
+                t0 = time.perf_counter()
+                fn()
+                times[fn].append(time.perf_counter() - t0)
+        out.append((1e3 * float(np.median(times[old])), 1e3 * float(np.median(times[new]))))
+    same = bool(np.array_equal(pairs[0][0]()[0], pairs[0][1]()[0])
+                and np.array_equal(pairs[1][0](), pairs[1][1]()))
+    return out[0], out[1], same
 
 
 def _before(fn):
@@ -142,18 +205,19 @@ def run(count: int = CASES) -> Section:
                              "i_total_ok", "a_solve", "a_gap", "s_total", "s_it",
                              "s_ipopt_it", "b_solve", "b_steps", "b_gap", "p_holds",
                              "o_solve", "o_total", "o_solve_ok", "o_total_ok", "step",
-                             "set_check", "cert")}
+                             "set_check", "cert", "f_old", "f_new", "x_old", "x_new",
+                             "p_solve_fb", "o_solve_fb")}
     counts = {"parametric": 0, "ipopt (fallback)": 0, "ipopt": 0, "certified": 0,
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
               "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0,
-              "same": 0, "sub_moves": 0, "before_parametric": 0}
+              "same": 0, "sub_moves": 0, "before_parametric": 0, "parts_same": 0}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
         serving = warm_replan(planner, problem, [base], ropts) if base.success else base
         if not serving.success or serving.warm_state is None:
             rows.append([str(i + 1), "plan failed" if not base.success else
-                         "serving solve failed"] + [""] * 15)
+                         "serving solve failed"] + [""] * 16)
             continue
         moved = None
         for _ in range(10):  # a direction whose moved target the arm reaches
@@ -166,7 +230,7 @@ def run(count: int = CASES) -> Section:
             except ProblemError:
                 continue
         if moved is None:
-            rows.append([str(i + 1), "no reachable move"] + [""] * 15)
+            rows.append([str(i + 1), "no reachable move"] + [""] * 16)
             continue
         counts["answered"] += 1
         par, tp, par_all = _timed(lambda: planner.plan(  # noqa: B023
@@ -196,6 +260,14 @@ def run(count: int = CASES) -> Section:
                                      max_solves=PATH_SOLVES, sub_budget=PATH_SUB_BUDGET)
 
         (alone, _), t_step, _ = _timed(steps_alone)
+        first, _ = sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x, *values,  # noqa: B023
+                                     *bounds, SET_PAD)
+        (f_old, f_new), (x_old, x_new), parts_same = _parts_pair(
+            dual_flat, w0, ws.lam_g, values, first)
+        counts["parts_same"] += parts_same
+        for key, v in (("f_old", f_old), ("f_new", f_new), ("x_old", x_old),
+                       ("x_new", x_new)):
+            m[key].append(v)
         (bar, bar_out), tb, _ = _timed(lambda: sensitivity_solve(  # noqa: B023
             dual_flat, w0, ws.lam_g, ws.lam_x, *values, *bounds, SET_PAD,  # noqa: B023
             hold=False))
@@ -260,6 +332,9 @@ def run(count: int = CASES) -> Section:
         if old.success:
             m["o_solve"].append(o_solve)
             m["o_total"].append(to)
+        if route == "ipopt (fallback)":
+            m["p_solve_fb"].append(p_solve)
+            m["o_solve_fb"].append(o_solve)
         if route == "parametric":
             m["o_solve_ok"].append(o_solve)
             m["o_total_ok"].append(to)
@@ -304,7 +379,8 @@ def run(count: int = CASES) -> Section:
             f"{1e3 * ta:.1f} ({act.iterations}) {a_gap:.1e}" if act.success
             else f"{act_out.reason.split(' in ')[0]} ({act.iterations})",
             "(converged)" if again is None else
-            f"{1e3 * ts:.1f} ({again.iterations})" if again.success else "failed"])
+            f"{1e3 * ts:.1f} ({again.iterations})" if again.success else "failed",
+            f"{f_old:.2f} -> {f_new:.2f}", f"{x_old:.2f} -> {x_new:.2f}"])
         log(f"warm_resolve {i + 1}: {route} {1e3 * p_solve:.1f}/{1e3 * tp:.1f} ms "
             f"({par.iterations}) gap {gap:.1e}; ipopt {1e3 * i_solve:.1f}/{1e3 * ti:.1f} ms "
             f"({ipo.iterations}); tight {1e3 * tt:.1f} ms ({tight.iterations}); refit "
@@ -326,14 +402,19 @@ def run(count: int = CASES) -> Section:
         f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
         f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
         f"failed; 'sub-moves' where the whole move's steps failed and the move followed in "
-        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call without the "
-        f"sub-moves (`as_before` in bench/warm_resolve.py: IPOPT at once where the whole "
-        f"move's steps fail; 'differs' where its route or T is not the parametric column's "
-        f"to the bit); "
+        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call without the cap "
+        f"on re-solves with rows held within a step (`as_before` in bench/warm_resolve.py: "
+        f"`HOLD_ROUNDS` lifted; 'differs' where its route or T is not the parametric "
+        f"column's to the bit); *factorisation*, *stretch check*: one KKT factorisation at "
+        f"the serving point, the band assembled row-major and copied against in LAPACK's "
+        f"band storage in place, and the six time stretches' set check of the step's "
+        f"answer one by one against in one call, before -> now, median ms of 20 in the "
+        f"same process; "
         f"*step alone*: `sensitivity_solve` by itself, the whole move then, where it "
         f"failed, the sub-moves (no trajectory, no certificate); "
         f"*ipopt*: the same with `warm_parametric=False` "
-        f"(IPOPT warm with the multipliers; its iterations); *tight*: IPOPT on that NLP "
+        f"(IPOPT warm with the multipliers; the iterations of its last solve: the pad "
+        f"round's where it has one); *tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
         f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion; "
@@ -341,7 +422,8 @@ def run(count: int = CASES) -> Section:
         f"route before), the solve alone; *active set*: SQP on a working set with "
         f"primal-dual active-set corrections (bench/warm_active_set.py, tried and not "
         f"kept), the solve alone, its KKT solves and T gap; *from step*: where the "
-        f"parametric step failed, IPOPT warm from its last iterate (the step included). "
+        f"parametric step failed, IPOPT warm from its last iterate (the step included; "
+        f"one solve, no pad round). "
         f"Times: median of 3 calls after one, *solve / total* (the NLP solve, "
         f"`timings[\"shooting\"]`, and the whole call with its certificate). *gap*: the "
         f"parametric route's T over the ipopt route's (the same NLP's optimum) and over the "
@@ -355,15 +437,20 @@ def run(count: int = CASES) -> Section:
                 "gap (same NLP)", "gap (cold plan)", "ipopt ms solve / total (it)",
                 "tight ms (it)", "refit ms (it)", "quick ms", "quick gap",
                 "barrier alone ms (steps) gap", "active set ms (KKT solves) gap",
-                "from step ms (it)"], rows),
+                "from step ms (it)", "factorisation ms", "stretch check ms"], rows),
         "",
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps; {counts['sub_moves']} of them in "
         f"{PATH_SUBMOVES} sub-moves after the whole move's steps failed), "
         f"{counts['ipopt (fallback)']}/{n} fell back to IPOPT, {counts['certified']}/{n} "
         f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, without "
-        f"the sub-moves: {counts['before_parametric']}/{n} parametric, {ms('o_solve')} and "
-        f"{ms('o_total')}, the same route and T to the bit on {counts['same']}/{n}). Where "
+        f"the cap on re-solves with rows held: {counts['before_parametric']}/{n} "
+        f"parametric, {ms('o_solve')} and {ms('o_total')}, the same route and T to the bit "
+        f"on {counts['same']}/{n}; where the route fell back to IPOPT, solve "
+        f"{ms('p_solve_fb')} against {ms('o_solve_fb')}). One KKT factorisation "
+        f"{_med(m['f_old']):.2f} -> {_med(m['f_new']):.2f} ms, the six stretches' set check "
+        f"{_med(m['x_old']):.2f} -> {_med(m['x_new']):.2f} ms (medians over the cases; the "
+        f"same numbers to the bit on {counts['parts_same']}/{n}). Where "
         f"the parametric step converged, "
         f"its parts (medians): the step alone {ms('step')}, the rest of the solve (the "
         f"between-samples check and what it asks for: the time stretch, or a pad round of "
@@ -388,7 +475,9 @@ def run(count: int = CASES) -> Section:
         f"ipopt route's T), median {ms('a_solve')} there. From step: where the "
         f"parametric step failed ({counts['step_failed']}/{n}), IPOPT from its last "
         f"iterate took a median {_med(m['s_it']):.0f} iterations ({ms('s_total')}, the step "
-        f"included) against {_med(m['s_ipopt_it']):.0f} from the serving solution.",
+        f"included; one solve) against {_med(m['s_ipopt_it']):.0f} in the ipopt route's "
+        f"last solve (its pad round's where it has one: not the same solve, "
+        f"docs/limits.md).",
     ]
     p_solve, p_total = _med(m["p_solve"]), _med(m["p_total"])
     gap_ok = bool(gaps) and max(gaps) <= BAR_GAP

@@ -337,6 +337,17 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
     # Much faster, no stretch in STRETCHES suffices: None (the pad re-solves take over).
     faster = replace(traj.result, T=res.T * 0.98)
     assert _stretched(flat, faster, traj.with_result(faster), values, bounds) is None
+    # The stretches checked in one call: the same set values to the bit as one by one,
+    # so the same stretch is chosen (the least that suffices, checked above).
+    durations = [fast.T * (1.0 + e) for e in STRETCHES]
+    together = fast_traj.slower_set_values(durations)
+    one_by_one = [fast_traj.with_result(replace(fast, T=T)).set_values() for T in durations]
+    assert together.shape == (len(STRETCHES), len(one_by_one[0]))
+    assert np.array_equal(together, np.array(one_by_one))
+    first_inside = next(T for T, v in zip(durations, one_by_one, strict=True)
+                        if np.max(v) <= 1.0 - SET_MARGIN
+                        and flat.residual(*values, T, fast.P, *bounds) <= RESIDUAL_TOL)
+    assert out.T == first_inside
 
 
 def _plan_recording_pad_solves(problem: Problem, options: SolverOptions) -> tuple:

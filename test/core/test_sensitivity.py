@@ -432,6 +432,34 @@ def test_a_move_whose_whole_steps_fail_is_followed_in_sub_moves(path_case):
     assert stat <= 1e-6 and primal <= 1e-9, (stat, primal)
 
 
+def test_a_step_whose_held_rows_keep_growing_stops_the_solve(path_case, monkeypatch):
+    """A step still blocked after HOLD_ROUNDS re-solves with rows held stops the solve
+    there, a failure that says so, after fewer factorisations than the budget; where no
+    step needs that many (this whole move holds rows at most twice within a step), the
+    cap changes nothing: the same steps to the bit as without it."""
+    planner, serving, moved = path_case
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    values = (moved.start.value, moved.target.value, moved.k)
+    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x, *values,
+            *state_bounds(moved, PAD), SET_PAD)
+    whole, out_whole = sensitivity.sensitivity_solve(*args)
+    with monkeypatch.context() as m:
+        m.setattr(sensitivity, "HOLD_ROUNDS", 10 ** 6)
+        uncapped, out_uncapped = sensitivity.sensitivity_solve(*args)
+    assert out_uncapped == out_whole and uncapped.T == whole.T
+    assert np.array_equal(uncapped.P, whole.P) and uncapped.message == whole.message
+    with monkeypatch.context() as m:
+        m.setattr(sensitivity, "HOLD_ROUNDS", 1)
+        capped, out_capped = sensitivity.sensitivity_solve(*args)
+    assert not capped.success and np.isinf(capped.residual)
+    assert out_capped.reason == ("a step still blocked after 1 re-solves with rows held (the "
+                                 "rows that block it keep growing)"), out_capped
+    assert capped.message.endswith(": failed") and out_capped.reason in capped.message
+    assert out_capped.holds >= 1
+    assert out_capped.solves < out_whole.solves <= sensitivity.MAX_SOLVES
+
+
 def test_the_plan_takes_the_sub_moves_where_the_whole_move_fails(path_case, monkeypatch):
     """The plan: the whole move's failure, then the sub-moves' convergence, in its warnings
     (route: parametric), certified, T within 1e-6 of the IPOPT route's (both slowed down

@@ -323,6 +323,37 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         u = self.control_at(s * self.T)
         return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
 
+    def slower_set_values(self, durations, points: int = 32) -> np.ndarray:
+        """:meth:`set_values` of the same path run in each of ``durations``, in one call.
+
+        The same numbers to the bit as ``with_result(replace(result, T=T)).set_values()``
+        for each ``T`` (the path's samples taken the same way, the inverse dynamics' one
+        compiled kernel mapped over all of them at once): the time stretches of the
+        bounded solve (``limited._stretched``) are checked together.
+
+        Parameters
+        ----------
+        durations : sequence of float
+            Final times ``T`` (s), any number ``m >= 1``.
+        points : int
+            Equally spaced times per span.
+
+        Returns
+        -------
+        ndarray, shape (m, L points)
+        """
+        br = self.breaks
+        frac = (np.arange(points) + 0.5) / points
+        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
+        q, qd, qdd = [], [], []
+        for T in durations:  # as _path does at T: the same operations
+            sig = np.clip(s * T, 0.0, T) / T
+            q.append(self._spl(sig))
+            qd.append(self._d1(sig) / T)
+            qdd.append(self._d2(sig) / T ** 2)
+        u = self._controls(np.vstack(q), np.vstack(qd), np.vstack(qdd))
+        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1).reshape(len(q), len(s))
+
     def control_at(self, t: np.ndarray) -> np.ndarray:
         """Normalised controls at times ``t`` (K,), shape (K, n)."""
         return self._controls(*self._path(t))

@@ -24,9 +24,11 @@ their bounds as equalities (their slack gone, their multiplier free), the primal
 method's move inside the barrier step; a held row whose multiplier turns to the wrong sign
 once the step is nearly converged goes back to the barrier (:data:`RELEASE_ROOM` inside
 its bound). The answer is then a KKT point with those rows exactly at their bounds and the
-others' complementarity at ``MU``. At most :data:`MAX_STEPS` steps and :data:`MAX_SOLVES`
-factorisations: the solver decides by work, never by the clock; a solve that has not
-converged then is a failure with its reason. The caller
+others' complementarity at ``MU``. A step still blocked after :data:`HOLD_ROUNDS` such
+re-solves stops the solve (the rows to hold keep growing: such solves did not converge).
+At most :data:`MAX_STEPS` steps and :data:`MAX_SOLVES` factorisations: the solver decides
+by work, never by the clock; a solve that has not converged then is a failure with its
+reason. The caller
 (:func:`~tocontrol_ros.core.direct.limited.plan_limited_warm`) then follows the move in
 :data:`PATH_SUBMOVES` sub-moves (``submoves``: a Newton homotopy that takes off a share of
 the old point's KKT residual on the new parameters at a time, each sub-move's first step
@@ -56,8 +58,8 @@ from scipy.linalg import lapack
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET",
-           "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
+__all__ = ["HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES",
+           "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -90,6 +92,12 @@ INF = 1e19
 HOLD_BELOW, HOLD_SPREAD = 0.5, 2.0
 #: KKT factorisations at most (the steps and the re-solves after rows are held).
 MAX_SOLVES = 16
+#: Re-solves after holding rows within one step at most: one more and the step's rows to
+#: hold keep growing (the linearisation carries ever more rows across: on the 20 moves of
+#: bench/warm_resolve.py the steps that converged held rows at most 3 times within a step,
+#: those that failed up to 12 times, or cycled releasing and holding one row); the solve
+#: stops there, a failure, so that what follows starts sooner (docs/limits.md).
+HOLD_ROUNDS = 4
 #: A held row's multiplier of the wrong sign by more than this, once the residual is below
 #: ``RELEASE_ERR`` (in units of the tolerances) after a whole step, releases it to the
 #: barrier, ``RELEASE_ROOM`` inside its bound.
@@ -184,7 +192,9 @@ class BandedKKT:
         rows_ab = 2 * self.kl + self.ku + 1
         self.shape_ab = (rows_ab, self.M)
         self.inner = inner
-        self.lin = (self.kl + self.ku + pr[inner] - pc[inner]) * self.M + pc[inner]
+        # Each entry's place in LAPACK's band storage, column-major (Fortran order, as
+        # dgbtrf takes it: assembled there, no copy; the same sums as row-major's).
+        self.lin = (self.kl + self.ku + pr[inner] - pc[inner]) + pc[inner] * rows_ab
         # The border: T's column (rows of the core) and T's diagonal entry.
         col_T = (cols == iT) & (pr >= 0)
         self.col_T, self.col_T_at = col_T, pr[col_T]
@@ -194,10 +204,10 @@ class BandedKKT:
         """LU of the core band and the border's Schur complement; None if singular."""
         data = np.concatenate([hess, hess[self.off], diag, jac, jac])
         ab = np.bincount(self.lin, weights=data[self.inner],
-                         minlength=self.shape_ab[0] * self.M).reshape(self.shape_ab)
+                         minlength=self.shape_ab[0] * self.M).reshape(self.shape_ab, order="F")
         b = np.bincount(self.col_T_at, weights=data[self.col_T], minlength=self.M)
         d = float(np.sum(data[self.diag_T]))
-        lub, piv, info = lapack.dgbtrf(np.asfortranarray(ab), self.kl, self.ku)
+        lub, piv, info = lapack.dgbtrf(ab, self.kl, self.ku, overwrite_ab=True)
         if info != 0:
             return None
         u, info = lapack.dgbtrs(lub, self.kl, self.ku, b, piv)
@@ -358,6 +368,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     sub, fresh, sub_from = 1, 1, (0, 0)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
+    rounds = 0  # re-solves after holding rows within this step
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
     side = np.zeros(ng, dtype=np.int8)
@@ -463,6 +474,11 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
                 cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
                 if np.any(cross_u | cross_l):
+                    if rounds >= HOLD_ROUNDS:
+                        reason = (f"a step still blocked after {rounds} re-solves with rows "
+                                  f"held (the rows that block it keep growing)")
+                        break
+                    rounds += 1
                     side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
                     held = side != 0
                     s = np.where(cross_u, ubg, np.where(cross_l, lbg, s))
@@ -477,6 +493,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                                                  vu + ~has_ux]))
             full = a_p == 1.0
             blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
+            rounds = 0
             w = w + a_p * dw
             s = s + a_p * ds
             y = y + a_p * dy
