@@ -74,3 +74,48 @@ def test_self_rows_are_the_sphere_pairs_distance_less_the_margin(panda):
                 d.append(np.linalg.norm(ends[0] - ends[1]) - rows.pair_radius[i].sum()
                          - col.margin)
             assert min(d) - np.log(len(idx)) / SOFTMIN_SHARPNESS - 1e-9 <= gi <= min(d) + 1e-9
+
+
+#: A joint-state move of the wrist (joints 5 and 6) past the upper arm: its obstacle-free
+#: optimum brings the hand 1.7 cm from link 2 (Coal), inside a 3 cm margin, while both
+#: ends are clear of every pair by more (5.3 cm, 4.3 cm).
+SELF_START = np.array([0.802, -0.13, 1.248, -2.822, -0.595, 1.544, -0.291])
+SELF_TARGET = np.array([0.802, -0.13, 1.248, -2.822, 0.6, 1.017, -0.291])
+SELF_MARGIN = 0.03
+
+
+def test_a_self_row_turns_a_refused_motion_into_a_certified_one(panda):
+    """Without self rows the motion is refused by the certificate on ``panda_link2`` /
+    ``panda_hand``; the planner makes the pairs it brought close rows, solves again and
+    publishes a motion that the certificate and Coal at 2001 times find clear."""
+    from tocontrol_ros.core import SolverOptions, plan
+    from tocontrol_ros.core.checks.certificate import certify_open_loop
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state
+
+    model, col = panda
+    col = col.with_scene(margin=SELF_MARGIN)
+    for end in (SELF_START, SELF_TARGET):  # both ends are acceptable
+        assert col.clearance(end[None]).minimum > SELF_MARGIN + 0.01
+    limits = JointLimits.from_model(model)
+    options = SolverOptions(starts=1, candidates=1, time_limit=600)
+    ends = (joint_state(SELF_START), joint_state(SELF_TARGET))
+    problem = Problem(model, *ends, limits=limits, collision=col)
+
+    # The motion the planner has without any self row: refused by the exact check.
+    free = plan(Problem(model, *ends, limits=limits), options)
+    assert free.success, free.message
+    refused = certify_open_loop(problem, free.trajectory)
+    assert not refused.passed and not refused.item("clearance").passed
+    assert refused.figures["closest_pair"] == "panda_link2/panda_hand"
+    assert refused.figures["min_clearance"] < SELF_MARGIN
+
+    res = plan(problem, options)
+    assert res.success, res.message
+    assert "self pairs made rows after a refused motion" in res.message
+    assert "panda_link2/panda_hand" in res.message
+    assert res.certificate.passed and res.certificate.item("clearance").passed
+    sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+    exact = col.clearance(sample.q)  # every self pair, the rows' and the others
+    assert exact.minimum >= SELF_MARGIN, (exact.minimum, exact.pair)
+    assert np.allclose(sample.q[-1], SELF_TARGET, atol=1e-4)
