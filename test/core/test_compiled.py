@@ -314,3 +314,34 @@ def test_generating_c_never_changes_the_working_directory(tmp_path, monkeypatch)
     compiled._generate_one(fun, str(out))
     assert [p.name for p in out.iterdir()] == ["gen_probe.c"]
     assert list(here.iterdir()) == []
+
+
+def test_the_pandas_collocation_hessian_has_the_same_bits_from_every_build(private_cache,
+                                                                          panda):
+    """The Panda's Hermite-Simpson Hessian (``direct_asm_hess``, one interval) from every
+    set of flags, at 100 random arguments: the same bits. With -march=native, gcc's
+    vectorizer changed the last bit of 12 of its entries against -O0 until ``SAME_BITS``
+    turned it off: a first plan made while the optimised library was building then differed
+    from the same plan made after it had landed."""
+    from tocontrol_ros.core.direct.collocation_nlp import Layout, _assembly_functions
+
+    lay = Layout(panda.n, panda.m, 1, "state", "point", False)
+    fun = next(f for f in _assembly_functions(panda, lay) if f.name() == "direct_asm_hess")
+    cc = compiled._compiler()
+    rng = np.random.default_rng(3)
+    args = [[rng.uniform(-1.0, 1.0, fun.sparsity_in(i).nnz()) for i in range(fun.n_in())]
+            for _ in range(100)]
+    outputs = {}
+    for flags in (compiled.QUICK_CFLAGS, compiled.CFLAGS, compiled.LARGE_CFLAGS,
+                  compiled.PORTABLE_CFLAGS):
+        with compiled.tempfile.TemporaryDirectory() as tmp:
+            compiled._generate_one(fun, tmp)
+            target, how = compiled._build(cc, fun.name(), tmp, flags)
+        assert target is not None, how
+        lib = ca.external(fun.name(), str(target))
+        outputs[" ".join(flags)] = b"".join(
+            np.array(lib(*[ca.DM(fun.sparsity_in(i), a[i]) for i in range(fun.n_in())])
+                     .nonzeros()).tobytes() for a in args)
+    reference = outputs[" ".join(compiled.CFLAGS)]
+    differ = [flags for flags, out in outputs.items() if out != reference]
+    assert not differ, f"other bits than {' '.join(compiled.CFLAGS)}: {differ}"

@@ -51,23 +51,29 @@ __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "gene
 
 #: -march=native (vector units) makes the RK4 step with its Jacobian markedly faster than
 #: portable -O1. Such a library only runs on the CPU it was built for, so the cache key
-#: includes the CPU's identity. ``-ffp-contract=off`` (in every set of flags): no fused
-#: multiply-add, so that every optimisation level rounds alike and the quick build, the
-#: optimised one and the portable fallback give the same bits (same request, same plan,
-#: whichever library had landed; a test compares them).
-SAME_BITS = "-ffp-contract=off"
-CFLAGS = ("-O2", "-march=native", SAME_BITS, "-shared", "-fPIC")
+#: includes the CPU's identity. :data:`SAME_BITS` (in every set of flags) makes every
+#: optimisation level round alike, so that the quick build, the optimised one and the
+#: portable fallback give the same bits (same request, same plan, whichever library had
+#: landed; a test compares them): ``-ffp-contract=off``, no fused multiply-add; and
+#: ``-fno-tree-vectorize``, no vectorised blocks: gcc 12's basic-block vectorizer with
+#: -march=native (AVX-512 here) changed the last bit of 12-32 entries of the Panda's
+#: Hermite-Simpson Hessian (``direct_asm_hess``) against -O0, so a first plan made while the
+#: optimised library was still building differed from the same plan made after (a 0.16 %
+#: longer T on one case of bench/warm_resolve.py, another start winning on another); it
+#: costs nothing measurable on that function (93 against 96 us a call).
+SAME_BITS = ("-ffp-contract=off", "-fno-tree-vectorize")
+CFLAGS = ("-O2", "-march=native", *SAME_BITS, "-shared", "-fPIC")
 #: gcc's -O2 time grows much faster than linearly with the size of these straight-line
 #: functions (minutes for a planar 6R), so sources above this many bytes get
 #: :data:`LARGE_CFLAGS`.
 LARGE_SOURCE = 1_000_000
-LARGE_CFLAGS = ("-O1", "-march=native", SAME_BITS, "-shared", "-fPIC")
+LARGE_CFLAGS = ("-O1", "-march=native", *SAME_BITS, "-shared", "-fPIC")
 #: Used when the compiler rejects -march=native.
-PORTABLE_CFLAGS = ("-O1", SAME_BITS, "-shared", "-fPIC")
+PORTABLE_CFLAGS = ("-O1", *SAME_BITS, "-shared", "-fPIC")
 #: Sources above this many bytes get a quick unoptimised build first (see the module's
 #: docstring); below it gcc is fast enough to optimise at once.
 QUICK_SOURCE = 200_000
-QUICK_CFLAGS = ("-O0", "-march=native", SAME_BITS, "-shared", "-fPIC")
+QUICK_CFLAGS = ("-O0", "-march=native", *SAME_BITS, "-shared", "-fPIC")
 #: Niceness of the background builds: a solve running meanwhile keeps its core.
 BACKGROUND_NICE = 10
 #: Background builds run one at a time (gcc takes up to a GB on the longest sources).
