@@ -262,6 +262,21 @@ def test_first_plan_compiles_the_shooting_only_when_a_solve_reaches_it(private_c
                for name in built[len(first):]), built
 
 
+def _every_build(fun: ca.Function) -> dict[str, ca.Function]:
+    """``fun`` compiled with each set of flags (quick, optimised, long-source, portable),
+    keyed by the flags joined by spaces."""
+    cc = compiled._compiler()
+    libraries = {}
+    for flags in (compiled.QUICK_CFLAGS, compiled.CFLAGS, compiled.LARGE_CFLAGS,
+                  compiled.PORTABLE_CFLAGS):
+        with compiled.tempfile.TemporaryDirectory() as tmp:
+            compiled._generate_one(fun, tmp)
+            target, how = compiled._build(cc, fun.name(), tmp, flags)
+        assert target is not None, how
+        libraries[" ".join(flags)] = ca.external(fun.name(), str(target))
+    return libraries
+
+
 def test_every_build_of_a_source_gives_the_same_bits(private_cache, galicki):
     """Same request, same plan whichever library is loaded: the quick build (-O0), the
     optimised ones (-O2, -O1 for long sources, -march=native) and the portable fallback round
@@ -271,19 +286,10 @@ def test_every_build_of_a_source_gives_the_same_bits(private_cache, galicki):
     qdd = galicki.forward_dynamics_sym(q, qd, tau)
     args = ca.vertcat(q, qd, tau)
     fun = ca.Function("same_bits_probe", [args], [qdd, ca.jacobian(qdd, args)])
-    cc = compiled._compiler()
     rng = np.random.default_rng(7)
     x = rng.uniform(-2.0, 2.0, size=(3 * galicki.n, 200))
-    outputs = {}
-    for flags in (compiled.QUICK_CFLAGS, compiled.CFLAGS, compiled.LARGE_CFLAGS,
-                  compiled.PORTABLE_CFLAGS):
-        with compiled.tempfile.TemporaryDirectory() as tmp:
-            compiled._generate_one(fun, tmp)
-            target, how = compiled._build(cc, fun.name(), tmp, flags)
-        assert target is not None, how
-        lib = ca.external(fun.name(), str(target))
-        out = lib.map(x.shape[1])(x)
-        outputs[" ".join(flags)] = tuple(np.array(o).tobytes() for o in out)
+    outputs = {flags: tuple(np.array(o).tobytes() for o in lib.map(x.shape[1])(x))
+               for flags, lib in _every_build(fun).items()}
     vm = fun.map(x.shape[1])(x)
     assert np.allclose(np.array(vm[0]), np.frombuffer(outputs[" ".join(compiled.CFLAGS)][0])
                        .reshape(np.array(vm[0]).shape, order="C"), rtol=1e-12, atol=1e-12)
@@ -327,21 +333,13 @@ def test_the_pandas_collocation_hessian_has_the_same_bits_from_every_build(priva
 
     lay = Layout(panda.n, panda.m, 1, "state", "point", False)
     fun = next(f for f in _assembly_functions(panda, lay) if f.name() == "direct_asm_hess")
-    cc = compiled._compiler()
     rng = np.random.default_rng(3)
     args = [[rng.uniform(-1.0, 1.0, fun.sparsity_in(i).nnz()) for i in range(fun.n_in())]
             for _ in range(100)]
-    outputs = {}
-    for flags in (compiled.QUICK_CFLAGS, compiled.CFLAGS, compiled.LARGE_CFLAGS,
-                  compiled.PORTABLE_CFLAGS):
-        with compiled.tempfile.TemporaryDirectory() as tmp:
-            compiled._generate_one(fun, tmp)
-            target, how = compiled._build(cc, fun.name(), tmp, flags)
-        assert target is not None, how
-        lib = ca.external(fun.name(), str(target))
-        outputs[" ".join(flags)] = b"".join(
-            np.array(lib(*[ca.DM(fun.sparsity_in(i), a[i]) for i in range(fun.n_in())])
-                     .nonzeros()).tobytes() for a in args)
+    outputs = {flags: b"".join(
+        np.array(lib(*[ca.DM(fun.sparsity_in(i), a[i]) for i in range(fun.n_in())])
+                 .nonzeros()).tobytes() for a in args)
+        for flags, lib in _every_build(fun).items()}
     reference = outputs[" ".join(compiled.CFLAGS)]
     differ = [flags for flags, out in outputs.items() if out != reference]
     assert not differ, f"other bits than {' '.join(compiled.CFLAGS)}: {differ}"
