@@ -76,14 +76,15 @@ QUICK_SOURCE = 200_000
 QUICK_CFLAGS = ("-O0", "-march=native", *SAME_BITS, "-shared", "-fPIC")
 #: Niceness of the background builds: a solve running meanwhile keeps its core.
 BACKGROUND_NICE = 10
-#: Background builds run one at a time (gcc takes up to a GB on the longest sources).
-_background_slots = threading.Semaphore(1)
+#: Background builds run one at a time per cache directory (gcc takes up to a GB on the
+#: longest sources); a process has one cache unless ``TOCONTROL_CACHE`` changes (tests).
+_background_slots: dict[Path, threading.Semaphore] = {}
 
 _meta_lock = threading.Lock()
 _target_locks: dict[Path, threading.Lock] = {}
 _done = threading.Condition()
 _pending: set[Path] = set()  # optimised libraries queued or being built
-_generation = 0
+_generations: dict[Path, int] = {}  # optimised libraries landed, per cache directory
 _listeners: list[Callable[[str, str, dict], None]] = []
 _deferred = threading.local()  # .pool, .futures inside parallel_builds()
 
@@ -162,21 +163,30 @@ def _notify(event: str, name: str, info: dict) -> None:
 
 
 def generation() -> int:
-    """How many optimised libraries the background builds have put in the cache so far."""
+    """How many optimised libraries the background builds have put in the cache so far.
+
+    The cache of :func:`cache_dir` now: builds into another cache (a test's private one)
+    neither count nor keep :func:`pending_builds` and :func:`wait_for_builds` waiting.
+    """
     with _done:
-        return _generation
+        return _generations.get(cache_dir(), 0)
 
 
 def pending_builds() -> int:
-    """Background builds queued or running."""
+    """Background builds queued or running, into the cache of :func:`cache_dir`."""
+    here = cache_dir()
     with _done:
-        return len(_pending)
+        return sum(1 for target in _pending if target.parent == here)
 
 
 def wait_for_builds(timeout: float | None = None) -> bool:
-    """Wait until no background build is left; False when ``timeout`` (s) passed first."""
+    """Wait until no background build into the cache of :func:`cache_dir` is left.
+
+    Returns False when ``timeout`` (s) passed first.
+    """
+    here = cache_dir()
     with _done:
-        return _done.wait_for(lambda: not _pending, timeout)
+        return _done.wait_for(lambda: not any(t.parent == here for t in _pending), timeout)
 
 
 def in_cache(prefix: str) -> bool:
@@ -229,10 +239,11 @@ def _gcc(cc: str, name: str, tmp: str, cflags: Sequence[str], target: Path,
 def _optimise(cc: str, name: str, source: bytes, cflags: Sequence[str],
               target: Path) -> None:
     """Background thread: build the optimised library, then count it in."""
-    global _generation
     ok = False
+    with _meta_lock:
+        slot = _background_slots.setdefault(target.parent, threading.Semaphore(1))
     try:
-        with _background_slots, _target_lock(target):
+        with slot, _target_lock(target):
             if target.is_file():
                 ok = True
             else:
@@ -244,7 +255,7 @@ def _optimise(cc: str, name: str, source: bytes, cflags: Sequence[str],
         with _done:
             _pending.discard(target)
             if ok:
-                _generation += 1
+                _generations[target.parent] = _generations.get(target.parent, 0) + 1
             _done.notify_all()
 
 
