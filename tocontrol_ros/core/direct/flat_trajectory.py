@@ -266,9 +266,12 @@ class FlatTrajectory(InverseDynamicsTrajectory):
             raise ValueError("`breaks` must contain the path's own breakpoints")
         return np.asarray(spl.c)
 
-    def _path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T) / self.T
-        return self._spl(s), self._d1(s) / self.T, self._d2(s) / self.T ** 2
+    def _path(self, t: np.ndarray, T: float | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The path at times ``t`` (s) when run in ``T`` (s; default this motion's)."""
+        T = self.T if T is None else T
+        s = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, T) / T
+        return self._spl(s), self._d1(s) / T, self._d2(s) / T ** 2
 
     def _controls(self, q, qd, qdd) -> np.ndarray:
         if len(q) == 1:  # the integrators' path: one time per call
@@ -317,11 +320,14 @@ class FlatTrajectory(InverseDynamicsTrajectory):
 
     def set_values(self, points: int = 32) -> np.ndarray:
         """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+        u = self.control_at(self._set_fractions(points) * self.T)
+        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+
+    def _set_fractions(self, points: int) -> np.ndarray:
+        """The times of :meth:`set_values` as fractions of ``T``, shape (L points,)."""
         br = self.breaks
         frac = (np.arange(points) + 0.5) / points
-        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
-        u = self.control_at(s * self.T)
-        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+        return (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
 
     def slower_set_values(self, durations, points: int = 32) -> np.ndarray:
         """:meth:`set_values` of the same path run in each of ``durations``, in one call.
@@ -342,17 +348,11 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         -------
         ndarray, shape (m, L points)
         """
-        br = self.breaks
-        frac = (np.arange(points) + 0.5) / points
-        s = (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
-        q, qd, qdd = [], [], []
-        for T in durations:  # as _path does at T: the same operations
-            sig = np.clip(s * T, 0.0, T) / T
-            q.append(self._spl(sig))
-            qd.append(self._d1(sig) / T)
-            qdd.append(self._d2(sig) / T ** 2)
-        u = self._controls(np.vstack(q), np.vstack(qd), np.vstack(qdd))
-        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1).reshape(len(q), len(s))
+        s = self._set_fractions(points)
+        q, qd, qdd = (np.vstack(a) for a in zip(*(self._path(s * T, T) for T in durations),
+                                                strict=True))
+        u = self._controls(q, qd, qdd)
+        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1).reshape(len(durations), len(s))
 
     def control_at(self, t: np.ndarray) -> np.ndarray:
         """Normalised controls at times ``t`` (K,), shape (K, n)."""

@@ -234,8 +234,6 @@ def _quantile(values, q: float) -> float:
     return float(ordered[lo] + (ordered[hi] - ordered[lo]) * (h - lo))
 
 
-
-
 def replan_options(options, smoothing: float = 0.0, spans: int = REPLAN_SPANS):
     """The options of a replan near the running motion: warm alone, one start if not.
 
