@@ -176,7 +176,12 @@ def pending_builds() -> int:
     """Background builds queued or running, into the cache of :func:`cache_dir`."""
     here = cache_dir()
     with _done:
-        return sum(1 for target in _pending if target.parent == here)
+        return _pending_into(here)
+
+
+def _pending_into(cache: Path) -> int:
+    """Pending builds whose library goes into ``cache`` (call holding ``_done``)."""
+    return sum(1 for target in _pending if target.parent == cache)
 
 
 def wait_for_builds(timeout: float | None = None) -> bool:
@@ -186,7 +191,7 @@ def wait_for_builds(timeout: float | None = None) -> bool:
     """
     here = cache_dir()
     with _done:
-        return _done.wait_for(lambda: not any(t.parent == here for t in _pending), timeout)
+        return _done.wait_for(lambda: not _pending_into(here), timeout)
 
 
 def in_cache(prefix: str) -> bool:
