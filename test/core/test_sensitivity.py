@@ -67,6 +67,17 @@ def panda_case(panda):
     return planner, problem, serving
 
 
+def _step_args(planner, serving, moved) -> tuple:
+    """``(flat, args)``: the serving mesh's NLP of ``moved`` and :func:`sensitivity_solve`'s
+    arguments from the serving solution (its control points, T and multipliers), the
+    problem's padded limits and set pad."""
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    return flat, (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x,
+                  moved.start.value, moved.target.value, moved.k, *state_bounds(moved, PAD),
+                  SET_PAD)
+
+
 def _kkt_residuals(planner, problem, result) -> tuple[float, float]:
     """Stationarity and primal infeasibility of the result on its NLP, evaluated here."""
     ws = result.warm_state
@@ -159,11 +170,7 @@ def test_rows_that_block_the_step_are_held_and_the_answer_is_the_optimum(panda):
     serving = warm_replan(planner, problem, [base], SERVE)
     assert serving.success and serving.intervals == 24, serving.message
     moved = _moved(problem, HOLD_MOVED - HOLD_TARGET)
-    ws = serving.warm_state
-    flat = planner.flat(moved, ws.breaks, warm="dual")
-    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x,
-            moved.start.value, moved.target.value, moved.k, *state_bounds(moved, PAD),
-            SET_PAD)
+    _, args = _step_args(planner, serving, moved)
     res, outcome = sensitivity.sensitivity_solve(*args)
     assert res.success and outcome.reason == "converged", res.message
     assert outcome.holds >= 1 and outcome.changed >= 1, outcome
@@ -213,13 +220,8 @@ def test_a_parametric_step_out_of_work_falls_back_to_ipopt(panda_case, monkeypat
 
 def test_cancel_stops_the_parametric_step(panda_case):
     planner, problem, serving = panda_case
-    moved = _moved(problem, MOVE)
-    ws = serving.warm_state
-    flat = planner.flat(moved, ws.breaks, warm="dual")
-    res, outcome = sensitivity.sensitivity_solve(
-        flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x, moved.start.value,
-        moved.target.value, moved.k, *state_bounds(moved, PAD), SET_PAD,
-        should_stop=lambda: True)
+    _, args = _step_args(planner, serving, _moved(problem, MOVE))
+    res, outcome = sensitivity.sensitivity_solve(*args, should_stop=lambda: True)
     assert not res.success and outcome.reason == "cancelled" and outcome.steps == 0
 
 
@@ -401,11 +403,9 @@ def test_a_move_whose_whole_steps_fail_is_followed_in_sub_moves(path_case):
     1e-3); one sub-move is the whole move, the same steps to the bit."""
     planner, serving, moved = path_case
     ws = serving.warm_state
-    flat = planner.flat(moved, ws.breaks, warm="dual")
+    flat, args = _step_args(planner, serving, moved)
     bounds = state_bounds(moved, PAD)
     values = (moved.start.value, moved.target.value, moved.k)
-    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x, *values,
-            *bounds, SET_PAD)
     whole, out_whole = sensitivity.sensitivity_solve(*args)
     assert not whole.success and out_whole.reason != "converged", whole.message
     same, out_same = sensitivity.sensitivity_solve(*args, submoves=1)
@@ -438,11 +438,7 @@ def test_a_step_whose_held_rows_keep_growing_stops_the_solve(path_case, monkeypa
     step needs that many (this whole move holds rows at most twice within a step), the
     cap changes nothing: the same steps to the bit as without it."""
     planner, serving, moved = path_case
-    ws = serving.warm_state
-    flat = planner.flat(moved, ws.breaks, warm="dual")
-    values = (moved.start.value, moved.target.value, moved.k)
-    args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x, *values,
-            *state_bounds(moved, PAD), SET_PAD)
+    _, args = _step_args(planner, serving, moved)
     whole, out_whole = sensitivity.sensitivity_solve(*args)
     with monkeypatch.context() as m:
         m.setattr(sensitivity, "HOLD_ROUNDS", 10 ** 6)
