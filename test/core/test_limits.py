@@ -500,6 +500,27 @@ def test_guesses_far_above_the_best_are_solved_only_when_those_near_it_fail(gali
     assert any("made to fail" in s.status for s in again.starts)
 
 
+def test_a_multistart_whose_bounded_solves_all_fail_says_why(galicki, monkeypatch):
+    """The failure's message is what the starts that were solved said, not a guess's record."""
+    from tocontrol_ros.core.direct import limited as lim
+
+    original = lim._uniform_item
+
+    def uniform(*args):
+        return replace(original(*args), success=False, message="made to fail")
+
+    monkeypatch.setattr(lim, "_uniform_item", uniform)
+    problem = Problem(galicki, point(P_START), point(P_TARGET), k=4.0, limits=_tight(galicki))
+    res = plan(problem, SolverOptions(starts=4, candidates=2, time_limit=SLOW_OK))
+    assert not res.success and res.trajectory is None
+    assert res.status == Status.LIMITS_INFEASIBLE
+    assert "no bounded solve succeeded" in res.message
+    assert "bounded solve failed: made to fail" in res.message
+    assert "guess only" not in res.message
+    tried = [s for s in res.starts if "made to fail" in s.status]
+    assert f"({len(tried)} of {len(res.starts)} starts)" in res.message
+
+
 def test_bounded_guesses_solve_the_requested_k_the_others_k_1(galicki, monkeypatch):
     """Within the limits the multistart's guesses solve k (the bounded solve's starts)."""
     from tocontrol_ros.core.direct import limited as lim

@@ -211,8 +211,7 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
                 best = (idx, res, traj)
     timings["shooting"] += time.perf_counter() - t0
     if best is None:
-        why = records[0].status if records else "no inverse-kinematics seed"
-        return _infeasible(problem, why, timings, t_start, warnings=tuple(notes),
+        return _infeasible(problem, _why_none(records), timings, t_start, warnings=tuple(notes),
                            starts=tuple(records))
     idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
@@ -379,6 +378,22 @@ def _same_kinds(solved: Problem | None, problem: Problem) -> bool:
     return solved is not None and all(
         a.kind == b.kind and np.shape(a.value) == np.shape(b.value)
         for a, b in ((solved.start, problem.start), (solved.target, problem.target)))
+
+
+def _why_none(records: list) -> str:
+    """The message of a multistart whose bounded solves all failed: what the starts tried said.
+
+    The first start's record alone may be a guess that was never solved bounded (``"guess
+    only"``: its basin was another's, or the near ones were tried first); the records of the
+    starts that were solved bounded, or whose guess failed, say why.
+    """
+    if not records:
+        return "no inverse-kinematics seed"
+    told = [r.status for r in records if r.status not in ("guess only", "not solved directly")]
+    if not told:
+        return records[0].status
+    return f"no bounded solve succeeded ({len(told)} of {len(records)} starts): {told[0]}" + (
+        f"; {len(told) - 1} more" if len(told) > 1 else "")
 
 
 def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,
