@@ -432,10 +432,13 @@ def test_a_moving_start_pads_its_set_without_crawling(panda):
 
 
 def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
-    """Case 29 of bench/limits.py's Panda (a joint state moving at up to 0.61 rad/s): the
-    resumed re-solves with a wider pad fail (Error_In_Step_Computation) and the plan failed
-    its certificate (control set 5e-4 over); a failed resumed re-solve is now tried from
-    IPOPT's default start, and the plan is certified."""
+    """Case 29 of bench/limits.py's Panda (a joint state moving at up to 0.61 rad/s): its
+    set's pad is widened. In the benchmark (on the machine of the time) the resumed re-solves
+    with a wider pad failed (Error_In_Step_Computation) and the plan failed its certificate
+    (control set 5e-4 over); a failed resumed re-solve is now tried from IPOPT's default
+    start, and the plan is certified. Whether the resumed re-solve fails of itself depends
+    on the CPU's last bits (it converges on some), so here it is made to fail."""
+    from tocontrol_ros.core.direct import flat
 
     q0 = np.array([2.060047545209286, 0.03540634871715286, -1.4304923464752393,
                    -2.7567648347898004, -1.1248762997545216, 2.49681585764533,
@@ -445,13 +448,23 @@ def test_a_failed_resumed_pad_solve_is_tried_from_the_default_start(panda):
                     0.04908453210717684])
     target = np.array([-0.08358199286036902, 0.565856099938681, 0.5908179553312848])
     problem = Problem(panda, joint_state(q0, qd0), point(target), k=4.0)
-    res, padded = _plan_recording_pad_solves(problem, OPTIONS)
+    original = flat.FlatTranscription.solve
+
+    def resumed_fails(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        if self.warm == "resume" and kwargs.get("set_pad", flat.SET_PAD) > flat.SET_PAD:
+            return replace(out, success=False, message="Error_In_Step_Computation (made to)")
+        return out
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(flat.FlatTranscription, "solve", resumed_fails)
+        res, padded = _plan_recording_pad_solves(problem, OPTIONS)
     assert res.success and res.certificate.passed, res.message
     solves = [(warm, out.success) for _, warm, out in padded]
-    # The premise, as in the benchmark (the solver is deterministic): a resumed re-solve
-    # fails; then one from the default start succeeds.
+    # A resumed re-solve failed; then one from the default start succeeded.
     assert ("resume", False) in solves, solves
     assert ("restart", True) in solves, solves
+    assert solves.index(("resume", False)) < solves.index(("restart", True)), solves
 
 
 def test_a_uniform_solve_at_its_iteration_limit_is_finished_warm(ur5):
