@@ -279,7 +279,16 @@ class PolynomialPath:
             self._derivatives.append(poly.polyder(self._derivatives[-1], 1, axis=0)
                                      if len(self._derivatives[-1]) > 1 else
                                      np.zeros((1, self.n)))
-        return poly.polyval(s, self._derivatives[order]).T
+        c = self._derivatives[order]
+        if s.ndim != 1:
+            return poly.polyval(s, c).T
+        # numpy's polyval(s, c).T, its Horner steps written out: the same operations in the
+        # same order (the same bits, test_first_motion), without its checks and reshapes per call
+        # (a replan evaluates paths about thirty times).
+        out = c[-1][:, None] + s * 0
+        for cj in c[-2::-1]:
+            out = cj[:, None] + out * s
+        return out.T
 
     def position_range(self) -> tuple[np.ndarray, np.ndarray]:
         """Each joint's least and greatest position on [0, 1], shapes (n,) (rad, m)."""
@@ -290,8 +299,9 @@ class PolynomialPath:
             cands.append(np.where(np.isfinite(vertex), np.clip(vertex, 0.0, 1.0), 0.0))
         elif self.degree > 2:
             cands += [np.full(self.n, s) for s in np.linspace(0.0, 1.0, 201)]
-        powers = np.arange(self.degree + 1)[:, None]
-        values = np.array([np.sum(self.c * s[None, :] ** powers, axis=0) for s in cands])
+        powers = np.arange(self.degree + 1)[None, :, None]
+        # sum_j c_j s^j for every candidate at once (the sum over j in order, as per candidate)
+        values = np.sum(self.c[None] * np.array(cands)[:, None, :] ** powers, axis=1)
         return values.min(axis=0), values.max(axis=0)
 
 

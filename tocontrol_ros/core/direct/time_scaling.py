@@ -383,11 +383,10 @@ def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
 
     a, b, c, x_max = rows
     m = a.shape[1]
-    # Partners half a row apart: [torque+, acceleration+, torque-, acceleration-].
-    order = np.arange(m) if m == 2 * model.n else \
-        np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
-    K, x, feasible, _ = controllable_and_forward(model, a[:, order], b[:, order],
-                                                 c[:, order], x_max, s, sd0 ** 2)
+    if m != 2 * model.n:  # partners half a row apart: [torque+, accel.+, torque-, accel.-]
+        order = np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
+        a, b, c = a[:, order], b[:, order], c[:, order]
+    K, x, feasible, _ = controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)
     last = len(s) - 1
     empty = ~(K[:last, 0] <= K[:last, 1])
     if np.any(empty):

@@ -89,6 +89,14 @@ class JointLimits:
         if not (np.isfinite(m) and 0.0 <= m < 1.0):
             raise ProblemError(f"`margin` must be in [0, 1), got {self.margin!r}")
         object.__setattr__(self, "margin", m)
+        # The planning bounds, once (a replan reads them a few dozen times); read-only, as
+        # they are shared by every reader.
+        plan = (*self._shrunk(), (1.0 - m) * self.velocity, (1.0 - m) * self.acceleration)
+        for a in plan:
+            a.flags.writeable = False
+        object.__setattr__(self, "_plan", plan)
+        object.__setattr__(self, "_has_acceleration",
+                           bool(np.any(np.isfinite(self.acceleration))))
 
     # ---------------------------------------------------------------- builders
     @classmethod
@@ -150,28 +158,28 @@ class JointLimits:
     # ---------------------------------------------------------------- planning bounds
     @property
     def plan_lower(self) -> np.ndarray:
-        """Position bounds the planner keeps to (margin applied), shape (n,)."""
-        return self._shrunk()[0]
+        """Position bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[0]
 
     @property
     def plan_upper(self) -> np.ndarray:
         """See :attr:`plan_lower`."""
-        return self._shrunk()[1]
+        return self._plan[1]
 
     @property
     def plan_velocity(self) -> np.ndarray:
-        """Velocity bounds the planner keeps to (margin applied), shape (n,)."""
-        return (1.0 - self.margin) * self.velocity
+        """Velocity bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[2]
 
     @property
     def plan_acceleration(self) -> np.ndarray:
-        """Acceleration bounds the planner keeps to (margin applied), shape (n,)."""
-        return (1.0 - self.margin) * self.acceleration
+        """Acceleration bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[3]
 
     @property
     def has_acceleration(self) -> bool:
         """Whether any joint has a finite acceleration limit."""
-        return bool(np.any(np.isfinite(self.acceleration)))
+        return self._has_acceleration
 
     def _shrunk(self) -> tuple[np.ndarray, np.ndarray]:
         finite = np.isfinite(self.lower) & np.isfinite(self.upper)
