@@ -274,17 +274,19 @@ class PolynomialPath:
 
     def __call__(self, s, order: int = 0) -> np.ndarray:
         """``d^order q / ds^order`` at ``s`` (K,), shape (K, n)."""
-        s = np.atleast_1d(np.asarray(s, dtype=float))
+        if not (isinstance(s, np.ndarray) and s.ndim == 1 and s.dtype == float):
+            s = np.atleast_1d(np.asarray(s, dtype=float))
         while len(self._derivatives) <= order:  # each derivative's coefficients once
-            self._derivatives.append(poly.polyder(self._derivatives[-1], 1, axis=0)
-                                     if len(self._derivatives[-1]) > 1 else
-                                     np.zeros((1, self.n)))
+            last = self._derivatives[-1]
+            # numpy's polyder(last, 1, axis=0): row j - 1 is j c_j (the same products)
+            self._derivatives.append(np.arange(1, len(last))[:, None] * last[1:]
+                                     if len(last) > 1 else np.zeros((1, self.n)))
         c = self._derivatives[order]
         if s.ndim != 1:
             return poly.polyval(s, c).T
         # numpy's polyval(s, c).T, its Horner steps written out: the same operations in the
-        # same order (the same bits, test_first_motion), without its checks and reshapes per call
-        # (a replan evaluates paths about thirty times).
+        # same order (the same bits, test_first_motion), without its checks and reshapes per
+        # call (a replan evaluates paths about thirty times).
         out = c[-1][:, None] + s * 0
         for cj in c[-2::-1]:
             out = cj[:, None] + out * s
