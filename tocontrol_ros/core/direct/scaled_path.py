@@ -30,7 +30,7 @@ from numpy.polynomial import polynomial as poly
 from tocontrol_ros.core.direct.flat_trajectory import (
     OPEN_LOOP_POINTS,
     integrate_segments,
-    open_loop_sweep,
+    open_loop_sweep_buffered,
     polynomial_path,
     polynomial_segment_ode,
     segment_dae,
@@ -461,14 +461,15 @@ class ScaledPath(InverseDynamicsTrajectory):
                                      deviation)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
-        x0 = self.state(0.0)[0, :2 * self.n]
+        x0 = self.z_grid[0, :2 * self.n].copy()  # state(0.0)'s, made at the gridpoints
         times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
         params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
-        try:  # every segment in one call
+        try:  # every segment in one call, through numpy buffers
             if one_call:
-                _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
+                _, states = open_loop_sweep_buffered(self._model, integ, len(self.h))(x0,
+                                                                                     params)
                 return np.concatenate([[0.0], times]), \
-                    np.vstack([x0[None, :], np.array(states).T]), True
+                    np.vstack([x0[None, :], states.T]), True
         except RuntimeError:  # a segment failed: again one by one, to say where
             pass
         segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)
