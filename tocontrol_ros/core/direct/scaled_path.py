@@ -355,6 +355,16 @@ class ScaledPath(InverseDynamicsTrajectory):
         q, qd, _ = self._path(self.t_grid)
         self.z_grid = np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
 
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates).
+
+        At its start and end (a replan asks for both: the running motion's end, the open
+        loop's start) the row made with the gridpoints' states: the same numbers.
+        """
+        if np.isscalar(t) and (t == 0.0 or t == self.T):
+            return self.z_grid[[0 if t == 0.0 else -1]].copy()
+        return super().state(t)
+
     # ------------------------------------------------------------------ evaluation
     def _path(self, t, left: bool = False):
         """``q, qd, qdd`` (K, n) at times ``t`` (s).

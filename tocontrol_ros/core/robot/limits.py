@@ -35,6 +35,9 @@ __all__ = ["JointLimits", "load_joint_limits_yaml", "narrowed_efforts",
 #: that state starts at the limit (:meth:`JointLimits.admissible_velocity`). Farther above,
 #: the start is refused, naming the joint.
 VELOCITY_SLACK = 0.1
+#: Limits with another margin kept per limits (:meth:`JointLimits.with_margin`): a node uses
+#: one or two margins; a bound keeps a caller that tries many from holding them all.
+MARGINS_KEPT = 4
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,7 @@ class JointLimits:
         object.__setattr__(self, "_plan", plan)
         object.__setattr__(self, "_has_acceleration",
                            bool(np.any(np.isfinite(self.acceleration))))
+        object.__setattr__(self, "_margins", {})  # with_margin's, by margin
 
     # ---------------------------------------------------------------- builders
     @classmethod
@@ -151,9 +155,18 @@ class JointLimits:
         return JointLimits(self.names, lower, upper, velocity, self.margin, acceleration)
 
     def with_margin(self, margin: float) -> JointLimits:
-        """The same limits with another margin."""
-        return JointLimits(self.names, self.lower, self.upper, self.velocity, margin,
-                           self.acceleration)
+        """The same limits with another margin.
+
+        Made once per margin (up to :data:`MARGINS_KEPT`): the planner node asks for them
+        for every problem it makes.
+        """
+        made = self._margins.get(margin)
+        if made is None:
+            made = JointLimits(self.names, self.lower, self.upper, self.velocity, margin,
+                               self.acceleration)
+            if len(self._margins) < MARGINS_KEPT:
+                self._margins[margin] = made
+        return made
 
     # ---------------------------------------------------------------- planning bounds
     @property
