@@ -237,7 +237,7 @@ class JointLimits:
         Strictly inside the planning bounds (margin applied) for positions, and below the
         planning velocity limit.
         """
-        lo, hi = self._shrunk()
+        lo, hi = self.plan_lower, self.plan_upper
         for i, joint in enumerate(self.names):
             if not lo[i] < q[i] < hi[i]:
                 what = ("its limits" if self.margin == 0.0 else
