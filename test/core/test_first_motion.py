@@ -490,3 +490,69 @@ def test_quick_motion_from_an_almost_resting_start(panda):
     quick = fm.quick_motion(problem, q0)
     _check_motion(problem, quick)
     assert not fm.quick_motion(problem, q0, engine="toppra").success
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 4])
+def test_path_evaluation_is_numpys_polyval_to_the_bit(degree):
+    """The path and its derivatives by the Horner steps written out (issue 47: a replan
+    evaluates paths about thirty times) are numpy's ``polyval`` to the bit, and the position
+    range found for all candidates at once is the one found candidate by candidate."""
+    from numpy.polynomial import polynomial as poly
+
+    rng = np.random.default_rng(degree)
+    for _ in range(50):
+        c = rng.normal(size=(degree + 1, 7)) * rng.choice([1e-9, 1.0, 30.0])
+        c[:, rng.integers(7)] = 0.0  # a joint that does not move
+        path = PolynomialPath(c)
+        s = np.sort(rng.uniform(-0.1, 1.1, size=rng.integers(1, 60)))
+        for order in range(4):
+            coef = c if order == 0 else poly.polyder(c, order, axis=0) \
+                if degree >= order else np.zeros((1, 7))
+            out = path(s, order)
+            assert out.shape == (len(s), 7)
+            np.testing.assert_array_equal(out, poly.polyval(s, coef).T)
+            assert np.array_equal(np.signbit(out), np.signbit(poly.polyval(s, coef).T))
+        cands = [np.zeros(7), np.ones(7)]
+        if degree == 2:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vertex = -c[1] / (2.0 * c[2])
+            cands.append(np.where(np.isfinite(vertex), np.clip(vertex, 0.0, 1.0), 0.0))
+        elif degree > 2:
+            cands += [np.full(7, v) for v in np.linspace(0.0, 1.0, 201)]
+        powers = np.arange(degree + 1)[:, None]
+        values = np.array([np.sum(c * v[None, :] ** powers, axis=0) for v in cands])
+        low, high = path.position_range()
+        np.testing.assert_array_equal(low, values.min(axis=0))
+        np.testing.assert_array_equal(high, values.max(axis=0))
+
+
+def test_scaled_path_state_at_its_ends_is_its_evaluation(panda):
+    """A quick motion's state at its start and end (a replan's open loop and the running
+    motion's end) comes from the gridpoints' states made with the path: the numbers of the
+    general evaluation, to the bit; other times are evaluated as before."""
+    from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
+
+    lim = JointLimits.from_model(panda)
+    q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
+    problem = Problem(panda, joint_state(q0), point(panda.point(q0) + [0.1, 0.05, -0.05]),
+                      k=4.0, limits=lim)
+    traj = fm.quick_motion(problem, q0).trajectory
+    for t in (0.0, traj.T, 0.5 * traj.T, np.float64(traj.T)):
+        np.testing.assert_array_equal(traj.state(t), InverseDynamicsTrajectory.state(traj, t))
+    assert traj.state(traj.T) is not traj.state(traj.T)  # a copy each time
+
+
+def test_limits_with_a_margin_are_made_once_per_margin():
+    """``with_margin`` keeps what it made (a node makes a problem per goal) and its planning
+    bounds are read-only (shared by every reader)."""
+    lim = JointLimits(("a", "b"), np.array([-1.0, -2.0]), np.array([1.0, 2.0]),
+                      np.array([1.0, 3.0]))
+    wide = lim.with_margin(0.1)
+    assert wide is lim.with_margin(0.1) and wide.margin == 0.1
+    np.testing.assert_allclose(wide.plan_upper, [0.9, 1.8])
+    np.testing.assert_allclose(wide.plan_velocity, [0.9, 2.7])
+    with pytest.raises(ValueError):
+        wide.plan_lower[0] = 0.0
+    many = [lim.with_margin(m) for m in np.linspace(0.0, 0.5, 20)]
+    assert all(m.margin == pytest.approx(v) for m, v in zip(many, np.linspace(0.0, 0.5, 20),
+                                                             strict=True))

@@ -232,5 +232,7 @@ def test_point_and_jacobian_are_point_and_jacobian_to_the_bit(robot, request):
         q = rng.uniform(np.maximum(model.q_lower, -np.pi), np.minimum(model.q_upper, np.pi))
         point, jac = model.point_and_jacobian(q)
         assert point.shape == (model.m,) and jac.shape == (model.m, model.n)
+        # CasADi's own calls of P and J (model.point is this buffered evaluation since)
+        np.testing.assert_array_equal(point, np.array(model.function("P")(q)).ravel())
         np.testing.assert_array_equal(point, model.point(q))
         np.testing.assert_array_equal(jac, model.jacobian(q))

@@ -124,6 +124,9 @@ def limit_warnings(problem: Problem, sample: TrajectorySample) -> tuple[str, ...
     """
     lim = problem.limits
     out = []
+    if not (np.any((sample.q < lim.lower) | (sample.q > lim.upper))
+            or np.any((sample.qd < -lim.velocity) | (sample.qd > lim.velocity))):
+        return ()  # the usual case, in one test (what the loop below would find)
     for i, name in enumerate(lim.names):
         for label, values, lo, hi in (
                 ("position", sample.q[:, i], lim.lower[i], lim.upper[i]),

@@ -414,7 +414,7 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
             tau = scales[i] * rest_T
             path, first = ranked.get(i, (PolynomialPath.parabola(qa, qb, qd0 * tau), None))
             timed[i] = None
-            if not _inside(path, lo, hi):
+            if first is None and not _inside(path, lo, hi):  # a ranked one is inside
                 why.append(f"tau = {tau:.3g} s: leaves the position limits")
             else:
                 out = time_scaling(problem, path, 1.0 / tau, gridpoints, speed_cap, engine,

@@ -24,6 +24,7 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
+           "open_loop_sweep_buffered",
            "mapped_controls", "open_loop_sweep", "polynomial_path", "polynomial_segment_ode",
            "refined_breaks", "segment_dae"]
 
@@ -139,6 +140,27 @@ def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.
     :meth:`FlatTrajectory.open_loop` and
     :meth:`~tocontrol_ros.core.direct.scaled_path.ScaledPath.open_loop`.
     """
+    return _sweep_entry(model, integ, segments)[1]
+
+
+def open_loop_sweep_buffered(model: RobotModel, integ: ca.Function, segments: int
+                             ) -> BufferedFunction:
+    """:func:`open_loop_sweep` called through numpy buffers, kept with it.
+
+    The same evaluation and the same states (to the bit), without converting its inputs and
+    its (2n, segments OPEN_LOOP_POINTS) states to and from CasADi's ``DM``; a segment that
+    fails raises ``RuntimeError`` as the plain call does. Used by
+    :meth:`~tocontrol_ros.core.direct.scaled_path.ScaledPath.open_loop` (a replan's
+    certificate).
+    """
+    entry = _sweep_entry(model, integ, segments)
+    if entry[2] is None:
+        entry[2] = BufferedFunction(entry[1])
+    return entry[2]
+
+
+def _sweep_entry(model: RobotModel, integ: ca.Function, segments: int) -> list:
+    """``[integ, its mapaccum over segments, its buffered call or None]``, per model."""
     table = _SWEEPS.setdefault(model, {})
     key = (id(integ), segments)
     if key not in table or table[key][0] is not integ:
@@ -146,8 +168,8 @@ def open_loop_sweep(model: RobotModel, integ: ca.Function, segments: int) -> ca.
         p = ca.MX.sym("p", integ.size1_in("p"))
         out = integ(x0=x, p=p)["xf"]
         step = ca.Function("open_loop_segment", [x, p], [out[:, -1], out])
-        table[key] = (integ, step.mapaccum("open_loop_sweep", segments))
-    return table[key][1]
+        table[key] = [integ, step.mapaccum("open_loop_sweep", segments), None]
+    return table[key]
 
 
 def compile_open_loop(model: RobotModel, degree: int = 3) -> tuple[ca.Function, str]:

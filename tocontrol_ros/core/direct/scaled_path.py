@@ -30,7 +30,7 @@ from numpy.polynomial import polynomial as poly
 from tocontrol_ros.core.direct.flat_trajectory import (
     OPEN_LOOP_POINTS,
     integrate_segments,
-    open_loop_sweep,
+    open_loop_sweep_buffered,
     polynomial_path,
     polynomial_segment_ode,
     segment_dae,
@@ -274,12 +274,23 @@ class PolynomialPath:
 
     def __call__(self, s, order: int = 0) -> np.ndarray:
         """``d^order q / ds^order`` at ``s`` (K,), shape (K, n)."""
-        s = np.atleast_1d(np.asarray(s, dtype=float))
+        if not (isinstance(s, np.ndarray) and s.ndim == 1 and s.dtype == float):
+            s = np.atleast_1d(np.asarray(s, dtype=float))
         while len(self._derivatives) <= order:  # each derivative's coefficients once
-            self._derivatives.append(poly.polyder(self._derivatives[-1], 1, axis=0)
-                                     if len(self._derivatives[-1]) > 1 else
-                                     np.zeros((1, self.n)))
-        return poly.polyval(s, self._derivatives[order]).T
+            last = self._derivatives[-1]
+            # numpy's polyder(last, 1, axis=0): row j - 1 is j c_j (the same products)
+            self._derivatives.append(np.arange(1, len(last))[:, None] * last[1:]
+                                     if len(last) > 1 else np.zeros((1, self.n)))
+        c = self._derivatives[order]
+        if s.ndim != 1:
+            return poly.polyval(s, c).T
+        # numpy's polyval(s, c).T, its Horner steps written out: the same operations in the
+        # same order (the same bits, test_first_motion), without its checks and reshapes per
+        # call (a replan evaluates paths about thirty times).
+        out = c[-1][:, None] + s * 0
+        for cj in c[-2::-1]:
+            out = cj[:, None] + out * s
+        return out.T
 
     def position_range(self) -> tuple[np.ndarray, np.ndarray]:
         """Each joint's least and greatest position on [0, 1], shapes (n,) (rad, m)."""
@@ -290,8 +301,9 @@ class PolynomialPath:
             cands.append(np.where(np.isfinite(vertex), np.clip(vertex, 0.0, 1.0), 0.0))
         elif self.degree > 2:
             cands += [np.full(self.n, s) for s in np.linspace(0.0, 1.0, 201)]
-        powers = np.arange(self.degree + 1)[:, None]
-        values = np.array([np.sum(self.c * s[None, :] ** powers, axis=0) for s in cands])
+        powers = np.arange(self.degree + 1)[None, :, None]
+        # sum_j c_j s^j for every candidate at once (the sum over j in order, as per candidate)
+        values = np.sum(self.c[None] * np.array(cands)[:, None, :] ** powers, axis=1)
         return values.min(axis=0), values.max(axis=0)
 
 
@@ -342,6 +354,16 @@ class ScaledPath(InverseDynamicsTrajectory):
         self._scale = model.tau_max * torque_scale
         q, qd, _ = self._path(self.t_grid)
         self.z_grid = np.hstack([q, qd, np.full((len(q), 2 * self.n), np.nan)])
+
+    def state(self, t) -> np.ndarray:
+        """``(x, psi)`` at times ``t``, shape (K, 4n); ``psi`` is NaN (no costates).
+
+        At its start and end (a replan asks for both: the running motion's end, the open
+        loop's start) the row made with the gridpoints' states: the same numbers.
+        """
+        if np.isscalar(t) and (t == 0.0 or t == self.T):
+            return self.z_grid[[0 if t == 0.0 else -1]].copy()
+        return super().state(t)
 
     # ------------------------------------------------------------------ evaluation
     def _path(self, t, left: bool = False):
@@ -449,14 +471,15 @@ class ScaledPath(InverseDynamicsTrajectory):
                                      deviation)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
-        x0 = self.state(0.0)[0, :2 * self.n]
+        x0 = self.z_grid[0, :2 * self.n].copy()  # state(0.0)'s, made at the gridpoints
         times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
         params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
-        try:  # every segment in one call
+        try:  # every segment in one call, through numpy buffers
             if one_call:
-                _, states = open_loop_sweep(self._model, integ, len(self.h))(x0, params)
+                _, states = open_loop_sweep_buffered(self._model, integ, len(self.h))(x0,
+                                                                                     params)
                 return np.concatenate([[0.0], times]), \
-                    np.vstack([x0[None, :], np.array(states).T]), True
+                    np.vstack([x0[None, :], states.T]), True
         except RuntimeError:  # a segment failed: again one by one, to say where
             pass
         segments = ((coefs[j], self.h[j], self.t_grid[j] + self.h[j] * grid)

@@ -353,9 +353,9 @@ def controllable_and_forward(model: object, a: np.ndarray, b: np.ndarray, c: np.
         every pair was taken: the same numbers, more work).
     """
     two_d = 2.0 * np.diff(s)
-    A = np.hstack([a[:-1], a[1:] + two_d[:, None] * b[1:]]).T
-    B = np.hstack([b[:-1], b[1:]]).T
-    G = np.hstack([1.0 - c[:-1], 1.0 - c[1:]]).T
+    A = np.concatenate([a[:-1], a[1:] + two_d[:, None] * b[1:]], axis=1).T
+    B = np.concatenate([b[:-1], b[1:]], axis=1).T
+    G = np.concatenate([1.0 - c[:-1], 1.0 - c[1:]], axis=1).T
     paired, every = sweeps_function(model, A.shape[0], A.shape[1])
     args = (A, B, G, x_max[None, :-1], two_d[None, :], x0)
     K, x, ok, exact = paired(*args)

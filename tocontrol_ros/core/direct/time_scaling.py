@@ -181,12 +181,13 @@ class _Coefficients:
         self.c = c / scale
         self.model = model
         self.f = model.damping * d1 / scale
+        self.zero = np.zeros_like(self.f)  # friction lines without friction (_friction_lines)
         # |q'(s)| is linear on a segment and sd^2 too (sdd is constant there): bounding
         # sd^2 at a gridpoint by the larger |q'| of its two segments keeps the speeds
         # between the gridpoints within the limits as well.
         speed = np.abs(d1)
         seg = np.maximum(speed[:-1], speed[1:])
-        speed = np.maximum(np.vstack([seg, seg[-1:]]), np.vstack([seg[:1], seg]))
+        speed = np.maximum(np.concatenate([seg, seg[-1:]]), np.concatenate([seg[:1], seg]))
         v = problem.limits.plan_velocity * (1.0 - VELOCITY_PAD)
         if speed_cap is not None:
             v = np.minimum(v, speed_cap)
@@ -303,8 +304,8 @@ def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
     concave ``sqrt`` at the last pass's ``x`` (floored) bounds it above, the chord from 0 to
     ``x_cap`` below (for ``f < 0`` the two swap). Without ``x_prev``: no friction, no cap.
     """
-    zero = np.zeros_like(coef.f)
     if x_prev is None:
+        zero = coef.zero
         return zero, zero, zero, zero, np.full(len(coef.f), np.inf)
     x_top = float(np.max(x_prev))
     x0 = np.maximum(x_prev, TANGENT_FLOOR * x_top)[:, None]
@@ -357,14 +358,15 @@ def _rows(coef: _Coefficients, sd0: float, boxes: np.ndarray, x_prev: np.ndarray
     and lower bounds where set): see :func:`_toppra`.
     """
     u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
-    rows_a = np.hstack([coef.a / boxes, -coef.a / boxes])
-    rows_b = np.hstack([(coef.b + u1) / boxes, -(coef.b + l1) / boxes])
-    rows_c = np.hstack([(coef.c + u0) / boxes, -(coef.c + l0) / boxes])
+    cat = np.concatenate
+    rows_a = cat([coef.a / boxes, -coef.a / boxes], axis=1)
+    rows_b = cat([(coef.b + u1) / boxes, -(coef.b + l1) / boxes], axis=1)
+    rows_c = cat([(coef.c + u0) / boxes, -(coef.c + l0) / boxes], axis=1)
     if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
         d1, d2 = coef.accel
-        rows_a = np.hstack([rows_a, d1, -d1])
-        rows_b = np.hstack([rows_b, d2, -d2])
-        rows_c = np.hstack([rows_c, np.zeros_like(d1), np.zeros_like(d1)])
+        rows_a = cat([rows_a, d1, -d1], axis=1)
+        rows_b = cat([rows_b, d2, -d2], axis=1)
+        rows_c = cat([rows_c, np.zeros_like(d1), np.zeros_like(d1)], axis=1)
     x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
     x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
     return rows_a, rows_b, rows_c, x_max
@@ -383,11 +385,10 @@ def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
 
     a, b, c, x_max = rows
     m = a.shape[1]
-    # Partners half a row apart: [torque+, acceleration+, torque-, acceleration-].
-    order = np.arange(m) if m == 2 * model.n else \
-        np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
-    K, x, feasible, _ = controllable_and_forward(model, a[:, order], b[:, order],
-                                                 c[:, order], x_max, s, sd0 ** 2)
+    if m != 2 * model.n:  # partners half a row apart: [torque+, accel.+, torque-, accel.-]
+        order = np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
+        a, b, c = a[:, order], b[:, order], c[:, order]
+    K, x, feasible, _ = controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)
     last = len(s) - 1
     empty = ~(K[:last, 0] <= K[:last, 1])
     if np.any(empty):

@@ -35,6 +35,9 @@ __all__ = ["JointLimits", "load_joint_limits_yaml", "narrowed_efforts",
 #: that state starts at the limit (:meth:`JointLimits.admissible_velocity`). Farther above,
 #: the start is refused, naming the joint.
 VELOCITY_SLACK = 0.1
+#: Limits with another margin kept per limits (:meth:`JointLimits.with_margin`): a node uses
+#: one or two margins; a bound keeps a caller that tries many from holding them all.
+MARGINS_KEPT = 4
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,15 @@ class JointLimits:
         if not (np.isfinite(m) and 0.0 <= m < 1.0):
             raise ProblemError(f"`margin` must be in [0, 1), got {self.margin!r}")
         object.__setattr__(self, "margin", m)
+        # The planning bounds, once (a replan reads them a few dozen times); read-only, as
+        # they are shared by every reader.
+        plan = (*self._shrunk(), (1.0 - m) * self.velocity, (1.0 - m) * self.acceleration)
+        for a in plan:
+            a.flags.writeable = False
+        object.__setattr__(self, "_plan", plan)
+        object.__setattr__(self, "_has_acceleration",
+                           bool(np.any(np.isfinite(self.acceleration))))
+        object.__setattr__(self, "_margins", {})  # with_margin's, by margin
 
     # ---------------------------------------------------------------- builders
     @classmethod
@@ -143,35 +155,44 @@ class JointLimits:
         return JointLimits(self.names, lower, upper, velocity, self.margin, acceleration)
 
     def with_margin(self, margin: float) -> JointLimits:
-        """The same limits with another margin."""
-        return JointLimits(self.names, self.lower, self.upper, self.velocity, margin,
-                           self.acceleration)
+        """The same limits with another margin.
+
+        Made once per margin (up to :data:`MARGINS_KEPT`): the planner node asks for them
+        for every problem it makes.
+        """
+        made = self._margins.get(margin)
+        if made is None:
+            made = JointLimits(self.names, self.lower, self.upper, self.velocity, margin,
+                               self.acceleration)
+            if len(self._margins) < MARGINS_KEPT:
+                self._margins[margin] = made
+        return made
 
     # ---------------------------------------------------------------- planning bounds
     @property
     def plan_lower(self) -> np.ndarray:
-        """Position bounds the planner keeps to (margin applied), shape (n,)."""
-        return self._shrunk()[0]
+        """Position bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[0]
 
     @property
     def plan_upper(self) -> np.ndarray:
         """See :attr:`plan_lower`."""
-        return self._shrunk()[1]
+        return self._plan[1]
 
     @property
     def plan_velocity(self) -> np.ndarray:
-        """Velocity bounds the planner keeps to (margin applied), shape (n,)."""
-        return (1.0 - self.margin) * self.velocity
+        """Velocity bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[2]
 
     @property
     def plan_acceleration(self) -> np.ndarray:
-        """Acceleration bounds the planner keeps to (margin applied), shape (n,)."""
-        return (1.0 - self.margin) * self.acceleration
+        """Acceleration bounds the planner keeps to (margin applied), shape (n,), read-only."""
+        return self._plan[3]
 
     @property
     def has_acceleration(self) -> bool:
         """Whether any joint has a finite acceleration limit."""
-        return bool(np.any(np.isfinite(self.acceleration)))
+        return self._has_acceleration
 
     def _shrunk(self) -> tuple[np.ndarray, np.ndarray]:
         finite = np.isfinite(self.lower) & np.isfinite(self.upper)
@@ -216,7 +237,7 @@ class JointLimits:
         Strictly inside the planning bounds (margin applied) for positions, and below the
         planning velocity limit.
         """
-        lo, hi = self._shrunk()
+        lo, hi = self.plan_lower, self.plan_upper
         for i, joint in enumerate(self.names):
             if not lo[i] < q[i] < hi[i]:
                 what = ("its limits" if self.margin == 0.0 else

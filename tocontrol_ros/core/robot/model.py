@@ -374,8 +374,12 @@ class RobotModel(Chain):
                                              self._vec("qdd", qdd, self.n))).ravel()
 
     def point(self, q: np.ndarray) -> np.ndarray:
-        """Task-space point ``P(q)``, shape (m,) (m)."""
-        return np.array(self.function("P")(self._vec("q", q, self.n))).ravel()
+        """Task-space point ``P(q)``, shape (m,) (m).
+
+        Through :meth:`point_and_jacobian` (the same expression, the same bits: a CasADi
+        call of ``P`` took ten times as long, and a replan asks for a few points).
+        """
+        return self.point_and_jacobian(self._vec("q", q, self.n))[0]
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """Task-space Jacobian ``dP/dq``, shape (m, n)."""

@@ -1,0 +1,166 @@
+"""A replan's quick motion of another commit's package against this one's, paired in one process.
+
+For a change that must keep the plans to the bit and only cut work (issue 47's 10 ms bar):
+the package of ``REV`` (default ``main``) is exported by ``git archive`` into a temporary
+directory under another name (``tocontrol_ref``, its imports renamed, its ``config/`` next to
+it) and imported beside the installed ``tocontrol_ros``; each builds the replans of
+``bench/quick_motion.py`` (the moving-target chain of ``bench/replan.py --moving``) with its
+own code, and the same replan is then solved by each in turn, alternately first, ``REPS``
+times over, optionally after a pause (s) before each call (as the planner node's worker
+meets a goal: asleep between goals). Printed: whether every replan's plan is the same to
+the bit (``T``, passes, the squared path speeds, a sampling's positions and torques, the
+certificate's verdict and open-loop end), and the medians (ms) of the parts
+(``PlanResult.timings``) and of the calling thread's CPU time (``time.thread_time``: less
+moved by other processes on a loaded machine than the wall clock), reference against this
+package.
+
+Usage: ``scripts/dev run python -P bench/quick_motion_pair.py [paper|panda] [REPS] [PAUSE]
+[REV]``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import PANDA_LOCKED, panda_urdf  # noqa: E402
+from bench.replan import (  # noqa: E402
+    DURATION,
+    MOVING_PANDA_LAPS,
+    MOVING_PANDA_RADIUS,
+    MOVING_PAPER_RADIUS,
+    RATE,
+    README_PANDA_Q0,
+)
+
+#: The reference package's import name.
+REF = "tocontrol_ref"
+KEYS = ("guess", "scaling", "verify", "total")
+
+
+def export_reference(rev: str, where: Path) -> None:
+    """``rev``'s ``tocontrol_ros`` as package ``REF`` under ``where`` (imports renamed)."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "tocontrol_ros",
+                              "config"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(where)], input=archive, check=True)
+    pkg = where / REF
+    (where / "tocontrol_ros").rename(pkg)
+    (where / "config").rename(pkg / "config")  # where the package looks for its URDF
+    for path in pkg.rglob("*.py"):
+        text = path.read_text()
+        path.write_text(text.replace("tocontrol_ros", REF))
+
+
+def cases(pkg: str, name: str) -> tuple:
+    """``(quick_motion, [(problem, q_near), ...])`` of package ``pkg``: the chain of
+    ``bench/quick_motion.py``'s ``replans``, each package with its own types."""
+    def mod(m: str):
+        return importlib.import_module(f"{pkg}.{m}")
+
+    JointLimits = mod("core.robot.limits").JointLimits
+    robot, fm, pr = mod("core.robot.model"), mod("core.direct.first_motion"), \
+        mod("core.types.problem")
+    if name == "paper":
+        model = robot.load_robot(robot.default_urdf_path())
+        q0, radius, laps = np.array((0.3, 0.9, 0.6)), MOVING_PAPER_RADIUS, 1
+        limits = JointLimits.from_model(model)
+    else:
+        model = robot.load_robot(str(panda_urdf()), tip_link="panda_hand",
+                                 locked_joints=PANDA_LOCKED)
+        q0, radius, laps = np.array(README_PANDA_Q0), MOVING_PANDA_RADIUS, MOVING_PANDA_LAPS
+        limits = JointLimits.from_model(model).with_margin(0.05)
+    n, centre = model.n, model.point(q0)
+    goals = []
+    for a in np.linspace(0.0, 2.0 * math.pi * laps, int(RATE * DURATION) + 1)[:-1]:
+        p = np.array(centre, dtype=float)
+        p[:2] += radius * np.array([math.cos(a), math.sin(a)])
+        goals.append(p)
+    running = fm.first_motion(pr.Problem(model, pr.joint_state(q0), pr.point(goals[0]),
+                                         k=4.0, reserve=0.1, limits=limits))
+    out = []
+    for goal in goals[1:]:
+        t = min(1.0 / RATE, running.T)
+        z = running.trajectory.state(t)[0]
+        qd = limits.admissible_velocity(z[n:2 * n]) if t < running.T else np.zeros(n)
+        problem = pr.Problem(model, pr.joint_state(z[:n], qd), pr.point(goal), k=4.0,
+                             reserve=0.1, limits=limits)
+        q_near = running.trajectory.state(running.T)[0][:n]
+        out.append((problem, q_near))
+        quick = fm.quick_motion(problem, q_near)
+        if quick.success:
+            running = quick
+    return fm.quick_motion, out
+
+
+def same(a, b) -> bool:
+    """Whether two quick motions are the same plan to the bit."""
+    if (a.success, a.T, a.iterations) != (b.success, b.T, b.iterations):
+        return False
+    if not a.success:
+        return True
+    sa, sb = a.trajectory.sample(0.01), b.trajectory.sample(0.01)
+    return bool(np.array_equal(a.trajectory.x, b.trajectory.x)
+                and np.array_equal(sa.q, sb.q) and np.array_equal(sa.u, sb.u)
+                and a.certificate.passed == b.certificate.passed
+                and np.array_equal(a.certificate.open_loop_end, b.certificate.open_loop_end))
+
+
+def main(name: str = "paper", reps: int = 3, pause: float = 0.0, rev: str = "main") -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        export_reference(rev, Path(tmp))
+        sys.path.insert(0, tmp)
+        runs = {"ref": cases(REF, name), "new": cases("tocontrol_ros", name)}
+        for quick, chain in runs.values():  # warm-up: builds, mappings
+            for problem, q_near in chain[:5]:
+                quick(problem, q_near)
+        from tocontrol_ros.core.robot import compiled
+
+        compiled.wait_for_builds()
+        parts = {k: {p: [] for p in KEYS} for k in runs}
+        cpu = {k: [] for k in runs}
+        identical = 0
+        count = len(runs["new"][1])
+        for r in range(reps):
+            for i in range(count):
+                order = ("ref", "new") if (i + r) % 2 == 0 else ("new", "ref")
+                res = {}
+                for key in order:
+                    quick, chain = runs[key]
+                    if pause:
+                        time.sleep(pause)
+                    c0 = time.thread_time()
+                    res[key] = quick(*chain[i])
+                    cpu[key].append(time.thread_time() - c0)
+                    for p in KEYS:
+                        parts[key][p].append(res[key].timings[p])
+                if r == 0:
+                    identical += same(res["ref"], res["new"])
+
+    def med(values: list) -> float:
+        return 1e3 * statistics.median(values)
+
+    print(f"{name}: {rev} against this package, {reps} x {count} replans, pause {pause:g} s: "
+          f"the same plan to the bit {identical}/{count}")
+    for p in KEYS:
+        print(f"  {p:8s} {rev} {med(parts['ref'][p]):7.2f}  new {med(parts['new'][p]):7.2f} ms"
+              f"  ratio {med(parts['new'][p]) / med(parts['ref'][p]):.3f}")
+    print(f"  {'CPU':8s} {rev} {med(cpu['ref']):7.2f}  new {med(cpu['new']):7.2f} ms"
+          f"  ratio {med(cpu['new']) / med(cpu['ref']):.3f}")
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    main(args[0] if args else "paper", int(args[1]) if len(args) > 1 else 3,
+         float(args[2]) if len(args) > 2 else 0.0, args[3] if len(args) > 3 else "main")
