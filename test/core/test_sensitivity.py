@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 import tocontrol_ros.core.direct.sensitivity as sensitivity
-from tocontrol_ros.core.direct.kkt_condensed import BACKWARD_TOL
 from tocontrol_ros.core.direct.limited import state_bounds
 from tocontrol_ros.core.direct.tuning import PAD, SET_PAD
 from tocontrol_ros.core.planning.replan import replan_options, warm_replan
@@ -261,76 +260,18 @@ def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
     diag = np.concatenate([rng.uniform(0.0, 1.0, nw), -rng.uniform(1e-3, 1.0, ng)])
     fact = banded.factor(hv, diag, jv)
     assert fact is not None
-    dense = _dense_kkt(banded, hv, jv, diag)
+    dense = np.zeros((nw + ng, nw + ng))
+    np.add.at(dense, (banded.hr, banded.hc), hv)
+    off = banded.hr != banded.hc
+    np.add.at(dense, (banded.hc[off], banded.hr[off]), hv[off])
+    dense[np.arange(nw + ng), np.arange(nw + ng)] += diag
+    np.add.at(dense, (nw + banded.jr, banded.jc), jv)
+    np.add.at(dense, (banded.jc, nw + banded.jr), jv)
     rhs = rng.normal(size=nw + ng)
     x = banded.solve(fact, rhs)
     ref = np.linalg.solve(dense, rhs)
     assert np.max(np.abs(x - ref)) <= 1e-8 * max(1.0, np.max(np.abs(ref)))
     assert np.max(np.abs(dense @ x - rhs)) <= 1e-8 * max(1.0, np.max(np.abs(rhs)))
-
-
-def _dense_kkt(banded, hv, jv, diag) -> np.ndarray:
-    """The full KKT matrix of :class:`BandedKKT`'s entries, dense."""
-    nw, N = banded.nw, len(diag)
-    dense = np.zeros((N, N))
-    np.add.at(dense, (banded.hr, banded.hc), hv)
-    off = banded.hr != banded.hc
-    np.add.at(dense, (banded.hc[off], banded.hr[off]), hv[off])
-    dense[np.arange(N), np.arange(N)] += diag
-    np.add.at(dense, (nw + banded.jr, banded.jc), jv)
-    np.add.at(dense, (banded.jc, nw + banded.jr), jv)
-    return dense
-
-
-def test_the_condensed_kkt_solve_equals_a_dense_solve(panda_case):
-    """The barrier's inequality rows eliminated into the Hessian block (CondensedKKT: the
-    equality rows and a few held rows kept) solve the full KKT system as a dense LU of the
-    full matrix does, with the backward error it reports; the band's layout is kept per set
-    of kept rows."""
-    moved, flat, par, w, ws = _moved_nlp(panda_case)
-    jac_fun, hess_fun = flat.kkt_functions
-    _, jac = jac_fun(w, par)
-    hess = hess_fun(w, par, 1.0, ws.lam_g)
-    banded = sensitivity.banded_kkt(flat, jac, hess)
-    cond = sensitivity.condensed_kkt(flat, jac, hess)
-    assert sensitivity.condensed_kkt(flat, jac, hess) is cond
-    nw, ng = len(w), flat.rows
-    hv, jv = np.array(hess.nonzeros()), np.array(jac.nonzeros())
-    lbg, ubg, _, _ = flat.bounds(*state_bounds(moved, PAD), SET_PAD)
-    rng = np.random.default_rng(7)
-    kept = lbg == ubg
-    kept[rng.choice(np.flatnonzero(~kept), 3, replace=False)] = True  # held rows
-    sigma = np.where(kept, 0.0, 10.0 ** rng.uniform(-3.0, 3.0, ng))
-    diag_w = rng.uniform(0.0, 1.0, nw)
-    diag = np.concatenate([diag_w, -np.where(kept, 1e-12, 1.0 / np.where(kept, 1.0, sigma))])
-    fact = cond.factor(hv, diag_w, jv, sigma, kept, 1e-12)
-    assert fact is not None
-    assert cond.factor(hv, diag_w, jv, sigma, kept, 1e-12)[0] is fact[0]  # its layout
-    rhs = rng.normal(size=nw + ng)
-    x, err = cond.solve(fact, hv, diag, jv, rhs)
-    assert x is not None and err <= BACKWARD_TOL, err
-    dense = _dense_kkt(banded, hv, jv, diag)
-    ref = np.linalg.solve(dense, rhs)
-    assert np.max(np.abs(x - ref)) <= 1e-8 * max(1.0, np.max(np.abs(ref)))
-    assert np.max(np.abs(dense @ x - rhs)) <= 1e-8 * max(1.0, np.max(np.abs(rhs)))
-    full = banded.solve(banded.factor(hv, diag, jv), rhs)
-    assert cond.backward_error(hv, diag, jv, full, rhs)[0] <= 1e-12
-
-
-def test_the_condensed_steps_reach_the_full_systems_answer(panda_case):
-    """The parametric steps with the condensed KKT solves (the default) take as many steps
-    and factorisations as with the full system's LU and end at the same answer (T to 1e-12,
-    the control points to 1e-9); the solves the condensed check sent to the full LU are
-    counted."""
-    planner, problem, serving = panda_case
-    _, args = _step_args(planner, serving, _moved(problem, MOVE))
-    cond, out_c = sensitivity.sensitivity_solve(*args, condense=True)
-    full, out_f = sensitivity.sensitivity_solve(*args, condense=False)
-    assert cond.success and full.success, (cond.message, full.message)
-    assert (out_c.steps, out_c.solves) == (out_f.steps, out_f.solves)
-    assert out_f.full_solves == 0 and 0 <= out_c.full_solves <= out_c.solves
-    assert cond.T == pytest.approx(full.T, rel=1e-12, abs=0.0)
-    assert np.max(np.abs(cond.P - full.P)) <= 1e-9
 
 
 def _called_as_functions(monkeypatch) -> None:

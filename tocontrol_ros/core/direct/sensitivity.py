@@ -56,12 +56,10 @@ import numpy as np
 from scipy.linalg import lapack
 
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
-from tocontrol_ros.core.direct.kkt_condensed import CondensedKKT
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["CONDENSE", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS",
-           "PATH_SUBMOVES", "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome", "banded_kkt",
-           "condensed_kkt", "sensitivity_solve"]
+__all__ = ["HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES",
+           "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -118,10 +116,6 @@ SUB_TOL = 1e3
 #: after 14 steps or 24 factorisations instead of the whole budget.
 PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 28, 48
 PATH_SUB_BUDGET = (14, 24)
-#: Solve the KKT systems with the barrier's inequality rows eliminated
-#: (:class:`~.kkt_condensed.CondensedKKT`), each solve checked against the full system and
-#: left to its LU where the check fails; False: the full system's LU every time.
-CONDENSE = True
 
 
 @dataclass(frozen=True)
@@ -143,9 +137,6 @@ class SensitivityOutcome:
         the barrier again (their multiplier of the wrong sign).
     solves : int
         KKT factorisations (the steps and the re-solves after rows were held).
-    full_solves : int
-        Of those, the ones solved by the full system's LU because the condensed one
-        (:data:`CONDENSE`) failed its check against the full system.
     reason : str
         "converged", or why it stopped.
     """
@@ -157,7 +148,6 @@ class SensitivityOutcome:
     holds: int = 0
     released: int = 0
     solves: int = 0
-    full_solves: int = 0
 
 
 class BandedKKT:
@@ -260,20 +250,6 @@ def banded_kkt(flat: FlatTranscription, jac, hess) -> BandedKKT:
     return banded
 
 
-def condensed_kkt(flat: FlatTranscription, jac, hess) -> CondensedKKT:
-    """The :class:`~.kkt_condensed.CondensedKKT` of ``flat``'s NLP, built once and kept.
-
-    As :func:`banded_kkt`, whose arguments it takes.
-    """
-    nw, ng = hess.size1(), jac.size1()
-    key = ("condensed", nw, ng)
-    cond = flat.kkt_cache.get(key)
-    if cond is None:
-        cond = CondensedKKT(_triplets(jac), _triplets(hess), nw, ng, flat.model.n)
-        flat.kkt_cache[key] = cond
-    return cond
-
-
 def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
     sp = fn_out if isinstance(fn_out, ca.Sparsity) else fn_out.sparsity()
     r, c = sp.get_triplet()
@@ -301,7 +277,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
                       should_stop=None, hold: bool = True, submoves: int = 1,
                       max_steps: int | None = None, max_solves: int | None = None,
-                      sub_budget: tuple[int, int] | None = None, condense: bool | None = None
+                      sub_budget: tuple[int, int] | None = None
                       ) -> tuple[FlatResult, SensitivityOutcome]:
     """The new problem's solution from a converged one on the same mesh (see the module).
 
@@ -335,9 +311,6 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     sub_budget : tuple of int, optional
         Newton steps and factorisations at most within each sub-move (default: only the
         totals): a sub-move that has not ended within them stops the solve.
-    condense : bool, optional
-        Solve the KKT systems condensed onto the variables and the equality and held rows
-        (default :data:`CONDENSE`; False: the full system's LU every time).
 
     Returns
     -------
@@ -347,7 +320,6 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     SensitivityOutcome
     """
     t0 = time.perf_counter()
-    condense = CONDENSE if condense is None else condense
     max_steps = MAX_STEPS if max_steps is None else max_steps
     max_solves = MAX_SOLVES if max_solves is None else max_solves
     der = kkt_derivatives(flat)
@@ -397,8 +369,6 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
     rounds = 0  # re-solves after holding rows within this step
-    condensed = condensed_kkt(flat, der.jac_sparsity, der.hess_sparsity) if condense else None
-    full_solves = 0  # solves left to the full system's LU (condensed check failed)
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
     side = np.zeros(ng, dtype=np.int8)
@@ -475,23 +445,12 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
                 + np.where(has_ux, r_vu / room_ux, 0.0)
             rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
-            rhs = np.concatenate([rhs_w, rhs_y])
+            fact = banded.factor(hv, diag, jv)
             solves += 1
-            sol = None
-            if condensed is not None:
-                # The inequality rows eliminated (kkt_condensed), checked against the full
-                # system; the full system's LU where the check fails.
-                fact = condensed.factor(hv, sig_x + PRIMAL_REG, jv,
-                                        np.where(hin, sig_s, 0.0), heq, DUAL_REG)
-                if fact is not None:
-                    sol, _ = condensed.solve(fact, hv, diag, jv, rhs)
-                full_solves += sol is None
-            if sol is None:
-                fact = banded.factor(hv, diag, jv)
-                if fact is None:
-                    reason = "KKT matrix singular"
-                    break
-                sol = banded.solve(fact, rhs)
+            if fact is None:
+                reason = "KKT matrix singular"
+                break
+            sol = banded.solve(fact, np.concatenate([rhs_w, rhs_y]))
             if not np.all(np.isfinite(sol)):
                 reason = "KKT step not finite"
                 break
@@ -547,7 +506,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             g, jv = der.rows(w, par)
     active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
     outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason,
-                                 holds, released, solves, full_solves)
+                                 holds, released, solves)
     lam_g = np.where(eq | (side != 0), y, zu - zl)
     lam_x = vu - vl
     residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
