@@ -11,11 +11,11 @@ one run, each timed after a warm-up of the same call (median of 3):
   ``warm_parametric`` (the default): the parametric primal-dual step from the serving
   solution (core/direct/sensitivity.py), certified; IPOPT where it fails (the route taken
   is read from the result's warnings);
-- **before**: the same call without the cap on re-solves with rows held within a step
-  (:func:`as_before`: ``HOLD_ROUNDS`` lifted, the route before it; where a step's rows to
-  hold keep growing it re-solves until the budget ends, then the sub-moves, then IPOPT),
-  in the same run; where no step reaches the cap the two take the same steps (checked: the
-  same ``T`` to the bit there);
+- **before**: the same call with the barrier's start as before (:func:`as_before`:
+  ``FAR_SIDE_LEAST_ROOM`` off, the route before it: a value with two bounds was pushed in
+  from its upper side by its room to the old value, which put one on its lower bound back
+  onto it, a zero slack), in the same run; where no row or variable sits on its lower
+  bound the two take the same steps (the route and ``T`` compared to the bit);
 - **ipopt**: the same call with ``warm_parametric=False``: IPOPT warm from the serving
   solution and its multipliers (``warm="dual"``, its barrier from 1e-7);
 - **tight**: IPOPT on the same NLP from the same point with its warm start's pushes and
@@ -85,21 +85,22 @@ def _route(result) -> str:
 
 @contextmanager
 def as_before():
-    """The parametric route as it was before the cap on re-solves with rows held (issue 47).
+    """The parametric route as it was before the barrier's start kept a slack on both sides.
 
-    ``core.direct.sensitivity.HOLD_ROUNDS`` lifted: a step whose rows to hold keep growing
-    goes on re-solving until the solve's budget of factorisations ends; everything else is
-    the same code (the band's in-place factorisation and the stretches checked in one call
-    change no number: their own before/after is :func:`_parts_pair`).
+    ``core.direct.sensitivity.FAR_SIDE_LEAST_ROOM`` off (issue 47): a value with two
+    bounds is pushed in from its upper side by its room to IPOPT's value, as before, so one
+    on its lower bound starts with a zero slack; everything else is the same code (the
+    band's in-place factorisation and the stretches checked in one call change no number:
+    their own before/after is :func:`_parts_pair`).
     """
     import tocontrol_ros.core.direct.sensitivity as sensitivity
 
-    saved = sensitivity.HOLD_ROUNDS
-    sensitivity.HOLD_ROUNDS = 10 ** 9
+    saved = sensitivity.FAR_SIDE_LEAST_ROOM
+    sensitivity.FAR_SIDE_LEAST_ROOM = False
     try:
         yield
     finally:
-        sensitivity.HOLD_ROUNDS = saved
+        sensitivity.FAR_SIDE_LEAST_ROOM = saved
 
 
 def _rowmajor_factor(banded, hess, diag, jac):
@@ -402,10 +403,11 @@ def run(count: int = CASES) -> Section:
         f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
         f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
         f"failed; 'sub-moves' where the whole move's steps failed and the move followed in "
-        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call without the cap "
-        f"on re-solves with rows held within a step (`as_before` in bench/warm_resolve.py: "
-        f"`HOLD_ROUNDS` lifted; 'differs' where its route or T is not the parametric "
-        f"column's to the bit); *factorisation*, *stretch check*: one KKT factorisation at "
+        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call with the barrier's "
+        f"start as before (`as_before` in bench/warm_resolve.py: `FAR_SIDE_LEAST_ROOM` off, "
+        f"a value on the lower of its two bounds started with a zero slack; 'differs' where "
+        f"its route or T is not the parametric column's to the bit); *factorisation*, "
+        f"*stretch check*: one KKT factorisation at "
         f"the serving point, the band assembled row-major and copied against in LAPACK's "
         f"band storage in place, and the six time stretches' set check of the step's "
         f"answer one by one against in one call, before -> now, median ms of 20 in the "
@@ -443,8 +445,8 @@ def run(count: int = CASES) -> Section:
         f"{_med(m['p_steps']):.0f} Newton steps; {counts['sub_moves']} of them in "
         f"{PATH_SUBMOVES} sub-moves after the whole move's steps failed), "
         f"{counts['ipopt (fallback)']}/{n} fell back to IPOPT, {counts['certified']}/{n} "
-        f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, without "
-        f"the cap on re-solves with rows held: {counts['before_parametric']}/{n} "
+        f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, with the "
+        f"barrier's start as before: {counts['before_parametric']}/{n} "
         f"parametric, {ms('o_solve')} and {ms('o_total')}, the same route and T to the bit "
         f"on {counts['same']}/{n}; where the route fell back to IPOPT, solve "
         f"{ms('p_solve_fb')} against {ms('o_solve_fb')}). One KKT factorisation "

@@ -244,6 +244,27 @@ def _moved_nlp(panda_case):
     return moved, flat, par, np.concatenate([ws.P.ravel(), [ws.T]]), ws
 
 
+def test_the_barrier_start_keeps_a_slack_on_either_side_of_a_two_sided_bound(monkeypatch):
+    """IPOPT's point carried into the barrier: a value on (or just outside) its lower or
+    upper bound, with a multiplier there, starts inside it by MU over that multiplier (the
+    product MU); an inactive one stays. Before, a two-sided value on its lower bound was
+    pulled back onto it by the upper side's room (a zero slack: the first KKT step of
+    bench/warm_resolve.py's case 20's pad round was not finite)."""
+    mu = sensitivity.MU
+    value = np.array([-1.0, 1.0, 0.25, -1.0 - 1e-14])
+    lam = np.array([-1e-3, 1e-3, 0.0, -1e-3])
+    lower, upper, has = -np.ones(4), np.ones(4), np.ones(4, dtype=bool)
+    start, z_l, z_u = sensitivity._barrier_start(value, lower, upper, lam, has, has)
+    room_l, room_u = start - lower, upper - start
+    assert np.all(room_l > 0.0) and np.all(room_u > 0.0)
+    assert room_l[0] == pytest.approx(mu / 1e-3) and room_l[3] == pytest.approx(mu / 1e-3)
+    assert room_u[1] == pytest.approx(mu / 1e-3) and start[2] == 0.25
+    assert z_l[0] * room_l[0] == pytest.approx(mu) and z_u[1] * room_u[1] == pytest.approx(mu)
+    monkeypatch.setattr(sensitivity, "FAR_SIDE_LEAST_ROOM", False)
+    before, _, _ = sensitivity._barrier_start(value, lower, upper, lam, has, has)
+    assert before[0] == -1.0 and before[1] == start[1]  # the lower side's slack lost
+
+
 def test_the_banded_kkt_solve_equals_a_dense_solve(panda_case):
     """The banded LU with T's Schur complement (BandedKKT, shared with the active-set
     experiment in bench/) solves the Panda's KKT matrix as a dense LU of the same matrix,

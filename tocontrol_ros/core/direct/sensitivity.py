@@ -58,8 +58,9 @@ from scipy.linalg import lapack
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES", "PATH_STEPS", "PATH_SUBMOVES",
-           "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome", "banded_kkt", "sensitivity_solve"]
+__all__ = ["FAR_SIDE_LEAST_ROOM", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES",
+           "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome",
+           "banded_kkt", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -116,6 +117,11 @@ SUB_TOL = 1e3
 #: after 14 steps or 24 factorisations instead of the whole budget.
 PATH_SUBMOVES, PATH_STEPS, PATH_SOLVES = 2, 28, 48
 PATH_SUB_BUDGET = (14, 24)
+#: The barrier's start pushes a value with two bounds into each by that bound's own least
+#: room (:func:`_barrier_start`); False: the upper side by its room to the old value, which
+#: put a value on its lower bound back onto it (the route before; bench/warm_resolve.py's
+#: *before* column).
+FAR_SIDE_LEAST_ROOM = True
 
 
 @dataclass(frozen=True)
@@ -256,12 +262,54 @@ def _triplets(fn_out) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(r, dtype=int), np.asarray(c, dtype=int)
 
 
+def _least_room(lam: np.ndarray) -> np.ndarray:
+    """The least slack a bound with multiplier ``lam`` starts with (their product ``MU``)."""
+    return MU / np.maximum(lam, np.sqrt(MU))
+
+
 def _split(lam: np.ndarray, room: np.ndarray, has: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
     """A bound's multiplier and slack from IPOPT's, their product at least :data:`MU`."""
-    room = np.maximum(room, MU / np.maximum(lam, np.sqrt(MU)))
+    room = np.maximum(room, _least_room(lam))
     lam = np.maximum(lam, MU / room)
     return np.where(has, lam, 0.0), np.where(has, room, 1.0)
+
+
+def _barrier_start(value: np.ndarray, lower: np.ndarray, upper: np.ndarray, lam: np.ndarray,
+                   has_l: np.ndarray, has_u: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The barrier's start from IPOPT's point: slacks (or variables) and bound multipliers.
+
+    Parameters
+    ----------
+    value : ndarray, shape (m,)
+        The rows' values (or the variables) at IPOPT's point.
+    lower, upper : ndarray, shape (m,)
+        Their bounds.
+    lam : ndarray, shape (m,)
+        IPOPT's multipliers (positive at an upper bound, negative at a lower one).
+    has_l, has_u : ndarray of bool, shape (m,)
+        Which bounds the barrier holds.
+
+    Returns
+    -------
+    value : ndarray, shape (m,)
+        Inside each bound by at least its least room (:func:`_least_room`, the product with
+        its multiplier :data:`MU`): IPOPT returns points on its relaxed bounds.
+    z_l, z_u : ndarray, shape (m,)
+        The lower and upper bounds' multipliers (0 where absent).
+
+    A two-sided bound's far side pushes the value in by its own least room only
+    (:data:`FAR_SIDE_LEAST_ROOM`); pushed in by its room to the old value, as before, a
+    value on its lower bound was pulled back onto it: a zero slack, and the first KKT step
+    not finite (a velocity row held at its lower bound by the steps, carried to a wider pad:
+    bench/warm_resolve.py's case 20).
+    """
+    z_l, room_l = _split(np.maximum(-lam, 0.0), value - lower, has_l)
+    z_u, room_u = _split(np.maximum(lam, 0.0), upper - value, has_u)
+    value = np.where(has_l, np.maximum(value, lower + room_l), value)
+    far = _least_room(np.maximum(lam, 0.0)) if FAR_SIDE_LEAST_ROOM else room_u
+    return np.where(has_u, np.minimum(value, upper - far), value), z_l, z_u
 
 
 def _boundary_step(dx, room) -> float:
@@ -341,16 +389,10 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     # MU / 1e-14 and break stationarity).
     lam_g0 = np.asarray(lam_g0, dtype=float)
     lam_x0 = np.asarray(lam_x0, dtype=float)
-    zl, room_lg = _split(np.maximum(-lam_g0, 0.0), g - lbg, has_lg)
-    zu, room_ug = _split(np.maximum(lam_g0, 0.0), ubg - g, has_ug)
-    vl, room_lx = _split(np.maximum(-lam_x0, 0.0), w - lbx, has_lx)
-    vu, room_ux = _split(np.maximum(lam_x0, 0.0), ubx - w, has_ux)
+    s, zl, zu = _barrier_start(g, lbg, ubg, lam_g0, has_lg, has_ug)
+    w, vl, vu = _barrier_start(w, lbx, ubx, lam_x0, has_lx, has_ux)
     y = np.where(eq, lam_g0, zu - zl)
-    s = np.where(eq, lbg, g)
-    s = np.where(has_lg, np.maximum(s, lbg + room_lg), s)
-    s = np.where(has_ug, np.minimum(s, ubg - room_ug), s)
-    w = np.where(has_lx, np.maximum(w, lbx + room_lx), w)
-    w = np.where(has_ux, np.minimum(w, ubx - room_ux), w)
+    s = np.where(eq, lbg, s)
     room_lg = np.where(has_lg, s - lbg, 1.0)
     room_ug = np.where(has_ug, ubg - s, 1.0)
     room_lx = np.where(has_lx, w - lbx, 1.0)
