@@ -229,6 +229,8 @@ def run(count: int = CASES, cases: set[int] | None = None,
                 log(f"collision: case {i} {name}: {res.message}; closest "
                     f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
                     f"{fig.get('closest_time')} s")
+                log(f"collision: case {i} {name}: starts " + "; ".join(
+                    f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
             peer = _peer(problem, col)
             if peer["ok"]:
                 st["peer"] += 1

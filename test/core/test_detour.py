@@ -134,3 +134,28 @@ def test_the_speed_term_scales_only_the_clearance_rows(panda):
     half = np.array(half._g(w, half.parameters(*ends))).ravel()
     # Each sphere's term is >= 0, so a row falls as the scale grows.
     assert np.all(half[-rows:] <= g0[-rows:]) and np.all(half[-rows:] >= g1[-rows:])
+
+
+def test_a_detour_only_where_the_seeds_paths_collide(panda):
+    """The bounded solve's candidates get the detour when a seed's guess goes through the wall."""
+    from types import SimpleNamespace
+
+    from tocontrol_ros.core.direct.limited import _detour
+
+    model, col = panda
+    problem = _wall_problem(model, col)
+    ctx = SimpleNamespace(problem=problem, check=lambda: None)
+    t = np.linspace(0.0, 1.0, 25)
+
+    def guess(q1):
+        q = Q0 + (3 * t**2 - 2 * t**3)[:, None] * (q1 - Q0)
+        return SimpleNamespace(T=1.0, t=t, x=np.hstack([q, np.zeros_like(q)]))
+
+    wrist = Q0 + np.array([0, 0, 0, 0, 0, 0, 1.0])  # the hand turns in place: clear
+    records, notes = [], []
+    assert _detour(ctx, [], [(0, guess(wrist))], records, notes) == []
+    assert records == [] and notes == []
+    out = _detour(ctx, [], [(0, guess(wrist)), (1, guess(Q1))], records, notes)
+    assert len(out) == 1 and out[0][0] == 0 and len(records) == 1
+    assert records[0].status == "detour seed" and "RRTConnect" in notes[0]
+    np.testing.assert_array_equal(out[0][1].waypoints[0], Q0)

@@ -15,13 +15,16 @@ bounded solve one more candidate that starts on a collision-free route:
    time from the start; the first :data:`GOALS` are tried.
 2. **A path to each** by OMPL's RRTConnect in joint space, a state valid when every
    checked pair's spheres (:func:`sphere_distances`, which hold the links' geometry) are
-   at least :data:`CLEAR` apart, or as far apart as at the start when the start has less
-   (the spheres stand up to their gap outside the geometry). OMPL's random numbers are
-   seeded with :data:`SAMPLER_SEED` before each query and the query stops after
-   :data:`MAX_CHECKS` validity checks (a count, not a clock): the same request gives the
-   same path (docs/determinism.md). The path is shortened greedily (from each waypoint
-   to the farthest one a straight segment reaches, checked every :data:`STEP` rad):
-   OMPL's own simplifier draws from a generator that cannot be seeded per query.
+   at least the margin plus :data:`CLEAR` apart, or as far apart as at the start (or the
+   goal) where that has less (the spheres stand up to their gap outside the geometry).
+   OMPL's seed generator is set to :data:`SAMPLER_SEED` before each query (OMPL logs
+   that a seed set after the first random numbers will not give deterministic sampling;
+   it resets its generator all the same, and ``test_detour.py`` checks the same path
+   after other queries) and the query stops after :data:`MAX_CHECKS` validity checks (a
+   count, not a clock): the same request gives the same path (docs/determinism.md). The
+   path is shortened greedily (from each waypoint to the farthest one a straight segment
+   reaches, checked every :data:`STEP` rad): OMPL's own simplifier draws from a generator
+   that cannot be seeded per query.
 3. **The guess**: of the paths found, the one of least velocity-limited time, its
    waypoints joined by a monotone (PCHIP) interpolant in the chord length, run along a
    smoothstep in time and timed as the straight seeds are
@@ -332,9 +335,13 @@ def detour_guess(problem: Problem, pairs=None) -> Detour:
     best, spent, found = None, 0, 0
     for goal, floor in goals:
         with _OMPL_LOCK:
-            ou.setLogLevel(ou.LOG_NONE)
-            ou.RNG.setSeed(SAMPLER_SEED)
-            way, checks = _query(problem, q0, goal, floor)
+            level = ou.getLogLevel()
+            ou.setLogLevel(ou.LOG_NONE)  # reseeding after the first query logs an error
+            try:
+                ou.RNG.setSeed(SAMPLER_SEED)
+                way, checks = _query(problem, q0, goal, floor)
+            finally:
+                ou.setLogLevel(level)
         spent += checks
         if way is None:
             continue
