@@ -99,6 +99,13 @@ setup(
             "mcap-ros2-support>=0.5",
             "rosbags>=0.10",
             "ray>=2.9",
+            # The bounded solve's detour seed (tocontrol_ros/core/direct/detour.py).
+            "ompl>=2",
+        ],
+        # Seeds that avoid obstacles: OMPL's sampling planner (core/direct/detour.py imports
+        # it inside its function; without it a plan with a scene has no detour seed).
+        "collision": [
+            "ompl>=2",
         ],
         "bench": [
             "ray>=2.9",

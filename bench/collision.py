@@ -28,7 +28,9 @@ holds the convexified set, so the peer gets more torque than the plan), its wayp
 joined by a cubic spline; both planning times (wall, this one process, a machine shared
 with other jobs).
 
-Run alone: ``scripts/dev run python -P bench/collision.py [CASES]`` (prints the section).
+Run alone: ``scripts/dev run python -P bench/collision.py [CASES] [--case I ...] [--scene
+NAME ...]`` (prints the section; ``--case``/``--scene``: only those draws and scenes, e.g.
+the failed cases one at a time).
 """
 
 import os
@@ -164,7 +166,8 @@ def _peer(problem: Problem, col) -> dict:
             "waypoints": len(way)}
 
 
-def run(count: int = CASES) -> Section:
+def run(count: int = CASES, cases: set[int] | None = None,
+        scenes: tuple[str, ...] = SCENES) -> Section:
     urdf = panda_urdf()
     if urdf is None:
         return Section("Collision-free motions (issue 51)",
@@ -177,8 +180,10 @@ def run(count: int = CASES) -> Section:
     rows, stats = [], {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
                               "skipped": 0, "ours": [], "theirs": []} for name in SCENES}
     for i, (q0, _, target) in enumerate(draw_cases(model, limits, DRAWS * count, SEED)):
-        if all(stats[name]["cases"] >= count for name in SCENES):
+        if all(stats[name]["cases"] >= count for name in scenes):
             break
+        if cases is not None and i not in cases:  # only these draws (a failed case again)
+            continue
         free_problem = Problem(model, joint_state(q0), point(target), k=K, limits=limits)
         t0 = time.perf_counter()
         free = plan(free_problem, options)
@@ -187,7 +192,7 @@ def run(count: int = CASES) -> Section:
         if not free.success:
             rows.append([i, "free", "free plan failed", "", "", "", "", "", ""])
             continue
-        for name in SCENES:
+        for name in scenes:
             st = stats[name]
             if st["cases"] >= count:
                 continue
@@ -224,6 +229,8 @@ def run(count: int = CASES) -> Section:
                 log(f"collision: case {i} {name}: {res.message}; closest "
                     f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
                     f"{fig.get('closest_time')} s")
+                log(f"collision: case {i} {name}: starts " + "; ".join(
+                    f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
             peer = _peer(problem, col)
             if peer["ok"]:
                 st["peer"] += 1
@@ -270,4 +277,15 @@ def run(count: int = CASES) -> Section:
 
 
 if __name__ == "__main__":
-    run(int(sys.argv[1]) if len(sys.argv) > 1 else CASES).print()
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("count", type=int, nargs="?", default=CASES,
+                        help="cases per scene (the first draws that count)")
+    parser.add_argument("--case", type=int, action="append",
+                        help="only this draw (repeatable): e.g. a failed case again")
+    parser.add_argument("--scene", choices=SCENES, action="append",
+                        help="only this scene (repeatable)")
+    args = parser.parse_args()
+    run(args.count, set(args.case) if args.case else None,
+        tuple(args.scene) if args.scene else SCENES).print()

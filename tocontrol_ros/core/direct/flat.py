@@ -753,6 +753,37 @@ class FlatTranscription:
         other._geo = geo
         return other
 
+    def with_speed_term(self, scale: float) -> FlatTranscription:
+        """A view whose clearance rows' speed term is ``scale`` times the true one.
+
+        The rows ask ``margin + scale h sum_j rho_ij max_k |Q'_jk|`` (``scale`` 0: the
+        sampled clearance alone, not a bound between the samples); only a step of a
+        continuation to the true rows (``scale`` 1, this transcription itself) may use
+        another scale: its solution is not covered between the samples.
+
+        Parameters
+        ----------
+        scale : float
+            >= 0.
+
+        Returns
+        -------
+        FlatTranscription
+            A view sharing this one's solver (as :meth:`on`).
+        """
+        if not scale >= 0.0:
+            raise ValueError(f"`scale` must be >= 0, got {scale!r}")
+        if self.clearance is None or scale == 1.0:
+            return self
+        other = copy.copy(self)
+        geo = self._geo.copy()
+        per = self.degree + 1  # the last block: per sample its step weight h, then c (p,)
+        block = geo[len(geo) - per * len(self.samples):].reshape(-1, per)
+        block[:, 0] *= scale
+        geo[len(geo) - block.size:] = block.ravel()
+        other._geo = geo
+        return other
+
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
         g = np.array(self._g(w, par)).ravel()
         return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),

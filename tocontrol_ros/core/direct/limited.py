@@ -33,6 +33,7 @@ from scipy.interpolate import make_interp_spline
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
+from tocontrol_ros.core.direct.detour import detour_guess, path_collides
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
 from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
@@ -72,6 +73,9 @@ from tocontrol_ros.core.methods.seeding import distinct_basins, seed_pairs
 from tocontrol_ros.core.methods.tuning import EXHAUSTIVE_CANDIDATES, SAME_BASIN
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, StartRecord, Status
+
+#: The seeds' guesses are checked for collisions at this many times their mesh's intervals.
+DETOUR_DENSITY = 8
 
 __all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
 
@@ -184,13 +188,24 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
         # the near ones all fail.
         cutoff = (1 + GUESS_WINDOW) * basins[0][1].T
         near = sum(b[1].T <= cutoff for b in basins)
-    while len(first) < count and basins and (near > 0 or not first):
+    # With a scene: one more candidate on a collision-free route where the seeds collide.
+    extra = _detour(ctx, pairs, basins[:count], records, notes) \
+        if problem.collision is not None and not options.replan_spans else []
+    # The detour does not count among the candidates: the seeds' basins are solved as
+    # without it (case 1 table of bench/collision.py: its first basin failed, the detour
+    # stood alone and was refused on a self pair, the next basin was not solved).
+    found = 0
+    while (found < count and basins and (near > 0 or not found)) or extra:
         # As many as are still needed, side by side (planner.map); a failed one is
         # replaced by the next basin, as one after the other would.
-        size = min(count - len(first), near) if near > 0 else count - len(first)
+        size = min(count - found, near) if near > 0 else count - found
+        detour = {idx for idx, _ in extra}
         batch, basins = basins[:size], basins[size:]
         near -= len(batch)
-        outs = planner.map(_uniform_item, ctx, [(bounds, res, fallback) for _, res in batch])
+        items = [(bounds, res, fallback) for _, res in batch] + \
+            [(bounds, guess, fallback, False) for _, guess in extra]
+        batch, extra = batch + extra, []
+        outs = planner.map(_uniform_item, ctx, items)
         for (idx, _), res in zip(batch, outs, strict=True):
             if not res.success:
                 records[idx] = replace(records[idx], T=np.nan,
@@ -200,12 +215,14 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
             flat = planner.flat(problem, SPANS)
             out = (res, FlatTrajectory(flat, res, problem.k), flat)
             first.append((idx, out))
+            found += idx not in detour
             _offer(ctx, bounds, *out, notes)
-    first = _distinct_solutions(first)
-    best = None
+    every, first = first, _distinct_solutions(first)
+    best, raced = None, []
     if first:
         levels = 0 if options.replan_spans else REFINEMENTS  # a replan stays coarse
-        for idx, res, traj, contender in _race(planner, ctx, bounds, first, levels):
+        raced = _race(planner, ctx, bounds, first, levels)
+        for idx, res, traj, contender in raced:
             records[idx] = replace(records[idx], T=res.T)
             if contender and (best is None or res.T < best[1].T):
                 best = (idx, res, traj)
@@ -215,7 +232,77 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
                            starts=tuple(records))
     idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
-    return _result(ctx, res, traj, records, notes, timings, t_start)
+    out = _result(ctx, res, traj, records, notes, timings, t_start)
+    if out.success or problem.collision is None:
+        return out
+    return _next_certified(planner, ctx, bounds, out, idx, every, raced, records, notes,
+                           timings, t_start)
+
+
+def _detour(ctx: SolveContext, pairs: list, basins: list, records: list, notes: list
+            ) -> list:
+    """The detour seed (:mod:`~.detour`) as one more candidate, where the seeds' paths collide.
+
+    The guesses of ``basins`` (the candidates solved first) are checked by the spheres
+    (:func:`~.detour.path_collides`) at :data:`DETOUR_DENSITY` times their mesh points;
+    when every one is clear, there is no detour. Otherwise the detour's guess is appended
+    to ``records`` (its index is the next one) and its note to ``notes``.
+
+    Returns
+    -------
+    list of (int, DetourGuess)
+        One entry, or none.
+    """
+    problem = ctx.problem
+    n = problem.model.n
+    clear = []
+    for _, res in basins:
+        t = np.linspace(0.0, res.T, DETOUR_DENSITY * (len(res.t) - 1) + 1)
+        q = np.column_stack([np.interp(t, res.t, res.x[:, j]) for j in range(n)])
+        clear.append(not path_collides(problem.collision, q))
+    if clear and all(clear):
+        return []
+    found = detour_guess(problem, pairs)
+    ctx.check()
+    notes.append(found.note)
+    if found.guess is None:
+        return []
+    guess, idx = found.guess, len(records)
+    records.append(StartRecord(idx, guess.waypoints[0], guess.waypoints[-1], guess.T, np.nan,
+                               "detour seed"))
+    return [(idx, guess)]
+
+
+def _next_certified(planner: Compiled, ctx: SolveContext, bounds, refused: PlanResult,
+                    idx: int, first: list, raced: list, records: list, notes: list,
+                    timings: dict, t_start: float) -> PlanResult:
+    """With a scene, after the least-``T`` motion was refused: the others, least ``T`` first.
+
+    Each candidate solved (its last refinement where it was refined, else its
+    uniform-mesh solution; those :func:`_distinct_solutions` left out as repeats too: on
+    case 1 table of bench/collision.py the detour's motion, refused on a self pair, and a
+    basin's 0.7 % slower one counted as one) is held inside the control set
+    (:func:`_inside_set`) and certified; the first certified one is returned. At most one
+    try per candidate (a count). None certified: ``refused`` (the planner's self rows then
+    start from it).
+    """
+    problem = ctx.problem
+    last = {i: (res, traj) for i, res, traj, _ in raced}
+    others = sorted((last.get(i, sol[:2])[0].T, i) for i, sol in first if i != idx)
+    for _, i in others:
+        res, traj = last.get(i, dict(first)[i][:2])
+        flat = planner.flat(problem, np.array(traj.breaks))
+        res, traj = _inside_set(planner, ctx, bounds, res, traj, flat)
+        records[idx] = replace(records[idx], status=f"refused: {refused.message}")
+        records[i] = replace(records[i], T=res.T, status="returned")
+        note = (f"the least-T motion (T = {refused.T:.6f} s, seed {idx}) was refused by its "
+                f"certificate; the next candidate, seed {i}")
+        again = _result(ctx, res, traj, records, notes + [note], timings, t_start)
+        if again.success:
+            return again
+        records[i] = replace(records[i], status=f"refused: {again.message}")
+    records[idx] = replace(records[idx], status="returned")
+    return replace(refused, starts=tuple(records))
 
 
 def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
@@ -472,18 +559,49 @@ def _budget(ctx: SolveContext, max_iter: int | None = None) -> dict:
 
 
 def _uniform_item(planner: Compiled, ctx: SolveContext, bounds, guess: DirectResult,
-                  fallback: bool) -> FlatResult:
+                  fallback: bool, finer: bool = True) -> FlatResult:
     """One candidate's solve on the uniform mesh (:func:`_uniform`): its result only.
 
     A piece of :meth:`Compiled.map` (the caller builds the trajectory). The fallback
     of a failed shooting starts from the candidate's finer guess: the planar 8R's coarse
     guesses (T 0.260 s where the k = 1 optimum has 0.338 s) failed at k = 1 (300 iterations,
     9 s each: 50-60 s in all, at the time limit), from the finer ones 39-141 (14.7 s).
+    Not with ``finer`` False (a detour seed, :mod:`~.detour`: the direct solve, which knows
+    no obstacle, would take it back through them).
     """
+    if not finer:
+        return _detour_solve(planner, ctx, bounds, guess)
     if fallback and len(guess.t) - 1 != FINE_GUESS_INTERVALS:
         fine = finer_guess(planner, ctx.problem, guess)
         guess = fine if fine.success else guess
     return _uniform(planner, ctx, bounds, guess, in_k=fallback or bool(ctx.options.replan_spans))
+
+
+def _detour_solve(planner: Compiled, ctx: SolveContext, bounds, guess) -> FlatResult:
+    """The detour seed's solve on :data:`SPANS` uniform spans, by continuation in the rows.
+
+    The seed keeps the margin at its samples, but its speed term (the rows' bound between
+    the samples) asks up to 10 cm more mid-motion on a large joint move: from the seed
+    itself the true rows stopped at 300 iterations with ``T`` rising to 7.9 s (case 3 shelf
+    of bench/collision.py). So first the rows without the speed term
+    (:meth:`~.flat.FlatTranscription.with_speed_term` 0) by continuation in ``k``
+    (:func:`k_steps`), then the true rows at ``k`` warm from that: on that case 13 + 12
+    iterations, then 125 (T 1.290 s). A step that fails stops (its result returned).
+    """
+    problem = ctx.problem
+    n = problem.model.n
+    values = (problem.start.value, problem.target.value)
+    T, P = guess.T, planner.flat(problem, SPANS).fit(guess.T, guess.t, guess.x[:, :n],
+                                                     guess.x[:, n:])
+    steps = list(dict.fromkeys([(1.0, 0.0), (problem.k, 0.0), (problem.k, 1.0)]))
+    for i, (k, scale) in enumerate(steps):
+        flat = planner.flat(problem, SPANS, warm=i > 0).with_speed_term(scale)
+        out = flat.solve(*values, k, T, P, *bounds, **_budget(ctx))
+        ctx.check()
+        if not out.success:
+            break
+        T, P = out.T, out.P
+    return out
 
 
 def _uniform(planner: Compiled, ctx: SolveContext, bounds, guess: DirectResult,
