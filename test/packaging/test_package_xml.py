@@ -64,8 +64,11 @@ OWN_INTERFACES = {
 # Optional modules: top-level module -> (extra, pip distribution). Declared in that extra of
 # setup.py's extras_require, not in install_requires nor package.xml (rosdistro has no key),
 # and imported only inside functions, so that the package works without them.
-OPTIONAL_DEPENDENCIES = {
+OPTIONAL_DEPENDENCIES = {  # top-level module -> (setup.py extra, pip distribution)
     "ray": ("ray", "ray"),  # `batch --ray`
+    # The bounded solve's detour seed with a scene (core/direct/detour.py; the `collision`
+    # extra): without it a plan with a scene says it has no detour seed.
+    "ompl": ("collision", "ompl"),
 }
 
 
