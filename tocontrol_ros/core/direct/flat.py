@@ -778,9 +778,8 @@ class FlatTranscription:
         other = copy.copy(self)
         geo = self._geo.copy()
         per = self.degree + 1  # the last block: per sample its step weight h, then c (p,)
-        block = geo[len(geo) - per * len(self.samples):].reshape(-1, per)
-        block[:, 0] *= scale
-        geo[len(geo) - block.size:] = block.ravel()
+        # A view of geo's last block (a contiguous slice): scaled in place.
+        geo[len(geo) - per * len(self.samples):].reshape(-1, per)[:, 0] *= scale
         other._geo = geo
         return other
 

@@ -194,12 +194,11 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
     # The detour does not count among the candidates: the seeds' basins are solved as
     # without it (case 1 table of bench/collision.py: its first basin failed, the detour
     # stood alone and was refused on a self pair, the next basin was not solved).
-    found = 0
+    found, detour = 0, {idx for idx, _ in extra}
     while (found < count and basins and (near > 0 or not found)) or extra:
         # As many as are still needed, side by side (planner.map); a failed one is
         # replaced by the next basin, as one after the other would.
         size = min(count - found, near) if near > 0 else count - found
-        detour = {idx for idx, _ in extra}
         batch, basins = basins[:size], basins[size:]
         near -= len(batch)
         items = [(bounds, res, fallback) for _, res in batch] + \
@@ -288,12 +287,12 @@ def _next_certified(planner: Compiled, ctx: SolveContext, bounds, refused: PlanR
     """
     problem = ctx.problem
     last = {i: (res, traj) for i, res, traj, _ in raced}
-    others = sorted((last.get(i, sol[:2])[0].T, i) for i, sol in first if i != idx)
-    for _, i in others:
-        res, traj = last.get(i, dict(first)[i][:2])
+    solved = {i: last.get(i, sol[:2]) for i, sol in first if i != idx}
+    records[idx] = replace(records[idx], status=f"refused: {refused.message}")
+    for _, i in sorted((res.T, i) for i, (res, _) in solved.items()):
+        res, traj = solved[i]
         flat = planner.flat(problem, np.array(traj.breaks))
         res, traj = _inside_set(planner, ctx, bounds, res, traj, flat)
-        records[idx] = replace(records[idx], status=f"refused: {refused.message}")
         records[i] = replace(records[i], T=res.T, status="returned")
         note = (f"the least-T motion (T = {refused.T:.6f} s, seed {idx}) was refused by its "
                 f"certificate; the next candidate, seed {i}")
@@ -584,8 +583,8 @@ def _detour_solve(planner: Compiled, ctx: SolveContext, bounds, guess) -> FlatRe
     the samples) asks up to 10 cm more mid-motion on a large joint move: from the seed
     itself the true rows stopped at 300 iterations with ``T`` rising to 7.9 s (case 3 shelf
     of bench/collision.py). So first the rows without the speed term
-    (:meth:`~.flat.FlatTranscription.with_speed_term` 0) by continuation in ``k``
-    (:func:`k_steps`), then the true rows at ``k`` warm from that: on that case 13 + 12
+    (:meth:`~.flat.FlatTranscription.with_speed_term` 0) at ``k`` = 1, then at the
+    problem's ``k`` warm from it, then the true rows at ``k`` warm from that: on that case 13 + 12
     iterations, then 125 (T 1.290 s). A step that fails stops (its result returned).
     """
     problem = ctx.problem

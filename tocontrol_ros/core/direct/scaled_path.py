@@ -471,7 +471,7 @@ class ScaledPath(InverseDynamicsTrajectory):
                                      deviation)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
         coefs = self._segment_polynomials()
-        x0 = self.z_grid[0, :2 * self.n].copy()  # state(0.0)'s, made at the gridpoints
+        x0 = self.state(0.0)[0, :2 * self.n]
         times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
         params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
         try:  # every segment in one call, through numpy buffers
