@@ -30,6 +30,7 @@ of ``T`` now against seidel, successes. Run alone:
 
 from __future__ import annotations
 
+import importlib
 import math
 import statistics
 import sys
@@ -63,28 +64,34 @@ PAUSE = 1.0 / RATE
 PAPER_Q0 = (0.3, 0.9, 0.6)
 
 
-def _robot(name: str):
-    """(model, start configuration, circle radius, laps, limits) or None."""
-    from tocontrol_ros.core.robot.limits import JointLimits
-    from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
+def _robot(name: str, pkg: str = "tocontrol_ros"):
+    """(model, start configuration, circle radius, laps, limits) or None, of package ``pkg``."""
+    JointLimits = importlib.import_module(f"{pkg}.core.robot.limits").JointLimits
+    robot = importlib.import_module(f"{pkg}.core.robot.model")
 
     if name == "paper":
-        model = load_robot(default_urdf_path())
+        model = robot.load_robot(robot.default_urdf_path())
         return model, np.array(PAPER_Q0), PAPER_RADIUS, 1, JointLimits.from_model(model)
     urdf = panda_urdf()
     if urdf is None:
         return None
-    model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
+    model = robot.load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
     return (model, np.array(README_PANDA_Q0), PANDA_RADIUS, PANDA_LAPS,
             JointLimits.from_model(model).with_margin(0.05))
 
 
-def replans(name: str) -> list | None:
-    """The chain's ``(problem, q_near)``, each from the last quick motion (see the module)."""
-    from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
-    from tocontrol_ros.core.types.problem import Problem, joint_state, point
+def replans(name: str, pkg: str = "tocontrol_ros") -> list | None:
+    """The chain's ``(problem, q_near)``, each from the last quick motion (see the module).
 
-    found = _robot(name)
+    ``pkg``: the package whose types and quick motion make it (``bench/quick_motion_pair.py``
+    builds another commit's package under another name).
+    """
+    fm = importlib.import_module(f"{pkg}.core.direct.first_motion")
+    first_motion, quick_motion = fm.first_motion, fm.quick_motion
+    types = importlib.import_module(f"{pkg}.core.types.problem")
+    Problem, joint_state, point = types.Problem, types.joint_state, types.point
+
+    found = _robot(name, pkg)
     if found is None:
         return None
     model, q0, radius, laps, limits = found

@@ -21,7 +21,6 @@ Usage: ``scripts/dev run python -P bench/quick_motion_pair.py [paper|panda] [REP
 from __future__ import annotations
 
 import importlib
-import math
 import statistics
 import subprocess
 import sys
@@ -35,15 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
 
-from bench.common import PANDA_LOCKED, panda_urdf  # noqa: E402
-from bench.replan import (  # noqa: E402
-    DURATION,
-    MOVING_PANDA_LAPS,
-    MOVING_PANDA_RADIUS,
-    MOVING_PAPER_RADIUS,
-    RATE,
-    README_PANDA_Q0,
-)
+from bench.quick_motion import replans  # noqa: E402
 
 #: The reference package's import name.
 REF = "tocontrol_ref"
@@ -66,42 +57,10 @@ def export_reference(rev: str, where: Path) -> None:
 def cases(pkg: str, name: str) -> tuple:
     """``(quick_motion, [(problem, q_near), ...])`` of package ``pkg``: the chain of
     ``bench/quick_motion.py``'s ``replans``, each package with its own types."""
-    def mod(m: str):
-        return importlib.import_module(f"{pkg}.{m}")
-
-    JointLimits = mod("core.robot.limits").JointLimits
-    robot, fm, pr = mod("core.robot.model"), mod("core.direct.first_motion"), \
-        mod("core.types.problem")
-    if name == "paper":
-        model = robot.load_robot(robot.default_urdf_path())
-        q0, radius, laps = np.array((0.3, 0.9, 0.6)), MOVING_PAPER_RADIUS, 1
-        limits = JointLimits.from_model(model)
-    else:
-        model = robot.load_robot(str(panda_urdf()), tip_link="panda_hand",
-                                 locked_joints=PANDA_LOCKED)
-        q0, radius, laps = np.array(README_PANDA_Q0), MOVING_PANDA_RADIUS, MOVING_PANDA_LAPS
-        limits = JointLimits.from_model(model).with_margin(0.05)
-    n, centre = model.n, model.point(q0)
-    goals = []
-    for a in np.linspace(0.0, 2.0 * math.pi * laps, int(RATE * DURATION) + 1)[:-1]:
-        p = np.array(centre, dtype=float)
-        p[:2] += radius * np.array([math.cos(a), math.sin(a)])
-        goals.append(p)
-    running = fm.first_motion(pr.Problem(model, pr.joint_state(q0), pr.point(goals[0]),
-                                         k=4.0, reserve=0.1, limits=limits))
-    out = []
-    for goal in goals[1:]:
-        t = min(1.0 / RATE, running.T)
-        z = running.trajectory.state(t)[0]
-        qd = limits.admissible_velocity(z[n:2 * n]) if t < running.T else np.zeros(n)
-        problem = pr.Problem(model, pr.joint_state(z[:n], qd), pr.point(goal), k=4.0,
-                             reserve=0.1, limits=limits)
-        q_near = running.trajectory.state(running.T)[0][:n]
-        out.append((problem, q_near))
-        quick = fm.quick_motion(problem, q_near)
-        if quick.success:
-            running = quick
-    return fm.quick_motion, out
+    chain = replans(name, pkg)
+    if chain is None:
+        raise RuntimeError(f"{name}: its URDF is not installed")
+    return importlib.import_module(f"{pkg}.core.direct.first_motion").quick_motion, chain
 
 
 def same(a, b) -> bool:
