@@ -576,3 +576,20 @@ def test_limits_with_a_margin_are_made_once_per_margin():
     many = [lim.with_margin(m) for m in np.linspace(0.0, 0.5, 20)]
     assert all(m.margin == pytest.approx(v) for m, v in zip(many, np.linspace(0.0, 0.5, 20),
                                                              strict=True))
+
+
+def test_segment_samples_take_each_end_from_the_segment_it_ends(panda):
+    """The check between the gridpoints samples every segment at both ends, each from its own
+    segment (both sides of an acceleration jump), in one evaluation: the numbers of the
+    general evaluation from the right at a segment's start and from the left at its end, to
+    the bit."""
+    problem = _panda_problem(panda, True)
+    traj = first_motion(problem).trajectory
+    points = 5
+    t, u, qd = traj.segment_samples(points)
+    ends = np.tile(np.linspace(0.0, 1.0, points) == 1.0, len(traj.h))
+    for mask, left in ((~ends, False), (ends, True)):
+        q_ref, qd_ref, qdd_ref = traj._path(t[mask], left=left)
+        np.testing.assert_array_equal(qd[mask], qd_ref)
+        np.testing.assert_array_equal(u[mask], traj._controls(q_ref, qd_ref, qdd_ref))
+    np.testing.assert_array_equal(t[ends], traj.t_grid[1:])

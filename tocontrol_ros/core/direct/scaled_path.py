@@ -394,14 +394,16 @@ class ScaledPath(InverseDynamicsTrajectory):
         return super().state(t)
 
     # ------------------------------------------------------------------ evaluation
-    def _path(self, t, left: bool = False):
+    def _path(self, t, left: bool = False, seg: np.ndarray | None = None):
         """``q, qd, qdd`` (K, n) at times ``t`` (s).
 
-        At a gridpoint, those of the segment that starts there (``left``: that ends there).
+        At a gridpoint, those of the segment that starts there (``left``: that ends there);
+        ``seg`` (K,): each time's segment, given (the times on it, its ends included).
         """
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
-        side = "left" if left else "right"
-        seg = np.clip(np.searchsorted(self.t_grid, t, side=side) - 1, 0, len(self.h) - 1)
+        if seg is None:
+            side = "left" if left else "right"
+            seg = np.clip(np.searchsorted(self.t_grid, t, side=side) - 1, 0, len(self.h) - 1)
         tau = t - self.t_grid[seg]
         sdd = self.sdd[seg]
         sd = self.sd[seg] + sdd * tau
@@ -443,11 +445,8 @@ class ScaledPath(InverseDynamicsTrajectory):
         """
         frac = np.linspace(0.0, 1.0, points)
         t = (self.t_grid[:-1, None] + frac[None, :] * self.h[:, None]).ravel()
-        left = np.tile(frac == 1.0, len(self.h))
-        kin = [np.empty((len(t), self.n)) for _ in range(3)]
-        for mask, is_left in ((~left, False), (left, True)):
-            for out, part in zip(kin, self._path(t[mask], left=is_left), strict=True):
-                out[mask] = part
+        # every time on its own segment (an end from the segment it ends), in one evaluation
+        kin = self._path(t, seg=np.repeat(np.arange(len(self.h)), points))
         return t, self._controls(*kin), kin[1]
 
     # ------------------------------------------------------------------ open loop
