@@ -50,6 +50,7 @@ from tocontrol_ros.core.direct.scaled_path import PolynomialPath
 from tocontrol_ros.core.direct.time_scaling import (
     DEFAULT_ENGINE,
     cube_time,
+    first_pass,
     first_passes,
     rest_time,
     time_scaling,
@@ -433,22 +434,31 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
         # the middle scale down while it falls, else up while it falls (unimodal in the
         # scale on the cases measured); then timed in full in that order until one can be.
         # That pass is time_scaling's first (first_pass: the cube shrunk by its margin),
-        # handed on, not done again; every scale's is made ahead in one go (_ranked), the
-        # search reads them (with engine "toppra", the implementation before issue 47:
-        # cube_time, the full cube, pass by pass, and time_scaling starts over).
+        # handed on, not done again; with the compiled sweeps every scale's is made ahead in
+        # one go (_ranked) and the search reads them, with "seidel" pass by pass (with
+        # "toppra", the implementation before issue 47: cube_time, the full cube, pass by
+        # pass, and time_scaling starts over).
         estimate: dict = {}
-        if engine != "toppra":  # every scale's first pass in one go, read by the search
+        together = engine == DEFAULT_ENGINE  # the compiled sweeps: one call for all scales
+        if together:  # every scale's first pass in one go, read by the search
             estimate, made = _ranked(problem, qa, qb, qd0, rest_T, scales, gridpoints,
                                      speed_cap, engine, ranked)
 
         searched: dict = {}  # the scales the search read, in its order: its choices
 
         def rank(i: int) -> float:
-            if i not in estimate:  # engine "toppra" only
+            if i not in estimate:  # the other engines: pass by pass, as the search asks
                 tau = scales[i] * rest_T
                 path = PolynomialPath.parabola(qa, qb, qd0 * tau)
-                estimate[i] = cube_time(problem, path, 1.0 / tau, gridpoints, speed_cap,
-                                        engine) if _inside(path, lo, hi) else np.inf
+                if not _inside(path, lo, hi):
+                    estimate[i] = np.inf
+                elif engine == "toppra":
+                    estimate[i] = cube_time(problem, path, 1.0 / tau, gridpoints, speed_cap,
+                                            engine)
+                else:
+                    ranked[i] = (path, first_pass(problem, path, 1.0 / tau, gridpoints,
+                                                  speed_cap, engine))
+                    estimate[i] = ranked[i][1].T
             searched.setdefault(i, estimate[i])
             return estimate[i]
 
@@ -463,7 +473,7 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
         else:
             for i in range(len(scales)):
                 rank(i)
-        passes += made if engine != "toppra" else len(searched)
+        passes += made if together else len(searched)
         best = None
         for i in sorted(searched, key=searched.get):
             best = attempt(i)
