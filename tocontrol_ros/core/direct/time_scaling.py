@@ -178,6 +178,21 @@ def first_passes(problem: Problem, paths: list, sd0s: list,
     one :func:`first_pass` after another. What a moving start's time scales are ranked by
     (:func:`~tocontrol_ros.core.direct.first_motion.quick_motion`): one call for all of
     them instead of one pass each.
+
+    Parameters
+    ----------
+    problem : Problem
+    paths : list of PolynomialPath
+        P paths of one degree and joint count.
+    sd0s : list of float
+        Each path's start speed ``sd(0)`` (1/s), P of them.
+    gridpoints, speed_cap, engine
+        As :func:`first_pass`'s (``speed_cap`` (n,), rad/s, the same for every path).
+
+    Returns
+    -------
+    list of FirstPass
+        Each path's, as :func:`first_pass` gives it (its ``key`` that path's).
     """
     paths, sd0s = list(paths), [float(v) for v in sd0s]
     if len(paths) != len(sd0s):
