@@ -180,3 +180,36 @@ def test_compiled_failures_are_seidels(galicki, panda):
     x_old, why_old = ts._toppra(coef, s, sd0, cube, None, "seidel")
     assert why_new == why_old == "the forward sweep failed at gridpoint 0 of 30"
     assert x_new is None and x_old is None
+
+
+@pytest.mark.parametrize("robot, accelerations", [("galicki", False), ("galicki", True),
+                                                  ("panda", False), ("panda", True)],
+                         ids=["paper", "paper-accel", "panda", "panda-accel"])
+def test_first_passes_together_are_each_first_pass_to_the_bit(robot, accelerations, request):
+    """A moving start's time scales ranked in one go (``first_passes``: the coefficients by
+    one inverse-dynamics call, the sweeps mapped over the paths) give each path's
+    ``first_pass`` to the bit: coefficients, squared path speeds, ``T``, failures and their
+    messages; a speed cap and a start speed no path can take (uncontrollable) included."""
+    model = request.getfixturevalue(robot)
+    problem, path, _ = _case(model, 5, accelerations, True)
+    q0, q1, v = path.c[0], path.c[0] + path.c[1] + path.c[2], path.c[1]
+    taus = [1.0, 2.0, 4.0, 8.0, 16.0]
+    paths = [PolynomialPath.parabola(q0, q1, v * tau) for tau in taus]
+    sd0s = [1.0 / tau for tau in taus[:-1]] + [500.0]  # the last one not controllable
+    cap = np.full(model.n, 0.8)
+    for speed_cap in (None, cap):
+        together = ts.first_passes(problem, paths, sd0s, 30, speed_cap)
+        for got, one_path, sd0 in zip(together, paths, sd0s, strict=True):
+            alone = ts.first_pass(problem, one_path, sd0, 30, speed_cap)
+            assert got.T == alone.T and got.why == alone.why and got.key == alone.key
+            assert (got.x is None) == (alone.x is None)
+            if alone.x is not None:
+                np.testing.assert_array_equal(got.x, alone.x)
+            for name in ("a", "b", "c", "f", "xv"):
+                np.testing.assert_array_equal(getattr(got.coef, name),
+                                              getattr(alone.coef, name))
+        assert any(np.isfinite(p.T) for p in together) and \
+            not np.isfinite(together[-1].T)
+        assert "not controllable" in together[-1].why
+    with pytest.raises(ValueError, match="`sd0s`"):
+        ts.first_passes(problem, paths, sd0s[:2], 30)

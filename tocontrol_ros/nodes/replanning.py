@@ -547,11 +547,12 @@ class Replanner:
             warm = tail_warm_start(result, t) if kind == WARM else None
             if kind == WARM and warm is None and not quick:
                 continue
-            z = result.trajectory.state(t)[0]
-            q, qd = z[:n].copy(), z[n:2 * n].copy()
-            if nominal is not None:
+            if nominal is not None:  # the command the tracker gives then
                 des = nominal.evaluate(t)
                 q, qd = des.q[0], des.qd[0]
+            else:
+                z = result.trajectory.state(t)[0]
+                q, qd = z[:n].copy(), z[n:2 * n].copy()
             return Handoff(stamp, q, qd, warm, WARM if warm is not None else COLD,
                            start_ns - executing.stamp_ns)
         return None

@@ -51,6 +51,7 @@ from tocontrol_ros.core.direct.time_scaling import (
     DEFAULT_ENGINE,
     cube_time,
     first_pass,
+    first_passes,
     rest_time,
     time_scaling,
 )
@@ -433,12 +434,20 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
         # the middle scale down while it falls, else up while it falls (unimodal in the
         # scale on the cases measured); then timed in full in that order until one can be.
         # That pass is time_scaling's first (first_pass: the cube shrunk by its margin),
-        # handed on, not done again (with engine "toppra", the implementation before
-        # issue 47: cube_time, the full cube, and time_scaling starts over).
+        # handed on, not done again; with the compiled sweeps every scale's is made ahead in
+        # one go (_ranked) and the search reads them, with "seidel" pass by pass (with
+        # "toppra", the implementation before issue 47: cube_time, the full cube, pass by
+        # pass, and time_scaling starts over).
         estimate: dict = {}
+        together = engine == DEFAULT_ENGINE  # the compiled sweeps: one call for all scales
+        if together:  # every scale's first pass in one go, read by the search
+            estimate, made = _ranked(problem, qa, qb, qd0, rest_T, scales, gridpoints,
+                                     speed_cap, engine, ranked)
+
+        searched: dict = {}  # the scales the search read, in its order: its choices
 
         def rank(i: int) -> float:
-            if i not in estimate:
+            if i not in estimate:  # the other engines: pass by pass, as the search asks
                 tau = scales[i] * rest_T
                 path = PolynomialPath.parabola(qa, qb, qd0 * tau)
                 if not _inside(path, lo, hi):
@@ -450,6 +459,7 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
                     ranked[i] = (path, first_pass(problem, path, 1.0 / tau, gridpoints,
                                                   speed_cap, engine))
                     estimate[i] = ranked[i][1].T
+            searched.setdefault(i, estimate[i])
             return estimate[i]
 
         mid = len(scales) // 2
@@ -463,9 +473,9 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
         else:
             for i in range(len(scales)):
                 rank(i)
-        passes += len(estimate)
+        passes += made if together else len(searched)
         best = None
-        for i in sorted(estimate, key=estimate.get):
+        for i in sorted(searched, key=searched.get):
             best = attempt(i)
             if best is not None:
                 break
@@ -474,6 +484,31 @@ def _timed(problem: Problem, qa: np.ndarray, qb: np.ndarray, rest_T: float, labe
                 f"along its velocity to {label} (tau = {best[1]:.3g} s), timed by TOPP-RA")
     return Status.SCALING_FAILED, "no parabola from the moving start along its velocity " \
         "could be timed: " + "; ".join(why)
+
+
+def _ranked(problem: Problem, qa: np.ndarray, qb: np.ndarray, qd0: np.ndarray,
+            rest_T: float, scales: tuple, gridpoints: int, speed_cap: np.ndarray | None,
+            engine: str, ranked: dict) -> tuple[dict, int]:
+    """Every time scale's parabola ranked by its first pass, all in one go.
+
+    The parabolas inside the position limits get :func:`first_passes` (one call of each
+    step for all of them: the passes :func:`_timed`'s search would make one by one, the
+    same numbers), kept in ``ranked`` (index -> (path, its pass)); the others ``inf``.
+    Returns ``({index: T (s)}, the passes made)``.
+    """
+    lo, hi = problem.limits.plan_lower, problem.limits.plan_upper
+    taus = [scale * rest_T for scale in scales]
+    paths = [PolynomialPath.parabola(qa, qb, qd0 * tau) for tau in taus]
+    low, high = PolynomialPath.position_ranges(paths)
+    inside = np.flatnonzero(np.all(low >= lo - 1e-12, axis=1)
+                            & np.all(high <= hi + 1e-12, axis=1))
+    firsts = first_passes(problem, [paths[i] for i in inside],
+                          [1.0 / taus[i] for i in inside], gridpoints, speed_cap, engine)
+    estimate = dict.fromkeys(range(len(scales)), np.inf)
+    for i, first in zip(inside, firsts, strict=True):
+        ranked[int(i)] = (paths[i], first)
+        estimate[int(i)] = first.T
+    return estimate, len(firsts)
 
 
 def _inside(path: PolynomialPath, lo: np.ndarray, hi: np.ndarray) -> bool:

@@ -276,12 +276,7 @@ class PolynomialPath:
         """``d^order q / ds^order`` at ``s`` (K,), shape (K, n)."""
         if not (isinstance(s, np.ndarray) and s.ndim == 1 and s.dtype == float):
             s = np.atleast_1d(np.asarray(s, dtype=float))
-        while len(self._derivatives) <= order:  # each derivative's coefficients once
-            last = self._derivatives[-1]
-            # numpy's polyder(last, 1, axis=0): row j - 1 is j c_j (the same products)
-            self._derivatives.append(np.arange(1, len(last))[:, None] * last[1:]
-                                     if len(last) > 1 else np.zeros((1, self.n)))
-        c = self._derivatives[order]
+        c = self.coefficients(order)
         if s.ndim != 1:
             return poly.polyval(s, c).T
         # numpy's polyval(s, c).T, its Horner steps written out: the same operations in the
@@ -292,19 +287,52 @@ class PolynomialPath:
             out = cj[:, None] + out * s
         return out.T
 
+    def coefficients(self, order: int = 0) -> np.ndarray:
+        """The coefficients of ``d^order q / ds^order`` (J + 1 - order, n), lowest first."""
+        while len(self._derivatives) <= order:  # each derivative's coefficients once
+            last = self._derivatives[-1]
+            # numpy's polyder(last, 1, axis=0): row j - 1 is j c_j (the same products)
+            self._derivatives.append(np.arange(1, len(last))[:, None] * last[1:]
+                                     if len(last) > 1 else np.zeros((1, self.n)))
+        return self._derivatives[order]
+
+    @staticmethod
+    def evaluate_many(paths: list, s: np.ndarray, order: int = 0) -> np.ndarray:
+        """``path(s, order)`` of each of ``paths`` (one degree), shape (P, K, n), at once.
+
+        The same Horner steps as :meth:`__call__`, stacked: the same numbers.
+        """
+        c = np.stack([path.coefficients(order) for path in paths])
+        out = c[:, -1, :, None] + s * 0
+        for j in range(c.shape[1] - 2, -1, -1):
+            out = c[:, j, :, None] + out * s
+        return out.transpose(0, 2, 1)
+
     def position_range(self) -> tuple[np.ndarray, np.ndarray]:
         """Each joint's least and greatest position on [0, 1], shapes (n,) (rad, m)."""
-        cands = [np.zeros(self.n), np.ones(self.n)]  # one parameter value per joint
-        if self.degree == 2:  # the vertex of each joint's parabola, where inside (0, 1)
+        low, high = PolynomialPath.position_ranges([self])
+        return low[0], high[0]
+
+    @staticmethod
+    def position_ranges(paths: list) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`position_range` of each of ``paths`` (one degree), shapes (P, n): at once.
+
+        The same numbers as one by one (the same operations, stacked).
+        """
+        c = np.stack([path.c for path in paths])  # (P, J + 1, n)
+        count, size, n = c.shape
+        degree = size - 1
+        cands = [np.zeros((count, n)), np.ones((count, n))]  # one parameter value per joint
+        if degree == 2:  # the vertex of each joint's parabola, where inside (0, 1)
             with np.errstate(divide="ignore", invalid="ignore"):
-                vertex = -self.c[1] / (2.0 * self.c[2])
+                vertex = -c[:, 1] / (2.0 * c[:, 2])
             cands.append(np.where(np.isfinite(vertex), np.clip(vertex, 0.0, 1.0), 0.0))
-        elif self.degree > 2:
-            cands += [np.full(self.n, s) for s in np.linspace(0.0, 1.0, 201)]
-        powers = np.arange(self.degree + 1)[None, :, None]
+        elif degree > 2:
+            cands += [np.full((count, n), s) for s in np.linspace(0.0, 1.0, 201)]
+        powers = np.arange(size)[None, None, :, None]
         # sum_j c_j s^j for every candidate at once (the sum over j in order, as per candidate)
-        values = np.sum(self.c[None] * np.array(cands)[:, None, :] ** powers, axis=1)
-        return values.min(axis=0), values.max(axis=0)
+        values = np.sum(c[:, None] * np.stack(cands, axis=1)[:, :, None, :] ** powers, axis=2)
+        return values.min(axis=1), values.max(axis=1)
 
 
 class ScaledPath(InverseDynamicsTrajectory):
@@ -366,14 +394,16 @@ class ScaledPath(InverseDynamicsTrajectory):
         return super().state(t)
 
     # ------------------------------------------------------------------ evaluation
-    def _path(self, t, left: bool = False):
+    def _path(self, t, left: bool = False, seg: np.ndarray | None = None):
         """``q, qd, qdd`` (K, n) at times ``t`` (s).
 
-        At a gridpoint, those of the segment that starts there (``left``: that ends there).
+        At a gridpoint, those of the segment that starts there (``left``: that ends there);
+        ``seg`` (K,): each time's segment, given (the times on it, its ends included).
         """
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.T)
-        side = "left" if left else "right"
-        seg = np.clip(np.searchsorted(self.t_grid, t, side=side) - 1, 0, len(self.h) - 1)
+        if seg is None:
+            side = "left" if left else "right"
+            seg = np.clip(np.searchsorted(self.t_grid, t, side=side) - 1, 0, len(self.h) - 1)
         tau = t - self.t_grid[seg]
         sdd = self.sdd[seg]
         sd = self.sd[seg] + sdd * tau
@@ -415,11 +445,8 @@ class ScaledPath(InverseDynamicsTrajectory):
         """
         frac = np.linspace(0.0, 1.0, points)
         t = (self.t_grid[:-1, None] + frac[None, :] * self.h[:, None]).ravel()
-        left = np.tile(frac == 1.0, len(self.h))
-        kin = [np.empty((len(t), self.n)) for _ in range(3)]
-        for mask, is_left in ((~left, False), (left, True)):
-            for out, part in zip(kin, self._path(t[mask], left=is_left), strict=True):
-                out[mask] = part
+        # every time on its own segment (an end from the segment it ends), in one evaluation
+        kin = self._path(t, seg=np.repeat(np.arange(len(self.h)), points))
         return t, self._controls(*kin), kin[1]
 
     # ------------------------------------------------------------------ open loop

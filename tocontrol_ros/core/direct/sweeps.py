@@ -39,7 +39,8 @@ import numpy as np
 
 from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 
-__all__ = ["U_BOUND", "sweeps_function", "controllable_and_forward"]
+__all__ = ["U_BOUND", "sweeps_function", "controllable_and_forward",
+           "controllable_and_forward_many"]
 
 #: ``|u| = |sdd|`` bound of every stage: toppra's Seidel solver's ``VAR_MIN`` / ``VAR_MAX``
 #: on its variables (kept so that a stage whose rows do not bound ``u`` gives its numbers).
@@ -318,6 +319,21 @@ def sweeps_function(model: object, rows: int, stages: int
     return table[key][1], table[key][2]
 
 
+def _paired_mapped(model: object, rows: int, stages: int, count: int) -> BufferedFunction:
+    """The paired sweeps (:func:`sweeps_function`'s first) mapped over ``count`` paths.
+
+    The library's own function called once per path inside one call (CasADi's ``map``: the
+    same compiled code, the same numbers), buffered; kept per model with the library.
+    """
+    sweeps_function(model, rows, stages)  # the library, loaded or built: its entry's first
+    table = _BUFFERED[model]
+    paired = table[(rows, stages)][0]
+    key = (rows, stages, count)
+    if key not in table or table[key][0] is not paired:
+        table[key] = (paired, BufferedFunction(paired.map(count)))
+    return table[key][1]
+
+
 def controllable_and_forward(model: object, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                              x_max: np.ndarray, s: np.ndarray, x0: float
                              ) -> tuple[np.ndarray, np.ndarray, bool, bool]:
@@ -363,3 +379,47 @@ def controllable_and_forward(model: object, a: np.ndarray, b: np.ndarray, c: np.
     if not used:
         K, x, ok = every(*args)
     return K.T, np.concatenate([[x0], x.ravel()]), bool(np.all(ok)), used
+
+
+def controllable_and_forward_many(model: object, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                                  x_max: np.ndarray, s: np.ndarray, x0: np.ndarray) -> list:
+    """:func:`controllable_and_forward` of several paths' rows on one grid, in one call.
+
+    Parameters
+    ----------
+    model : object
+        The robot model (owner of the compiled library).
+    a, b, c : ndarray, shape (P, N + 1, m)
+        Each path's rows, as :func:`controllable_and_forward` takes them.
+    x_max : ndarray, shape (P, N + 1)
+        Each path's upper bounds of ``x`` (1/s^2).
+    s : ndarray, shape (N + 1,)
+        The gridpoints.
+    x0 : ndarray, shape (P,)
+        Each path's start ``x`` (1/s^2).
+
+    Returns
+    -------
+    list of tuple
+        Per path, what :func:`controllable_and_forward` returns for its rows: the same
+        numbers (the paired sweep mapped over the paths; a path where it does not serve is
+        swept again alone, as that function does).
+    """
+    count, stages = a.shape[0], a.shape[1] - 1
+    two_d = 2.0 * np.diff(s)
+    A = np.concatenate([a[:, :-1], a[:, 1:] + two_d[None, :, None] * b[:, 1:]], axis=2)
+    B = np.concatenate([b[:, :-1], b[:, 1:]], axis=2)
+    G = np.concatenate([1.0 - c[:, :-1], 1.0 - c[:, 1:]], axis=2)
+    rows = A.shape[2]
+    # columns path after path, as CasADi's map concatenates its instances' inputs
+    A, B, G = (v.transpose(2, 0, 1).reshape(rows, count * stages) for v in (A, B, G))
+    fun = _paired_mapped(model, rows, stages, count)
+    K, x, ok, exact = fun(A, B, G, x_max[:, :-1].reshape(1, -1),
+                          np.tile(two_d, count)[None, :], np.asarray(x0, dtype=float)[None, :])
+    exact, ok = (v.reshape(count, stages).all(axis=1) for v in (exact, ok))
+    K = K.reshape(2, count, stages + 1)
+    x = np.concatenate([np.asarray(x0, dtype=float)[:, None], x.reshape(count, stages)],
+                       axis=1)
+    return [(K[:, i].T, x[i], bool(ok[i]), True) if exact[i] else  # else every pair, alone
+            controllable_and_forward(model, a[i], b[i], c[i], x_max[i], s, float(x0[i]))
+            for i in range(count)]

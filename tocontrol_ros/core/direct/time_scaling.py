@@ -41,7 +41,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from tocontrol_ros.core.direct.scaled_path import PolynomialPath, ScaledPath, rigid_body_terms
-from tocontrol_ros.core.direct.sweeps import controllable_and_forward, sweeps_function
+from tocontrol_ros.core.direct.sweeps import (
+    controllable_and_forward,
+    controllable_and_forward_many,
+    sweeps_function,
+)
 from tocontrol_ros.core.direct.tuning import (
     ACCELERATION_PAD,
     ADAPT_FLOOR,
@@ -59,8 +63,8 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import Status
 
-__all__ = ["rest_time", "cube_time", "first_pass", "FirstPass", "time_scaling", "ENGINES",
-           "DEFAULT_ENGINE", "compile_sweeps"]
+__all__ = ["rest_time", "cube_time", "first_pass", "first_passes", "FirstPass", "time_scaling",
+           "ENGINES", "DEFAULT_ENGINE", "compile_sweeps"]
 
 #: TOPP-RA's drivers: ``"compiled"`` (the default: both sweeps in one compiled call, each
 #: stage's LP in closed form, :mod:`~tocontrol_ros.core.direct.sweeps`; issue 47), ``"seidel"``
@@ -162,20 +166,77 @@ def first_pass(problem: Problem, path: PolynomialPath, sd0: float,
                      (id(path), sd0, gridpoints, engine))
 
 
+def first_passes(problem: Problem, paths: list, sd0s: list,
+                 gridpoints: int = GRIDPOINTS, speed_cap: np.ndarray | None = None,
+                 engine: str = DEFAULT_ENGINE) -> list[FirstPass]:
+    """:func:`first_pass` of each of ``paths`` from its ``sd0s`` (1/s), the same numbers.
+
+    With the compiled engine the paths are timed together: their coefficients by one
+    inverse-dynamics call, their rows stacked, their sweeps by one call of the compiled
+    sweeps mapped over them (the library's code once per path); a path whose forward step
+    toppra would retry is run by the Seidel driver, as :func:`_toppra` does. Other engines:
+    one :func:`first_pass` after another. What a moving start's time scales are ranked by
+    (:func:`~tocontrol_ros.core.direct.first_motion.quick_motion`): one call for all of
+    them instead of one pass each.
+
+    Parameters
+    ----------
+    problem : Problem
+    paths : list of PolynomialPath
+        P paths of one degree and joint count.
+    sd0s : list of float
+        Each path's start speed ``sd(0)`` (1/s), P of them.
+    gridpoints, speed_cap, engine
+        As :func:`first_pass`'s (``speed_cap`` (n,), rad/s, the same for every path).
+
+    Returns
+    -------
+    list of FirstPass
+        Each path's, as :func:`first_pass` gives it (its ``key`` that path's).
+    """
+    paths, sd0s = list(paths), [float(v) for v in sd0s]
+    if len(paths) != len(sd0s):
+        raise ValueError(f"`sd0s` must have one speed per path ({len(paths)}), got "
+                         f"{len(sd0s)}")
+    if engine != "compiled" or len(paths) < 2:
+        return [first_pass(problem, path, sd0, gridpoints, speed_cap, engine)
+                for path, sd0 in zip(paths, sd0s, strict=True)]
+    n = problem.model.n
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    box = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k))) * (1.0 - SCALING_SET_MARGIN)
+    stacked, coefs = _Coefficients.of_paths(problem, paths, s, speed_cap)
+    a, b, c, x_max = _partners_ordered(problem.model, _rows(stacked, sd0s, box, None))
+    swept = controllable_and_forward_many(problem.model, a, b, c, x_max, s,
+                                          np.array([v ** 2 for v in sd0s]))
+    out = []
+    for path, sd0, coef, sweeps in zip(paths, sd0s, coefs, swept, strict=True):
+        found = _verdict(*sweeps[:3], s)
+        x, why = found if found is not None else _toppra(coef, s, sd0, box, None, "seidel")
+        out.append(FirstPass(np.inf if x is None else _duration(x, s), why, coef, x,
+                             (id(path), sd0, gridpoints, engine)))
+    return out
+
+
 class _Coefficients:
     """The torques along a path at the gridpoints: ``u = a sdd + b sd^2 + c + f sd``.
 
     All in normalised torque (``tau / (tau_max torque_scale)``), shapes (N + 1, n); ``xv``
-    (N + 1,) bounds ``sd^2`` by the velocity limits.
+    (N + 1,) bounds ``sd^2`` by the velocity limits. :meth:`of_paths` makes several paths'
+    at once (stacked, (P, N + 1, n) and (P, N + 1): the same numbers, every operation
+    elementwise or an exact min / max).
     """
 
-    def __init__(self, problem: Problem, path: PolynomialPath, s: np.ndarray,
-                 speed_cap: np.ndarray | None = None) -> None:
+    def __init__(self, problem: Problem, path: PolynomialPath | None, s: np.ndarray,
+                 speed_cap: np.ndarray | None = None, derivatives: tuple | None = None
+                 ) -> None:
         model = problem.model
-        fn = rigid_body_terms(model, len(s))
-        q, d1, d2 = path(s), path(s, 1), path(s, 2)
+        q, d1, d2 = derivatives if derivatives is not None else \
+            (path(s), path(s, 1), path(s, 2))
+        fn = rigid_body_terms(model, q.size // model.n)
         scale = model.tau_max * problem.torque_scale
-        c, a, b = (np.array(v).T for v in fn(q.T, d1.T, d2.T))  # one call: 1 ms on the Panda
+        # one call (every path's gridpoints as columns, path after path): 1 ms on the Panda
+        c, a, b = (np.array(v).T.reshape(q.shape)
+                   for v in fn(*(d.reshape(-1, model.n).T for d in (q, d1, d2))))
         self.a = (a - c) / scale
         self.b = (b - c) / scale
         self.c = c / scale
@@ -186,15 +247,16 @@ class _Coefficients:
         # sd^2 at a gridpoint by the larger |q'| of its two segments keeps the speeds
         # between the gridpoints within the limits as well.
         speed = np.abs(d1)
-        seg = np.maximum(speed[:-1], speed[1:])
-        speed = np.maximum(np.concatenate([seg, seg[-1:]]), np.concatenate([seg[:1], seg]))
+        seg = np.maximum(speed[..., :-1, :], speed[..., 1:, :])
+        speed = np.maximum(np.concatenate([seg, seg[..., -1:, :]], axis=-2),
+                           np.concatenate([seg[..., :1, :], seg], axis=-2))
         v = problem.limits.plan_velocity * (1.0 - VELOCITY_PAD)
         if speed_cap is not None:
             v = np.minimum(v, speed_cap)
         # A joint that does not move along the path has no bound (0/0 would be NaN).
         moving = speed > 0.0
         self.xv = np.min(np.where(moving, (v / np.where(moving, speed, 1.0)) ** 2, np.inf),
-                         axis=1)
+                         axis=-1)
         # joint_limits.yaml's accelerations: qdd = q'(s) sdd + q''(s) sd^2, linear in
         # (sdd, sd^2) as TOPP-RA's rows are.
         lim = problem.limits
@@ -203,6 +265,27 @@ class _Coefficients:
             a = np.where(np.isfinite(lim.plan_acceleration),
                          lim.plan_acceleration * (1.0 - ACCELERATION_PAD), np.inf)
             self.accel = (d1 / a, d2 / a)
+
+    @classmethod
+    def of_paths(cls, problem: Problem, paths: list, s: np.ndarray,
+                 speed_cap: np.ndarray | None = None
+                 ) -> tuple[_Coefficients, list[_Coefficients]]:
+        """Each path's coefficients, computed stacked: one inverse-dynamics call for all.
+
+        ``paths``: :class:`PolynomialPath` of one degree and joint count. Returns the stacked
+        ones (what :func:`_rows` takes for all paths at once) and one per path (views).
+        """
+        stacked = cls(problem, None, s, speed_cap,
+                      tuple(PolynomialPath.evaluate_many(paths, s, order) for order in range(3)))
+        return stacked, [stacked._part(i) for i in range(len(paths))]
+
+    def _part(self, i: int) -> _Coefficients:
+        """Path ``i``'s coefficients of stacked ones (views)."""
+        part = _Coefficients.__new__(_Coefficients)
+        part.a, part.b, part.c, part.f = self.a[i], self.b[i], self.c[i], self.f[i]
+        part.xv, part.zero, part.model = self.xv[i], self.zero[i], self.model
+        part.accel = None if self.accel is None else (self.accel[0][i], self.accel[1][i])
+        return part
 
     def torques(self, x: np.ndarray, s: np.ndarray) -> np.ndarray:
         """``|u|`` at every gridpoint, the larger of both sides' (N + 1, n), for ``x``."""
@@ -306,7 +389,7 @@ def _friction_lines(coef: _Coefficients, x_prev: np.ndarray | None):
     """
     if x_prev is None:
         zero = coef.zero
-        return zero, zero, zero, zero, np.full(len(coef.f), np.inf)
+        return zero, zero, zero, zero, np.full(coef.f.shape[:-1], np.inf)
     x_top = float(np.max(x_prev))
     x0 = np.maximum(x_prev, TANGENT_FLOOR * x_top)[:, None]
     cap = np.full(len(x_prev), SPEED_CAP * x_top)
@@ -350,25 +433,31 @@ def _toppra(coef: _Coefficients, s: np.ndarray, sd0: float, boxes: np.ndarray,
     return np.asarray(sd, dtype=float) ** 2, ""
 
 
-def _rows(coef: _Coefficients, sd0: float, boxes: np.ndarray, x_prev: np.ndarray | None
+def _rows(coef: _Coefficients, sd0, boxes: np.ndarray, x_prev: np.ndarray | None
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A pass's rows ``a u + b x + c <= 1`` (N + 1, m) and bounds ``x_max`` (N + 1,).
 
     Columns: the torques' upper bounds, their lower bounds (then the accelerations' upper
-    and lower bounds where set): see :func:`_toppra`.
+    and lower bounds where set): see :func:`_toppra`. Stacked coefficients
+    (:meth:`_Coefficients.of_paths`) without ``x_prev`` give every path's at once, (P, N + 1,
+    m) and (P, N + 1), ``sd0`` then a list of P.
     """
     u0, u1, l0, l1, cap = _friction_lines(coef, x_prev)
     cat = np.concatenate
-    rows_a = cat([coef.a / boxes, -coef.a / boxes], axis=1)
-    rows_b = cat([(coef.b + u1) / boxes, -(coef.b + l1) / boxes], axis=1)
-    rows_c = cat([(coef.c + u0) / boxes, -(coef.c + l0) / boxes], axis=1)
+    rows_a = cat([coef.a / boxes, -coef.a / boxes], axis=-1)
+    rows_b = cat([(coef.b + u1) / boxes, -(coef.b + l1) / boxes], axis=-1)
+    rows_c = cat([(coef.c + u0) / boxes, -(coef.c + l0) / boxes], axis=-1)
     if coef.accel is not None:  # -a <= q' sdd + q'' sd^2 <= a
         d1, d2 = coef.accel
-        rows_a = cat([rows_a, d1, -d1], axis=1)
-        rows_b = cat([rows_b, d2, -d2], axis=1)
-        rows_c = cat([rows_c, np.zeros_like(d1), np.zeros_like(d1)], axis=1)
+        rows_a = cat([rows_a, d1, -d1], axis=-1)
+        rows_b = cat([rows_b, d2, -d2], axis=-1)
+        rows_c = cat([rows_c, np.zeros_like(d1), np.zeros_like(d1)], axis=-1)
     x_max = np.minimum(np.minimum(coef.xv, cap), X_HUGE)
-    x_max[0] = max(x_max[0], sd0 ** 2)  # the start's own speed (inside its velocity limits)
+    # the start's own speed (inside its velocity limits)
+    if isinstance(sd0, list):
+        x_max[:, 0] = np.maximum(x_max[:, 0], [v ** 2 for v in sd0])
+    else:
+        x_max[0] = max(x_max[0], sd0 ** 2)
     return rows_a, rows_b, rows_c, x_max
 
 
@@ -381,14 +470,27 @@ def _compiled(model, s: np.ndarray, sd0: float, rows: tuple):
     a set's edge), where toppra lowers ``x`` and tries again: the caller then runs
     :func:`_seidel`, which does. ``rows``: :func:`_toppra`'s.
     """
+    a, b, c, x_max = _partners_ordered(model, rows)
+    return _verdict(*controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)[:3], s)
+
+
+def _partners_ordered(model, rows: tuple) -> tuple:
+    """``rows`` with each row's partner half a row apart: [torque+, accel.+, torque-, accel.-].
+
+    (The sweeps' pairing, :mod:`~tocontrol_ros.core.direct.sweeps`; on the last axis.)
+    """
+    a, b, c, x_max = rows
+    m = a.shape[-1]
+    if m != 2 * model.n:
+        order = np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
+        a, b, c = a[..., order], b[..., order], c[..., order]
+    return a, b, c, x_max
+
+
+def _verdict(K: np.ndarray, x: np.ndarray, feasible: bool, s: np.ndarray):
+    """:func:`_compiled`'s answer from a pass's sweeps (see there)."""
     from toppra.constants import SMALL
 
-    a, b, c, x_max = rows
-    m = a.shape[1]
-    if m != 2 * model.n:  # partners half a row apart: [torque+, accel.+, torque-, accel.-]
-        order = np.r_[0:model.n, 2 * model.n:3 * model.n, model.n:2 * model.n, 3 * model.n:m]
-        a, b, c = a[:, order], b[:, order], c[:, order]
-    K, x, feasible, _ = controllable_and_forward(model, a, b, c, x_max, s, sd0 ** 2)
     last = len(s) - 1
     empty = ~(K[:last, 0] <= K[:last, 1])
     if np.any(empty):
