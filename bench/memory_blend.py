@@ -225,6 +225,45 @@ def run(memory: Path, requests_file: Path, count: int, cold: bool,
     return rows
 
 
+def neighbours(memory: Path, spacing: float = 0.1) -> str:
+    """How alike the stored motions of grid neighbours are (no solve): a line of markdown.
+
+    Pairs of stored motions with the same start whose targets are ``spacing`` (m) apart:
+    their end configurations' distance (max-norm, rad; within ``BASIN_RADIUS``: one basin by
+    ``recall``'s rule), the NLP rows whose activity differs between their serving states and
+    the relative difference of their ``T``.
+    """
+    from tocontrol_ros.core.memory.codec import decode_warm
+    from tocontrol_ros.core.memory.recall import BASIN_RADIUS
+    from tocontrol_ros.core.memory.store import MotionStore
+
+    with MotionStore(memory) as store:
+        keys = store.keys()
+        lam = {i: decode_warm("path", store.get(int(e)).serve)[0].lam_g
+               for i, e in enumerate(keys["id"]) if keys["serve"][i]}
+    dq, changed, dT = [], [], []
+    E = len(keys["id"])
+    for i in range(E):
+        for j in range(i + 1, E):
+            if np.linalg.norm(keys["start_point"][i] - keys["start_point"][j]) > 1e-9 or \
+                    abs(np.linalg.norm(keys["target_point"][i] - keys["target_point"][j])
+                        - spacing) > 1e-6:
+                continue
+            dq.append(float(np.max(np.abs(keys["end_q"][i] - keys["end_q"][j]))))
+            dT.append(abs(keys["T"][i] / keys["T"][j] - 1.0))
+            if i in lam and j in lam:
+                changed.append(int(np.sum(_active(lam[i]) != _active(lam[j]))))
+    if not dq:
+        return f"No stored pairs {spacing} m apart."
+    dq, rows = np.array(dq), len(next(iter(lam.values())))
+    return (f"{len(dq)} pairs of stored motions {spacing * 100:.0f} cm apart: end "
+            f"configurations {np.min(dq):.2f}-{np.max(dq):.2f} rad apart (median "
+            f"{np.median(dq):.2f}), within {BASIN_RADIUS} rad (one basin) "
+            f"{np.sum(dq <= BASIN_RADIUS)}, within 1.5 rad {np.sum(dq <= 1.5)}; rows of other "
+            f"activity median {np.median(changed):.0f} ({min(changed)}-{max(changed)}, of "
+            f"{rows}); `T` differs by a median {np.median(dT):.1%}.")
+
+
 def report(rows: list[dict], load: tuple[str, str], names: list[str]) -> str:
     """The run as markdown: a summary per start and a row per hit."""
     def med(values):
@@ -282,6 +321,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not args.memory.is_file():
         parser.error(f"--memory: no file {args.memory}")
+    print(neighbours(args.memory))
+    if args.count <= 0:
+        return 0
     start = load_text()
     names = [v[0] for v in VARIANTS if not args.only or v[0] in args.only]
     rows = run(args.memory, args.requests, args.count, args.cold, tuple(args.only))
