@@ -318,10 +318,12 @@ def main(argv=None) -> int:
     parser.add_argument("--cold", action="store_true")
     parser.add_argument("--only", nargs="*", default=(),
                         help="the starts to compare (names of VARIANTS; the first is the base)")
+    parser.add_argument("--spacing", type=float, default=0.1,
+                        help="the memory's grid (m), for the neighbours' figures")
     args = parser.parse_args(argv)
     if not args.memory.is_file():
         parser.error(f"--memory: no file {args.memory}")
-    print(neighbours(args.memory))
+    print(neighbours(args.memory, args.spacing))
     if args.count <= 0:
         return 0
     start = load_text()
