@@ -551,20 +551,22 @@ class FlatTranscription:
         """Rows of the NLP (its constraints; ``lam_g`` has as many)."""
         return self._ng
 
-    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD,
-               ends: tuple | None = None
+    def bounds(self, lower: np.ndarray, upper: np.ndarray,
+               set_pad: float | np.ndarray = SET_PAD, ends: tuple | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``lbg``, ``ubg``, ``lbx``, ``ubx`` for state bounds (2n,) (infinite entries: none).
 
         The position bounds are bounds on the control points (variables, not rows); ``T``
-        is at least 1 ms. ``ends``: (start value, target value) of the solve, for the
-        clearance rows' allowance (:meth:`clearance_allowance`); without it none.
+        is at least 1 ms. ``set_pad``: the set's pad, one for every sample or one per
+        sample (S,) (:func:`~tocontrol_ros.core.direct.set_pads.row_pads`). ``ends``:
+        (start value, target value) of the solve, for the clearance rows' allowance
+        (:meth:`clearance_allowance`); without it none.
         """
         n = self.model.n
         ng_set, ng_lin, ng_b = self._rows
         lbg = np.concatenate([np.full(ng_set, -np.inf), np.zeros(ng_lin), np.zeros(ng_b)])
-        ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
-                              np.zeros(ng_b)])
+        ubg = np.concatenate([1.0 - np.broadcast_to(np.asarray(set_pad, dtype=float), ng_set),
+                              np.zeros(ng_lin), np.zeros(ng_b)])
         v = np.repeat(np.asarray(upper[n:], dtype=float), self.K - 1)  # rows joint by joint
         if self.acceleration is not None:
             v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
