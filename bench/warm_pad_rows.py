@@ -78,25 +78,27 @@ def build(count: int = 20) -> tuple:
 VARIANTS = (
     ("before", {"ROW_PADS": False}),
     ("row pads", {"ROW_PADS": True, "LOCAL_ROUNDS": True, "FALLBACK_PADS": True}),
-    ("row pads, global rounds", {"ROW_PADS": True, "LOCAL_ROUNDS": False}),
-    ("row pads, not in IPOPT's fallback", {"ROW_PADS": True, "FALLBACK_PADS": False}),
-    ("row pads x1.5", {"ROW_PADS": True, "ROW_PAD_FACTOR": 1.5}),
+    ("row pads, dual reset", {"ROW_PADS": True, "sensitivity.DUAL_RESET": True}),
 )
 
 
 @contextmanager
 def settings(values: dict):
     """``core.direct.set_pads``'s module settings set to ``values`` inside."""
-    from tocontrol_ros.core.direct import set_pads
+    from tocontrol_ros.core.direct import sensitivity, set_pads
 
-    saved = {key: getattr(set_pads, key) for key in values}
+    def where(key):
+        return (sensitivity, key.split(".")[1]) if key.startswith("sensitivity.") \
+            else (set_pads, key)
+
+    saved = {key: getattr(*where(key)) for key in values}
     for key, value in values.items():
-        setattr(set_pads, key, value)
+        setattr(*where(key), value)
     try:
         yield
     finally:
         for key, value in saved.items():
-            setattr(set_pads, key, value)
+            setattr(*where(key), value)
 
 
 def ipopt_counter() -> list:
