@@ -73,12 +73,19 @@ def build(count: int = 20) -> tuple:
     return planner, ropts, cases
 
 
-#: Variants counted: a name and the settings of ``core.direct.set_pads`` (the first: the
-#: route before).
+#: Variants counted: a name and the settings of ``core.direct.set_pads`` (and, prefixed
+#: ``sensitivity.``, of ``core.direct.sensitivity``) that differ from the defaults; the
+#: first: main's route before the pads per sample, the second: the defaults.
 VARIANTS = (
-    ("before", {"ROW_PADS": False}),
-    ("row pads", {"ROW_PADS": True, "LOCAL_ROUNDS": True, "FALLBACK_PADS": True}),
-    ("row pads, dual reset", {"ROW_PADS": True, "sensitivity.DUAL_RESET": True}),
+    ("before", {"ROW_PADS": False, "sensitivity.DUAL_RESET": False}),
+    ("now", {}),
+    ("pads alone, no reset", {"sensitivity.DUAL_RESET": False}),
+    ("global rounds", {"LOCAL_ROUNDS": False}),
+    ("fallback at one pad", {"FALLBACK_PADS": False}),
+    ("factor 1.5", {"ROW_PAD_FACTOR": 1.5}),
+    ("factor 3", {"ROW_PAD_FACTOR": 3.0}),
+    ("near 0.05", {"ROW_PAD_NEAR": 0.05}),
+    ("near 0.2", {"ROW_PAD_NEAR": 0.2}),
 )
 
 

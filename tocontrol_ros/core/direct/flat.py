@@ -609,7 +609,7 @@ class FlatTranscription:
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              set_pad: float = SET_PAD, deadline: float = np.inf,
+              set_pad: float | np.ndarray = SET_PAD, deadline: float = np.inf,
               max_iter: int | None = None, should_stop=None, lam_g0: np.ndarray | None = None,
               lam_x0: np.ndarray | None = None) -> FlatResult:
         """Solve from a guess.
@@ -628,7 +628,8 @@ class FlatTranscription:
         lower, upper : ndarray, shape (2n,)
             State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
             symmetric).
-        set_pad : float
+        set_pad : float or ndarray, shape (S,)
+            One pad for all samples, or one per sample.
         deadline : float
             The caller's deadline, a ``time.perf_counter()`` value (s): IPOPT stops there
             (a failed result). The one reading of the clock that may end a solve.

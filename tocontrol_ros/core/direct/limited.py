@@ -470,7 +470,7 @@ def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,
 
 
 def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np.ndarray,
-           lam_x: np.ndarray, values, bounds, pad: float) -> FlatResult:
+           lam_x: np.ndarray, values, bounds, pad: float | np.ndarray) -> FlatResult:
     """The parametric steps to ``values`` from the solution ``w0`` with its multipliers.
 
     The whole move first (:func:`~.sensitivity.sensitivity_solve`); where its steps do not

@@ -15,7 +15,9 @@ Lagrangian's Hessian kept from the first (chord steps: the rows, their Jacobian 
 barrier terms evaluated again each step; the Hessian re-evaluated, at most
 :data:`REFRESHES` times, after a step cut by the boundary or one that did not cut the
 residual by :data:`CONTRACTION`), each cut by the fraction-to-the-boundary rule, so slacks
-and multipliers stay positive and every inequality holds strictly. Where the move changes
+and multipliers stay positive and every inequality holds strictly (the whole move's dual
+step is taken in full instead, the multipliers that it takes below the barrier's reach
+reset onto it: :data:`DUAL_RESET`). Where the move changes
 the active set the slacks and multipliers of those rows must change places: the barrier
 alone then cut its steps to 1e-4-1e-2 of their length and did not converge within the
 budget (docs/limits.md, "Warm re-solves by the parametric step"). So a step cut below
@@ -332,7 +334,8 @@ def _boundary_step(dx, room) -> float:
 
 def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray,
                       lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
-                      k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
+                      k: float, lower: np.ndarray, upper: np.ndarray,
+                      set_pad: float | np.ndarray,
                       should_stop=None, hold: bool = True, submoves: int = 1,
                       max_steps: int | None = None, max_solves: int | None = None,
                       sub_budget: tuple[int, int] | None = None
@@ -353,7 +356,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     k : float
     lower, upper : ndarray, shape (2n,)
         State bounds, as for :meth:`FlatTranscription.solve`.
-    set_pad : float
+    set_pad : float or ndarray, shape (S,)
+        The set's pad, one for all samples or one per sample (:mod:`~.set_pads`).
     should_stop : callable, optional
         Polled every step; True stops (a failure, "cancelled").
     hold : bool
