@@ -339,6 +339,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
         P = flat.fit(warm.T, path.t, path.q, path.qd)
     else:
         flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
+        pad = _row_pads(flat, warm, problem.k)  # its own mesh: the pads its path asks for
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
             # A distant warm start (a memory's hit) farther than one sub-move; a move of a
@@ -348,7 +349,6 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                     (solved.start.value, solved.target.value, solved.k), values) <= 1)
             flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-            pad = _row_pads(flat, trajectory)
             if ctx.options.warm_parametric and (ctx.options.warm_follow or not far):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
                                         solved, pad)
@@ -445,16 +445,20 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     return None, f"{why}, but not certified ({done.message})"
 
 
-def _row_pads(flat: FlatTranscription, trajectory) -> float | np.ndarray:
-    """The set's pad per sample (S,) for a warm re-solve from ``trajectory``, on ``flat``.
+def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
+              ) -> float | np.ndarray:
+    """The set's pad per sample (S,) for a warm re-solve from ``warm`` on its mesh ``flat``.
 
-    Read off the warm state's own trajectory where it is on ``flat``'s mesh
+    Read off the warm state's path and ``T`` as a trajectory of ``flat`` (its inverse
+    dynamics, so that the mapped calls are the ones the answer's checks use)
     (:func:`~.set_pads.row_pads`, with :data:`~.set_pads.ROW_PADS`); else :data:`SET_PAD`.
     """
-    if set_pads.ROW_PADS and isinstance(trajectory, FlatTrajectory) \
-            and np.array_equal(trajectory.breaks, flat.breaks):
-        return set_pads.row_pads(trajectory, flat.samples)
-    return SET_PAD
+    if not set_pads.ROW_PADS:
+        return SET_PAD
+    path = FlatResult(success=True, message="warm state", T=float(warm.T),
+                      iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
+                      residual=0.0)
+    return set_pads.row_pads(FlatTrajectory(flat, path, k), flat.samples)
 
 
 def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,

@@ -26,15 +26,17 @@ from tocontrol_ros.core.direct.tuning import SET_PAD
 __all__ = ["FALLBACK_PADS", "LOCAL_ROUNDS", "ROW_PADS", "ROW_PAD_CAP", "ROW_PAD_FACTOR",
            "ROW_PAD_NEAR", "row_pads", "widened"]
 
-#: The parametric warm re-solve starts at these pads (``limited._parametric``); False: at
-#: :data:`~.tuning.SET_PAD` for every sample (the route before; bench/warm_resolve.py's
-#: *before* column).
+#: A warm re-solve on its warm state's own mesh (``limited.plan_limited_warm``: the
+#: parametric steps, and IPOPT's solve) starts at these pads, read off the warm state's
+#: path; False: at :data:`~.tuning.SET_PAD` for every sample (the route before;
+#: bench/warm_resolve.py's *before* column).
 ROW_PADS = True
 #: With :data:`ROW_PADS`, a pad round widens only the samples at the ends of the intervals
 #: that leave the set (:func:`widened`); False: all alike, by twice the largest excess.
 LOCAL_ROUNDS = True
-#: With :data:`ROW_PADS`, IPOPT's warm re-solve where the parametric step fails starts at
-#: the same pads (its pad rounds per sample too).
+#: With :data:`ROW_PADS`, IPOPT's warm re-solve (where the parametric step fails, or
+#: without it) starts at the same pads (its pad rounds per sample too); False: at
+#: :data:`~.tuning.SET_PAD` (bench/warm_pad_rows.py's variant).
 FALLBACK_PADS = True
 
 #: A sample's pad is its intervals' bulge times this (the move changes the bulge; 1: the
