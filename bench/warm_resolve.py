@@ -11,11 +11,11 @@ one run, each timed after a warm-up of the same call (median of 3):
   ``warm_parametric`` (the default): the parametric primal-dual step from the serving
   solution (core/direct/sensitivity.py), certified; IPOPT where it fails (the route taken
   is read from the result's warnings);
-- **before**: the same call with the barrier's start as before (:func:`as_before`:
-  ``FAR_SIDE_LEAST_ROOM`` off, the route before it: a value with two bounds was pushed in
-  from its upper side by its room to the old value, which put one on its lower bound back
-  onto it, a zero slack), in the same run; where no row or variable sits on its lower
-  bound the two take the same steps (the route and ``T`` compared to the bit);
+- **before**: the same call with the route before the pads per sample (:func:`as_before`:
+  ``set_pads.ROW_PADS`` and ``sensitivity.DUAL_RESET`` off: every sample at ``SET_PAD``,
+  pad rounds widening all alike, IPOPT's fallback at ``SET_PAD``, the dual steps cut by the
+  fraction to the boundary), in the same run; the route mix of each (one parametric solve,
+  a pad round, the sub-moves, IPOPT) counted from the warnings;
 - **ipopt**: the same call with ``warm_parametric=False``: IPOPT warm from the serving
   solution and its multipliers (``warm="dual"``, its barrier from 1e-7);
 - **tight**: IPOPT on the same NLP from the same point with its warm start's pushes and
@@ -87,22 +87,24 @@ def _route(result) -> str:
 
 @contextmanager
 def as_before():
-    """The parametric route as it was before the barrier's start kept a slack on both sides.
+    """The warm re-solve as it was before the pads per sample (issue 47).
 
-    ``core.direct.sensitivity.FAR_SIDE_LEAST_ROOM`` off (issue 47): a value with two
-    bounds is pushed in from its upper side by its room to IPOPT's value, as before, so one
-    on its lower bound starts with a zero slack; everything else is the same code (the
-    band's in-place factorisation and the stretches checked in one call change no number:
-    their own before/after is :func:`_parts_pair`).
+    ``core.direct.set_pads.ROW_PADS`` off (every sample at ``SET_PAD``, the pad rounds
+    widening all samples alike, IPOPT's fallback at ``SET_PAD``) and
+    ``core.direct.sensitivity.DUAL_RESET`` off (the dual steps cut by the fraction to the
+    boundary); everything else is the same code (the band's in-place factorisation and the
+    stretches checked in one call change no number: their own before/after is
+    :func:`_parts_pair`).
     """
     import tocontrol_ros.core.direct.sensitivity as sensitivity
+    from tocontrol_ros.core.direct import set_pads
 
-    saved = sensitivity.FAR_SIDE_LEAST_ROOM
-    sensitivity.FAR_SIDE_LEAST_ROOM = False
+    saved = set_pads.ROW_PADS, sensitivity.DUAL_RESET
+    set_pads.ROW_PADS, sensitivity.DUAL_RESET = False, False
     try:
         yield
     finally:
-        sensitivity.FAR_SIDE_LEAST_ROOM = saved
+        set_pads.ROW_PADS, sensitivity.DUAL_RESET = saved
 
 
 def _rowmajor_factor(banded, hess, diag, jac):
@@ -164,6 +166,12 @@ def _before(fn):
         return fn()
 
 
+def _mix(mix: dict) -> str:
+    """The route mix as text: how many moves took each route."""
+    order = ("one solve", "pad round", "sub-moves", "ipopt")
+    return ", ".join(f"{mix.get(kind, 0)} {kind}" for kind in order)
+
+
 def _med(v: list) -> float:
     return float(np.median(v)) if v else float("nan")
 
@@ -171,6 +179,7 @@ def _med(v: list) -> float:
 def run(count: int = CASES) -> Section:
     from bench.limits import draw_cases
     from bench.warm_active_set import active_set_solve
+    from bench.warm_pad_rows import describe
     from tocontrol_ros.core.direct.first_motion import quick_motion
     from tocontrol_ros.core.direct.limited import state_bounds
     from tocontrol_ros.core.direct.sensitivity import (
@@ -180,6 +189,7 @@ def run(count: int = CASES) -> Section:
         PATH_SUBMOVES,
         sensitivity_solve,
     )
+    from tocontrol_ros.core.direct.set_pads import row_pads
     from tocontrol_ros.core.direct.tuning import PAD, SET_PAD
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.planning.replan import replan_options, warm_replan
@@ -214,6 +224,7 @@ def run(count: int = CASES) -> Section:
               "ipopt_ok": 0, "tight_ok": 0, "refit_ok": 0, "quick_ok": 0, "answered": 0,
               "active_ok": 0, "active_close": 0, "step_failed": 0, "barrier_ok": 0,
               "same": 0, "sub_moves": 0, "before_parametric": 0, "parts_same": 0}
+    mix, mix_old = {}, {}
     for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
         problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
         base = planner.plan(problem, options)
@@ -252,13 +263,15 @@ def run(count: int = CASES) -> Section:
         w0 = np.concatenate([ws.P.ravel(), [ws.T]])
         values = (moved.start.value, moved.target.value, moved.k)
 
+        pads = row_pads(serving.trajectory, dual_flat.samples)
+
         def steps_alone():  # the route's steps: the whole move, then the sub-moves
             out = sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
-                                    *values, *bounds, SET_PAD)  # noqa: B023
+                                    *values, *bounds, pads)  # noqa: B023
             if out[0].success:
                 return out
             return sensitivity_solve(dual_flat, w0, ws.lam_g, ws.lam_x,  # noqa: B023
-                                     *values, *bounds, SET_PAD,  # noqa: B023
+                                     *values, *bounds, pads,  # noqa: B023
                                      submoves=PATH_SUBMOVES, max_steps=PATH_STEPS,
                                      max_solves=PATH_SOLVES, sub_budget=PATH_SUB_BUDGET)
 
@@ -331,6 +344,10 @@ def run(count: int = CASES) -> Section:
         o_solve = _med([r.timings["shooting"] for r in old_all])
         same = bool(old.success == par.success and old.T == par.T and _route(old) == route)
         counts["same"] += same
+        kind, solves, steps = describe(par)
+        kind_old, solves_old, steps_old = describe(old)
+        mix[kind] = mix.get(kind, 0) + 1
+        mix_old[kind_old] = mix_old.get(kind_old, 0) + 1
         if par.success:
             m["p_solve"].append(p_solve)
             m["p_total"].append(tp)
@@ -370,10 +387,12 @@ def run(count: int = CASES) -> Section:
             m["q_gap"].append(q_gap)
         rows.append([
             str(i + 1), "moving" if np.any(qd0) else "rest",
-            (f"{route} ({par.iterations}{', sub-moves' if sub else ''})" if par.success
-             else "failed"),
+            (f"{kind} ({solves} solves, {steps} steps)" if kind != "ipopt" else
+             f"ipopt ({par.iterations} it)") if par.success else "failed",
             f"{1e3 * p_solve:.1f} / {1e3 * tp:.1f}",
-            f"{1e3 * o_solve:.1f} / {1e3 * to:.1f}{'' if same else ' (differs)'}",
+            f"{1e3 * o_solve:.1f} / {1e3 * to:.1f} ("
+            + (f"{kind_old}, {solves_old} solves, {steps_old} steps" if kind_old != "ipopt"
+               else f"ipopt, {old.iterations} it") + f"){'' if same else ', differs'}",
             f"{1e3 * t_step:.1f}" if alone.success else "failed",
             f"{gap:.1e}" if route == "parametric" else "(ipopt's)", cold_cell,
             f"{1e3 * i_solve:.1f} / {1e3 * ti:.1f} ({ipo.iterations})" if ipo.success
@@ -406,23 +425,29 @@ def run(count: int = CASES) -> Section:
         f"24 uniform spans, converged, with multipliers: what a previous replan leaves), "
         f"then the target moved {100 * MOVE:g} cm in a random direction and answered side "
         f"by side: *parametric*: `Planner.plan(moved, replan_options(...), "
-        f"warm_start=serving)`, the parametric primal-dual step, the rows that block its "
-        f"steps held at their bounds (route taken and its Newton steps; IPOPT where it "
-        f"failed; 'sub-moves' where the whole move's steps failed and the move followed in "
-        f"{PATH_SUBMOVES} sub-moves converged); *before*: the same call with the barrier's "
-        f"start as before (`as_before` in bench/warm_resolve.py: `FAR_SIDE_LEAST_ROOM` off, "
-        f"a value on the lower of its two bounds started with a zero slack; 'differs' where "
+        f"warm_start=serving)`, the parametric primal-dual step from the set's pads per "
+        f"sample read off the serving solution (core/direct/set_pads.py), the rows that "
+        f"block its steps held at their bounds (route taken: 'one solve', a 'pad round' "
+        f"after it, 'sub-moves' where the whole move's steps failed and the move followed "
+        f"in {PATH_SUBMOVES} sub-moves converged, with the parametric solves and their "
+        f"Newton steps in all; IPOPT where they failed, its last solve's iterations); "
+        f"*before*: the same call with the route before the pads per sample (`as_before` "
+        f"in bench/warm_resolve.py: `set_pads.ROW_PADS` and `sensitivity.DUAL_RESET` off, "
+        f"every sample at one pad; 'differs' where "
         f"its route or T is not the parametric column's to the bit); *factorisation*, "
         f"*stretch check*: one KKT factorisation at "
         f"the serving point, the band assembled row-major and copied against in LAPACK's "
         f"band storage in place, and the six time stretches' set check of the step's "
         f"answer one by one against in one call, before -> now, median ms of 20 in the "
         f"same process; "
-        f"*step alone*: `sensitivity_solve` by itself, the whole move then, where it "
-        f"failed, the sub-moves (no trajectory, no certificate); "
+        f"*step alone*: `sensitivity_solve` by itself at the pads per sample, the whole "
+        f"move then, where it failed, the sub-moves (no trajectory, no certificate); "
         f"*ipopt*: the same with `warm_parametric=False` "
-        f"(IPOPT warm with the multipliers; the iterations of its last solve: the pad "
-        f"round's where it has one); *tight*: IPOPT on that NLP "
+        f"(IPOPT warm with the multipliers at the same pads per sample; the iterations of "
+        f"its last solve: the pad round's where it has one); *tight*, *barrier alone*, "
+        f"*active set*, *from step*: at one pad for all samples (`SET_PAD`), as before "
+        f"(the last three with today's steps, `DUAL_RESET` on); "
+        f"*tight*: IPOPT on that NLP "
         f"from that point with `warm=\"dual_tight\"` (barrier and warm-start pushes 1e-9), "
         f"the solve alone; *refit*: `warm_replan` from the default plan (its path fitted on "
         f"24 spans, no multipliers: the replans' route before); *quick*: the quick motion; "
@@ -447,12 +472,13 @@ def run(count: int = CASES) -> Section:
                 "barrier alone ms (steps) gap", "active set ms (KKT solves) gap",
                 "from step ms (it)", "factorisation ms", "stretch check ms"], rows),
         "",
+        f"Route mix (work, the same on any load): now {_mix(mix)}; before {_mix(mix_old)}. "
         f"Parametric route: {counts['parametric']}/{n} by the parametric step (median "
         f"{_med(m['p_steps']):.0f} Newton steps; {counts['sub_moves']} of them in "
         f"{PATH_SUBMOVES} sub-moves after the whole move's steps failed), "
         f"{counts['ipopt (fallback)']}/{n} fell back to IPOPT, {counts['certified']}/{n} "
-        f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, with the "
-        f"barrier's start as before: {counts['before_parametric']}/{n} "
+        f"certified; solve median {ms('p_solve')}, total {ms('p_total')} (before, at one "
+        f"pad for all samples: {counts['before_parametric']}/{n} "
         f"parametric, {ms('o_solve')} and {ms('o_total')}, the same route and T to the bit "
         f"on {counts['same']}/{n}; where the route fell back to IPOPT, solve "
         f"{ms('p_solve_fb')} against {ms('o_solve_fb')}). One KKT factorisation "

@@ -551,20 +551,22 @@ class FlatTranscription:
         """Rows of the NLP (its constraints; ``lam_g`` has as many)."""
         return self._ng
 
-    def bounds(self, lower: np.ndarray, upper: np.ndarray, set_pad: float = SET_PAD,
-               ends: tuple | None = None
+    def bounds(self, lower: np.ndarray, upper: np.ndarray,
+               set_pad: float | np.ndarray = SET_PAD, ends: tuple | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``lbg``, ``ubg``, ``lbx``, ``ubx`` for state bounds (2n,) (infinite entries: none).
 
         The position bounds are bounds on the control points (variables, not rows); ``T``
-        is at least 1 ms. ``ends``: (start value, target value) of the solve, for the
-        clearance rows' allowance (:meth:`clearance_allowance`); without it none.
+        is at least 1 ms. ``set_pad``: the set's pad, one for every sample or one per
+        sample (S,) (:func:`~tocontrol_ros.core.direct.set_pads.row_pads`). ``ends``:
+        (start value, target value) of the solve, for the clearance rows' allowance
+        (:meth:`clearance_allowance`); without it none.
         """
         n = self.model.n
         ng_set, ng_lin, ng_b = self._rows
         lbg = np.concatenate([np.full(ng_set, -np.inf), np.zeros(ng_lin), np.zeros(ng_b)])
-        ubg = np.concatenate([np.full(ng_set, 1.0 - set_pad), np.zeros(ng_lin),
-                              np.zeros(ng_b)])
+        ubg = np.concatenate([1.0 - np.broadcast_to(np.asarray(set_pad, dtype=float), ng_set),
+                              np.zeros(ng_lin), np.zeros(ng_b)])
         v = np.repeat(np.asarray(upper[n:], dtype=float), self.K - 1)  # rows joint by joint
         if self.acceleration is not None:
             v = np.concatenate([v, np.repeat(self.acceleration, self.K - 2)])
@@ -607,7 +609,7 @@ class FlatTranscription:
 
     def solve(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              set_pad: float = SET_PAD, deadline: float = np.inf,
+              set_pad: float | np.ndarray = SET_PAD, deadline: float = np.inf,
               max_iter: int | None = None, should_stop=None, lam_g0: np.ndarray | None = None,
               lam_x0: np.ndarray | None = None) -> FlatResult:
         """Solve from a guess.
@@ -626,7 +628,8 @@ class FlatTranscription:
         lower, upper : ndarray, shape (2n,)
             State bounds (positions, then velocities; the velocity bound is ``upper[n:]``,
             symmetric).
-        set_pad : float
+        set_pad : float or ndarray, shape (S,)
+            One pad for all samples, or one per sample.
         deadline : float
             The caller's deadline, a ``time.perf_counter()`` value (s): IPOPT stops there
             (a failed result). The one reading of the clock that may end a solve.

@@ -342,10 +342,10 @@ class FlatTrajectory(InverseDynamicsTrajectory):
 
     def set_values(self, points: int = 32) -> np.ndarray:
         """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
-        u = self.control_at(self._set_fractions(points) * self.T)
+        u = self.control_at(self.set_fractions(points) * self.T)
         return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
 
-    def _set_fractions(self, points: int) -> np.ndarray:
+    def set_fractions(self, points: int) -> np.ndarray:
         """The times of :meth:`set_values` as fractions of ``T``, shape (L points,)."""
         br = self.breaks
         frac = (np.arange(points) + 0.5) / points
@@ -370,7 +370,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         -------
         ndarray, shape (m, L points)
         """
-        s = self._set_fractions(points)
+        s = self.set_fractions(points)
         q, qd, qdd = (np.vstack(a) for a in zip(*(self._path(s * T, T) for T in durations),
                                                 strict=True))
         u = self._controls(q, qd, qdd)

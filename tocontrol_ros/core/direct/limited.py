@@ -32,6 +32,7 @@ from scipy.interpolate import make_interp_spline
 
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
+from tocontrol_ros.core.direct import set_pads
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.detour import detour_guess, path_collides
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
@@ -331,13 +332,14 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     bounds = state_bounds(problem, PAD)
     values = (problem.start.value, problem.target.value, problem.k)
     spans, P, duals, mesh = ctx.options.replan_spans, warm.P, {}, "its mesh"
-    route = []
+    route, pad = [], SET_PAD
     if spans and trajectory is not None and len(warm.breaks) - 1 != spans:
         flat, mesh = planner.flat(problem, spans, warm=True), "a uniform mesh"
         path = trajectory.evaluate(np.linspace(0.0, warm.T, 4 * flat.K))
         P = flat.fit(warm.T, path.t, path.q, path.qd)
     else:
         flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
+        pad = _row_pads(flat, warm, problem.k)  # its own mesh: the pads its path asks for
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
             # A distant warm start (a memory's hit) farther than one sub-move; a move of a
@@ -349,7 +351,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
             if ctx.options.warm_parametric and (ctx.options.warm_follow or not far):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
-                                        solved)
+                                        solved, pad)
                 if done is not None:
                     return done
                 route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
@@ -357,12 +359,15 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                 route = [f"a distant warm start (warm_far): IPOPT from its multipliers, the "
                          f"barrier from {FAR_MU:g} (route: ipopt)"]
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
-    out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER), **duals)
+    if not set_pads.FALLBACK_PADS:
+        pad = SET_PAD
+    out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad, **_budget(ctx, NEAR_MAX_ITER),
+                     **duals)
     ctx.check()
     traj = None
     if out.success:
         out, traj = _inside_set(planner, ctx, bounds, out,
-                                FlatTrajectory(flat, out, problem.k), flat)
+                                FlatTrajectory(flat, out, problem.k), flat, pad)
     timings["shooting"] += time.perf_counter() - t0
     if traj is None:
         return _infeasible(problem, f"the warm bounded solve failed ({out.message})",
@@ -375,7 +380,8 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
 
 def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState, bounds,
                 values, timings: dict, t_start: float, t0: float,
-                solved: Problem | None = None) -> tuple[PlanResult | None, str]:
+                solved: Problem | None = None, pad: float | np.ndarray = SET_PAD
+                ) -> tuple[PlanResult | None, str]:
     """The warm re-solve by the parametric step (:mod:`~.sensitivity`), certified.
 
     With ``options.warm_follow``, from ``solved`` (the warm state's own problem) when its
@@ -387,6 +393,9 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     The certified result, or None and why not: the steps did not converge within their
     work budget, the torques leave the set between the samples even slowed down, or the
     certificate failed. The caller then re-solves with IPOPT.
+
+    The steps start at ``pad``, the set's pad (one, or one per sample: :func:`_row_pads`);
+    a pad round widens it (:func:`_wider`).
     """
     problem = ctx.problem
     w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
@@ -394,29 +403,29 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
         if ctx.options.warm_follow and _same_kinds(solved, problem) else None
     if old is not None and 1 < sub_moves(old, values) <= MAX_MOVES:
         # The walk in the request's parameters (warm_follow: a memory hit's distant start).
-        step, _ = follow(flat, w0, warm.lam_g, warm.lam_x, old, values, *bounds, SET_PAD,
+        step, _ = follow(flat, w0, warm.lam_g, warm.lam_x, old, values, *bounds, pad,
                          should_stop=ctx.should_stop)
         ctx.check()
     else:
-        step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, SET_PAD)
+        step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, pad)
     why = step.message
     if not step.success:  # the caller's solve time counts from t0 on
         return None, why
     traj = FlatTrajectory(flat, step, problem.k)
-    excess, pad = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN), SET_PAD
+    excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
     slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 else (step, traj)
     for _ in range(PAD_ROUNDS if slower is None else 0):
         # As _inside_set does with IPOPT: the set's pad widened, the step carried there
         # from its own answer (the rows held at the old pad move with it).
-        pad += 2.0 * excess
+        pad = _wider(pad, excess, traj, flat)
         w1 = np.concatenate([step.P.ravel(), [step.T]])
         again = _steps(ctx, flat, w1, step.lam_g, step.lam_x, values, bounds, pad)
         if not again.success:
-            why = f"{why}; pad {pad:.2g}: {again.message}"
+            why = f"{why}; pad {np.max(pad):.2g}: {again.message}"
             break
         step, traj = again, FlatTrajectory(flat, again, problem.k)
         excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
-        why = f"{why}; pad {pad:.2g}: {again.message}"
+        why = f"{why}; pad {np.max(pad):.2g}: {again.message}"
         slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 \
             else (step, traj)
         if slower is not None:
@@ -436,8 +445,36 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     return None, f"{why}, but not certified ({done.message})"
 
 
+def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
+              ) -> float | np.ndarray:
+    """The set's pad per sample (S,) for a warm re-solve from ``warm`` on its mesh ``flat``.
+
+    Read off the warm state's path and ``T`` as a trajectory of ``flat`` (its inverse
+    dynamics, so that the mapped calls are the ones the answer's checks use)
+    (:func:`~.set_pads.row_pads`, with :data:`~.set_pads.ROW_PADS`); else :data:`SET_PAD`.
+    """
+    if not set_pads.ROW_PADS:
+        return SET_PAD
+    path = FlatResult(success=True, message="warm state", T=float(warm.T),
+                      iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
+                      residual=0.0)
+    return set_pads.row_pads(FlatTrajectory(flat, path, k), flat.samples)
+
+
+def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,
+           flat: FlatTranscription) -> float | np.ndarray:
+    """The pad of a pad round after ``traj`` left the set by ``excess`` between samples.
+
+    Per sample where ``pad`` is one per sample (:func:`~.set_pads.widened`, with
+    :data:`~.set_pads.LOCAL_ROUNDS`), else all alike by twice ``excess``.
+    """
+    if np.ndim(pad) and set_pads.LOCAL_ROUNDS:
+        return set_pads.widened(pad, traj, flat.samples, SET_MARGIN)
+    return pad + 2.0 * excess
+
+
 def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np.ndarray,
-           lam_x: np.ndarray, values, bounds, pad: float) -> FlatResult:
+           lam_x: np.ndarray, values, bounds, pad: float | np.ndarray) -> FlatResult:
     """The parametric steps to ``values`` from the solution ``w0`` with its multipliers.
 
     The whole move first (:func:`~.sensitivity.sensitivity_solve`); where its steps do not
@@ -766,8 +803,8 @@ def _refine_item(planner: Compiled, ctx: SolveContext, bounds, breaks: np.ndarra
 
 
 def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
-                traj: FlatTrajectory, flat: FlatTranscription
-                ) -> tuple[FlatResult, FlatTrajectory]:
+                traj: FlatTrajectory, flat: FlatTranscription,
+                pad: float | np.ndarray = SET_PAD) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.
 
     First the same path slowed down (:func:`_stretched`); if that is not enough, at most
@@ -786,7 +823,6 @@ def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
     """
     problem = ctx.problem
     values = (problem.start.value, problem.target.value, problem.k)
-    pad = SET_PAD
     excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
     if excess > 0.0:
         stretched = _stretched(flat, out, traj, values, bounds)
@@ -795,7 +831,7 @@ def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
     for _ in range(PAD_ROUNDS):
         if excess <= 0.0:
             break
-        pad += 2.0 * excess
+        pad = _wider(pad, excess, traj, flat)
         for start in ("resume", "restart"):
             again_flat = planner.flat(problem, flat.breaks, warm=start)
             again = again_flat.solve(*values, out.T, out.P, *bounds, set_pad=pad,

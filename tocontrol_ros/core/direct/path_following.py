@@ -101,7 +101,8 @@ def _along(old: tuple, new: tuple, s: float) -> tuple:
 
 def follow(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray, lam_x0: np.ndarray,
            old_values: tuple, new_values: tuple, lower: np.ndarray, upper: np.ndarray,
-           set_pad: float, should_stop=None) -> tuple[FlatResult, FollowOutcome]:
+           set_pad: float | np.ndarray, should_stop=None
+           ) -> tuple[FlatResult, FollowOutcome]:
     """The new problem's solution from a converged one of ``old_values`` (see the module).
 
     Parameters
@@ -117,7 +118,8 @@ def follow(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray, lam_x0: 
         ``(start_value, target_value, k)`` of the solved problem and of the new one.
     lower, upper : ndarray, shape (2n,)
         State bounds, as for :meth:`FlatTranscription.solve`.
-    set_pad : float
+    set_pad : float or ndarray, shape (S,)
+        The set's pad, one for all samples or one per sample.
     should_stop : callable, optional
         Polled by every parametric step; True stops (a failure, "cancelled").
 

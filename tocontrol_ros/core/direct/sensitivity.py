@@ -15,7 +15,9 @@ Lagrangian's Hessian kept from the first (chord steps: the rows, their Jacobian 
 barrier terms evaluated again each step; the Hessian re-evaluated, at most
 :data:`REFRESHES` times, after a step cut by the boundary or one that did not cut the
 residual by :data:`CONTRACTION`), each cut by the fraction-to-the-boundary rule, so slacks
-and multipliers stay positive and every inequality holds strictly. Where the move changes
+and multipliers stay positive and every inequality holds strictly (the whole move's dual
+step is taken in full instead, the multipliers that it takes below the barrier's reach
+reset onto it: :data:`DUAL_RESET`). Where the move changes
 the active set the slacks and multipliers of those rows must change places: the barrier
 alone then cut its steps to 1e-4-1e-2 of their length and did not converge within the
 budget (docs/limits.md, "Warm re-solves by the parametric step"). So a step cut below
@@ -58,7 +60,7 @@ from scipy.linalg import lapack
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
-__all__ = ["FAR_SIDE_LEAST_ROOM", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES",
+__all__ = ["DUAL_RESET", "FAR_SIDE_LEAST_ROOM", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES",
            "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome",
            "banded_kkt", "sensitivity_solve"]
 
@@ -122,6 +124,16 @@ PATH_SUB_BUDGET = (14, 24)
 #: put a value on its lower bound back onto it (the route before; bench/warm_resolve.py's
 #: *before* column).
 FAR_SIDE_LEAST_ROOM = True
+#: The whole move's steps (``submoves`` 1) take the full dual step, then put every bound
+#: multiplier whose product with its slack fell below ``MU / KAPPA`` (or turned negative)
+#: back on the barrier's own value ``MU / slack``, instead of cutting the dual step by the
+#: fraction to the boundary: the rows that leave the active set cut that step to 1e-2 and
+#: less in the first steps (IPOPT's ``kappa_sigma`` safeguard resets multipliers so, after
+#: its cut step). Measured on bench/warm_resolve.py's 20 moves with the pads per sample
+#: (bench/warm_pad_rows.py): one parametric solve on 11 (10 without), 1-2 Newton steps
+#: fewer on 4 of them; at one pad for all it lost 2 moves to IPOPT and in the sub-moves it
+#: lost both of theirs (docs/limits.md, "Pads per sample"). False: the route before.
+DUAL_RESET, KAPPA = True, 1e10
 
 
 @dataclass(frozen=True)
@@ -322,7 +334,8 @@ def _boundary_step(dx, room) -> float:
 
 def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarray,
                       lam_x0: np.ndarray, start_value: np.ndarray, target_value: np.ndarray,
-                      k: float, lower: np.ndarray, upper: np.ndarray, set_pad: float,
+                      k: float, lower: np.ndarray, upper: np.ndarray,
+                      set_pad: float | np.ndarray,
                       should_stop=None, hold: bool = True, submoves: int = 1,
                       max_steps: int | None = None, max_solves: int | None = None,
                       sub_budget: tuple[int, int] | None = None
@@ -343,7 +356,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     k : float
     lower, upper : ndarray, shape (2n,)
         State bounds, as for :meth:`FlatTranscription.solve`.
-    set_pad : float
+    set_pad : float or ndarray, shape (S,)
+        The set's pad, one for all samples or one per sample (:mod:`~.set_pads`).
     should_stop : callable, optional
         Polled every step; True stops (a failure, "cancelled").
     hold : bool
@@ -375,6 +389,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     lbg, ubg, lbx, ubx = flat.bounds(lower, upper, set_pad, (start_value, target_value))
     nw, ng = len(w0), len(lbg)
     w = np.array(w0, dtype=float)
+    reset = DUAL_RESET and submoves == 1
     eq = lbg == ubg
     has_lg, has_ug = (lbg > -INF) & ~eq, (ubg < INF) & ~eq
     has_lx, has_ux = lbx > -INF, ubx < INF
@@ -539,11 +554,18 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             w = w + a_p * dw
             s = s + a_p * ds
             y = y + a_p * dy
+            if reset:
+                a_d = 1.0
             zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
             room_lg = np.where(hlg, s - lbg, 1.0)
             room_ug = np.where(hug, ubg - s, 1.0)
             room_lx = np.where(has_lx, w - lbx, 1.0)
             room_ux = np.where(has_ux, ubx - w, 1.0)
+            if reset:
+                zl = np.where(hlg & (zl * room_lg < MU / KAPPA), MU / room_lg, zl)
+                zu = np.where(hug & (zu * room_ug < MU / KAPPA), MU / room_ug, zu)
+                vl = np.where(has_lx & (vl * room_lx < MU / KAPPA), MU / room_lx, vl)
+                vu = np.where(has_ux & (vu * room_ux < MU / KAPPA), MU / room_ux, vu)
             steps += 1
             g, jv = der.rows(w, par)
     active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
