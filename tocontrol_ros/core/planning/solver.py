@@ -239,7 +239,8 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
     ``problem.collision.row_pairs``. A bounded-solve motion refused by its certificate whose
     self pairs come within :data:`~tocontrol_ros.core.direct.clearance.SELF_ROW_BAND` of the
     margin (Coal's exact distances at 401 times) is solved again with those pairs as rows
-    as well, warm from the refused motion (its mesh and path), at most
+    as well, warm from the refused motion (its mesh and path; where that fails, from
+    IPOPT's default start on them: ``PathWarmState.rows_added``), at most
     :data:`SELF_ROW_ROUNDS` times; a round that adds no pair, or whose solve fails, stops.
     The result carries the caller's problem; its message names the pairs added, and a
     failed round keeps the refused result (its status and message, and why the round
@@ -262,7 +263,7 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
         added += new
         warm = replace(out, warm_state=PathWarmState(np.array(traj.breaks),
                                                      np.array(traj.result.P), traj.T,
-                                                     None, None))
+                                                     None, None, rows_added=True))
         again = solve_once(planner, replace(problem, collision=col), options, warm,
                            should_stop, deadline)
         if again.status in (Status.SUCCESS, Status.VERIFICATION_FAILED):
