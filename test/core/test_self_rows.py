@@ -118,6 +118,42 @@ def test_the_base_hull_bounds_coal_from_below_and_is_tighter_than_its_spheres(pa
     assert np.max(exact[near] - by_spheres[near]) > 0.03
 
 
+def test_the_hull_rows_derivatives_are_the_distances_own(panda):
+    """The hull rows enter the Hessian through a second-order expansion about a stand-in
+    point replaced by the sphere's centre: their gradient and the Lagrangian's Hessian
+    match central finite differences of the values and of the gradient."""
+    model, col = panda
+    rows = clearance_rows(col.with_row_pairs(PAIRS))
+    assert len(rows.hull_radius) > 0
+    value, grad, hess = clearance_functions(model, rows, 3)
+    n = model.n
+    rng = np.random.default_rng(34)
+    P = np.tile(np.array([0.0, 0.9, 0.0, -2.2, 0.0, 2.0, 0.8])[:, None], (1, 4)) \
+        + rng.normal(0.0, 0.05, (n, 4))
+    b, geo = np.array([[0.2, 0.5, 0.25, 0.05]]), np.array([0.01, 3.0, 3.0, 3.0])
+    lam = rng.uniform(0.5, 1.5, len(rows.groups()))
+    z = np.concatenate([P.ravel(order="F"), [1.0]])
+
+    def at(fun, w, *extra):
+        return fun(w[:-1].reshape(n, 4, order="F"), w[-1], b, geo, *extra)
+
+    jac = np.array(at(grad, z)[1])
+    eps, eye = 1e-6, np.eye(len(z))
+    fd = np.column_stack([(np.array(at(value, z + eps * e)) - np.array(at(value, z - eps * e)))
+                          .ravel() / (2 * eps) for e in eye])
+    assert np.max(np.abs(fd - jac)) < 1e-7
+    upper = np.array(at(hess, z, lam)).ravel()
+    full = np.zeros((len(z), len(z)))
+    k = 0
+    for c in range(len(z)):
+        for r in range(c + 1):
+            full[r, c] = full[c, r] = upper[k]
+            k += 1
+    fd = np.column_stack([(lam @ np.array(at(grad, z + eps * e)[1])
+                           - lam @ np.array(at(grad, z - eps * e)[1])) / (2 * eps) for e in eye])
+    assert np.max(np.abs(fd - full)) < 1e-6 * max(1.0, np.max(np.abs(full)))
+
+
 #: A joint-state move of the wrist (joints 5 and 6) past the upper arm: its obstacle-free
 #: optimum brings the hand 1.7 cm from link 2 (Coal), inside a 3 cm margin, while both
 #: ends are clear of every pair by more (5.3 cm, 4.3 cm).
@@ -161,3 +197,40 @@ def test_a_self_row_turns_a_refused_motion_into_a_certified_one(panda):
     exact = col.clearance(sample.q)  # every self pair, the rows' and the others
     assert exact.minimum >= SELF_MARGIN, (exact.minimum, exact.pair)
     assert np.allclose(sample.q[-1], SELF_TARGET, atol=1e-4)
+
+
+#: Case 1 table of bench/collision.py (seed 51, draw 1): the Panda from rest to a point
+#: beside and below its base, the table at z = 0. Its obstacle-free optimum's basin (and the
+#: detour) end with ``panda_link6`` touching ``panda_link1`` (session 34).
+TABLE_START = np.array([-0.5058236111869907, 1.55925457731147, -1.5040060817705547,
+                        -1.8126770703394903, 2.311806764435881, 2.1396296091672635,
+                        1.2294727671857915])
+TABLE_TARGET = np.array([-0.07706082819959903, -0.16913943229740502, 0.1827177659078575])
+
+
+@pytest.mark.slow
+def test_a_point_target_whose_free_basins_touch_themselves_is_planned_clear(panda):
+    """The bench's case 1 table: planned (about 75 s here), certified, and clear of the
+    table and of every self pair by the margin by Coal at 2001 times (session 34: the
+    self-row round from the refused motion converges from IPOPT's default start, where
+    warm it stopped at its work limit)."""
+    from tocontrol_ros.core import SolverOptions, plan
+    from tocontrol_ros.core.geometry.scene import scene_from_dict
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state, point
+
+    model, col = panda
+    scene = scene_from_dict({"frame": "panda_link0", "obstacles": [
+        {"name": "table", "type": "box", "size": [1.6, 1.6, 0.04],
+         "position": [0.3, 0.0, -0.02]}],
+        "allowed": [["panda_link0", "table"], ["panda_link1", "table"]]}, "table")
+    col = col.with_scene(scene)
+    problem = Problem(model, joint_state(TABLE_START), point(TABLE_TARGET), k=4.0,
+                      limits=JointLimits.from_model(model), collision=col)
+    res = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=600))
+    assert res.success, res.message
+    assert res.certificate.passed and res.certificate.item("clearance").passed
+    sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+    exact = col.clearance(sample.q)
+    assert exact.minimum >= col.margin, (exact.minimum, exact.pair)
+    assert np.linalg.norm(model.point(sample.q[-1]) - TABLE_TARGET) < 1e-4

@@ -304,16 +304,25 @@ def _sdf(kind: str, size, local):
     return outside + ca.fmin(ca.mmax(d), 0)
 
 
-def _hull_distance(planes: np.ndarray, c):
+def _hull_distance(planes: np.ndarray, c) -> tuple:
     """The smooth lower bound (SX) of a point's distance ``c`` (3, 1) to a hull's planes (F, 4).
 
     As :meth:`~tocontrol_ros.core.geometry.hull.LinkHull.distance`: the smooth maximum of
-    the planes' values less ``log(F) / sharpness``, never above the largest.
+    the planes' values less ``log(F) / sharpness``, never above the largest. Returns the
+    value and ``(gradient (3, 1), Hessian (3, 3))`` in ``c``, written out (softmax weights
+    ``w_f``: gradient ``sum w_f a_f``, Hessian ``beta (sum w_f a_f a_f^T - grad grad^T)``).
     """
-    v = ca.mtimes(ca.DM(planes[:, :3]), c) + ca.DM(planes[:, 3])
+    normals = ca.DM(planes[:, :3])
+    v = ca.mtimes(normals, c) + ca.DM(planes[:, 3])
     top = ca.mmax(v)  # any shift gives the same value; this one keeps exp() in range
-    return top + (ca.log(ca.sum1(ca.exp(HULL_SHARPNESS * (v - top))))
-                  - np.log(len(planes))) / HULL_SHARPNESS
+    e = ca.exp(HULL_SHARPNESS * (v - top))
+    total = ca.sum1(e)
+    value = top + (ca.log(total) - np.log(len(planes))) / HULL_SHARPNESS
+    w = e / total
+    grad = ca.mtimes(normals.T, w)
+    hess = HULL_SHARPNESS * (ca.mtimes(normals.T, ca.mtimes(ca.diag(w), normals))
+                             - ca.mtimes(grad, grad.T))
+    return value, (grad, hess)
 
 
 def _span_speed(P, coef):
@@ -370,18 +379,35 @@ def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
         dist = ca.sqrt(ca.sumsqr(ends[0] - ends[1]) + SDF_EPS ** 2)
         g.append(dist - float(rows.pair_radius[i].sum()) - rows.margin
                  - geo[0] * ca.dot(ca.DM(rows.pair_lever[i]), speed))
+    # A hull row's distance is a sum over its planes: differentiated through the sphere's
+    # centre by the chain rule, it would repeat that sum for every variable (a 15 MB C
+    # source for the Panda's hand, minutes of compiling). So it enters as its second-order
+    # expansion about a stand-in point ``c0`` (value, gradient and Hessian in ``c0``: sums
+    # over the planes, once each), which is then replaced by the centre: at ``c0 = c`` the
+    # value, gradient and Hessian are the distance's own.
+    stand, centres = [], []
     for i in range(len(rows.hull_radius)):
         rot, pos = frames[int(rows.hull_body[i])]
         c = pos + ca.mtimes(rot, ca.DM(rows.hull_center[i]))
-        planes = np.asarray(rows.hull_planes[i], dtype=float)
-        g.append(_hull_distance(planes, c) - float(rows.hull_radius[i]) - rows.margin
+        c0 = ca.SX.sym(f"c0_{i}", 3)
+        value, (slope, curve) = _hull_distance(np.asarray(rows.hull_planes[i], dtype=float),
+                                               c0)
+        d = c - c0
+        g.append(value + ca.dot(slope, d) + 0.5 * ca.dot(d, ca.mtimes(curve, d))
+                 - float(rows.hull_radius[i]) - rows.margin
                  - geo[0] * ca.dot(ca.DM(rows.hull_lever[i]), speed))
+        stand.append(c0)
+        centres.append(c)
     g = _grouped(ca.vertcat(*g), rows)
     hess = ca.hessian(ca.dot(lam, g), z)[0]
     dz = z.numel()
     upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
+    jac = ca.densify(ca.jacobian(g, z))
+    if stand:
+        stand, centres = ca.vertcat(*stand), ca.vertcat(*centres)
+        g, jac, upper = (ca.substitute(e, stand, centres) for e in (g, jac, upper))
     return [ca.Function("clear", [P, T, b, geo], [g]),
-            ca.Function("clear_grad", [P, T, b, geo], [g, ca.densify(ca.jacobian(g, z))]),
+            ca.Function("clear_grad", [P, T, b, geo], [g, jac]),
             ca.Function("clear_hess", [P, T, b, geo, lam], [ca.densify(ca.cse(upper))])]
 
 
