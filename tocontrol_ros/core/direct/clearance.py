@@ -43,7 +43,12 @@ pairs a sample on the Panda): one row per pair of bodies, the smooth minimum of
     |c_a - c_b| - r_a - r_b - margin - h sum_{j > a} rho_bj max_k |Q'_jk| >= 0
 
 over their sphere pairs (``a`` the earlier body: the joints up to it move both centres
-alike, the later ones move ``c_b`` relative to body ``a`` with its lever arms). The planner
+alike, the later ones move ``c_b`` relative to body ``a`` with its lever arms). A pair with a
+link on the base whose convex hull is tighter than its spheres (the Panda's ``panda_link0``:
+spheres 5-6 cm off its mesh, the hull's planes at most 8.4 mm short up to 5 cm out;
+:mod:`~tocontrol_ros.core.geometry.hull`) holds the other link's spheres against the hull
+instead: ``d_H(c_b) - r_b - margin - h sum_j rho_bj max_k |Q'_jk|``, ``d_H`` the smooth
+maximum of the hull's support planes (a lower bound of the exact distance). The planner
 adds the pairs a motion refused by the certificate brought within
 ``SELF_ROW_BAND`` of the margin and plans again (``core/planning/solver.py``); the
 certificate checks every self pair.
@@ -58,6 +63,7 @@ import casadi as ca
 import numpy as np
 
 from tocontrol_ros.core.geometry.collision import CollisionModel
+from tocontrol_ros.core.geometry.hull import SHARPNESS as HULL_SHARPNESS
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -129,6 +135,17 @@ class ClearanceRows:
         before move both centres alike).
     pair_names : tuple of (str, str), length Q
         (link, link) of each sphere pair.
+    hull_body : ndarray of int, shape (H,)
+        The body of each sphere held against a base link's hull (self rows where
+        :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.row_hull` gives one).
+    hull_center : ndarray, shape (H, 3)
+    hull_radius : ndarray, shape (H,)
+    hull_lever : ndarray, shape (H, n)
+    hull_planes : tuple of ndarray, length H
+        Each row's hull as support planes (F, 4) in the base frame
+        (:class:`~tocontrol_ros.core.geometry.hull.LinkHull`).
+    hull_names : tuple of (str, str), length H
+        (base link, link) of each row.
     """
 
     body: np.ndarray
@@ -143,6 +160,12 @@ class ClearanceRows:
     pair_radius: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     pair_lever: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     pair_names: tuple = ()
+    hull_body: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    hull_center: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    hull_radius: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hull_lever: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    hull_planes: tuple = ()
+    hull_names: tuple = ()
 
     def digest(self) -> str:
         """A short hash of everything the rows compute (names a compiled library)."""
@@ -155,21 +178,28 @@ class ClearanceRows:
             h.update(kind.encode())
             h.update(np.array([*size, *np.ravel(rot), *pos], dtype=float).tobytes())
         h.update(np.array([self.margin]).tobytes())
+        if len(self.hull_radius):  # rows without a hull keep their former names
+            h.update(f"hull {HULL_SHARPNESS!r}".encode())
+            for arr in (self.hull_body, self.hull_center, self.hull_radius, self.hull_lever,
+                        *self.hull_planes):
+                h.update(np.ascontiguousarray(arr, dtype=float).tobytes())
         return h.hexdigest()[:16]
 
     @property
     def count(self) -> int:
         """Spheres against obstacles and self sphere pairs (the rows are :meth:`groups`)."""
-        return len(self.radius) + len(self.pair_radius)
+        return len(self.radius) + len(self.pair_radius) + len(self.hull_radius)
 
     def groups(self) -> list[np.ndarray]:
         """The NLP's rows: the sphere pairs of one body and one obstacle, each an index array.
 
         In order of first appearance; then the self sphere pairs of two bodies (indices
-        after the obstacles' ``R``).
+        after the obstacles' ``R``), then the spheres held against a base link's hull (one
+        group with any sphere pairs of the same two bodies).
         """
         keys = [(int(b), n[1]) for b, n in zip(self.body, self.names, strict=True)]
         keys += [("self", int(a), int(b)) for a, b in self.pair_body]
+        keys += [("self", -1, int(b)) for b in self.hull_body]
         order = list(dict.fromkeys(keys))
         return [np.flatnonzero([k == key for k in keys]) for key in order]
 
@@ -202,28 +232,43 @@ def clearance_rows(collision: CollisionModel) -> ClearanceRows:
 
 
 def _self_rows(collision: CollisionModel) -> dict:
-    """The sphere pairs of ``collision.row_pairs`` (:class:`ClearanceRows`' ``pair_*``)."""
+    """The rows of ``collision.row_pairs`` (:class:`ClearanceRows`' ``pair_*`` and ``hull_*``).
+
+    A pair with a base link whose hull is tighter than its spheres
+    (:meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.row_hull`) holds the
+    other link's spheres against the hull's planes; any other pair, sphere against sphere.
+    """
     n = collision.model.n
     by_link = {s.link: s for s in collision.spheres}
-    rows = []
+    rows, hulls = [], []
     for a, b in collision.row_pairs:
         sa, sb = by_link[a], by_link[b]
         if sa.body > sb.body:
             sa, sb = sb, sa
-        for ca_, ra in zip(sa.centers, sa.radii, strict=True):
-            for cb, rb in zip(sb.centers, sb.radii, strict=True):
-                # joints up to sa's body move both centres alike: only those after it
-                # change the distance, moving sb's centre relative to sa's body
-                lever = collision.lever_arms(sb.body, float(np.linalg.norm(cb)))
-                lever[:sa.body + 1] = 0.0
+        hull = collision.row_hull(sa.link) if sa.body < 0 else None
+        for cb, rb in zip(sb.centers, sb.radii, strict=True):
+            # joints up to sa's body move both centres alike: only those after it
+            # change the distance, moving sb's centre relative to sa's body
+            lever = collision.lever_arms(sb.body, float(np.linalg.norm(cb)))
+            lever[:sa.body + 1] = 0.0
+            if hull is not None:
+                hulls.append((sb.body, cb, rb, lever, hull.planes, (sa.link, sb.link)))
+                continue
+            for ca_, ra in zip(sa.centers, sa.radii, strict=True):
                 rows.append(((sa.body, sb.body), (ca_, cb), (ra, rb), lever,
                              (sa.link, sb.link)))
-    if not rows:
-        return {"pair_lever": np.zeros((0, n))}
-    body, center, radius, lever, names = zip(*rows, strict=True)
-    return {"pair_body": np.array(body, int), "pair_center": np.array(center),
-            "pair_radius": np.array(radius), "pair_lever": np.array(lever),
-            "pair_names": tuple(names)}
+    out: dict = {"pair_lever": np.zeros((0, n)), "hull_lever": np.zeros((0, n))}
+    if rows:
+        body, center, radius, lever, names = zip(*rows, strict=True)
+        out.update(pair_body=np.array(body, int), pair_center=np.array(center),
+                   pair_radius=np.array(radius), pair_lever=np.array(lever),
+                   pair_names=tuple(names))
+    if hulls:
+        body, center, radius, lever, planes, names = zip(*hulls, strict=True)
+        out.update(hull_body=np.array(body, int), hull_center=np.array(center),
+                   hull_radius=np.array(radius), hull_lever=np.array(lever),
+                   hull_planes=tuple(planes), hull_names=tuple(names))
+    return out
 
 
 def _grouped(g, rows: ClearanceRows):
@@ -257,6 +302,27 @@ def _sdf(kind: str, size, local):
         d = ca.fabs(local) - ca.DM(np.asarray(size, dtype=float) / 2)
     outside = ca.sqrt(ca.sumsqr(ca.fmax(d, 0)) + SDF_EPS ** 2) - SDF_EPS
     return outside + ca.fmin(ca.mmax(d), 0)
+
+
+def _hull_distance(planes: np.ndarray, c) -> tuple:
+    """The smooth lower bound (SX) of a point's distance ``c`` (3, 1) to a hull's planes (F, 4).
+
+    As :meth:`~tocontrol_ros.core.geometry.hull.LinkHull.distance`: the smooth maximum of
+    the planes' values less ``log(F) / sharpness``, never above the largest. Returns the
+    value and ``(gradient (3, 1), Hessian (3, 3))`` in ``c``, written out (softmax weights
+    ``w_f``: gradient ``sum w_f a_f``, Hessian ``beta (sum w_f a_f a_f^T - grad grad^T)``).
+    """
+    normals = ca.DM(planes[:, :3])
+    v = ca.mtimes(normals, c) + ca.DM(planes[:, 3])
+    top = ca.mmax(v)  # any shift gives the same value; this one keeps exp() in range
+    e = ca.exp(HULL_SHARPNESS * (v - top))
+    total = ca.sum1(e)
+    value = top + (ca.log(total) - np.log(len(planes))) / HULL_SHARPNESS
+    w = e / total
+    grad = ca.mtimes(normals.T, w)
+    hess = HULL_SHARPNESS * (ca.mtimes(normals.T, ca.mtimes(ca.diag(w), normals))
+                             - ca.mtimes(grad, grad.T))
+    return value, (grad, hess)
 
 
 def _span_speed(P, coef):
@@ -313,12 +379,35 @@ def clearance_functions(model: RobotModel, rows: ClearanceRows, degree: int
         dist = ca.sqrt(ca.sumsqr(ends[0] - ends[1]) + SDF_EPS ** 2)
         g.append(dist - float(rows.pair_radius[i].sum()) - rows.margin
                  - geo[0] * ca.dot(ca.DM(rows.pair_lever[i]), speed))
+    # A hull row's distance is a sum over its planes: differentiated through the sphere's
+    # centre by the chain rule, it would repeat that sum for every variable (a 15 MB C
+    # source for the Panda's hand, minutes of compiling). So it enters as its second-order
+    # expansion about a stand-in point ``c0`` (value, gradient and Hessian in ``c0``: sums
+    # over the planes, once each), which is then replaced by the centre: at ``c0 = c`` the
+    # value, gradient and Hessian are the distance's own.
+    stand, centres = [], []
+    for i in range(len(rows.hull_radius)):
+        rot, pos = frames[int(rows.hull_body[i])]
+        c = pos + ca.mtimes(rot, ca.DM(rows.hull_center[i]))
+        c0 = ca.SX.sym(f"c0_{i}", 3)
+        value, (slope, curve) = _hull_distance(np.asarray(rows.hull_planes[i], dtype=float),
+                                               c0)
+        d = c - c0
+        g.append(value + ca.dot(slope, d) + 0.5 * ca.dot(d, ca.mtimes(curve, d))
+                 - float(rows.hull_radius[i]) - rows.margin
+                 - geo[0] * ca.dot(ca.DM(rows.hull_lever[i]), speed))
+        stand.append(c0)
+        centres.append(c)
     g = _grouped(ca.vertcat(*g), rows)
     hess = ca.hessian(ca.dot(lam, g), z)[0]
     dz = z.numel()
     upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
+    jac = ca.densify(ca.jacobian(g, z))
+    if stand:
+        stand, centres = ca.vertcat(*stand), ca.vertcat(*centres)
+        g, jac, upper = (ca.substitute(e, stand, centres) for e in (g, jac, upper))
     return [ca.Function("clear", [P, T, b, geo], [g]),
-            ca.Function("clear_grad", [P, T, b, geo], [g, ca.densify(ca.jacobian(g, z))]),
+            ca.Function("clear_grad", [P, T, b, geo], [g, jac]),
             ca.Function("clear_hess", [P, T, b, geo, lam], [ca.densify(ca.cse(upper))])]
 
 

@@ -24,6 +24,11 @@ class PathWarmState:
     lam_g, lam_x : ndarray or None
         The NLP's multipliers at that solution (rows, then variables' bounds): a warm
         re-solve on the same mesh starts from them too (docs/limits.md).
+    rows_added : bool
+        The path solves a problem with fewer clearance rows than the one it starts (the
+        planner's self rows after a refused motion): it breaks the new rows, so a warm
+        solve that fails is tried once more from IPOPT's default start (docs/collision.md,
+        session 34: case 1 table of bench/collision.py).
     """
 
     breaks: np.ndarray
@@ -31,3 +36,4 @@ class PathWarmState:
     T: float
     lam_g: np.ndarray | None = None
     lam_x: np.ndarray | None = None
+    rows_added: bool = False

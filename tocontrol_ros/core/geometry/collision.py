@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tocontrol_ros.core.errors import ModelError, ProblemError
+from tocontrol_ros.core.geometry.hull import LinkHull, fit_hull
 from tocontrol_ros.core.geometry.scene import Scene
 from tocontrol_ros.core.geometry.shapes import LinkShape, link_shapes
 from tocontrol_ros.core.geometry.spheres import LinkSpheres, fit_spheres
@@ -178,6 +179,10 @@ class CollisionModel:
         :func:`~tocontrol_ros.core.direct.clearance.clearance_rows`); the others are
         checked by the certificate only. Default none: the planner adds the pairs a refused
         motion brought close (:meth:`with_row_pairs`).
+    hulls : tuple of LinkHull
+        The base links' convex hulls as support planes
+        (:mod:`~tocontrol_ros.core.geometry.hull`): a self row against such a link uses
+        them where their gap is below its spheres' (:meth:`row_hull`).
     """
 
     model: RobotModel
@@ -188,6 +193,7 @@ class CollisionModel:
     margin: float
     source: tuple = field(repr=False)
     row_pairs: tuple[tuple[str, str], ...] = ()
+    hulls: tuple[LinkHull, ...] = field(default=(), repr=False)
 
     def __reduce__(self):
         urdf, srdf, dirs = self.source
@@ -215,6 +221,17 @@ class CollisionModel:
             add.append(known[frozenset(pair)])
         rows = tuple(p for p in self.self_pairs if p in set(self.row_pairs) | set(add))
         return replace(self, row_pairs=rows)
+
+    def row_hull(self, link: str) -> LinkHull | None:
+        """The hull a self row against ``link`` uses instead of its spheres, or None.
+
+        A base link's hull (:attr:`hulls`) when its gap is below the link's spheres' gap.
+        """
+        spheres = next((s for s in self.spheres if s.link == link), None)
+        for hull in self.hulls:
+            if hull.link == link and spheres is not None and hull.gap < spheres.gap:
+                return hull
+        return None
 
     @property
     def links(self) -> tuple[str, ...]:
@@ -459,17 +476,19 @@ def collision_model(model: RobotModel, urdf, srdf=None, scene: Scene | None = No
     shapes = link_shapes(robot, label, placements, base_dir, package_dirs)
     if not shapes:
         raise ModelError(f"{label} has no <collision> element on the chain's links")
-    spheres = []
+    spheres, hulls = [], []
     for link in dict.fromkeys(s.link for s in shapes):
         mine = [s for s in shapes if s.link == link]
         points = np.concatenate([s.points(SURFACE_SPACING) for s in mine])
         spheres.append(fit_spheres(link, mine[0].body, points))
+        if mine[0].body < 0:  # fixed: its hull is a fixed convex set, as an obstacle
+            hulls.append(fit_hull(mine, points))
     _check_allowed(scene, [s.link for s in spheres])
     disabled = disabled_pairs(srdf) if srdf is not None else frozenset()
     return CollisionModel(model, tuple(shapes), tuple(spheres),
                           _self_pairs(spheres, disabled, scene), scene, margin,
                           (str(urdf) if isinstance(urdf, os.PathLike) else urdf, srdf,
-                           tuple(str(d) for d in package_dirs)))
+                           tuple(str(d) for d in package_dirs)), hulls=tuple(hulls))
 
 
 #: Collision models rebuilt from a pickle (a worker process's problems), by what their

@@ -229,6 +229,10 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
 
 #: At most this many re-solves with more self pairs as rows (:func:`_with_self_rows`).
 SELF_ROW_ROUNDS = 2
+#: At most this many of them, where the warm re-solve fails, run the multistart again with
+#: the pairs as rows from its first solve (case 16 table of bench/collision.py: warm from
+#: the refused motion 150 iterations twice; cold with its two pairs as rows, certified).
+SELF_ROW_COLD = 1
 
 
 def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
@@ -239,14 +243,18 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
     ``problem.collision.row_pairs``. A bounded-solve motion refused by its certificate whose
     self pairs come within :data:`~tocontrol_ros.core.direct.clearance.SELF_ROW_BAND` of the
     margin (Coal's exact distances at 401 times) is solved again with those pairs as rows
-    as well, warm from the refused motion (its mesh and path), at most
-    :data:`SELF_ROW_ROUNDS` times; a round that adds no pair, or whose solve fails, stops.
+    as well, warm from the refused motion (its mesh and path; where that fails, from
+    IPOPT's default start on them: ``PathWarmState.rows_added``), at most
+    :data:`SELF_ROW_ROUNDS` times; where that fails too, the multistart is run again with
+    the pairs as rows from its first solve (at most :data:`SELF_ROW_COLD` times in a plan);
+    a round that adds no pair, or whose solves fail, stops.
     The result carries the caller's problem; its message names the pairs added, and a
     failed round keeps the refused result (its status and message, and why the round
     failed).
     """
     out = solve_once(planner, problem, options, None, should_stop, deadline)
     col, added, note = problem.collision, [], ""
+    cold, colds = SELF_ROW_COLD, []
     for _ in range(SELF_ROW_ROUNDS):
         traj = out.trajectory
         if col is None or out.status is not Status.VERIFICATION_FAILED or \
@@ -262,9 +270,19 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
         added += new
         warm = replace(out, warm_state=PathWarmState(np.array(traj.breaks),
                                                      np.array(traj.result.P), traj.T,
-                                                     None, None))
+                                                     None, None, rows_added=True))
         again = solve_once(planner, replace(problem, collision=col), options, warm,
                            should_stop, deadline)
+        if again.status not in (Status.SUCCESS, Status.VERIFICATION_FAILED) and cold:
+            cold -= 1  # the multistart again, the pairs rows from its first solve
+            failed = again.message
+            again = solve_once(planner, replace(problem, collision=col), options, None,
+                               should_stop, deadline)
+            if again.status in (Status.SUCCESS, Status.VERIFICATION_FAILED):
+                colds.append(f"warm from the refused motion: {failed}; solved cold with "
+                             f"them as rows")
+            else:
+                again = replace(again, message=f"{failed}; cold: {again.message}")
         if again.status in (Status.SUCCESS, Status.VERIFICATION_FAILED):
             out = again
         else:
@@ -273,7 +291,7 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
     if not added:
         return out
     note = f"self pairs made rows after a refused motion: " \
-        f"{['/'.join(p) for p in added]}{note}"
+        f"{['/'.join(p) for p in added]}{''.join(f' ({c})' for c in colds)}{note}"
     return replace(out, problem=problem if out.problem is not None else None,
                    message=f"{out.message} ({note})", warnings=out.warnings + (note,))
 
