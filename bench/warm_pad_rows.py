@@ -31,46 +31,16 @@ import numpy as np
 if __name__ == "__main__":
     sys.path.append(str(Path(__file__).resolve().parents[1]))
 
-from bench.common import log, panda_urdf  # noqa: E402
-
 
 def build(count: int = 20) -> tuple:
-    """The planner, options and ``(moved, serving)`` per case (None where not served)."""
-    from bench.limits import draw_cases
-    from tocontrol_ros.core.errors import ProblemError
-    from tocontrol_ros.core.planning.replan import replan_options, warm_replan
-    from tocontrol_ros.core.planning.solver import Planner
-    from tocontrol_ros.core.robot.limits import JointLimits
-    from tocontrol_ros.core.robot.model import load_robot
+    """The planner, options and ``(moved, serving)`` per case (None where not served):
+    ``bench/warm_step_work.py``'s serving cases with their plans."""
+    from bench.warm_step_work import serving_cases
+    from tocontrol_ros.core.planning.replan import replan_options
     from tocontrol_ros.core.types.options import SolverOptions
-    from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
-    model = load_robot(str(panda_urdf()), tip_link="panda_hand",
-                       locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0})
-    limits = JointLimits.from_model(model)
-    planner = Planner(model)
-    options = SolverOptions()
-    ropts = replan_options(options, 0.0, 24)
-    rng = np.random.default_rng(47)  # bench/warm_resolve.py's seed and order of draws
-    cases = []
-    for i, (q0, qd0, target) in enumerate(draw_cases(model, limits, count)):
-        problem = Problem(model, joint_state(q0, qd0), point(target), k=4.0, limits=limits)
-        base = planner.plan(problem, options)
-        serving = warm_replan(planner, problem, [base], ropts) if base.success else base
-        moved = None
-        for _ in range(10):
-            d = rng.normal(size=3)
-            try:
-                moved = Problem(model, problem.start,
-                                point(target + 0.02 * d / np.linalg.norm(d)), k=4.0,
-                                limits=limits)
-                break
-            except ProblemError:
-                continue
-        ok = serving.success and serving.warm_state is not None and moved is not None
-        cases.append((moved, serving) if ok else None)
-        log(f"warm_pad_rows: case {i + 1} served: {ok}")
-    return planner, ropts, cases
+    planner, cases = serving_cases(count, results=True, label="warm_pad_rows")
+    return planner, replan_options(SolverOptions(), 0.0, 24), cases
 
 
 #: Variants counted: a name and the settings of ``core.direct.set_pads`` (and, prefixed

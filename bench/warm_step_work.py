@@ -33,9 +33,11 @@ from bench.common import log, panda_urdf  # noqa: E402
 POLICIES = ((0.1, 4), (0.01, 4), (0.01, 8), (1e-3, 8))
 
 
-def serving_cases(count: int = 20) -> list:
+def serving_cases(count: int = 20, results: bool = False, label: str = "warm_step_work"
+                  ) -> list:
     """``(moved problem, serving warm state)`` of bench/warm_resolve.py's draw (the same
-    random directions), and the planner: ``(planner, cases)``."""
+    random directions), and the planner: ``(planner, cases)``; with ``results`` the serving
+    plan itself (its ``PlanResult``) in place of its warm state."""
     from bench.limits import draw_cases
     from tocontrol_ros.core.errors import ProblemError
     from tocontrol_ros.core.planning.replan import replan_options, warm_replan
@@ -67,8 +69,8 @@ def serving_cases(count: int = 20) -> list:
             except ProblemError:
                 continue
         ok = serving.success and serving.warm_state is not None and moved is not None
-        cases.append((moved, serving.warm_state) if ok else None)
-        log(f"warm_step_work: case {i + 1} served: {ok}")
+        cases.append((moved, serving if results else serving.warm_state) if ok else None)
+        log(f"{label}: case {i + 1} served: {ok}")
     return planner, cases
 
 
