@@ -56,9 +56,10 @@ def _idle_cpu(pid: int, window: float) -> float:
 
 
 class _Process:
-    def __init__(self, module: str, args: list[str], log_path: Path) -> None:
+    def __init__(self, module: str, args: list[str], log_path: Path,
+                 env: dict | None = None) -> None:
         self._log = open(log_path, "w")  # noqa: SIM115  (closed in stop())
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", **(env or {}))
         self.proc = subprocess.Popen([sys.executable, "-P", "-m", module, *args], env=env,
                                      stdout=self._log, stderr=subprocess.STDOUT)
         self.pid = self.proc.pid
@@ -73,6 +74,61 @@ class _Process:
                 self.proc.wait()
         self._log.close()
         return self.proc.returncode
+
+
+def prewarm_nodes(nodes: list[tuple[str, list[str], str]], workdir: Path, tag: str,
+                  timeout: float = 1800.0) -> float:
+    """Start ``nodes`` once with their optimised libraries built in the foreground, then stop them.
+
+    A node's first start on a machine compiles its model's C code: quick builds at once and
+    the optimised ones in the background, which a node living for minutes loads when they
+    land (``~/status`` "optimised code loaded"). A benchmark's nodes live about a minute and
+    their background builds die with them, so a fresh compile cache (``run_all.py``'s) would
+    have them measured on the quick ``-O0`` builds with gcc running beside them: not the
+    nodes as deployed. This launch (``TOCONTROL_COMPILE_TIERS=0``: every build optimised, in
+    the foreground) fills the cache first.
+
+    Parameters
+    ----------
+    nodes : list of (str, list of str, str)
+        Per node its module (``tocontrol_ros.planner``), its arguments and a line of its log
+        that says it is ready (``"ready after"``, ``"tracking on"``).
+    workdir : Path
+        Where the logs go (``{tag}_prewarm_{i}.log``).
+    tag : str
+        The logs' prefix.
+    timeout : float
+        Seconds to wait for every node's line (wall clock: the one bound of this loop).
+
+    Returns
+    -------
+    float
+        Seconds it took.
+
+    Raises
+    ------
+    RuntimeError
+        When a node exits or is not ready within ``timeout`` (naming it and its log).
+    """
+    t0 = time.monotonic()
+    procs = [(_Process(module, args, workdir / f"{tag}_prewarm_{i}.log",
+                       env={"TOCONTROL_COMPILE_TIERS": "0"}), line, module)
+             for i, (module, args, line) in enumerate(nodes)]
+    try:
+        for i, (proc, line, module) in enumerate(procs):
+            log_path = workdir / f"{tag}_prewarm_{i}.log"
+            while line not in log_path.read_text(errors="replace"):
+                if proc.proc.poll() is not None:
+                    raise RuntimeError(f"prewarm: {module} exited ({proc.proc.returncode}); "
+                                       f"see {log_path}")
+                if time.monotonic() - t0 > timeout:
+                    raise RuntimeError(f"prewarm: {module} not ready in {timeout:.0f} s; "
+                                       f"see {log_path}")
+                time.sleep(0.5)
+    finally:
+        for proc, _, _ in procs:
+            proc.stop()
+    return time.monotonic() - t0
 
 
 class RosClient:

@@ -53,7 +53,7 @@ if __name__ == "__main__":
     sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 from bench.common import Section, log, panda_urdf, table  # noqa: E402
-from bench.deployed import RosClient, _Process  # noqa: E402
+from bench.deployed import RosClient, _Process, prewarm_nodes  # noqa: E402
 
 #: The issue's moving target: goals per second, for how long (s).
 RATE, DURATION = 10.0, 5.0
@@ -248,11 +248,15 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
     ns = f"/bench_replan_{name}_{os.getpid()}"
     base = ["--ros-args", "-r", f"__ns:={ns}", *robot_args]
     tag = name + (f"_{label.replace(' ', '_')}" if label else "")
-    procs = [_Process("tocontrol_ros.planner", [*base, *planner_args],
-                      workdir / f"{tag}_planner.log"),
-             _Process("tocontrol_ros.tracker", [*base, *tracker_args, "-p",
-                                                f"trajectory_topic:={ns}/planner/trajectory"],
-                      workdir / f"{tag}_tracker.log")]
+    planner_argv = [*base, *planner_args]
+    tracker_argv = [*base, *tracker_args, "-p", f"trajectory_topic:={ns}/planner/trajectory"]
+    # The nodes as deployed: their optimised libraries in the cache (bench/deployed.py's
+    # prewarm_nodes), not a first start's quick builds with gcc beside them.
+    prewarm = prewarm_nodes([("tocontrol_ros.planner", planner_argv, "ready after"),
+                             ("tocontrol_ros.tracker", tracker_argv, "tracking on")],
+                            workdir, tag)
+    procs = [_Process("tocontrol_ros.planner", planner_argv, workdir / f"{tag}_planner.log"),
+             _Process("tocontrol_ros.tracker", tracker_argv, workdir / f"{tag}_tracker.log")]
     client = _Client(ns)
     count = int(RATE * DURATION)
     goals = _circle(p0, radius, count, laps)
@@ -371,6 +375,7 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
         "lagged": [float(s["follow_lag"]) for s in published
                    if s.get("follow_lag") is not None and float(s["follow_lag"]) != 0.0],
         "late_splices": sum(s.get("late") == "true" for s in splices),
+        "prewarm": prewarm,
     }
 
 
@@ -565,7 +570,12 @@ def run(which: str = "both", moving: bool = False) -> Section:
                                                     f" (not at rest after {SETTLE_TIMEOUT:g} s)")])
     lines = [
         f"Planner and tracker as processes (default parameters but the robot's; the Panda "
-        f"with its URDF limits), a client sending goals along a circle at {RATE:g} Hz for "
+        f"with its URDF limits), started once before with every build optimised in the "
+        f"foreground and stopped, so that the measured nodes find their optimised libraries "
+        f"in the compile cache as a deployed node does after its first start (without it "
+        f"`run_all.py`'s fresh cache had them run on the quick `-O0` builds with gcc beside "
+        f"them; bench/deployed.py's `prewarm_nodes`), a client sending goals along a "
+        f"circle at {RATE:g} Hz for "
         f"{DURATION:g} s after a first, uncounted motion onto it. Latency: goal received by "
         f"the planner -> trajectory published (its status's `publish_latency`; in parentheses "
         f"its `latency`, to the status that follows), over the goals answered; "
