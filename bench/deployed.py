@@ -111,12 +111,11 @@ def prewarm_nodes(nodes: list[tuple[str, list[str], str]], workdir: Path, tag: s
         When a node exits or is not ready within ``timeout`` (naming it and its log).
     """
     t0 = time.monotonic()
-    procs = [(_Process(module, args, workdir / f"{tag}_prewarm_{i}.log",
-                       env={"TOCONTROL_COMPILE_TIERS": "0"}), line, module)
-             for i, (module, args, line) in enumerate(nodes)]
+    logs = [workdir / f"{tag}_prewarm_{i}.log" for i in range(len(nodes))]
+    procs = [(_Process(module, args, log_path, env={"TOCONTROL_COMPILE_TIERS": "0"}), line,
+              module) for (module, args, line), log_path in zip(nodes, logs, strict=True)]
     try:
-        for i, (proc, line, module) in enumerate(procs):
-            log_path = workdir / f"{tag}_prewarm_{i}.log"
+        for (proc, line, module), log_path in zip(procs, logs, strict=True):
             while line not in log_path.read_text(errors="replace"):
                 if proc.proc.poll() is not None:
                     raise RuntimeError(f"prewarm: {module} exited ({proc.proc.returncode}); "
