@@ -23,8 +23,10 @@ Measured:
 - *Serving, through the node as deployed*: three planner processes (``python -P -m
   tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default options
   otherwise: one with ``memory`` set (two basins re-solved, the least ``T``), one with
-  ``memory`` and ``memory_first_success`` (the next basin only when the nearest failed; the
-  inside requests only), one without (the full default multistart: the reference). A client
+  ``memory``, ``memory_first_success`` (the next basin only when the nearest failed; the
+  inside requests only) and ``publish: first_then_optimum`` (a hit's first certified IPOPT
+  iterate published at once: the time from the request to it and its ``T``, from its
+  ``first`` status), one without (the full default multistart: the reference). A client
   in this process calls ``~/plan`` on each in turn (the order
   alternating), after one uncounted call each; the round trip is request sent to response
   received, ``T``, the certificate and ``memory: hit|miss`` come from the request's final
@@ -158,8 +160,11 @@ class _Client(RosClient):
         while time.monotonic() < deadline:
             with self._lock:
                 final = [s for s in self.statuses[name][since:] if s.get("event") in FINAL]
-            if final:
-                return elapsed, final[0]
+                first = [s for s in self.statuses[name][since:] if s.get("event") == "first"
+                         and s.get("published") == "first"]
+            if final:  # with the first motion's latency and T, when one was published
+                return elapsed, {**final[0], **({"first_latency": first[0].get("latency"),
+                                                 "first_T": first[0].get("T")} if first else {})}
             time.sleep(0.01)
         raise RuntimeError(f"{name}: no final status")
 
@@ -323,7 +328,8 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
                                            "-p", f"memory:={memory}"], workdir / "mem.log"),
         _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/first", *common,
                                            "-p", f"memory:={memory}",
-                                           "-p", "memory_first_success:=true"],
+                                           "-p", "memory_first_success:=true",
+                                           "-p", "publish:=first_then_optimum"],
                  workdir / "first.log"),
         _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/cold", *common],
                  workdir / "cold.log"),
@@ -413,6 +419,19 @@ def _served(ins: list, name: str) -> dict:
                 for g in hits)}
 
 
+def first_motions(f: dict) -> str:
+    """The first motions published on the hits of node ``f`` (``publish: first_then_optimum``:
+    a hit's first certified IPOPT iterate): the time from the request to it, its ``T``."""
+    got = [g["first"][1] for g in f["hits"] if "first_latency" in g["first"][1]]
+    lat = [_f(v, "first_latency") for v in got]
+    gap = [_f(v, "first_T") / _f(v, "T") - 1 for v in got]
+    return (f"its first motions (a hit's first certified IPOPT iterate, published at once): "
+            f"on {len(got)}/{len(f['hits'])} hits, published a median {_med(lat) * 1e3:.0f} ms "
+            f"after the request (p95 {_quantile(lat, 0.95) * 1e3:.0f} ms), `T` above the "
+            f"final motion's by a median {100 * _med(gap):.2f} % (worst "
+            f"{100 * max(gap, default=float('nan')):.2f} %).")
+
+
 def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> Section:
     ins, outs = out["inside"], out["outside"]
     mem, first = _served(ins, "memory"), _served(ins, "first")
@@ -483,9 +502,11 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         f"memory node's hits median {_med(hit_cold):.2f} s).",
         "",
         "- " + served(mem, "memory, 2 basins re-solved (the default)"),
-        "- " + served(first, "memory, `memory_first_success` (the second basin only when the "
-                      "nearest failed; asked only the requests with a stored motion within "
-                      "the radius: the others are the same cold plan)"),
+        "- " + served(first, "memory, `memory_first_success` and `publish: "
+                      "first_then_optimum` (the second basin only when the nearest failed; "
+                      "asked only the requests with a stored motion within the radius: the "
+                      "others are the same cold plan)"),
+        "- " + first_motions(first),
         "",
         "Where a hit's time goes (medians over the hits):",
         "",
@@ -525,13 +546,17 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         ]
     def first_cells(g):
         if "first" not in g:
-            return ["", ""]
-        return [f"{g['first'][0]:.3f}",
-                f"{(_f(g['first'][1], 'T') / _f(g['cold'][1], 'T') - 1):+.1e}"]
+            return ["", "", "", ""]
+        v = g["first"][1]
+        return [f"{g['first'][0]:.3f}", f"{(_f(v, 'T') / _f(g['cold'][1], 'T') - 1):+.1e}",
+                f"{_f(v, 'first_latency'):.3f}" if "first_latency" in v else "-",
+                f"{(_f(v, 'first_T') / _f(g['cold'][1], 'T') - 1):+.1e}"
+                if "first_T" in v else "-"]
 
     lines += ["", *table(
         ["set", "case", "memory", "distance", "iterations", "memory node (s)", "T",
-         "default node (s)", "T default", "rel. diff", "first-success (s)", "its rel. diff"],
+         "default node (s)", "T default", "rel. diff", "first-success (s)", "its rel. diff",
+         "its first motion (s)", "first's rel. diff"],
         [[which, str(i + 1), g["memory"][1].get("memory", "?"),
           f"{_f(g['memory'][1], 'memory_distance'):.2f}",
           str(g["memory"][1].get("memory_iterations", "")), f"{g['memory'][0]:.3f}",
