@@ -9,7 +9,7 @@ solve converged, no faster than the optimum by more than the certificate's toler
 optimum is the same to the bit with and without the watcher; through ``recall``, the first
 motion goes to its receiver once and the hit's result is unchanged; a hit whose iterates are
 never within the residual's tolerance before convergence offers nothing (the converged
-motion alone).
+motion alone); an exception in the checks or the receiver ends the checks, not the solve.
 """
 
 from __future__ import annotations
@@ -125,3 +125,17 @@ def test_a_hit_never_feasible_before_convergence_offers_nothing(memory, monkeypa
                    spans=SPANS, first=firsts.append)
     assert found.result is not None and found.result.success, found.messages
     assert firsts == [] and found.first is None
+
+
+def test_an_error_in_the_checks_ends_them_and_never_the_solve(memory):
+    planner, store = memory
+    optimum = _hit(planner, store, HITS[1])
+
+    def offer(result):
+        raise RuntimeError("the receiver broke")
+
+    early = EarlyMotion(offer=offer)
+    again = _hit(planner, store, HITS[1], early)
+    assert early.done and "RuntimeError: the receiver broke" in early.seen[-1]["error"]
+    assert sum("error" in s for s in early.seen) == 1  # no check after it
+    assert again.success and again.T == optimum.T and again.iterations == optimum.iterations

@@ -11,7 +11,9 @@ slower. :func:`iterate_watch` makes the watcher that
 ``early.every``-th iterate (a count, never the clock) and offers the certified ones to
 :class:`~tocontrol_ros.core.methods.context.EarlyMotion` (a memory hit's first motion,
 published while IPOPT goes on to the optimum). It only reads the iterate: the solve and its
-answer are the same to the bit with or without it (``test/direct/test_early.py``).
+answer are the same to the bit with or without it (``test/memory/test_early.py``); an
+exception in the checks (or in ``offer``) ends the checks, recorded in ``early.seen``, and
+never IPOPT's solve.
 """
 
 from __future__ import annotations
@@ -83,21 +85,33 @@ def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tu
         seen = {"iteration": iteration, "T": T, "residual": residual, "inside": None,
                 "certified": None, "at": t0}
         if residual <= RESIDUAL_TOL or early.full:
-            res = FlatResult(success=True, message=f"IPOPT's iterate {iteration}", T=T, P=P,
-                             residual=residual, iterations=iteration, solve_time=0.0)
-            traj = FlatTrajectory(flat, res, k)
-            held = (res, traj) if float(np.max(traj.set_values())) <= 1.0 - SET_MARGIN \
-                else hold(res, traj)
-            seen["inside"] = held is not None
-            if held is not None:
-                result = certify(*held, f"IPOPT's iterate {iteration} of {what}, before it "
-                                 "converged: certified, not the optimum (a first motion)")
-                seen["certified"] = bool(result.success)
-                seen["published_T"] = float(result.T)
-                if result.success:
-                    early.done = bool(early.offer(result))
+            try:
+                _check(early, seen, flat, iteration, T, P, residual, k, hold, certify, what)
+            except Exception as exc:  # noqa: BLE001  (inside IPOPT's callback: never abort it)
+                early.done = True  # the same exception on any load: no more checks
+                seen["error"] = f"{type(exc).__name__}: {exc}"
         seen["seconds"] = time.perf_counter() - t0
         early.seen.append(seen)
         return False
 
     return watch
+
+
+def _check(early: EarlyMotion, seen: dict, flat: FlatTranscription, iteration: int, T: float,
+           P: np.ndarray, residual: float, k: float, hold: Hold, certify: Certify,
+           what: str) -> None:
+    """One iterate held inside the set and certified; offered to ``early`` if it passes."""
+    res = FlatResult(success=True, message=f"IPOPT's iterate {iteration}", T=T, P=P,
+                     residual=residual, iterations=iteration, solve_time=0.0)
+    traj = FlatTrajectory(flat, res, k)
+    held = (res, traj) if float(np.max(traj.set_values())) <= 1.0 - SET_MARGIN \
+        else hold(res, traj)
+    seen["inside"] = held is not None
+    if held is None:
+        return
+    result = certify(*held, f"IPOPT's iterate {iteration} of {what}, before it converged: "
+                     "certified, not the optimum (a first motion)")
+    seen["certified"] = bool(result.success)
+    seen["published_T"] = float(result.T)
+    if result.success:
+        early.done = bool(early.offer(result))
