@@ -169,31 +169,31 @@ class _Client(RosClient):
         raise RuntimeError(f"{name}: no final status")
 
 
-def _upgrade(memory: Path) -> dict:
+def _upgrade(memory: Path, cell: Path = CELL) -> dict:
     """``memory upgrade`` on the file (a no-op when converted): wall time and its summary."""
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "upgrade",
-                           str(memory), str(CELL), "--quiet"], check=True, text=True,
+                           str(memory), str(cell), "--quiet"], check=True, text=True,
                           stderr=subprocess.PIPE)
     lines = [line for line in done.stderr.splitlines() if line.startswith("memory:")]
     log(f"memory upgrade: {' | '.join(lines)}")
     return {"wall": time.perf_counter() - t0, "summary": lines[-1] if lines else ""}
 
 
-def _build(memory: Path) -> float:
+def _build(memory: Path, cell: Path = CELL) -> float:
     """Run the build (resumes); its wall time (s)."""
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "build", str(CELL),
+    subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "build", str(cell),
                     str(memory), "-j", "2", "--quiet"], check=True)
     return time.perf_counter() - t0
 
 
-def _build_figures(memory: Path, model, radius: float = 1.0) -> dict:
+def _build_figures(memory: Path, model, radius: float = 1.0, cell_file: Path = CELL) -> dict:
     from tocontrol_ros.core.memory.recall import distances
     from tocontrol_ros.core.memory.store import MotionStore
     from tocontrol_ros.core.types.problem import Problem, point
 
-    cell = yaml.safe_load(CELL.read_text())
+    cell = yaml.safe_load(cell_file.read_text())
     with MotionStore(memory) as store:
         tasks = store.tasks()
         keys = store.keys()
@@ -214,13 +214,14 @@ def _build_figures(memory: Path, model, radius: float = 1.0) -> dict:
     return {"tasks": len(tasks), "ok": sum(t["status"] == "SUCCESS" for t in tasks.values()),
             "motions": count, "per_minute": 60.0 * count / span, "span": span,
             "solve_median": statistics.median(solves), "size": memory.stat().st_size,
-            "coverage": covered / draws, "total": len(cell_tasks())}
+            "coverage": covered / draws, "total": len(cell_tasks(cell_file))}
 
 
-def cell_tasks():
+def cell_tasks(cell: Path = CELL):
+    """The tasks (start, target) of a cell file (default the benchmark's)."""
     from tocontrol_ros.memory.cell import load_cell
 
-    return load_cell(CELL).tasks
+    return load_cell(cell).tasks
 
 
 def _peer_rows(memory: Path, model, limits, cases: list) -> list:
@@ -294,8 +295,10 @@ def _quantile(values, q) -> float:
 
 
 def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
-        peer_cases: int = PEER_CASES, build: bool = True) -> Section:
-    """The section (see the module docstring)."""
+        peer_cases: int = PEER_CASES, build: bool = True, cell: Path = CELL,
+        requests: Path = REQUESTS) -> Section:
+    """The section (see the module docstring); ``cell`` and ``requests``: another cell's
+    files (e.g. the small cell of ``bench/memory_blend.py``), the benchmark's by default."""
     from bench.limits import robots
 
     title = "A memory of optimal motions: the Panda cell (issue 50)"
@@ -307,14 +310,14 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
     load_start = load_text()
     # An existing file first brought to this format with its serving states (a build of
     # this code stores them with every new motion).
-    upgrade = _upgrade(memory) if memory.exists() else {
+    upgrade = _upgrade(memory, cell) if memory.exists() else {
         "wall": 0.0, "summary": "no file before the build: the build stores them"}
-    build_wall = _build(memory) if build else 0.0
-    build = _build_figures(memory, model)
+    build_wall = _build(memory, cell) if build else 0.0
+    build = _build_figures(memory, model, cell_file=cell)
     log(f"memory: build {build}")
-    req = yaml.safe_load(REQUESTS.read_text())
+    req = yaml.safe_load(requests.read_text())
     stations = {k: v["point"] for k, v in req["stations"].items()}
-    sets = {name: [(stations[r["start"]], r["target"]) for r in req[name][:count]]
+    sets = {name: [(stations[r["start"]], r["target"]) for r in req.get(name, [])[:count]]
             for name, count in (("inside", inside), ("outside", outside))}
     near = {name: _within(memory, model, limits, cases) for name, cases in sets.items()}
     workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-memory-"))
@@ -517,9 +520,9 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         f"of `memory_spans` = 64 uniform spans) took {first_hit[0]:.2f} s.",
         "",
         f"**Outside the cell** ({len(outs)} requests): misses {o_miss}/{len(outs)}; memory "
-        f"node median {statistics.median(o_mem):.2f} s, default node "
-        f"{statistics.median(o_cold):.2f} s (paired ratio median "
-        f"{statistics.median([a / b for a, b in zip(o_mem, o_cold, strict=True)]):.2f}); the "
+        f"node median {_med(o_mem):.2f} s, default node "
+        f"{_med(o_cold):.2f} s (paired ratio median "
+        f"{_med([a / b for a, b in zip(o_mem, o_cold, strict=True)]):.2f}); the "
         f"same `T` on {o_same}/{len(outs)}, worse on {o_worse}.",
     ]
     if peer:
@@ -591,11 +594,16 @@ def main(argv=None) -> int:
     parser.add_argument("--no-build", action="store_true",
                         help="serve the memory as it is (no build call)")
     parser.add_argument("--write-requests", action="store_true")
+    parser.add_argument("--cell", type=Path, default=CELL,
+                        help="the cell file (default the benchmark's)")
+    parser.add_argument("--requests", type=Path, default=REQUESTS,
+                        help="the requests file (default the benchmark's)")
     args = parser.parse_args(argv)
     if args.write_requests:
         write_requests()
         return 0
-    section = run(args.memory, args.inside, args.outside, args.peer, not args.no_build)
+    section = run(args.memory, args.inside, args.outside, args.peer, not args.no_build,
+                  args.cell, args.requests)
     print("\n".join([f"## {section.title}", "", *section.lines, ""]))
     for target, verdict in section.targets:
         print(f"- {target}: {verdict}")

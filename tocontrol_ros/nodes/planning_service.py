@@ -457,12 +457,13 @@ class PlanningService:
     def _hit_first(self, req: PlanRequest, result, problem) -> tuple | None:
         """A memory hit's first motion (a certified iterate of its warm re-solve), published.
 
-        Returns ``(result, path, samples)``, or None when cancelled meanwhile or the
+        Returns ``(result, path, samples)``, or None when cancelled meanwhile (it is then
+        the request's best certified motion at the cancel, as ``_first``'s) or the
         publishers are gone (the optimum follows either way).
         """
+        req.first = result
         if req.cancelled.is_set() or self.stopping.is_set():
             return None
-        req.first = result
         values = {"start": problem.start_point, **result_values(result),
                   "latency": self.clock.monotonic() - req.received, "memory": "hit"}
         published = self.publish_first(req, result, None, values)
