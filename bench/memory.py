@@ -350,7 +350,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
         # Not counted: the cold node's first plan (compiled functions, worker processes), and
         # the memory node's first hit (the uniform transcription of memory_spans is built
         # then), a request of neither set.
-        client.call(names["cold"], *sets["outside"][0], status=False)
+        client.call(names["cold"], *(sets["outside"] or sets["inside"])[0], status=False)
         first_hit = client.call(names["memory"], stations["home"], WARM_UP_TARGET,
                                 status=False)
         client.call(names["first"], stations["home"], WARM_UP_TARGET, status=False)
@@ -376,7 +376,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
               if got["memory"][1].get("memory") == "hit"]
     peer = _peer_rows(memory, model, limits, served[:peer_cases]) if peer_cases else []
     return _section(title, build, build_wall, upgrade, out, peer, first_hit,
-                    (load_start, load_text()))
+                    (load_start, load_text()), (cell, requests))
 
 
 def _f(values: dict, key: str) -> float:
@@ -435,7 +435,8 @@ def first_motions(f: dict) -> str:
             f"{100 * max(gap, default=float('nan')):.2f} %).")
 
 
-def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> Section:
+def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
+             files: tuple = (CELL, REQUESTS)) -> Section:
     ins, outs = out["inside"], out["outside"]
     mem, first = _served(ins, "memory"), _served(ins, "first")
     cold_lat = [g["cold"][0] for g in ins]
@@ -470,11 +471,14 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
                 f"without a serving state (path fitted): {w['fits']}.")
 
     lines = [
-        f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
-        f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
-        f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
-        f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 "
-        f"outside; this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
+        (f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
+         f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
+         f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
+         f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 outside; "
+         if files == (CELL, REQUESTS) else
+         f"**Not the benchmark's cell**: the cell `{files[0].name}` ({build['total']} "
+         f"motions), the requests `{files[1].name}` (") +
+        f"this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
         f"other work (load average {load[0]} at the start, {load[1]} at the end): the "
         f"figures are as measured. Command: "
         f"`scripts/dev bench run_all.py --update --only memory --memory-file FILE` "

@@ -50,8 +50,9 @@ class EarlyMotion:
     an iterate, not the optimum); ``offer`` returning True ends the checks (the solve goes
     on to its optimum either way, the same to the bit as without this). ``seen`` gets one
     record per checked iterate: ``iteration``, ``T`` (s), ``residual``, ``inside`` (held
-    inside the set; None: not checked), ``certified`` (None: not checked), and for a report
-    only ``at`` (``time.perf_counter()`` when the check began) and ``seconds`` (its cost).
+    inside the set; None: not checked), ``certified`` (None: not checked), ``error`` (an
+    exception in the checks or in ``offer``, which ends the checks), and for a report only
+    ``at`` (``time.perf_counter()`` when the check began) and ``seconds`` (its cost).
 
     Attributes
     ----------
@@ -61,7 +62,8 @@ class EarlyMotion:
         Check every this many iterations (>= 1; the start, iteration 0, is never checked).
     full : bool
         Check the set and the certificate even where the residual is above its tolerance
-        (a measurement's; such an iterate is never certified).
+        (a measurement's: such an iterate passes only where slowing it down into the set
+        also brings its residual within tolerance).
     seen : list of dict
     done : bool
         Set when ``offer`` returned True.
