@@ -23,8 +23,10 @@ Measured:
 - *Serving, through the node as deployed*: three planner processes (``python -P -m
   tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default options
   otherwise: one with ``memory`` set (two basins re-solved, the least ``T``), one with
-  ``memory`` and ``memory_first_success`` (the next basin only when the nearest failed; the
-  inside requests only), one without (the full default multistart: the reference). A client
+  ``memory``, ``memory_first_success`` (the next basin only when the nearest failed; the
+  inside requests only) and ``publish: first_then_optimum`` (a hit's first certified IPOPT
+  iterate published at once: the time from the request to it and its ``T``, from its
+  ``first`` status), one without (the full default multistart: the reference). A client
   in this process calls ``~/plan`` on each in turn (the order
   alternating), after one uncounted call each; the round trip is request sent to response
   received, ``T``, the certificate and ``memory: hit|miss`` come from the request's final
@@ -158,37 +160,40 @@ class _Client(RosClient):
         while time.monotonic() < deadline:
             with self._lock:
                 final = [s for s in self.statuses[name][since:] if s.get("event") in FINAL]
-            if final:
-                return elapsed, final[0]
+                first = [s for s in self.statuses[name][since:] if s.get("event") == "first"
+                         and s.get("published") == "first"]
+            if final:  # with the first motion's latency and T, when one was published
+                return elapsed, {**final[0], **({"first_latency": first[0].get("latency"),
+                                                 "first_T": first[0].get("T")} if first else {})}
             time.sleep(0.01)
         raise RuntimeError(f"{name}: no final status")
 
 
-def _upgrade(memory: Path) -> dict:
+def _upgrade(memory: Path, cell: Path = CELL) -> dict:
     """``memory upgrade`` on the file (a no-op when converted): wall time and its summary."""
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "upgrade",
-                           str(memory), str(CELL), "--quiet"], check=True, text=True,
+                           str(memory), str(cell), "--quiet"], check=True, text=True,
                           stderr=subprocess.PIPE)
     lines = [line for line in done.stderr.splitlines() if line.startswith("memory:")]
     log(f"memory upgrade: {' | '.join(lines)}")
     return {"wall": time.perf_counter() - t0, "summary": lines[-1] if lines else ""}
 
 
-def _build(memory: Path) -> float:
+def _build(memory: Path, cell: Path = CELL) -> float:
     """Run the build (resumes); its wall time (s)."""
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "build", str(CELL),
+    subprocess.run([sys.executable, "-P", "-m", "tocontrol_ros.memory", "build", str(cell),
                     str(memory), "-j", "2", "--quiet"], check=True)
     return time.perf_counter() - t0
 
 
-def _build_figures(memory: Path, model, radius: float = 1.0) -> dict:
+def _build_figures(memory: Path, model, radius: float = 1.0, cell_file: Path = CELL) -> dict:
     from tocontrol_ros.core.memory.recall import distances
     from tocontrol_ros.core.memory.store import MotionStore
     from tocontrol_ros.core.types.problem import Problem, point
 
-    cell = yaml.safe_load(CELL.read_text())
+    cell = yaml.safe_load(cell_file.read_text())
     with MotionStore(memory) as store:
         tasks = store.tasks()
         keys = store.keys()
@@ -209,13 +214,14 @@ def _build_figures(memory: Path, model, radius: float = 1.0) -> dict:
     return {"tasks": len(tasks), "ok": sum(t["status"] == "SUCCESS" for t in tasks.values()),
             "motions": count, "per_minute": 60.0 * count / span, "span": span,
             "solve_median": statistics.median(solves), "size": memory.stat().st_size,
-            "coverage": covered / draws, "total": len(cell_tasks())}
+            "coverage": covered / draws, "total": len(cell_tasks(cell_file))}
 
 
-def cell_tasks():
+def cell_tasks(cell: Path = CELL):
+    """The tasks (start, target) of a cell file (default the benchmark's)."""
     from tocontrol_ros.memory.cell import load_cell
 
-    return load_cell(CELL).tasks
+    return load_cell(cell).tasks
 
 
 def _peer_rows(memory: Path, model, limits, cases: list) -> list:
@@ -289,8 +295,10 @@ def _quantile(values, q) -> float:
 
 
 def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
-        peer_cases: int = PEER_CASES, build: bool = True) -> Section:
-    """The section (see the module docstring)."""
+        peer_cases: int = PEER_CASES, build: bool = True, cell: Path = CELL,
+        requests: Path = REQUESTS) -> Section:
+    """The section (see the module docstring); ``cell`` and ``requests``: another cell's
+    files (e.g. the small cell of ``bench/memory_blend.py``), the benchmark's by default."""
     from bench.limits import robots
 
     title = "A memory of optimal motions: the Panda cell (issue 50)"
@@ -302,14 +310,14 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
     load_start = load_text()
     # An existing file first brought to this format with its serving states (a build of
     # this code stores them with every new motion).
-    upgrade = _upgrade(memory) if memory.exists() else {
+    upgrade = _upgrade(memory, cell) if memory.exists() else {
         "wall": 0.0, "summary": "no file before the build: the build stores them"}
-    build_wall = _build(memory) if build else 0.0
-    build = _build_figures(memory, model)
+    build_wall = _build(memory, cell) if build else 0.0
+    build = _build_figures(memory, model, cell_file=cell)
     log(f"memory: build {build}")
-    req = yaml.safe_load(REQUESTS.read_text())
+    req = yaml.safe_load(requests.read_text())
     stations = {k: v["point"] for k, v in req["stations"].items()}
-    sets = {name: [(stations[r["start"]], r["target"]) for r in req[name][:count]]
+    sets = {name: [(stations[r["start"]], r["target"]) for r in req.get(name, [])[:count]]
             for name, count in (("inside", inside), ("outside", outside))}
     near = {name: _within(memory, model, limits, cases) for name, cases in sets.items()}
     workdir = Path(tempfile.mkdtemp(prefix="tocontrol-bench-memory-"))
@@ -323,7 +331,8 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
                                            "-p", f"memory:={memory}"], workdir / "mem.log"),
         _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/first", *common,
                                            "-p", f"memory:={memory}",
-                                           "-p", "memory_first_success:=true"],
+                                           "-p", "memory_first_success:=true",
+                                           "-p", "publish:=first_then_optimum"],
                  workdir / "first.log"),
         _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/cold", *common],
                  workdir / "cold.log"),
@@ -341,7 +350,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
         # Not counted: the cold node's first plan (compiled functions, worker processes), and
         # the memory node's first hit (the uniform transcription of memory_spans is built
         # then), a request of neither set.
-        client.call(names["cold"], *sets["outside"][0], status=False)
+        client.call(names["cold"], *(sets["outside"] or sets["inside"])[0], status=False)
         first_hit = client.call(names["memory"], stations["home"], WARM_UP_TARGET,
                                 status=False)
         client.call(names["first"], stations["home"], WARM_UP_TARGET, status=False)
@@ -367,7 +376,7 @@ def run(memory: Path | None = None, inside: int = 50, outside: int = 20,
               if got["memory"][1].get("memory") == "hit"]
     peer = _peer_rows(memory, model, limits, served[:peer_cases]) if peer_cases else []
     return _section(title, build, build_wall, upgrade, out, peer, first_hit,
-                    (load_start, load_text()))
+                    (load_start, load_text()), (cell, requests))
 
 
 def _f(values: dict, key: str) -> float:
@@ -413,7 +422,21 @@ def _served(ins: list, name: str) -> dict:
                 for g in hits)}
 
 
-def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> Section:
+def first_motions(f: dict) -> str:
+    """The first motions published on the hits of node ``f`` (``publish: first_then_optimum``:
+    a hit's first certified IPOPT iterate): the time from the request to it, its ``T``."""
+    got = [g["first"][1] for g in f["hits"] if "first_latency" in g["first"][1]]
+    lat = [_f(v, "first_latency") for v in got]
+    gap = [_f(v, "first_T") / _f(v, "T") - 1 for v in got]
+    return (f"its first motions (a hit's first certified IPOPT iterate, published at once): "
+            f"on {len(got)}/{len(f['hits'])} hits, published a median {_med(lat) * 1e3:.0f} ms "
+            f"after the request (p95 {_quantile(lat, 0.95) * 1e3:.0f} ms), `T` above the "
+            f"final motion's by a median {100 * _med(gap):.2f} % (worst "
+            f"{100 * max(gap, default=float('nan')):.2f} %).")
+
+
+def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
+             files: tuple = (CELL, REQUESTS)) -> Section:
     ins, outs = out["inside"], out["outside"]
     mem, first = _served(ins, "memory"), _served(ins, "first")
     cold_lat = [g["cold"][0] for g in ins]
@@ -448,11 +471,14 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
                 f"without a serving state (path fitted): {w['fits']}.")
 
     lines = [
-        f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
-        f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
-        f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
-        f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 "
-        f"outside; this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
+        (f"The cell `bench/memory_cell/panda_cell.yaml` (the Panda of example-robot-data, its "
+         f"URDF limits, tip `panda_hand`; 3 stations, a 40 x 40 x 30 cm target box at a 10 cm "
+         f"grid: {build['total']} motions; the build's search `starts` 24, `candidates` 8), "
+         f"the requests `bench/memory_cell/requests.yaml` (50 inside, 20 outside; "
+         if files == (CELL, REQUESTS) else
+         f"**Not the benchmark's cell**: the cell `{files[0].name}` ({build['total']} "
+         f"motions), the requests `{files[1].name}` (") +
+        f"this run: the first {len(ins)} and {len(outs)}). Two cores shared with "
         f"other work (load average {load[0]} at the start, {load[1]} at the end): the "
         f"figures are as measured. Command: "
         f"`scripts/dev bench run_all.py --update --only memory --memory-file FILE` "
@@ -483,9 +509,11 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         f"memory node's hits median {_med(hit_cold):.2f} s).",
         "",
         "- " + served(mem, "memory, 2 basins re-solved (the default)"),
-        "- " + served(first, "memory, `memory_first_success` (the second basin only when the "
-                      "nearest failed; asked only the requests with a stored motion within "
-                      "the radius: the others are the same cold plan)"),
+        "- " + served(first, "memory, `memory_first_success` and `publish: "
+                      "first_then_optimum` (the second basin only when the nearest failed; "
+                      "asked only the requests with a stored motion within the radius: the "
+                      "others are the same cold plan)"),
+        "- " + first_motions(first),
         "",
         "Where a hit's time goes (medians over the hits):",
         "",
@@ -496,9 +524,9 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         f"of `memory_spans` = 64 uniform spans) took {first_hit[0]:.2f} s.",
         "",
         f"**Outside the cell** ({len(outs)} requests): misses {o_miss}/{len(outs)}; memory "
-        f"node median {statistics.median(o_mem):.2f} s, default node "
-        f"{statistics.median(o_cold):.2f} s (paired ratio median "
-        f"{statistics.median([a / b for a, b in zip(o_mem, o_cold, strict=True)]):.2f}); the "
+        f"node median {_med(o_mem):.2f} s, default node "
+        f"{_med(o_cold):.2f} s (paired ratio median "
+        f"{_med([a / b for a, b in zip(o_mem, o_cold, strict=True)]):.2f}); the "
         f"same `T` on {o_same}/{len(outs)}, worse on {o_worse}.",
     ]
     if peer:
@@ -525,13 +553,17 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load) -> S
         ]
     def first_cells(g):
         if "first" not in g:
-            return ["", ""]
-        return [f"{g['first'][0]:.3f}",
-                f"{(_f(g['first'][1], 'T') / _f(g['cold'][1], 'T') - 1):+.1e}"]
+            return ["", "", "", ""]
+        v = g["first"][1]
+        return [f"{g['first'][0]:.3f}", f"{(_f(v, 'T') / _f(g['cold'][1], 'T') - 1):+.1e}",
+                f"{_f(v, 'first_latency'):.3f}" if "first_latency" in v else "-",
+                f"{(_f(v, 'first_T') / _f(g['cold'][1], 'T') - 1):+.1e}"
+                if "first_T" in v else "-"]
 
     lines += ["", *table(
         ["set", "case", "memory", "distance", "iterations", "memory node (s)", "T",
-         "default node (s)", "T default", "rel. diff", "first-success (s)", "its rel. diff"],
+         "default node (s)", "T default", "rel. diff", "first-success (s)", "its rel. diff",
+         "its first motion (s)", "first's rel. diff"],
         [[which, str(i + 1), g["memory"][1].get("memory", "?"),
           f"{_f(g['memory'][1], 'memory_distance'):.2f}",
           str(g["memory"][1].get("memory_iterations", "")), f"{g['memory'][0]:.3f}",
@@ -566,11 +598,16 @@ def main(argv=None) -> int:
     parser.add_argument("--no-build", action="store_true",
                         help="serve the memory as it is (no build call)")
     parser.add_argument("--write-requests", action="store_true")
+    parser.add_argument("--cell", type=Path, default=CELL,
+                        help="the cell file (default the benchmark's)")
+    parser.add_argument("--requests", type=Path, default=REQUESTS,
+                        help="the requests file (default the benchmark's)")
     args = parser.parse_args(argv)
     if args.write_requests:
         write_requests()
         return 0
-    section = run(args.memory, args.inside, args.outside, args.peer, not args.no_build)
+    section = run(args.memory, args.inside, args.outside, args.peer, not args.no_build,
+                  args.cell, args.requests)
     print("\n".join([f"## {section.title}", "", *section.lines, ""]))
     for target, verdict in section.targets:
         print(f"- {target}: {verdict}")

@@ -66,6 +66,7 @@ CLOCK_SITES = {
     ("sensitivity.py", "sensitivity_solve"): "timings (FlatResult.solve_time)",
     ("path_following.py", "follow"): "timings (FlatResult.solve_time)",
     ("flat.py", "solve"): "timings (FlatResult.solve_time)",
+    ("early.py", "watch"): "timings of the early motions' checks (EarlyMotion.seen, a report)",
     ("collocation.py", "solve"): "timings (DirectResult.solve_time)",
     ("compiled.py", "_gcc"): "timings of the compiler (progress reports)",
 }

@@ -68,7 +68,7 @@ class MemoryPolicy:
             return found
 
     def lookup(self, config: PlannerConfig, planner, problem, options,
-               should_stop) -> tuple[Recall | None, dict]:
+               should_stop, first=None) -> tuple[Recall | None, dict]:
         """Recall ``problem`` from the memory; ``(recall or None, status values)``.
 
         The values: ``memory`` (hit, miss, off, unavailable), ``memory_distance`` (warm
@@ -76,7 +76,10 @@ class MemoryPolicy:
         (s), ``memory_time`` (s, the lookup and re-solves), ``memory_lookup_time``,
         ``memory_decode_time``, ``memory_solve_time`` (the warm re-solves, certificates
         included), ``memory_certificate_time`` (s), ``memory_iterations`` (IPOPT, all
-        re-solves), ``memory_starts`` (what each started from, comma-separated).
+        re-solves), ``memory_starts`` (what each started from, comma-separated); with
+        ``first`` (``first(result)``, :func:`recall`'s: a certified IPOPT iterate before the
+        re-solve converged) and one given to it, ``memory_first_T`` (s),
+        ``memory_first_iteration`` and ``memory_first_time`` (s from the lookup's start).
         """
         if not config.memory:
             return None, {"memory": OFF}
@@ -86,7 +89,7 @@ class MemoryPolicy:
         try:
             found = recall(planner, problem, options, store, config.memory_radius,
                            config.memory_basins, should_stop, config.memory_spans,
-                           config.memory_first_success)
+                           config.memory_first_success, first=first)
         except (MemoryFileError, CodecError) as exc:
             self._warn(f"memory lookup failed, planning without it: {exc}")
             return None, {"memory": UNAVAILABLE, "memory_error": str(exc)}
@@ -107,6 +110,10 @@ class MemoryPolicy:
                           memory_certificate_time=found.timings["certificate"],
                           memory_iterations=found.iterations,
                           memory_starts=", ".join(found.starts))
+            if found.first is not None:
+                values.update(memory_first_T=found.first.T,
+                              memory_first_iteration=found.first.iterations,
+                              memory_first_time=found.first_time)
             if found.result is None:
                 values["memory_note"] = "no warm re-solve succeeded: " + \
                     " | ".join(found.messages)

@@ -375,14 +375,19 @@ class PlanningService:
         options = solver_options(config)
         t0 = self.clock.monotonic()
         # A memory hit answers by warm re-solves of stored motions; a miss plans as before.
-        recalled, memory_values = self.memory.lookup(config, self.planner, problem, options,
-                                                     self.should_stop(req))
-        first = warm = None
+        # With first_then_optimum, a hit's first certified IPOPT iterate is published at once.
+        early: list = []
+        recalled, memory_values = self.memory.lookup(
+            config, self.planner, problem, options, self.should_stop(req),
+            first=(lambda r: early.append(self._hit_first(req, r, problem)))
+            if config.publish == FIRST_THEN_OPTIMUM else None)
+        first = next((f for f in early if f is not None), None)
+        warm = None
         if recalled is not None and recalled.result is not None:
             result = recalled.result
         else:
-            first = self._first(req, problem, options) \
-                if config.publish == FIRST_THEN_OPTIMUM else None
+            if config.publish == FIRST_THEN_OPTIMUM and first is None:
+                first = self._first(req, problem, options)
             last = self._last_result
             warm = last if config.warm_start and last is not None and \
                 last.can_warm_start(problem) else None
@@ -448,6 +453,23 @@ class PlanningService:
                      "samples": samples}, path=path)
         if start_point is not None and path is not None:
             self.out.markers(result, path, req.config, start_point, req.target)
+
+    def _hit_first(self, req: PlanRequest, result, problem) -> tuple | None:
+        """A memory hit's first motion (a certified iterate of its warm re-solve), published.
+
+        Returns ``(result, path, samples)``, or None when cancelled meanwhile (it is then
+        the request's best certified motion at the cancel, as ``_first``'s) or the
+        publishers are gone (the optimum follows either way).
+        """
+        req.first = result
+        if req.cancelled.is_set() or self.stopping.is_set():
+            return None
+        values = {"start": problem.start_point, **result_values(result),
+                  "latency": self.clock.monotonic() - req.received, "memory": "hit"}
+        published = self.publish_first(req, result, None, values)
+        if published is None:
+            return None
+        return result, published[0], published[1]["samples"]
 
     def _first(self, req: PlanRequest, problem, options) -> tuple | None:
         """``publish: first_then_optimum``: the first motion, published at once.

@@ -142,6 +142,10 @@ class _Interrupt(ca.Callback):
     """IPOPT's iteration callback: stops the solve at a deadline, when asked, or by work.
 
     The work limit (a number of iterations) can be tighter than the transcription's own.
+    ``watch(iteration, x, g)``, when armed with one, sees each iterate's primal variables
+    and its rows' values (copies, shapes (nx,) and (ng,): IPOPT's current iterate, which
+    CasADi hands the callback) and may stop the solve by returning True; it must not change
+    anything IPOPT reads, so the solve is the same to the bit with or without it.
     """
 
     def __init__(self, nx: int, ng: int, npar: int) -> None:
@@ -150,8 +154,9 @@ class _Interrupt(ca.Callback):
         self.arm(np.inf, None, None)
         self.construct("flat_interrupt", {})
 
-    def arm(self, deadline: float, should_stop, max_iter: int | None) -> None:
+    def arm(self, deadline: float, should_stop, max_iter: int | None, watch=None) -> None:
         self.deadline, self.should_stop, self.max_iter = deadline, should_stop, max_iter
+        self.watch = watch
         self.calls, self.reason = 0, ""
 
     def get_n_in(self) -> int:
@@ -172,7 +177,10 @@ class _Interrupt(ca.Callback):
     def eval(self, arg):
         # IPOPT calls this once per iteration, the starting point (iteration 0) included.
         self.calls += 1
-        if self.max_iter is not None and self.calls > self.max_iter:
+        if self.watch is not None and self.watch(self.calls - 1, np.array(arg[0]).ravel(),
+                                                 np.array(arg[2]).ravel()):
+            self.reason = "stopped by its watcher"
+        elif self.max_iter is not None and self.calls > self.max_iter:
             self.reason = f"stopped after {self.max_iter} iterations (its work limit)"
         elif self.should_stop is not None and self.should_stop():
             self.reason = "cancelled"
@@ -611,7 +619,7 @@ class FlatTranscription:
               t_guess: float, p_guess: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               set_pad: float | np.ndarray = SET_PAD, deadline: float = np.inf,
               max_iter: int | None = None, should_stop=None, lam_g0: np.ndarray | None = None,
-              lam_x0: np.ndarray | None = None) -> FlatResult:
+              lam_x0: np.ndarray | None = None, watch=None) -> FlatResult:
         """Solve from a guess.
 
         Parameters
@@ -642,6 +650,11 @@ class FlatTranscription:
         lam_g0, lam_x0 : ndarray, optional
             Multipliers to start from (:attr:`FlatResult.lam_g`, :attr:`FlatResult.lam_x`
             of a solve on this mesh); used by a ``warm="dual"`` transcription.
+        watch : callable, optional
+            ``watch(iteration, w, g)`` at each IPOPT iteration (0: the start) with its
+            primal iterate ``w`` (control points then ``T``, shape (K n + 1,)) and its rows'
+            values ``g`` (shape (rows,)); returning True stops the solve (a failed result).
+            It reads the iterate only: the solve is the same with or without it.
 
         Returns
         -------
@@ -652,7 +665,7 @@ class FlatTranscription:
         lbg, ubg, lbx, ubx = self.bounds(lower, upper, set_pad, (start_value, target_value))
         w0 = np.concatenate([np.asarray(p_guess).ravel(), [t_guess]])
         t0 = time.perf_counter()
-        self._interrupt.arm(deadline, should_stop, max_iter)
+        self._interrupt.arm(deadline, should_stop, max_iter, watch)
         try:
             duals = {} if lam_g0 is None else {"lam_g0": lam_g0, "lam_x0": lam_x0}
             sol = self.solver(x0=w0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **duals)
@@ -671,7 +684,7 @@ class FlatTranscription:
 
     def residual(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
                  T: float, P: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 set_pad: float = SET_PAD) -> float:
+                 set_pad: float | np.ndarray = SET_PAD) -> float:
         """Largest violation of the NLP's constraints and bounds at ``(P, T)``.
 
         Parameters as in :meth:`solve` (``P`` (K, n) control points, ``T`` in s).

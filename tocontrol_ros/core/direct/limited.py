@@ -35,6 +35,7 @@ from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, 
 from tocontrol_ros.core.direct import set_pads
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.detour import detour_guess, path_collides
+from tocontrol_ros.core.direct.early import iterate_watch
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
 from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
@@ -325,7 +326,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     from ``solved`` of more than one sub-move (more than 2 cm of a point end, or ``solved``
     not comparable), IPOPT starts from the multipliers as
     ``FlatTranscription(warm="dual_far")`` does, and the single step is not tried (the walk
-    is, with ``warm_follow``).
+    is, with ``warm_follow``). IPOPT's certified iterates go to ``ctx.early`` (:mod:`~.early`).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
@@ -361,8 +362,12 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     # Capped as a refinement is: a warm solve that crawls must not eat the multistart's time.
     if not set_pads.FALLBACK_PADS:
         pad = SET_PAD
+    watch = iterate_watch(  # its certified iterates offered to ctx.early (a memory hit's)
+        ctx.early, flat, values, bounds, pad, lambda r, p: _stretched(flat, r, p, values, bounds),
+        lambda r, p, note: _result(ctx, r, p, [], [note], dict(timings), t_start),
+        f"a warm re-solve on {mesh} of {flat.spans} spans")
     out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad, **_budget(ctx, NEAR_MAX_ITER),
-                     **duals)
+                     **duals, watch=watch)
     ctx.check()
     if not out.success and warm.rows_added and not duals:
         # New rows that the path breaks by centimetres: from the warm barrier (and resumed

@@ -21,7 +21,7 @@ from tocontrol_ros.core.types.options import SolverOptions
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["SolveContext", "StopError"]
+__all__ = ["EarlyMotion", "SolveContext", "StopError"]
 
 
 class StopError(Exception):
@@ -36,6 +36,48 @@ class StopError(Exception):
 
     def __reduce__(self):
         return (StopError, (self.status,))  # from a worker process (core/planning/pool.py)
+
+
+@dataclass
+class EarlyMotion:
+    """A solve's motions before it converges: its certified iterates, offered as they come.
+
+    A method that can (the bounded solve's warm re-solve: IPOPT's iterates) checks its
+    iterate every ``every`` iterations, the check decided by the count, never by the clock:
+    the NLP's residual first, then the torques between the samples (held inside the set by
+    slowing the path down, as a converged solve's), then the certificate. Each certified
+    iterate goes to ``offer`` (a ``PlanResult``, ``success`` True, its warnings saying it is
+    an iterate, not the optimum); ``offer`` returning True ends the checks (the solve goes
+    on to its optimum either way, the same to the bit as without this). ``seen`` gets one
+    record per checked iterate: ``iteration``, ``T`` (s), ``residual``, ``inside`` (held
+    inside the set; None: not checked), ``certified`` (None: not checked), ``error`` (an
+    exception in the checks or in ``offer``, which ends the checks), and for a report only
+    ``at`` (``time.perf_counter()`` when the check began) and ``seconds`` (its cost).
+
+    Attributes
+    ----------
+    offer : callable
+        ``offer(result) -> bool``.
+    every : int
+        Check every this many iterations (>= 1; the start, iteration 0, is never checked).
+    full : bool
+        Check the set and the certificate even where the residual is above its tolerance
+        (a measurement's: such an iterate passes only where slowing it down into the set
+        also brings its residual within tolerance).
+    seen : list of dict
+    done : bool
+        Set when ``offer`` returned True.
+    """
+
+    offer: Callable[[PlanResult], bool]
+    every: int = 1
+    full: bool = False
+    seen: list = field(default_factory=list)
+    done: bool = False
+
+    def __post_init__(self) -> None:
+        if int(self.every) < 1:
+            raise ValueError(f"`every` must be at least 1, got {self.every!r}")
 
 
 @dataclass(frozen=True)
@@ -57,6 +99,9 @@ class SolveContext:
         Values computed once per solve: ``"pairs"``, the multistart's seed pairs (inverse
         kinematics costs), reused by the bounded solve where the joint limits bind;
         ``"incumbents"``, the motions found so far (:meth:`offer`).
+    early : EarlyMotion or None
+        Where a method that can offers its certified iterates before it converges (a
+        memory hit's first motion); None: not asked.
     """
 
     system: Any
@@ -65,14 +110,16 @@ class SolveContext:
     deadline: float
     should_stop: Callable[[], bool] | None = None
     memo: dict = field(default_factory=dict)
+    early: EarlyMotion | None = None
 
     def portable(self) -> SolveContext:
         """A copy for another process (:mod:`~tocontrol_ros.core.planning.pool`).
 
         Without the compiled system (a worker has its own), the cancel callback (the pool
-        passes an event instead, :meth:`attached`) and the memo (incumbents stay here).
+        passes an event instead, :meth:`attached`), the memo (incumbents stay here) and the
+        early motions' receiver.
         """
-        return replace(self, system=None, should_stop=None, memo={})
+        return replace(self, system=None, should_stop=None, memo={}, early=None)
 
     def attached(self, should_stop: Callable[[], bool] | None) -> SolveContext:
         """A copy with ``should_stop`` as its cancel callback."""

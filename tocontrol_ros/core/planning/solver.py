@@ -64,7 +64,7 @@ from tocontrol_ros.core.direct.first_motion import first_motion, quick_motion
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
 from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.geometry.scene import Scene
-from tocontrol_ros.core.methods.context import SolveContext, StopError
+from tocontrol_ros.core.methods.context import EarlyMotion, SolveContext, StopError
 from tocontrol_ros.core.methods.contract import method_named, method_owning
 from tocontrol_ros.core.planning.prepared import PreparedModel
 from tocontrol_ros.core.planning.tuning import INCUMBENT_TRIES, WARM_GAIN
@@ -298,17 +298,21 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
 
 @_slowed
 def solve_once(planner: Planner, problem: Problem, options: SolverOptions,
-               warm_start: PlanResult | None, should_stop, deadline: float) -> PlanResult:
+               warm_start: PlanResult | None, should_stop, deadline: float,
+               early: EarlyMotion | None = None) -> PlanResult:
     """One solve by one method: warm from ``warm_start`` only, else cold.
 
     The method is the contract's (:mod:`~tocontrol_ros.core.methods.contract`): a warm start
     goes to the method that owns its warm state (a failure is reported), a cold solve to the
     one ``options.method`` names. At the deadline, the best motion offered so far that passes
     its checks is returned with ``TIME_LIMIT``; a cancelled or timed-out solve without one
-    reports what the method had (``StopError.partial``).
+    reports what the method had (``StopError.partial``). ``early``: where a method that can
+    offers its certified iterates before it converges
+    (:class:`~tocontrol_ros.core.methods.context.EarlyMotion`; the bounded solve's warm
+    re-solve does); the result is the same with or without it.
     """
     t_start = time.perf_counter()
-    ctx = SolveContext(planner.system, problem, options, deadline, should_stop)
+    ctx = SolveContext(planner.system, problem, options, deadline, should_stop, early=early)
     timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
