@@ -57,6 +57,10 @@ class SolveContext:
         Values computed once per solve: ``"pairs"``, the multistart's seed pairs (inverse
         kinematics costs), reused by the bounded solve where the joint limits bind;
         ``"incumbents"``, the motions found so far (:meth:`offer`).
+    on_first : callable or None
+        Receives a certified motion found before the solve's answer (a warm re-solve's
+        first feasible iterate: :class:`~tocontrol_ros.core.direct.checked.FirstIterate`),
+        at once, on the solving thread; the answer follows as the solve's result.
     """
 
     system: Any
@@ -65,14 +69,16 @@ class SolveContext:
     deadline: float
     should_stop: Callable[[], bool] | None = None
     memo: dict = field(default_factory=dict)
+    on_first: Callable[[PlanResult], None] | None = None
 
     def portable(self) -> SolveContext:
         """A copy for another process (:mod:`~tocontrol_ros.core.planning.pool`).
 
         Without the compiled system (a worker has its own), the cancel callback (the pool
-        passes an event instead, :meth:`attached`) and the memo (incumbents stay here).
+        passes an event instead, :meth:`attached`), the memo (incumbents stay here) and
+        ``on_first``.
         """
-        return replace(self, system=None, should_stop=None, memo={})
+        return replace(self, system=None, should_stop=None, memo={}, on_first=None)
 
     def attached(self, should_stop: Callable[[], bool] | None) -> SolveContext:
         """A copy with ``should_stop`` as its cancel callback."""

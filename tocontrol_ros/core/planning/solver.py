@@ -122,9 +122,11 @@ class Planner(PreparedModel):
     @_slowed
     def plan(self, problem: Problem, options: SolverOptions | None = None,
              warm_start: PlanResult | None = None,
-             should_stop: Callable[[], bool] | None = None) -> PlanResult:
+             should_stop: Callable[[], bool] | None = None,
+             on_first: Callable[[PlanResult], None] | None = None) -> PlanResult:
         """See :func:`plan`."""
-        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
+        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop,
+                     on_first)
 
     @_slowed
     def quick(self, problem: Problem, q_near: np.ndarray,
@@ -152,7 +154,8 @@ _PLANNERS: dict[int, Planner] = {}
 
 def plan(problem: Problem, options: SolverOptions | None = None,
          warm_start: PlanResult | None = None,
-         should_stop: Callable[[], bool] | None = None) -> PlanResult:
+         should_stop: Callable[[], bool] | None = None,
+         on_first: Callable[[PlanResult], None] | None = None) -> PlanResult:
     """Solve a time-optimal problem.
 
     Parameters
@@ -165,6 +168,11 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         exponents match). Falls back to a cold solve when it does not converge.
     should_stop : callable, optional
         Polled between Newton iterations; returning True cancels the solve.
+    on_first : callable, optional
+        Called at once, on the solving thread, with a certified motion found before the
+        answer: the warm re-solve's first feasible iterate of the parametric step (its
+        warnings say ``(route: first iterate)``; at most one per plan). The answer (the
+        optimum) is returned as without it, the same to the bit.
 
     Returns
     -------
@@ -177,12 +185,12 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         _PLANNERS[id(problem.model)] = planner
         if not problem.is_trivial():  # the first use of a model: on every core
             planner.prepare(problem, options, shooting=False)
-    return planner.plan(problem, options, warm_start, should_stop)
+    return planner.plan(problem, options, warm_start, should_stop, on_first)
 
 
 # ------------------------------------------------------------------------ driver
 def _plan(planner: Planner, problem: Problem, options: SolverOptions,
-          warm_start: PlanResult | None, should_stop) -> PlanResult:
+          warm_start: PlanResult | None, should_stop, on_first=None) -> PlanResult:
     """The multistart, and a near previous solution as one more candidate.
 
     The cold multistart always runs as asked; a warm start (only when
@@ -201,7 +209,8 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     if warm_start is not None and \
             warm_start.can_warm_start(problem, options.warm_joint_radius) \
             and not problem.is_trivial():
-        warm = solve_once(planner, problem, options, warm_start, should_stop, deadline)
+        warm = solve_once(planner, problem, options, warm_start, should_stop, deadline,
+                          on_first)
     if warm is not None:
         n = problem.model.n
         ends = warm.trajectory.state([0.0, warm.T])[:, :n] if warm.success \
@@ -298,17 +307,20 @@ def _with_self_rows(planner: Planner, problem: Problem, options: SolverOptions,
 
 @_slowed
 def solve_once(planner: Planner, problem: Problem, options: SolverOptions,
-               warm_start: PlanResult | None, should_stop, deadline: float) -> PlanResult:
+               warm_start: PlanResult | None, should_stop, deadline: float,
+               on_first: Callable[[PlanResult], None] | None = None) -> PlanResult:
     """One solve by one method: warm from ``warm_start`` only, else cold.
 
     The method is the contract's (:mod:`~tocontrol_ros.core.methods.contract`): a warm start
     goes to the method that owns its warm state (a failure is reported), a cold solve to the
     one ``options.method`` names. At the deadline, the best motion offered so far that passes
     its checks is returned with ``TIME_LIMIT``; a cancelled or timed-out solve without one
-    reports what the method had (``StopError.partial``).
+    reports what the method had (``StopError.partial``). ``on_first``: as :func:`plan`'s
+    (a warm solve's).
     """
     t_start = time.perf_counter()
-    ctx = SolveContext(planner.system, problem, options, deadline, should_stop)
+    ctx = SolveContext(planner.system, problem, options, deadline, should_stop,
+                       on_first=on_first if warm_start is not None else None)
     timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
