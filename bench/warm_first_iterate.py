@@ -20,7 +20,12 @@ In the same process, the route with ``on_first`` at each of :data:`TRIES` (value
 included), its ``T`` gap, the time to the answer, and that the answer is the one without
 ``on_first`` to the bit.
 
-Command: ``scripts/dev run python -P bench/warm_first_iterate.py [--cache FILE] [cases]``.
+With ``--timed N``, only the timing: main's route (no ``on_first``) and the call with it
+under each of :data:`VARIANTS` (``checked.FIRST_TRIES``, ``checked.FIRST_STRETCH``),
+alternated ``N`` times per case after one round each (:func:`paired_timing`).
+
+Command: ``scripts/dev run python -P bench/warm_first_iterate.py [--cache FILE] [--timed N]
+[cases]``.
 """
 
 from __future__ import annotations
@@ -137,6 +142,68 @@ def checked(planner, moved, ropts, serving, it, pads):
     return False, "set or certificate", np.nan
 
 
+#: ``(FIRST_TRIES, FIRST_STRETCH)`` variants timed by :func:`paired_timing` (the shipped
+#: one first).
+VARIANTS = ((1, True), (1, False), (3, True))
+
+
+def paired_timing(planner, ropts, cases, rounds: int) -> None:
+    """Main's route and the call with ``on_first`` under each of :data:`VARIANTS`,
+    alternated call by call ``rounds`` times per case (after one round, not counted).
+
+    Per case (medians of the rounds): main's time to its certified answer; per variant the
+    time to the first certified answer within ``BAR_GAP`` (the first motion where it is,
+    else the call's answer) and the call's time to its answer. Then the medians over the
+    cases.
+    """
+    from bench.warm_pad_rows import same_nlp
+    from bench.warm_resolve import BAR_GAP
+    from tocontrol_ros.core.direct import checked as chk
+
+    shipped = chk.FIRST_TRIES, chk.FIRST_STRETCH
+    rows = []
+    try:
+        for i, case in enumerate(cases):
+            if case is None:
+                continue
+            moved, serving = case
+            ref = same_nlp(planner, moved, serving)
+            main_t, answer_t, with_t = [], {v: [] for v in VARIANTS}, {v: [] for v in VARIANTS}
+            firsts_at = {}
+            for r in range(rounds + 1):  # the first round warms up, not counted
+                t0 = time.perf_counter()
+                planner.plan(moved, ropts, warm_start=serving)
+                if r:
+                    main_t.append(time.perf_counter() - t0)
+                for v in VARIANTS:
+                    chk.FIRST_TRIES, chk.FIRST_STRETCH = v
+                    firsts = []
+                    t0 = time.perf_counter()
+                    res = planner.plan(moved, ropts, warm_start=serving, on_first=lambda f: (  # noqa: B023
+                        firsts.append((f, time.perf_counter() - t0))))  # noqa: B023
+                    t_with = time.perf_counter() - t0
+                    gap = firsts[0][0].T / ref.T - 1.0 if firsts else np.nan
+                    firsts_at[v] = (firsts[0][0].iterations, gap) if firsts else None
+                    within = bool(firsts) and abs(gap) <= BAR_GAP
+                    if r:
+                        with_t[v].append(t_with)
+                        answer_t[v].append(firsts[0][1] if within else
+                                           t_with if res.success else np.nan)
+            row = [1e3 * float(np.median(main_t))] + [
+                1e3 * float(np.median(answer_t[v])) for v in VARIANTS]
+            rows.append(row)
+            print(f"case {i + 1}: main {row[0]:.1f} ms; answer within {BAR_GAP:g}: " + "; ".join(
+                f"{v} {a:.1f} ms (first {firsts_at[v]}, to its answer "
+                f"{1e3 * float(np.median(with_t[v])):.1f})"
+                for v, a in zip(VARIANTS, row[1:], strict=True)), flush=True)
+    finally:
+        chk.FIRST_TRIES, chk.FIRST_STRETCH = shipped
+    med = np.median(np.array(rows), axis=0)
+    print(f"medians over {len(rows)} cases ({rounds} rounds, alternated): main {med[0]:.1f} "
+          f"ms; answer within {BAR_GAP:g}: " + "; ".join(
+              f"{v} {a:.1f} ms" for v, a in zip(VARIANTS, med[1:], strict=True)))
+
+
 def main(argv: list[str]) -> None:
     from bench.warm_pad_rows import same_nlp
     from tocontrol_ros.core.direct import checked as chk
@@ -144,11 +211,16 @@ def main(argv: list[str]) -> None:
     from tocontrol_ros.core.direct.set_pads import row_pads
     from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
 
-    cache = None
+    cache, rounds = None, 0
     if argv[:1] == ["--cache"]:
         cache, argv = Path(argv[1]), argv[2:]
+    if argv[:1] == ["--timed"]:
+        rounds, argv = int(argv[1]), argv[2:]
     count = int(argv[0]) if argv else 20
     planner, ropts, cases = load(cache, count)
+    if rounds:
+        paired_timing(planner, ropts, cases, rounds)
+        return
     summary = []
     for i, case in enumerate(cases):
         if case is None:

@@ -558,9 +558,10 @@ def test_the_first_feasible_iterate_is_given_certified_before_the_optimum(panda_
     assert first.iterations < result.iterations
     shown = [it for it in seen if it.iterations == first.iterations]
     assert shown and shown[0].residual <= RESIDUAL_TOL
-    # The earlier iterates were not feasible to the tolerance (or failed the checks).
+    # The earlier iterates were not feasible to the tolerance, or failed their checks
+    # (fewer of those than the tries).
     earlier = [it for it in seen if it.iterations < first.iterations]
-    assert all(it.residual > RESIDUAL_TOL for it in earlier[-FIRST_TRIES:]) or earlier == []
+    assert sum(it.residual <= RESIDUAL_TOL for it in earlier) < FIRST_TRIES
     # Re-evaluated here: the first motion meets the moved problem's rows and starts where
     # the problem does.
     ws = serving.warm_state
