@@ -316,8 +316,9 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
     """The certified plan run 1e-4 faster leaves the set between its samples; the same
     path slowed down by the least of STRETCHES that suffices is back inside it, meets the
     NLP's constraints, and costs at most 3e-4 of T."""
+    from tocontrol_ros.core.direct.checked import stretched
     from tocontrol_ros.core.direct.flat import FlatTranscription
-    from tocontrol_ros.core.direct.limited import RESIDUAL_TOL, SET_MARGIN, STRETCHES, _stretched
+    from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL, SET_MARGIN, STRETCHES
 
     res = panda_limited
     problem, traj = res.problem, res.trajectory
@@ -328,7 +329,7 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
                              torque_scale=problem.torque_scale)
     values = (problem.start.value, problem.target.value, problem.k)
     bounds = state_bounds(problem, PAD)
-    out, slower = _stretched(flat, fast, fast_traj, values, bounds)
+    out, slower = stretched(flat, fast, fast_traj, values, bounds)
     assert fast.T < out.T <= fast.T * (1 + STRETCHES[-1])
     assert np.array_equal(out.P, fast.P) and slower.T == out.T
     assert np.max(slower.set_values()) <= 1.0 - SET_MARGIN
@@ -336,7 +337,7 @@ def test_a_path_slowed_down_brings_its_torques_inside_the_set(panda_limited):
     assert out.residual == flat.residual(*values, out.T, out.P, *bounds)
     # Much faster, no stretch in STRETCHES suffices: None (the pad re-solves take over).
     faster = replace(traj.result, T=res.T * 0.98)
-    assert _stretched(flat, faster, traj.with_result(faster), values, bounds) is None
+    assert stretched(flat, faster, traj.with_result(faster), values, bounds) is None
     # The stretches checked in one call: the same set values to the bit as one by one,
     # so the same stretch is chosen (the least that suffices, checked above).
     durations = [fast.T * (1.0 + e) for e in STRETCHES]
@@ -374,7 +375,7 @@ def test_torques_between_samples_are_brought_inside_the_set(panda):
     """Case 34 of bench/limits.py's Panda: the refined solution's torques leave the set
     between its samples by 1.7e-3; the re-solves with a wider pad, from the warm start of
     the refined mesh, all failed and the plan failed its certificate. The path is now
-    slowed down first (``_stretched``), and a re-solve with a wider pad, if one is still
+    slowed down first (``checked.stretched``), and a re-solve with a wider pad, if one is still
     needed, starts its barrier higher (``warm="resume"``): the plan is certified."""
 
     q0 = np.array([-0.5338229825970606, 0.30773567715355116, 0.7863894957580588,
@@ -385,7 +386,7 @@ def test_torques_between_samples_are_brought_inside_the_set(panda):
 
     problem = Problem(panda, joint_state(q0, np.zeros(7)), point(target), k=4.0)
     stretched = []
-    real_stretched = limited._stretched
+    real_stretched = limited.stretched
 
     def recorded(*args, **kwargs):
         out = real_stretched(*args, **kwargs)
@@ -393,7 +394,7 @@ def test_torques_between_samples_are_brought_inside_the_set(panda):
         return out
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(limited, "_stretched", recorded)
+        mp.setattr(limited, "stretched", recorded)
         res, padded = _plan_recording_pad_solves(problem, replace(OPTIONS, starts=4,
                                                                   candidates=1))
     assert res.success, res.message

@@ -508,3 +508,91 @@ def test_the_plan_takes_the_sub_moves_where_the_whole_move_fails(path_case, monk
     assert _route(short) == "ipopt", short.warnings
     assert any(f"in {sensitivity.PATH_SUBMOVES} sub-moves: not converged in 2 steps" in w
                and "solved by IPOPT instead" in w for w in short.warnings), short.warnings
+
+
+def _with_iterates(planner, moved, serving, on_first):
+    """The plan with ``on_first``, and every iterate its parametric steps showed
+    (``on_step``): ``(result, [FlatResult, ...])``."""
+    from tocontrol_ros.core.direct import limited
+
+    seen = []
+    original = limited.sensitivity_solve
+
+    def watched(*args, on_step=None, **kwargs):
+        def both(it):
+            seen.append(it)
+            if on_step is not None:
+                on_step(it)
+        return original(*args, on_step=both, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(limited, "sensitivity_solve", watched)
+        result = planner.plan(moved, SERVE, warm_start=serving, on_first=on_first)
+    return result, seen
+
+
+def test_the_first_feasible_iterate_is_given_certified_before_the_optimum(panda_case):
+    """Real-time iterations (issue 47): the 2 cm move's Newton iterates that are not the
+    answer are watched, and the first one whose rows hold to the tolerance, inside the set
+    between the samples and certified goes to ``on_first`` once, before the answer; the
+    answer is the one without ``on_first``, to the bit. The first motion is checked here
+    independently: its certificate, its violation of the NLP's rows re-evaluated on the
+    moved problem, its start state, and T no shorter than the optimum's by more than the
+    tolerances allow (a feasible point of the same NLP) and within the bar's 1e-3."""
+    from tocontrol_ros.core.direct.checked import FIRST_TRIES
+    from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    plain = planner.plan(moved, SERVE, warm_start=serving)
+    firsts = []
+    result, seen = _with_iterates(planner, moved, serving, firsts.append)
+    assert result.success and _route(result) == "parametric", result.message
+    assert result.T == plain.T
+    assert np.array_equal(result.trajectory.result.P, plain.trajectory.result.P)
+    assert len(firsts) == 1
+    first = firsts[0]
+    assert first.success and first.certificate is not None and first.certificate.passed
+    assert "(route: first iterate)" in " ".join(first.warnings)
+    # Before the answer: fewer Newton steps, and an iterate the steps showed.
+    assert first.iterations < result.iterations
+    shown = [it for it in seen if it.iterations == first.iterations]
+    assert shown and shown[0].residual <= RESIDUAL_TOL
+    # The earlier iterates were not feasible to the tolerance, or failed their checks
+    # (fewer of those than the tries).
+    earlier = [it for it in seen if it.iterations < first.iterations]
+    assert sum(it.residual <= RESIDUAL_TOL for it in earlier) < FIRST_TRIES
+    # Re-evaluated here: the first motion meets the moved problem's rows and starts where
+    # the problem does.
+    ws = serving.warm_state
+    flat = planner.flat(moved, ws.breaks, warm="dual")
+    resid = flat.residual(moved.start.value, moved.target.value, moved.k, first.T,
+                          first.trajectory.result.P, *state_bounds(moved, PAD))
+    assert resid <= RESIDUAL_TOL
+    at0 = first.trajectory.evaluate(np.array([0.0]))
+    assert np.allclose(at0.q[0], Q0, atol=1e-6) and np.allclose(at0.qd[0], QD0, atol=1e-6)
+    assert result.T * (1.0 - 1e-6) <= first.T <= result.T * (1.0 + 1e-3)
+
+
+def test_a_move_whose_iterates_are_infeasible_gives_no_first_motion(panda_case):
+    """The 10 cm move: every iterate of the parametric steps violates the NLP's rows by
+    far more than the tolerance (the steps fail and IPOPT answers): the steps give nothing
+    to ``on_first``; IPOPT's fallback may give its own first certified iterate
+    (:mod:`~tocontrol_ros.core.direct.early`, the same receiver), at most one; the answer is
+    the one without it."""
+    from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, (0.06, -0.05, 0.06))
+    plain = planner.plan(moved, SERVE, warm_start=serving)
+    firsts = []
+    result, seen = _with_iterates(planner, moved, serving, firsts.append)
+    assert seen and all(it.residual > RESIDUAL_TOL for it in seen), \
+        [it.residual for it in seen]
+    assert len(firsts) <= 1
+    for first in firsts:  # IPOPT's iterate, not the steps'
+        text = " ".join(first.warnings)
+        assert "(route: first iterate)" not in text and "IPOPT's iterate" in text, text
+        assert first.success and first.certificate.passed
+        assert first.T >= result.T * (1.0 - 1e-6)
+    assert result.success == plain.success and result.T == plain.T

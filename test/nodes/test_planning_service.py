@@ -69,8 +69,10 @@ class FakeResult:
         self.trajectory = SimpleNamespace(sample=lambda dt: FakeSample(self.samples)) \
             if self.success else None
 
+    warm: bool = False  # whether a later request may warm-start from it
+
     def can_warm_start(self, problem) -> bool:
-        return False
+        return self.warm
 
 
 class FakePlanner:
@@ -87,6 +89,9 @@ class FakePlanner:
         self.gate = threading.Event()
         self.entered = threading.Event()
         self.solved: list = []  # the problems solved after the warm-up, in order
+        #: Given to a warm solve's ``on_first`` before it returns (the first iterate).
+        self.iterate: FakeResult | None = None
+        self.on_firsts: list = []  # whether each solve got an on_first
 
     def stale(self) -> bool:
         return False
@@ -97,14 +102,18 @@ class FakePlanner:
     def first(self, problem, options) -> FakeResult:
         return self.first_result
 
-    def plan(self, problem, options, warm_start=None, should_stop=None) -> FakeResult:
+    def plan(self, problem, options, warm_start=None, should_stop=None,
+             on_first=None) -> FakeResult:
         if not self.hold.is_set():  # the warm-up's throw-away solves
             return self.optimum
         self.solved.append(problem)
+        self.on_firsts.append(on_first is not None)
         self.entered.set()
         assert self.gate.wait(WAIT), "the test never opened the gate"
         if self.error is not None:
             raise self.error
+        if on_first is not None and self.iterate is not None:
+            on_first(self.iterate)
         return self.optimum
 
 
@@ -321,6 +330,65 @@ def test_a_first_motion_that_is_faster_stands(make_service):
     assert done["level"] == "WARN" and "the first motion stands" in done["message"]
     assert done["values"]["optimum_T"] == 2.5 and done["values"]["T"] == 2.0
     assert out.kinds().count("trajectory") == 1 and req.path is not None
+
+
+def _published(out: FakeOutputs, req: PlanRequest, since: int) -> list:
+    """The trajectories from event ``since`` on and ``req``'s ``first``/``solved`` statuses,
+    in order: ("trajectory",) or (event, T)."""
+    return [("trajectory",) if e[0] == "trajectory" else (e[3]["event"], e[3]["T"])
+            for e in out.events[since:] if e[0] == "trajectory" or (
+                e[0] == "status" and e[3].get("request_id") == req.id
+                and e[3]["event"] in ("first", "solved"))]
+
+
+def test_a_warm_solves_first_iterate_is_published_before_the_optimum(make_service):
+    """``first_then_optimum`` with a warm start: the solve's first certified iterate
+    (``on_first``) is published at once as a first motion when it is faster than the first
+    motion published before it; the optimum follows as before. Without a warm start the
+    solve gets no ``on_first``."""
+    service, out = make_service(publish="first_then_optimum")
+    service.planner.optimum = FakeResult(T=1.5, warm=True)
+    service.planner.iterate = FakeResult(T=1.6, method="direct")
+    service.planner.gate.set()
+    cold = request(service)
+    service.submit(cold)
+    wait_done(cold)
+    warm, since = request(service), len(out.events)
+    service.submit(warm)
+    wait_done(warm)
+    assert service.planner.on_firsts == [False, True]
+    assert _published(out, warm, since) == [("trajectory",), ("first", 2.0), ("trajectory",),
+                                     ("first", 1.6), ("trajectory",), ("solved", 1.5)]
+    iterate = [e[3] for e in out.statuses("first") if e[3]["request_id"] == warm.id][1]
+    assert iterate["published"] == "first" and iterate["iterate"] is True
+    assert final(out, warm)["values"]["published"] == "optimum"
+
+
+def test_a_first_iterate_slower_than_the_first_motion_is_not_published(make_service):
+    """The warm solve's first iterate is no faster than the first motion published: not
+    published; and an optimum slower than the iterate published leaves the iterate
+    standing."""
+    service, out = make_service(publish="first_then_optimum")
+    service.planner.optimum = FakeResult(T=1.5, warm=True)
+    service.planner.gate.set()
+    cold = request(service)
+    service.submit(cold)
+    wait_done(cold)
+    service.planner.iterate = FakeResult(T=2.2, method="direct")
+    slower, since = request(service), len(out.events)
+    service.submit(slower)
+    wait_done(slower)
+    assert _published(out, slower, since) == [("trajectory",), ("first", 2.0), ("trajectory",),
+                                       ("solved", 1.5)]
+    service.planner.iterate = FakeResult(T=1.4, method="direct")
+    service.planner.optimum = FakeResult(T=1.45, warm=True)
+    stands, since = request(service), len(out.events)
+    service.submit(stands)
+    wait_done(stands)
+    assert _published(out, stands, since) == [("trajectory",), ("first", 2.0), ("trajectory",),
+                                       ("first", 1.4), ("solved", 1.4)]
+    done = final(out, stands)
+    assert "the first motion stands" in done["message"] and done["values"]["optimum_T"] == 1.45
 
 
 def test_a_failed_solve_publishes_nothing(make_service):

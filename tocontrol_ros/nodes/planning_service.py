@@ -391,8 +391,13 @@ class PlanningService:
             last = self._last_result
             warm = last if config.warm_start and last is not None and \
                 last.can_warm_start(problem) else None
+            firsts = [first] if first else []
+            # A warm solve's first certified iterate, published at once when faster.
+            extra_args = {"on_first": self._iterate_first(req, problem, firsts)} \
+                if config.publish == FIRST_THEN_OPTIMUM and warm is not None else {}
             result = self.planner.plan(problem, options, warm_start=warm,
-                                       should_stop=self.should_stop(req))
+                                       should_stop=self.should_stop(req), **extra_args)
+            first = firsts[-1] if firsts else None
         extra = {"start": start_point, **result_values(result), **memory_values,
                  "warm_start": warm is not None,
                  "warm_returned": any(r.index == -1 and r.status == "returned"
@@ -497,6 +502,28 @@ class PlanningService:
         if published is None:
             return None
         return first, published[0], published[1]["samples"]
+
+    def _iterate_first(self, req: PlanRequest, problem, firsts: list) -> Callable[[Any], None]:
+        """``publish: first_then_optimum`` with a warm start: the solve's ``on_first``.
+
+        A warm re-solve's first feasible iterate (certified, not converged: the core's
+        ``on_first``, issue 47's real-time iterations) is published at once as ``req``'s
+        first motion, with a ``first`` status, when no first motion was published or it is
+        faster than the last one; ``firsts`` (the published ``(result, path, samples)``)
+        gets it, so that the optimum is compared with it.
+        """
+        def publish(result) -> None:
+            if req.cancelled.is_set() or self.stopping.is_set():
+                return
+            if firsts and result.T >= firsts[-1][0].T:
+                return
+            req.first = result
+            values = {"start": problem.start_point, **result_values(result),
+                      "latency": self.clock.monotonic() - req.received, "iterate": True}
+            published = self.publish_first(req, result, None, values)
+            if published is not None:
+                firsts.append((result, published[0], published[1]["samples"]))
+        return publish
 
     def publish_improved(self, req: PlanRequest, result, stamp_ns: int, message_prefix: str,
                          extra: dict) -> None:

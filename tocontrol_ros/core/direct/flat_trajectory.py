@@ -357,7 +357,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         The same numbers to the bit as ``with_result(replace(result, T=T)).set_values()``
         for each ``T`` (the path's samples taken the same way, the inverse dynamics' one
         compiled kernel mapped over all of them at once): the time stretches of the
-        bounded solve (``limited._stretched``) are checked together.
+        bounded solve (``checked.stretched``) are checked together.
 
         Parameters
         ----------

@@ -30,9 +30,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from tocontrol_ros.core.checks.certificate import certify_open_loop
-from tocontrol_ros.core.checks.verification import fine_sample, limit_warnings, verdict
 from tocontrol_ros.core.direct import set_pads
+from tocontrol_ros.core.direct.checked import FirstIterate, stretched, verified
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.detour import detour_guess, path_collides
 from tocontrol_ros.core.direct.early import iterate_watch
@@ -58,13 +57,11 @@ from tocontrol_ros.core.direct.tuning import (
     PAD_ROUNDS,
     REFINE_WINDOW,
     REFINEMENTS,
-    RESIDUAL_TOL,
     SAME_T,
     SET_MARGIN,
     SET_PAD,
     SPAN_BUCKET,
     SPANS,
-    STRETCHES,
     T_SETTLED,
     TOUCH,
 )
@@ -233,7 +230,7 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
                            starts=tuple(records))
     idx, res, traj = best
     records[idx] = replace(records[idx], status="returned")
-    out = _result(ctx, res, traj, records, notes, timings, t_start)
+    out = verified(ctx, res, traj, records, notes, timings, t_start)
     if out.success or problem.collision is None:
         return out
     return _next_certified(planner, ctx, bounds, out, idx, every, raced, records, notes,
@@ -298,7 +295,7 @@ def _next_certified(planner: Compiled, ctx: SolveContext, bounds, refused: PlanR
         records[i] = replace(records[i], T=res.T, status="returned")
         note = (f"the least-T motion (T = {refused.T:.6f} s, seed {idx}) was refused by its "
                 f"certificate; the next candidate, seed {i}")
-        again = _result(ctx, res, traj, records, notes + [note], timings, t_start)
+        again = verified(ctx, res, traj, records, notes + [note], timings, t_start)
         if again.success:
             return again
         records[i] = replace(records[i], status=f"refused: {again.message}")
@@ -363,8 +360,8 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     if not set_pads.FALLBACK_PADS:
         pad = SET_PAD
     watch = iterate_watch(  # its certified iterates offered to ctx.early (a memory hit's)
-        ctx.early, flat, values, bounds, pad, lambda r, p: _stretched(flat, r, p, values, bounds),
-        lambda r, p, note: _result(ctx, r, p, [], [note], dict(timings), t_start),
+        ctx.early, flat, values, bounds, pad, lambda r, p: stretched(flat, r, p, values, bounds),
+        lambda r, p, note: verified(ctx, r, p, [], [note], dict(timings), t_start),
         f"a warm re-solve on {mesh} of {flat.spans} spans")
     out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad, **_budget(ctx, NEAR_MAX_ITER),
                      **duals, watch=watch)
@@ -387,7 +384,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                            iterations=out.iterations, intervals=flat.spans)
     notes = [f"solved as a B-spline path with hard bounds (docs/limits.md), warm from the "
              f"previous solution on {mesh} of {flat.spans} spans", *route]
-    return _result(ctx, out, traj, [], notes, timings, t_start)
+    return verified(ctx, out, traj, [], notes, timings, t_start)
 
 
 def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState, bounds,
@@ -413,32 +410,37 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     w0 = np.concatenate([np.asarray(warm.P, dtype=float).ravel(), [warm.T]])
     old = (solved.start.value, solved.target.value, solved.k) \
         if ctx.options.warm_follow and _same_kinds(solved, problem) else None
+    # The first certified iterate goes to ctx.early at once (real-time iterations).
+    watch = FirstIterate(ctx, flat, bounds, values, f"solved as a B-spline path with hard "
+                         f"bounds (docs/limits.md), warm from the previous solution on its "
+                         f"mesh of {flat.spans} spans", timings, t_start, t0) \
+        if ctx.early is not None else None
     if old is not None and 1 < sub_moves(old, values) <= MAX_MOVES:
         # The walk in the request's parameters (warm_follow: a memory hit's distant start).
         step, _ = follow(flat, w0, warm.lam_g, warm.lam_x, old, values, *bounds, pad,
                          should_stop=ctx.should_stop)
         ctx.check()
     else:
-        step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, pad)
+        step = _steps(ctx, flat, w0, warm.lam_g, warm.lam_x, values, bounds, pad, watch)
     why = step.message
     if not step.success:  # the caller's solve time counts from t0 on
         return None, why
     traj = FlatTrajectory(flat, step, problem.k)
     excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
-    slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 else (step, traj)
+    slower = stretched(flat, step, traj, values, bounds) if excess > 0.0 else (step, traj)
     for _ in range(PAD_ROUNDS if slower is None else 0):
         # As _inside_set does with IPOPT: the set's pad widened, the step carried there
         # from its own answer (the rows held at the old pad move with it).
         pad = _wider(pad, excess, traj, flat)
         w1 = np.concatenate([step.P.ravel(), [step.T]])
-        again = _steps(ctx, flat, w1, step.lam_g, step.lam_x, values, bounds, pad)
+        again = _steps(ctx, flat, w1, step.lam_g, step.lam_x, values, bounds, pad, watch)
         if not again.success:
             why = f"{why}; pad {np.max(pad):.2g}: {again.message}"
             break
         step, traj = again, FlatTrajectory(flat, again, problem.k)
         excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
         why = f"{why}; pad {np.max(pad):.2g}: {again.message}"
-        slower = _stretched(flat, step, traj, values, bounds) if excess > 0.0 \
+        slower = stretched(flat, step, traj, values, bounds) if excess > 0.0 \
             else (step, traj)
         if slower is not None:
             break
@@ -450,7 +452,7 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
              f"parametric)"]
     elapsed = time.perf_counter() - t0
     timings["shooting"] += elapsed
-    done = _result(ctx, step, traj, [], notes, timings, t_start)
+    done = verified(ctx, step, traj, [], notes, timings, t_start)
     if done.success:
         return done, why
     timings["shooting"] -= elapsed
@@ -486,23 +488,25 @@ def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,
 
 
 def _steps(ctx: SolveContext, flat: FlatTranscription, w0: np.ndarray, lam_g: np.ndarray,
-           lam_x: np.ndarray, values, bounds, pad: float | np.ndarray) -> FlatResult:
+           lam_x: np.ndarray, values, bounds, pad: float | np.ndarray,
+           watch: FirstIterate | None = None) -> FlatResult:
     """The parametric steps to ``values`` from the solution ``w0`` with its multipliers.
 
     The whole move first (:func:`~.sensitivity.sensitivity_solve`); where its steps do not
     converge, the move followed in :data:`~.sensitivity.PATH_SUBMOVES` sub-moves from the
     same point (path-following in the parameter, its own budget of steps and
-    factorisations). The result's message says what each did.
+    factorisations). The result's message says what each did. ``watch`` sees every
+    iterate that is not an answer (the first motion).
     """
     step, out = sensitivity_solve(flat, w0, lam_g, lam_x, *values, *bounds, pad,
-                                  should_stop=ctx.should_stop)
+                                  should_stop=ctx.should_stop, on_step=watch)
     ctx.check()
     if step.success or out.reason == "cancelled" or PATH_SUBMOVES <= 1:
         return step
     again, _ = sensitivity_solve(flat, w0, lam_g, lam_x, *values, *bounds, pad,
                                  should_stop=ctx.should_stop, submoves=PATH_SUBMOVES,
                                  max_steps=PATH_STEPS, max_solves=PATH_SOLVES,
-                                 sub_budget=PATH_SUB_BUDGET)
+                                 sub_budget=PATH_SUB_BUDGET, on_step=watch)
     ctx.check()
     return replace(again, message=f"{step.message}; {again.message}",
                    solve_time=step.solve_time + again.solve_time)
@@ -539,37 +543,12 @@ def _infeasible(problem: Problem, why: str, timings: dict, t_start: float,
                               **fields)
 
 
-def _result(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: list,
-            notes: list[str], timings: dict, t_start: float) -> PlanResult:
-    """The verified result of a bounded solve (its warm state: the mesh and path)."""
-    problem, options = ctx.problem, ctx.options
-    sample = fine_sample(traj)
-    t0 = time.perf_counter()
-    cert_options = replace(options.certificate_options(1), residual_tol=RESIDUAL_TOL)
-    cert = certify_open_loop(problem, traj, cert_options, sample=sample,
-                             solver_residual=res.residual) if options.verify else None
-    timings["verify"] = time.perf_counter() - t0
-    status, message = verdict(options, cert, res.residual, RESIDUAL_TOL)
-    timings["total"] = time.perf_counter() - t_start
-    success = status is Status.SUCCESS
-    return PlanResult(
-        success=success, status=status, message=message, T=res.T,
-        k=problem.k, trajectory=traj, residual=res.residual, iterations=res.iterations,
-        timings=timings, continuation=(), max_abs_u=float(np.max(np.abs(sample.u))),
-        delta=0.0, intervals=len(traj.breaks) - 1, verification=dict(cert.figures) if cert else {},
-        certificate=cert,
-        warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
-        problem=problem, method="direct",
-        warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T,
-                                 res.lam_g, res.lam_x) if success else None)
-
-
 def _offer(ctx: SolveContext, bounds, res: FlatResult, traj: FlatTrajectory,
            flat: FlatTranscription, notes: list[str]) -> None:
     """Offer a bounded solution (:meth:`SolveContext.offer`) for a result at the deadline.
 
     Built, it is first slowed down just enough to hold its torques inside the set between
-    the samples (:func:`_stretched`, no re-solve), as :func:`_inside_set` would first try.
+    the samples (:func:`~.checked.stretched`, no re-solve), as :func:`_inside_set` would first try.
     """
     if not res.success:
         return
@@ -579,8 +558,8 @@ def _offer(ctx: SolveContext, bounds, res: FlatResult, traj: FlatTrajectory,
         out, path = res, traj
         if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
             values = (problem.start.value, problem.target.value, problem.k)
-            out, path = _stretched(flat, res, traj, values, bounds) or (res, traj)
-        return _result(ctx, out, path, [], list(notes), timings, t_start)
+            out, path = stretched(flat, res, traj, values, bounds) or (res, traj)
+        return verified(ctx, out, path, [], list(notes), timings, t_start)
 
     ctx.offer(res.T, build)
 
@@ -819,7 +798,7 @@ def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
                 pad: float | np.ndarray = SET_PAD) -> tuple[FlatResult, FlatTrajectory]:
     """Widen the set's pad until the torques between the sample times stay inside the set.
 
-    First the same path slowed down (:func:`_stretched`); if that is not enough, at most
+    First the same path slowed down (:func:`~.checked.stretched`); if that is not enough, at most
     :data:`PAD_ROUNDS` re-solves, each from the last solution and within
     :data:`NEAR_MAX_ITER` iterations; a re-solve that fails (IPOPT's step computation, seen
     on the xArm7) is tried again with a wider pad. The wider pad makes the last solution
@@ -837,9 +816,9 @@ def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
     values = (problem.start.value, problem.target.value, problem.k)
     excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
     if excess > 0.0:
-        stretched = _stretched(flat, out, traj, values, bounds)
-        if stretched is not None:
-            return stretched
+        slower = stretched(flat, out, traj, values, bounds)
+        if slower is not None:
+            return slower
     for _ in range(PAD_ROUNDS):
         if excess <= 0.0:
             break
@@ -854,39 +833,6 @@ def _inside_set(planner: Compiled, ctx: SolveContext, bounds, out: FlatResult,
                 excess = float(np.max(traj.set_values())) - (1.0 - SET_MARGIN)
                 break
     return out, traj
-
-
-def _stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, values,
-               bounds) -> tuple[FlatResult, FlatTrajectory] | None:
-    """The same path run slower, its torques inside the set between the samples, or None.
-
-    ``T (1 + e)`` for the first ``e`` of :data:`STRETCHES` that suffices.
-
-    Slowing a path down scales its inertial torques by ``1 / (1 + e)^2`` and its friction
-    by ``1 / (1 + e)``; the gravity torques stay, so the set's value need not fall, and each
-    ``e`` is checked: the torques at 32 times per span, and the NLP's residual (its velocity
-    rows only loosen; a start or target joint state with a velocity is no longer met: no
-    stretch). ``T`` grows by ``e``, in place of one to three IPOPT solves from the default
-    start: on two of eight Panda problems (one start, its limits) the pad re-solves took 17
-    and 19 s (1-16 s each, IPOPT crawling at 118 spans); the stretches were 1e-4 and 1e-6,
-    in 61 and 15 ms. The stretches that meet the residual are checked against the set in
-    one call (:meth:`FlatTrajectory.slower_set_values`: the same numbers as one by one, the
-    same choice; issue 47).
-    """
-    stretches = []
-    for e in STRETCHES:
-        T = out.T * (1.0 + e)
-        resid = flat.residual(*values, T, out.P, *bounds)
-        if resid <= RESIDUAL_TOL:
-            stretches.append((T, resid))
-    if not stretches:
-        return None
-    peaks = np.max(traj.slower_set_values([T for T, _ in stretches]), axis=1)
-    for (T, resid), peak in zip(stretches, peaks, strict=True):
-        if float(peak) <= 1.0 - SET_MARGIN:
-            res = replace(out, T=T, residual=resid)
-            return res, traj.with_result(res)
-    return None
 
 
 def _bucketed(breaks: np.ndarray) -> np.ndarray:

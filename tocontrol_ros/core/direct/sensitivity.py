@@ -51,6 +51,7 @@ on the Panda.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
@@ -62,7 +63,7 @@ from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
 __all__ = ["DUAL_RESET", "FAR_SIDE_LEAST_ROOM", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES",
            "PATH_STEPS", "PATH_SUBMOVES", "PATH_SUB_BUDGET", "BandedKKT", "SensitivityOutcome",
-           "banded_kkt", "sensitivity_solve"]
+           "banded_kkt", "iterate", "sensitivity_solve"]
 
 #: The barrier parameter the steps hold: IPOPT's last one at its tolerance 1e-8, where the
 #: warm point sits (larger ones took more steps). Measured on the Panda's 24 spans, ``T``
@@ -324,6 +325,46 @@ def _barrier_start(value: np.ndarray, lower: np.ndarray, upper: np.ndarray, lam:
     return np.where(has_u, np.minimum(value, upper - far), value), z_l, z_u
 
 
+def _violation(w: np.ndarray, g: np.ndarray, bounds: tuple) -> float:
+    """The largest violation of the rows' and the variables' bounds at ``w`` (rows ``g``)."""
+    lbg, ubg, lbx, ubx = bounds
+    return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                     np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+
+
+def iterate(flat: FlatTranscription, w: np.ndarray, g: np.ndarray, bounds: tuple,
+            steps: int, solve_time: float, lam_g: np.ndarray, lam_x: np.ndarray
+            ) -> FlatResult:
+    """A Newton iterate as a (not converged) :class:`FlatResult`.
+
+    Parameters
+    ----------
+    flat : FlatTranscription
+    w : ndarray, shape (K n + 1,)
+        The iterate: control points (row by row), then ``T`` (s).
+    g : ndarray, shape (rows,)
+        The NLP's rows at ``w``.
+    bounds : tuple of ndarray
+        ``(lbg, ubg, lbx, ubx)``, the NLP's bounds (its pads).
+    steps : int
+        Newton steps taken.
+    solve_time : float
+        The solve's time so far (s).
+    lam_g, lam_x : ndarray, shapes (rows,), (K n + 1,)
+        The iterate's multipliers (IPOPT's convention).
+
+    Returns
+    -------
+    FlatResult
+        ``success`` False, ``residual`` the largest violation of the bounds at ``w``.
+    """
+    return FlatResult(
+        success=False, message=f"parametric step: iterate after {steps} Newton steps",
+        T=float(w[-1]), P=w[:-1].reshape(flat.K, flat.model.n),
+        residual=_violation(w, g, bounds), iterations=steps,
+        solve_time=solve_time, lam_g=np.array(lam_g), lam_x=np.array(lam_x))
+
+
 def _boundary_step(dx, room) -> float:
     """Largest ``a`` in (0, 1] with ``room + a dx >= (1 - TAU) room`` where ``dx < 0``."""
     neg = dx < 0.0
@@ -338,7 +379,8 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       set_pad: float | np.ndarray,
                       should_stop=None, hold: bool = True, submoves: int = 1,
                       max_steps: int | None = None, max_solves: int | None = None,
-                      sub_budget: tuple[int, int] | None = None
+                      sub_budget: tuple[int, int] | None = None,
+                      on_step: Callable[[FlatResult], None] | None = None
                       ) -> tuple[FlatResult, SensitivityOutcome]:
     """The new problem's solution from a converged one on the same mesh (see the module).
 
@@ -373,6 +415,14 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     sub_budget : tuple of int, optional
         Newton steps and factorisations at most within each sub-move (default: only the
         totals): a sub-move that has not ended within them stops the solve.
+    on_step : callable, optional
+        Called with each Newton step's iterate that is not the converged answer (after
+        the step, before the next; the last one of a solve that stops unconverged too) as
+        a :class:`FlatResult` (:func:`iterate`: ``success`` False, ``residual`` its largest
+        violation of the NLP's rows and bounds, ``iterations`` the steps so far); it only
+        reads (the steps are the same with or without it). The warm re-solve's first
+        motion (:class:`~.checked.FirstIterate`) checks there whether an iterate is
+        already a motion to publish.
 
     Returns
     -------
@@ -426,6 +476,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
     rounds = 0  # re-solves after holding rows within this step
+    seen = 0  # the last step whose iterate went to on_step
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
     side = np.zeros(ng, dtype=np.int8)
@@ -453,6 +504,12 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                       float(np.max(np.abs(r_y))) / PRIMAL_TOL,
                       float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
                       / (COMPL_FACTOR * MU))
+            if on_step is not None and seen < steps and (err > 1.0 or np.any(wrong)):
+                # A new iterate that is not the answer (the answer is the caller's).
+                seen = steps
+                on_step(iterate(flat, w, g, (lbg, ubg, lbx, ubx), steps,
+                                time.perf_counter() - t0,
+                                np.where(eq | (side != 0), y, zu - zl), vu - vl))
             if sub < submoves and err <= SUB_TOL:
                 sub += 1
                 blocked, full, last, fresh, sub_from = 0, False, np.inf, 0, (steps, solves)
@@ -573,8 +630,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                                  holds, released, solves)
     lam_g = np.where(eq | (side != 0), y, zu - zl)
     lam_x = vu - vl
-    residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
-                         np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+    residual = _violation(w, g, (lbg, ubg, lbx, ubx))
     ok = reason == "converged"
     moves = f" in {submoves} sub-moves" if submoves > 1 else ""
     message = (f"parametric step{moves}: {reason} after {steps} Newton steps "

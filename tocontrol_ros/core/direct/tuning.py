@@ -117,7 +117,7 @@ PAD_ROUNDS = 3
 INSIDE_TIE = 2e-5
 
 #: Relative slow-downs of a path tried before widening the pad
-#: (:func:`~tocontrol_ros.core.direct.limited._stretched`).
+#: (:func:`~tocontrol_ros.core.direct.checked.stretched`).
 STRETCHES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)
 
 

@@ -122,9 +122,11 @@ class Planner(PreparedModel):
     @_slowed
     def plan(self, problem: Problem, options: SolverOptions | None = None,
              warm_start: PlanResult | None = None,
-             should_stop: Callable[[], bool] | None = None) -> PlanResult:
+             should_stop: Callable[[], bool] | None = None,
+             on_first: Callable[[PlanResult], None] | None = None) -> PlanResult:
         """See :func:`plan`."""
-        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop)
+        return _plan(self, problem, options or SolverOptions(), warm_start, should_stop,
+                     on_first)
 
     @_slowed
     def quick(self, problem: Problem, q_near: np.ndarray,
@@ -152,7 +154,8 @@ _PLANNERS: dict[int, Planner] = {}
 
 def plan(problem: Problem, options: SolverOptions | None = None,
          warm_start: PlanResult | None = None,
-         should_stop: Callable[[], bool] | None = None) -> PlanResult:
+         should_stop: Callable[[], bool] | None = None,
+         on_first: Callable[[PlanResult], None] | None = None) -> PlanResult:
     """Solve a time-optimal problem.
 
     Parameters
@@ -165,6 +168,12 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         exponents match). Falls back to a cold solve when it does not converge.
     should_stop : callable, optional
         Polled between Newton iterations; returning True cancels the solve.
+    on_first : callable, optional
+        Called at once, on the solving thread, with a certified motion found before the
+        answer: a warm re-solve's first certified iterate (of the parametric step, its
+        warnings saying ``(route: first iterate)``, or of IPOPT; at most one per plan,
+        through :class:`~tocontrol_ros.core.methods.context.EarlyMotion`). The answer (the
+        optimum) is returned as without it, the same to the bit.
 
     Returns
     -------
@@ -177,12 +186,24 @@ def plan(problem: Problem, options: SolverOptions | None = None,
         _PLANNERS[id(problem.model)] = planner
         if not problem.is_trivial():  # the first use of a model: on every core
             planner.prepare(problem, options, shooting=False)
-    return planner.plan(problem, options, warm_start, should_stop)
+    return planner.plan(problem, options, warm_start, should_stop, on_first)
 
 
 # ------------------------------------------------------------------------ driver
+def _first_only(on_first: Callable[[PlanResult], None] | None) -> EarlyMotion | None:
+    """``plan``'s ``on_first`` as the solve's receiver of early motions: the first one only."""
+    if on_first is None:
+        return None
+
+    def offer(result: PlanResult) -> bool:
+        on_first(result)
+        return True  # one first motion a plan
+
+    return EarlyMotion(offer)
+
+
 def _plan(planner: Planner, problem: Problem, options: SolverOptions,
-          warm_start: PlanResult | None, should_stop) -> PlanResult:
+          warm_start: PlanResult | None, should_stop, on_first=None) -> PlanResult:
     """The multistart, and a near previous solution as one more candidate.
 
     The cold multistart always runs as asked; a warm start (only when
@@ -201,7 +222,8 @@ def _plan(planner: Planner, problem: Problem, options: SolverOptions,
     if warm_start is not None and \
             warm_start.can_warm_start(problem, options.warm_joint_radius) \
             and not problem.is_trivial():
-        warm = solve_once(planner, problem, options, warm_start, should_stop, deadline)
+        warm = solve_once(planner, problem, options, warm_start, should_stop, deadline,
+                          _first_only(on_first))
     if warm is not None:
         n = problem.model.n
         ends = warm.trajectory.state([0.0, warm.T])[:, :n] if warm.success \
