@@ -314,7 +314,20 @@ def planned_clearance(col: CollisionModel, t: np.ndarray, q: np.ndarray
 
 
 def plot_clearance(plt, index: int, found: ExecutedClearance, planned, path):
-    """``clearance_<i>.png``: the executed clearance against time, the margin, the plan's."""
+    """``clearance_<i>.png``: the executed clearance against time, the margin, the plan's.
+
+    Parameters
+    ----------
+    plt : module
+        ``matplotlib.pyplot``.
+    index : int
+        The motion's number.
+    found : ExecutedClearance
+    planned : tuple of ndarray or None
+        :func:`planned_clearance`'s times (s) and distances (m), drawn dashed.
+    path : pathlib.Path
+        Where the PNG goes (returned).
+    """
     fig, ax = plt.subplots(figsize=FIGSIZE)
     closest = sorted(found.pair_distances.items(), key=lambda kv: float(np.min(kv[1])))
     for i, (pair, d) in enumerate(closest[:PAIRS_DRAWN]):

@@ -567,8 +567,27 @@ def write_report(path, out_dir, model, urdf=None, clearance_options=None):
     return [*extra, *figures, *cleared.values(), summary, page]
 
 
-def executed_clearances(plt, path, run, found, model, names, urdf, options, out_dir):
+def executed_clearances(plt, path, run: Run, found: list, model, names: list, urdf,
+                        options: clearance.ClearanceOptions, out_dir: Path
+                        ) -> tuple[dict, list]:
     """Each executed motion's clearance (:mod:`~tocontrol_ros.recording.clearance`).
+
+    Parameters
+    ----------
+    plt : module
+        ``matplotlib.pyplot``.
+    path : str or os.PathLike
+        The recording (its ``/planner/markers``).
+    run : Run
+    found : list of Motion
+        :func:`motions`.
+    model : RobotModel
+    names : list of str
+        The recording's joint order (``run``'s arrays).
+    urdf : str or os.PathLike or None
+        The model's URDF (XML or file); None: nothing is checked (one line says so).
+    options : ClearanceOptions
+    out_dir : pathlib.Path
 
     Returns
     -------
