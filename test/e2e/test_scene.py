@@ -5,7 +5,9 @@ as ``robot_description_semantic``). A ball is put where the obstacle-free optimu
 (found in this process with the core, the node's k and reserve); a malformed scene message
 is refused with the reason and the scene kept; the goal's plan avoids the ball (its
 clearance on ``~/status``), and the tracker's executed joint states, checked here with Coal
-on the URDF's geometry, stay clear of it.
+on the URDF's geometry, stay clear of it. The recorder records the run beside them, and the
+report on its file gives the executed motion's clearance (the scene from the planner's
+markers): the figure it names is Coal's distance at the recorded joint state it names.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from tocontrol_ros.core.robot.kinematics import tip_pose
 from tocontrol_ros.core.robot.model import load_robot
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.nodes import qos
+from tocontrol_ros.recording import mcap_io, report
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -75,7 +78,14 @@ def test_a_goal_behind_an_obstacle_is_planned_around_it_and_tracked_clear(tmp_pa
     tracker = NodeProcess("tracker", [
         "--ros-args", "-r", "__node:=tracker", "-p", f"robot_description:={urdf}",
         "-p", "tip_link:=panda_hand", "-p", f"initial_positions:={Q0}"], tmp_path)
+    recording = tmp_path / "run.mcap"
+    recorder = NodeProcess("recorder", [
+        "--ros-args", "-r", "__node:=recorder", "-p", f"robot_description:={urdf}",
+        "-p", f"output:={recording}"], tmp_path)
     client = PlannerClient("/planner")
+    recorded: list = []
+    client.node.create_subscription(DiagnosticStatus, "/recorder/status", recorded.append,
+                                    qos.status_profile(100, latched=True))
     try:
         deadline = time.monotonic() + FIRST_PLAN
         while not client.plan_client.wait_for_service(timeout_sec=1.0):
@@ -107,6 +117,11 @@ def test_a_goal_behind_an_obstacle_is_planned_around_it_and_tracked_clear(tmp_pa
         client.wait_subscribed(client.goal_pub, 60.0)
         client.wait_for(lambda: len(states) >= 5, FIRST_PLAN, "the tracker's joint states")
         client.wait_joint_states(FIRST_PLAN)
+        client.wait_for(lambda: {("first_message", "/joint_states"),
+                                 ("subscribed", "/tracker/status")} <= {
+            (v.get("event"), v.get("topic")) for v in ({kv.key: kv.value for kv in s.values}
+                                                       for s in recorded)},
+            60.0, "the recorder's joint states and its subscription to the tracker's status")
         since = len(client.status_list())
         start = len(states)
         client.send_goal(goal, frame="panda_link0")
@@ -136,7 +151,50 @@ def test_a_goal_behind_an_obstacle_is_planned_around_it_and_tracked_clear(tmp_pa
         near_ball = exact.pair_distances
         assert min(d.min() for pair, d in near_ball.items() if "cell/0" in pair) > 0.0
         assert col.clearance(planned[::5]).minimum >= col.margin - 1e-6
+        # The states after the completion (the report shows report.HOLD_SHOWN of them) came
+        # while the checks above ran; the recorder takes what is queued when it stops.
+        assert recorder.stop() == 0, recorder.log.read_text()[-2000:]
     finally:
         client.close()
-        codes = (planner.stop(), tracker.stop())
-    assert codes == (0, 0), (planner.log.read_text()[-2000:], tracker.log.read_text()[-2000:])
+        codes = (planner.stop(), tracker.stop(), recorder.stop())
+    assert codes == (0, 0, 0), (planner.log.read_text()[-2000:],
+                                tracker.log.read_text()[-2000:])
+    _check_the_report(tmp_path, recording, srdf, col, exact)
+
+
+def _check_the_report(tmp_path, recording, srdf, col, exact):
+    """The report of the recorded run: the executed motion's clearance, checked here."""
+    out = tmp_path / "report"
+    assert report.main([str(recording), "--out", str(out), "--tip-link", "panda_hand",
+                        "--srdf", str(srdf)]) == 0
+    summary = (out / "summary.txt").read_text()
+    assert "scene from /planner/markers" in summary, summary
+    (line,) = [s for s in summary.splitlines() if s.startswith("motion 1 clearance: min ")]
+    words = line.split()
+    minimum, pair, at = float(words[4]), words[6].strip("()"), float(words[10])
+    assert ("margin held" in line) == (minimum >= col.margin), line
+    assert (out / "clearance_1.png").is_file()
+    # The recorded joint state at the reported time (the execution's start from the
+    # tracker's status), decoded here, and Coal's distances there by the core's check.
+    from rclpy.serialization import deserialize_message
+
+    start = None
+    for record in mcap_io.iter_records(recording, topics=["/tracker/status"]):
+        msg = deserialize_message(record.data, DiagnosticStatus)
+        values = {kv.key: kv.value for kv in msg.values}
+        if msg.message.startswith("executing trajectory"):
+            start = float(values["start_time"])
+    assert start is not None
+    q = None
+    for record in mcap_io.iter_records(recording, topics=["/joint_states"]):
+        msg = deserialize_message(record.data, JointState)
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if abs(stamp - start - at) < 5e-4:
+            order = [list(msg.name).index(j) for j in col.model.joint_names]
+            q = np.array([msg.position[i] for i in order])
+    assert q is not None, line
+    here = col.clearance(q[None, :])
+    assert here.minimum == pytest.approx(minimum, abs=6e-5), (line, here.pair)
+    assert "/".join(here.pair) == pair
+    # What the test saw of the execution (every other state) is never closer than that.
+    assert exact.minimum >= minimum - 1e-4, (exact.minimum, line)

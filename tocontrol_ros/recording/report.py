@@ -12,8 +12,14 @@ named after the file, next to it):
   one whose task has three axes, a 3-D view of the executed and planned end-effector paths
   against the goal of the motion, the last ``/planner/goal`` before its plan, with the arm at
   the start and the end), and the tracking error ``/tracker/tracking_error`` against time;
-- ``summary.txt``: the run (k, joints, torque limits) and a table, one row per motion: T,
-  planned and applied max ``|u_i|``, final end-effector error, time saturated, outcome;
+- ``summary.txt``: the run (k, joints, torque limits), the clearance of each executed motion
+  (below) and a table, one row per motion: T, planned and applied max ``|u_i|``, final
+  end-effector error, time saturated, outcome;
+- ``clearance_<i>.png`` for a recording with a scene: the executed motion's least distance
+  (Coal, the URDF's collision geometry) against time, the closest pairs, the planned motion's
+  and the margin (:mod:`tocontrol_ros.recording.clearance`: where the scene, margin, allowed
+  and disabled pairs come from; ``--margin``, ``--scene``, ``--srdf``); without a scene one
+  line says the clearance was not checked;
 - ``index.html``: the table and every figure, one page to open in a browser.
 
 An execution is the tracker's "executing trajectory" status (its ``start_time`` and the
@@ -36,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from tocontrol_ros.core.robot.kinematics import link_positions
-from tocontrol_ros.recording import mcap_io, target_path
+from tocontrol_ros.recording import clearance, mcap_io, target_path
 
 TRAJECTORY = "/planner/trajectory"
 PLANNER_STATUS = "/planner/status"
@@ -70,6 +76,7 @@ class Run:
     js_t: list = field(default_factory=list)  # stamp (s)
     js_q: list = field(default_factory=list)
     js_effort: list = field(default_factory=list)
+    js_qd: list = field(default_factory=list)  # None where a joint state has no velocity
     err_t: list = field(default_factory=list)
     err_q: list = field(default_factory=list)
 
@@ -149,6 +156,7 @@ def load_run(path, joint_names=None):
             run.js_t.append(_stamp(msg.header) or record.log_time * 1e-9)
             run.js_q.append(q)
             run.js_effort.append(_ordered(msg.name, list(msg.effort), run.joint_names))
+            run.js_qd.append(_ordered(msg.name, list(msg.velocity), run.joint_names))
         elif record.topic == TRACKING_ERROR:
             e = _ordered(msg.name, list(msg.position), run.joint_names or list(msg.name))
             if e is not None:
@@ -293,8 +301,8 @@ def table_text(rows):
                      for line in lines)
 
 
-def summarise(run, model, tau_max, rows):
-    """The summary's lines (run, overall errors, then the motions table) as a list of str."""
+def summarise(run, model, tau_max, rows, extra=()):
+    """The summary's lines (run, overall errors, ``extra``, then the motions table)."""
     planner = {}
     for status in run.planner_status:
         planner.update(_values(status))
@@ -319,7 +327,7 @@ def summarise(run, model, tau_max, rows):
     if run.js_t:
         lines.append(f"joint states = {len(run.js_q)} over "
                      f"{run.js_t[-1] - run.js_t[0]:.3f} s")
-    lines += ["", table_text(rows)]
+    lines += [*extra, "", table_text(rows)]
     return lines
 
 
@@ -459,11 +467,13 @@ def plot_motion(plt, run, motion, row, model, tau_max, names, path):
     return path
 
 
-def write_html(path, recording, figures, rows, summary_lines, extra=()):
+def write_html(path, recording, figures, rows, summary_lines, extra=(), after=None):
     """``index.html``: the table, then every figure (relative links, no script).
 
-    ``extra``: figures shown before the motions' (the moving target's path).
+    ``extra``: figures shown before the motions' (the moving target's path); ``after``:
+    motion index -> a figure shown after that motion's (its clearance).
     """
+    after = after or {}
     head = "".join(f"<th>{html.escape(h)}</th>" for h in TABLE_HEADER)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _cells(r))
                    + "</tr>\n" for r in rows)
@@ -472,6 +482,9 @@ def write_html(path, recording, figures, rows, summary_lines, extra=()):
         f'alt="Motion {r.index}: planned and applied controls, arm, tracking error" '
         f'width="{FIGSIZE[0] * DPI}" height="{FIGSIZE[1] * DPI}">'
         f'<figcaption>Motion {r.index}</figcaption></figure>\n'
+        + (f'<figure id="clearance-{r.index}"><img src="{html.escape(after[r.index].name)}" '
+           f'alt="Motion {r.index}: clearance of the executed motion"><figcaption>Motion '
+           f'{r.index}: clearance</figcaption></figure>\n' if r.index in after else "")
         for f, r in zip(figures, rows, strict=True))
     images = "".join(f'<figure id="{html.escape(f.stem)}"><img src="{html.escape(f.name)}" '
                      f'alt="{html.escape(f.stem)}"><figcaption>the goals and the end '
@@ -490,8 +503,20 @@ def write_html(path, recording, figures, rows, summary_lines, extra=()):
     return path
 
 
-def write_report(path, out_dir, model):
+def write_report(path, out_dir, model, urdf=None, clearance_options=None):
     """Write one PNG per motion, ``summary.txt`` and ``index.html`` into `out_dir`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The recording.
+    out_dir : str or os.PathLike
+    model : RobotModel
+    urdf : str or os.PathLike, optional
+        The model's URDF (XML or file) for the clearance check; default the recording's
+        ``/robot_description`` (none: the clearance is not checked).
+    clearance_options : ClearanceOptions, optional
+        Margin, scene file, SRDF (:mod:`tocontrol_ros.recording.clearance`).
 
     Returns
     -------
@@ -525,7 +550,10 @@ def write_report(path, out_dir, model):
     figures = [plot_motion(plt, run, m, r, model, tau_max, names,
                            out_dir / f"motion_{m.index}.png")
                for m, r in zip(found, rows, strict=True)]
-    lines = summarise(run, model, tau_max, rows)
+    cleared, clearance_lines = executed_clearances(
+        plt, path, run, found, model, names, urdf if urdf is not None else recorded_urdf(path),
+        clearance_options or clearance.ClearanceOptions(), out_dir)
+    lines = summarise(run, model, tau_max, rows, clearance_lines)
     extra = []
     if len(run.goals) >= target_path.MIN_GOALS and len(names) == model.n:
         order = [names.index(n) for n in model.joint_names] if set(names) == \
@@ -535,8 +563,82 @@ def write_report(path, out_dir, model):
                                                   out_dir / "moving_target.png"))
     summary = out_dir / "summary.txt"
     summary.write_text(f"recording: {path}\n" + "\n".join(lines) + "\n")
-    page = write_html(out_dir / "index.html", path, figures, rows, lines, extra)
-    return [*extra, *figures, summary, page]
+    page = write_html(out_dir / "index.html", path, figures, rows, lines, extra, cleared)
+    return [*extra, *figures, *cleared.values(), summary, page]
+
+
+def executed_clearances(plt, path, run: Run, found: list, model, names: list, urdf,
+                        options: clearance.ClearanceOptions, out_dir: Path
+                        ) -> tuple[dict, list]:
+    """Each executed motion's clearance (:mod:`~tocontrol_ros.recording.clearance`).
+
+    Parameters
+    ----------
+    plt : module
+        ``matplotlib.pyplot``.
+    path : str or os.PathLike
+        The recording (its ``/planner/markers``).
+    run : Run
+    found : list of Motion
+        :func:`motions`.
+    model : RobotModel
+    names : list of str
+        The recording's joint order (``run``'s arrays).
+    urdf : str or os.PathLike or None
+        The model's URDF (XML or file); None: nothing is checked (one line says so).
+    options : ClearanceOptions
+    out_dir : pathlib.Path
+
+    Returns
+    -------
+    figures : dict
+        Motion index -> its ``clearance_<i>.png``.
+    lines : list of str
+        The summary's lines: the check's inputs and one per executed motion, or one line
+        saying why nothing was checked.
+    """
+    from tocontrol_ros.core.errors import ProblemError
+
+    reported = any("min_clearance" in _values(s) for s in run.planner_status)
+    try:
+        scenes = clearance.recorded_scenes(path)
+    except ProblemError as exc:
+        return {}, [f"clearance: not checked (the recorded scene: {exc})"]
+    check = clearance.ClearanceCheck(model, urdf, options, scenes, reported)
+    if check.reason:
+        return {}, [check.reason]
+    order = [names.index(n) for n in model.joint_names] if set(names) == \
+        set(model.joint_names) else list(range(model.n))
+    figures, lines = {}, [check.header()]
+    for motion in found:
+        if motion.start is None:
+            continue
+        rows = _window(run.js_t, motion.start, motion.end)
+        if not rows.size:
+            continue
+        q = np.array([run.js_q[i] for i in rows], dtype=float)[:, order]
+        qd = [run.js_qd[i] for i in rows]
+        qd = np.array(qd, dtype=float)[:, order] if all(v is not None and len(v) == len(names)
+                                                        for v in qd) else None
+        t = np.array(run.js_t)[rows] - motion.start
+        planned_ns = run.trajectories[motion.index - 1][0]
+        next_ns = run.trajectories[motion.index][0] if motion.index < len(run.trajectories) \
+            else None
+        try:
+            col = check.model_for(planned_ns, next_ns)
+            found_clearance = clearance.executed_clearance(col, t, q, qd)
+        except ProblemError as exc:
+            lines.append(f"motion {motion.index} clearance: not checked ({exc})")
+            continue
+        planned = None
+        if motion.trajectory is not None and motion.trajectory.points:
+            t_nom, q_nom, _ = nominal(motion.trajectory, np.ones(len(names)))
+            planned = clearance.planned_clearance(col, t_nom, q_nom[:, order])
+        lines.append(found_clearance.line(motion.index))
+        figures[motion.index] = clearance.plot_clearance(
+            plt, motion.index, found_clearance, planned,
+            out_dir / f"clearance_{motion.index}.png")
+    return figures, lines
 
 
 def build_parser():
@@ -553,6 +655,15 @@ def build_parser():
     parser.add_argument("--tip-link", default=None, metavar="LINK",
                         help="the arm's tip link, as the planner's tip_link (default: the "
                         "URDF's only leaf link)")
+    parser.add_argument("--margin", type=float, default=None, metavar="M",
+                        help="collision margin (m) the executed motion is checked against, "
+                        "the planner's `margin` (default: its default, 0.01)")
+    parser.add_argument("--scene", default=None, metavar="FILE",
+                        help="the planner's scene_file: its allowed pairs, and its obstacles "
+                        "where the recording has no scene markers")
+    parser.add_argument("--srdf", default=None, metavar="FILE",
+                        help="the planner's robot_description_semantic (SRDF): its disabled "
+                        "pairs are not checked")
     return parser
 
 
@@ -580,7 +691,8 @@ def main(argv=None):
     try:
         source = args.urdf or recorded_urdf(args.file) or default_urdf_path()
         model = load_robot(source, **({"tip_link": args.tip_link} if args.tip_link else {}))
-        written = write_report(args.file, out, model)
+        written = write_report(args.file, out, model, source, clearance.ClearanceOptions(
+            args.margin, args.scene, args.srdf))
     except (ValueError, OSError) as err:
         print(f"report: {err}", file=sys.stderr)
         return 2
