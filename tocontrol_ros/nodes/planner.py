@@ -30,9 +30,7 @@ by a slot that holds the newest request (newest wins: a request that arrives whi
 is pending or being solved supersedes it, and a running solve is stopped through the
 solver's ``should_stop``; goals with ``replan`` queue instead,
 :mod:`tocontrol_ros.nodes.replan_policy`). Service callbacks wait for their outcome in a
-reentrant group; everything else stays served. The input topics (the goals, ``~/scene``, the
-tracker's status) are served one at a time in a thread of their own
-(:mod:`tocontrol_ros.nodes.input_thread`): a goal does not wake the node's executor.
+reentrant group; everything else stays served.
 """
 
 from __future__ import annotations
@@ -47,7 +45,7 @@ from geometry_msgs.msg import PointStamped, PoseStamped
 from nav_msgs.msg import Path
 from nav_msgs.srv import GetPlan
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -60,7 +58,6 @@ from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.controller_client import ControllerClient, MissingInterfaceError
 from tocontrol_ros.nodes.diagnostics import Diagnostics
-from tocontrol_ros.nodes.input_thread import InputThread
 from tocontrol_ros.nodes.latest_message import LatestMessage
 from tocontrol_ros.nodes.node_main import run_node
 from tocontrol_ros.nodes.params import declare_all, robot_from_topic
@@ -153,19 +150,21 @@ class PlannerNode(Node):
         self._controller.on_refused = self.service.controller_refused
         self.add_on_set_parameters_callback(self._on_set_parameters)
         waiting = ReentrantCallbackGroup()
+        inputs = MutuallyExclusiveCallbackGroup()
         self.create_service(GetPlan, "~/plan", self._on_plan, qos_profile=QOS_SERVICE,
                             callback_group=waiting)
-        # The inputs one at a time in a thread of their own: a goal does not wake this
-        # node's executor (its wait set rebuilt twice a goal held the GIL the worker needs).
-        self._inputs = InputThread(self, "inputs", self.get_logger().error)
-        self._inputs.subscribe(PointStamped, "~/goal", self._on_goal, QOS_GOAL)
-        self._inputs.subscribe(MarkerArray, "~/scene", self._on_scene, QOS_SCENE)
-        self._inputs.subscribe(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL)
-        self._inputs.subscribe(PoseStamped, "~/goal_pose", self._on_goal_pose, QOS_GOAL)
+        self.create_subscription(PointStamped, "~/goal", self._on_goal, QOS_GOAL,
+                                 callback_group=inputs)
+        self.create_subscription(MarkerArray, "~/scene", self._on_scene, QOS_SCENE,
+                                 callback_group=inputs)
+        self.create_subscription(JointState, "~/goal_joints", self._on_goal_joints, QOS_GOAL,
+                                 callback_group=inputs)
+        self.create_subscription(PoseStamped, "~/goal_pose", self._on_goal_pose, QOS_GOAL,
+                                 callback_group=inputs)
         # The tracker's refusals of topic trajectories (relative: the launch file's tracker
         # beside this planner; remap it to another executor's status topic).
-        self._inputs.subscribe(DiagnosticStatus, "tracker/status", self._on_tracker_status,
-                               QOS_STATUS)
+        self.create_subscription(DiagnosticStatus, "tracker/status", self._on_tracker_status,
+                                 QOS_STATUS, callback_group=inputs)
         try:  # tocontrol_msgs only for the action: without it the rest is served
             self._plan_action = PlanMotionServer(self, self._outputs, self._arm.start,
                                                  self._parameter_values)
@@ -174,7 +173,6 @@ class PlannerNode(Node):
             self.get_logger().warning(f"~/plan_motion is not served: {exc}")
         self.diagnostics = Diagnostics(self, self.model.name, self._diagnostic_state)
         self.service.start()
-        self._inputs.start()
         self.get_logger().info(
             f"planning for {self.model.name!r} ({self.model.n} joints, task axes "
             f"{''.join('xyz'[a] for a in self.model.task_axes)}) in frame "
@@ -340,8 +338,7 @@ class PlannerNode(Node):
         self.service.stop(timeout)
 
     def destroy_node(self) -> None:
-        """Stop the inputs and the worker, then destroy the node."""
-        self._inputs.destroy()
+        """Stop the worker, then destroy the node."""
         self.stop_worker()
         if self._plan_action is not None:
             self._plan_action.destroy()
