@@ -19,8 +19,10 @@ it was over by then), ``q_near`` its end (what the planner node passes), k = 4, 
 - the certificate's open loop of the same motion: the state by CVODES segment by segment
   from Python (``ScaledPath.open_loop(..., one_call=False, deviation=False)``, main's before
   issue 47), the state in one ``mapaccum`` call
-  (:func:`~tocontrol_ros.core.direct.flat_trajectory.open_loop_sweep`), and the deviation from
-  each segment's path in one call (the default since), the states compared.
+  (:func:`~tocontrol_ros.core.direct.flat_trajectory.open_loop_sweep`), the deviation from
+  each segment's path by CVODES in one call (``explicit=False``), and the deviation by
+  explicit steps with an error test in one compiled call (the default since), the states
+  compared.
 
 Figures: medians over the cases (ms), before -> seidel -> now and the ratio seidel / now of
 the medians, ``T`` now / before per case (median, min, max), the largest relative difference
@@ -121,24 +123,27 @@ def replans(name: str, pkg: str = "tocontrol_ros") -> list | None:
     return out
 
 
-def _open_loops(traj) -> tuple[float, float, float, float, float]:
-    """The open loop of ``traj``: the state segment by segment (main's), the state in one
-    call, the deviation from the path in one call (now): times (s), and the largest
-    differences of the one-call states and of the deviation's from the segment by segment."""
+def _open_loops(traj) -> tuple[float, ...]:
+    """The open loop of ``traj``: the state segment by segment (main's before issue 47), the
+    state in one call, the deviation from the path by CVODES in one call, the deviation by
+    explicit steps in one call (now): times (s), and the largest differences of the one-call
+    state's, of the CVODES deviation's and of the explicit steps' states from the first."""
     from tocontrol_ros.core.direct.tuning import OPEN_LOOP_ATOL, OPEN_LOOP_RTOL
 
+    tol = (OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
     t0 = time.perf_counter()
-    _, x_old, ok_old = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, one_call=False,
-                                      deviation=False)
+    _, x_old, ok_old = traj.open_loop(*tol, one_call=False, deviation=False)
     t1 = time.perf_counter()
-    _, x_one, ok_one = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL, deviation=False)
+    _, x_one, ok_one = traj.open_loop(*tol, deviation=False)
     t2 = time.perf_counter()
-    _, x_new, ok_new = traj.open_loop(OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
+    _, x_dev, ok_dev = traj.open_loop(*tol, explicit=False)
     t3 = time.perf_counter()
-    ok = ok_old and ok_one and ok_new
-    one = float(np.max(np.abs(x_one - x_old))) if ok else float("nan")
-    diff = float(np.max(np.abs(x_new - x_old))) if ok else float("nan")
-    return t1 - t0, t2 - t1, t3 - t2, one, diff
+    _, x_new, ok_new = traj.open_loop(*tol)
+    t4 = time.perf_counter()
+    ok = ok_old and ok_one and ok_dev and ok_new
+    diffs = [float(np.max(np.abs(x - x_old))) if ok else float("nan")
+             for x in (x_one, x_dev, x_new)]
+    return (t1 - t0, t2 - t1, t3 - t2, t4 - t3, *diffs)
 
 
 def measure(name: str) -> dict | None:
@@ -188,8 +193,8 @@ def measure(name: str) -> dict | None:
         "passes": {e: statistics.median(r.iterations for r in rs) for e, rs in rows.items()},
         "T_ratio": (statistics.median(ratios), min(ratios), max(ratios)),
         "T_seidel": seidel,
-        "loop": tuple(statistics.median(v[i] for v in loops) for i in range(3))
-        + (max(v[3] for v in loops), max(v[4] for v in loops)),
+        "loop": tuple(statistics.median(v[i] for v in loops) for i in range(4))
+        + tuple(max(v[i] for v in loops) for i in range(4, 7)),
     }
 
 
@@ -217,8 +222,9 @@ def run(which: str = "both") -> Section:
             "{:.4f} [{:.4f}, {:.4f}]".format(*r["T_ratio"]),
             f"{r['T_seidel']:.1e}",
             f"{1e3 * r['loop'][0]:.2f} -> {1e3 * r['loop'][1]:.2f} -> "
-            f"{1e3 * r['loop'][2]:.2f} ({r['loop'][1] / r['loop'][2]:.2f}x; max diff "
-            f"{r['loop'][3]:.1e} / {r['loop'][4]:.1e})",
+            f"{1e3 * r['loop'][2]:.2f} -> {1e3 * r['loop'][3]:.2f} "
+            f"({r['loop'][2] / r['loop'][3]:.2f}x; max diff {r['loop'][4]:.1e} / "
+            f"{r['loop'][5]:.1e} / {r['loop'][6]:.1e})",
             " / ".join(f"{1e3 * r['paused'][k]:.2f}" for k in ("guess", "scaling", "verify",
                                                                 "total"))])
     lines = [
@@ -234,9 +240,11 @@ def run(which: str = "both") -> Section:
         "verify: the certificate (the present one in every column); open loop: the "
         "certificate's re-integration of the same motion, the state segment by segment from "
         "Python (main's before issue 47) -> the state in one `mapaccum` call -> the "
-        "deviation from each segment's path in one call (now; `ScaledPath.open_loop`'s "
-        "`deviation`), (state in one call / deviation), the largest difference of the "
-        "one-call state's and of the deviation's states from the first. T now / "
+        "deviation from each segment's path by CVODES in one call (`ScaledPath.open_loop`'s "
+        "`deviation`, `explicit=False`) -> the deviation by explicit Heun steps with their "
+        "error test in one compiled call (now), (CVODES deviation / explicit), the largest "
+        "differences of the one-call state's, the CVODES deviation's and the explicit "
+        "steps' states from the first. T now / "
         "before per case: median [min, max]; T vs seidel: the largest relative difference. "
         f"*Paused*: the same quick motions (now) again, each after a pause of {PAUSE:g} s, "
         "as the planner node's worker meets them (asleep between goals, its caches cold "

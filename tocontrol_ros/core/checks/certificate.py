@@ -156,7 +156,15 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     control at ``options.rtol``; a different method from the motion's own), through the
     sampling's times, or by the trajectory's own ``open_loop(rtol, atol)`` when it has one
     (:meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop`: CVODES span
-    by span); the items are the end point, velocity (and position for a joint-state
+    by span; :meth:`~tocontrol_ros.core.direct.scaled_path.ScaledPath.open_loop`, a first or
+    quick motion: the deviation from each segment's path by explicit Heun steps, one per
+    output, each step's local error estimate within ``dsigma (atol + rtol |e|)`` in every
+    component, or by CVODES where a step fails that test). Either way the forward dynamics
+    are integrated under error control at ``options.rtol`` and ``atol``, with a local error
+    test per step, not a global error bound: CVODES tests the weighted RMS norm of its
+    estimate per step against ``rtol |e| + atol``, the explicit steps every component of
+    theirs against an eighth of that (their eight steps a segment sum to at most one such
+    bound); the items are the end point, velocity (and position for a joint-state
     target), the torques inside the set, the joint limits along the sampling and the
     integration, and the solver's residual. There is no ``H``, boundary-of-costate or
     defect item: the motion carries no costates.

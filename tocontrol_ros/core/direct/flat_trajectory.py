@@ -73,16 +73,19 @@ def polynomial_path(c: ca.SX, sig: ca.SX, h: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX
     return q, qd, qdd
 
 
-def segment_dae(name: str, sig: ca.SX, state: ca.SX, c: ca.SX, h: ca.SX, ode: ca.SX
-                ) -> ca.Function:
+def segment_dae(name: str, sig: ca.SX, state: ca.SX, c: ca.SX, h: ca.SX, ode: ca.SX,
+                never_inline: bool = False) -> ca.Function:
     """``ode`` (``d state / d sigma``) as a segment's CasADi DAE function, what CVODES takes.
 
     The dynamics signature ``t, x, z, p, u -> ode, alg, quad, zero`` with ``t = sigma``,
-    ``x = state``, ``p = (vec c, h)`` and no ``z`` nor ``u``.
+    ``x = state``, ``p = (vec c, h)`` and no ``z`` nor ``u``. ``never_inline``: a symbolic
+    call of it stays a call (CasADi's option), so that a function evaluating it many times
+    generates its code once.
     """
     none = ca.SX(0, 1)
+    opts = {"never_inline": True} if never_inline else {}
     return ca.Function(name, [sig, state, none, ca.vertcat(ca.vec(c), h), none],
-                       [ode, none, none, none], ca.dyn_in(), ca.dyn_out())
+                       [ode, none, none, none], ca.dyn_in(), ca.dyn_out(), opts)
 
 
 def integrate_segments(integ: ca.Function, x0: np.ndarray, segments

@@ -41,7 +41,7 @@ from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
 __all__ = ["PolynomialPath", "ScaledPath", "mapped", "open_loop_integrator", "COMPILED_DEGREES",
-           "rigid_body_terms", "inverse_dynamics", "MAP_STEP"]
+           "rigid_body_terms", "inverse_dynamics", "MAP_STEP", "explicit_open_loop"]
 
 #: model -> {(name, count): the model's function ``name`` mapped over ``count`` columns}.
 _MAPPED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -94,7 +94,8 @@ def _segment_path(model: RobotModel, degree: int) -> ca.Function:
                        [ca.vertcat(q, qd)])
 
 
-def _deviation_rhs(model: RobotModel, degree: int) -> ca.Function:
+def _deviation_rhs(model: RobotModel, degree: int, never_inline: bool = False
+                   ) -> ca.Function:
     """``de/dsigma`` of the open loop's deviation ``e = x - x_path`` from the segment's path.
 
     The same forward dynamics under the same torques as :func:`_open_loop_rhs`, evaluated at
@@ -103,12 +104,58 @@ def _deviation_rhs(model: RobotModel, degree: int) -> ca.Function:
     consistent path ``e`` stays near zero and CVODES takes a few long steps (a median of 6
     right-hand sides a Panda segment against 28 for ``x``); any inconsistency of the
     torques with the forward dynamics drives ``e`` and is integrated as before.
+    ``never_inline``: :func:`segment_dae`'s (the explicit steps call it, one copy of its
+    code).
     """
     sig, x, c, h, ode = polynomial_segment_ode(model, degree)
     e = ca.SX.sym("e", 2 * model.n)
     q, qd, qdd = polynomial_path(c, sig, h)
     ode_e = ca.substitute(ode, x, ca.vertcat(q, qd) + e) - h * ca.vertcat(qd, qdd)
-    return segment_dae(f"first_open_loop_dev{degree}", sig, e, c, h, ode_e)
+    return segment_dae(f"first_open_loop_dev{degree}", sig, e, c, h, ode_e, never_inline)
+
+
+def _explicit_segment(model: RobotModel, degree: int, rhs: ca.Function) -> ca.Function:
+    """The deviation over one segment by explicit steps, each with its error test.
+
+    ``(x0 (2n,), p, tol (2,) = (rtol, atol)) -> (x(1) (2n,), x at the outputs (2n,
+    OPEN_LOOP_POINTS), ratio)``: :data:`OPEN_LOOP_POINTS` steps of Heun's method (the
+    trapezoid's explicit predictor-corrector, second order) in ``sigma``, one per output,
+    on ``e = x - x_path`` from ``e(0) = x0 - x_path(0)`` (``rhs``: :func:`_deviation_rhs`,
+    called, not inlined), the states ``x_path + e`` at the step ends. Each step's error
+    estimate is Heun's against Euler's step (the embedded pair of order 2(1): ``dsigma (k2
+    - k1) / 2``); ``ratio`` is the largest over the steps and components of that estimate
+    over ``dsigma (atol + rtol |e|)`` (``|e|`` at the step's start, as CVODES weighs its
+    error): at most 1 when every step's local error estimate is within the tolerance per
+    unit of ``sigma`` (a segment's steps sum to at most ``atol + rtol max |e|``). No
+    branch: every step is taken; the caller decides on ``ratio``.
+    """
+    n, size = model.n, rhs.size1_in(3)
+    x0, p, tol = ca.SX.sym("x0", 2 * n), ca.SX.sym("p", size), ca.SX.sym("tol", 2)
+    path, none = _segment_path(model, degree), ca.SX(0, 1)
+
+    def f(sig, e):
+        return rhs(sig, e, none, p, none)[0]
+
+    step = 1.0 / OPEN_LOOP_POINTS
+    e = x0 - path(0.0, p)
+    k1 = f(0.0, e)
+    states, ratios = [], []
+    for j in range(OPEN_LOOP_POINTS):
+        sig = j * step
+        k2 = f(sig + step, e + step * k1)
+        e_next = e + 0.5 * step * (k1 + k2)
+        bound = step * (tol[1] + tol[0] * ca.fabs(e))
+        ratios.append(ca.mmax(ca.fabs(0.5 * step * (k2 - k1)) / bound))
+        e = e_next
+        states.append(path(sig + step, p) + e)
+        if j + 1 < OPEN_LOOP_POINTS:
+            k1 = f(sig + step, e)
+    ratio = ratios[0]
+    for r in ratios[1:]:
+        ratio = ca.fmax(ratio, r)
+    out = ca.horzcat(*states)
+    return ca.Function(f"explicit_open_loop{degree}", [x0, p, tol],
+                       [out[:, -1], out, ratio], ["x0", "p", "tol"], ["xf", "x", "ratio"])
 
 
 def _rhs_pairs(model: RobotModel, make: Callable[[RobotModel, int], ca.Function]
@@ -128,15 +175,20 @@ def _compiled_rhs(model: RobotModel) -> list[ca.Function]:
     """The certificate's right-hand sides and the timing's dynamics, one library.
 
     First the open loop's deviation's (:func:`_deviation_rhs`) with their Jacobians, then
+    its explicit segments (:func:`_explicit_segment`, calling those right-hand sides), then
     the inverse-dynamics terms TOPP-RA's coefficients take (:func:`rigid_body_terms`), last
     the inverse dynamics (friction included) that a :class:`ScaledPath`'s torques are
     (:func:`inverse_dynamics`). The state's right-hand sides (:func:`_open_loop_rhs`, the
     benchmark's comparison) are a library of their own, built when first asked for: this
     one, built by every planner's warm-up, stays the size it had.
     """
-    out = _rhs_pairs(model, _deviation_rhs)
+    out, explicit = [], []
+    for degree in COMPILED_DEGREES:
+        rhs = _deviation_rhs(model, degree, never_inline=True)
+        out += [rhs, rhs.jacobian()]
+        explicit.append(_explicit_segment(model, degree, rhs))
     q, qd, qdd = (ca.SX.sym(name, model.n) for name in ("q", "qd", "qdd"))
-    return out + [_rigid_body_terms(model),
+    return out + explicit + [_rigid_body_terms(model),
                   ca.Function("inverse_dynamics", [q, qd, qdd], [model.rnea_sym(q, qd, qdd)])]
 
 
@@ -174,6 +226,25 @@ def inverse_dynamics(model: RobotModel, count: int) -> BufferedFunction:
     published samples): in CasADi's virtual machine 2.3 ms for 256 samples of the Panda.
     """
     return _compiled_mapped(model, -1, "inverse_dynamics", count)
+
+
+def explicit_open_loop(model: RobotModel, degree: int, segments: int) -> BufferedFunction:
+    """:func:`_explicit_segment` over ``segments`` segments in a row, in one call, per model.
+
+    Compiled with the open loop's library (``degree`` one of :data:`COMPILED_DEGREES`),
+    chained by ``mapaccum`` (each segment from where the last ended) and called through
+    numpy buffers: ``(x0 (2n,), P (params, segments), tol (2, segments)) -> [x at each
+    segment's end (2n, segments), x at every output (2n, segments OPEN_LOOP_POINTS), ratio
+    (segments,)]``. Made again when the optimised build of the library lands.
+    """
+    funs, _ = compile_owned(model, "first_open_loop", f"first_open_loop{model.n}",
+                            lambda: _compiled_rhs(model))
+    fun = funs[2 * len(COMPILED_DEGREES) + COMPILED_DEGREES.index(degree)]
+    table = _MAPPED.setdefault(model, {})
+    key = ("explicit_open_loop", degree, segments)
+    if key not in table or table[key][0] is not fun:
+        table[key] = (fun, BufferedFunction(fun.mapaccum("explicit_open_loop", segments)))
+    return table[key][1]
 
 
 def _compiled_mapped(model: RobotModel, index: int, name: str, count: int
@@ -474,17 +545,65 @@ class ScaledPath(InverseDynamicsTrajectory):
                 power = nxt
         return out
 
-    def open_loop(self, rtol: float, atol: float, stiff: bool = False, one_call: bool = True,
-                  deviation: bool = True) -> tuple[np.ndarray, np.ndarray, bool]:
-        """The nominal torques integrated from ``x(0)``, segment by segment (CVODES).
+    def _open_loop_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The segments' polynomials, ``x(0)`` (2n,), the outputs' times and the parameters.
 
-        As :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.open_loop` does
-        (:func:`open_loop_integrator`): the forward dynamics under the inverse dynamics of
-        each segment's polynomial. Adams first; BDF (``stiff``) when Adams fails. With
-        ``one_call`` (default) every segment in one call (:func:`open_loop_sweep`), and one by
-        one from Python only when a segment fails (to say where); ``False``: one by one
-        (the benchmark's comparison). ``deviation``: integrate the deviation from each
-        segment's path (default) or the state itself (:func:`open_loop_integrator`).
+        ``coefs`` (N, n, 2 J + 1), ``x0``, ``times`` (N OPEN_LOOP_POINTS,) (s) and
+        ``params`` ((n (2 J + 1) + 1, N): each segment's ``(vec c, h)``).
+        """
+        grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
+        coefs = self._segment_polynomials()
+        x0 = self.state(0.0)[0, :2 * self.n]
+        times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
+        params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
+        return coefs, x0, times, params
+
+    def open_loop_explicit(self, rtol: float, atol: float
+                           ) -> tuple[np.ndarray, np.ndarray, float]:
+        """The nominal torques integrated from ``x(0)`` by explicit steps with an error test.
+
+        Every segment in one compiled call (:func:`explicit_open_loop`): on each,
+        :data:`OPEN_LOOP_POINTS` steps of Heun's method on the deviation from the segment's
+        path, one per output, each step's local error estimate (Heun's against Euler's)
+        tested against ``dsigma (atol + rtol |e|)`` in every component. Only for the path
+        degrees of :data:`COMPILED_DEGREES` (a straight path or a parabola).
+
+        Returns
+        -------
+        t : ndarray, shape (N OPEN_LOOP_POINTS + 1,)
+            Times (s).
+        x : ndarray, shape (len(t), 2n)
+            Open-loop states.
+        ratio : float
+            The largest error estimate over its bound, over every step and component: the
+            integration meets its tolerance when ``ratio <= 1`` (NaN when a state is not
+            finite).
+        """
+        _, x0, times, params = self._open_loop_inputs()
+        segments = len(self.h)
+        tol = np.tile([[rtol], [atol]], (1, segments))
+        _, states, ratio = explicit_open_loop(self._model, 2 * self.path.degree,
+                                              segments)(x0, params, tol)
+        x = np.vstack([x0[None, :], states.T])
+        worst = float(np.max(ratio)) if np.all(np.isfinite(x)) else float("nan")
+        return np.concatenate([[0.0], times]), x, worst
+
+    def open_loop(self, rtol: float, atol: float, stiff: bool = False, one_call: bool = True,
+                  deviation: bool = True, explicit: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The nominal torques integrated from ``x(0)``, segment by segment.
+
+        First, with ``explicit`` (default; with ``deviation`` and ``one_call``, a path of
+        :data:`COMPILED_DEGREES` and ``atol > 0``), by explicit steps with an error test in
+        one compiled call (:meth:`open_loop_explicit`), kept when every step passes its test
+        (``ratio <= 1``); else by CVODES, as :meth:`~tocontrol_ros.core.direct.
+        flat_trajectory.FlatTrajectory.open_loop` does (:func:`open_loop_integrator`): the
+        forward dynamics under the inverse dynamics of each segment's polynomial. Adams
+        first; BDF (``stiff``) when Adams fails. With ``one_call`` (default) every segment
+        in one call (:func:`open_loop_sweep`), and one by one from Python only when a
+        segment fails (to say where); ``False``: one by one (the benchmark's comparison).
+        ``deviation``: integrate the deviation from each segment's path (default) or the
+        state itself (:func:`open_loop_integrator`).
 
         Returns
         -------
@@ -494,13 +613,15 @@ class ScaledPath(InverseDynamicsTrajectory):
             Open-loop states.
         success : bool
         """
-        integ = open_loop_integrator(self._model, 2 * self.path.degree, rtol, atol, stiff,
-                                     deviation)
+        degree = 2 * self.path.degree
+        if explicit and deviation and one_call and not stiff and atol > 0.0 and \
+                degree in COMPILED_DEGREES:
+            t, x, ratio = self.open_loop_explicit(rtol, atol)
+            if ratio <= 1.0:
+                return t, x, True
+        integ = open_loop_integrator(self._model, degree, rtol, atol, stiff, deviation)
         grid = np.linspace(0.0, 1.0, OPEN_LOOP_POINTS + 1)[1:]
-        coefs = self._segment_polynomials()
-        x0 = self.state(0.0)[0, :2 * self.n]
-        times = (self.t_grid[:-1, None] + self.h[:, None] * grid[None, :]).ravel()
-        params = np.vstack([coefs.reshape(len(self.h), -1, order="F").T, self.h[None, :]])
+        coefs, x0, times, params = self._open_loop_inputs()
         try:  # every segment in one call, through numpy buffers
             if one_call:
                 _, states = open_loop_sweep_buffered(self._model, integ, len(self.h))(x0,
