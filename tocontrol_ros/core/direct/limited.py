@@ -367,9 +367,11 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     if not out.success and warm.rows_added and not duals:
         # New rows that the path breaks by centimetres: from the warm barrier (and resumed
         # at RESUME_MU) IPOPT stopped at its limit on case 1 table of bench/collision.py,
-        # from its default start it converged (146 iterations, certified).
+        # from its default start it converged (146 iterations, certified). The same NLP,
+        # its pads per sample included: only IPOPT's start differs.
         flat = planner.flat(problem, warm.breaks, warm="restart")
-        out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER))
+        out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad,
+                         **_budget(ctx, NEAR_MAX_ITER))
         ctx.check()
     traj = None
     if out.success:
