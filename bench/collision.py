@@ -215,18 +215,19 @@ def run(count: int = CASES, cases: set[int] | None = None,
             t0 = time.perf_counter()
             res = plan(problem, options)
             ours_time = time.perf_counter() - t0
-            clear = np.nan
+            clear, pair = np.nan, None
             if res.success:
                 st["planned"] += 1
                 sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
-                clear = problem.collision.clearance(sample.q).minimum
+                exact = problem.collision.clearance(sample.q)
+                clear, pair = exact.minimum, exact.pair
                 st["clear"] += int(clear >= col.margin)
                 st["ours"].append(ours_time)
             log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
-                f"{clear:.4f} ({ours_time:.1f} s)")
+                f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
             if not res.success:  # what refused it: the message, the certificate's pair
                 fig = res.certificate.figures if res.certificate is not None else {}
-                log(f"collision: case {i} {name}: {res.message}; closest "
+                log(f"collision: case {i} {name}: certificate's closest "
                     f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
                     f"{fig.get('closest_time')} s")
                 log(f"collision: case {i} {name}: starts " + "; ".join(

@@ -255,6 +255,44 @@ def test_the_rows_added_retry_solves_the_warm_solves_nlp(panda, monkeypatch):
         assert np.array_equal(a, b)
 
 
+def test_with_a_scene_the_refinement_stops_at_the_span_cap(panda, monkeypatch):
+    """With a collision model no refinement level finer than ``SCENE_MAX_SPANS`` spans is
+    solved (the coarser mesh stands, certified); without one the same motion refines past
+    it. The cap is lowered here to 48 spans (the free wrist move refines to 88)."""
+    from tocontrol_ros.core import SolverOptions
+    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.flat import FlatTranscription
+    from tocontrol_ros.core.planning.solver import Planner
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state
+
+    model, col = panda
+    cap = 48
+    monkeypatch.setattr(limited, "SCENE_MAX_SPANS", cap)
+    spans = []
+    solve = FlatTranscription.solve
+
+    def recorded(self, *args, **kw):
+        spans.append(self.spans)
+        return solve(self, *args, **kw)
+
+    monkeypatch.setattr(FlatTranscription, "solve", recorded)
+    limits = JointLimits.from_model(model)
+    options = SolverOptions(starts=1, candidates=1, workers=1, time_limit=600)
+    ends = (joint_state(SELF_START), joint_state(SELF_TARGET))
+    planner = Planner(model)
+    free = planner.plan(Problem(model, *ends, limits=limits), options)
+    assert free.success and free.intervals > cap, (free.message, free.intervals)
+    spans.clear()
+    # A margin that this motion keeps (no self row needed): only the cap differs.
+    res = planner.plan(Problem(model, *ends, limits=limits,
+                               collision=col.with_scene(margin=0.01)), options)
+    assert res.success, res.message
+    assert res.certificate.passed and res.intervals <= cap, res.intervals
+    assert spans and max(spans) <= cap, spans
+    assert res.T >= free.T * (1 - 1e-9), (res.T, free.T)
+
+
 #: Case 1 table of bench/collision.py (seed 51, draw 1): the Panda from rest to a point
 #: beside and below its base, the table at z = 0. Its obstacle-free optimum's basin (and the
 #: detour) end with ``panda_link6`` touching ``panda_link1`` (session 34).
