@@ -204,12 +204,15 @@ def run(count: int = CASES, cases: set[int] | None = None,
             except Exception as exc:  # noqa: BLE001 - a start in collision: left out, counted
                 st["skipped"] += 1
                 rows.append([i, name, f"left out: {str(exc)[:60]}", "", "", "", "", "", ""])
+                log(f"collision: case {i} {name}: left out: {exc}")
                 continue
             if float(target[2]) < TABLE_TOP + 0.05 or \
                     certify_open_loop(problem, free.trajectory).item("clearance").passed:
                 st["skipped"] += 1  # the target under the table, or the free optimum clear
                 rows.append([i, name, "left out: target under the table or free path clear",
                              "", "", "", "", "", ""])
+                log(f"collision: case {i} {name}: left out: target under the table or free "
+                    f"path clear")
                 continue
             st["cases"] += 1
             t0 = time.perf_counter()
