@@ -204,29 +204,33 @@ def run(count: int = CASES, cases: set[int] | None = None,
             except Exception as exc:  # noqa: BLE001 - a start in collision: left out, counted
                 st["skipped"] += 1
                 rows.append([i, name, f"left out: {str(exc)[:60]}", "", "", "", "", "", ""])
+                log(f"collision: case {i} {name}: left out: {exc}")
                 continue
             if float(target[2]) < TABLE_TOP + 0.05 or \
                     certify_open_loop(problem, free.trajectory).item("clearance").passed:
                 st["skipped"] += 1  # the target under the table, or the free optimum clear
                 rows.append([i, name, "left out: target under the table or free path clear",
                              "", "", "", "", "", ""])
+                log(f"collision: case {i} {name}: left out: target under the table or free "
+                    f"path clear")
                 continue
             st["cases"] += 1
             t0 = time.perf_counter()
             res = plan(problem, options)
             ours_time = time.perf_counter() - t0
-            clear = np.nan
+            clear, pair = np.nan, None
             if res.success:
                 st["planned"] += 1
                 sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
-                clear = problem.collision.clearance(sample.q).minimum
+                exact = problem.collision.clearance(sample.q)
+                clear, pair = exact.minimum, exact.pair
                 st["clear"] += int(clear >= col.margin)
                 st["ours"].append(ours_time)
             log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
-                f"{clear:.4f} ({ours_time:.1f} s)")
+                f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
             if not res.success:  # what refused it: the message, the certificate's pair
                 fig = res.certificate.figures if res.certificate is not None else {}
-                log(f"collision: case {i} {name}: {res.message}; closest "
+                log(f"collision: case {i} {name}: certificate's closest "
                     f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
                     f"{fig.get('closest_time')} s")
                 log(f"collision: case {i} {name}: starts " + "; ".join(

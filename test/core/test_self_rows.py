@@ -8,6 +8,7 @@ smooth minimum over the two links' sphere pairs of their distance less the margi
 from __future__ import annotations
 
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -197,6 +198,99 @@ def test_a_self_row_turns_a_refused_motion_into_a_certified_one(panda):
     exact = col.clearance(sample.q)  # every self pair, the rows' and the others
     assert exact.minimum >= SELF_MARGIN, (exact.minimum, exact.pair)
     assert np.allclose(sample.q[-1], SELF_TARGET, atol=1e-4)
+
+
+def test_the_rows_added_retry_solves_the_warm_solves_nlp(panda, monkeypatch):
+    """A self-row round's warm solve (``PathWarmState.rows_added``) that fails is tried
+    again from IPOPT's default start on the same NLP: the same mesh, rows, parameters,
+    start point and bounds, the set's pads per sample read off the refused motion included
+    (session 35: the retry solved at the default pad). Both solves are made to fail here
+    (recorded, not run): the plan then reports the failure."""
+    from tocontrol_ros.core import SolverOptions
+    from tocontrol_ros.core.direct import set_pads
+    from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+    from tocontrol_ros.core.direct.tuning import SET_PAD
+    from tocontrol_ros.core.direct.warm import PathWarmState
+    from tocontrol_ros.core.planning.solver import Planner, solve_once
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state
+    from tocontrol_ros.core.types.result import Status
+
+    model, col = panda
+    col = col.with_scene(margin=SELF_MARGIN).with_row_pairs([("panda_link2", "panda_hand")])
+    limits = JointLimits.from_model(model)
+    options = SolverOptions(starts=1, candidates=1, time_limit=600)
+    ends = (joint_state(SELF_START), joint_state(SELF_TARGET))
+    planner = Planner(model)
+    free = planner.plan(Problem(model, *ends, limits=limits), options)
+    assert free.success, free.message
+    traj = free.trajectory
+    warm = replace(free, warm_state=PathWarmState(np.array(traj.breaks), np.array(traj.result.P),
+                                                  traj.T, None, None, rows_added=True))
+    # This motion's own pads per sample are all the default (its torques peak at the
+    # samples): pads that differ, so that the check below is not void.
+    monkeypatch.setattr(set_pads, "row_pads",
+                        lambda trajectory, samples: np.linspace(SET_PAD, 0.02, len(samples)))
+    calls = []
+
+    def recorded(self, start, target, k, T, P, lower, upper, set_pad=SET_PAD, **kw):
+        calls.append({"warm": self.warm, "breaks": np.array(self.breaks), "rows": self.rows,
+                      "par": self.parameters(start, target, k), "T": T, "P": np.array(P),
+                      "pad": np.array(set_pad, dtype=float),
+                      "bounds": self.bounds(lower, upper, set_pad, (start, target))})
+        return FlatResult(success=False, message="failed on purpose (test)", T=T,
+                          iterations=0, solve_time=0.0, P=np.asarray(P), residual=np.inf)
+
+    monkeypatch.setattr(FlatTranscription, "solve", recorded)
+    res = solve_once(planner, Problem(model, *ends, limits=limits, collision=col), options,
+                     warm, None, np.inf)
+    assert res.status is Status.LIMITS_INFEASIBLE and "failed on purpose" in res.message
+    assert [c["warm"] for c in calls] == [True, "restart"]
+    first, retry = calls
+    assert first["pad"].ndim == 1 and np.any(first["pad"] > SET_PAD), first["pad"]
+    assert first["rows"] == retry["rows"] and first["T"] == retry["T"]
+    for key in ("breaks", "par", "P", "pad"):
+        assert np.array_equal(first[key], retry[key]), key
+    for a, b in zip(first["bounds"], retry["bounds"], strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_with_a_scene_the_refinement_stops_at_the_span_cap(panda, monkeypatch):
+    """With a collision model no refinement level finer than ``SCENE_MAX_SPANS`` spans is
+    solved (the coarser mesh stands, certified); without one the same motion refines past
+    it. The cap is lowered here to 48 spans (the free wrist move refines to 88)."""
+    from tocontrol_ros.core import SolverOptions
+    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.flat import FlatTranscription
+    from tocontrol_ros.core.planning.solver import Planner
+    from tocontrol_ros.core.robot.limits import JointLimits
+    from tocontrol_ros.core.types.problem import Problem, joint_state
+
+    model, col = panda
+    cap = 48
+    monkeypatch.setattr(limited, "SCENE_MAX_SPANS", cap)
+    spans = []
+    solve = FlatTranscription.solve
+
+    def recorded(self, *args, **kw):
+        spans.append(self.spans)
+        return solve(self, *args, **kw)
+
+    monkeypatch.setattr(FlatTranscription, "solve", recorded)
+    limits = JointLimits.from_model(model)
+    options = SolverOptions(starts=1, candidates=1, workers=1, time_limit=600)
+    ends = (joint_state(SELF_START), joint_state(SELF_TARGET))
+    planner = Planner(model)
+    free = planner.plan(Problem(model, *ends, limits=limits), options)
+    assert free.success and free.intervals > cap, (free.message, free.intervals)
+    spans.clear()
+    # A margin that this motion keeps (no self row needed): only the cap differs.
+    res = planner.plan(Problem(model, *ends, limits=limits,
+                               collision=col.with_scene(margin=0.01)), options)
+    assert res.success, res.message
+    assert res.certificate.passed and res.intervals <= cap, res.intervals
+    assert spans and max(spans) <= cap, spans
+    assert res.T >= free.T * (1 - 1e-9), (res.T, free.T)
 
 
 #: Case 1 table of bench/collision.py (seed 51, draw 1): the Panda from rest to a point

@@ -58,6 +58,7 @@ from tocontrol_ros.core.direct.tuning import (
     REFINE_WINDOW,
     REFINEMENTS,
     SAME_T,
+    SCENE_MAX_SPANS,
     SET_MARGIN,
     SET_PAD,
     SPAN_BUCKET,
@@ -369,9 +370,10 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     if not out.success and warm.rows_added and not duals:
         # New rows that the path breaks by centimetres: from the warm barrier (and resumed
         # at RESUME_MU) IPOPT stopped at its limit on case 1 table of bench/collision.py,
-        # from its default start it converged (146 iterations, certified).
+        # from its default start it converged (146 iterations, certified). The same NLP,
+        # its pads per sample included: only IPOPT's start differs.
         flat = planner.flat(problem, warm.breaks, warm="restart")
-        out = flat.solve(*values, warm.T, P, *bounds, **_budget(ctx, NEAR_MAX_ITER))
+        out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad, **_budget(ctx, NEAR_MAX_ITER))
         ctx.check()
     traj = None
     if out.success:
@@ -717,10 +719,11 @@ def _race(planner: Compiled, ctx: SolveContext, bounds, first: list,
 
     All candidates within :data:`REFINE_WINDOW` of the best are refined one level at a time
     (spans halved at the junctions, at most ``levels``, until ``T`` changes by less than
-    :data:`T_SETTLED`); after level ``l`` those more than ``LEVEL_WINDOWS[l]`` above the best
-    ``T`` so far stop there. Those kept are then held
-    inside the control set between their samples (:func:`_inside_set`), fastest first, until
-    the next cannot beat the best so held by more than :data:`INSIDE_TIE`.
+    :data:`T_SETTLED`; with a scene, up to :data:`SCENE_MAX_SPANS` spans); after level ``l``
+    those more than ``LEVEL_WINDOWS[l]`` above the best ``T`` so far stop there. Those kept
+    are then held inside the control set between their samples (:func:`_inside_set`),
+    fastest first, until the next cannot beat the best so held by more than
+    :data:`INSIDE_TIE`.
 
     Returns
     -------
@@ -744,6 +747,9 @@ def _race(planner: Compiled, ctx: SolveContext, bounds, first: list,
                 entry[3] = False
                 continue
             breaks = _bucketed(breaks)
+            if problem.collision is not None and len(breaks) - 1 > SCENE_MAX_SPANS:
+                entry[3] = False  # with clearance rows a mesh this fine costs minutes
+                continue
             level_items.append((entry, breaks, traj.control_points_on(breaks)))
         # The level's solves side by side (planner.map), taken in the candidates' order.
         agains = planner.map(_refine_item, ctx, [(bounds, breaks, entry[0].T, P0)

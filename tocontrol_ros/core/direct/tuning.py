@@ -10,7 +10,8 @@ patches it on the module that reads it (``monkeypatch.setattr(limited, "LEVEL_WI
 
 __all__ = ["GUESS_LOAD", "TOUCH", "SPANS", "PAD", "SET_PAD", "RESIDUAL_TOL", "SAME_T",
            "GUESS_WINDOW", "REFINEMENTS", "REFINE_JUMP", "REFINE_WINDOW", "LEVEL_WINDOWS",
-           "T_SETTLED", "SPAN_BUCKET", "SET_MARGIN", "INSIDE_TIE", "PAD_ROUNDS", "STRETCHES",
+           "T_SETTLED", "SPAN_BUCKET", "SCENE_MAX_SPANS", "SET_MARGIN", "INSIDE_TIE",
+           "PAD_ROUNDS", "STRETCHES",
            "NEAR_MAX_ITER", "WARM_MU", "TIGHT_MU", "WARM_PUSH", "RESUME_MU",
            "RESTART_MAX_PERTURBATION",
            "FINE_GUESS_INTERVALS", "FINE_GUESS_TOL", "GRIDPOINTS", "ADAPT_PASSES",
@@ -101,6 +102,15 @@ T_SETTLED = 2e-4
 #: Refined meshes have a multiple of this many spans (the longest halved to get there), so
 #: that their transcriptions, built once per number of spans, serve other motions.
 SPAN_BUCKET = 8
+
+#: With clearance rows (a collision model), a refinement level whose mesh would have more
+#: spans than this is not solved: the coarser mesh stands. An iteration with the rows costs
+#: about 1 s at 216 spans on a loaded 2-core machine; case 1 pillar of bench/collision.py
+#: (docs/collision.md, session 35) refined 32, 64, 120, 216 spans (T 0.6175, 0.5333,
+#: 0.5208, 0.5122 s), then its level at 368 spans stopped at its 150-iteration limit after
+#: 318 s, unconverged (the 216-span motion returned, certified): 670 s in all, past the
+#: bench's 600 s time limit.
+SCENE_MAX_SPANS = 256
 
 
 # ---------------------------------- the torques between the samples (limited.py)
