@@ -628,14 +628,15 @@ class PlanningService:
         changed, running = self.replanner.rejected(stamp_ns)
         if not changed:
             return
-        rid = next((r for s, r in reversed(self._stamps) if abs(s - stamp_ns) <= 1000), None)
+        stamps = tuple(self._stamps)[::-1]  # a copy: the worker appends to it
+        rid = next((r for s, r in stamps if abs(s - stamp_ns) <= 1000), None)
         last = self._sent[0] if self._sent is not None else None
         chained = "" if last in (rid, None) else \
             f", nor request {last}'s motion, chained on it"
         if running is None:
             then = "the next goal is planned from the arm's measured state"
         else:
-            before = next((r for s, r in reversed(self._stamps) if s == running), None)
+            before = next((r for s, r in stamps if s == running), None)
             then = (f"replans continue the motion before it (request {before}), which the "
                     "tracker goes on with, if the measured arm follows it")
         self.out.status("WARN", f"request {rid}: its motion is not executing (the tracker "

@@ -349,8 +349,12 @@ class Replanner:
             if i is None:
                 return False, None
             self._ahead = None
-            if i + 1 < len(chain):
-                self._executing = chain[i + 1]._replace(before=chain[i + 2:])
+            # The one it was to take over: stamped before it (one stamped the same was
+            # replaced by it in the tracker, never run).
+            j = next((j for j in range(i + 1, len(chain))
+                      if chain[j].stamp_ns < int(stamp_ns) - slack_ns), None)
+            if j is not None:
+                self._executing = chain[j]._replace(before=chain[j + 1:])
                 return True, self._executing.stamp_ns
             self._executing = None
             return True, None
