@@ -249,3 +249,57 @@ def test_a_near_goal_while_the_arm_holds_off_the_motion_gets_a_quick_motion_from
     np.testing.assert_allclose(held_sample.q[0], arm.q, atol=1e-12)
     np.testing.assert_allclose(held_sample.qd[0], 0.0, atol=1e-12)
     assert held_stamp > now.ns
+
+
+def test_a_rejection_heard_after_the_next_replan_stops_the_chain_at_once(service):
+    """A stream's replan B is rejected by the tracker at its take-over, after the next
+    replan C was published chained on it (a 10 Hz stream with a 0.15 s lead: every time).
+    The rejection names B's stamp, not the last one: the next goal D must hand off on the
+    motion the tracker goes on with (A, before B), not on C (main: D chained on C, and
+    every replan after it on a motion the tracker rejects, until a rejection came while its
+    motion was the last published; session 35's Panda run: 34 requests, 3 s)."""
+    service, out, arm, now = service
+    rid_a, statuses = _goal(service, out, PAPER_TARGET)
+    assert statuses[-1][2]["event"] == "solved", statuses
+    sample_a, stamp_a = out.trajectories[-1]
+    a = _nominal(sample_a)
+    T = float(sample_a.t[-1])
+
+    def follow_a(own_ms: int) -> None:  # the arm on A in time, measured at own_ms into it
+        arm.q = a.evaluate(min(own_ms * 1e-3, T)).q[0]
+        arm.stamp_ns = stamp_a + own_ms * 10**6
+        now.ns = arm.stamp_ns + 3 * 10**6
+
+    follow_a(int(0.2 * T * 1e3))
+    rid_b, statuses = _goal(service, out, np.asarray(PAPER_TARGET) + np.array([0.03, -0.02]))
+    assert statuses[-1][2]["event"] == "solved", statuses
+    _, stamp_b = out.trajectories[-1]
+    assert stamp_b > now.ns  # B takes over later: the arm is still measured on A
+    follow_a(int(0.2 * T * 1e3) + 100)  # 0.1 s on, before B's take-over
+    assert arm.stamp_ns < stamp_b
+    rid_c, statuses = _goal(service, out, np.asarray(PAPER_TARGET) + np.array([0.05, -0.04]))
+    assert statuses[-1][2]["event"] == "solved", statuses
+    sample_c, stamp_c = out.trajectories[-1]
+    assert stamp_c > stamp_b
+    # C continues B (the chain the tracker's rejection of B has to be traced along).
+    assert service.replanner.running() is not None
+    # The tracker rejects B at its take-over: its status names B's stamp.
+    service.tracker_rejected(stamp_b * 1e-9, "at its take-over its position is 0.128 rad "
+                             "from the commanded one, more than start_tolerance = 0.1")
+    [(level, message, values)] = [s for s in out.statuses if s[2]["event"] == "refused"]
+    assert level == "WARN" and values["request_id"] == rid_b, message
+    assert values["last_request_id"] == rid_c and values["continues"] == "previous", values
+    assert f"request {rid_a}" in message, message
+    # The arm goes on with A (B and C never took over): D hands off on A.
+    follow_a(int(0.2 * T * 1e3) + 200)
+    before = len(out.trajectories)
+    rid_d, statuses = _goal(service, out, np.asarray(PAPER_TARGET) + np.array([0.03, 0.0]))
+    level, message, values = statuses[-1]
+    assert level == "OK" and values["event"] == "solved", statuses
+    sample_d, stamp_d = out.trajectories[before]
+    on_a = a.evaluate(min((stamp_d - stamp_a) * 1e-9, T))
+    np.testing.assert_allclose(sample_d.q[0], on_a.q[0], atol=1e-9)
+    # Not C's command then (what main handed off on): the test tells them apart.
+    c = _nominal(sample_c)
+    on_c = c.evaluate(min(max((stamp_d - stamp_c) * 1e-9, 0.0), float(sample_c.t[-1])))
+    assert np.max(np.abs(on_c.q[0] - on_a.q[0])) > 1e-3

@@ -415,3 +415,49 @@ def test_a_late_publication_to_a_holding_tracker_is_expected_to_start_when_sent(
             replans.published(before, stamp - 10**8, sample)  # runs until after `sent`
         replans.published(motion, stamp, sample, sent_ns=sent_ns)
         assert replans.executing_start() == stamp
+
+
+def _line_motion(q0: float, stamp_s: float, start_offset: float = 0.0):
+    """A one-joint motion at 1 rad/s from ``q0`` for 1 s, stamped ``stamp_s``; its problem
+    starts at ``(q0 + start_offset, 1)`` (an offset: a start measured off the command)."""
+    from types import SimpleNamespace
+
+    t = np.linspace(0.0, 1.0, 11)
+    sample = SimpleNamespace(t=t, q=(q0 + t)[:, None], qd=np.ones((11, 1)),
+                             qdd=np.zeros((11, 1)), tau=np.zeros((11, 1)))
+    start = SimpleNamespace(kind="state", value=np.array([q0 + start_offset, 1.0]))
+    trajectory = SimpleNamespace(state=lambda s: (np.array([q0 + s, 1.0]),))
+    result = SimpleNamespace(problem=SimpleNamespace(start=start, model=SimpleNamespace(n=1)),
+                             trajectory=trajectory, T=1.0, warm_state=None)
+    return result, int(round(stamp_s * 1e9)), sample
+
+
+def test_a_rejection_of_a_motion_the_last_continues_restores_the_one_before_it():
+    """The chain: B starts at A's command at its stamp, C at B's; a rejection of B (heard
+    after C was published) makes A the running motion again; D, planned from a start off
+    A's command (measured), continues nothing: a rejection of B then changes nothing."""
+    a, b, c = _line_motion(0.0, 0.0), _line_motion(0.5, 0.5), _line_motion(0.8, 0.8)
+    replans = Replanner()
+    for result, stamp, sample in (a, b, c):
+        replans.published(result, stamp, sample)
+    assert replans.rejected(b[1] + 10**6) == (False, None)  # another stamp
+    assert replans.running() is c[0]
+    assert replans.rejected(b[1] + 100) == (True, a[1])  # within 1 us
+    assert replans.running() is a[0]
+    assert replans.rejected(a[1]) == (True, None)  # the first of the chain: nothing known
+    assert replans.running() is None
+    replans = Replanner()
+    d = _line_motion(0.8, 0.8, start_offset=1e-3)
+    for result, stamp, sample in (a, b, d):
+        replans.published(result, stamp, sample)
+    assert replans.rejected(b[1]) == (False, None) and replans.running() is d[0]
+
+
+def test_a_rejected_motion_is_not_replaced_by_one_stamped_the_same():
+    """B stamped with A's stamp replaced A in the tracker (never run): rejected, nothing
+    is continued."""
+    a, b = _line_motion(0.0, 0.2), _line_motion(0.0, 0.2)
+    replans = Replanner()
+    for result, stamp, sample in (a, b):
+        replans.published(result, stamp, sample)
+    assert replans.rejected(a[1]) == (True, None) and replans.running() is None

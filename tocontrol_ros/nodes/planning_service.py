@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -40,7 +41,7 @@ from tocontrol_ros.nodes.planner_config import (
 )
 from tocontrol_ros.nodes.pose_goals import PoseGoals
 from tocontrol_ros.nodes.replan_policy import ReplanPolicy, replanning
-from tocontrol_ros.nodes.replanning import Replanner
+from tocontrol_ros.nodes.replanning import CHAIN_KEPT, Replanner
 from tocontrol_ros.nodes.requests import LatestSlot, PlanRequest
 from tocontrol_ros.nodes.warm_up import load_optimised, warm_up
 
@@ -176,6 +177,8 @@ class PlanningService:
         self._published_at = 0.0  # clock.monotonic() of the last ~/trajectory
         # (request id, PlanResult, its stamp ns) last published
         self._sent: tuple[int, Any, int] | None = None
+        #: (stamp ns, request id) of the last trajectories published, to name a rejected one.
+        self._stamps: deque[tuple[int, int]] = deque(maxlen=4 * CHAIN_KEPT)
         #: The last publication's parts (s): the trajectory sampled, its message sent.
         self._publish_parts = {"sample_time": 0.0, "send_time": 0.0}
         self._replans = ReplanPolicy(self)
@@ -586,6 +589,7 @@ class PlanningService:
         sent_ns = None if config.controller_action else self.clock.now_ns()
         self.replanner.published(result, stamp_ns, sample, sent_ns=sent_ns)
         self._sent = (rid, result, stamp_ns)
+        self._stamps.append((stamp_ns, rid))
         path = self.out.path(sample, stamp_ns)
         if path is None:
             return None
@@ -612,12 +616,35 @@ class PlanningService:
     def tracker_rejected(self, stamp: float, reason: str) -> None:
         """A tracker rejected the trajectory stamped ``stamp`` (s) that it got on the topic.
 
-        When that is the last published motion (its stamp within 1 us), as
-        :meth:`controller_refused`: replans stop continuing a motion that does not run.
+        When that is the last published motion, or one the last continues (a stream's
+        replans are published before the one they continue takes over, where the tracker
+        rejects it; matched within 1 us), replans stop continuing it and what was chained on
+        it (:meth:`Replanner.rejected`): they continue the motion before it in the chain,
+        which the tracker goes on with, or, when none is known, the next goal is planned from
+        the arm's measured state. A ``refused`` status says which. Another stamp (a motion
+        replaced since and not continued, one never published) changes nothing.
         """
-        sent = self._sent
-        if sent is not None and abs(sent[2] * 1e-9 - stamp) <= 1e-6:
-            self.controller_refused(sent[0], f"the tracker rejected it: {reason}")
+        stamp_ns = round(stamp * 1e9)
+        changed, running = self.replanner.rejected(stamp_ns)
+        if not changed:
+            return
+        stamps = tuple(self._stamps)[::-1]  # a copy: the worker appends to it
+        rid = next((r for s, r in stamps if abs(s - stamp_ns) <= 1000), None)
+        last = self._sent[0] if self._sent is not None else None
+        chained = "" if last in (rid, None) else \
+            f", nor request {last}'s motion, chained on it"
+        if running is None:
+            then = "the next goal is planned from the arm's measured state"
+        else:
+            before = next((r for s, r in stamps if s == running), None)
+            then = (f"replans continue the motion before it (request {before}), which the "
+                    "tracker goes on with, if the measured arm follows it")
+        self.out.status("WARN", f"request {rid}: its motion is not executing (the tracker "
+                        f"rejected it: {reason}){chained}; the planner no longer continues "
+                        f"it: {then}",
+                        {"request_id": rid, "event": "refused", "frame_id": self.frame_id,
+                         "last_request_id": last,
+                         "continues": "measured" if running is None else "previous"})
 
     # --------------------------------------------------------------- shutdown
     def stop(self, timeout: float = JOIN_TIMEOUT) -> None:

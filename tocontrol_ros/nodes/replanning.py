@@ -27,7 +27,7 @@ from tocontrol_ros.nodes.planner_config import PlannerConfig
 __all__ = ["Handoff", "Replanner", "GoalStream", "align", "REPLAN_TRIES", "WARM", "COLD", "REST",
            "REST_RESERVE", "REST_TAIL", "AHEAD_KEEP", "keeps_ahead", "QUICK",
            "IMPROVE", "STREAM_RATIO", "STREAM_PERIOD", "FOLLOWING", "FOLLOW_LAG", "lag_start",
-           "Executing"]
+           "Executing", "CHAIN_KEPT", "continues"]
 
 #: Solves of one goal at most: a plan that would arrive after its hand-off is solved again
 #: from a later one (the lead at least twice the late solve's time), then given up.
@@ -141,6 +141,47 @@ class Executing(NamedTuple):
     nominal: object  # NominalTrajectory of the published samples, or None
     guessed: bool  # the start a guess (sent after its stamp to a holding tracker)
     stamp_ns: int  # its trajectory's header stamp
+    #: The motions it continues, the latest first (each without its own ``before``): a
+    #: motion continues the last published one when it starts at that one's command at its
+    #: take-over (:func:`continues`); at most :data:`CHAIN_KEPT` of them.
+    before: tuple = ()
+
+
+#: How many motions of a chain of replans are kept behind the last one: a tracker's
+#: rejection of any of them (heard after the next ones were published on it) is traced back.
+CHAIN_KEPT = 16
+#: A motion continues the last one when its start is within these of that one's command at
+#: its stamp (rad, rad/s): a hand-off is that command to the bit, or to the samples'
+#: interpolation; a start measured on the arm is off it by the tracking error.
+CONTINUES_Q, CONTINUES_QD = 1e-9, 1e-6
+
+
+def continues(executing: Executing, result, stamp_ns: int) -> bool:
+    """Whether ``result``, stamped ``stamp_ns`` (ns), starts from ``executing``'s command then.
+
+    The command of the published samples at the stamp (their end after the motion's end,
+    at rest), or the trajectory's state when no samples were kept; ``result``'s problem
+    start must be a state (a plan from a point or a measured state starts elsewhere).
+    """
+    problem = getattr(result, "problem", None)
+    if problem is None or executing.result.problem is None or problem.start.kind != "state":
+        return False
+    n = problem.model.n
+    start = np.asarray(problem.start.value, dtype=float)
+    t = (int(stamp_ns) - executing.start_ns) * 1e-9
+    if t < 0.0:
+        return False
+    previous = executing.result
+    if executing.nominal is not None and t <= float(executing.nominal.t[-1]):
+        des = executing.nominal.evaluate(t)
+        q, qd = des.q[0], des.qd[0]
+    elif previous.trajectory is not None:
+        z = previous.trajectory.state(min(t, previous.T))[0]
+        q, qd = z[:n], z[n:2 * n] if t < previous.T else np.zeros(n)
+    else:
+        return False
+    return bool(np.max(np.abs(start[:n] - q)) <= CONTINUES_Q
+                and np.max(np.abs(start[n:2 * n] - qd)) <= CONTINUES_QD)
 
 
 def lag_start(nominal: NominalTrajectory, start_ns: int, q: np.ndarray, stamp_ns: int,
@@ -281,6 +322,43 @@ class Replanner:
             self._ahead = None
             return True
 
+    def rejected(self, stamp_ns: int, slack_ns: int = 1000) -> tuple[bool, int | None]:
+        """The tracker rejected the trajectory stamped ``stamp_ns`` (ns, within ``slack_ns``).
+
+        When it is the last published motion or one that the last continues (a replan
+        chained on it, published before the rejection was heard: the tracker rejects a
+        motion at its take-over, after the next replan of a stream is published), the
+        replans no longer continue it nor what was chained on it: they continue the motion
+        it was to take over (the one before it in the chain, which the tracker goes on
+        with, or holds the end of), checked like any against the measured arm
+        (:meth:`handoff`); when none is known, nothing (the measured state).
+
+        Returns
+        -------
+        (bool, int or None)
+            Whether anything changed, and the stamp (ns) of the motion continued from now
+            on (None: none).
+        """
+        with self._lock:
+            executing = self._executing
+            if executing is None:
+                return False, None
+            chain = (executing._replace(before=()),) + executing.before
+            i = next((j for j, motion in enumerate(chain)
+                      if abs(motion.stamp_ns - int(stamp_ns)) <= slack_ns), None)
+            if i is None:
+                return False, None
+            self._ahead = None
+            # The one it was to take over: stamped before it (one stamped the same was
+            # replaced by it in the tracker, never run).
+            j = next((j for j in range(i + 1, len(chain))
+                      if chain[j].stamp_ns < int(stamp_ns) - slack_ns), None)
+            if j is not None:
+                self._executing = chain[j]._replace(before=chain[j + 1:])
+                return True, self._executing.stamp_ns
+            self._executing = None
+            return True, None
+
     def running(self):
         """The last published motion (a PlanResult), or None."""
         with self._lock:
@@ -330,8 +408,13 @@ class Replanner:
                     before.start_ns + math.ceil(before.result.T * 1e9) <= sent_ns
                 if holds:
                     start, guessed = int(sent_ns), True
-            self._executing = Executing(result, start, nominal, guessed, int(stamp_ns)) \
-                if result.trajectory is not None else None
+            before = ()
+            last = self._executing
+            if last is not None and result.trajectory is not None and \
+                    continues(last, result, stamp_ns):
+                before = ((last._replace(before=()),) + last.before)[:CHAIN_KEPT]
+            self._executing = Executing(result, start, nominal, guessed, int(stamp_ns),
+                                        before) if result.trajectory is not None else None
             problem = result.problem
             if result.warm_state is not None and problem is not None and \
                     problem.start.kind == "state" and \
@@ -411,7 +494,7 @@ class Replanner:
         """
         if measured is None:
             return None
-        result, start_ns, nominal, guessed, stamp = executing
+        result, start_ns, nominal, guessed, stamp = executing[:5]
         q, measured_ns = measured
         t = (measured_ns - start_ns) * 1e-9
         if t < 0.0:  # before the motion takes over: the previous command (not kept) runs

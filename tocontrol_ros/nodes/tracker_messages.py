@@ -282,7 +282,8 @@ def rejected_status(text: str, running: bool, stamp: float | None
     ``text``: ``trajectory rejected: <reason>``; ``running``: whether the tracker goes on
     with the current trajectory (else it holds). The values: ``event`` ``rejected`` and, when
     known, ``stamp``: the refused trajectory's ``header.stamp`` (s), known once it was
-    parsed; a planner matches it with its last publication (msg_docs/tracker_status.md).
+    parsed; a planner matches it with its last publication or a motion that one continues
+    (msg_docs/tracker_status.md).
     """
     message = f"{text}; {'continuing the current trajectory' if running else 'holding'}"
     values = {"event": "rejected"} | ({} if stamp is None else {"stamp": f"{stamp:.9f}"})
