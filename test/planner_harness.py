@@ -123,6 +123,48 @@ def hold_splices_to_the_bar(splices: list[dict]) -> None:
     assert max(jumps_q) < SPLICE_JUMP_BAR[0] and max(jumps_qd) < SPLICE_JUMP_BAR[1]
 
 
+#: A controller's outcome of a plan sent to it (msg_docs/controller_execution.md).
+OUTCOME_EVENTS = ("executed", "rejected")
+
+
+def plans_without_outcome(events: list[Status], published: set[int]) -> str:
+    """The requests whose plans lack a controller's outcome, with their status events.
+
+    A request lacks one when it has more ``sent`` events than outcomes (``executed`` or
+    ``rejected``), or when it is in ``published`` and has no outcome at all.
+
+    Parameters
+    ----------
+    events : list of Status
+        The planner's status events to look at (those of the test's goals).
+    published : set of int
+        Request ids whose plan was published (each must get an outcome).
+
+    Returns
+    -------
+    str
+        One line per such request: its id, counts, and every event of it
+        (``event@received: message``); "none" when every plan has its outcome.
+    """
+    by_id: dict[int | None, list[Status]] = {}
+    for s in events:
+        by_id.setdefault(s.request_id, []).append(s)
+    lines = []
+    for rid in sorted(r for r in by_id if r is not None):
+        mine = by_id[rid]
+        sent = sum(s.event == "sent" for s in mine)
+        done = sum(s.event in OUTCOME_EVENTS for s in mine)
+        if done < sent or (rid in published and done == 0):
+            trail = "; ".join(f"{s.event}@{s.received:.3f}: {s.message}" for s in mine)
+            lines.append(f"request {rid}: {sent} sent, {done} outcomes: {trail}")
+    for rid in sorted(published - set(by_id)):
+        lines.append(f"request {rid}: published but no event of it seen")
+    total = sum(s.event == "sent" for s in events)
+    outcomes = sum(s.event in OUTCOME_EVENTS for s in events)
+    return (f"{total} sent, {outcomes} outcomes in all; plans without an outcome: "
+            + ("\n".join(lines) if lines else "none"))
+
+
 class PlannerClient:
     """A node that talks to one planner: calls, goals, joint states, parameters, status.
 
@@ -186,16 +228,21 @@ class PlannerClient:
         self._append(self.statuses, status)
 
     # ---------------------------------------------------------------- waiting
-    def wait_for(self, predicate, timeout: float, what: str):
-        """Poll ``predicate()`` until it returns a truthy value; fail after ``timeout`` s."""
+    def wait_for(self, predicate, timeout: float, what: str, detail=None):
+        """Poll ``predicate()`` until it returns a truthy value; fail after ``timeout`` s.
+
+        ``detail``: a callable whose string goes into the failure's message (what is missing).
+        """
         deadline = time.monotonic() + timeout
         while True:
             value = predicate()
             if value:
                 return value
             if time.monotonic() > deadline:
+                more = f"; {detail()}" if detail is not None else ""
                 raise AssertionError(f"timed out after {timeout} s waiting for {what}; "
-                                     f"statuses: {[s.message for s in self.status_list()[-8:]]}")
+                                     f"statuses: {[s.message for s in self.status_list()[-8:]]}"
+                                     + more)
             time.sleep(0.01)
 
     def wait_motion_over(self, timeout: float = 30.0) -> None:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 from node_process import NodeProcess
-from planner_harness import PlannerClient, hold_splices_to_the_bar
+from planner_harness import PlannerClient, hold_splices_to_the_bar, plans_without_outcome
 
 from tocontrol_ros.core.robot.model import default_urdf_path, load_robot
 
@@ -97,7 +97,14 @@ def test_moving_target_through_follow_joint_trajectory(tmp_path):
             done = [s for s in events if s.event in ("executed", "rejected")]
             return done if len(done) >= sent and ids <= {s.request_id for s in done} \
                 else None
-        outcome_list = client.wait_for(outcomes, HANG, "the controller's outcome of every plan")
+        def missing() -> str:
+            goal_events = [s.get("event", "") for s in list(tracker_status)
+                           if s.get("event", "").startswith("goal_")]
+            counts = {e: goal_events.count(e) for e in sorted(set(goal_events))}
+            return (plans_without_outcome(client.status_list()[since:], ids)
+                    + f"\ntracker's goal events: {counts}")
+        outcome_list = client.wait_for(outcomes, HANG, "the controller's outcome of every plan",
+                                       detail=missing)
         executed = {}
         for s in outcome_list:
             executed.setdefault(s.request_id, []).append(s)

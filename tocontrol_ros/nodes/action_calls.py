@@ -6,7 +6,9 @@ made from another thread, a fast server, a busy machine), the response is droppe
 unexpected goal response") and the request's future never completes (ros2/rclpy#1123; the
 fix, a lock, was backported to Jazzy in 2025, after this wheel). :class:`SerialActionClient`
 makes every request from a guard condition's callback in the client's own mutually exclusive
-callback group: never while the executor handles the client's responses.
+callback group: never while the executor handles the client's responses. Its services keep
+:data:`~tocontrol_ros.nodes.qos.ACTION_SERVICES` deep (rclpy's default, 10, lost the oldest
+of a burst of requests).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from collections.abc import Callable
 from rclpy.action import ActionClient
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.task import Future
+
+from tocontrol_ros.nodes import qos
 
 __all__ = ["SerialActionClient"]
 
@@ -38,7 +42,10 @@ class SerialActionClient:
     def __init__(self, node, action_type, name: str) -> None:
         self._node = node
         group = MutuallyExclusiveCallbackGroup()
-        self.client = ActionClient(node, action_type, name, callback_group=group)
+        self.client = ActionClient(node, action_type, name, callback_group=group,
+                                   goal_service_qos_profile=qos.ACTION_SERVICES,
+                                   result_service_qos_profile=qos.ACTION_SERVICES,
+                                   cancel_service_qos_profile=qos.ACTION_SERVICES)
         self._queue: collections.deque = collections.deque()
         self._lock = threading.Lock()
         self._wake = node.create_guard_condition(self._drain, callback_group=group)

@@ -38,6 +38,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes import jtc_checks as jtc
+from tocontrol_ros.nodes import qos
 from tocontrol_ros.nodes.tracker_messages import jtc_completed
 
 if TYPE_CHECKING:
@@ -113,7 +114,10 @@ class FollowServer:
                                                 10)
         self._server = ActionServer(
             node, FollowJointTrajectory, ACTION_NAME, execute_callback=self._execute,
-            goal_callback=self._on_goal, cancel_callback=self._on_cancel)
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+            goal_service_qos_profile=qos.ACTION_SERVICES,
+            result_service_qos_profile=qos.ACTION_SERVICES,
+            cancel_service_qos_profile=qos.ACTION_SERVICES)
         self._pending: dict[bytes, GoalRecord] = {}
 
     # ------------------------------------------------------------- callbacks

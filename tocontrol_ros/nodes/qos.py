@@ -5,7 +5,7 @@ See msg_docs/ for which topic uses which.
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ["LATCHED", "RELIABLE", "BEST_EFFORT", "profile", "status_profile"]
+__all__ = ["ACTION_SERVICES", "LATCHED", "RELIABLE", "BEST_EFFORT", "profile", "status_profile"]
 
 def profile(depth: int, reliable: bool = True, latched: bool = False) -> QoSProfile:
     """A keep-last profile ``depth`` deep: reliable or best effort; latched or volatile.
@@ -26,6 +26,12 @@ LATCHED = profile(1, latched=True)
 RELIABLE = profile(10)
 #: Inputs from other people's publishers: best effort matches both kinds.
 BEST_EFFORT = profile(10, reliable=False)
+#: The ``FollowJointTrajectory`` action's goal, result and cancel services, on the planner's
+#: client and the tracker's server. rclpy's default (``qos_profile_services_default``) keeps
+#: the last 10 requests or responses: a burst of more (replans queued while an executor was
+#: starved on a loaded machine, sent at once) overwrote the oldest before they were taken,
+#: and those plans never got an outcome (session 35, docs/nodes.md).
+ACTION_SERVICES = profile(1000)
 
 
 def status_profile(depth: int, latched: bool) -> QoSProfile:
