@@ -91,6 +91,13 @@ class _Client(RosClient):
                                       lambda m: self._add(self.tracker, m), latched)
         self.node.create_subscription(JointState, f"{ns}/joint_states",
                                       lambda m: self._add(self.states, m), 10)
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        #: The planner's ``joint_states`` diagnostic ("receiving ..." once it has a state: a
+        #: goal sent before then starts from ``default_start``, msg_docs/joint_states_input.md).
+        self.planner_states: list[str] = []
+        self.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                      lambda m: self._on_diagnostics(f"{ns}/planner", m), 10)
         from trajectory_msgs.msg import JointTrajectory
 
         #: (header stamp ns, time received: time.monotonic()) of every trajectory.
@@ -101,6 +108,13 @@ class _Client(RosClient):
         self.sent: list[tuple[np.ndarray, float]] = []
         self.goals = self.node.create_publisher(PointStamped, f"{ns}/planner/goal", 100)
         self._Point = PointStamped
+
+    def _on_diagnostics(self, planner: str, msg) -> None:
+        for st in msg.status:
+            if st.name == planner:
+                value = {kv.key: kv.value for kv in st.values}.get("joint_states", "")
+                with self.lock:
+                    self.planner_states.append(value)
 
     def _on_trajectory(self, msg) -> None:
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -269,6 +283,11 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
                     f"the {name} planner's warm-up")
         client.wait(lambda: client.goals.get_subscription_count() > 0 and
                     client.snapshot("states"), 30.0, "the goal subscription, joint states")
+        # The planner's own joint states (its diagnostics), not only the client's: a first
+        # goal before them was planned from default_start and rejected by the tracker.
+        client.wait(lambda: any(v.startswith("receiving")
+                                for v in client.snapshot("planner_states")), 30.0,
+                    "the planner receiving joint states (its diagnostics)")
         # The first motion from rest to the circle (cold multistart): not counted.
         first = len(client.snapshot("planner"))
         client.send(_embed(model, goals[0]), frame, goals[0])
