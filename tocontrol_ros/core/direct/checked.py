@@ -34,7 +34,8 @@ from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.methods.context import EarlyMotion, SolveContext
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["FIRST_STRETCH", "FIRST_TRIES", "FirstIterate", "stretched", "verified"]
+__all__ = ["FIRST_STRETCH", "FIRST_TRIES", "FirstIterate", "checked_iterate", "stretched",
+           "verified"]
 
 #: Iterates of one warm re-solve checked at most as a first motion (each a trajectory, the
 #: set's check between the samples, a time stretch where that fails, and a certificate
@@ -134,6 +135,51 @@ def stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, va
     return None
 
 
+def checked_iterate(ctx: SolveContext, flat: FlatTranscription, it: FlatResult, values,
+                    bounds, note: str, timings: dict, t_start: float, stretch: bool = True
+                    ) -> tuple[bool, PlanResult | None]:
+    """A solve's iterate as a motion: held inside the set between the samples, certified.
+
+    The check of a first motion before the optimum, the same for the parametric steps'
+    iterates (:class:`FirstIterate`) and IPOPT's (:mod:`~.early`).
+
+    Parameters
+    ----------
+    ctx : SolveContext
+    flat : FlatTranscription
+        The NLP the iterate belongs to.
+    it : FlatResult
+        The iterate (its rows already within :data:`~.tuning.RESIDUAL_TOL`).
+    values : tuple
+        The problem's start value, target value and ``k``.
+    bounds : tuple of ndarray
+        The state bounds (lower, upper), as for :meth:`FlatTranscription.solve`.
+    note : str
+        The result's warning saying what it is.
+    timings : dict
+        The result's timings (s).
+    t_start : float
+        ``time.perf_counter()`` at the plan's start.
+    stretch : bool
+        Slow the path down (:func:`stretched`) where its torques leave the set between the
+        samples; False: such an iterate is not held.
+
+    Returns
+    -------
+    held : bool
+        Whether the torques stay inside the set between the samples (slowed down if needed).
+    result : PlanResult or None
+        Its verified result (``success`` says whether it passed), None where not held.
+    """
+    traj = FlatTrajectory(flat, it, values[2])
+    if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
+        slower = stretched(flat, it, traj, values, bounds) if stretch else None
+        if slower is None:
+            return False, None
+        it, traj = slower
+    return True, verified(ctx, it, traj, [], [note], timings, t_start)
+
+
 class FirstIterate:
     """The parametric steps' ``on_step``: the first iterate that is a motion to publish.
 
@@ -183,20 +229,14 @@ class FirstIterate:
         if not self.watching or not np.isfinite(it.residual) or it.residual > RESIDUAL_TOL:
             return
         self.tries += 1
-        traj = FlatTrajectory(self.flat, it, self.values[2])
-        if float(np.max(traj.set_values())) > 1.0 - SET_MARGIN:
-            slower = stretched(self.flat, it, traj, self.values, self.bounds) \
-                if FIRST_STRETCH else None
-            if slower is None:
-                return
-            it, traj = slower
         timings = dict(self.timings)
         timings["shooting"] = timings.get("shooting", 0.0) + time.perf_counter() - self.t0
         note = (f"{self.note} (route: first iterate): the parametric step's iterate after "
                 f"{it.iterations} Newton steps, feasible and certified but not converged; "
                 f"the optimum follows")
-        first = verified(self.ctx, it, traj, [], [note], timings, self.t_start)
-        if first.success:
+        _, first = checked_iterate(self.ctx, self.flat, it, self.values, self.bounds, note,
+                                   timings, self.t_start, FIRST_STRETCH)
+        if first is not None and first.success:
             self.result = first
             early: EarlyMotion = self.ctx.early
             early.done = bool(early.offer(first))

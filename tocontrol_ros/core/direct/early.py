@@ -23,29 +23,24 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
-from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
-from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL, SET_MARGIN
-from tocontrol_ros.core.methods.context import EarlyMotion
-from tocontrol_ros.core.types.result import PlanResult
+from tocontrol_ros.core.direct.checked import checked_iterate
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription, violation
+from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+from tocontrol_ros.core.methods.context import EarlyMotion, SolveContext
 
 __all__ = ["iterate_watch"]
 
-#: ``hold(res, traj)``: the path slowed down into the set between the samples, or None.
-Hold = Callable[[FlatResult, FlatTrajectory], "tuple[FlatResult, FlatTrajectory] | None"]
-#: ``certify(res, traj, note)``: the checked result of a path (its certificate).
-Certify = Callable[[FlatResult, FlatTrajectory, str], PlanResult]
 
-
-def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tuple,
-                  bounds: tuple, pad: float | np.ndarray, hold: Hold, certify: Certify,
+def iterate_watch(ctx: SolveContext, flat: FlatTranscription, values: tuple, bounds: tuple,
+                  pad: float | np.ndarray, timings: dict, t_start: float,
                   what: str) -> Callable[[int, np.ndarray], bool] | None:
-    """The watcher of one IPOPT solve that offers its certified iterates to ``early``.
+    """The watcher of one IPOPT solve that offers its certified iterates to ``ctx.early``.
 
     Parameters
     ----------
-    early : EarlyMotion or None
-        The receiver (None: no watcher, None returned).
+    ctx : SolveContext
+        The solve's context; its ``early`` is the receiver (None: no watcher, None
+        returned).
     flat : FlatTranscription
         The transcription being solved.
     values : tuple
@@ -54,12 +49,10 @@ def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tu
         ``(lower, upper)`` state bounds, shape (2n,) each.
     pad : float or ndarray, shape (S,)
         The set's pad of the solve (its rows' bounds).
-    hold : callable
-        ``hold(res, traj)``: the path slowed down into the set between the samples, or
-        None (the bounded solve's own rule).
-    certify : callable
-        ``certify(res, traj, note)``: the path's checked result (the bounded solve's own
-        certificate and verdict), ``note`` among its warnings.
+    timings : dict
+        The plan's timings so far (copied into each checked iterate's result).
+    t_start : float
+        ``time.perf_counter()`` at the plan's start.
     what : str
         What the solve is, for the note (e.g. "a warm re-solve on 64 spans").
 
@@ -69,9 +62,10 @@ def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tu
         ``watch(iteration, w, g) -> False`` for :meth:`FlatTranscription.solve` (it never
         stops the solve).
     """
+    early = ctx.early
     if early is None:
         return None
-    n, K, k = flat.model.n, flat.K, values[2]
+    n, K = flat.model.n, flat.K
     lbg, ubg, lbx, ubx = flat.bounds(*bounds, pad, (values[0], values[1]))
 
     def watch(iteration: int, w: np.ndarray, g: np.ndarray) -> bool:
@@ -80,13 +74,13 @@ def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tu
         t0 = time.perf_counter()
         P, T = w[:-1].reshape(K, n), float(w[-1])
         # The NLP's residual (as FlatTranscription.residual) from the rows IPOPT evaluated.
-        residual = float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
-                             np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+        residual = violation(w, g, lbg, ubg, lbx, ubx)
         seen = {"iteration": iteration, "T": T, "residual": residual, "inside": None,
                 "certified": None, "at": t0}
         if residual <= RESIDUAL_TOL or early.full:
             try:
-                _check(early, seen, flat, iteration, T, P, residual, k, hold, certify, what)
+                _check(ctx, seen, flat, iteration, T, P, residual, values, bounds,
+                       dict(timings), t_start, what)
             except Exception as exc:  # noqa: BLE001  (inside IPOPT's callback: never abort it)
                 early.done = True  # the same exception on any load: no more checks
                 seen["error"] = f"{type(exc).__name__}: {exc}"
@@ -97,20 +91,19 @@ def iterate_watch(early: EarlyMotion | None, flat: FlatTranscription, values: tu
     return watch
 
 
-def _check(early: EarlyMotion, seen: dict, flat: FlatTranscription, iteration: int, T: float,
-           P: np.ndarray, residual: float, k: float, hold: Hold, certify: Certify,
-           what: str) -> None:
-    """One iterate held inside the set and certified; offered to ``early`` if it passes."""
+def _check(ctx: SolveContext, seen: dict, flat: FlatTranscription, iteration: int, T: float,
+           P: np.ndarray, residual: float, values: tuple, bounds: tuple, timings: dict,
+           t_start: float, what: str) -> None:
+    """One iterate held inside the set and certified; offered to ``ctx.early`` if it passes."""
     res = FlatResult(success=True, message=f"IPOPT's iterate {iteration}", T=T, P=P,
                      residual=residual, iterations=iteration, solve_time=0.0)
-    traj = FlatTrajectory(flat, res, k)
-    held = (res, traj) if float(np.max(traj.set_values())) <= 1.0 - SET_MARGIN \
-        else hold(res, traj)
-    seen["inside"] = held is not None
-    if held is None:
+    held, result = checked_iterate(
+        ctx, flat, res, values, bounds, f"IPOPT's iterate {iteration} of {what}, before it "
+        "converged: certified, not the optimum (a first motion)", timings, t_start)
+    seen["inside"] = held
+    if result is None:
         return
-    result = certify(*held, f"IPOPT's iterate {iteration} of {what}, before it converged: "
-                     "certified, not the optimum (a first motion)")
+    early: EarlyMotion = ctx.early
     seen["certified"] = bool(result.success)
     seen["published_T"] = float(result.T)
     if result.success:

@@ -67,7 +67,31 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["FlatResult", "FlatTranscription", "compile_flat"]
+__all__ = ["FlatResult", "FlatTranscription", "compile_flat", "violation"]
+
+
+def violation(w: np.ndarray, g: np.ndarray, lbg: np.ndarray, ubg: np.ndarray,
+              lbx: np.ndarray, ubx: np.ndarray) -> float:
+    """The largest violation of an NLP's row and variable bounds.
+
+    Parameters
+    ----------
+    w : ndarray, shape (nw,)
+        The variables.
+    g : ndarray, shape (ng,)
+        The rows at ``w``.
+    lbg, ubg : ndarray, shape (ng,)
+        The rows' bounds.
+    lbx, ubx : ndarray, shape (nw,)
+        The variables' bounds.
+
+    Returns
+    -------
+    float
+        ``max(lbg - g, g - ubg, lbx - w, w - ubx, 0)`` over every entry.
+    """
+    return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
+                     np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
 
 
 def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
@@ -800,8 +824,6 @@ class FlatTranscription:
         return other
 
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
-        g = np.array(self._g(w, par)).ravel()
-        return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
-                         np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
+        return violation(w, np.array(self._g(w, par)).ravel(), lbg, ubg, lbx, ubx)
 
 

@@ -361,8 +361,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     if not set_pads.FALLBACK_PADS:
         pad = SET_PAD
     watch = iterate_watch(  # its certified iterates offered to ctx.early (a memory hit's)
-        ctx.early, flat, values, bounds, pad, lambda r, p: stretched(flat, r, p, values, bounds),
-        lambda r, p, note: verified(ctx, r, p, [], [note], dict(timings), t_start),
+        ctx, flat, values, bounds, pad, timings, t_start,
         f"a warm re-solve on {mesh} of {flat.spans} spans")
     out = flat.solve(*values, warm.T, P, *bounds, set_pad=pad, **_budget(ctx, NEAR_MAX_ITER),
                      **duals, watch=watch)

@@ -58,7 +58,7 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import lapack
 
-from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription, violation
 from tocontrol_ros.core.direct.kkt_step import kkt_derivatives
 
 __all__ = ["DUAL_RESET", "FAR_SIDE_LEAST_ROOM", "HOLD_ROUNDS", "MAX_STEPS", "MU", "PATH_SOLVES",
@@ -325,13 +325,6 @@ def _barrier_start(value: np.ndarray, lower: np.ndarray, upper: np.ndarray, lam:
     return np.where(has_u, np.minimum(value, upper - far), value), z_l, z_u
 
 
-def _violation(w: np.ndarray, g: np.ndarray, bounds: tuple) -> float:
-    """The largest violation of the rows' and the variables' bounds at ``w`` (rows ``g``)."""
-    lbg, ubg, lbx, ubx = bounds
-    return float(max(np.max(np.maximum(lbg - g, 0.0)), np.max(np.maximum(g - ubg, 0.0)),
-                     np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
-
-
 def iterate(flat: FlatTranscription, w: np.ndarray, g: np.ndarray, bounds: tuple,
             steps: int, solve_time: float, lam_g: np.ndarray, lam_x: np.ndarray
             ) -> FlatResult:
@@ -361,7 +354,7 @@ def iterate(flat: FlatTranscription, w: np.ndarray, g: np.ndarray, bounds: tuple
     return FlatResult(
         success=False, message=f"parametric step: iterate after {steps} Newton steps",
         T=float(w[-1]), P=w[:-1].reshape(flat.K, flat.model.n),
-        residual=_violation(w, g, bounds), iterations=steps,
+        residual=violation(w, g, *bounds), iterations=steps,
         solve_time=solve_time, lam_g=np.array(lam_g), lam_x=np.array(lam_x))
 
 
@@ -630,7 +623,7 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                                  holds, released, solves)
     lam_g = np.where(eq | (side != 0), y, zu - zl)
     lam_x = vu - vl
-    residual = _violation(w, g, (lbg, ubg, lbx, ubx))
+    residual = violation(w, g, lbg, ubg, lbx, ubx)
     ok = reason == "converged"
     moves = f" in {submoves} sub-moves" if submoves > 1 else ""
     message = (f"parametric step{moves}: {reason} after {steps} Newton steps "
