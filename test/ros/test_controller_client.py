@@ -12,12 +12,31 @@ import pytest
 pytestmark = pytest.mark.ros
 
 
-def test_a_plan_for_a_missing_controller_is_reported_rejected(monkeypatch):
-    import rclpy
+class _Config:
+    """The planner's controller parameters the client reads."""
+
+    controller_effort = False
+    controller_goal_time_tolerance = 1.0
+    controller_goal_tolerance = 0.0
+    controller_path_tolerance = 0.0
+
+
+def _trajectory():
+    """A two-point trajectory of one joint ``a``, 1 s long."""
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-    from tocontrol_ros.nodes import controller_client
     from tocontrol_ros.nodes import conversions as conv
+
+    return JointTrajectory(joint_names=["a"], points=[
+        JointTrajectoryPoint(positions=[0.0], velocities=[0.0], accelerations=[0.0],
+                             time_from_start=conv.duration_from_seconds(t))
+        for t in (0.0, 1.0)])
+
+
+def test_a_plan_for_a_missing_controller_is_reported_rejected(monkeypatch):
+    import rclpy
+
+    from tocontrol_ros.nodes import controller_client
 
     monkeypatch.setattr(controller_client, "SERVER_WAIT", 0.3)
     context = rclpy.Context()
@@ -31,17 +50,8 @@ def test_a_plan_for_a_missing_controller_is_reported_rejected(monkeypatch):
         refused = []
         client.on_refused = lambda rid, reason: refused.append((rid, reason))
 
-        class Config:
-            controller_effort = False
-            controller_goal_time_tolerance = 1.0
-            controller_goal_tolerance = 0.0
-            controller_path_tolerance = 0.0
-
-        traj = JointTrajectory(joint_names=["a"], points=[
-            JointTrajectoryPoint(positions=[0.0], velocities=[0.0], accelerations=[0.0],
-                                 time_from_start=conv.duration_from_seconds(t))
-            for t in (0.0, 1.0)])
-        client.send(7, traj, Config())
+        traj = _trajectory()
+        client.send(7, traj, _Config())
         client.destroy()
         node.destroy_node()
     finally:
@@ -64,10 +74,8 @@ def test_a_burst_of_plans_answered_while_the_planner_was_starved_gets_every_outc
     from control_msgs.action import FollowJointTrajectory
     from rclpy.action import ActionServer, GoalResponse
     from rclpy.executors import SingleThreadedExecutor
-    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
     from tocontrol_ros.nodes import controller_client, qos
-    from tocontrol_ros.nodes import conversions as conv
 
     count, name = 40, f"/burst_{os.getpid()}/follow_joint_trajectory"
     context = rclpy.Context()
@@ -95,18 +103,9 @@ def test_a_burst_of_plans_answered_while_the_planner_was_starved_gets_every_outc
         planner.add_node(node)
         controller = SingleThreadedExecutor(context=context)
         controller.add_node(server_node)
-        class Config:
-            controller_effort = False
-            controller_goal_time_tolerance = 1.0
-            controller_goal_tolerance = 0.0
-            controller_path_tolerance = 0.0
-
-        traj = JointTrajectory(joint_names=["a"], points=[
-            JointTrajectoryPoint(positions=[0.0], velocities=[0.0], accelerations=[0.0],
-                                 time_from_start=conv.duration_from_seconds(t))
-            for t in (0.0, 1.0)])
+        traj = _trajectory()
         for rid in range(count):  # the first waits for the server's discovery
-            client.send(rid, traj, Config())
+            client.send(rid, traj, _Config())
         for _ in range(10):  # the queued requests go out, in one burst
             planner.spin_once(timeout_sec=0.05)
         # The controller answers all of them before the planner takes any response.
