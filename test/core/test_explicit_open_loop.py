@@ -13,28 +13,18 @@ from functools import partialmethod
 
 import numpy as np
 import pytest
+from first_motion_cases import panda_problem
 
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.first_motion import first_motion
 from tocontrol_ros.core.direct.scaled_path import ScaledPath
 from tocontrol_ros.core.direct.tuning import OPEN_LOOP_ATOL, OPEN_LOOP_RTOL
 from tocontrol_ros.core.examples import PAPER_TARGET
-from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.types.certificate import CertificateOptions
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 
 TOL = (OPEN_LOOP_RTOL, OPEN_LOOP_ATOL)
 OPTIONS = CertificateOptions(rtol=OPEN_LOOP_RTOL, atol=OPEN_LOOP_ATOL)
-
-
-def _panda_problem(panda, moving: bool) -> Problem:
-    limits = JointLimits.from_model(panda)
-    rng = np.random.default_rng(32)
-    centre = 0.5 * (limits.lower + limits.upper)
-    half = 0.4 * (limits.upper - limits.lower)
-    q0, q1 = (centre + rng.uniform(-1, 1, 7) * half for _ in range(2))
-    qd0 = rng.uniform(-0.3, 0.3, 7) * limits.velocity if moving else np.zeros(7)
-    return Problem(panda, joint_state(q0, qd0), point(panda.point(q1)), k=4.0, limits=limits)
 
 
 def _paper_problem(galicki, moving: bool) -> Problem:
@@ -48,7 +38,7 @@ def motion(request):
     """A first motion (its path a straight line from rest, a parabola when moving)."""
     robot, start = request.param.split("-")
     model = request.getfixturevalue("galicki" if robot == "paper" else "panda")
-    make = _paper_problem if robot == "paper" else _panda_problem
+    make = _paper_problem if robot == "paper" else panda_problem
     problem = make(model, start == "moving")
     res = first_motion(problem)
     assert res.success, res.message
@@ -75,7 +65,7 @@ def test_explicit_steps_meet_their_tolerance_and_agree_with_cvodes(motion):
 def test_a_failed_error_test_falls_back_to_cvodes(panda):
     """From a start 1e-3 off the path the deviation is no longer small: the explicit steps
     fail their test by far, and ``open_loop`` returns CVODES's states, to the bit."""
-    traj = first_motion(_panda_problem(panda, True)).trajectory
+    traj = first_motion(panda_problem(panda, True)).trajectory
     off = traj.state(0.0) + np.concatenate([np.full(2 * traj.n, 1e-3), np.zeros(2 * traj.n)])
     traj.state = lambda t: off.copy() if np.isscalar(t) and t == 0.0 else \
         ScaledPath.state(traj, t)
@@ -110,7 +100,7 @@ def test_the_certificate_decides_as_with_cvodes(galicki, panda, case, monkeypatc
     verdict and the same failing items on the motions it passes and on those it refuses (a
     motion sped up by 30 %: its torques leave the set; a target 1 mm off the motion's end),
     the open-loop ends within 1e-12."""
-    for problem in (_paper_problem(galicki, True), _panda_problem(panda, True)):
+    for problem in (_paper_problem(galicki, True), panda_problem(panda, True)):
         traj = first_motion(problem).trajectory
         if case == "sped up":
             traj = ScaledPath(problem.model, traj.path, traj.s, 1.69 * traj.x, problem.k,

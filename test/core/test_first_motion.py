@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from first_motion_cases import panda_problem
 
 from tocontrol_ros.core.direct import first_motion as fm
 from tocontrol_ros.core.direct import time_scaling as ts
@@ -118,19 +119,9 @@ def test_friction_is_bounded_not_ignored(galicki):
 
 
 # ----------------------------------------------------------------------- the Panda
-def _panda_problem(panda, moving: bool) -> Problem:
-    limits = JointLimits.from_model(panda)
-    rng = np.random.default_rng(32)
-    centre = 0.5 * (limits.lower + limits.upper)
-    half = 0.4 * (limits.upper - limits.lower)
-    q0, q1 = (centre + rng.uniform(-1, 1, 7) * half for _ in range(2))
-    qd0 = rng.uniform(-0.3, 0.3, 7) * limits.velocity if moving else np.zeros(7)
-    return Problem(panda, joint_state(q0, qd0), point(panda.point(q1)), k=4.0, limits=limits)
-
-
 @pytest.mark.parametrize("moving", [False, True], ids=["rest", "moving"])
 def test_panda_first_motion_is_certified_within_its_limits(panda, moving):
-    problem = _panda_problem(panda, moving)
+    problem = panda_problem(panda, moving)
     res = first_motion(problem)
     _check_motion(problem, res)
 
@@ -138,7 +129,7 @@ def test_panda_first_motion_is_certified_within_its_limits(panda, moving):
 @pytest.mark.slow
 @pytest.mark.parametrize("moving", [False, True], ids=["rest", "moving"])
 def test_panda_first_motion_is_slower_than_the_optimum(panda, moving):
-    problem = _panda_problem(panda, moving)
+    problem = panda_problem(panda, moving)
     res = first_motion(problem)
     optimum = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=600.0))
     assert res.success and optimum.success, (res.message, optimum.message)
@@ -276,7 +267,7 @@ def test_quick_motion_replans_the_paper_example_from_its_own_states(paper_optimu
 def test_quick_motion_on_the_panda_from_a_moving_state(panda):
     """The Panda with its limits from a moving state of a first motion: certified within the
     limits at every time, the end configuration near the given one."""
-    problem = _panda_problem(panda, True)
+    problem = panda_problem(panda, True)
     running = first_motion(problem)
     assert running.success, running.message
     moved = _running_and_moved(problem, running, 0.3 * running.T, np.array([0.02, 0.03, -0.02]))
@@ -376,7 +367,7 @@ def test_open_loop_in_one_call_is_the_segments_one_by_one(panda):
     """The certificate's re-integration of a Panda quick motion by CVODES: every segment in
     one mapaccum call gives the states of the segments integrated one by one from Python, to
     the bit. (The explicit steps tried first: test_explicit_open_loop.py.)"""
-    problem = _panda_problem(panda, True)
+    problem = panda_problem(panda, True)
     res = first_motion(problem)
     assert res.success, res.message
     one = res.trajectory.open_loop(1e-12, 1e-13, explicit=False)
@@ -402,7 +393,7 @@ def test_open_loop_of_the_deviation_is_the_open_loop_of_the_state(panda):
     )
     from tocontrol_ros.core.direct.scaled_path import open_loop_integrator
 
-    problem = _panda_problem(panda, True)
+    problem = panda_problem(panda, True)
     traj = first_motion(problem).trajectory
     n, degree = panda.n, 2 * traj.path.degree
     sig, x, c, h, ode = polynomial_segment_ode(panda, degree)
@@ -435,7 +426,7 @@ def test_open_loop_of_the_deviation_is_the_open_loop_of_the_state(panda):
 def test_scaled_path_torques_are_the_models_inverse_dynamics(panda):
     """The compiled inverse dynamics, mapped over a multiple of MAP_STEP samples (padded):
     the model's own (CasADi's virtual machine) at every sample, whatever their count."""
-    problem = _panda_problem(panda, True)
+    problem = panda_problem(panda, True)
     traj = first_motion(problem).trajectory
     for count in (1, 31, 32, 33, 70):
         e = traj.evaluate(np.linspace(0.0, traj.T, count))
@@ -450,7 +441,7 @@ def test_stage_interval_in_closed_form_is_seidels(panda):
     Seidel's solver gives no answer) against Seidel's, stage by stage on a Panda path."""
     from toppra.solverwrapper.cy_seidel_solverwrapper import seidelWrapper
 
-    problem = _panda_problem(panda, False)
+    problem = panda_problem(panda, False)
     n = panda.n
     q0 = problem.start.value[:n]
     path = PolynomialPath.parabola(q0, q0 + 0.3, np.linspace(-0.2, 0.2, n))
@@ -583,7 +574,7 @@ def test_segment_samples_take_each_end_from_the_segment_it_ends(panda):
     segment (both sides of an acceleration jump), in one evaluation: the numbers of the
     general evaluation from the right at a segment's start and from the left at its end, to
     the bit."""
-    problem = _panda_problem(panda, True)
+    problem = panda_problem(panda, True)
     traj = first_motion(problem).trajectory
     points = 5
     t, u, qd = traj.segment_samples(points)
