@@ -19,6 +19,7 @@ from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E40
 from tocontrol_ros.core.direct.first_motion import first_motion  # noqa: E402
 from tocontrol_ros.core.geometry.collision import collision_model, disabled_pairs  # noqa: E402
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
+from tocontrol_ros.core.geometry.shapes import LinkShape  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_pose  # noqa: E402
 from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
@@ -53,6 +54,34 @@ def test_spheres_cover_every_mesh_vertex(panda):
     # Several spheres a link (not one bounding sphere), and the worst gap reported.
     assert max(len(s.radii) for s in col.spheres) > 1
     assert 0.0 < col.worst_gap() < 0.08
+
+
+def _turned(angle: float, axis: np.ndarray) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+@pytest.mark.parametrize(("kind", "size"), [("box", (0.1, 0.04, 0.3)),
+                                            ("cylinder", (0.05, 0.2)),
+                                            ("sphere", (0.07,))])
+def test_reach_bounds_every_surface_point_and_is_attained(kind, size):
+    # The lever of the certificate's between-samples bound: no surface point farther out
+    # (else the bound would not hold), and a dense sampling comes within its spacing of it.
+    shape = LinkShape("l", 0, kind, size, _turned(0.7, np.array([1.0, 2.0, -0.5])),
+                      np.array([0.12, -0.03, 0.05]))
+    norms = np.linalg.norm(shape.points(0.002), axis=1)
+    assert norms.max() <= shape.reach() + 1e-12
+    assert norms.max() >= shape.reach() - 0.002
+
+
+def test_reach_of_the_panda_meshes_is_their_farthest_vertex(panda):
+    _, _, _, col = panda
+    for shape in (s for s in col.shapes if s.kind == "mesh"):
+        v = np.asarray(shape.geometry().vertices()) @ shape.rotation.T + shape.translation
+        assert shape.reach() == pytest.approx(np.linalg.norm(v, axis=1).max(), abs=1e-12)
+        centre, radius = shape.bounding_sphere()
+        assert shape.reach() <= np.linalg.norm(centre) + radius + 1e-12
 
 
 def test_self_pairs_skip_adjacent_and_srdf_disabled(panda):

@@ -249,14 +249,15 @@ class ClearanceCheck:
 
 
 def _lever_rows(col: CollisionModel) -> dict[str, np.ndarray]:
-    """Each link's lever arms (n,) (m/rad) out to its farthest bounding-sphere point."""
+    """Each link's lever arms (n,) (m/rad) out to its farthest surface point.
+
+    The same reach as the planner's certificate (``CollisionModel.speed_bounds``:
+    ``LinkShape.reach``, exact), so the executed motion's bound between samples is the one
+    the plan was certified with.
+    """
     out = {}
     for spheres in col.spheres:
-        reach = 0.0
-        for shape in col.shapes:
-            if shape.link == spheres.link:
-                centre, radius = shape.bounding_sphere()
-                reach = max(reach, float(np.linalg.norm(centre)) + radius)
+        reach = max((s.reach() for s in col.shapes if s.link == spheres.link), default=0.0)
         out[spheres.link] = col.lever_arms(spheres.body, reach) if spheres.body >= 0 \
             else np.zeros(col.model.n)
     return out

@@ -286,13 +286,14 @@ class CollisionModel:
         """How fast any point of each link can move under joint speeds ``velocity`` (n,).
 
         ``sum_j |qd_j| rho_jb`` with :meth:`lever_arms` at the link's farthest surface
-        point. Returns link -> m/s (``inf`` with an infinite joint speed).
+        point (:meth:`LinkShape.reach`, exact). Returns link -> m/s (``inf`` with an infinite
+        joint speed).
         """
         velocity = np.abs(np.asarray(velocity, dtype=float))
         out = {}
         for link_spheres in self.spheres:
-            reach = max((float(np.linalg.norm(s.points(SURFACE_SPACING), axis=1).max())
-                         for s in self.shapes if s.link == link_spheres.link), default=0.0)
+            reach = max((s.reach() for s in self.shapes if s.link == link_spheres.link),
+                        default=0.0)
             lever = self.lever_arms(link_spheres.body, reach)
             out[link_spheres.link] = float(sum(v * r for v, r in zip(velocity, lever,
                                                                        strict=True) if v > 0))

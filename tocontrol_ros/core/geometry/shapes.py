@@ -76,6 +76,33 @@ class LinkShape:
                       "sphere": float(self.size[0])}[self.kind]
         return self.rotation @ local + self.translation, radius
 
+    def reach(self) -> float:
+        """The farthest any point of the shape is from the body frame's origin (m).
+
+        Exact, not sampled: a mesh's farthest vertex (the mesh is inside its vertices'
+        hull), a box's farthest corner, a sphere's centre distance plus its radius, a
+        cylinder's farthest point on its two rim circles. What a point of the link moves at
+        most per unit joint speed is this distance's lever (:meth:`~tocontrol_ros.core.
+        geometry.collision.CollisionModel.speed_bounds`), so it must not fall short.
+        """
+        rot, pos = self.rotation, self.translation
+        if self.kind == "sphere":
+            return float(np.linalg.norm(pos)) + float(self.size[0])
+        if self.kind == "cylinder":
+            r, half, axis = float(self.size[0]), 0.5 * float(self.size[1]), rot[:, 2]
+            out = 0.0
+            for end in (pos + half * axis, pos - half * axis):
+                along = float(end @ axis)
+                across = float(np.linalg.norm(end - along * axis))
+                out = max(out, float(np.hypot(along, across + r)))
+            return out
+        if self.kind == "box":
+            corners = np.array(np.meshgrid(*[(-0.5 * s, 0.5 * s) for s in self.size],
+                                           indexing="ij")).reshape(3, -1).T
+        else:
+            corners = np.asarray(self.geometry().vertices(), dtype=float)
+        return float(np.max(np.linalg.norm(corners @ rot.T + pos, axis=1)))
+
     def points(self, spacing: float) -> np.ndarray:
         """Points (N, 3) on the surface (and a mesh's vertices), in the body's frame (m)."""
         local = surface_points(self.kind, self.size, spacing, self.geometry())
