@@ -23,8 +23,13 @@ pad's re-solves) and kind: converged solves, IPOPT iterations, CPU time
 Hessian's evaluations (CasADi's ``t_proc_nlp_hess_l``), and ``T`` against the exact
 Hessian's re-solve (the same to 1e-6, worse or better by more than 1e-4).
 
+A kind may name IPOPT's linear solver and its options after the Hessian, joined by ``+``:
+``exact+spral`` (SPRAL, in the CasADi wheel's IPOPT; it wants ``OMP_CANCELLATION=TRUE
+OMP_PROC_BIND=TRUE`` in the environment), ``exact+mumps+mumps_mem_percent=100``.
+
 Run alone: ``scripts/dev run python -P bench/hessian_gn.py [CASES] [KIND ...]`` (default 6
-cases, kinds ``id_linear ggn``).
+cases, kinds ``id_linear ggn``); ``--library`` instead times the three per-sample Hessian
+libraries alone on the same inputs (what a cheaper middle term could save at most).
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from bench.limits import draw_cases, robots  # noqa: E402
 from bench.optimum_panda import SEED, K  # noqa: E402
 from tocontrol_ros.core import Problem, SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.direct import flat  # noqa: E402
+from tocontrol_ros.core.direct.bspline import basis  # noqa: E402
 from tocontrol_ros.core.robot import compiled  # noqa: E402
 from tocontrol_ros.core.types.problem import joint_state, point  # noqa: E402
 
@@ -72,10 +78,9 @@ def stage(spec: dict, kwargs: dict) -> str:
     return f"warm={spec.get('warm')}"
 
 
-def capture(cases: list[Problem]) -> list[dict]:
-    """The bounded solves of the cases' default plans: what it takes to make them again."""
-    solves = []
-    init, solve = flat.FlatTranscription.__init__, flat.FlatTranscription.solve
+def keep_specs() -> None:
+    """Each transcription built from now on keeps its arguments (``bench_spec``)."""
+    init = flat.FlatTranscription.__init__
 
     def init_(obj, model, spans, *args, **kwargs):
         names = ("start_kind", "target_kind", "degree", "per_span", "torque_scale", "tol",
@@ -83,6 +88,14 @@ def capture(cases: list[Problem]) -> list[dict]:
         obj.bench_spec = {**dict(zip(names, args, strict=False)), **kwargs,
                           "spans": int(spans) if np.ndim(spans) == 0 else len(spans) - 1}
         init(obj, model, spans, *args, **kwargs)
+
+    flat.FlatTranscription.__init__ = init_
+
+
+def capture(cases: list[Problem]) -> list[dict]:
+    """The bounded solves of the cases' default plans: what it takes to make them again."""
+    solves = []
+    solve = flat.FlatTranscription.solve
 
     def solve_(obj, *args, **kwargs):
         out = solve(obj, *args, **kwargs)
@@ -92,15 +105,25 @@ def capture(cases: list[Problem]) -> list[dict]:
                        "T": out.T, "iterations": out.iterations, "success": out.success})
         return out
 
-    flat.FlatTranscription.__init__, flat.FlatTranscription.solve = init_, solve_
+    flat.FlatTranscription.solve = solve_
     try:
         for i, problem in enumerate(cases):
             res = plan(problem, SolverOptions(time_limit=600.0))
             log(f"hessian_gn capture {i + 1}/{len(cases)}: {res.status.name} T {res.T:.6f}, "
                 f"{len(solves)} bounded solves so far")
     finally:
-        flat.FlatTranscription.__init__, flat.FlatTranscription.solve = init, solve
+        flat.FlatTranscription.solve = solve
     return solves
+
+
+def _number(text: str) -> int | float | str:
+    """An option's value: an integer, a float, else the text."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 class Replayer:
@@ -110,15 +133,26 @@ class Replayer:
         self.model = model
         self.built: dict = {}
 
-    def transcription(self, spec: dict, breaks: np.ndarray, hessian: str
+    def transcription(self, spec: dict, breaks: np.ndarray, kind: str
                       ) -> flat.FlatTranscription:
         spec = {k: v for k, v in spec.items() if k != "hessian"}
-        key = (repr(sorted((k, repr(v)) for k, v in spec.items())), hessian)
+        key = (repr(sorted((k, repr(v)) for k, v in spec.items())), kind)
         base = self.built.get(key)
         if base is None:
+            hessian, _, linear = kind.partition("+")
             kwargs = {k: v for k, v in spec.items() if k != "spans"}
-            base = self.built[key] = flat.FlatTranscription(self.model, spec["spans"],
-                                                            hessian=hessian, **kwargs)
+            options_of = flat.ipopt_options
+            if linear:  # IPOPT's linear solver, and its options (name=value, joined by +)
+                extra = {"ipopt.linear_solver": linear.split("+")[0]}
+                for part in linear.split("+")[1:]:
+                    name, _, value = part.partition("=")
+                    extra[f"ipopt.{name}"] = _number(value)
+                flat.ipopt_options = lambda *args: {**options_of(*args), **extra}
+            try:
+                base = self.built[key] = flat.FlatTranscription(
+                    self.model, spec["spans"], hessian=hessian, **kwargs)
+            finally:
+                flat.ipopt_options = options_of
         return base if np.array_equal(breaks, base.breaks) else base.on(breaks)
 
     def solve(self, item: dict, hessian: str) -> dict:
@@ -127,9 +161,12 @@ class Replayer:
         out = nlp.solve(*item["args"], **item["kwargs"])
         cpu = time.process_time() - c0
         stats = nlp.solver.stats()
+        evaluations = sum(float(v) for name, v in stats.items()
+                          if name.startswith("t_proc_nlp_") or name == "t_proc_callback_fun")
+        total = float(stats.get("t_proc_total", cpu))
         return {"T": out.T, "success": out.success, "iterations": out.iterations, "cpu": cpu,
-                "hess": float(stats.get("t_proc_nlp_hess_l", 0.0)),
-                "total": float(stats.get("t_proc_total", cpu))}
+                "hess": float(stats.get("t_proc_nlp_hess_l", 0.0)), "total": total,
+                "own": total - evaluations}
 
 
 def replay(solves: list[dict], kinds: list[str], model) -> dict:
@@ -168,6 +205,7 @@ def rows(per: dict, kinds: list[str]) -> list[list[str]]:
                         f"{cpu / sum(b['cpu'] for b in ref):.2f}",
                         f"{1e3 * cpu / max(its, 1):.2f}",
                         f"{sum(g['hess'] for g in got) / sum(g['total'] for g in got):.2f}",
+                        f"{1e3 * sum(g['own'] for g in got) / max(its, 1):.2f}",
                         f"{int(np.sum(np.abs(gap) <= 1e-6))}",
                         f"{int(np.sum(gap > 1e-4))} / {int(np.sum(gap < -1e-4))}",
                         f"{np.nanmax(np.abs(gap)) if np.any(np.isfinite(gap)) else np.nan:.1e}"])
@@ -177,11 +215,13 @@ def rows(per: dict, kinds: list[str]) -> list[list[str]]:
 def run(count: int, kinds: list[str]) -> list[str]:
     model = robots()["Panda"][0]
     kinds = ["exact", *[k for k in kinds if k != "exact"]]
-    for kind in kinds:  # the libraries built and their optimised builds landed first
-        flat.compile_flat(model, 3, kind)
+    hessians = sorted({kind.partition("+")[0] for kind in kinds})
+    for hessian in hessians:  # the libraries built and their optimised builds landed first
+        flat.compile_flat(model, 3, hessian)
     compiled.wait_for_builds()
-    for kind in kinds:
-        log(f"hessian_gn library {kind}: {flat.compile_flat(model, 3, kind)[1]}")
+    for hessian in hessians:
+        log(f"hessian_gn library {hessian}: {flat.compile_flat(model, 3, hessian)[1]}")
+    keep_specs()
     cases = problems(count)
     plan(cases[0], SolverOptions(time_limit=600.0))  # warm-up: compile cache
     solves = capture(cases)
@@ -192,21 +232,64 @@ def run(count: int, kinds: list[str]) -> list[str]:
             f"cases, {len(solves)} solves) solved again from their captured starts with "
             "each Hessian kind, paired solve by solve in one process. CPU: process time "
             "summed over the solves; ratio: to the exact Hessian's on the same solves; "
-            "Hessian share: CasADi's t_proc_nlp_hess_l over IPOPT's t_proc_total. "
+            "Hessian share: CasADi's t_proc_nlp_hess_l over IPOPT's t_proc_total; IPOPT's own: "
+            "t_proc_total less the function evaluations (its linear algebra and the rest). "
             f"Command: `scripts/dev run python -P bench/hessian_gn.py {count} "
             f"{' '.join(kinds[1:])}`.", "",
             *table(["stage", "Hessian", "solves", "converged", "iterations", "CPU (s)",
                     "CPU / exact's", "CPU per iteration (ms)", "Hessian share",
+                    "IPOPT's own per iteration (ms)",
                     "same T (1e-6)", "T worse / better by > 1e-4", "largest |T gap|"],
                    rows(per, kinds))]
 
 
+def library(rounds: int = 40, calls: int = 5) -> list[str]:
+    """The per-sample library of each Hessian kind alone, mapped over a 32-span mesh's samples.
+
+    The same inputs for the three (a straight joint path of the Panda at T = 0.6 s, k = 4,
+    multipliers in [0, 1]); the kinds alternated within each round, process time; medians
+    over the rounds of each kind's time and of its ratio to the exact one's in that round.
+    """
+    model = robots()["Panda"][0]
+    for hessian in flat.HESSIANS:
+        flat.compile_flat(model, 3, hessian)
+    compiled.wait_for_builds()
+    nlp = flat.FlatTranscription(model, 32, "point", "point")
+    S, d1 = len(nlp.samples), nlp.degree + 1
+    span, b = basis(nlp.breaks, nlp.degree, nlp.samples)
+    rng = np.random.default_rng(0)
+    q0, q1 = rng.uniform(-0.8, 0.8, model.n), rng.uniform(-0.8, 0.8, model.n)
+    P = q0 + (q1 - q0) * np.linspace(0.0, 1.0, nlp.K)[:, None]
+    cols = (span[:, None] + np.arange(d1)[None, :]).ravel()
+    args = (P[cols].T, 0.6, np.concatenate(list(b), axis=1), 4.0, nlp.scale,
+            rng.uniform(0.0, 1.0, S))
+    maps = {h: flat.compile_flat(model, 3, h)[0][2].map(S) for h in flat.HESSIANS}
+    times = {h: [] for h in flat.HESSIANS}
+    for r in range(rounds):
+        for h in (flat.HESSIANS if r % 2 == 0 else flat.HESSIANS[::-1]):
+            c0 = time.process_time()
+            for _ in range(calls):
+                maps[h](*args)
+            times[h].append((time.process_time() - c0) / calls)
+    exact = np.array(times["exact"])
+    rows = [[h, f"{1e6 * np.median(times[h]) / S:.1f}",
+             f"{np.median(np.array(times[h]) / exact):.2f}"] for h in flat.HESSIANS]
+    return [f"The per-sample Hessian library of each kind, mapped over the {S} samples of a "
+            f"32-span Panda mesh, {rounds} rounds of {calls} calls, alternated, process time "
+            "(load {:.1f}). Command: `scripts/dev run python -P bench/hessian_gn.py "
+            "--library`.".format(os.getloadavg()[0]), "",
+            *table(["Hessian", "per sample (us)", "to the exact one's (paired)"], rows)]
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--library"]:
+        print("\n".join(library()))
+        return 0
     count = int(argv[0]) if argv and argv[0].isdigit() else 6
     kinds = (argv[1:] if argv and argv[0].isdigit() else argv) or ["id_linear", "ggn"]
     for kind in kinds:
-        if kind not in flat.HESSIANS:
+        if kind.partition("+")[0] not in flat.HESSIANS:
             raise SystemExit(f"unknown Hessian kind {kind!r} (one of {flat.HESSIANS})")
     print("\n".join(run(count, kinds)))
     return 0
