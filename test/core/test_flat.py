@@ -85,6 +85,58 @@ def test_sample_functions_are_the_derivatives_of_the_set(request, robot):
         assert np.allclose(upper, expected, rtol=1e-9, atol=1e-9 * np.max(np.abs(expected)))
 
 
+@pytest.mark.parametrize("robot", ["galicki", pytest.param("panda", marks=pytest.mark.slow)])
+def test_approximate_hessians_leave_out_the_torques_curvature(request, robot):
+    """``ggn`` is ``mu Ju^T diag(c'') Ju`` (u's Jacobian taken by CasADi from the torques);
+    the exact Hessian less it is the torques' curvature weighted by ``mu c'(u)``, and
+    ``id_linear`` less it is the same for the path's ``y(z)`` alone (the inverse dynamics
+    linear): each term from its own graph, not from the library's."""
+    model = request.getfixturevalue(robot)
+    n, d1 = model.n, 4
+    exact, gn_id, ggn = (_sample_functions(model, 3, kind)[2]
+                         for kind in ("exact", "id_linear", "ggn"))
+    flat_id = _sample_functions(model, 3, "ggn")[3]
+    P, T, b = ca.SX.sym("P", n, d1), ca.SX.sym("T"), ca.SX.sym("b", 3, d1)
+    z = ca.vertcat(ca.vec(P), T)
+    y = ca.vertcat(ca.mtimes(P, b[0, :].T), ca.mtimes(P, b[1, :].T) / T,
+                   ca.mtimes(P, b[2, :].T) / T ** 2)
+    scale = ca.SX.sym("scale", n)
+    u = flat_id(y[:n], y[n:2 * n], y[2 * n:], scale)
+    wu, wy, ys = ca.SX.sym("wu", n), ca.SX.sym("wy", 3 * n), ca.SX.sym("y", 3 * n)
+    u_y = ca.Function("u_y", [ys, scale], [ca.jacobian(
+        flat_id(ys[:n], ys[n:2 * n], ys[2 * n:], scale), ys)])
+    parts = ca.Function("parts", [P, T, b, scale, wu, wy], [
+        u, ca.jacobian(u, z), u_y(y, scale), ca.hessian(ca.dot(wu, u), z)[0],
+        ca.hessian(ca.dot(wy, y), z)[0]])
+    rng = np.random.default_rng(11)
+    dz = n * d1 + 1
+    rows, cols = (list(v) for v in zip(*[(r, c) for c in range(dz) for r in range(c + 1)],
+                                       strict=True))
+    with pytest.raises(ValueError, match="`hessian` must be one of"):
+        _sample_functions(model, 3, "bfgs")
+    for _ in range(2):
+        args = [rng.normal(size=(n, d1)), rng.uniform(0.3, 2.0), rng.normal(size=(3, d1)),
+                4.0, model.tau_max * rng.uniform(0.02, 0.1)]
+        mu = rng.uniform(0.5, 2.0)
+        P0, T0, b0, k, sc = args
+        u0 = np.array(flat_id(*(np.array(v).ravel() for v in ca.vertsplit(
+            ca.Function("y", [P, T, b], [y])(P0, T0, b0), n)), sc)).ravel()
+        w = mu * 2 * k * np.sign(u0) * np.abs(u0) ** (2 * k - 1)
+        curv = mu * 2 * k * (2 * k - 1) * np.abs(u0) ** (2 * k - 2)
+        _, jz, jyu, _, _ = (np.array(v) for v in parts(P0, T0, b0, sc, w, np.zeros(3 * n)))
+        _, _, _, hu, hy = (np.array(v) for v in parts(P0, T0, b0, sc, w, jyu.T @ w))
+        ref_ggn = (jz.T * curv) @ jz
+        got = {name: np.array(f(*args, mu)).ravel()
+               for name, f in (("exact", exact), ("id_linear", gn_id), ("ggn", ggn))}
+        big = np.max(np.abs(got["exact"]))
+        for name, ref in (("ggn", ref_ggn[rows, cols]),
+                          ("exact", (ref_ggn + hu)[rows, cols]),
+                          ("id_linear", (ref_ggn + hy)[rows, cols])):
+            assert np.allclose(got[name], ref, rtol=1e-9, atol=1e-9 * big), name
+        assert np.min(np.linalg.eigvalsh(ref_ggn)) >= -1e-9 * big  # the set is convex in u
+        assert not np.allclose(got["exact"], got["id_linear"], rtol=1e-6, atol=1e-6 * big)
+
+
 # ----------------------------------------------------------------- the Panda
 @pytest.fixture(scope="module")
 def panda_limited(panda):

@@ -67,7 +67,7 @@ from tocontrol_ros.core.direct.tuning import (
 from tocontrol_ros.core.robot.compiled import compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 
-__all__ = ["FlatResult", "FlatTranscription", "compile_flat", "violation"]
+__all__ = ["HESSIANS", "FlatResult", "FlatTranscription", "compile_flat", "violation"]
 
 
 def violation(w: np.ndarray, g: np.ndarray, lbg: np.ndarray, ubg: np.ndarray,
@@ -94,7 +94,16 @@ def violation(w: np.ndarray, g: np.ndarray, lbg: np.ndarray, ubg: np.ndarray,
                      np.max(np.maximum(lbx - w, 0.0)), np.max(np.maximum(w - ubx, 0.0))))
 
 
-def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
+#: The Newton matrices the set's rows may give IPOPT (``FlatTranscription(hessian=...)``):
+#: ``"exact"`` the Lagrangian's Hessian; ``"id_linear"`` without the inverse dynamics'
+#: second derivatives (``Hess_y(w^T u)`` below); ``"ggn"`` the generalised Gauss-Newton
+#: matrix ``Juz^T diag(mu d2c/du2) Juz`` alone (positive semi-definite: the set is convex
+#: in ``u``). The rows, their Jacobian and so the KKT conditions are the same in all three.
+HESSIANS = ("exact", "id_linear", "ggn")
+
+
+def _sample_functions(model: RobotModel, degree: int, hessian: str = "exact"
+                      ) -> list[ca.Function]:
     """Per-sample functions (SX): torques, the set's value, gradient and weighted Hessian.
 
     ``z = (vec P_loc, T)`` with ``P_loc`` (n, degree + 1) the span's control points. The
@@ -107,8 +116,11 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     ``Jy = dy/dz`` being bilinear in ``P`` and ``1/T``. The same matrix as differentiating
     ``c(z)`` twice, from a graph about half as long (the inverse dynamics is differentiated
     in its ``3n`` inputs, not in the ``(degree + 1) n + 1`` of ``z``): shorter to compile
-    and to run.
+    and to run. ``hessian`` (one of :data:`HESSIANS`) leaves out the middle term
+    (``"id_linear"``) or the last two (``"ggn"``).
     """
+    if hessian not in HESSIANS:
+        raise ValueError(f"`hessian` must be one of {HESSIANS}, got {hessian!r}")
     n, d1 = model.n, degree + 1
     P = ca.SX.sym("P", n, d1)
     T = ca.SX.sym("T")
@@ -135,9 +147,11 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
     w = mu * 2 * k * ca.sign(u) * au ** (2 * k - 1)
     juz = ca.mtimes(ju, jy)
     hess = ca.mtimes(juz.T, ca.mtimes(ca.diag(mu * 2 * k * (2 * k - 1) * au ** (2 * k - 2)),
-                                      juz)) \
-        + ca.mtimes(jy.T, ca.mtimes(hess_id(y, w / scale), jy)) \
-        + hess_y(z, b, ca.densify(ca.mtimes(ju.T, w)))
+                                      juz))
+    if hessian == "exact":
+        hess = hess + ca.mtimes(jy.T, ca.mtimes(hess_id(y, w / scale), jy))
+    if hessian != "ggn":
+        hess = hess + hess_y(z, b, ca.densify(ca.mtimes(ju.T, w)))
     dz = z.numel()
     upper = ca.vertcat(*[hess[r, col] for col in range(dz) for r in range(col + 1)])
     qs, qds, qdds = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
@@ -153,13 +167,19 @@ def _sample_functions(model: RobotModel, degree: int) -> list[ca.Function]:
 GEOMETRIES = 16
 
 
-def compile_flat(model: RobotModel, degree: int = 3) -> tuple[list[ca.Function], str]:
-    """The per-sample functions compiled, once per model and degree (see ``compile_owned``).
+def compile_flat(model: RobotModel, degree: int = 3, hessian: str = "exact"
+                 ) -> tuple[list[ca.Function], str]:
+    """The per-sample functions compiled, once per model, degree and Hessian kind.
 
-    Inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds` this only starts the build.
+    See ``compile_owned``; ``hessian`` one of :data:`HESSIANS` (another library for each
+    but ``"exact"``). Inside :func:`~tocontrol_ros.core.robot.compiled.parallel_builds`
+    this only starts the build.
     """
-    return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
-                         lambda: _sample_functions(model, degree))
+    if hessian == "exact":
+        return compile_owned(model, ("flat", degree), f"flat{model.n}p{degree}",
+                             lambda: _sample_functions(model, degree))
+    return compile_owned(model, ("flat", degree, hessian), f"flat{model.n}p{degree}{hessian}",
+                         lambda: _sample_functions(model, degree, hessian))
 
 
 class _Interrupt(ca.Callback):
@@ -309,13 +329,17 @@ class FlatTranscription:
         Acceleration limits held at every time (rad/s^2; ``inf``: none), the planning
         limits (margin applied). None or all infinite: no acceleration rows (the NLP of a
         problem without them, unchanged).
+    hessian : {"exact", "id_linear", "ggn"}
+        The set rows' part of the Newton matrix IPOPT is given (:data:`HESSIANS`); the
+        NLP and its first derivatives are the same whichever.
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
                  warm: bool | str = False, clearance: ClearanceRows | None = None,
-                 acceleration: np.ndarray | None = None) -> None:
+                 acceleration: np.ndarray | None = None, hessian: str = "exact") -> None:
+        self.hessian = hessian
         self.clearance = clearance if clearance is not None and clearance.count else None
         self.breaks = breakpoints(spans)
         self.spans = len(self.breaks) - 1
@@ -329,7 +353,7 @@ class FlatTranscription:
         br = self.breaks
         K = L + p
         self.K = K
-        funs, self.compile_status = compile_flat(model, degree)
+        funs, self.compile_status = compile_flat(model, degree, hessian)
         self._set, set_grad, set_hess, self._id = funs
         self.scale = model.tau_max * torque_scale
         S = L * per_span + 1
