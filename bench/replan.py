@@ -408,14 +408,16 @@ PARTS = ("wait_time", "handoff_time", "problem_time", "guess_time", "scaling_tim
 def latency_parts(published: list) -> dict:
     """Median of each of :data:`PARTS` (s) over the quick motions' statuses, and their count.
 
-    Also ``unaccounted``: the median of each ``publish_latency`` minus the sum of its parts
-    (what no part holds: the lines between them), ``sum_of_medians`` and ``median`` (of the
-    ``publish_latency`` of the same statuses): a median of sums is not the sum of the
-    medians when the parts' tails come on different goals.
+    Also ``on_callback``: how many were served on the goal callback's thread (the worker
+    idle, ``served_by``), ``unaccounted``: the median of each ``publish_latency`` minus the
+    sum of its parts (what no part holds: the lines between them), ``sum_of_medians`` and
+    ``median`` (of the ``publish_latency`` of the same statuses): a median of sums is not
+    the sum of the medians when the parts' tails come on different goals.
     """
     quick = [s for s in published if s.get("event") == "first"
              and all(s.get(k) is not None for k in PARTS if k != "solve_rest")]
-    out = {"count": len(quick)}
+    out = {"count": len(quick),
+           "on_callback": sum(s.get("served_by") == "goal callback" for s in quick)}
 
     def part(s: dict, key: str) -> float:
         if key == "solve_rest":
@@ -639,7 +641,8 @@ def run(which: str = "both", moving: bool = False) -> Section:
                   "minus its parts; then the parts' medians summed against the latencies' "
                   "median: docs/speed.md, \"A paper replan's latency through the nodes\"): "
                   + "; ".join(
-                      f"{r['robot']} ({r['parts']['count']}): " + ", ".join(
+                      f"{r['robot']} ({r['parts']['count']}, "
+                      f"{r['parts']['on_callback']} on the goal's callback): " + ", ".join(
                           f"{k.removesuffix('_time')} {1e3 * r['parts'][k]:.1f}"
                           for k in (*PARTS, "unaccounted"))
                       + f" (sum {1e3 * r['parts']['sum_of_medians']:.1f} against median "
