@@ -320,13 +320,13 @@ def _threads_of_trajectories(out) -> list:
 def test_a_near_goal_while_the_worker_idles_is_served_on_the_goals_own_thread(service, inline):
     """Issue 47: the quick motion of a replan goal on its callback's thread, no wake-up.
 
-    With the worker waiting for requests the goal's own thread (the node's goal callback)
+    With ``replan_on_callback`` and the worker idle the goal's own thread (its callback)
     serves its quick motion: the trajectory is published before ``goal`` returns, by that
-    thread; with ``inline_quick`` off, by the worker, after. Either way a quick motion
-    from the same hand-off (the clocks are the test's).
+    thread; with ``replan_on_callback`` off (the default), by the worker, after. Either way a
+    quick motion from the same hand-off (the clocks are the test's).
     """
     service, out, arm, now = service
-    service.inline_quick = inline
+    service.config = config_from_values({"replan_on_callback": inline}, task_dim=MODEL.m)
     _goal(service, out, PAPER_TARGET)  # the first goal: a new motion, by the worker
     sample, stamp = out.trajectories[-1]
     # The arm has run it and holds its end (the quick motion from rest: a straight line).

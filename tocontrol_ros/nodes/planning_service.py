@@ -1,20 +1,21 @@
 """The planner's policy without ROS: from an accepted request to what is published.
 
-:class:`PlanningService` owns the worker thread and every decision between a request and
-the planner node's outputs: the one-slot queue (a newer request supersedes a pending one,
-or cancels a running solve; goals with ``replan`` queue instead and give way only when the
-worker falls behind the stream), replanning from the hand-off of the running motion with
-its warm starts, the first motion before the optimum (``publish: first_then_optimum``), the
-goal a steady stream predicts solved ahead, the warm-up and the optimised libraries, and
-the contents of each ``~/status`` event (a replan goal's quick motion is served on the
-goal's own thread when the worker idles: :meth:`PlanningService.goal`). Its inputs are plain
-data (numpy arrays, the frozen :class:`~tocontrol_ros.nodes.planner_config.PlannerConfig`,
-the requests of :mod:`tocontrol_ros.nodes.requests`, a :class:`Clock`); its outputs go through
+:class:`PlanningService` owns the worker thread and every decision between a request and the
+planner node's outputs: the one-slot queue (a newer request supersedes a pending one, or
+cancels a running solve; goals with ``replan`` queue instead and give way only when the worker
+falls behind the stream), replanning from the hand-off of the running motion with its warm
+starts, the first motion before the optimum (``publish: first_then_optimum``), the goal a
+steady stream predicts solved ahead, the warm-up and the optimised libraries, and the contents
+of each ``~/status`` event (with ``replan_on_callback`` a replan goal's quick motion is served
+on the goal's own thread when the worker idles: :meth:`PlanningService.goal`). Its inputs are
+plain data (numpy arrays, the frozen
+:class:`~tocontrol_ros.nodes.planner_config.PlannerConfig`, the requests of
+:mod:`tocontrol_ros.nodes.requests`, a :class:`Clock`); its outputs go through
 :class:`Outputs`, which :class:`~tocontrol_ros.nodes.planner.PlannerNode` implements with its
-publishers (:mod:`tocontrol_ros.nodes.planner_outputs`), and the arm's measured state
-through :class:`Arm`. Nothing here imports rclpy or a message package
-(``test/nodes/test_nodes_purity.py``), so that a test drives it with fakes, without
-spinning (``test/nodes/test_planning_service.py``).
+publishers (:mod:`tocontrol_ros.nodes.planner_outputs`), and the arm's measured state through
+:class:`Arm`. Nothing here imports rclpy or a message package
+(``test/nodes/test_nodes_purity.py``), so that a test drives it with fakes, without spinning
+(``test/nodes/test_planning_service.py``).
 """
 
 from __future__ import annotations
@@ -192,9 +193,6 @@ class PlanningService:
         self._serving = threading.Lock()
         #: Goals served on their callback's thread (the worker then looks again at its wait).
         self._inline_served = 0
-        #: Whether a replan goal's quick motion may be served on its callback's thread when
-        #: the worker idles (:meth:`goal`); False: always by the worker.
-        self.inline_quick = True
 
     # ------------------------------------------------------------- state
     @property
@@ -280,11 +278,14 @@ class PlanningService:
         req = PlanRequest(rid, "goal", start, target, config, received=received, queue=replan,
                           since_ns=0 if fresh else since_ns)
         self.submit(req)
-        if replan and not fresh and config.replan_quick:
+        if replan and not fresh and config.replan_quick and config.replan_on_callback:
             self._serve_inline(req)
 
     def _serve_inline(self, req: PlanRequest) -> None:
         """A replan goal's quick motion served on the calling thread when the worker idles.
+
+        With ``replan_on_callback`` (default off: measured without a net gain through the
+        nodes on a loaded machine, docs/speed.md, issue 47's fifth pass).
 
         The goal's callback is running already; handing the goal to the sleeping worker
         costs its wake-up (about a millisecond, more on a loaded machine: issue 47's
@@ -295,7 +296,7 @@ class PlanningService:
         optimum's route. Afterwards the worker is woken to look at its idle wait (the
         quick motion's optimum) and the goal a stream predicts.
         """
-        if not (self.inline_quick and self.ready.is_set()) or self.stopping.is_set():
+        if not self.ready.is_set() or self.stopping.is_set():
             return
         if not self._serving.acquire(blocking=False):
             return  # the worker serves, improves or solves ahead: it takes the goal next
