@@ -31,8 +31,9 @@ process -> its trajectory received here, matched by request (the solved status's
 is the goal's, its ``handoff`` the trajectory's ``header.stamp``), not by arrival order; and
 the share of the replans of each kind (``warm`` from a moving state, ``rest``, ``cold``).
 
-Usage: ``scripts/dev run python -P bench/replan.py [paper|panda|both] [--moving]`` (default
-both, the easy circles).
+Usage: ``scripts/dev run python -P bench/replan.py [paper|panda|both] [--moving]
+[--on-callback]`` (default both, the easy circles; ``--on-callback``: the planner with
+``replan_on_callback``, a goal's quick motion served on its callback's thread).
 """
 
 from __future__ import annotations
@@ -408,14 +409,16 @@ PARTS = ("wait_time", "handoff_time", "problem_time", "guess_time", "scaling_tim
 def latency_parts(published: list) -> dict:
     """Median of each of :data:`PARTS` (s) over the quick motions' statuses, and their count.
 
-    Also ``unaccounted``: the median of each ``publish_latency`` minus the sum of its parts
-    (what no part holds: the lines between them), ``sum_of_medians`` and ``median`` (of the
-    ``publish_latency`` of the same statuses): a median of sums is not the sum of the
-    medians when the parts' tails come on different goals.
+    Also ``on_callback``: how many were served on the goal callback's thread (the worker
+    idle, ``served_by``), ``unaccounted``: the median of each ``publish_latency`` minus the
+    sum of its parts (what no part holds: the lines between them), ``sum_of_medians`` and
+    ``median`` (of the ``publish_latency`` of the same statuses): a median of sums is not
+    the sum of the medians when the parts' tails come on different goals.
     """
     quick = [s for s in published if s.get("event") == "first"
              and all(s.get(k) is not None for k in PARTS if k != "solve_rest")]
-    out = {"count": len(quick)}
+    out = {"count": len(quick),
+           "on_callback": sum(s.get("served_by") == "goal callback" for s in quick)}
 
     def part(s: dict, key: str) -> float:
         if key == "solve_rest":
@@ -550,7 +553,7 @@ def spans_cost(count: int = 12) -> list[str] | None:
                     "ms median / max"], table_rows)]
 
 
-def run(which: str = "both", moving: bool = False) -> Section:
+def run(which: str = "both", moving: bool = False, planner_args: tuple = ()) -> Section:
     title = ("Replanning: targets that keep the arm moving, 10 Hz, nodes as deployed "
              "(issue 47)" if moving else
              "Replanning: a target moving at 10 Hz, nodes as deployed (issue 33)")
@@ -558,7 +561,7 @@ def run(which: str = "both", moving: bool = False) -> Section:
     names = ("paper", "panda") if which == "both" else (which,)
     results = []
     # The paper's arm also with newest wins (goal_queue 1; the default queues every goal).
-    runs = [(name, (), "") for name in names]
+    runs = [(name, planner_args, "") for name in names]
     if "paper" in names and not moving:
         runs.insert(1, ("paper", ("-p", "goal_queue:=1"), "goal_queue 1"))
     for name, planner_args, label in runs:
@@ -639,7 +642,8 @@ def run(which: str = "both", moving: bool = False) -> Section:
                   "minus its parts; then the parts' medians summed against the latencies' "
                   "median: docs/speed.md, \"A paper replan's latency through the nodes\"): "
                   + "; ".join(
-                      f"{r['robot']} ({r['parts']['count']}): " + ", ".join(
+                      f"{r['robot']} ({r['parts']['count']}, "
+                      f"{r['parts']['on_callback']} on the goal's callback): " + ", ".join(
                           f"{k.removesuffix('_time')} {1e3 * r['parts'][k]:.1f}"
                           for k in (*PARTS, "unaccounted"))
                       + f" (sum {1e3 * r['parts']['sum_of_medians']:.1f} against median "
@@ -670,12 +674,14 @@ def run(which: str = "both", moving: bool = False) -> Section:
 
 
 if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--moving"]
+    args = [a for a in sys.argv[1:] if a not in ("--moving", "--on-callback")]
     which = args[0] if args else "both"
     if which not in ("paper", "panda", "both") or len(args) > 1:
-        raise SystemExit(f"usage: bench/replan.py [paper|panda|both] [--moving], got "
-                         f"{sys.argv[1:]!r}")
-    section = run(which, "--moving" in sys.argv[1:])
+        raise SystemExit(f"usage: bench/replan.py [paper|panda|both] [--moving] "
+                         f"[--on-callback], got {sys.argv[1:]!r}")
+    # --on-callback: the planner with replan_on_callback (docs/speed.md, fifth pass)
+    section = run(which, "--moving" in sys.argv[1:],
+                  ("-p", "replan_on_callback:=true") if "--on-callback" in sys.argv[1:] else ())
     print("\n".join(section.lines))
     for target, verdict in section.targets:
         print(f"- {target}: {verdict}")

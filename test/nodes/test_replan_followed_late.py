@@ -124,11 +124,15 @@ def _goal(service, out, target) -> tuple[int, list]:
     rid = service.next_id()
     service.goal(rid, np.asarray(target, dtype=float), 0, MONOTONIC)
     deadline = time.monotonic() + WAIT
-    while not any(s[2]["event"] in ("solved", "failed", "superseded")
-                  for s in out.of(rid)):
+    outcomes = ("solved", "failed", "superseded")
+    while not any(s[2]["event"] in outcomes for s in out.of(rid)):
         assert time.monotonic() < deadline, f"request {rid} got no outcome"
         time.sleep(0.01)
-    return rid, out.of(rid)
+    # Up to its outcome: the idle worker's later statuses of it (``kept``, ``improved``, a
+    # replan_min_lead after) may be there already when this thread ran late.
+    statuses = out.of(rid)
+    end = next(i for i, s in enumerate(statuses) if s[2]["event"] in outcomes)
+    return rid, statuses[:end + 1]
 
 
 def test_a_goal_while_the_arm_runs_the_motion_late_is_replanned_from_the_lagged_handoff(service):
@@ -303,3 +307,54 @@ def test_a_rejection_heard_after_the_next_replan_stops_the_chain_at_once(service
     c = _nominal(sample_c)
     on_c = c.evaluate(min(max((stamp_d - stamp_c) * 1e-9, 0.0), float(sample_c.t[-1])))
     assert np.max(np.abs(on_c.q[0] - on_a.q[0])) > 1e-3
+
+
+def _threads_of_trajectories(out) -> list:
+    """A hook recording the thread of each trajectory's publication."""
+    names: list = []
+    out.on_trajectory = lambda stamp_ns: names.append(threading.current_thread().name)
+    return names
+
+
+@pytest.mark.parametrize("inline", [True, False])
+def test_a_near_goal_while_the_worker_idles_is_served_on_the_goals_own_thread(service, inline):
+    """Issue 47: the quick motion of a replan goal on its callback's thread, no wake-up.
+
+    With ``replan_on_callback`` and the worker idle the goal's own thread (its callback)
+    serves its quick motion: the trajectory is published before ``goal`` returns, by that
+    thread; with ``replan_on_callback`` off (the default), by the worker, after. Either way a
+    quick motion from the same hand-off (the clocks are the test's).
+    """
+    service, out, arm, now = service
+    service.config = config_from_values({"replan_on_callback": inline}, task_dim=MODEL.m)
+    _goal(service, out, PAPER_TARGET)  # the first goal: a new motion, by the worker
+    sample, stamp = out.trajectories[-1]
+    # The arm has run it and holds its end (the quick motion from rest: a straight line).
+    arm.stamp_ns = stamp + int((float(sample.t[-1]) + 0.05) * 1e9)
+    arm.q = sample.q[-1].copy()
+    now.ns = arm.stamp_ns + 3 * 10**6
+    deadline = time.monotonic() + WAIT
+    while service.slot.pending() or service.slot.running() is not None:
+        assert time.monotonic() < deadline, "the worker did not go idle"
+        time.sleep(0.01)
+    names = _threads_of_trajectories(out)
+    before = len(out.trajectories)
+    rid = service.next_id()
+    service.goal(rid, np.asarray(PAPER_TARGET) + np.array([0.03, -0.02]), 0, MONOTONIC)
+    if inline:  # answered before goal() returned, by this thread
+        assert names == [threading.current_thread().name], names
+    else:
+        while not any(s[2]["event"] == "solved" for s in out.of(rid)):
+            assert time.monotonic() < deadline, f"request {rid} got no outcome"
+            time.sleep(0.01)
+        assert names == [service.worker.name], names
+    [values] = [s[2] for s in out.of(rid) if s[2]["event"] == "solved"]
+    [first_status] = [s[2] for s in out.of(rid) if s[2]["event"] == "first"]
+    assert first_status["served_by"] == ("goal callback" if inline else "worker")
+    assert values["event"] == "solved" and values["published"] == "first", \
+        [(s[2]["event"], s[1]) for s in out.of(rid)]
+    assert len(out.trajectories) == before + 1
+    # The same hand-off either way: the running motion's end, at rest.
+    sample2, _ = out.trajectories[before]
+    np.testing.assert_allclose(sample2.q[0], sample.q[-1], atol=1e-9)
+    np.testing.assert_allclose(sample2.qd[0], 0.0, atol=1e-9)

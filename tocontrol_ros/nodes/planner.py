@@ -25,12 +25,13 @@ The node only wires: its callbacks convert the message, hand the request to the 
 replans, the first motion, what is published) and build the reply; the service's outputs are
 the node's publishers (:mod:`tocontrol_ros.nodes.planner_outputs`).
 
-Concurrency: callbacks only convert and queue. The service's worker thread solves; it is fed
-by a slot that holds the newest request (newest wins: a request that arrives while another
-is pending or being solved supersedes it, and a running solve is stopped through the
-solver's ``should_stop``; goals with ``replan`` queue instead,
-:mod:`tocontrol_ros.nodes.replan_policy`). Service callbacks wait for their outcome in a
-reentrant group; everything else stays served.
+Concurrency: callbacks only convert and queue. The service's worker thread solves (but with
+``replan_on_callback`` a replan goal's quick motion, served on the goal's callback when the
+worker idles: no wake-up of the worker, issue 47); it is fed by a slot that holds the newest
+request (newest wins: a request that arrives while another is pending or being solved
+supersedes it, and a running solve is stopped through the solver's ``should_stop``; goals with
+``replan`` queue instead, :mod:`tocontrol_ros.nodes.replan_policy`). Service callbacks wait for
+their outcome in a reentrant group; everything else stays served.
 """
 
 from __future__ import annotations

@@ -216,6 +216,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
                   "hand-off on it, while no other goal waits, and publishes it when it "
                   "arrives in time and ends sooner. False: the optimum only "
                   "(msg_docs/parameters.md, 'Replanning')."),
+    ParameterSpec("replan_on_callback", False, "With replan_quick: a goal's quick motion is "
+                  "served on the goal's callback thread when the worker idles, without "
+                  "waking the worker (issue 47; measured without a net gain on a loaded "
+                  "machine: docs/speed.md, fifth pass). False: always by the worker."),
     ParameterSpec("replan_predict", True, "While goals stream in at a steady rate along a "
                   "smooth path, the worker solves the goal they predict (the quadratic "
                   "through the last three) between goals, as the real goal's first warm start "
@@ -346,6 +350,7 @@ class PlannerConfig:
     replan_smoothing: float = 1e-2
     replan_spans: int = 24
     replan_quick: bool = True
+    replan_on_callback: bool = False
     replan_predict: bool = True
     goal_queue: int = 50
     goal_max_backlog: float = 3.0

@@ -1,19 +1,21 @@
 """The planner's policy without ROS: from an accepted request to what is published.
 
-:class:`PlanningService` owns the worker thread and every decision between a request and
-the planner node's outputs: the one-slot queue (a newer request supersedes a pending one,
-or cancels a running solve; goals with ``replan`` queue instead and give way only when the
-worker falls behind the stream), replanning from the hand-off of the running motion with
-its warm starts, the first motion before the optimum (``publish: first_then_optimum``), the
-goal a steady stream predicts solved ahead, the warm-up and the optimised libraries, and
-the contents of each ``~/status`` event. Its inputs are plain data (numpy arrays, the frozen
+:class:`PlanningService` owns the worker thread and every decision between a request and the
+planner node's outputs: the one-slot queue (a newer request supersedes a pending one, or
+cancels a running solve; goals with ``replan`` queue instead and give way only when the worker
+falls behind the stream), replanning from the hand-off of the running motion with its warm
+starts, the first motion before the optimum (``publish: first_then_optimum``), the goal a
+steady stream predicts solved ahead, the warm-up and the optimised libraries, and the contents
+of each ``~/status`` event (with ``replan_on_callback`` a replan goal's quick motion is served
+on the goal's own thread when the worker idles: :meth:`PlanningService.goal`). Its inputs are
+plain data (numpy arrays, the frozen
 :class:`~tocontrol_ros.nodes.planner_config.PlannerConfig`, the requests of
 :mod:`tocontrol_ros.nodes.requests`, a :class:`Clock`); its outputs go through
 :class:`Outputs`, which :class:`~tocontrol_ros.nodes.planner.PlannerNode` implements with its
-publishers (:mod:`tocontrol_ros.nodes.planner_outputs`), and the arm's measured state
-through :class:`Arm`. Nothing here imports rclpy or a message package
-(``test/nodes/test_nodes_purity.py``), so that a test drives it with fakes, without
-spinning (``test/nodes/test_planning_service.py``).
+publishers (:mod:`tocontrol_ros.nodes.planner_outputs`), and the arm's measured state through
+:class:`Arm`. Nothing here imports rclpy or a message package
+(``test/nodes/test_nodes_purity.py``), so that a test drives it with fakes, without spinning
+(``test/nodes/test_planning_service.py``).
 """
 
 from __future__ import annotations
@@ -186,6 +188,11 @@ class PlanningService:
         self.memory = MemoryPolicy(lambda message: self.out.status(
             "WARN", message, {"event": "memory", "frame_id": frame_id}))
         self._worker = threading.Thread(target=self._run, name="planner-worker", daemon=True)
+        #: Held by whoever serves: the worker (a request, the idle optimum, a goal solved
+        #: ahead) or a goal's callback serving its quick motion (:meth:`goal`).
+        self._serving = threading.Lock()
+        #: Goals served on their callback's thread (the worker then looks again at its wait).
+        self._inline_served = 0
 
     # ------------------------------------------------------------- state
     @property
@@ -268,8 +275,51 @@ class PlanningService:
             return
         if replan:
             self.replanner.goals.record(target, received)
-        self.submit(PlanRequest(rid, "goal", start, target, config, received=received,
-                                queue=replan, since_ns=0 if fresh else since_ns))
+        req = PlanRequest(rid, "goal", start, target, config, received=received, queue=replan,
+                          since_ns=0 if fresh else since_ns)
+        self.submit(req)
+        if replan and not fresh and config.replan_quick and config.replan_on_callback:
+            self._serve_inline(req)
+
+    def _serve_inline(self, req: PlanRequest) -> None:
+        """A replan goal's quick motion served on the calling thread when the worker idles.
+
+        With ``replan_on_callback`` (default off: measured without a net gain through the
+        nodes on a loaded machine, docs/speed.md, issue 47's fifth pass).
+
+        The goal's callback is running already; handing the goal to the sleeping worker
+        costs its wake-up (about a millisecond, more on a loaded machine: issue 47's
+        ``wait_time``). When the worker waits for requests (nothing running, ``req`` the
+        only one pending, the serving lock free) the quick motion is served here, as the
+        worker would (:meth:`ReplanPolicy.serve_first`); when it is not the route (no quick
+        motion), the goal goes back to the worker, first in line, which goes on with the
+        optimum's route. Afterwards the worker is woken to look at its idle wait (the
+        quick motion's optimum) and the goal a stream predicts.
+        """
+        if not self.ready.is_set() or self.stopping.is_set():
+            return
+        if not self._serving.acquire(blocking=False):
+            return  # the worker serves, improves or solves ahead: it takes the goal next
+        try:
+            if not self.slot.claim(req):
+                return
+            try:
+                served = self._replans.serve_first(req)
+            except Exception as exc:  # noqa: BLE001  (as the worker: a bug must not stop it)
+                self.out.log_error(f"request {req.id}: internal error: {exc!r}")
+                if not req.done.is_set():
+                    self.finish(req, "ERROR", "failed", f"internal error: {exc!r}")
+                served = True
+            if served:
+                self.slot.finished(req)
+                self._inline_served += 1
+            else:
+                req.quick_tried = True
+                if not self.slot.give_back(req):
+                    self.finish(req, "WARN", "cancelled", "node shutting down")
+        finally:
+            self._serving.release()
+        self.slot.wake()
 
     # ------------------------------------------------------------ status out
     def values(self, req: PlanRequest, event: str, extra: dict | None = None) -> dict:
@@ -321,29 +371,46 @@ class PlanningService:
             waiting = compiled.pending_builds() > 0 or self.planner.stale()
             idle = self._replans.idle_wait()  # a quick motion to improve when idle
             waits = [t for t in (OPTIMISED_POLL if waiting else None, idle) if t is not None]
+            inline = self._inline_served
             req, stale = self.slot.take(min(waits) if waits else None,
                                         self.config.goal_max_backlog,
                                         self.replanner.replan_time())
-            for old, by in stale:  # solves fell behind the stream: newest wins
-                by.behind = True
-                self.finish(old, "WARN", "superseded", f"superseded by request {by.id}: "
-                            "the goals waiting exceed goal_max_backlog")
-            if req is None:
-                if self.slot.closed:
+            with self._serving:
+                if not self._serve_taken(req, stale, idle, inline):
                     break
-                if idle is not None:
-                    self._replans.improve()
-                load_optimised(self)
-                continue
-            try:
-                self.serve(req)
-            except Exception as exc:  # noqa: BLE001  (a bug must not stop the planner)
-                self.out.log_error(f"request {req.id}: internal error: {exc!r}")
-                if not req.done.is_set():
-                    self.finish(req, "ERROR", "failed", f"internal error: {exc!r}")
-            finally:
-                self.slot.finished(req)
-            self._replans.solve_ahead()
+
+    def _serve_taken(self, req: PlanRequest | None, stale: list, idle: float | None,
+                     inline: int) -> bool:
+        """The worker's turn (the serving lock held): what :meth:`LatestSlot.take` gave.
+
+        ``idle``: the idle wait it waited with; ``inline``: goals served on their callback's
+        thread before it waited (more now: its wait is looked at again). False once the
+        slot is closed (the worker ends).
+        """
+        if req is None and inline != self._inline_served:
+            self._replans.solve_ahead()  # as after a request the worker served
+            return True
+        for old, by in stale:  # solves fell behind the stream: newest wins
+            by.behind = True
+            self.finish(old, "WARN", "superseded", f"superseded by request {by.id}: "
+                        "the goals waiting exceed goal_max_backlog")
+        if req is None:
+            if self.slot.closed:
+                return False
+            if idle is not None:
+                self._replans.improve()
+            load_optimised(self)
+            return True
+        try:
+            self.serve(req)
+        except Exception as exc:  # noqa: BLE001  (a bug must not stop the planner)
+            self.out.log_error(f"request {req.id}: internal error: {exc!r}")
+            if not req.done.is_set():
+                self.finish(req, "ERROR", "failed", f"internal error: {exc!r}")
+        finally:
+            self.slot.finished(req)
+        self._replans.solve_ahead()
+        return True
 
     def should_stop(self, req: PlanRequest) -> Callable[[], bool]:
         """The solver's ``should_stop`` for ``req``: cancelled, or the service stops."""

@@ -9,6 +9,7 @@ are :mod:`tocontrol_ros.nodes.replanning`'s and :mod:`tocontrol_ros.core.plannin
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -34,7 +35,7 @@ from tocontrol_ros.nodes.replanning import (
 )
 from tocontrol_ros.nodes.requests import PlanRequest
 
-__all__ = ["ReplanPolicy", "replanning", "HELD", "HELD_SPEED"]
+__all__ = ["ReplanPolicy", "replanning", "served_by", "HELD", "HELD_SPEED"]
 
 #: The kind (``replan`` status value) of a quick motion from the arm's measured state, held
 #: still off the last published motion (:meth:`ReplanPolicy.serve_quick_held`).
@@ -54,6 +55,11 @@ def replanning(config: PlannerConfig) -> bool:
     (:func:`~tocontrol_ros.nodes.controller_client.controller_goal`).
     """
     return bool(config.replan)
+
+
+def served_by(service: Any) -> str:
+    """Which thread serves a quick replan: ``"worker"`` or ``"goal callback"`` (issue 47)."""
+    return "worker" if threading.current_thread() is service.worker else "goal callback"
 
 
 class ReplanPolicy:
@@ -116,12 +122,25 @@ class ReplanPolicy:
         motion first (:meth:`serve_quick`); else, or when it fails, the optimum
         (:meth:`serve_optimum`).
         """
-        if req.config.replan_quick and self.service.replanner.near(req.config, req.target):
+        if req.config.replan_quick and not req.quick_tried and \
+                self.service.replanner.near(req.config, req.target):
             # A near goal; a far one is a new motion: the cold multistart's, as ever.
             served = self.serve_quick(req)
             if served is not None:
                 return served
         return self.serve_optimum(req)
+
+    def serve_first(self, req: PlanRequest) -> bool:
+        """:meth:`serve`'s quick motion alone, for a goal served on its callback's thread.
+
+        True when it answered ``req`` (published, or finished stopped); False when the
+        quick motion is not the route (cancelled, not near, none in time): the worker then
+        serves ``req`` (:meth:`serve` without the quick motion again).
+        """
+        if req.cancelled.is_set() or not req.config.replan_quick or \
+                not self.service.replanner.near(req.config, req.target):
+            return False
+        return bool(self.serve_quick(req))
 
     def serve_quick(self, req: PlanRequest) -> bool | None:
         """The quick motion from the hand-off, published at once; then the optimum after it.
@@ -175,6 +194,7 @@ class ReplanPolicy:
                      "wait_time": wait_time, "handoff_time": t_problem - t0,
                      "problem_time": t_solve - t_problem,
                      "replan": handoff.kind, "attempts": attempt,
+                     "served_by": served_by(service),
                      "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns), "warm_start": False,
                      "published": "none"}
@@ -238,7 +258,8 @@ class ReplanPolicy:
         extra = {"start": problem.start_point, "start_q": q, "start_qd": np.zeros_like(q),
                  **result_values(quick), "wait_time": wait_time,
                  "handoff_time": t_problem - t0, "problem_time": t_solve - t_problem,
-                 "replan": HELD, "attempts": 1, "warm_start": False, "published": "none"}
+                 "replan": HELD, "attempts": 1, "warm_start": False, "published": "none",
+                 "served_by": served_by(service)}
         if service.finish_stopped(req, extra):
             return True
         if not quick.success or quick.trajectory is None:
@@ -415,6 +436,7 @@ class ReplanPolicy:
             extra = {"start": problem.start_point, "start_q": handoff.q,
                      "start_qd": handoff.qd, **result_values(result),
                      "replan": handoff.kind, "attempts": attempt,
+                     "served_by": served_by(service),
                      "follow_lag": handoff.lag_ns * 1e-9,
                      "handoff": stamp_text(handoff.stamp_ns),
                      "warm_start": any(w is not None for w in warm),

@@ -75,6 +75,10 @@ class PlanRequest:
     result: Any = None
     first: Any = None
     target_pose: Any = None
+    #: A replan goal whose quick motion was tried already (on the goal's callback thread,
+    #: :meth:`~tocontrol_ros.nodes.planning_service.PlanningService.goal`): the worker goes
+    #: on with the optimum's route without trying it again.
+    quick_tried: bool = False
 
     def cancel(self, event: str, reason: str) -> None:
         """Ask the solve to stop; ``event`` names the outcome (e.g. ``"superseded"``)."""
@@ -96,6 +100,7 @@ class LatestSlot:
         self._pending: list = []
         self._running = None
         self._closed = False
+        self._woken = False
 
     def put(self, item, queue: int = 1) -> tuple[list, object]:
         """Add ``item``; return ``(replaced pending items, running item or None)``.
@@ -147,7 +152,9 @@ class LatestSlot:
             None when closed or on timeout.
         """
         with self._cond:
-            self._cond.wait_for(lambda: bool(self._pending) or self._closed, timeout)
+            self._cond.wait_for(lambda: bool(self._pending) or self._closed or self._woken,
+                                timeout)
+            self._woken = False
             if self._closed or not self._pending:
                 return None, []
             stale = []
@@ -166,6 +173,39 @@ class LatestSlot:
             return math.inf
         return (times[-1] - times[0]) / (len(times) - 1)
 
+    def claim(self, item) -> bool:
+        """Run ``item`` outside :meth:`take`, if it is the only pending item and none runs.
+
+        True: it is now running (:meth:`finished` or :meth:`give_back` ends that); False:
+        the worker takes it as ever.
+        """
+        with self._cond:
+            if self._closed or self._running is not None or len(self._pending) != 1 \
+                    or self._pending[0] is not item:
+                return False
+            self._pending, self._running = [], item
+            return True
+
+    def give_back(self, item) -> bool:
+        """A claimed ``item`` not served after all: pending again, first, for :meth:`take`.
+
+        False when the slot is closed (the caller answers it).
+        """
+        with self._cond:
+            if self._running is item:
+                self._running = None
+            if self._closed:
+                return False
+            self._pending.insert(0, item)
+            self._cond.notify_all()
+            return True
+
+    def wake(self) -> None:
+        """End a :meth:`take` that waits, without an item (it returns None)."""
+        with self._cond:
+            self._woken = True
+            self._cond.notify_all()
+
     def finished(self, item) -> None:
         """The worker is done with ``item``."""
         with self._cond:
@@ -177,6 +217,11 @@ class LatestSlot:
         """True once :meth:`close` was called."""
         with self._cond:
             return self._closed
+
+    def running(self):
+        """The item running (taken or claimed, not finished yet), or None."""
+        with self._cond:
+            return self._running
 
     def pending(self) -> list:
         """The items that wait for the worker, oldest first (a copy)."""

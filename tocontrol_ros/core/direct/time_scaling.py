@@ -78,6 +78,32 @@ ENGINES = ("compiled", "seidel", "toppra")
 DEFAULT_ENGINE = "compiled"
 
 
+_GRIDS: dict = {}  # gridpoints -> (s, 2 diff(s)), read-only: made once per grid size
+_CUBES: dict = {}  # (gridpoints, n, k) -> the inscribed cube at every gridpoint, read-only
+
+
+def _grid(gridpoints: int) -> np.ndarray:
+    """``np.linspace(0, 1, gridpoints + 1)``, made once per size (read-only)."""
+    found = _GRIDS.get(gridpoints)
+    if found is None:
+        s = np.linspace(0.0, 1.0, gridpoints + 1)
+        two_ds = 2.0 * np.diff(s)
+        s.flags.writeable = two_ds.flags.writeable = False
+        found = _GRIDS[gridpoints] = (s, two_ds)
+    return found[0]
+
+
+def _cube(problem: Problem, gridpoints: int) -> np.ndarray:
+    """The inscribed cube ``|u_i| <= n^(-1/(2k))`` at every gridpoint, (N + 1, n), read-only."""
+    n, k = problem.model.n, problem.k
+    cube = _CUBES.get((gridpoints, n, k))
+    if cube is None:
+        cube = np.full((gridpoints + 1, n), n ** (-1.0 / (2.0 * k)))
+        cube.flags.writeable = False
+        _CUBES[(gridpoints, n, k)] = cube
+    return cube
+
+
 def compile_sweeps(problem: Problem, grids: tuple = (QUICK_GRIDPOINTS, GRIDPOINTS)) -> None:
     """Build the compiled sweeps (:data:`DEFAULT_ENGINE`) that ``problem``'s passes use.
 
@@ -101,9 +127,8 @@ def rest_time(problem: Problem, path: PolynomialPath, gridpoints: int = GRIDPOIN
     ``peaks``: ``(T, why, peak)``, ``peak`` (n,) each joint's largest speed on that timing
     at the gridpoints (rad/s; None without a timing). ``engine``: one of :data:`ENGINES`.
     """
-    n = problem.model.n
-    s = np.linspace(0.0, 1.0, gridpoints + 1)
-    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    s = _grid(gridpoints)
+    cube = _cube(problem, gridpoints)
     x, why = _toppra(_Coefficients(problem, path, s), s, 0.0, cube, None, engine)
     T = None if x is None else _duration(x, s)
     if not peaks:
@@ -122,9 +147,8 @@ def cube_time(problem: Problem, path: PolynomialPath, sd0: float,
     ``speed_cap``: what ranks a moving start's candidate paths before one is timed in full.
     ``inf`` when TOPP-RA finds no timing.
     """
-    n = problem.model.n
-    s = np.linspace(0.0, 1.0, gridpoints + 1)
-    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    s = _grid(gridpoints)
+    cube = _cube(problem, gridpoints)
     x, _ = _toppra(_Coefficients(problem, path, s, speed_cap), s, sd0, cube, None, engine)
     return np.inf if x is None else _duration(x, s)
 
@@ -157,9 +181,8 @@ def first_pass(problem: Problem, path: PolynomialPath, sd0: float,
     a moving start's candidate paths (as :func:`cube_time`), and then, given to
     :func:`time_scaling` as ``first``, its first pass and coefficients, not computed twice.
     """
-    n = problem.model.n
-    s = np.linspace(0.0, 1.0, gridpoints + 1)
-    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    s = _grid(gridpoints)
+    cube = _cube(problem, gridpoints)
     coef = _Coefficients(problem, path, s, speed_cap)
     x, why = _toppra(coef, s, sd0, cube * (1.0 - SCALING_SET_MARGIN), None, engine)
     return FirstPass(np.inf if x is None else _duration(x, s), why, coef, x,
@@ -201,9 +224,8 @@ def first_passes(problem: Problem, paths: list, sd0s: list,
     if engine != "compiled" or len(paths) < 2:
         return [first_pass(problem, path, sd0, gridpoints, speed_cap, engine)
                 for path, sd0 in zip(paths, sd0s, strict=True)]
-    n = problem.model.n
-    s = np.linspace(0.0, 1.0, gridpoints + 1)
-    box = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k))) * (1.0 - SCALING_SET_MARGIN)
+    s = _grid(gridpoints)
+    box = _cube(problem, gridpoints) * (1.0 - SCALING_SET_MARGIN)
     stacked, coefs = _Coefficients.of_paths(problem, paths, s, speed_cap)
     a, b, c, x_max = _partners_ordered(problem.model, _rows(stacked, sd0s, box, None))
     swept = controllable_and_forward_many(problem.model, a, b, c, x_max, s,
@@ -235,7 +257,7 @@ class _Coefficients:
         fn = rigid_body_terms(model, q.size // model.n)
         scale = model.tau_max * problem.torque_scale
         # one call (every path's gridpoints as columns, path after path): 1 ms on the Panda
-        c, a, b = (np.array(v).T.reshape(q.shape)
+        c, a, b = (np.asarray(v).T.reshape(q.shape)  # the call's own copies
                    for v in fn(*(d.reshape(-1, model.n).T for d in (q, d1, d2))))
         self.a = (a - c) / scale
         self.b = (b - c) / scale
@@ -311,7 +333,7 @@ def time_scaling(problem: Problem, path: PolynomialPath, sd0: float,
     (ScaledPath, int) or (Status, str)
         The timed path and the TOPP-RA passes it took, or ``SCALING_FAILED`` and why.
     """
-    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    s = _grid(gridpoints)
     if first is not None and first.key != (id(path), sd0, gridpoints, engine):
         raise ValueError("`first` must be first_pass of the same path and arguments")
     coef = first.coef if first is not None else _Coefficients(problem, path, s, speed_cap)
@@ -338,9 +360,8 @@ def _best_scaling(problem: Problem, coef: _Coefficients, s: np.ndarray, sd0: flo
 
     Or a message when the first pass fails. ``first``: that pass, done already.
     """
-    n = problem.model.n
     friction = bool(np.any(coef.f))
-    cube = np.full((len(s), n), n ** (-1.0 / (2.0 * problem.k)))
+    cube = _cube(problem, len(s) - 1)
     # Without friction the first pass is exact; with it, its speeds only place the lines.
     if first is not None:
         x, why, passes = first.x, first.why, 0
@@ -366,8 +387,11 @@ def _best_scaling(problem: Problem, coef: _Coefficients, s: np.ndarray, sd0: flo
 
 
 def _duration(x: np.ndarray, s: np.ndarray) -> float:
+    """The time (s) of squared path speeds ``x`` (N + 1,) on gridpoints ``s`` (N + 1,)."""
     sd = np.sqrt(np.maximum(x, 0.0))
-    return float(np.sum(2.0 * np.diff(s) / (sd[:-1] + sd[1:])))
+    found = _GRIDS.get(len(s) - 1)
+    two_ds = found[1] if found is not None and found[0] is s else 2.0 * np.diff(s)
+    return float((two_ds / (sd[:-1] + sd[1:])).sum())
 
 
 def _boxes(demand: np.ndarray, k: float) -> np.ndarray:
@@ -489,17 +513,29 @@ def _partners_ordered(model, rows: tuple) -> tuple:
 
 def _verdict(K: np.ndarray, x: np.ndarray, feasible: bool, s: np.ndarray):
     """:func:`_compiled`'s answer from a pass's sweeps (see there)."""
-    from toppra.constants import SMALL
-
     last = len(s) - 1
     empty = ~(K[:last, 0] <= K[:last, 1])
-    if np.any(empty):
+    if empty.any():
         i = int(np.flatnonzero(empty)[-1])
         return None, f"the controllable set is empty at gridpoint {i} of {last}"
-    if x[0] + SMALL < K[0, 0] or K[0, 1] + SMALL < x[0]:
+    small = _toppra_constant("SMALL")
+    if x[0] + small < K[0, 0] or K[0, 1] + small < x[0]:
         return None, f"the start's path speed is not controllable (sd^2 = {x[0]:.6g} " \
             f"outside [{K[0, 0]:.6g}, {K[0, 1]:.6g}])"
     return (x, "") if feasible else None
+
+
+_TOPPRA_CONSTANTS: dict = {}
+
+
+def _toppra_constant(name: str) -> float:
+    """``toppra.constants.<name>``, imported on first use (toppra loads only when asked)."""
+    value = _TOPPRA_CONSTANTS.get(name)
+    if value is None:
+        import toppra.constants
+
+        value = _TOPPRA_CONSTANTS[name] = getattr(toppra.constants, name)
+    return value
 
 
 def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):
