@@ -186,8 +186,9 @@ class Problem:
             raise ProblemError(
                 f"{where} has no configuration inside the joint limits: none of its "
                 f"{found.solutions} IK solutions (from {found.seeds} seeds) is inside them")
-        what = "in collision" if found.clearance < 0 else \
-            f"at most {found.clearance:.4f} m clear"
+        # Coal gives a mesh pair in contact a distance of 0 (no penetration depth).
+        what = "in collision" if found.clearance <= 0 else \
+            f"{found.clearance:.4f} m clear"
         raise ProblemError(
             f"{where} has no configuration clear of the scene by the margin "
             f"({col.margin:g} m): of {found.tried} IK solutions inside the joint limits "
