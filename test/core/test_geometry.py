@@ -102,8 +102,9 @@ def test_target_point_in_collision_refused_naming_pair_and_why(panda):
                                            r"closest"):
         Problem(model, joint_state(Q0), point([0.3, 0.4, 0.5]),
                 collision=col.with_scene(inside))
-    # Reachable only through the table or the base (bench/collision.py's draw 17 of seed
-    # 51, 6.9 cm above the table and 15.7 cm from the base's axis): no IK solution is clear.
+    # Reachable only through the table or the base (draw 17 of bench.limits.draw_cases,
+    # seed 51: case 17 table of bench/collision.py before session 36, LIMITS_INFEASIBLE;
+    # 6.9 cm above the table, 15.7 cm from the base's axis): no IK solution is clear.
     low = [-0.08442261, -0.13228413, 0.06938094]
     with pytest.raises(ProblemError, match=r"`target` point .* no configuration clear .*"
                                            r"closest; the point is inside an obstacle, or "
