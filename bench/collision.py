@@ -406,7 +406,7 @@ def run(count: int = CASES, cases: set[int] | None = None,
                     "free optimum: T (s), clearance (cm)", "peer T (s)", "peer (s)",
                     "placed"], rows)
     targets = []
-    for name in scenes:
+    for name in () if draw_only else scenes:
         st = stats[name]
         targets.append((f"{name}: planned >= {PLANNED_BAR}/{CASES} (of the cases run)",
                         f"{st['planned']}/{st['cases']}"))
