@@ -54,13 +54,13 @@ from bench.common import PANDA_LOCKED, Section, log, panda_urdf, table  # noqa: 
 from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E402
 from tocontrol_ros.core.errors import ProblemError  # noqa: E402
-from tocontrol_ros.core.geometry.collision import collision_model  # noqa: E402
+from tocontrol_ros.core.geometry.collision import CollisionModel, collision_model  # noqa: E402
 from tocontrol_ros.core.geometry.reach import clear_configuration  # noqa: E402
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_poses  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
+from tocontrol_ros.core.robot.model import RobotModel, load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 51
@@ -96,7 +96,8 @@ def _low_point(rng: np.random.Generator, azimuth: float) -> np.ndarray:
     return np.array([r * np.cos(azimuth), r * np.sin(azimuth), z])
 
 
-def draw_table(model, limits: JointLimits, col, count: int, seed: int = SEED) -> list:
+def draw_table(model: RobotModel, limits: JointLimits, col: CollisionModel, count: int,
+               seed: int = SEED) -> list:
     """The table stream's ``count`` draws: ``(q0, target, why)`` each.
 
     ``q0`` (rad, shape (n,)) the first configuration found clear of the table by the
