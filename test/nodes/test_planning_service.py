@@ -544,6 +544,7 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
 
     from tocontrol_ros.core.geometry.collision import collision_model
     from tocontrol_ros.core.geometry.scene import scene_from_dict
+    from tocontrol_ros.nodes.pose_goals import pose_target
 
     urdf = panda_urdf()
     panda = load_robot(urdf, tip_link="panda_hand",
@@ -571,6 +572,20 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
                          r"the scene by the margin .* \w+ and block closest", done["message"])
         assert service.planner.solved == []  # refused before any solve
         assert req.path is None and "trajectory" not in out.kinds()
+        # A pose there (the hand pointing down): each IK solution a joint-state target, each
+        # refused as in collision with the block; the request fails naming it.
+        start = ("state", np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]), np.zeros(7))
+        pose = pose_target((0.3, 0.4, 0.5), (1.0, 0.0, 0.0, 0.0), "panda_link0", panda,
+                           "panda_link0", start, "goal_pose")
+        posed = PlanRequest(service.next_id(), "goal_pose", start, pose.position, config,
+                            target_pose=pose)
+        service.submit(posed)
+        assert posed.done.wait(6 * WAIT), "no outcome"
+        done = final(out, posed)
+        assert done["level"] == "ERROR" and done["event"] == "failed"
+        assert re.search(r"none of the pose's \d+ IK solutions can be planned to: `target` "
+                         r"joint state is in collision: \w+ and block", done["message"])
+        assert service.planner.solved == [] and "trajectory" not in out.kinds()
     finally:
         service.planner.gate.set()
         service.stop()
