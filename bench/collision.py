@@ -1,36 +1,42 @@
 """Collision-free motions of the Panda with its limits, against OMPL + TOPP-RA (issue 51).
 
 Cases: the Panda (hand as the tip, the URDF's limits, its SRDF, k = 4, no reserve) from a
-joint state at rest to a point, drawn with :func:`bench.limits.draw_cases` (seed
-:data:`SEED`). Each case is first planned without obstacles (``plan()``, 4 starts, 1
-candidate); the scenes (``bench/scenes/*.yaml``, the obstacle sizes; the positions follow
-the case, recorded in the case table) are then placed so that that obstacle-free optimum
-goes through them:
+joint state at rest to a point, drawn so that the obstacle-free optimum collides with the
+scene (each draw is first planned without obstacles, ``plan()``, 4 starts, 1 candidate),
+and so that the start and the target are clear of it by the margin (the problem refuses a
+start joint state, or a target point with no configuration found clear, before any solve:
+such a draw is left out and counted). Two deterministic streams of draws (seed
+:data:`SEED`), each drawn on until its scenes have the cases asked (at most :data:`DRAWS`
+times the cases asked):
 
-- ``table``: the table the arm stands on (``table.yaml``: its top at z = 0,
-  ``panda_link0``/``panda_link1`` allowed), where it is: the cases that count are those
-  whose free optimum (or start, target) goes through it;
-- ``shelf``: the table at z = 0 and a shelf board (``shelf.yaml``) centred on the free
-  optimum's hand point at mid-time;
-- ``pillar``: the table at z = 0 and a vertical pillar (``pillar.yaml``) through that point.
+- ``table`` (``table.yaml``: its top at z = 0, ``panda_link0``/``panda_link1`` allowed),
+  its own stream (:func:`draw_table`): the hand point of the start and of the target low
+  over the table (:data:`LOW_Z` above it, :data:`LOW_R` from the base's axis), on
+  opposite sides of the base (the azimuth turns by :data:`TURN`), the start configuration
+  the first one found clear of the table by the margin
+  (:func:`~tocontrol_ros.core.geometry.reach.clear_configuration`); a draw counts when the
+  free optimum comes closer to the table (or to the arm itself) than the margin;
+- ``shelf`` and ``pillar``: the draws of :func:`bench.limits.draw_cases` (random pairs),
+  the table at z = 0 and a shelf board (``shelf.yaml``) centred on the free optimum's hand
+  point at mid-time, or a vertical pillar (``pillar.yaml``) through it: the free optimum
+  goes through it by construction; where the start or target is then not clear of it, the
+  obstacle is placed at the hand point of other times (:data:`PLACE_AT`, in order) before
+  the draw is left out.
 
-A case whose start or target is not clear of a scene (by the margin), or whose free optimum
-is clear of it, is left out of that scene (counted), and cases are drawn on (at most
-:data:`DRAWS` times the cases asked) until each scene has the cases asked. Per scene and
-case: ``plan()`` with the collision model (the same
-options), whether it is planned and certified, its exact clearance (Coal, the URDF's
-geometry, self pairs included, at 2001 times, independent of the solver and its
-certificate), and the peer a MoveIt user has: OMPL's RRTConnect in joint space (collision
-checked by the same Coal model with the margin, 1 % of the joint range as the motion
-check's resolution), shortcut by OMPL's path simplifier, timed by TOPP-RA (``toppra``) from
-rest to rest under the velocity limits and the torque box ``|tau_i| <= tau_max_i`` (which
-holds the convexified set, so the peer gets more torque than the plan), its waypoints
-joined by a cubic spline; both planning times (wall, this one process, a machine shared
-with other jobs).
+Per scene and case: ``plan()`` with the collision model (the same options), whether it is
+planned and certified, its exact clearance (Coal, the URDF's geometry, self pairs included,
+at 2001 times, independent of the solver and its certificate), and the peer a MoveIt user
+has: OMPL's RRTConnect in joint space (collision checked by the same Coal model with the
+margin, 1 % of the joint range as the motion check's resolution), shortcut by OMPL's path
+simplifier, timed by TOPP-RA (``toppra``) from rest to rest under the velocity limits and
+the torque box ``|tau_i| <= tau_max_i`` (which holds the convexified set, so the peer gets
+more torque than the plan), its waypoints joined by a cubic spline; both planning times
+(wall, this one process, a machine shared with other jobs).
 
 Run alone: ``scripts/dev run python -P bench/collision.py [CASES] [--case I ...] [--scene
-NAME ...]`` (prints the section; ``--case``/``--scene``: only those draws and scenes, e.g.
-the failed cases one at a time).
+NAME ...] [--draw-only]`` (prints the section; ``--case``/``--scene``: only those draws
+(of each stream) and scenes, e.g. the failed cases one at a time; ``--draw-only``: the
+draws, their free optima and the count per scene, no plan with the scene, no peer).
 """
 
 import os
@@ -47,12 +53,14 @@ import numpy as np  # noqa: E402
 from bench.common import PANDA_LOCKED, Section, log, panda_urdf, table  # noqa: E402
 from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E402
-from tocontrol_ros.core.geometry.collision import collision_model  # noqa: E402
+from tocontrol_ros.core.errors import ProblemError  # noqa: E402
+from tocontrol_ros.core.geometry.collision import CollisionModel, collision_model  # noqa: E402
+from tocontrol_ros.core.geometry.reach import clear_configuration  # noqa: E402
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_poses  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
+from tocontrol_ros.core.robot.model import RobotModel, load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 SEED = 51
@@ -63,20 +71,67 @@ SCENES = ("table", "shelf", "pillar")
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 #: OMPL's budget per case (s of planning, its own clock: the peer's, not ours).
 OMPL_TIME = 20.0
-#: The table's top in every scene (``table.yaml``, m): a target less than 5 cm above it
-#: is left out.
+#: The table's top in every scene (``table.yaml``, m).
 TABLE_TOP = 0.0
-#: At most this many draws per case asked (the cases that count are a share of them).
-DRAWS = 6
+#: At most this many draws per case asked, in each stream (the cases that count are a share
+#: of them).
+DRAWS = 3
+#: The table stream's hand points: height above the table's top (m) and distance from the
+#: base's axis (m), uniform in these ranges...
+LOW_Z = (0.08, 0.25)
+LOW_R = (0.35, 0.7)
+#: ...and the azimuth's turn from the start's to the target's (rad, either way, uniform):
+#: the arm swings round the base low over the table.
+TURN = (0.5 * np.pi, np.pi)
+#: The table stream's start configurations keep this much more than the margin from the
+#: table and the arm itself (m): a start that only just keeps the margin tests the
+#: certificate's bound between samples at the start more than the motion (draw 4 with the
+#: first clear configuration, 1.45 cm from the table: VERIFICATION_FAILED by 0.16 mm at
+#: t = 0, docs/collision.md).
+START_ROOM = 0.01
+#: Where on the free optimum a shelf or pillar is placed: the hand point at these fractions
+#: of its time, in order, until the start and the target are clear of it.
+PLACE_AT = (0.5, 0.4, 0.6, 0.3, 0.7)
 #: The bar of issue 51: planned per scene (of CASES), and ours shorter on this share.
 PLANNED_BAR, SHORTER_BAR = 19, 0.9
 
 
-def _scene(name: str, free, model) -> tuple:
-    """The scene ``name`` placed on the free optimum's path; and where."""
-    t = np.linspace(0.0, free.T, 401)
-    _, tips = tip_poses(model, free.trajectory.evaluate(t).q)
-    mid = tips[200]
+def _low_point(rng: np.random.Generator, azimuth: float) -> np.ndarray:
+    """A hand point low over the table at ``azimuth`` (rad) round the base, shape (3,) (m)."""
+    r, z = rng.uniform(*LOW_R), TABLE_TOP + rng.uniform(*LOW_Z)
+    return np.array([r * np.cos(azimuth), r * np.sin(azimuth), z])
+
+
+def draw_table(model: RobotModel, limits: JointLimits, col: CollisionModel, count: int,
+               seed: int = SEED) -> list:
+    """The table stream's ``count`` draws: ``(q0, target, why)`` each.
+
+    ``q0`` (rad, shape (n,)) the first configuration found clear of the table by the
+    margin and :data:`START_ROOM` that reaches the start's hand point (None, and ``why``
+    says so, when there is none); ``target`` (m, shape (3,)) the target's hand point.
+    The generator's draws do not depend on the outcomes: draw ``i`` is the same whichever
+    draws are run.
+    """
+    rng = np.random.default_rng([seed, 1])
+    roomy = col.with_scene(margin=col.margin + START_ROOM)
+    out = []
+    for _ in range(count):
+        a0 = rng.uniform(-np.pi, np.pi)
+        start = _low_point(rng, a0)
+        target = _low_point(rng, a0 + rng.choice([-1.0, 1.0]) * rng.uniform(*TURN))
+        found = clear_configuration(roomy, start, limits.plan_lower, limits.plan_upper)
+        why = "" if found.found else (
+            f"no start configuration clear of the table by {roomy.margin:g} m (of "
+            f"{found.tried}, the clearest "
+            f"{found.clearance:.4f} m, {'/'.join(found.pair)})")
+        out.append((found.q, target, why))
+    return out
+
+
+def _scene(name: str, free, model, at: float = 0.5) -> tuple:
+    """The scene ``name`` placed on the free optimum's hand point at ``at`` T; and where."""
+    _, tips = tip_poses(model, free.trajectory.evaluate(np.array([at * free.T])).q)
+    mid = tips[0]
     data = load_scene_dict(name)
     where = {}
     for ob in data["obstacles"]:
@@ -84,6 +139,8 @@ def _scene(name: str, free, model) -> tuple:
             z = ob.get("position", [0, 0, 0])[2] if ob["name"] == "pillar" else mid[2]
             ob["position"] = [float(mid[0]), float(mid[1]), float(z)]
             where[ob["name"]] = [round(float(v), 3) for v in ob["position"]]
+    if where and at != 0.5:
+        where["at"] = at
     return scene_from_dict(data, f"bench scene {name}"), where
 
 
@@ -166,112 +223,200 @@ def _peer(problem: Problem, col) -> dict:
             "waypoints": len(way)}
 
 
-def run(count: int = CASES, cases: set[int] | None = None,
-        scenes: tuple[str, ...] = SCENES) -> Section:
-    urdf = panda_urdf()
-    if urdf is None:
-        return Section("Collision-free motions (issue 51)",
-                       ["example-robot-data is not installed: no Panda, no section."])
-    srdf = urdf.parent.parent / "srdf" / "panda.srdf"
-    model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
-    limits = JointLimits.from_model(model)
-    base = collision_model(model, urdf, srdf)
-    options = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
-    rows, stats = [], {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
-                              "skipped": 0, "ours": [], "theirs": []} for name in SCENES}
-    for i, (q0, _, target) in enumerate(draw_cases(model, limits, DRAWS * count, SEED)):
-        if all(stats[name]["cases"] >= count for name in scenes):
-            break
-        if cases is not None and i not in cases:  # only these draws (a failed case again)
-            continue
-        free_problem = Problem(model, joint_state(q0), point(target), k=K, limits=limits)
+class _Bench:
+    """One run's model, options, counts and rows (see the module)."""
+
+    def __init__(self, draw_only: bool) -> None:
+        urdf = panda_urdf()
+        srdf = urdf.parent.parent / "srdf" / "panda.srdf"
+        self.model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
+        self.limits = JointLimits.from_model(self.model)
+        self.base = collision_model(self.model, urdf, srdf)
+        self.table = self.base.with_scene(scene_from_dict(load_scene_dict("table"),
+                                                          "bench scene table"))
+        self.options = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
+        self.draw_only = draw_only
+        self.rows: list = []
+        self.stats = {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
+                             "skipped": 0, "draws": 0, "ours": [], "theirs": []}
+                      for name in SCENES}
+
+    def problem(self, q0, target, col=None) -> Problem:
+        return Problem(self.model, joint_state(q0), point(target), k=K, limits=self.limits,
+                       collision=col)
+
+    def free(self, i: int, q0, target):
+        """The obstacle-free optimum of draw ``i`` (None when it failed)."""
         t0 = time.perf_counter()
-        free = plan(free_problem, options)
+        free = plan(self.problem(q0, target), self.options)
         log(f"collision: case {i} free {free.status.name} T {free.T:.4f} "
             f"({time.perf_counter() - t0:.1f} s)")
-        if not free.success:
-            rows.append([i, "free", "free plan failed", "", "", "", "", "", ""])
-            continue
-        for name in scenes:
-            st = stats[name]
-            if st["cases"] >= count:
-                continue
-            scene, where = _scene(name, free, model)
-            try:
-                col = base.with_scene(scene)
-                problem = Problem(model, joint_state(q0), point(target), k=K, limits=limits,
-                                  collision=col)
-            except Exception as exc:  # noqa: BLE001 - a start in collision: left out, counted
-                st["skipped"] += 1
-                rows.append([i, name, f"left out: {str(exc)[:60]}", "", "", "", "", "", ""])
-                log(f"collision: case {i} {name}: left out: {exc}")
-                continue
-            if float(target[2]) < TABLE_TOP + 0.05 or \
-                    certify_open_loop(problem, free.trajectory).item("clearance").passed:
-                st["skipped"] += 1  # the target under the table, or the free optimum clear
-                rows.append([i, name, "left out: target under the table or free path clear",
-                             "", "", "", "", "", ""])
-                log(f"collision: case {i} {name}: left out: target under the table or free "
-                    f"path clear")
-                continue
-            st["cases"] += 1
-            t0 = time.perf_counter()
-            res = plan(problem, options)
-            ours_time = time.perf_counter() - t0
-            clear, pair = np.nan, None
+        return free if free.success else None
+
+    def left_out(self, i: int, name: str, why: str) -> None:
+        self.stats[name]["skipped"] += 1
+        self.rows.append([i, name, f"left out: {why[:90]}"] + [""] * 7)
+        log(f"collision: case {i} {name}: left out: {why}")
+
+    def collides(self, i: int, name: str, problem: Problem, free) -> dict | None:
+        """The free optimum's certificate figures where it breaks the margin, else None.
+
+        None: ``i`` is left out of ``name`` (the free optimum is clear of the scene).
+        """
+        cert = certify_open_loop(problem, free.trajectory)
+        if cert.item("clearance").passed:
+            self.left_out(i, name, "the free optimum is clear of the scene")
+            return None
+        return cert.figures
+
+    def case(self, i: int, name: str, problem: Problem, free, fig: dict, where: dict
+             ) -> None:
+        """A case that counts: planned with the scene, checked by Coal, the peer's."""
+        st = self.stats[name]
+        st["cases"] += 1
+        col = problem.collision
+        free_cell = (f"{free.T:.4f}, {fig['min_clearance'] * 100:.1f} "
+                     f"({fig['closest_pair']})")
+        if self.draw_only:
+            self.rows.append([i, name, "counted (--draw-only: not planned)", "", "", "",
+                              free_cell, "", "", str(where)])
+            return
+        t0 = time.perf_counter()
+        res = plan(problem, self.options)
+        ours_time = time.perf_counter() - t0
+        clear, pair = np.nan, None
+        if res.success:
+            st["planned"] += 1
+            sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+            exact = col.clearance(sample.q)
+            clear, pair = exact.minimum, exact.pair
+            st["clear"] += int(clear >= col.margin)
+            st["ours"].append(ours_time)
+        log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
+            f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
+        if not res.success:  # what refused it: the message, the certificate's pair
+            cf = res.certificate.figures if res.certificate is not None else {}
+            log(f"collision: case {i} {name}: certificate's closest "
+                f"{cf.get('closest_pair')} {cf.get('min_clearance')} at "
+                f"{cf.get('closest_time')} s")
+            log(f"collision: case {i} {name}: starts " + "; ".join(
+                f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
+        peer = _peer(problem, col)
+        if peer["ok"]:
+            st["peer"] += 1
+            st["theirs"].append(peer["time"])
             if res.success:
-                st["planned"] += 1
-                sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
-                exact = problem.collision.clearance(sample.q)
-                clear, pair = exact.minimum, exact.pair
-                st["clear"] += int(clear >= col.margin)
-                st["ours"].append(ours_time)
-            log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
-                f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
-            if not res.success:  # what refused it: the message, the certificate's pair
-                fig = res.certificate.figures if res.certificate is not None else {}
-                log(f"collision: case {i} {name}: certificate's closest "
-                    f"{fig.get('closest_pair')} {fig.get('min_clearance')} at "
-                    f"{fig.get('closest_time')} s")
-                log(f"collision: case {i} {name}: starts " + "; ".join(
-                    f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
-            peer = _peer(problem, col)
-            if peer["ok"]:
-                st["peer"] += 1
-                st["theirs"].append(peer["time"])
-                if res.success:
-                    st["shorter"] += int(res.T < peer["T"])
-            log(f"collision: case {i} {name}: peer {peer}")
-            rows.append([i, name, res.status.name, f"{res.T:.4f}" if res.success else "—",
-                         f"{clear * 100:.1f}" if res.success else "—", f"{ours_time:.1f}",
-                         f"{peer['T']:.4f}" if peer["ok"] else peer["why"],
-                         f"{peer['time']:.1f}", str(where)])
+                st["shorter"] += int(res.T < peer["T"])
+        log(f"collision: case {i} {name}: peer {peer}")
+        self.rows.append([i, name, res.status.name, f"{res.T:.4f}" if res.success else "—",
+                          f"{clear * 100:.1f}" if res.success else "—", f"{ours_time:.1f}",
+                          free_cell, f"{peer['T']:.4f}" if peer["ok"] else peer["why"],
+                          f"{peer['time']:.1f}", str(where)])
+
+    def table_stream(self, count: int, cases: set[int] | None) -> None:
+        st = self.stats["table"]
+        for i, (q0, target, why) in enumerate(draw_table(self.model, self.limits, self.table,
+                                                         DRAWS * count)):
+            if st["cases"] >= count:
+                break
+            if cases is not None and i not in cases:  # only these draws
+                continue
+            st["draws"] += 1
+            if q0 is None:
+                self.left_out(i, "table", why)
+                continue
+            try:
+                problem = self.problem(q0, target, self.table)
+            except ProblemError as exc:  # the target has no clear configuration: refused
+                self.left_out(i, "table", str(exc))
+                continue
+            free = self.free(i, q0, target)
+            if free is None:
+                self.left_out(i, "table", "the free plan failed")
+            elif (fig := self.collides(i, "table", problem, free)) is not None:
+                self.case(i, "table", problem, free, fig, {})
+
+    def placed_stream(self, count: int, cases: set[int] | None, names: tuple) -> None:
+        stats = self.stats
+        for i, (q0, _, target) in enumerate(draw_cases(self.model, self.limits,
+                                                       DRAWS * count, SEED)):
+            names_left = [n for n in names if stats[n]["cases"] < count]
+            if not names_left:
+                break
+            if cases is not None and i not in cases:
+                continue
+            for name in names_left:
+                stats[name]["draws"] += 1
+            try:  # the table is in every scene: a start or target not clear of it is out
+                self.problem(q0, target, self.table)
+            except ProblemError as exc:
+                for name in names_left:
+                    self.left_out(i, name, str(exc))
+                continue
+            free = self.free(i, q0, target)
+            for name in names_left:
+                if free is None:
+                    self.left_out(i, name, "the free plan failed")
+                    continue
+                problem, why = None, ""
+                for at in PLACE_AT:
+                    scene, where = _scene(name, free, self.model, at)
+                    try:
+                        problem = self.problem(q0, target, self.base.with_scene(scene))
+                        break
+                    except ProblemError as exc:
+                        why = str(exc)
+                if problem is None:
+                    self.left_out(i, name, f"not clear at any of {len(PLACE_AT)} placements: "
+                                           f"{why}")
+                elif (fig := self.collides(i, name, problem, free)) is not None:
+                    self.case(i, name, problem, free, fig, where)
+
+
+def run(count: int = CASES, cases: set[int] | None = None,
+        scenes: tuple[str, ...] = SCENES, draw_only: bool = False) -> Section:
+    if panda_urdf() is None:
+        return Section("Collision-free motions (issue 51)",
+                       ["example-robot-data is not installed: no Panda, no section."])
+    bench = _Bench(draw_only)
+    if "table" in scenes:
+        bench.table_stream(count, cases)
+    placed = tuple(name for name in scenes if name != "table")
+    if placed:
+        bench.placed_stream(count, cases, placed)
+    stats, rows = bench.stats, bench.rows
     lines = [f"The Panda (hand tip, URDF limits, SRDF), k = {K:g}, margin "
-             f"{base.margin * 100:g} cm, up to {count} cases per scene from at most "
-             f"{DRAWS * count} draws (seed {SEED}); scenes placed on "
-             f"each case's obstacle-free optimum (`bench/collision.py`, `bench/scenes/`). "
-             f"Regenerate: `scripts/dev bench run_all.py --update --only collision` "
-             f"(`--collision-cases N`). Times are wall seconds in one process on a machine "
-             f"shared with other jobs.", ""]
+             f"{bench.base.margin * 100:g} cm, up to {count} cases per scene, each stream "
+             f"drawn on until its scenes have them, at most {DRAWS * count} draws (seed "
+             f"{SEED}); the table's cases low over the table on opposite sides of the base, "
+             f"the shelf and pillar placed on each case's obstacle-free optimum "
+             f"(`bench/collision.py`, `bench/scenes/`). Regenerate: `scripts/dev bench "
+             f"run_all.py --update --only collision` (`--collision-cases N`); the draws "
+             f"alone: `scripts/dev run python -P bench/collision.py N --draw-only`. Times are "
+             f"wall seconds in one process on a machine shared with other jobs.", ""]
+    if draw_only:
+        lines += ["**Draws only** (`--draw-only`): no plan with the scene, no peer.", ""]
     summary = []
-    for name in SCENES:
+    for name in scenes:
         st = stats[name]
         both = min(st["planned"], st["peer"])
-        summary.append([name, st["cases"], st["skipped"], st["planned"],
+        summary.append([name, st["draws"], st["cases"], st["skipped"], st["planned"],
                         f"{st['clear']}/{st['planned']}", st["peer"],
                         f"{st['shorter']}/{both}",
                         f"{np.median(st['ours']):.1f}" if st["ours"] else "—",
                         f"{np.median(st['theirs']):.1f}" if st["theirs"] else "—"])
-    lines += table(["scene", "cases (free optimum collides)", "left out", "planned",
+    lines += table(["scene", "draws", "cases (free optimum collides)", "left out", "planned",
                     "exactly clear by the margin", "peer planned", "ours shorter",
                     "ours: median s", "peer: median s"], summary)
-    lines += ["", "Per case (clearance: Coal at 2001 times, self pairs included; the peer: "
-              "OMPL RRTConnect + shortcut, TOPP-RA under the velocity limits and the torque "
-              "box):", ""]
+    lines += ["", "Per case (clearance: Coal at 2001 times, self pairs included; the free "
+              "optimum: its T, its least clearance by the certificate and the pair; the "
+              "peer: OMPL RRTConnect + shortcut, TOPP-RA under the velocity limits and the "
+              "torque box):", ""]
     lines += table(["case", "scene", "status", "T (s)", "clearance (cm)", "plan (s)",
-                    "peer T (s)", "peer (s)", "placed"], rows)
+                    "free optimum: T (s), clearance (cm)", "peer T (s)", "peer (s)",
+                    "placed"], rows)
     targets = []
-    for name in SCENES:
+    for name in () if draw_only else scenes:
         st = stats[name]
         targets.append((f"{name}: planned >= {PLANNED_BAR}/{CASES} (of the cases run)",
                         f"{st['planned']}/{st['cases']}"))
@@ -290,6 +435,8 @@ if __name__ == "__main__":
                         help="only this draw (repeatable): e.g. a failed case again")
     parser.add_argument("--scene", choices=SCENES, action="append",
                         help="only this scene (repeatable)")
+    parser.add_argument("--draw-only", action="store_true",
+                        help="the draws and their free optima only: no plan with the scene")
     args = parser.parse_args()
     run(args.count, set(args.case) if args.case else None,
-        tuple(args.scene) if args.scene else SCENES).print()
+        tuple(args.scene) if args.scene else SCENES, args.draw_only).print()

@@ -18,6 +18,7 @@ coal = pytest.importorskip("coal")
 from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E402
 from tocontrol_ros.core.direct.first_motion import first_motion  # noqa: E402
 from tocontrol_ros.core.geometry.collision import collision_model, disabled_pairs  # noqa: E402
+from tocontrol_ros.core.geometry.reach import clear_configuration  # noqa: E402
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.geometry.shapes import LinkShape  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_pose  # noqa: E402
@@ -111,6 +112,59 @@ def test_start_in_collision_refused_naming_pair_and_distance(panda):
                                            r"\w+ and block are -[0-9.]+ m apart"):
         Problem(model, joint_state(Q0), point([0.3, 0.4, 0.5]),
                 collision=col.with_scene(scene))
+
+
+#: A table at z = 0 under the Panda (bench/scenes/table.yaml), the base standing on it.
+TABLE = {"obstacles": [{"name": "table", "type": "box", "size": [1.6, 1.6, 0.04],
+                        "position": [0.3, 0.0, -0.02]}],
+         "allowed": [["panda_link0", "table"], ["panda_link1", "table"]]}
+
+
+def test_target_point_in_collision_refused_naming_pair_and_why(panda):
+    model, _, _, col = panda
+    # Inside a 10 cm ball: every configuration reaching the point has the hand in it.
+    inside = scene_from_dict({"obstacles": [
+        {"name": "block", "type": "sphere", "radius": 0.1, "position": [0.3, 0.4, 0.5]}]})
+    with pytest.raises(ProblemError, match=r"`target` point \[0\.3, 0\.4, 0\.5\] has no "
+                                           r"configuration clear of the scene by the margin "
+                                           r".* the clearest is in collision, \w+ and block "
+                                           r"closest"):
+        Problem(model, joint_state(Q0), point([0.3, 0.4, 0.5]),
+                collision=col.with_scene(inside))
+    # Reachable only through the table or the base (draw 17 of bench.limits.draw_cases,
+    # seed 51: case 17 table of bench/collision.py before session 36, LIMITS_INFEASIBLE;
+    # 6.9 cm above the table, 15.7 cm from the base's axis): no IK solution is clear.
+    low = [-0.08442261, -0.13228413, 0.06938094]
+    with pytest.raises(ProblemError, match=r"`target` point .* no configuration clear .*"
+                                           r"closest; the point is inside an obstacle, or "
+                                           r"the arm reaches it only through one"):
+        Problem(model, joint_state(Q0), point(low), collision=col.with_scene(
+            scene_from_dict(TABLE)))
+    # The same as a start point is refused the same way; a point with room is accepted.
+    with pytest.raises(ProblemError, match=r"`start` point .* no configuration clear"):
+        Problem(model, point(low), point([0.3, 0.4, 0.5]),
+                collision=col.with_scene(scene_from_dict(TABLE)))
+    Problem(model, joint_state(Q0), point([0.3, 0.4, 0.5]),
+            collision=col.with_scene(scene_from_dict(TABLE)))
+
+
+def test_clear_configuration_reaches_the_point_inside_the_limits_and_clear(panda):
+    model, _, _, col = panda
+    table = col.with_scene(scene_from_dict(TABLE))
+    lo, hi = model.q_lower, model.q_upper
+    p = np.array([0.45, -0.2, 0.15])  # low over the table: some configurations hit it
+    found = clear_configuration(table, p, lo, hi)
+    assert found.found and found.tried >= 1
+    assert np.linalg.norm(model.point(found.q) - p) < 1e-6
+    assert np.all(found.q >= lo) and np.all(found.q <= hi)
+    # Checked again pair by pair with Coal directly: every checked pair keeps the margin.
+    assert min(float(d[0]) for d in table.clearance(found.q).pair_distances.values()) \
+        >= table.margin
+    assert found.clearance == pytest.approx(table.clearance(found.q).minimum)
+    # The same question gives the same answer (a fixed amount of seeded work), asked of
+    # another collision model object (not the remembered verdict).
+    again = clear_configuration(col.with_scene(scene_from_dict(TABLE)), p, lo, hi)
+    assert np.array_equal(again.q, found.q)
 
 
 def test_certificate_refuses_a_motion_through_a_box(panda):

@@ -8,6 +8,7 @@ Nothing waits on wall time except for events the test itself triggers, each boun
 from __future__ import annotations
 
 import itertools
+import re
 import threading
 import time
 from dataclasses import dataclass, field
@@ -532,3 +533,59 @@ def test_a_motion_the_tracker_rejected_on_the_topic_is_no_longer_continued(make_
     [(_, level, message, values)] = out.statuses("refused")
     assert level == "WARN" and values["request_id"] == b.id
     assert "the tracker rejected it: at its take-over its position is 0.2 rad off" in message
+
+
+@pytest.mark.slow  # the Panda's collision model and the refusal: 27 s at load 16
+def test_a_target_with_no_clear_configuration_fails_before_any_solve():
+    # The Panda with a 10 cm ball around the target (issue 51): the request fails with the
+    # core's refusal, naming the closest pair; the planner is never asked to solve it.
+    pytest.importorskip("coal")
+    from skip_policy import panda_srdf, panda_urdf
+
+    from tocontrol_ros.core.geometry.collision import collision_model
+    from tocontrol_ros.core.geometry.scene import scene_from_dict
+    from tocontrol_ros.nodes.pose_goals import pose_target
+
+    urdf = panda_urdf()
+    panda = load_robot(urdf, tip_link="panda_hand",
+                       locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0})
+    config = config_from_values({"default_start": [0.3, 0.0, 0.5]}, task_dim=panda.m)
+    out = FakeOutputs()
+    service = PlanningService(panda, planner_limits(config, panda), config, "panda_link0",
+                              out, FakeArm(), FakeClock().clock(), planner_factory=FakePlanner)
+    service.collision = collision_model(panda, urdf, panda_srdf(), scene_from_dict(
+        {"obstacles": [{"name": "block", "type": "sphere", "radius": 0.1,
+                        "position": [0.3, 0.4, 0.5]}]}))
+    service.start()
+    try:
+        assert service.ready.wait(WAIT), "no warm-up"
+        service.planner.hold.set()
+        service.planner.gate.set()
+        req = PlanRequest(service.next_id(), "service", ("point", np.array([0.3, 0.0, 0.5])),
+                          np.array([0.3, 0.4, 0.5]), config)
+        service.submit(req)
+        # The refusal's IK rounds and exact distances (about 1 s of CPU) on a loaded machine.
+        assert req.done.wait(6 * WAIT), "no outcome"
+        done = final(out, req)
+        assert done["level"] == "ERROR" and done["event"] == "failed"
+        assert re.search(r"`target` point \[0\.3, 0\.4, 0\.5\] has no configuration clear of "
+                         r"the scene by the margin .* \w+ and block closest", done["message"])
+        assert service.planner.solved == []  # refused before any solve
+        assert req.path is None and "trajectory" not in out.kinds()
+        # A pose there (the hand pointing down): each IK solution a joint-state target, each
+        # refused as in collision with the block; the request fails naming it.
+        start = ("state", np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]), np.zeros(7))
+        pose = pose_target((0.3, 0.4, 0.5), (1.0, 0.0, 0.0, 0.0), "panda_link0", panda,
+                           "panda_link0", start, "goal_pose")
+        posed = PlanRequest(service.next_id(), "goal_pose", start, pose.position, config,
+                            target_pose=pose)
+        service.submit(posed)
+        assert posed.done.wait(6 * WAIT), "no outcome"
+        done = final(out, posed)
+        assert done["level"] == "ERROR" and done["event"] == "failed"
+        assert re.search(r"none of the pose's \d+ IK solutions can be planned to: `target` "
+                         r"joint state is in collision: \w+ and block", done["message"])
+        assert service.planner.solved == [] and "trajectory" not in out.kinds()
+    finally:
+        service.planner.gate.set()
+        service.stop()

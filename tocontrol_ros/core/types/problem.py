@@ -15,6 +15,7 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.geometry.collision import CollisionModel
+from tocontrol_ros.core.geometry.reach import clear_configuration
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -95,13 +96,18 @@ class Problem:
         The arm's geometry, the scene and the margin the motion keeps from obstacles and
         between its own links (:func:`~tocontrol_ros.core.geometry.collision.collision_model`);
         default: none (the motion knows no geometry). A start or target joint state closer
-        than the margin is refused, naming the pair and the distance.
+        than the margin is refused, naming the pair and the distance; so is a start or
+        target point none of whose configurations found inside the limits is that clear
+        (:func:`~tocontrol_ros.core.geometry.reach.clear_configuration`: inside an
+        obstacle, or reachable only through one), naming the clearest one's closest pair.
 
     Raises
     ------
     ProblemError
         Wrong shapes, NaN or infinite values, ``k`` or ``reserve`` out of range, an
-        unreachable point, a joint state outside the position limits, a moving target state.
+        unreachable point, a joint state outside the position limits, a moving target state;
+        with ``collision``, an end closer than the margin to an obstacle or to the arm
+        itself (a point: no clear configuration found).
     """
 
     model: RobotModel
@@ -159,7 +165,8 @@ class Problem:
                                f"{list(self.model.joint_names)}, got {col!r}")
         for name in ("start", "target"):
             end = getattr(self, name)
-            if end.kind != "state":
+            if end.kind == "point":
+                self._check_clear_point(name, end.value)
                 continue
             found = col.clearance(end.value[:self.model.n])
             if found.minimum < col.margin:
@@ -167,6 +174,27 @@ class Problem:
                 raise ProblemError(
                     f"`{name}` joint state is {what}: {found.pair[0]} and {found.pair[1]} are "
                     f"{found.minimum:.4f} m apart (margin {col.margin:g} m)")
+
+    def _check_clear_point(self, name: str, p: np.ndarray) -> None:
+        """A point end has a configuration inside the limits clear by the margin."""
+        col = self.collision
+        found = clear_configuration(col, p, self.limits.plan_lower, self.limits.plan_upper)
+        if found.found:
+            return
+        where = f"`{name}` point {np.round(p, 6).tolist()}"
+        if found.tried == 0:
+            raise ProblemError(
+                f"{where} has no configuration inside the joint limits: none of its "
+                f"{found.solutions} IK solutions (from {found.seeds} seeds) is inside them")
+        # Coal gives a mesh pair in contact a distance of 0 (no penetration depth).
+        what = "in collision" if found.clearance <= 0 else \
+            f"{found.clearance:.4f} m clear"
+        raise ProblemError(
+            f"{where} has no configuration clear of the scene by the margin "
+            f"({col.margin:g} m): of {found.tried} IK solutions inside the joint limits "
+            f"(from {found.seeds} seeds), the clearest is {what}, {found.pair[0]} and "
+            f"{found.pair[1]} closest; the point is inside an obstacle, or the arm reaches "
+            f"it only through one (or through itself)")
 
     @property
     def start_point(self) -> np.ndarray:

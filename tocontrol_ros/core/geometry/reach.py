@@ -1,0 +1,136 @@
+"""Whether a task-space point has a configuration clear of the scene (issue 51).
+
+A point end of a problem leaves the configuration free on its self-motion manifold; with a
+collision model the motion must also end (or begin) at a configuration whose every checked
+pair (the arm's links against the scene's obstacles, and its own non-adjacent links) is at
+least the margin apart. A point inside an obstacle, or reachable only through one (the hand
+between the table and the base, say), has none, and no solve can succeed: such a point is
+refused at the problem's input (:class:`~tocontrol_ros.core.types.problem.Problem`) rather
+than left to the solver, whose failure would not say why.
+
+:func:`clear_configuration` looks for one by a fixed amount of work: IK solutions spread
+over the self-motion manifold (:func:`~tocontrol_ros.core.robot.ik.ik_family`, seeded, so
+the same point gives the same verdict on any machine load), inside the joint limits, each
+measured by the exact distances (:meth:`CollisionModel.clearance`, Coal on the URDF's
+geometry); it stops at the first one clear by the margin. Sampled IK is no proof that none
+exists: the verdict is "none found among N", and the message says so.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from tocontrol_ros.core.geometry.collision import CollisionModel
+from tocontrol_ros.core.robot.ik import ik_family
+
+__all__ = ["ClearReach", "clear_configuration", "CLEAR_IK_ROUNDS"]
+
+#: IK seeds of each round (``ik_family``'s ``count``) and the generator seed of each: a
+#: target with room around it has a clear configuration among the first round's solutions
+#: (checked one at a time, stopping at the first clear one); only a point with none found
+#: pays for the later rounds. 8 + 48 + 96 = 152 seeds bound the work of a refusal.
+CLEAR_IK_ROUNDS = ((8, 0), (48, 1), (96, 2))
+
+#: Verdicts remembered (newest last): a replan makes several problems to one target with
+#: one collision model, and each check is up to 152 IK solves and as many exact distances.
+_KNOWN: collections.OrderedDict = collections.OrderedDict()
+_KNOWN_SIZE = 256
+_KNOWN_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class ClearReach:
+    """What :func:`clear_configuration` found.
+
+    Attributes
+    ----------
+    q : ndarray or None
+        A configuration reaching the point, inside the limits and clear by the margin,
+        shape (n,) (rad, m); None when none was found.
+    clearance : float
+        The exact clearance of ``q``, or (none found) of the clearest configuration tried
+        (m; ``-inf`` when no IK solution was inside the limits).
+    pair : tuple of str
+        The closest pair at that configuration (empty when none was tried).
+    tried : int
+        IK solutions inside the limits whose clearance was measured.
+    solutions : int
+        IK solutions found (inside the limits or not).
+    seeds : int
+        IK seeds spent.
+    """
+
+    q: np.ndarray | None
+    clearance: float
+    pair: tuple[str, ...]
+    tried: int
+    solutions: int
+    seeds: int
+
+    @property
+    def found(self) -> bool:
+        """Whether a clear configuration was found."""
+        return self.q is not None
+
+
+def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReach:
+    """A configuration reaching ``p`` inside ``[lower, upper]``, clear by the margin.
+
+    Parameters
+    ----------
+    collision : CollisionModel
+        The arm's geometry, the scene and the margin (m).
+    p : array_like, shape (m,)
+        Task-space point (m).
+    lower, upper : array_like, shape (n,)
+        Joint position bounds (rad, m; infinite where unbounded).
+
+    Returns
+    -------
+    ClearReach
+        The first clear configuration of :data:`CLEAR_IK_ROUNDS`' solutions, in their
+        order; or, when none is clear, the clearest tried and its closest pair.
+    """
+    model = collision.model
+    p = np.asarray(p, dtype=float)
+    lo = np.asarray(lower, dtype=float)
+    hi = np.asarray(upper, dtype=float)
+    key = (id(collision), p.tobytes(), lo.tobytes(), hi.tobytes())
+    with _KNOWN_LOCK:
+        known = _KNOWN.get(key)
+        if known is not None and known[0] is collision:
+            _KNOWN.move_to_end(key)
+            return known[1]
+    best = ClearReach(None, -np.inf, (), 0, 0, 0)
+    tried = solutions = seeds = 0
+    seen: list[np.ndarray] = []
+    for count, seed in CLEAR_IK_ROUNDS:
+        found = ik_family(model, p, count=count, rng=np.random.default_rng(seed))
+        seeds += count
+        solutions += len(found)
+        for q in found:
+            if not (np.all(q >= lo) and np.all(q <= hi)):
+                continue
+            if any(np.max(np.abs(q - s)) < 1e-6 for s in seen):  # a later round's repeat
+                continue
+            seen.append(q)
+            tried += 1
+            c = collision.clearance(q)
+            if c.minimum >= collision.margin:
+                best = ClearReach(q, c.minimum, tuple(c.pair), tried, solutions, seeds)
+                break
+            if c.minimum > best.clearance:
+                best = ClearReach(None, c.minimum, tuple(c.pair), tried, solutions, seeds)
+        if best.found:
+            break
+    if not best.found:
+        best = ClearReach(None, best.clearance, best.pair, tried, solutions, seeds)
+    with _KNOWN_LOCK:
+        _KNOWN[key] = (collision, best)  # the model kept: its id is not reused while here
+        while len(_KNOWN) > _KNOWN_SIZE:
+            _KNOWN.popitem(last=False)
+    return best
