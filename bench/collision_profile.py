@@ -22,8 +22,11 @@ Then the clearance rows' share of an iteration: the NLP's Jacobian and Hessian e
 on the first uniform mesh with the scene and without it (the same spans), alternated.
 
 Run: ``scripts/dev run python -P bench/collision_profile.py 1:table 2:shelf 4:pillar``
-(``CASE:SCENE`` pairs; ``--budget N``: the bounded solves of a colliding seed's basin
-limited to N iterations, the variant measured in docs/collision.md).
+(``CASE:SCENE`` pairs). The refinement's active set (:mod:`~tocontrol_ros.core.direct.
+active_rows`): ``--full-rows`` plans without it (main before it); ``--paired`` runs each
+refinement solve both ways in the plan, alternated (the plan follows the active set's
+answer); ``--both`` plans each case with the full rows, then with the active set.
+docs/collision.md ("Where a collision plan's time goes") has what these measured.
 """
 
 from __future__ import annotations
@@ -66,8 +69,8 @@ STAGES = {"_detour_solve": "detour steps", "_continued_in_k": "basin: k-continua
           "_uniform": "basin: uniform", "_refine_item": "refinement",
           "_inside_set": "pad round", "plan_limited_warm": "self-row warm"}
 #: CasADi's per-solve processor-time counters (s).
-COUNTERS = {"rows": "t_proc_nlp_g", "Jacobian": "t_proc_nlp_jac_g",
-            "Hessian": "t_proc_nlp_hess_l", "total": "t_proc_total"}
+COUNTERS = {"g": "t_proc_nlp_g", "Jacobian": "t_proc_nlp_jac_g",
+            "Hessian": "t_proc_nlp_hess_l"}
 
 
 def _stage() -> str:
@@ -193,13 +196,12 @@ class Recorder:
             for key, name in COUNTERS.items():
                 entry[key] = float(st.get(name, 0.0))
             rec.solves.append(entry)
-            fun = sum(entry[key] for key in ("rows", "Jacobian", "Hessian"))
             log(f"  solve: r{rec.round} {stage} L={obj.spans} rows={obj.rows} "
                 f"clear={clear} k={float(k):g} warm={obj.warm} it={out.iterations} "
                 f"{out.message[:30]} T={out.T:.4f} cpu={cpu:.1f} s "
                 f"ms/it={1e3 * cpu / max(out.iterations, 1):.0f} "
                 f"jac={entry['Jacobian']:.1f} hess={entry['Hessian']:.1f} "
-                f"fun={fun / max(entry['total'], 1e-9):.0%} collides={collides}")
+                f"collides={collides}")
             return out
         return solve
 
@@ -251,8 +253,8 @@ def row_share(problem: Problem, free_problem: Problem, spans: int = 32, calls: i
     return out
 
 
-def run(pairs: list[tuple[int, str]], paired: bool = False, base: bool = False
-        ) -> list[dict]:
+def run(pairs: list[tuple[int, str]], paired: bool = False, full_rows: bool = False,
+        both: bool = False) -> list[dict]:
     """Plan each (draw, scene) once, recorded; print the table; return the records."""
     urdf = panda_urdf()
     srdf = urdf.parent.parent / "srdf" / "panda.srdf"
@@ -262,7 +264,9 @@ def run(pairs: list[tuple[int, str]], paired: bool = False, base: bool = False
     options = SolverOptions(starts=4, candidates=1, time_limit=1800.0)
     draws = draw_cases(model, limits, DRAWS * 4, SEED)
     frees, out = {}, []
-    for case, name in pairs:
+    # --both: each case with the full rows (main's refinement), then with the active set
+    runs = [(c, n, f) for c, n in pairs for f in ((True, False) if both else (full_rows,))]
+    for case, name, full in runs:
         q0, _, target = draws[case]
         if case not in frees:
             frees[case] = plan(Problem(model, joint_state(q0), point(target), k=K,
@@ -271,13 +275,14 @@ def run(pairs: list[tuple[int, str]], paired: bool = False, base: bool = False
         col = base.with_scene(placed_scene(name, free, model))
         problem = Problem(model, joint_state(q0), point(target), k=K, limits=limits,
                           collision=col)
-        active_rows.ACTIVE_ROWS = not base
+        active_rows.ACTIVE_ROWS = not full
         with Recorder(col, paired) as rec:
             t0, w0 = time.process_time(), time.perf_counter()
             res = plan(problem, options)
             cpu, wall = time.process_time() - t0, time.perf_counter() - w0
         share = row_share(problem, free.problem)
-        out.append({"case": case, "scene": name, "status": res.status.name, "T": res.T,
+        out.append({"case": case, "scene": name, "full rows": full,
+                    "status": res.status.name, "T": res.T,
                     "cpu": cpu, "wall": wall, "solves": rec.solves, "costs": dict(rec.costs),
                     "timings": dict(res.timings), "share": share, "message": res.message,
                     "pairs": rec.pairs})
@@ -287,7 +292,8 @@ def run(pairs: list[tuple[int, str]], paired: bool = False, base: bool = False
 
 def report(r: dict) -> None:
     """Print one plan's record."""
-    log(f"case {r['case']} {r['scene']}: {r['status']} T {r['T']:.6f} cpu {r['cpu']:.1f} s "
+    log(f"case {r['case']} {r['scene']} full rows {r['full rows']}: {r['status']} T "
+        f"{r['T']:.9f} cpu {r['cpu']:.1f} s "
         f"wall {r['wall']:.1f} s: {r['message'][:160]}")
     by = collections.defaultdict(lambda: [0, 0, 0.0])
     for s in r["solves"]:
@@ -300,13 +306,12 @@ def report(r: dict) -> None:
     for key, v in sorted(r["costs"].items()):
         log(f"  {key:32s} {v:8.2f}")
     for s in r["solves"]:
-        fn = s["Jacobian"] + s["Hessian"] + s["rows"]
         per = 1e3 * s["cpu"] / max(s["iterations"], 1)
         log(f"    r{s['round']} {s['stage']:22s} L={s['spans']!s:>3} rows={s['rows']!s:>5} "
             f"clear={s['clearance rows']!s:>4} k={s['k']:.0f} warm={s['warm']!s:7s} "
             f"it={s['iterations']!s:>3} {s['message'][:28]:28s} T={s['T']:.4f} "
-            f"cpu={s['cpu']:6.1f} ms/it={per:6.1f} fun={fn / max(s['total'], 1e-9):.0%} "
-            f"collides={s['guess collides']}")
+            f"cpu={s['cpu']:6.1f} ms/it={per:6.1f} jac={s['Jacobian']:.1f} "
+            f"hess={s['Hessian']:.1f} collides={s['guess collides']}")
     log(f"  rows' share (32 spans, ms a call): {r['share']}")
 
 
@@ -317,7 +322,10 @@ if __name__ == "__main__":
     parser.add_argument("pairs", nargs="+", help="CASE:SCENE, e.g. 1:table")
     parser.add_argument("--paired", action="store_true",
                         help="each refinement solve with the active set and without, paired")
-    parser.add_argument("--base", action="store_true",
+    parser.add_argument("--full-rows", action="store_true",
                         help="the refinement without the active set (main's)")
+    parser.add_argument("--both", action="store_true",
+                        help="each case with the full rows, then with the active set")
     args = parser.parse_args()
-    run([(int(p.split(":")[0]), p.split(":")[1]) for p in args.pairs], args.paired, args.base)
+    run([(int(p.split(":")[0]), p.split(":")[1]) for p in args.pairs], args.paired, args.full_rows,
+        args.both)
