@@ -332,13 +332,19 @@ class FlatTranscription:
     hessian : {"exact", "id_linear", "ggn"}
         The set rows' part of the Newton matrix IPOPT is given (:data:`HESSIANS`); the
         NLP and its first derivatives are the same whichever.
+    clearance_samples : ndarray of int, optional
+        The samples (indices into :attr:`samples`) that carry clearance rows; default all.
+        Fewer: a smaller NLP whose solution holds the margin only there, for a solve whose
+        caller checks the other samples' rows itself (the refinement's active set,
+        ``limited._refine_item``); :meth:`full_lam_g` maps its multipliers to all rows.
     """
 
     def __init__(self, model: RobotModel, spans: int | np.ndarray, start_kind: str = "state",
                  target_kind: str = "point", degree: int = 3, per_span: int = 3,
                  torque_scale: float = 1.0, tol: float = 1e-8, max_iter: int = 300,
                  warm: bool | str = False, clearance: ClearanceRows | None = None,
-                 acceleration: np.ndarray | None = None, hessian: str = "exact") -> None:
+                 acceleration: np.ndarray | None = None, hessian: str = "exact",
+                 clearance_samples: np.ndarray | None = None) -> None:
         self.hessian = hessian
         self.clearance = clearance if clearance is not None and clearance.count else None
         self.breaks = breakpoints(spans)
@@ -346,7 +352,7 @@ class FlatTranscription:
         self.model, self.degree, self.per_span = model, degree, per_span
         self.start_kind, self.target_kind = start_kind, target_kind
         self.torque_scale = torque_scale
-        self.warm = warm
+        self.warm, self.tol, self.max_iter = warm, tol, max_iter
         self.acceleration = None if acceleration is None or \
             not np.any(np.isfinite(acceleration)) else np.asarray(acceleration, dtype=float)
         n, m, L, p = model.n, model.m, self.spans, degree
@@ -404,10 +410,14 @@ class FlatTranscription:
         local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat, k, sc)
         g_eval, jac = self._constraint_jacobian(set_grad, local, zvars, w, g_lin, g_b)
         self._ng_clear = 0
+        self.clearance_samples = np.arange(S) if clearance_samples is None \
+            else np.unique(np.asarray(clearance_samples, dtype=int))
         if self.clearance is not None:
-            clear_local = (ca.reshape(Ploc, n, (p + 1) * S), T, bcat[0, :],
-                           ca.reshape(geo[len(self._geo) - (p + 1) * S:], p + 1, S))
-            clear = self._clearance_rows(clear_local, zvars, w)
+            keep = self.clearance_samples  # each kept sample's (p + 1) columns
+            kc = (keep[:, None] * (p + 1) + np.arange(p + 1)[None, :]).ravel().tolist()
+            clear_local = (Ploc[:, kc], T, bcat[0, kc], ca.reshape(
+                geo[len(self._geo) - (p + 1) * S:], p + 1, S)[:, keep.tolist()])
+            clear = self._clearance_rows(clear_local, zvars[keep], w)
             g, g_eval, jac = (ca.vertcat(g, clear[0]), ca.vertcat(g_eval, clear[1]),
                               ca.vertcat(jac, clear[2]))
             ng += self._ng_clear
@@ -415,8 +425,8 @@ class FlatTranscription:
         lam_f = ca.MX.sym("lam_f")
         hess = self._lagrangian_hessian(set_hess, local, zvars, w, g_lin, g_b, lam_g)
         if self.clearance is not None:
-            hess = hess + self._clearance_hessian(clear_local, zvars, w,
-                                                  lam_g[ng - self._ng_clear:])
+            hess = hess + self._clearance_hessian(clear_local, zvars[self.clearance_samples],
+                                                  w, lam_g[ng - self._ng_clear:])
         self._nw, self._iT, self._ng = nw, iT, ng
         allp = ca.vertcat(par, geo)
         jac_fun = ca.Function("jac_g", [w, allp], [g_eval, jac], ["x", "p"], ["g", "jac"])
@@ -629,7 +639,7 @@ class FlatTranscription:
         lbg[ng_set:ng_set + ng_lin], ubg[ng_set:ng_set + ng_lin] = -v, v
         if self._ng_clear:  # clearance rows: >= 0, less the ends' allowance
             allow = np.zeros(self._ng_clear) if ends is None \
-                else self.clearance_allowance(*ends).ravel()  # sample by sample
+                else self.clearance_allowance(*ends)[self.clearance_samples].ravel()
             lbg = np.concatenate([lbg, -allow])
             ubg = np.concatenate([ubg, np.full(self._ng_clear, np.inf)])
         lbx = np.concatenate([np.tile(lower[:n], self.K), [1e-3]])
@@ -846,6 +856,43 @@ class FlatTranscription:
         geo[len(geo) - per * len(self.samples):].reshape(-1, per)[:, 0] *= scale
         other._geo = geo
         return other
+
+    def with_clearance_samples(self, keep: np.ndarray) -> FlatTranscription:
+        """The same NLP (options, breakpoints) with clearance rows at samples ``keep`` only.
+
+        A new build (no compile: the clearance library is the same), not a view.
+        """
+        return FlatTranscription(
+            self.model, self.spans, self.start_kind, self.target_kind, self.degree,
+            self.per_span, self.torque_scale, self.tol, self.max_iter, self.warm,
+            self.clearance, self.acceleration, clearance_samples=keep).on(self.breaks)
+
+    def clearance_slack(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
+                        T: float, P: np.ndarray) -> np.ndarray:
+        """How far each clearance row of this NLP is above its lower bound (m).
+
+        Shape (kept samples, groups) (:attr:`clearance_samples`); ``P`` (K, n), ``T`` (s).
+        """
+        par = self.parameters(start_value, target_value, k)
+        w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
+        g = np.array(self._g(w, par)).ravel()[self._ng - self._ng_clear:]
+        allow = self.clearance_allowance(start_value, target_value)[self.clearance_samples]
+        return g.reshape(allow.shape) + allow
+
+    def full_lam_g(self, lam_g: np.ndarray) -> np.ndarray:
+        """Multipliers of this NLP's rows as those of every sample's rows (zeros where left out).
+
+        ``lam_g`` (rows,) of a transcription with :attr:`clearance_samples` a subset, mapped
+        to the rows of the same transcription with all samples (the multipliers of the rows
+        left out, inactive at its solution, are zero).
+        """
+        S = len(self.samples)
+        if self.clearance is None or len(self.clearance_samples) == S:
+            return lam_g
+        head = self._ng - self._ng_clear
+        full = np.zeros((S, len(self.clearance.groups())))
+        full[self.clearance_samples] = np.reshape(lam_g[head:], (len(self.clearance_samples), -1))
+        return np.concatenate([lam_g[:head], full.ravel()])
 
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
         return violation(w, np.array(self._g(w, par)).ravel(), lbg, ubg, lbx, ubx)

@@ -30,7 +30,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from tocontrol_ros.core.direct import set_pads
+from tocontrol_ros.core.direct import active_rows, set_pads
+from tocontrol_ros.core.direct.active_rows import active_rows_solve
 from tocontrol_ros.core.direct.checked import FirstIterate, stretched, verified
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.detour import detour_guess, path_collides
@@ -788,13 +789,18 @@ def _refine_item(planner: Compiled, ctx: SolveContext, bounds, breaks: np.ndarra
     """One refinement solve of :func:`_race`, a piece of :meth:`Compiled.map`.
 
     On ``breaks`` from ``(T, P0)`` (the coarser path's control points on them), within
-    :data:`NEAR_MAX_ITER` iterations.
+    :data:`NEAR_MAX_ITER` iterations; with a scene, first with the clearance rows of the
+    samples near an obstacle only (:func:`~.active_rows.active_rows_solve`).
     """
     problem = ctx.problem
     finer = planner.flat(problem, breaks)
-    again = finer.solve(problem.start.value, problem.target.value, problem.k, T, P0, *bounds,
-                        **_budget(ctx, NEAR_MAX_ITER))
+    values = (problem.start.value, problem.target.value, problem.k)
+    again = active_rows_solve(finer, values, T, P0, bounds, **_budget(ctx, NEAR_MAX_ITER)) \
+        if active_rows.ACTIVE_ROWS else None
     ctx.check()
+    if again is None:
+        again = finer.solve(*values, T, P0, *bounds, **_budget(ctx, NEAR_MAX_ITER))
+        ctx.check()
     return again
 
 
