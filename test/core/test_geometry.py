@@ -18,12 +18,17 @@ coal = pytest.importorskip("coal")
 from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E402
 from tocontrol_ros.core.direct.first_motion import first_motion  # noqa: E402
 from tocontrol_ros.core.geometry.collision import collision_model, disabled_pairs  # noqa: E402
-from tocontrol_ros.core.geometry.reach import clear_configuration  # noqa: E402
+from tocontrol_ros.core.geometry.reach import clear_configuration, note_clear  # noqa: E402
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.geometry.shapes import LinkShape  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_pose  # noqa: E402
 from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
-from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
+from tocontrol_ros.core.types.problem import (  # noqa: E402
+    Problem,
+    joint_state,
+    note_reachable,
+    point,
+)
 
 LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
@@ -165,6 +170,30 @@ def test_clear_configuration_reaches_the_point_inside_the_limits_and_clear(panda
     # another collision model object (not the remembered verdict).
     again = clear_configuration(col.with_scene(scene_from_dict(TABLE)), p, lo, hi)
     assert np.array_equal(again.q, found.q)
+
+
+def test_a_replans_noted_configuration_spares_the_clear_search(panda):
+    # A replan's goal: the configuration reached by steps from the running motion's end is
+    # checked clear once and used, no IK search; one in collision is not remembered.
+    model, _, _, col = panda
+    table = col.with_scene(scene_from_dict(TABLE))
+    lo, hi = model.q_lower, model.q_upper
+    found = clear_configuration(table, np.array([0.45, -0.2, 0.15]), lo, hi)
+    near = model.point(found.q) + np.array([0.0, 0.004, 0.002])  # the target moved 4.5 mm
+    assert note_reachable(model, near, found.q, table)
+    noted = clear_configuration(table, near, lo, hi)
+    assert noted.found and noted.seeds == 0 and noted.tried == 1
+    assert np.linalg.norm(model.point(noted.q) - near) < 1e-6
+    assert noted.clearance == pytest.approx(table.clearance(noted.q).minimum)
+    assert noted.clearance >= table.margin
+    # Outside the limits a problem is given, the noted configuration is not used.
+    tight = np.where(np.arange(model.n) == 0, noted.q[0] + 0.01, lo)
+    assert clear_configuration(table, near, tight, hi).seeds > 0
+    # A configuration in collision: nothing remembered, the search answers.
+    low = np.array([0.5, 0.0, -0.02])  # 2 cm under the table top (z = 0)
+    q_low = clear_configuration(col, low, lo, hi).q  # reaches it without the table
+    assert not note_clear(table, low, q_low)
+    assert clear_configuration(table, low, lo, hi).seeds > 0
 
 
 def test_certificate_refuses_a_motion_through_a_box(panda):

@@ -176,7 +176,7 @@ class ReplanPolicy:
                 return None  # the optimum's route decides (a goal from the measured state)
             t_problem = clock.monotonic()
             if replans.near(config, req.target):
-                replans.note_reachable(service.model, req.target)
+                replans.note_reachable(service.model, req.target, service.collision)
             try:
                 problem = service.problem(config, ("state", handoff.q, handoff.qd),
                                           req.target)
@@ -400,7 +400,7 @@ class ReplanPolicy:
                 return False
             near = replans.near(config, req.target)
             if near:  # its problem's reachability check from the nearest motion's end
-                replans.note_reachable(service.model, req.target)
+                replans.note_reachable(service.model, req.target, service.collision)
             try:
                 problem = service.problem(config, ("state", handoff.q, handoff.qd), req.target)
             except TocontrolError as exc:
@@ -498,7 +498,7 @@ class ReplanPolicy:
         handoff = replans.handoff(config, target, due_ns, origin, 0.0, measured)
         if handoff is None:
             return
-        replans.note_reachable(service.model, target)
+        replans.note_reachable(service.model, target, service.collision)
         try:
             problem = service.problem(config, ("state", handoff.q, handoff.qd), target)
         except TocontrolError:

@@ -451,13 +451,14 @@ class Replanner:
         return [w for w in (first, tail, last, from_rest)
                 if w is not None and w.warm_state is not None]
 
-    def note_reachable(self, model, target: np.ndarray) -> bool:
+    def note_reachable(self, model, target: np.ndarray, collision=None) -> bool:
         """Show ``target`` (m) reachable from the end of the motion that ends nearest it.
 
         The motion solved ahead or the last published one
         (:func:`~tocontrol_ros.core.types.problem.note_reachable`): a goal of a stream is then not
-        checked by a full inverse kinematics when its problem is made. Returns whether it
-        was shown.
+        checked by a full inverse kinematics when its problem is made, nor (``collision``,
+        the collision model in use) searched for a clear configuration when that end's
+        steps reach one. Returns whether it was shown.
         """
         with self._lock:
             ends = [r for r in (self._ahead[0] if self._ahead else None,
@@ -466,7 +467,7 @@ class Replanner:
         if not ends:
             return False
         r = min(ends, key=lambda r: float(np.linalg.norm(r.problem.target_point - target)))
-        return note_reachable(model, target, r.trajectory.state(r.T)[0][:model.n])
+        return note_reachable(model, target, r.trajectory.state(r.T)[0][:model.n], collision)
 
     def has_motion(self) -> bool:
         """Whether a motion was published that a replan could continue."""

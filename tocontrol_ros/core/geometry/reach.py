@@ -27,7 +27,7 @@ import numpy as np
 from tocontrol_ros.core.geometry.collision import CollisionModel
 from tocontrol_ros.core.robot.ik import ik_family
 
-__all__ = ["ClearReach", "clear_configuration", "CLEAR_IK_ROUNDS"]
+__all__ = ["ClearReach", "clear_configuration", "note_clear", "CLEAR_IK_ROUNDS"]
 
 #: IK seeds of each round (``ik_family``'s ``count``) and the generator seed of each: a
 #: target with room around it has a clear configuration among the first round's solutions
@@ -40,6 +40,9 @@ CLEAR_IK_ROUNDS = ((8, 0), (48, 1), (96, 2))
 _KNOWN: collections.OrderedDict = collections.OrderedDict()
 _KNOWN_SIZE = 256
 _KNOWN_LOCK = threading.Lock()
+#: Configurations shown clear at a point by :func:`note_clear` (point -> configuration, its
+#: clearance and closest pair), newest last; the joint limits are checked when one is used.
+_NOTED: collections.OrderedDict = collections.OrderedDict()
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,11 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
         if known is not None and known[0] is collision:
             _KNOWN.move_to_end(key)
             return known[1]
+    with _KNOWN_LOCK:
+        noted = _NOTED.get(key[:2])
+    if noted is not None and noted[0] is collision and np.all(noted[1] >= lo) \
+            and np.all(noted[1] <= hi):
+        return ClearReach(noted[1], noted[2], noted[3], 1, 0, 0)
     best = ClearReach(None, -np.inf, (), 0, 0, 0)
     tried = solutions = seeds = 0
     seen: list[np.ndarray] = []
@@ -134,3 +142,40 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
         while len(_KNOWN) > _KNOWN_SIZE:
             _KNOWN.popitem(last=False)
     return best
+
+
+def note_clear(collision: CollisionModel, p, q) -> bool:
+    """Remember ``q`` as a configuration reaching ``p`` clear of the scene, if it is.
+
+    One exact clearance (:meth:`CollisionModel.clearance`) instead of
+    :func:`clear_configuration`'s search: a replan toward a moving target knows a
+    configuration that reaches its new point (Gauss-Newton steps from the end of the motion
+    it continues, :func:`~tocontrol_ros.core.types.problem.note_reachable`), mostly clear
+    as that end was. When every checked pair keeps the margin, a later
+    :func:`clear_configuration` of ``p`` with the same collision model returns ``q``
+    (inside its joint limits, else it searches as always); otherwise nothing is remembered.
+
+    Parameters
+    ----------
+    collision : CollisionModel
+    p : array_like, shape (m,)
+        Task-space point (m) that ``q`` reaches (the caller's claim, to the IK's tolerance).
+    q : array_like, shape (n,)
+        Configuration (rad, m).
+
+    Returns
+    -------
+    bool
+        Whether ``q`` is clear by the margin (and remembered).
+    """
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float).copy()
+    found = collision.clearance(q)
+    if not found.minimum >= collision.margin:
+        return False
+    with _KNOWN_LOCK:
+        _NOTED[(id(collision), p.tobytes())] = (collision, q, float(found.minimum),
+                                                tuple(found.pair))
+        while len(_NOTED) > _KNOWN_SIZE:
+            _NOTED.popitem(last=False)
+    return True

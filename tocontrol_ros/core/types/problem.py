@@ -15,7 +15,7 @@ import numpy as np
 
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.geometry.collision import CollisionModel
-from tocontrol_ros.core.geometry.reach import clear_configuration
+from tocontrol_ros.core.geometry.reach import clear_configuration, note_clear
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -309,7 +309,8 @@ def _solve_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
 NEAR_STEPS = 4
 
 
-def note_reachable(model: RobotModel, p, q_near) -> bool:
+def note_reachable(model: RobotModel, p, q_near, collision: CollisionModel | None = None
+                   ) -> bool:
     """Show ``p`` reachable from a configuration that reaches a point nearby, if it is.
 
     A few Gauss-Newton steps from ``q_near`` (about 0.25 ms on the paper's arm, where the
@@ -328,6 +329,11 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
         Task-space point (m).
     q_near : array_like, shape (n,)
         A configuration that reaches a point near ``p`` (rad, m).
+    collision : CollisionModel, optional
+        The collision model of the problems to come: the configuration reaching ``p`` is
+        also checked clear of the scene once (:func:`~tocontrol_ros.core.geometry.reach.
+        note_clear`), which spares such a problem the search for a clear configuration of
+        its point (about 0.04-0.07 s of IK and exact distances on the Panda over a table).
 
     Returns
     -------
@@ -341,8 +347,8 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
         q = _finite("q_near", q_near, (model.n,)).copy()
     except ProblemError:
         return False
-    if _known_reachable(model, p):  # e.g. a replan solved again from a later hand-off
-        return True
+    if _known_reachable(model, p) and collision is None:  # e.g. solved again from a later
+        return True  # hand-off
     # P and J in one buffered call, the steps' least-norm solve and the singularity test
     # on the m x m matrix J J^T (m <= 3 task axes): the verdict is the IK tolerance's and
     # SINGULAR_TOL's; the configuration itself is not kept. Two CasADi calls, lstsq and an
@@ -360,6 +366,8 @@ def note_reachable(model: RobotModel, p, q_near) -> bool:
     if not (err < IK_TOL and np.all(np.isfinite(q))) or _singular_near(model, j):
         return False
     _remember_reachable(model, p)
+    if collision is not None:
+        note_clear(collision, p, q)
     return True
 
 
