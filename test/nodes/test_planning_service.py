@@ -535,6 +535,17 @@ def test_a_motion_the_tracker_rejected_on_the_topic_is_no_longer_continued(make_
     assert "the tracker rejected it: at its take-over its position is 0.2 rad off" in message
 
 
+def _refused_before_any_solve(service, out, req, message: str) -> None:
+    """Submit ``req``; it fails (ERROR) with ``message`` (a regex), nothing solved or sent."""
+    service.submit(req)
+    # The refusal's IK rounds and exact distances (about 1 s of CPU) on a loaded machine.
+    assert req.done.wait(6 * WAIT), "no outcome"
+    done = final(out, req)
+    assert done["level"] == "ERROR" and done["event"] == "failed"
+    assert re.search(message, done["message"]), done["message"]
+    assert service.planner.solved == [] and "trajectory" not in out.kinds()
+
+
 @pytest.mark.slow  # the Panda's collision model and the refusal: 27 s at load 16
 def test_a_target_with_no_clear_configuration_fails_before_any_solve():
     # The Panda with a 10 cm ball around the target (issue 51): the request fails with the
@@ -563,15 +574,10 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
         service.planner.gate.set()
         req = PlanRequest(service.next_id(), "service", ("point", np.array([0.3, 0.0, 0.5])),
                           np.array([0.3, 0.4, 0.5]), config)
-        service.submit(req)
-        # The refusal's IK rounds and exact distances (about 1 s of CPU) on a loaded machine.
-        assert req.done.wait(6 * WAIT), "no outcome"
-        done = final(out, req)
-        assert done["level"] == "ERROR" and done["event"] == "failed"
-        assert re.search(r"`target` point \[0\.3, 0\.4, 0\.5\] has no configuration clear of "
-                         r"the scene by the margin .* \w+ and block closest", done["message"])
-        assert service.planner.solved == []  # refused before any solve
-        assert req.path is None and "trajectory" not in out.kinds()
+        _refused_before_any_solve(service, out, req, r"`target` point \[0\.3, 0\.4, 0\.5\] "
+                                  r"has no configuration clear of the scene by the margin "
+                                  r".* \w+ and block closest")
+        assert req.path is None
         # A pose there (the hand pointing down): each IK solution a joint-state target, each
         # refused as in collision with the block; the request fails naming it.
         start = ("state", np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]), np.zeros(7))
@@ -579,13 +585,9 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
                            "panda_link0", start, "goal_pose")
         posed = PlanRequest(service.next_id(), "goal_pose", start, pose.position, config,
                             target_pose=pose)
-        service.submit(posed)
-        assert posed.done.wait(6 * WAIT), "no outcome"
-        done = final(out, posed)
-        assert done["level"] == "ERROR" and done["event"] == "failed"
-        assert re.search(r"none of the pose's \d+ IK solutions can be planned to: `target` "
-                         r"joint state is in collision: \w+ and block", done["message"])
-        assert service.planner.solved == [] and "trajectory" not in out.kinds()
+        _refused_before_any_solve(service, out, posed, r"none of the pose's \d+ IK solutions "
+                                  r"can be planned to: `target` joint state is in collision: "
+                                  r"\w+ and block")
     finally:
         service.planner.gate.set()
         service.stop()
