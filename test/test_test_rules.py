@@ -12,6 +12,7 @@
 """
 
 import ast
+import functools
 import os
 import subprocess
 import sys
@@ -141,13 +142,20 @@ def _test_sources():
     return sorted(p for p in TEST_DIR.rglob("*.py") if "__pycache__" not in p.parts)
 
 
+@functools.cache
+def _parsed_suite() -> tuple:
+    """``(path, tree)`` of every test source, parsed once for the three scans (the checks
+    only read the trees)."""
+    return tuple((path, ast.parse(path.read_text(), filename=str(path)))
+                 for path in _test_sources())
+
+
 @pytest.mark.parametrize("check", [sleep_then_negative, elapsed_assertions,
                                    xfails_without_raises],
                          ids=["sleep-then-negative", "elapsed-time", "xfail-raises"])
 def test_no_timed_or_raced_assertions_in_the_suite(check):
     offenders = []
-    for path in _test_sources():
-        tree = ast.parse(path.read_text(), filename=str(path))
+    for path, tree in _parsed_suite():
         offenders += [f"{path.relative_to(REPO)}:{line}" for line in check(tree)]
     assert offenders == [], f"{check.__name__}: {offenders}"
 

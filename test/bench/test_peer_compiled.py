@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 # The repository, for bench/ (not installed), last: tocontrol_ros stays the installed one
 # (test/packaging/test_install_layout.py checks that).
@@ -45,6 +46,10 @@ def test_peer_reaches_the_target_through_the_forward_dynamics(panda):
     assert result["q_step"] < 1e-3  # rad, one interval from the solution's own state
 
 
+# Two more solves of the peer (half a minute under load): with the slow tests, as the
+# benchmark option it checks (``between``). The default run keeps the peer's solve of the same
+# case re-integrated to the target (test_peer_reaches_the_target_through_the_forward_dynamics).
+@pytest.mark.slow
 def test_speeds_bounded_between_the_points_keep_the_limits_when_re_integrated(panda):
     """With ``between``, the peer (the Panda's reference) keeps the velocity limits between
     its collocation points too: its torques re-integrated over each interval stay within

@@ -188,6 +188,25 @@ def panda(robot_specs):
 
 
 @pytest.fixture(scope="session")
+def panda_collision():
+    """The Panda to the hand, fingers locked, the URDF's own gravity, with its collision model
+    (Coal; the SRDF's disabled pairs): ``(model, urdf, srdf, collision)``.
+
+    One for the session: test_geometry, test_self_rows, test_detour and test_clearance_start
+    built the same model and spheres each (seconds apiece under load). Tests only read it
+    (``with_scene`` and ``with_row_pairs`` return new collision models).
+    """
+    from skip_policy import panda_srdf, panda_urdf
+
+    pytest.importorskip("coal")
+    from tocontrol_ros.core.geometry.collision import collision_model
+
+    urdf, srdf = panda_urdf(), panda_srdf()
+    model = load_robot(urdf, tip_link="panda_hand", locked_joints=PANDA_LOCKED)
+    return model, urdf, srdf, collision_model(model, urdf, srdf)
+
+
+@pytest.fixture(scope="session")
 def ur5(robot_specs):
     """Universal Robots UR5 to ``tool0``, Pinocchio's gravity."""
     return _load(robot_specs, "ur5")

@@ -26,7 +26,7 @@ PANDA_Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 PANDA_Q1 = np.array([0.9, 0.3, -0.4, -1.5, 0.5, 1.5, -0.2])
 #: A first bounded solve compiles the per-sample functions of the model: not a time the
 #: solver's budget should be judged on here.
-OPTIONS = SolverOptions(starts=4, candidates=1, time_limit=900.0)
+OPTIONS = SolverOptions(starts=1, candidates=1, time_limit=900.0)
 
 YAML = """
 joint_limits:

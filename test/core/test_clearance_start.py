@@ -10,18 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from skip_policy import panda_srdf, panda_urdf
 
 coal = pytest.importorskip("coal")
 
 from tocontrol_ros.core.direct.clearance import clearance_rows  # noqa: E402
-from tocontrol_ros.core.geometry.collision import body_frames, collision_model  # noqa: E402
+from tocontrol_ros.core.geometry.collision import body_frames  # noqa: E402
 from tocontrol_ros.core.geometry.scene import scene_from_dict  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
-LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
 TARGET = [0.3, 0.4, 0.5]
 #: The rows' former speed term at the Panda's hand: 9.8 m/s x 0.55 s x (1/96) / 2 (m).
@@ -29,11 +26,9 @@ OLD_TERM = 0.028
 
 
 @pytest.fixture(scope="module")
-def panda():
-    urdf = panda_urdf()
-    model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    srdf = panda_srdf()
-    return model, collision_model(model, urdf, srdf)
+def panda(panda_collision):
+    model, _, _, col = panda_collision  # one for the session (conftest.py)
+    return model, col
 
 
 def _ball(position, radius=0.04):

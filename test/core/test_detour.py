@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from skip_policy import panda_srdf, panda_urdf
 
 coal = pytest.importorskip("coal")
 ompl = pytest.importorskip("ompl")
@@ -21,23 +20,19 @@ from tocontrol_ros.core.direct.detour import (  # noqa: E402
     path_collides,
     sphere_distances,
 )
-from tocontrol_ros.core.geometry.collision import collision_model  # noqa: E402
 from tocontrol_ros.core.geometry.scene import scene_from_dict  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
-LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
 #: A target across a wall from the start: the straight joint path goes through it.
 Q1 = np.array([1.6, -0.3, 0.0, -2.0, 0.0, 1.7, 0.8])
 
 
 @pytest.fixture(scope="module")
-def panda():
-    urdf = panda_urdf()
-    model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    return model, collision_model(model, urdf, panda_srdf())
+def panda(panda_collision):
+    model, _, _, col = panda_collision  # one for the session (conftest.py)
+    return model, col
 
 
 def _wall_problem(model, col):

@@ -9,7 +9,6 @@ import re
 
 import numpy as np
 import pytest
-from skip_policy import panda_srdf, panda_urdf
 
 from tocontrol_ros.core.errors import ModelError, ProblemError
 
@@ -22,7 +21,6 @@ from tocontrol_ros.core.geometry.reach import clear_configuration, note_clear  #
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.geometry.shapes import LinkShape  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_pose  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import (  # noqa: E402
     Problem,
     joint_state,
@@ -30,16 +28,12 @@ from tocontrol_ros.core.types.problem import (  # noqa: E402
     point,
 )
 
-LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
 
 
 @pytest.fixture(scope="module")
-def panda():
-    urdf = panda_urdf()
-    model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    srdf = panda_srdf()
-    return model, urdf, srdf, collision_model(model, urdf, srdf)
+def panda(panda_collision):
+    return panda_collision  # (model, urdf, srdf, collision), one for the session
 
 
 def test_spheres_cover_every_mesh_vertex(panda):
@@ -274,6 +268,10 @@ def test_scene_files(tmp_path, panda):
         col.with_scene(scene_from_dict({"allowed": [["panda_link0", "nowhere"]]}))
 
 
+# Two Panda plans with 4 starts (over a minute under load). The default run keeps a Panda plan
+# around a ball, certified and clear by Coal at 2001 times:
+# test_clearance_start.py::test_a_start_2cm_from_an_obstacle_plans_and_is_clear[where1-False].
+@pytest.mark.slow
 def test_a_scene_makes_the_plan_avoid_it(panda):
     """A ball on the obstacle-free optimum's path: the plan with the scene goes around it.
 

@@ -12,7 +12,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from skip_policy import panda_srdf, panda_urdf
 
 coal = pytest.importorskip("coal")
 
@@ -21,19 +20,16 @@ from tocontrol_ros.core.direct.clearance import (  # noqa: E402
     clearance_functions,
     clearance_rows,
 )
-from tocontrol_ros.core.geometry.collision import body_frames, collision_model  # noqa: E402
-from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
+from tocontrol_ros.core.geometry.collision import body_frames  # noqa: E402
 
-LOCKED = {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
 Q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
 PAIRS = [("panda_link6", "panda_link1"), ("panda_link0", "panda_hand")]
 
 
 @pytest.fixture(scope="module")
-def panda():
-    urdf = panda_urdf()
-    model = load_robot(urdf, tip_link="panda_hand", locked_joints=LOCKED)
-    return model, collision_model(model, urdf, panda_srdf())
+def panda(panda_collision):
+    model, _, _, col = panda_collision  # one for the session (conftest.py)
+    return model, col
 
 
 def test_row_pairs_are_checked_self_pairs_and_part_of_the_key(panda):
@@ -163,6 +159,11 @@ SELF_TARGET = np.array([0.802, -0.13, 1.248, -2.822, 0.6, 1.017, -0.291])
 SELF_MARGIN = 0.03
 
 
+# Two Panda plans, the second with self rows after a refused motion (over a minute under
+# load): with the slow tests. The default run keeps the rows' values and derivatives against
+# the sphere pairs and Coal, the pairs in the key, and a self-row round's warm solve and its
+# retry (test_the_rows_added_retry_solves_the_warm_solves_nlp).
+@pytest.mark.slow
 def test_a_self_row_turns_a_refused_motion_into_a_certified_one(panda):
     """Without self rows the motion is refused by the certificate on ``panda_link2`` /
     ``panda_hand``; the planner makes the pairs it brought close rows, solves again and

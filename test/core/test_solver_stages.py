@@ -279,6 +279,10 @@ def test_the_candidate_bound_is_used_only_where_gravity_does_no_work(galicki):
     assert not gravity_free(upright, q)
 
 
+# Three plans of the planar 5R (about a minute under load): with the slow tests. The default
+# run keeps the same stalled continuation and its rescue by the direct method
+# (test_a_failed_shooting_falls_back_to_the_direct_method).
+@pytest.mark.slow
 def test_a_stalled_continuation_is_solved_at_k_directly():
     """The planar 5R, one start, default guess: the continuation in k stalls (at k = 1.56)
     from the coarse guess; the guess is solved by the direct method at k = 4 and the

@@ -38,7 +38,12 @@ def circle(i: int, count: int) -> tuple[float, float]:
     return CENTRE[0] + RADIUS * math.cos(a), CENTRE[1] + RADIUS * math.sin(a)
 
 
-@pytest.mark.parametrize("quick", [True, False], ids=["quick_first", "optimum_only"])
+# replan_quick:=false runs with the slow tests (each case a minute of replans under load):
+# the default run keeps the default replan_quick:=true (the same circle, far and near goals,
+# splices and torque checks; each quick motion's optimum tried after it), and
+# test_moving_target_action.py the replans through the controller's action.
+@pytest.mark.parametrize("quick", [True, pytest.param(False, marks=pytest.mark.slow)],
+                         ids=["quick_first", "optimum_only"])
 def test_moving_target_followed_with_spliced_replans(tmp_path, quick):
     """Goals on a circle at 10 Hz, then a far goal and a near one while it runs: every goal
     answered (80 %), spliced without a jump, inside the torque set; with ``replan_quick``

@@ -325,6 +325,10 @@ def test_bad_robot_exits_with_reason(tmp_path):
     assert "tip link 'nowhere' is not a link" in proc.log()
 
 
+# Two more processes started (a quarter of a minute under load): with the slow tests. The
+# default run keeps SIGINT during a solve (test_shutdown_during_solve[SIGINT]) and the
+# nodes' clean exit on SIGINT in the e2e fixtures that stop them (e.g. test_two_arms.py).
+@pytest.mark.slow
 def test_double_sigint_to_the_process_group_exits_cleanly(tmp_path):
     # Issue 14: Ctrl-C under `ros2 launch` (SIGINT to the whole group, then launch's own
     # SIGINT to each node) left KeyboardInterrupt tracebacks and exit code -2.

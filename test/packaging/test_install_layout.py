@@ -114,6 +114,10 @@ def test_demo_runs_through_ros2run_wrapper(prefix):
     assert proc.stdout.strip()
 
 
+# The whole demo (its three node processes) a second time: with the slow tests. The default
+# run keeps the demo through the ros2-run wrapper (test_demo_runs_through_ros2run_wrapper) and
+# the URDF found without the ament environment (test_default_urdf_found_without_ament_environment).
+@pytest.mark.slow
 def test_demo_console_script_without_ament_environment(prefix):
     # A plain pip venv, nothing sourced: the URDF is found under sys.prefix/share.
     env = dict(os.environ)

@@ -192,6 +192,12 @@ def test_a_motion_through_a_ball_is_reported_violating_and_the_figure_checked(tm
     assert 'id="clearance-1"' in page and 'src="clearance_1.png"' in page
 
 
+# A third report of the Panda (a quarter of a minute under load): with the slow tests. The
+# default run keeps the clearance line, its figure and Coal's check on a motion through the
+# ball (test_a_motion_through_a_ball_is_reported_violating_and_the_figure_checked) and the
+# line without a scene; the certificate's clearance passed on a clear motion is
+# test/core/test_clearance_start.py's.
+@pytest.mark.slow
 def test_a_motion_clear_of_the_ball_is_reported_held(tmp_path, panda):
     urdf, text, model = panda
     centre = _hand_at_middle(panda) + np.array([0.0, 0.0, 0.35])

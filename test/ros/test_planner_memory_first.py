@@ -80,6 +80,11 @@ def planner(suffix: str, *params):
         running.stop()
 
 
+# A memory built and a node run (20 s under load): with the slow tests. The default run keeps
+# a hit's first certified iterate (test/memory/test_early.py), the node's first motion then
+# the optimum (test_planner_node.py::test_first_then_optimum_publishes_both_in_order) and
+# a memory hit through the planner process (test/e2e/test_memory_node.py).
+@pytest.mark.slow
 def test_a_hit_publishes_its_first_certified_iterate_then_the_optimum(memory):
     limits_file, path = memory
     common = [Parameter("joint_limits", value=str(limits_file)),

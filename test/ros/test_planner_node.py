@@ -573,6 +573,9 @@ def test_newest_service_call_supersedes_older(planner, client, monkeypatch):
     assert status2.event == "solved" and len(path2.poses) > 0
 
 
+# The same storm as test/e2e/test_planner_process.py::test_goal_storm (default run), there
+# against the planner's installed executable: this in-process copy runs with the slow tests.
+@pytest.mark.slow
 def test_goal_storm(planner, client, monkeypatch):
     """50 goals within a second: the node stays alive, the last one is served, RSS bounded."""
     client.wait_subscribed(client.goal_pub)
