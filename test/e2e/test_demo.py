@@ -227,11 +227,12 @@ def test_reexecution_reproduces_the_demo(demo, tmp_path, sim_time):
         # Each plan started on the tracker when it did in the demo (the replay's clock: on
         # receipt, or at its stamp for a goal's plan stamped ahead, see
         # msg_docs/parameters.md "Replanning"), give or take delivery and a control tick: 59
-        # ms were seen under load. On wall time the starts would be the seconds since the
-        # demo ran later.
+        # ms were seen under load, 278 ms at a load of 20 (the replayed clock runs on while a
+        # message waits for a busy process). On wall time the starts would be the seconds
+        # since the demo, which ran tens of seconds earlier: a second tells the two apart.
         planned = [float(s["start_time"]) for s in tracker_events(recording, "executing")]
         starts = [float(s["start_time"]) for s in tracker_events(rerun, "executing")]
-        assert starts == pytest.approx(planned, abs=0.25)
+        assert starts == pytest.approx(planned, abs=1.0)
     for before, after in zip(original, again, strict=True):
         assert float(after["final_point_error"]) == pytest.approx(
             float(before["final_point_error"]), abs=1e-7)
