@@ -68,6 +68,30 @@ class _Client(RosClient):
         return elapsed, poses
 
 
+def _prewarm(ns: str, common: list[str], case: tuple, workdir: Path) -> float:
+    """One plan on a planner whose every build is optimised in the foreground, then stop it.
+
+    The measured nodes then find the optimised libraries of a plan in the compile cache, as
+    a deployed node does after its first plans: without it, ``run_all.py``'s fresh cache had
+    them plan on the quick ``-O0`` builds with gcc optimising beside them on the two cores
+    (bench/deployed.py's ``prewarm_nodes`` does this for the nodes' start; a plan's own
+    libraries are built at its first plan). Returns the seconds it took.
+    """
+    t0 = time.monotonic()
+    name = f"{ns}/warm/planner"
+    proc = _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/warm", *common],
+                    workdir / "prewarm.log", env={"TOCONTROL_COMPILE_TIERS": "0"})
+    client = _Client([name])
+    try:
+        if not client.clients[name].wait_for_service(timeout_sec=1800.0):
+            raise RuntimeError(f"{name}/plan did not come up (log {workdir / 'prewarm.log'})")
+        client.call(name, *case, timeout=1800.0)
+    finally:
+        client.close()
+        proc.stop()
+    return time.monotonic() - t0
+
+
 def run(count: int = 20) -> Section:
     title = "The Panda through the planner node (issue 32)"
     found, urdf = robots().get("Panda"), panda_urdf()
@@ -81,6 +105,7 @@ def run(count: int = 20) -> Section:
     common = ["-p", f"robot_description_file:={urdf}", "-p", "tip_link:=panda_hand",
               "-p", "warm_start:=false"]
     names = {1: f"{ns}/one/planner", 0: f"{ns}/all/planner"}
+    prewarm = _prewarm(ns, common, cases[0], workdir)
     procs = [
         _Process("tocontrol_ros.planner", ["--ros-args", "-r", f"__ns:={ns}/one", *common,
                                            "-p", "workers:=1"], workdir / "one.log"),
@@ -119,7 +144,11 @@ def run(count: int = 20) -> Section:
         f"`warm_start:=false`, default options otherwise: one with `workers:=1`, one with the "
         f"default `workers` (one per core). {count} `~/plan` calls each (the best-motion "
         f"section's Panda cases as start and goal points), alternated case by case from a "
-        f"client in the benchmark process, after one uncounted call each. Round trip: "
+        f"client in the benchmark process, after one uncounted call each; before them one "
+        f"plan of the first case on a third planner whose every build is optimised in the "
+        f"foreground ({prewarm:.0f} s), so that the measured nodes find a plan's optimised "
+        f"libraries in the compile cache as a deployed node does after its first plans (a "
+        f"fresh cache had them plan on the quick builds with gcc beside them). Round trip: "
         f"request sent to response received (s). Default node: median {med:.2f} s, worst "
         f"{worst:.2f} s; `workers:=1`: median {statistics.median(times[1]):.2f} s, worst "
         f"{max(times[1]):.2f} s; paired ratio median {statistics.median(ratios):.2f}; the "
