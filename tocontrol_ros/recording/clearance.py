@@ -248,21 +248,6 @@ class ClearanceCheck:
         return self.base.with_scene(Scene(obstacles, allowed))
 
 
-def _lever_rows(col: CollisionModel) -> dict[str, np.ndarray]:
-    """Each link's lever arms (n,) (m/rad) out to its farthest surface point.
-
-    The same reach as the planner's certificate (``CollisionModel.speed_bounds``:
-    ``LinkShape.reach``, exact), so the executed motion's bound between samples is the one
-    the plan was certified with.
-    """
-    out = {}
-    for spheres in col.spheres:
-        reach = max((s.reach() for s in col.shapes if s.link == spheres.link), default=0.0)
-        out[spheres.link] = col.lever_arms(spheres.body, reach) if spheres.body >= 0 \
-            else np.zeros(col.model.n)
-    return out
-
-
 def executed_clearance(col: CollisionModel, t: np.ndarray, q: np.ndarray,
                        qd: np.ndarray | None = None) -> ExecutedClearance:
     """The clearance of an executed motion's joint states.
@@ -292,7 +277,7 @@ def executed_clearance(col: CollisionModel, t: np.ndarray, q: np.ndarray,
         if qd is not None:
             qd = np.abs(np.asarray(qd, dtype=float))
             speed = np.maximum(speed, np.maximum(qd[:-1], qd[1:]))
-        levers = _lever_rows(col)
+        levers = col.link_levers  # the certificate's (speed_bounds)
         for (a, b), d in exact.pair_distances.items():
             rate = speed @ levers[a] + (speed @ levers[b] if b in levers else 0.0)
             lower = min(lower, float(np.min(0.5 * (d[:-1] + d[1:]) - rate * h / 2)))

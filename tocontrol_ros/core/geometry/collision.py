@@ -13,6 +13,7 @@ velocity limits, which bounds what happens between two sampled times.
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import xml.etree.ElementTree as ET
@@ -282,22 +283,30 @@ class CollisionModel:
             out[j] = 1.0 if model.bodies[j].kind == "prismatic" else rho
         return out
 
-    def speed_bounds(self, velocity: np.ndarray) -> dict[str, float]:
-        """How fast any point of each link can move under joint speeds ``velocity`` (n,).
+    @functools.cached_property
+    def link_levers(self) -> dict[str, np.ndarray]:
+        """Each link's :meth:`lever_arms` (n,) (m/rad) out to its farthest surface point.
 
-        ``sum_j |qd_j| rho_jb`` with :meth:`lever_arms` at the link's farthest surface
-        point (:meth:`LinkShape.reach`, exact). Returns link -> m/s (``inf`` with an infinite
-        joint speed).
+        The reach is :meth:`LinkShape.reach` (exact) over the link's shapes; computed once
+        per model (read, not changed: the certificate's between-samples bound and the
+        report's executed-motion bound both use it).
         """
-        velocity = np.abs(np.asarray(velocity, dtype=float))
         out = {}
         for link_spheres in self.spheres:
             reach = max((s.reach() for s in self.shapes if s.link == link_spheres.link),
                         default=0.0)
-            lever = self.lever_arms(link_spheres.body, reach)
-            out[link_spheres.link] = float(sum(v * r for v, r in zip(velocity, lever,
-                                                                       strict=True) if v > 0))
+            out[link_spheres.link] = self.lever_arms(link_spheres.body, reach)
         return out
+
+    def speed_bounds(self, velocity: np.ndarray) -> dict[str, float]:
+        """How fast any point of each link can move under joint speeds ``velocity`` (n,).
+
+        ``sum_j |qd_j| rho_jb`` with :attr:`link_levers`. Returns link -> m/s (``inf``
+        with an infinite joint speed).
+        """
+        velocity = np.abs(np.asarray(velocity, dtype=float))
+        return {link: float(sum(v * r for v, r in zip(velocity, lever, strict=True) if v > 0))
+                for link, lever in self.link_levers.items()}
 
     def clearance(self, q: np.ndarray) -> Clearance:
         """Exact distances (Coal, the URDF's geometry) of every checked pair at ``q`` (K, n).
