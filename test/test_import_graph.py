@@ -35,7 +35,7 @@ MAX_LINES = 900
 #: only its ``__init__``).
 LAYERS = (
     ("foundation", ("tocontrol_ros", "tocontrol_ros.core.errors", "tocontrol_ros.core.validate",
-                    "tocontrol_ros.core.examples")),
+                    "tocontrol_ros.core.examples", "tocontrol_ros.core.memo")),
     ("robot", ("tocontrol_ros.core.robot",)),
     ("geometry", ("tocontrol_ros.core.geometry",)),
     ("types", ("tocontrol_ros.core.types",)),

@@ -18,13 +18,12 @@ exists: the verdict is "none found among N", and the message says so.
 
 from __future__ import annotations
 
-import collections
-import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from tocontrol_ros.core.geometry.collision import CollisionModel
+from tocontrol_ros.core.memo import OwnedMemo
 from tocontrol_ros.core.robot.ik import ik_family
 
 __all__ = ["ClearReach", "clear_configuration", "note_clear", "CLEAR_IK_ROUNDS"]
@@ -35,14 +34,13 @@ __all__ = ["ClearReach", "clear_configuration", "note_clear", "CLEAR_IK_ROUNDS"]
 #: pays for the later rounds. 8 + 48 + 96 = 152 seeds bound the work of a refusal.
 CLEAR_IK_ROUNDS = ((8, 0), (48, 1), (96, 2))
 
-#: Verdicts remembered (newest last): a replan makes several problems to one target with
-#: one collision model, and each check is up to 152 IK solves and as many exact distances.
-_KNOWN: collections.OrderedDict = collections.OrderedDict()
-_KNOWN_SIZE = 256
-_KNOWN_LOCK = threading.Lock()
-#: Configurations shown clear at a point by :func:`note_clear` (point -> configuration, its
-#: clearance and closest pair), newest last; the joint limits are checked when one is used.
-_NOTED: collections.OrderedDict = collections.OrderedDict()
+#: Verdicts remembered per collision model (newest last): a replan makes several problems
+#: to one target with one collision model, and each check is up to 152 IK solves and as many
+#: exact distances.
+_KNOWN = OwnedMemo(256)
+#: Configurations shown clear at a point by :func:`note_clear` (a :class:`ClearReach` of
+#: one), per collision model; the joint limits are checked when one is used.
+_NOTED = OwnedMemo(256)
 
 
 @dataclass(frozen=True)
@@ -102,17 +100,13 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
     p = np.asarray(p, dtype=float)
     lo = np.asarray(lower, dtype=float)
     hi = np.asarray(upper, dtype=float)
-    key = (id(collision), p.tobytes(), lo.tobytes(), hi.tobytes())
-    with _KNOWN_LOCK:
-        known = _KNOWN.get(key)
-        if known is not None and known[0] is collision:
-            _KNOWN.move_to_end(key)
-            return known[1]
-    with _KNOWN_LOCK:
-        noted = _NOTED.get(key[:2])
-    if noted is not None and noted[0] is collision and np.all(noted[1] >= lo) \
-            and np.all(noted[1] <= hi):
-        return ClearReach(noted[1], noted[2], noted[3], 1, 0, 0)
+    key = (p.tobytes(), lo.tobytes(), hi.tobytes())
+    known = _KNOWN.get(collision, key)
+    if known is not None:
+        return known
+    noted = _NOTED.get(collision, key[0])
+    if noted is not None and np.all(noted.q >= lo) and np.all(noted.q <= hi):
+        return noted
     best = ClearReach(None, -np.inf, (), 0, 0, 0)
     tried = solutions = seeds = 0
     seen: list[np.ndarray] = []
@@ -137,10 +131,7 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
             break
     if not best.found:
         best = ClearReach(None, best.clearance, best.pair, tried, solutions, seeds)
-    with _KNOWN_LOCK:
-        _KNOWN[key] = (collision, best)  # the model kept: its id is not reused while here
-        while len(_KNOWN) > _KNOWN_SIZE:
-            _KNOWN.popitem(last=False)
+    _KNOWN.put(collision, key, best)
     return best
 
 
@@ -166,16 +157,16 @@ def note_clear(collision: CollisionModel, p, q) -> bool:
     Returns
     -------
     bool
-        Whether ``q`` is clear by the margin (and remembered).
+        Whether ``q`` is clear by the margin (and remembered), or a clear configuration
+        of ``p`` was noted before (kept; ``q`` is then not checked).
     """
     p = np.asarray(p, dtype=float)
+    if _NOTED.get(collision, p.tobytes()) is not None:  # a replan's goal noted again
+        return True
     q = np.asarray(q, dtype=float).copy()
     found = collision.clearance(q)
     if not found.minimum >= collision.margin:
         return False
-    with _KNOWN_LOCK:
-        _NOTED[(id(collision), p.tobytes())] = (collision, q, float(found.minimum),
-                                                tuple(found.pair))
-        while len(_NOTED) > _KNOWN_SIZE:
-            _NOTED.popitem(last=False)
+    _NOTED.put(collision, p.tobytes(),
+               ClearReach(q, float(found.minimum), tuple(found.pair), 1, 0, 0))
     return True

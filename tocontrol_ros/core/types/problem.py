@@ -7,8 +7,6 @@ a target joint state is always at rest).
 
 from __future__ import annotations
 
-import collections
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +14,7 @@ import numpy as np
 from tocontrol_ros.core.errors import ProblemError
 from tocontrol_ros.core.geometry.collision import CollisionModel
 from tocontrol_ros.core.geometry.reach import clear_configuration, note_clear
+from tocontrol_ros.core.memo import OwnedMemo
 from tocontrol_ros.core.robot.limits import JointLimits
 from tocontrol_ros.core.robot.model import RobotModel
 
@@ -246,9 +245,7 @@ class Problem:
 #: several problems with the same target (the running motion's tail, target steps), each
 #: check an IK solve from 8 seeds (about 2-3 ms on the paper's arm). The check's IK is
 #: seeded, so a remembered answer is the one it would give again.
-_REACHABLE: collections.OrderedDict = collections.OrderedDict()
-_REACHABLE_SIZE = 256
-_REACHABLE_LOCK = threading.Lock()
+_REACHABLE = OwnedMemo(256)
 
 
 def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
@@ -264,26 +261,13 @@ def _check_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
     _remember_reachable(model, p)
 
 
-def _reachable_key(model: RobotModel, p: np.ndarray) -> tuple:
-    return id(model), p.dtype.str, p.tobytes()
-
-
 def _known_reachable(model: RobotModel, p: np.ndarray) -> bool:
     """Whether ``p`` was found reachable for this model object (refreshed if so)."""
-    key = _reachable_key(model, p)
-    with _REACHABLE_LOCK:
-        if _REACHABLE.get(key) is model:
-            _REACHABLE.move_to_end(key)
-            return True
-    return False
+    return _REACHABLE.get(model, (p.dtype.str, p.tobytes()), False)
 
 
 def _remember_reachable(model: RobotModel, p: np.ndarray) -> None:
-    with _REACHABLE_LOCK:
-        # The model kept: its id is not reused while remembered.
-        _REACHABLE[_reachable_key(model, p)] = model
-        while len(_REACHABLE) > _REACHABLE_SIZE:
-            _REACHABLE.popitem(last=False)
+    _REACHABLE.put(model, (p.dtype.str, p.tobytes()), True)
 
 
 def _solve_reachable(model: RobotModel, name: str, p: np.ndarray) -> None:
