@@ -35,6 +35,7 @@ clock.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 
@@ -78,30 +79,30 @@ ENGINES = ("compiled", "seidel", "toppra")
 DEFAULT_ENGINE = "compiled"
 
 
-_GRIDS: dict = {}  # gridpoints -> (s, 2 diff(s)), read-only: made once per grid size
-_CUBES: dict = {}  # (gridpoints, n, k) -> the inscribed cube at every gridpoint, read-only
+@functools.cache
+def _grid_steps(gridpoints: int) -> tuple[np.ndarray, np.ndarray]:
+    """``s = np.linspace(0, 1, gridpoints + 1)`` and ``2 diff(s)``, once per size (read-only)."""
+    s = np.linspace(0.0, 1.0, gridpoints + 1)
+    two_ds = 2.0 * np.diff(s)
+    s.flags.writeable = two_ds.flags.writeable = False
+    return s, two_ds
 
 
 def _grid(gridpoints: int) -> np.ndarray:
     """``np.linspace(0, 1, gridpoints + 1)``, made once per size (read-only)."""
-    found = _GRIDS.get(gridpoints)
-    if found is None:
-        s = np.linspace(0.0, 1.0, gridpoints + 1)
-        two_ds = 2.0 * np.diff(s)
-        s.flags.writeable = two_ds.flags.writeable = False
-        found = _GRIDS[gridpoints] = (s, two_ds)
-    return found[0]
+    return _grid_steps(gridpoints)[0]
+
+
+@functools.cache
+def _cube_of(gridpoints: int, n: int, k: float) -> np.ndarray:
+    cube = np.full((gridpoints + 1, n), n ** (-1.0 / (2.0 * k)))
+    cube.flags.writeable = False
+    return cube
 
 
 def _cube(problem: Problem, gridpoints: int) -> np.ndarray:
     """The inscribed cube ``|u_i| <= n^(-1/(2k))`` at every gridpoint, (N + 1, n), read-only."""
-    n, k = problem.model.n, problem.k
-    cube = _CUBES.get((gridpoints, n, k))
-    if cube is None:
-        cube = np.full((gridpoints + 1, n), n ** (-1.0 / (2.0 * k)))
-        cube.flags.writeable = False
-        _CUBES[(gridpoints, n, k)] = cube
-    return cube
+    return _cube_of(gridpoints, problem.model.n, problem.k)
 
 
 def compile_sweeps(problem: Problem, grids: tuple = (QUICK_GRIDPOINTS, GRIDPOINTS)) -> None:
@@ -389,8 +390,8 @@ def _best_scaling(problem: Problem, coef: _Coefficients, s: np.ndarray, sd0: flo
 def _duration(x: np.ndarray, s: np.ndarray) -> float:
     """The time (s) of squared path speeds ``x`` (N + 1,) on gridpoints ``s`` (N + 1,)."""
     sd = np.sqrt(np.maximum(x, 0.0))
-    found = _GRIDS.get(len(s) - 1)
-    two_ds = found[1] if found is not None and found[0] is s else 2.0 * np.diff(s)
+    grid, steps = _grid_steps(len(s) - 1)
+    two_ds = steps if grid is s else 2.0 * np.diff(s)
     return float((two_ds / (sd[:-1] + sd[1:])).sum())
 
 
@@ -525,17 +526,12 @@ def _verdict(K: np.ndarray, x: np.ndarray, feasible: bool, s: np.ndarray):
     return (x, "") if feasible else None
 
 
-_TOPPRA_CONSTANTS: dict = {}
-
-
+@functools.cache
 def _toppra_constant(name: str) -> float:
     """``toppra.constants.<name>``, imported on first use (toppra loads only when asked)."""
-    value = _TOPPRA_CONSTANTS.get(name)
-    if value is None:
-        import toppra.constants
+    import toppra.constants
 
-        value = _TOPPRA_CONSTANTS[name] = getattr(toppra.constants, name)
-    return value
+    return getattr(toppra.constants, name)
 
 
 def _seidel(constraint, dof: int, s: np.ndarray, sd0: float, rows: tuple):
