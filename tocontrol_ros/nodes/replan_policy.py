@@ -122,13 +122,19 @@ class ReplanPolicy:
         motion first (:meth:`serve_quick`); else, or when it fails, the optimum
         (:meth:`serve_optimum`).
         """
-        if req.config.replan_quick and not req.quick_tried and \
-                self.service.replanner.near(req.config, req.target):
-            # A near goal; a far one is a new motion: the cold multistart's, as ever.
+        if not req.quick_tried and self._quick_route(req):
             served = self.serve_quick(req)
             if served is not None:
                 return served
         return self.serve_optimum(req)
+
+    def _quick_route(self, req: PlanRequest) -> bool:
+        """Whether ``req`` gets the quick motion first: ``replan_quick`` and a near goal.
+
+        A far goal is a new motion: the cold multistart's, as ever.
+        """
+        return bool(req.config.replan_quick) and \
+            self.service.replanner.near(req.config, req.target)
 
     def serve_first(self, req: PlanRequest) -> bool:
         """:meth:`serve`'s quick motion alone, for a goal served on its callback's thread.
@@ -137,8 +143,7 @@ class ReplanPolicy:
         quick motion is not the route (cancelled, not near, none in time): the worker then
         serves ``req`` (:meth:`serve` without the quick motion again).
         """
-        if req.cancelled.is_set() or not req.config.replan_quick or \
-                not self.service.replanner.near(req.config, req.target):
+        if req.cancelled.is_set() or not self._quick_route(req):
             return False
         return bool(self.serve_quick(req))
 

@@ -864,8 +864,8 @@ class FlatTranscription:
         """
         return FlatTranscription(
             self.model, self.spans, self.start_kind, self.target_kind, self.degree,
-            self.per_span, self.torque_scale, self.tol, self.max_iter, self.warm,
-            self.clearance, self.acceleration, clearance_samples=keep).on(self.breaks)
+            self.per_span, self.torque_scale, self.tol, self.max_iter, self.warm, self.clearance,
+            self.acceleration, self.hessian, clearance_samples=keep).on(self.breaks)
 
     def clearance_slack(self, start_value: np.ndarray, target_value: np.ndarray, k: float,
                         T: float, P: np.ndarray) -> np.ndarray:

@@ -31,7 +31,6 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from tocontrol_ros.core.direct import active_rows, set_pads
-from tocontrol_ros.core.direct.active_rows import active_rows_solve
 from tocontrol_ros.core.direct.checked import FirstIterate, stretched, verified
 from tocontrol_ros.core.direct.collocation import DirectResult, initial_path
 from tocontrol_ros.core.direct.detour import detour_guess, path_collides
@@ -795,7 +794,8 @@ def _refine_item(planner: Compiled, ctx: SolveContext, bounds, breaks: np.ndarra
     problem = ctx.problem
     finer = planner.flat(problem, breaks)
     values = (problem.start.value, problem.target.value, problem.k)
-    again = active_rows_solve(finer, values, T, P0, bounds, **_budget(ctx, NEAR_MAX_ITER)) \
+    again = active_rows.active_rows_solve(finer, values, T, P0, bounds,
+                                          **_budget(ctx, NEAR_MAX_ITER)) \
         if active_rows.ACTIVE_ROWS else None
     ctx.check()
     if again is None:
