@@ -55,6 +55,7 @@ if __name__ == "__main__":
 
 from bench.common import Section, log, panda_urdf, table  # noqa: E402
 from bench.deployed import RosClient, _Process, prewarm_nodes  # noqa: E402
+from tocontrol_ros.nodes.trajectory_cdr import trajectory_stamp_ns  # noqa: E402
 
 #: The issue's moving target: goals per second, for how long (s).
 RATE, DURATION = 10.0, 5.0
@@ -101,10 +102,14 @@ class _Client(RosClient):
                                       lambda m: self._on_diagnostics(f"{ns}/planner", m), 10)
         from trajectory_msgs.msg import JointTrajectory
 
-        #: (header stamp ns, time received: time.monotonic()) of every trajectory.
+        #: (header stamp ns, time received: time.monotonic()) of every trajectory, taken raw
+        #: (the bytes as they arrive: rclpy's deserialization into message objects, which a
+        #: client may do or not, is timed apart, :func:`deserialize_ms`).
         self.trajectories: list[tuple[int, float]] = []
+        #: The bytes of every trajectory.
+        self.trajectory_bytes: list[bytes] = []
         self.node.create_subscription(JointTrajectory, f"{ns}/planner/trajectory",
-                                      self._on_trajectory, latched)
+                                      self._on_trajectory, latched, raw=True)
         #: (task point, time sent: time.monotonic()) of every goal.
         self.sent: list[tuple[np.ndarray, float]] = []
         self.goals = self.node.create_publisher(PointStamped, f"{ns}/planner/goal", 100)
@@ -117,10 +122,12 @@ class _Client(RosClient):
                 with self.lock:
                     self.planner_states.append(value)
 
-    def _on_trajectory(self, msg) -> None:
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    def _on_trajectory(self, data: bytes) -> None:
+        received = time.monotonic()
+        stamp = trajectory_stamp_ns(data)
         with self.lock:
-            self.trajectories.append((stamp, time.monotonic()))
+            self.trajectories.append((stamp, received))
+            self.trajectory_bytes.append(data)
 
     def _add(self, bucket: list, msg) -> None:
         if hasattr(msg, "values"):
@@ -156,6 +163,30 @@ class _Client(RosClient):
 def _numbers(text: str) -> np.ndarray:
     """The numbers of a status value such as ``[1.2, 0.5]``."""
     return np.array([float(v) for v in re.findall(r"[-+]?[0-9.]+(?:e[-+]?[0-9]+)?", text)])
+
+
+def deserialize_ms(data: list[bytes]) -> tuple[float, float]:
+    """What rclpy's deserialization of these trajectories into message objects costs, and
+    what the package's reader does (:func:`~tocontrol_ros.nodes.trajectory_cdr.
+    read_trajectory_cdr`): medians over them (ms), each the least of 3 in this process."""
+    from rclpy.serialization import deserialize_message
+    from trajectory_msgs.msg import JointTrajectory
+
+    from tocontrol_ros.nodes.trajectory_cdr import read_trajectory_cdr
+
+    def least(fn, item) -> float:
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            fn(item)
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    if not data:
+        return float("nan"), float("nan")
+    rclpy_ms = [1e3 * least(lambda b: deserialize_message(b, JointTrajectory), b) for b in data]
+    reader_ms = [1e3 * least(read_trajectory_cdr, b) for b in data]
+    return float(np.median(rclpy_ms)), float(np.median(reader_ms))
 
 
 def client_latencies(sent: list, trajectories: list, published: list) -> list[float]:
@@ -381,6 +412,7 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
         "median": _pct(latency, 0.5), "p95": _pct(latency, 0.95),
         "client_median": _pct(seen, 0.5), "client_p95": _pct(seen, 0.95),
         "client_matched": len(seen),
+        "deserialize": deserialize_ms(client.snapshot("trajectory_bytes")[-count:]),
         "status_median": _pct(to_status, 0.5),
         "solve_median": _pct(solve, 0.5),
         "iterations_median": _pct([float(s["iterations"]) for s in published], 0.5),
@@ -585,7 +617,8 @@ def run(which: str = "both", moving: bool = False, planner_args: tuple = ()) -> 
                      f"{1e3 * r['median']:.1f} ({1e3 * r['status_median']:.1f})",
                      f"{1e3 * r['p95']:.1f}",
                      f"{1e3 * r['client_median']:.1f} / {1e3 * r['client_p95']:.1f} "
-                     f"({r['client_matched']})", f"{100 * r['within']:.0f} %",
+                     f"({r['client_matched']}; deserialization {r['deserialize'][0]:.2f}, "
+                     f"reader {r['deserialize'][1]:.2f})", f"{100 * r['within']:.0f} %",
                      f"{1e3 * r['solve_median']:.1f}", f"{r['iterations_median']:.0f}", kinds,
                      f"{r['splices']}", f"{r['jump_q']:.1e} / {r['jump_qd']:.1e}",
                      f"{r['final_error']:.1e}" + ("" if r["at_rest"] else
@@ -619,8 +652,14 @@ def run(which: str = "both", moving: bool = False, planner_args: tuple = ()) -> 
         f"error: end effector at rest (the mean of the last 10 joint states, within 1e-9 "
         f"rad of each other, or within {SETTLED:g} rad when that did not come in "
         f"{STILL_TIMEOUT:g} s) against the last goal (m)."
-        f" Client: goal published in the client -> its trajectory received there, matched "
-        f"by request (status target and hand-off stamp), median / p95 over the matched."
+        f" Client: goal published in the client -> its trajectory received there (a raw "
+        f"subscription: the message's bytes as they arrive, its stamp read from them), "
+        f"matched by request (status target and hand-off stamp), median / p95 over the "
+        f"matched; a client that turns them into rclpy's message objects adds their "
+        f"deserialization, in parentheses (median over the same trajectories, timed in the "
+        f"benchmark's process after the run), then what the package's reader "
+        f"(`tocontrol_ros.nodes.trajectory_cdr.read_trajectory_cdr`, which the tracker uses) "
+        f"takes instead."
         + (f" Hard case: the paper's arm on a {MOVING_PAPER_RADIUS:g} m circle, the Panda "
            f"as the README's \"Your own arm\" sets it up (start configuration with joints 1 and 3 "
            f"aligned, limit margin 0.05, sample period 2 ms, the tracker's derived gains), "

@@ -612,7 +612,7 @@ def test_size_and_duration_are_bounded(model):
 def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
     import tocontrol_ros.nodes.tracker as tracker_module
 
-    parse = tracker_module.nominal_from_msg
+    parse = tracker_module.nominal_of  # the topic's trajectories come as bytes
     during = []
 
     def newest_stamp():
@@ -620,7 +620,7 @@ def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
             stamp = harness.joint_states[-1].header.stamp
         return stamp.sec + 1e-9 * stamp.nanosec
 
-    def slow_parse(msg, joint_names, *args):
+    def slow_parse(data, joint_names, *args):
         # Stands for the parse of a very large trajectory: it ends only once the control
         # loop has gone on for 100 more published states (publish_rate 50: 2 simulated
         # seconds, by their stamps: a loaded machine's probe drops some), which it could
@@ -630,9 +630,9 @@ def test_parsing_does_not_hold_up_the_control_loop(harness, model, monkeypatch):
         while newest_stamp() - before < 100 * 0.02 and time.monotonic() < deadline:
             time.sleep(0.01)
         during.append(newest_stamp() - before)
-        return parse(msg, joint_names, *args)
+        return parse(data, joint_names, *args)
 
-    monkeypatch.setattr(tracker_module, "nominal_from_msg", slow_parse)
+    monkeypatch.setattr(tracker_module, "nominal_of", slow_parse)
     harness.wait(lambda: len(harness.joint_states) >= 1, "joint_states")
     harness.pub.publish(motion_msg(model, np.array(PAPER_START_Q), [0.1, 0.1, 0.1], 1.0))
     harness.status_with("executing trajectory", timeout=HANG)

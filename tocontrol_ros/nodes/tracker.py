@@ -87,6 +87,7 @@ from tocontrol_ros.nodes.tracker_messages import (
     TrajectoryRejectedError,
     check_limits,
     nominal_from_msg,
+    nominal_of,
     rejected_status,
     replaced_status,
     reset_request,
@@ -154,8 +155,9 @@ class TrackerNode(Node):
         self._pub_status = self.create_publisher(DiagnosticStatus, "~/status", QOS_STATUS)
         self._pub_clock = (self.create_publisher(Clock, "/clock", QOS_STREAM)
                            if self.config.publish_clock else None)
+        # Raw: the bytes, read in the parser thread (no message objects on the executor).
         self.create_subscription(JointTrajectory, self.config.trajectory_topic,
-                                 self._on_trajectory, QOS_TRAJECTORY)
+                                 self._on_trajectory, QOS_TRAJECTORY, raw=True)
         self.create_subscription(JointState, "~/reset", self._on_reset, QOS_STREAM)
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         if self._sim_time and self.config.publish_clock:
@@ -207,16 +209,13 @@ class TrackerNode(Node):
         return rest_row(self.tracker.t, self.tracker.q, self.tracker.qd)
 
     # -------------------------------------------------------------- callbacks
-    def _on_trajectory(self, msg: JointTrajectory) -> None:
-        # Only a size check here; parsing runs off the executor, so that a large trajectory
-        # never holds up the control loop (the timer picks the result up).
+    def _on_trajectory(self, data: bytes) -> None:
+        # The serialized message: reading it (its size checked first) runs off the executor,
+        # so that a large trajectory never holds up the control loop (the timer picks the
+        # result up).
         self.trajectories_received += 1
-        if len(msg.points) > self.config.max_points:
-            self._reject(f"{len(msg.points)} points, more than max_points = "
-                         f"{self.config.max_points}")
-            return
         try:
-            self._parser.submit(self._parse, msg)
+            self._parser.submit(self._parse, data)
         except RuntimeError:  # the node is shutting down
             return
 
@@ -227,11 +226,12 @@ class TrackerNode(Node):
         except RuntimeError:  # the node is shutting down
             self._follow.rejected(record, "the tracker is shutting down")
 
-    def _parse(self, msg: JointTrajectory, record: GoalRecord | None = None) -> None:
+    def _parse(self, msg: JointTrajectory | bytes, record: GoalRecord | None = None) -> None:
         try:
-            nominal = nominal_from_msg(msg, self.joint_names, self.model.inverse_dynamics)
+            nominal, stamp = nominal_of(msg, self.joint_names, self.model.inverse_dynamics,
+                                        self.config.max_points)
             check_limits(nominal, self.tracker.tau_max, self.config.max_duration)
-            item = (nominal, conv.seconds(msg.header.stamp))
+            item = (nominal, stamp)
         except TrajectoryRejectedError as exc:
             item = exc
         except Exception as exc:  # noqa: BLE001  (a bug must not lose the message silently)

@@ -22,8 +22,15 @@ from tocontrol_ros.core.sim.tracking import NominalTrajectory, TrackingSummary
 from tocontrol_ros.nodes import conversions as conv
 from tocontrol_ros.nodes.jtc_interpolation import jtc_samples
 from tocontrol_ros.nodes.splice import is_late
+from tocontrol_ros.nodes.trajectory_cdr import (
+    POINT_FIELDS,
+    PointCountError,
+    TrajectoryArrays,
+    read_trajectory_cdr,
+)
 
-__all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "jtc_completed",
+__all__ = ["TrajectoryRejectedError", "EFFORT_MARGIN", "nominal_from_msg", "nominal_from_cdr",
+           "nominal_from_arrays", "nominal_of", "jtc_completed",
            "check_limits",
            "reset_state_from_msg", "summary_status",
            "start_event", "start_state_values", "state_msgs", "status_msg", "ResetRequest",
@@ -50,41 +57,96 @@ def nominal_from_msg(msg: JointTrajectory, joint_names: Sequence[str],
         Names that are not the model's joints, missing or short fields, NaN, times that do
         not increase; the message names the point and the field.
     """
-    names = list(msg.joint_names)
+    return nominal_from_arrays(_arrays_of(msg), joint_names, inverse_dynamics)
+
+
+def nominal_from_cdr(data: bytes, joint_names: Sequence[str], inverse_dynamics=None,
+                     max_points: int | None = None) -> tuple[NominalTrajectory, float]:
+    """:func:`nominal_from_msg` of a raw subscription's bytes, and the header's stamp (s).
+
+    The bytes are read into arrays (:func:`~tocontrol_ros.nodes.trajectory_cdr.
+    read_trajectory_cdr`), without a message object per point; the same checks follow.
+
+    Raises
+    ------
+    TrajectoryRejectedError
+        More than ``max_points`` points, bytes that are not a ``JointTrajectory``, or what
+        :func:`nominal_from_msg` refuses.
+    """
+    try:
+        arrays = read_trajectory_cdr(data, max_points)
+    except PointCountError as exc:
+        raise TrajectoryRejectedError(str(exc)) from exc
+    except ValueError as exc:
+        raise TrajectoryRejectedError(f"cannot be read as a JointTrajectory: {exc}") from exc
+    sec, nanosec = divmod(arrays.stamp_ns, 1_000_000_000)
+    return nominal_from_arrays(arrays, joint_names, inverse_dynamics), sec + nanosec * 1e-9
+
+
+def nominal_of(msg: JointTrajectory | bytes, joint_names: Sequence[str],
+               inverse_dynamics=None, max_points: int | None = None
+               ) -> tuple[NominalTrajectory, float]:
+    """The nominal trajectory and the header's stamp (s) of a message or of its bytes.
+
+    Bytes (the tracker's raw subscription): :func:`nominal_from_cdr`, at most
+    ``max_points`` points; a message (an action goal's, whose point count the action
+    checked): :func:`nominal_from_msg`.
+    """
+    if isinstance(msg, bytes | bytearray | memoryview):
+        return nominal_from_cdr(bytes(msg), joint_names, inverse_dynamics, max_points)
+    return nominal_from_msg(msg, joint_names, inverse_dynamics), conv.seconds(msg.header.stamp)
+
+
+def _arrays_of(msg: JointTrajectory) -> TrajectoryArrays:
+    """A message's points as :class:`TrajectoryArrays` (its stamp left out)."""
+    points = msg.points
+    counts, values = {}, {}
+    for field in POINT_FIELDS:
+        rows = [getattr(p, field) for p in points]
+        counts[field] = np.array([len(row) for row in rows], dtype=int)
+        c = counts[field]
+        values[field] = np.array(rows, dtype=float).reshape(len(rows), int(c[0])) \
+            if c.size and np.all(c == c[0]) else [np.asarray(row, dtype=float) for row in rows]
+    t = np.array([conv.seconds(p.time_from_start) for p in points], dtype=float)
+    return TrajectoryArrays(0, msg.header.frame_id, list(msg.joint_names), t, counts, values)
+
+
+def nominal_from_arrays(arrays: TrajectoryArrays, joint_names: Sequence[str],
+                        inverse_dynamics=None) -> NominalTrajectory:
+    """:func:`nominal_from_msg` of a trajectory read into arrays (the same checks)."""
+    names = list(arrays.joint_names)
     want = list(joint_names)
     if len(set(names)) != len(names):
         raise TrajectoryRejectedError(f"joint_names has duplicates: {names}")
     if sorted(names) != sorted(want):
         raise TrajectoryRejectedError(f"joint_names {names} do not match the robot's joints "
                                       f"{want}")
-    if not msg.points:
+    count = len(arrays.t)
+    if not count:
         raise TrajectoryRejectedError("the trajectory has no points")
     order = [names.index(j) for j in want]
-    n, points = len(want), msg.points
-    arrays = {}
-    fields = ["positions", "velocities", "accelerations", "effort"]
-    computed = inverse_dynamics is not None and all(len(p.effort) == 0 for p in points)
+    n = len(want)
+    fields = list(POINT_FIELDS)
+    computed = inverse_dynamics is not None and not np.any(arrays.counts["effort"])
     if computed:
         fields.remove("effort")
+    out = {}
     for field in fields:
-        rows = [getattr(p, field) for p in points]
-        short = [i for i, row in enumerate(rows) if len(row) != n]
-        if short:
-            i = short[0]
+        short = np.flatnonzero(arrays.counts[field] != n)
+        if short.size:
+            i = int(short[0])
             raise TrajectoryRejectedError(
-                f"point {i}: {field} has {len(rows[i])} values for {n} joints (the tracker "
-                f"needs positions, velocities, accelerations and effort)")
-        arrays[field] = np.array(rows, dtype=float).reshape(len(rows), n)[:, order]
-    t = np.array([conv.seconds(p.time_from_start) for p in points])
+                f"point {i}: {field} has {arrays.counts[field][i]} values for {n} joints (the "
+                f"tracker needs positions, velocities, accelerations and effort)")
+        out[field] = np.asarray(arrays.values[field], dtype=float).reshape(count, n)[:, order]
     if computed:
-        arrays["effort"] = np.array([
+        out["effort"] = np.array([
             inverse_dynamics(q, qd, qdd) for q, qd, qdd in
-            zip(arrays["positions"], arrays["velocities"], arrays["accelerations"],
-                strict=True)]).reshape(len(points), n)
+            zip(out["positions"], out["velocities"], out["accelerations"], strict=True)
+        ]).reshape(count, n)
     try:
-        return NominalTrajectory(t, arrays["positions"], arrays["velocities"],
-                                 arrays["accelerations"], arrays["effort"],
-                                 joint_names=want)
+        return NominalTrajectory(arrays.t, out["positions"], out["velocities"],
+                                 out["accelerations"], out["effort"], joint_names=want)
     except ProblemError as exc:
         text = str(exc).replace("`t`", "time_from_start").replace(
             "`q`", "positions").replace("`qd`", "velocities").replace(
