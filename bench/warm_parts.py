@@ -1,0 +1,288 @@
+"""Where a warm re-solve's answer spends its time: bench/warm_resolve.py's 20 moves, by parts.
+
+Issue 47's second bar (docs/limits.md, "Cheaper checks and steps"). The same 20 Panda cases,
+serving solutions and 2 cm moves as ``bench/warm_resolve.py`` (``bench/warm_pad_rows.py``'s
+draw; ``--cache FILE`` pickles them on the first run and reads them back on the next, so
+that two versions of the code answer the same moves from the same serving solutions). Each
+move is answered by ``Planner.plan(moved, replan options, warm_start=serving)`` ``--calls``
+times after one call, and per call the parts' processor times (``time.thread_time``) are
+summed by wrappers around them: the Newton steps (``sensitivity_solve``; inside it the
+rows and their Jacobian, the Hessians, the banded factorisations and back-substitutions,
+and the rest: the loop's NumPy), the pads per sample (``_row_pads``), the trajectories
+(``FlatTrajectory``), the set's check between the samples (``set_values``), the time
+stretches (``stretched``), the certificate (``verified``; inside it the fine sample and the
+open loop), and the rest of the call. Reported: the medians over the calls of each move,
+then the medians over the moves; and the whole call's wall and processor times without the
+wrappers (medians of ``--calls`` after one).
+
+``--save FILE`` writes every answer (route, ``T`` and the control points' bytes, the
+certificate's figures) to compare two versions to the bit with ``--against FILE``.
+``--profile N``: cProfile of the N calls of each move instead (top functions by own time).
+
+``--base DIR`` (a copy of another version's tree, e.g. ``git archive <ref> | tar -x -C DIR``):
+paired A/B in this process of the parts that changed, alternated call by call ``--calls``
+times after one call each, processor-time medians, and whether both give the same numbers
+to the bit: the Newton steps alone (``sensitivity_solve`` of DIR against this tree's, the
+route's steps: the whole move, then the sub-moves where it fails).
+
+Command: ``scripts/dev run python -P bench/warm_parts.py --cache /tmp/cases.pkl
+[--calls N] [--save FILE] [--against FILE] [--profile N] [--base DIR] [--only 2,3] [cases]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import hashlib
+import json
+import pstats
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import log  # noqa: E402
+from bench.warm_first_iterate import load  # noqa: E402
+
+#: Parts timed (name, module path, attribute): wrappers sum each one's processor time.
+PARTS = (
+    ("steps", "tocontrol_ros.core.direct.limited", "sensitivity_solve"),
+    ("rows", "tocontrol_ros.core.direct.kkt_step", "KKTDerivatives.rows"),
+    ("hessian", "tocontrol_ros.core.direct.kkt_step", "KKTDerivatives.hessian"),
+    ("factor", "tocontrol_ros.core.direct.sensitivity", "BandedKKT.factor"),
+    ("backsolve", "tocontrol_ros.core.direct.sensitivity", "BandedKKT.solve"),
+    ("row pads", "tocontrol_ros.core.direct.limited", "_row_pads"),
+    ("trajectory", "tocontrol_ros.core.direct.flat_trajectory", "FlatTrajectory._set_result"),
+    ("set check", "tocontrol_ros.core.direct.flat_trajectory", "FlatTrajectory.set_values"),
+    ("stretch", "tocontrol_ros.core.direct.limited", "stretched"),
+    ("certificate", "tocontrol_ros.core.direct.limited", "verified"),
+    ("fine sample", "tocontrol_ros.core.direct.checked", "fine_sample"),
+    ("open loop", "tocontrol_ros.core.direct.flat_trajectory", "FlatTrajectory.open_loop"),
+)
+
+
+@contextmanager
+def timed_parts(sums: dict):
+    """Each of :data:`PARTS` wrapped: its processor time (s) added to ``sums[name]``.
+
+    A part called inside another of the same name (a recursion) counts once.
+    """
+    import importlib
+
+    saved, depth = [], {}
+    for name, module, attr in PARTS:
+        owner = importlib.import_module(module)
+        *path, last = attr.split(".")
+        for part in path:
+            owner = getattr(owner, part)
+        original = owner.__dict__[last] if isinstance(owner, type) else getattr(owner, last)
+
+        def wrapped(*args, _f=original, _n=name, **kwargs):
+            depth[_n] = depth.get(_n, 0) + 1
+            t0 = time.thread_time()
+            try:
+                return _f(*args, **kwargs)
+            finally:
+                depth[_n] -= 1
+                if depth[_n] == 0:
+                    sums[_n] = sums.get(_n, 0.0) + time.thread_time() - t0
+
+        saved.append((owner, last, original))
+        setattr(owner, last, wrapped)
+    try:
+        yield
+    finally:
+        for owner, last, original in reversed(saved):
+            setattr(owner, last, original)
+
+
+def answer_of(res) -> dict:
+    """What must stay the same to the bit: route, T, control points, certificate figures."""
+    text = " ".join(res.warnings)
+    route = "parametric" if "(route: parametric)" in text else "ipopt"
+    out = {"success": bool(res.success), "route": route, "iterations": int(res.iterations)}
+    if res.success:
+        P = np.ascontiguousarray(res.trajectory.result.P, dtype=float)
+        out.update(T=float(res.T).hex(), P=hashlib.sha256(P.tobytes()).hexdigest(),
+                   residual=float(res.residual).hex(),
+                   figures={k: (float(v).hex() if isinstance(v, float) else str(v))
+                            for k, v in sorted(res.verification.items())})
+    return out
+
+
+def module_from(base: Path, name: str):
+    """The module ``name`` (dotted) as it is in the tree ``base``, loaded under another name
+    (its own imports resolve to this tree's modules)."""
+    import importlib.util
+
+    path = base.joinpath(*name.split(".")).with_suffix(".py")
+    spec = importlib.util.spec_from_file_location(f"_base_{name.replace('.', '_')}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def same_bits(a, b) -> bool:
+    """Whether two results (dataclasses, arrays, numbers, tuples) are equal to the bit."""
+    from dataclasses import fields, is_dataclass
+
+    if is_dataclass(a):
+        return type(a).__name__ == type(b).__name__ and all(
+            f.name == "solve_time" or same_bits(getattr(a, f.name), getattr(b, f.name))
+            for f in fields(a))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, float) and isinstance(b, float):
+        return a.hex() == b.hex() or (np.isnan(a) and np.isnan(b))
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(same_bits(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def paired(fns: tuple, calls: int) -> tuple[list[float], list]:
+    """Processor-time medians (s) of ``fns`` alternated call by call, and their last outputs."""
+    outs = [fn() for fn in fns]
+    times = [[] for _ in fns]
+    for _ in range(calls):
+        for j, fn in enumerate(fns):
+            t0 = time.thread_time()
+            outs[j] = fn()
+            times[j].append(time.thread_time() - t0)
+    return [float(np.median(t)) for t in times], outs
+
+
+def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:
+    """The Newton steps alone, DIR's ``sensitivity_solve`` against this tree's (see module)."""
+    from tocontrol_ros.core.direct import limited, sensitivity
+    from tocontrol_ros.core.direct.tuning import PAD
+
+    old = module_from(base, "tocontrol_ros.core.direct.sensitivity")
+    rows = []
+    for i, case in enumerate(cases):
+        if case is None or (only and i + 1 not in only):
+            continue
+        moved, serving = case
+        ws = serving.warm_state
+        flat = planner.flat(moved, ws.breaks, warm="dual")
+        pad = limited._row_pads(flat, ws, moved.k)
+        args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x,
+                moved.start.value, moved.target.value, moved.k,
+                *limited.state_bounds(moved, PAD), pad)
+
+        def route(mod, args=args):
+            whole = mod.sensitivity_solve(*args)
+            if whole[0].success:
+                return whole
+            return mod.sensitivity_solve(*args, submoves=mod.PATH_SUBMOVES,
+                                         max_steps=mod.PATH_STEPS, max_solves=mod.PATH_SOLVES,
+                                         sub_budget=mod.PATH_SUB_BUDGET)
+
+        (t_old, t_new), (a, b) = paired((lambda: route(old), lambda: route(sensitivity)),
+                                        calls)
+        rows.append((t_old, t_new))
+        log(f"case {i + 1}: steps {a[1].steps}, solves {a[1].solves}: {1e3 * t_old:.2f} -> "
+            f"{1e3 * t_new:.2f} ms ({t_new / t_old:.2f}), the same to the bit: "
+            f"{same_bits(a, b)}")
+    ratio = [n / o for o, n in rows]
+    print(f"steps alone, {len(rows)} moves: median {1e3 * np.median([o for o, _ in rows]):.2f}"
+          f" -> {1e3 * np.median([n for _, n in rows]):.2f} ms (processor), ratio median "
+          f"{np.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("count", nargs="?", type=int, default=20)
+    ap.add_argument("--cache", type=Path)
+    ap.add_argument("--calls", type=int, default=5)
+    ap.add_argument("--save", type=Path)
+    ap.add_argument("--against", type=Path)
+    ap.add_argument("--profile", type=int, default=0)
+    ap.add_argument("--only", type=str, default="")
+    ap.add_argument("--base", type=Path)
+    args = ap.parse_args()
+    planner, ropts, cases = load(args.cache, args.count)
+    only = {int(c) for c in args.only.split(",") if c}
+    if args.base is not None:
+        steps_ab(planner, cases, args.base, args.calls, only)
+        return
+    answers, per_move, wall, cpu = {}, [], [], []
+    prof = cProfile.Profile() if args.profile else None
+    for i, case in enumerate(cases):
+        if case is None or (only and i + 1 not in only):
+            continue
+        moved, serving = case
+
+        def call(moved=moved, serving=serving):
+            return planner.plan(moved, ropts, warm_start=serving)
+
+        res = call()
+        answers[str(i + 1)] = answer_of(res)
+        if prof is not None:
+            prof.enable()
+            for _ in range(args.profile):
+                call()
+            prof.disable()
+            continue
+        walls, cpus = [], []
+        for _ in range(args.calls):
+            t0, c0 = time.perf_counter(), time.process_time()
+            again = call()
+            walls.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+            if answer_of(again) != answers[str(i + 1)]:
+                raise RuntimeError(f"case {i + 1}: the same call gave another answer")
+        parts = []
+        for _ in range(args.calls):
+            sums = {}
+            t0 = time.thread_time()
+            with timed_parts(sums):
+                call()
+            sums["call"] = time.thread_time() - t0
+            parts.append(sums)
+        med = {name: float(np.median([p.get(name, 0.0) for p in parts]))
+               for name in ["call"] + [n for n, _, _ in PARTS]}
+        per_move.append((i + 1, answers[str(i + 1)]["route"], med))
+        wall.append(float(np.median(walls)))
+        cpu.append(float(np.median(cpus)))
+        log(f"case {i + 1}: {answers[str(i + 1)]['route']} wall {1e3 * wall[-1]:.1f} ms, "
+            f"cpu {1e3 * cpu[-1]:.1f} ms; " + ", ".join(
+                f"{name} {1e3 * v:.2f}" for name, v in med.items() if v))
+    if prof is not None:
+        pstats.Stats(prof).sort_stats("tottime").print_stats(40)
+    if per_move:
+        names = ["call"] + [n for n, _, _ in PARTS]
+        print(f"\nmoves: {len(per_move)}; whole call (no wrappers) median wall "
+              f"{1e3 * np.median(wall):.1f} ms, processor {1e3 * np.median(cpu):.1f} ms")
+        for route in ("parametric", "ipopt", None):
+            rows = [m for _, r, m in per_move if route is None or r == route]
+            if not rows:
+                continue
+            print(f"{route or 'all'} ({len(rows)}): " + ", ".join(
+                f"{name} {1e3 * np.median([m[name] for m in rows]):.2f}" for name in names))
+        print("per move (ms, processor): case route " + " ".join(names))
+        for case, route, m in per_move:
+            print(f"  {case} {route} " + " ".join(f"{1e3 * m[n]:.2f}" for n in names))
+    if args.save is not None:
+        args.save.write_text(json.dumps(answers, indent=1, sort_keys=True))
+    if args.against is not None:
+        other = json.loads(args.against.read_text())
+        same = [c for c in answers if other.get(c) == answers[c]]
+        differ = [c for c in answers if c in other and other[c] != answers[c]]
+        print(f"\nthe same answers to the bit as {args.against}: {len(same)}/{len(answers)}"
+              + (f"; differ: {differ}" if differ else ""))
+        for c in differ:
+            a, b = other[c], answers[c]
+            print(f"  case {c}: " + ", ".join(f"{key}: {a.get(key)} -> {b.get(key)}"
+                                              for key in sorted(set(a) | set(b))
+                                              if a.get(key) != b.get(key)))
+
+
+if __name__ == "__main__":
+    main()
