@@ -270,6 +270,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
         self._d1 = self._spl.derivative(1)
         self._d2 = self._spl.derivative(2)
+        self._higher = (self._spl, self._d1, self._d2)  # more by _derivatives
         self.t_grid = self.breaks * self.T
         x = self._path(self.t_grid)[:2]
         self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
@@ -325,16 +326,15 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         ds = np.diff(br)
         # Taylor coefficients at each span's start (right-hand derivatives), in sigma:
         # (L, n, d1), each derivative's spline made once and evaluated at every start.
-        derivs = np.stack([self._spl.derivative(i)(br[:-1]) if i else self._spl(br[:-1])
-                           for i in range(d1)], axis=2)
+        derivs = np.stack([spl(br[:-1]) for spl in self._derivatives(d1)], axis=2)
         coefs = derivs * (ds[:, None] ** np.arange(d1))[:, None, :] / fact
         times = self.T * (br[:-1, None] + ds[:, None] * grid[None, :])
         x0 = self.state(0.0)[0, :2 * self.n]
-        try:  # every span in one call (open_loop_sweep), the same CVODES calls
+        try:  # every span in one call (open_loop_sweep, buffered), the same CVODES calls
             params = np.vstack([coefs.reshape(L, -1, order="F").T, self.T * ds[None, :]])
-            _, states = open_loop_sweep(self._model, integ, L)(x0, params)
+            _, states = open_loop_sweep_buffered(self._model, integ, L)(x0, params)
             return np.concatenate([[0.0], times.ravel()]), \
-                np.vstack([x0[None, :], np.array(states).T]), True
+                np.vstack([x0[None, :], states.T]), True
         except RuntimeError:  # a span failed: again one by one, to say where
             pass
         spans = ((coefs[j], ds[j] * self.T, times[j]) for j in range(L))
@@ -342,6 +342,21 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         if not success and not stiff:
             return self.open_loop(rtol, atol, stiff=True)
         return t, x, success
+
+    def _derivatives(self, count: int) -> list:
+        """The path's spline and its first ``count - 1`` derivatives' splines.
+
+        The first two are the trajectory's own; a higher one is the last one's derivative
+        (scipy differentiates a B-spline one order at a time: the same coefficients as
+        ``derivative(i)`` of the path, to the bit), kept for the next call.
+        """
+        splines = getattr(self, "_higher", (self._spl, self._d1, self._d2))
+        if len(splines) < count:  # a new tuple: a thread that races only repeats the work
+            more = list(splines)
+            while len(more) < count:
+                more.append(more[-1].derivative(1))
+            self._higher = splines = tuple(more)
+        return list(splines[:count])
 
     def set_values(self, points: int = 32) -> np.ndarray:
         """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
