@@ -23,13 +23,23 @@ from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
-           "open_loop_sweep_buffered",
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "SET_POINTS", "compile_open_loop",
+           "integrate_segments", "open_loop_sweep_buffered",
            "mapped_controls", "open_loop_sweep", "polynomial_path", "polynomial_segment_ode",
            "refined_breaks", "segment_dae"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
+#: Times per span of the control set's check between the samples
+#: (:meth:`FlatTrajectory.set_values`).
+SET_POINTS = 32
+
+
+def _read_only(values: np.ndarray) -> np.ndarray:
+    """``values`` as a float array that cannot be written (kept and shared)."""
+    values = np.array(values, dtype=float)
+    values.setflags(write=False)
+    return values
 
 
 #: CVODES integrators of the open loop, per model, degree and tolerances (with the DAE
@@ -241,9 +251,14 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     transcription : FlatTranscription
     result : FlatResult
     k : float
+    set_values : ndarray, shape (L SET_POINTS,), optional
+        :meth:`set_values` of this result at :data:`SET_POINTS` times a span, where they are
+        known already (a warm state's, from the check of the plan that made it): kept, not
+        evaluated again.
     """
 
-    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
+    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float,
+                 set_values: np.ndarray | None = None) -> None:
         # Only what evaluating needs: not the transcription (its NLP solver is large, and a
         # refined mesh's transcription serves one motion).
         model = transcription.model
@@ -255,15 +270,22 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         self.breaks, self._degree = transcription.breaks, transcription.degree
         self._id = transcription._id
         self._scale = transcription.scale
-        self._set_result(result)
+        self._set_result(result, set_values)
 
-    def with_result(self, result: FlatResult) -> FlatTrajectory:
-        """The same mesh and model with other control points and ``T`` (e.g. to test)."""
+    def with_result(self, result: FlatResult, set_values: np.ndarray | None = None
+                    ) -> FlatTrajectory:
+        """The same mesh and model with other control points and ``T`` (e.g. to test).
+
+        ``set_values``: the new result's :meth:`set_values` where already known (as
+        :meth:`slower_set_values` gives them for a time stretch).
+        """
         other = copy.copy(self)
-        other._set_result(result)
+        other._set_result(result, set_values)
         return other
 
-    def _set_result(self, result: FlatResult) -> None:
+    def _set_result(self, result: FlatResult, set_values: np.ndarray | None = None) -> None:
+        # The set's values at SET_POINTS times a span, once evaluated (read-only).
+        self._set_known = None if set_values is None else _read_only(set_values)
         self.result = result
         self.T = result.T
         self._P = result.P
@@ -358,10 +380,23 @@ class FlatTrajectory(InverseDynamicsTrajectory):
             self._higher = splines = tuple(more)
         return list(splines[:count])
 
-    def set_values(self, points: int = 32) -> np.ndarray:
-        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+    def set_values(self, points: int = SET_POINTS) -> np.ndarray:
+        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,).
+
+        At :data:`SET_POINTS` evaluated once and kept (read-only): the answer's check, a pad
+        round's widening and the warm state of the plan ask for the same values.
+        """
+        if points == SET_POINTS and self._set_known is not None:
+            return self._set_known
         u = self.control_at(self.set_fractions(points) * self.T)
-        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+        values = np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+        if points == SET_POINTS:
+            self._set_known = values = _read_only(values)
+        return values
+
+    def known_set_values(self) -> np.ndarray | None:
+        """:meth:`set_values` at :data:`SET_POINTS` where evaluated already, else None."""
+        return self._set_known
 
     def set_fractions(self, points: int) -> np.ndarray:
         """The times of :meth:`set_values` as fractions of ``T``, shape (L points,)."""
@@ -369,7 +404,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         frac = (np.arange(points) + 0.5) / points
         return (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
 
-    def slower_set_values(self, durations, points: int = 32) -> np.ndarray:
+    def slower_set_values(self, durations, points: int = SET_POINTS) -> np.ndarray:
         """:meth:`set_values` of the same path run in each of ``durations``, in one call.
 
         The same numbers to the bit as ``with_result(replace(result, T=T)).set_values()``
