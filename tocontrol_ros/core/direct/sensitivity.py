@@ -198,6 +198,9 @@ class BandedKKT:
         pos = np.full(N, -1)
         pos[order] = np.arange(len(order))
         self.pos, self.iT, self.nw, self.ng, self.M = pos, iT, nw, ng, len(order)
+        # The core's unknowns (all but T) and their places in the band, for the solves.
+        self.core_at = np.flatnonzero(pos >= 0)
+        self.core_pos = pos[self.core_at]
         # The matrix's entries: H (upper triangle, mirrored), the diagonal, J and J^T.
         off = hr != hc
         rows = np.concatenate([hr, hc[off], np.arange(N), nw + jr, jc])
@@ -239,13 +242,12 @@ class BandedKKT:
         """The solution (N,) of the factorised system for ``rhs`` (N,), original order."""
         lub, piv, b, u, schur = fact
         r1 = np.empty(self.M)
-        core = self.pos >= 0
-        r1[self.pos[core]] = rhs[core]
-        v, _ = lapack.dgbtrs(lub, self.kl, self.ku, r1, piv)
+        r1[self.core_pos] = rhs[self.core_at]
+        v, _ = lapack.dgbtrs(lub, self.kl, self.ku, r1, piv, overwrite_b=True)
         xT = (rhs[self.iT] - float(b @ v)) / schur
         x1 = v - u * xT
         out = np.empty_like(rhs)
-        out[core] = x1[self.pos[core]]
+        out[self.core_at] = x1[self.core_pos]
         out[self.iT] = xT
         return out
 
