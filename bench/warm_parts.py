@@ -158,12 +158,103 @@ def paired(fns: tuple, calls: int) -> tuple[list[float], list]:
     return [float(np.median(t)) for t in times], outs
 
 
+def base_module(base: Path):
+    """DIR's ``core/direct/sensitivity`` with its KKT orderings kept apart from this tree's
+    (both cache them on the transcription under the same key)."""
+    old = module_from(base, "tocontrol_ros.core.direct.sensitivity")
+    kept = {}
+
+    def banded_kkt(flat, jac, hess):
+        key = (id(flat.kkt_cache), hess.size1(), jac.size1())
+        if key not in kept:
+            kept[key] = (flat.kkt_cache, old.BandedKKT(old._triplets(jac), old._triplets(hess),
+                                                       hess.size1(), jac.size1(),
+                                                       flat.model.n))
+        return kept[key][1]
+
+    old.banded_kkt = banded_kkt
+    return old
+
+
+@contextmanager
+def as_base(base_parts: tuple):
+    """The warm re-solve as DIR's code makes it, inside this process: its Newton steps
+    (``sensitivity_solve``), its open loop and set check (``FlatTrajectory.open_loop`` and
+    ``set_values``, evaluated every time), the pads per sample evaluated from the warm
+    path (not read off the warm state)."""
+    from dataclasses import replace
+
+    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
+
+    old_sens, old_ft = base_parts
+    row_pads = limited._row_pads
+    saved = (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values)
+    limited.sensitivity_solve = old_sens.sensitivity_solve
+    FlatTrajectory.open_loop = old_ft.FlatTrajectory.open_loop
+    FlatTrajectory.set_values = old_ft.FlatTrajectory.set_values
+    limited._row_pads = lambda flat, warm, k: row_pads(flat, replace(warm, set_values=None), k)
+    try:
+        yield
+    finally:
+        limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values = saved
+        limited._row_pads = row_pads
+
+
+def calls_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
+    """The whole call, DIR's code (:func:`as_base`) and this tree's alternated call by call:
+    processor and wall time medians, the answers compared to the bit."""
+    parts = (base_module(base),
+             module_from(base, "tocontrol_ros.core.direct.flat_trajectory"))
+    rows = []
+    for i, case in enumerate(cases):
+        if case is None or (only and i + 1 not in only):
+            continue
+        moved, serving = case
+
+        def call(moved=moved, serving=serving):
+            return planner.plan(moved, ropts, warm_start=serving)
+
+        def old_call():
+            with as_base(parts):
+                return call()
+
+        out, cpu, wall = {}, {"old": [], "new": []}, {"old": [], "new": []}
+        for _ in range(calls + 1):
+            for name, fn in (("old", old_call), ("new", call)):
+                t0, c0 = time.perf_counter(), time.thread_time()
+                out[name] = fn()
+                cpu[name].append(time.thread_time() - c0)
+                wall[name].append(time.perf_counter() - t0)
+        med = {f"{kind} {name}": float(np.median(v[name][1:]))
+               for kind, v in (("cpu", cpu), ("wall", wall)) for name in ("old", "new")}
+        same = answer_of(out["old"]) == answer_of(out["new"])
+        route = answer_of(out["new"])["route"]
+        rows.append((i + 1, route, med, same))
+        log(f"case {i + 1}: {route}, processor {1e3 * med['cpu old']:.2f} -> "
+            f"{1e3 * med['cpu new']:.2f} ms ({med['cpu new'] / med['cpu old']:.3f}), wall "
+            f"{1e3 * med['wall old']:.2f} -> {1e3 * med['wall new']:.2f} ms; the same "
+            f"answer to the bit: {same}")
+    for route in ("parametric", "ipopt", None):
+        sel = [m for _, r, m, _ in rows if route is None or r == route]
+        if not sel:
+            continue
+        ratio = [m["cpu new"] / m["cpu old"] for m in sel]
+        print(f"{route or 'all'} ({len(sel)}): processor median "
+              f"{1e3 * np.median([m['cpu old'] for m in sel]):.2f} -> "
+              f"{1e3 * np.median([m['cpu new'] for m in sel]):.2f} ms, wall median "
+              f"{1e3 * np.median([m['wall old'] for m in sel]):.2f} -> "
+              f"{1e3 * np.median([m['wall new'] for m in sel]):.2f} ms; processor ratio "
+              f"median {np.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f})")
+    print(f"the same answers to the bit: {sum(s for *_, s in rows)}/{len(rows)}")
+
+
 def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:
     """The Newton steps alone, DIR's ``sensitivity_solve`` against this tree's (see module)."""
     from tocontrol_ros.core.direct import limited, sensitivity
     from tocontrol_ros.core.direct.tuning import PAD
 
-    old = module_from(base, "tocontrol_ros.core.direct.sensitivity")
+    old = base_module(base)
     rows = []
     for i, case in enumerate(cases):
         if case is None or (only and i + 1 not in only):
@@ -206,11 +297,18 @@ def main() -> None:
     ap.add_argument("--profile", type=int, default=0)
     ap.add_argument("--only", type=str, default="")
     ap.add_argument("--base", type=Path)
+    ap.add_argument("--whole", action="store_true")
     args = ap.parse_args()
+    import tocontrol_ros
+
+    log(f"tocontrol_ros from {Path(tocontrol_ros.__file__).parent}")
     planner, ropts, cases = load(args.cache, args.count)
     only = {int(c) for c in args.only.split(",") if c}
     if args.base is not None:
-        steps_ab(planner, cases, args.base, args.calls, only)
+        if args.whole:
+            calls_ab(planner, ropts, cases, args.base, args.calls, only)
+        else:
+            steps_ab(planner, cases, args.base, args.calls, only)
         return
     answers, per_move, wall, cpu = {}, [], [], []
     prof = cProfile.Profile() if args.profile else None
