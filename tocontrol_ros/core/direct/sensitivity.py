@@ -611,15 +611,15 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                     retry = True
                     stale = True
                     continue
-            a_d = _boundary_step(dz, z + ~has)
+            # The dual step's fraction to the boundary (the whole move's reset takes it in
+            # full: not computed there).
+            a_d = 1.0 if reset else _boundary_step(dz, z + ~has)
             full = a_p == 1.0
             blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
             rounds = 0
             w = w + a_p * dw
             s = s + a_p * ds
             y = y + a_p * dy
-            if reset:
-                a_d = 1.0
             z = z + a_d * dz
             room = np.where(has, np.concatenate([s - lbg, ubg - s, w - lbx, ubx - w]), 1.0)
             if reset:
