@@ -249,6 +249,43 @@ def calls_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
     print(f"the same answers to the bit: {sum(s for *_, s in rows)}/{len(rows)}")
 
 
+def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
+    """The checks' parts, DIR's against this tree's, alternated: the certificate's open loop
+    of the answer (DIR's ``FlatTrajectory.open_loop`` on the same trajectory) and the pads
+    per sample of the serving solution (evaluated from its path, as DIR does, against read
+    off its warm state's set values)."""
+    from dataclasses import replace
+
+    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+
+    old_ft = module_from(base, "tocontrol_ros.core.direct.flat_trajectory")
+    cert = replace(ropts.certificate_options(1), residual_tol=RESIDUAL_TOL)
+    rows = []
+    for i, case in enumerate(cases):
+        if case is None or (only and i + 1 not in only):
+            continue
+        moved, serving = case
+        traj = planner.plan(moved, ropts, warm_start=serving).trajectory
+        ws = serving.warm_state
+        flat = planner.flat(moved, ws.breaks, warm=True)
+        bare = replace(ws, set_values=None)
+        (o1, n1), (a, b) = paired((
+            lambda traj=traj: old_ft.FlatTrajectory.open_loop(traj, cert.rtol, cert.atol),
+            lambda traj=traj: traj.open_loop(cert.rtol, cert.atol)), calls)
+        same_ol = all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+        (o2, n2), (c, d) = paired((
+            lambda flat=flat, bare=bare, k=moved.k: limited._row_pads(flat, bare, k),
+            lambda flat=flat, ws=ws, k=moved.k: limited._row_pads(flat, ws, k)), calls)
+        rows.append((o1, n1, o2, n2))
+        log(f"case {i + 1}: open loop {1e3 * o1:.2f} -> {1e3 * n1:.2f} ms (the same: "
+            f"{same_ol}); pads per sample {1e3 * o2:.2f} -> {1e3 * n2:.2f} ms (the same: "
+            f"{np.array_equal(c, d)}; read off the warm state: {ws.set_values is not None})")
+    med = np.median(np.array(rows), axis=0) * 1e3
+    print(f"{len(rows)} moves, medians (processor): open loop {med[0]:.2f} -> {med[1]:.2f} "
+          f"ms, pads per sample {med[2]:.2f} -> {med[3]:.2f} ms")
+
+
 def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:
     """The Newton steps alone, DIR's ``sensitivity_solve`` against this tree's (see module)."""
     from tocontrol_ros.core.direct import limited, sensitivity
@@ -298,6 +335,7 @@ def main() -> None:
     ap.add_argument("--only", type=str, default="")
     ap.add_argument("--base", type=Path)
     ap.add_argument("--whole", action="store_true")
+    ap.add_argument("--checks", action="store_true")
     args = ap.parse_args()
     import tocontrol_ros
 
@@ -307,6 +345,8 @@ def main() -> None:
     if args.base is not None:
         if args.whole:
             calls_ab(planner, ropts, cases, args.base, args.calls, only)
+        elif args.checks:
+            checks_ab(planner, ropts, cases, args.base, args.calls, only)
         else:
             steps_ab(planner, cases, args.base, args.calls, only)
         return
