@@ -251,13 +251,15 @@ def calls_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
 
 def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
     """The checks' parts, DIR's against this tree's, alternated: the certificate's open loop
-    of the answer (DIR's ``FlatTrajectory.open_loop`` on the same trajectory) and the pads
-    per sample of the serving solution (evaluated from its path, as DIR does, against read
-    off its warm state's set values)."""
+    of the answer (DIR's ``FlatTrajectory.open_loop`` on the same trajectory), the pads per
+    sample of the serving solution (evaluated from its path, as DIR does, against read off
+    its warm state's set values) and the residuals of the answer's six time stretches (the
+    row function called with ``DM`` as DIR does, against ``FlatTranscription.residual``)."""
     from dataclasses import replace
 
     from tocontrol_ros.core.direct import limited
-    from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+    from tocontrol_ros.core.direct.flat import violation
+    from tocontrol_ros.core.direct.tuning import PAD, RESIDUAL_TOL, SET_PAD, STRETCHES
 
     old_ft = module_from(base, "tocontrol_ros.core.direct.flat_trajectory")
     cert = replace(ropts.certificate_options(1), residual_tol=RESIDUAL_TOL)
@@ -277,13 +279,35 @@ def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
         (o2, n2), (c, d) = paired((
             lambda flat=flat, bare=bare, k=moved.k: limited._row_pads(flat, bare, k),
             lambda flat=flat, ws=ws, k=moved.k: limited._row_pads(flat, ws, k)), calls)
-        rows.append((o1, n1, o2, n2))
+        # The six time stretches' residuals of the answer (checked.stretched): the rows
+        # called with DM conversions as DIR does, against flat.residual (buffered).
+        res = traj.result
+        values = (moved.start.value, moved.target.value, moved.k)
+        bounds = limited.state_bounds(moved, PAD)
+        durations = [res.T * (1.0 + e) for e in STRETCHES]
+
+        def plain(res=res, values=values, bounds=bounds, durations=durations, flat=flat):
+            par = flat.parameters(*values)
+            return [violation(np.concatenate([res.P.ravel(), [T]]),
+                              np.array(flat.row_function(
+                                  np.concatenate([res.P.ravel(), [T]]), par)).ravel(),
+                              *flat.bounds(*bounds, SET_PAD, values[:2])) for T in durations]
+
+        def buffered(res=res, values=values, bounds=bounds, durations=durations,
+                     flat=flat):
+            return [flat.residual(*values, T, res.P, *bounds) for T in durations]
+
+        (o3, n3), (e, f) = paired((plain, buffered), calls)
+        rows.append((o1, n1, o2, n2, o3, n3))
         log(f"case {i + 1}: open loop {1e3 * o1:.2f} -> {1e3 * n1:.2f} ms (the same: "
             f"{same_ol}); pads per sample {1e3 * o2:.2f} -> {1e3 * n2:.2f} ms (the same: "
-            f"{np.array_equal(c, d)}; read off the warm state: {ws.set_values is not None})")
+            f"{np.array_equal(c, d)}; read off the warm state: {ws.set_values is not None}); "
+            f"six stretches' residuals {1e3 * o3:.2f} -> {1e3 * n3:.2f} ms (the same: "
+            f"{[x.hex() for x in e] == [x.hex() for x in f]})")
     med = np.median(np.array(rows), axis=0) * 1e3
     print(f"{len(rows)} moves, medians (processor): open loop {med[0]:.2f} -> {med[1]:.2f} "
-          f"ms, pads per sample {med[2]:.2f} -> {med[3]:.2f} ms")
+          f"ms, pads per sample {med[2]:.2f} -> {med[3]:.2f} ms, six stretches' residuals "
+          f"{med[4]:.2f} -> {med[5]:.2f} ms")
 
 
 def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:

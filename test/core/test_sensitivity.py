@@ -378,6 +378,30 @@ def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case
             limited._row_pads(flat, replace(planted, k=moved.k), moved.k), evaluated)
 
 
+def test_the_buffered_rows_are_the_row_function_to_the_bit(panda_case):
+    """The NLP's rows through NumPy buffers (the residual of every solve and time stretch)
+    equal the row function called with DM, at the serving solution, a parametric answer and
+    that answer slowed down; so do the residuals."""
+    from tocontrol_ros.core.direct.flat import violation
+    from tocontrol_ros.core.direct.kkt_step import buffered_rows
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    assert par.success, par.message
+    flat = planner.flat(moved, serving.warm_state.breaks, warm="dual")
+    values = (moved.start.value, moved.target.value, moved.k)
+    p = flat.parameters(*values)
+    bounds = state_bounds(moved, PAD)
+    for P, T in ((serving.warm_state.P, serving.T), (par.trajectory.result.P, par.T),
+                 (par.trajectory.result.P, par.T * (1.0 + 3e-4))):
+        w = np.concatenate([np.ravel(P), [T]])
+        plain = np.array(flat.row_function(w, p)).ravel()
+        assert np.array_equal(buffered_rows(flat)(w, p)[0], plain)
+        assert flat.residual(*values, T, P, *bounds) == violation(
+            w, plain, *flat.bounds(*bounds, SET_PAD, values[:2]))
+
+
 def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, monkeypatch):
     """The bounded motion's re-integration in one call on the compiled right-hand side
     equals CVODES span by span on the symbolic one (the route before) to 1e-12, and the
