@@ -181,23 +181,31 @@ def as_base(base_parts: tuple):
     """The warm re-solve as DIR's code makes it, inside this process: its Newton steps
     (``sensitivity_solve``), its open loop and set check (``FlatTrajectory.open_loop`` and
     ``set_values``, evaluated every time), the pads per sample evaluated from the warm
-    path (not read off the warm state)."""
+    path (not read off the warm state), the residuals through the row function called
+    with ``DM``."""
     from dataclasses import replace
 
     from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.flat import FlatTranscription, violation
     from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
+
+    def plain_residual(self, w, par, lbg, ubg, lbx, ubx):
+        return violation(w, np.array(self.row_function(w, par)).ravel(), lbg, ubg, lbx, ubx)
 
     old_sens, old_ft = base_parts
     row_pads = limited._row_pads
-    saved = (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values)
+    saved = (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values,
+             FlatTranscription.__dict__["_residual"])
     limited.sensitivity_solve = old_sens.sensitivity_solve
     FlatTrajectory.open_loop = old_ft.FlatTrajectory.open_loop
     FlatTrajectory.set_values = old_ft.FlatTrajectory.set_values
+    FlatTranscription._residual = plain_residual
     limited._row_pads = lambda flat, warm, k: row_pads(flat, replace(warm, set_values=None), k)
     try:
         yield
     finally:
-        limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values = saved
+        (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values,
+         FlatTranscription._residual) = saved
         limited._row_pads = row_pads
 
 
