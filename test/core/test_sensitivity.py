@@ -360,6 +360,7 @@ def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case
     assert par.success and _route(par) == "parametric", par.warnings
     for ws in (serving.warm_state, par.warm_state):
         assert ws.set_values is not None and ws.k == moved.k
+        assert ws.torque_scale == moved.torque_scale
         assert not ws.set_values.flags.writeable
         flat = planner.flat(moved, ws.breaks, warm="dual")
         path = FlatResult(success=True, message="", T=float(ws.T), iterations=0,
@@ -371,11 +372,13 @@ def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case
         assert np.array_equal(ws.set_values, again)
         evaluated = limited._row_pads(flat, replace(ws, set_values=None), moved.k)
         assert np.array_equal(limited._row_pads(flat, ws, moved.k), evaluated)
-        # Kept values of another exponent are not read (a planted wrong value shows it).
-        planted = replace(ws, set_values=np.full_like(again, 2.0), k=moved.k + 1.0)
-        assert np.array_equal(limited._row_pads(flat, planted, moved.k), evaluated)
-        assert not np.array_equal(
-            limited._row_pads(flat, replace(planted, k=moved.k), moved.k), evaluated)
+        # Kept values of another exponent or torque scale are not read (a planted wrong
+        # value shows where they are).
+        planted = replace(ws, set_values=np.full_like(again, 2.0))
+        assert not np.array_equal(limited._row_pads(flat, planted, moved.k), evaluated)
+        for other in (replace(planted, k=moved.k + 1.0),
+                      replace(planted, torque_scale=0.9 * ws.torque_scale)):
+            assert np.array_equal(limited._row_pads(flat, other, moved.k), evaluated)
 
 
 def test_the_buffered_rows_are_the_row_function_to_the_bit(panda_case):

@@ -100,7 +100,8 @@ def verified(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: 
         problem=problem, method="direct",
         warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T,
                                  res.lam_g, res.lam_x, set_values=traj.known_set_values(),
-                                 k=problem.k) if success else None)
+                                 k=problem.k, torque_scale=problem.torque_scale)
+        if success else None)
 
 
 def stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, values,

@@ -468,7 +468,8 @@ def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
     dynamics, so that the mapped calls are the ones the answer's checks use)
     (:func:`~.set_pads.row_pads`, with :data:`~.set_pads.ROW_PADS`); else :data:`SET_PAD`.
     The set's values between the samples are the warm state's own where it has them for
-    this ``k`` and mesh (its plan's check evaluated them: the same numbers), else evaluated.
+    this ``k``, torque scale and mesh (its plan's check evaluated them: the same numbers),
+    else evaluated.
     """
     if not set_pads.ROW_PADS:
         return SET_PAD
@@ -476,7 +477,8 @@ def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
                       iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
                       residual=0.0)
     known = getattr(warm, "set_values", None)  # (a warm state pickled before it had them)
-    if known is None or warm.k != k or not np.array_equal(warm.breaks, flat.breaks):
+    if known is None or warm.k != k or warm.torque_scale != flat.torque_scale \
+            or not np.array_equal(warm.breaks, flat.breaks):
         known = None
     return set_pads.row_pads(FlatTrajectory(flat, path, k, set_values=known), flat.samples)
 
