@@ -386,8 +386,9 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         At :data:`SET_POINTS` evaluated once and kept (read-only): the answer's check, a pad
         round's widening and the warm state of the plan ask for the same values.
         """
-        if points == SET_POINTS and self._set_known is not None:
-            return self._set_known
+        known = self.known_set_values()
+        if points == SET_POINTS and known is not None:
+            return known
         u = self.control_at(self.set_fractions(points) * self.T)
         values = np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
         if points == SET_POINTS:
@@ -396,7 +397,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
 
     def known_set_values(self) -> np.ndarray | None:
         """:meth:`set_values` at :data:`SET_POINTS` where evaluated already, else None."""
-        return self._set_known
+        return getattr(self, "_set_known", None)  # (None in one pickled before it kept them)
 
     def set_fractions(self, points: int) -> np.ndarray:
         """The times of :meth:`set_values` as fractions of ``T``, shape (L points,)."""
