@@ -121,12 +121,12 @@ def test_the_speed_term_scales_only_the_clearance_rows(panda):
     w = np.concatenate([P.ravel(), [2.0]])
     ends = (problem.start.value, problem.target.value, 4.0)
     zero, half = flat.with_speed_term(0.0), flat.with_speed_term(0.5)
-    g1 = np.array(flat._g(w, flat.parameters(*ends))).ravel()
-    g0 = np.array(zero._g(w, zero.parameters(*ends))).ravel()
+    g1 = np.array(flat.row_function(w, flat.parameters(*ends))).ravel()
+    g0 = np.array(zero.row_function(w, zero.parameters(*ends))).ravel()
     rows = flat._ng_clear
     np.testing.assert_array_equal(g0[:-rows], g1[:-rows])
     assert np.all(g0[-rows:] >= g1[-rows:]) and np.any(g0[-rows:] > g1[-rows:] + 1e-3)
-    half = np.array(half._g(w, half.parameters(*ends))).ravel()
+    half = np.array(half.row_function(w, half.parameters(*ends))).ravel()
     # Each sphere's term is >= 0, so a row falls as the scale grows.
     assert np.all(half[-rows:] <= g0[-rows:]) and np.all(half[-rows:] >= g1[-rows:])
 

@@ -203,6 +203,33 @@ def test_open_loop_agrees_with_dop853(panda, panda_limited, stiff):
     assert np.max(np.abs(x - traj.state(res.T)[0, :2 * n])) < 1e-5
 
 
+def test_open_loop_in_one_buffered_call_is_the_span_by_span_integration(panda_limited):
+    """The certificate's open loop (every span in one buffered call, the Taylor coefficients
+    from the trajectory's own derivative splines) gives the states of CVODES span by span
+    from Python with each derivative's spline made from the path: to the bit."""
+    from tocontrol_ros.core.direct import flat_trajectory as ft
+
+    traj = panda_limited.trajectory
+    t, x, ok = traj.open_loop(1e-10, 1e-11)
+    assert ok
+    integ = ft._open_loop_integrator(traj._model, traj._degree, 1e-10, 1e-11)
+    br, T, d1 = traj.breaks, traj.T, traj._degree + 1
+    ds = np.diff(br)
+    fact = np.array([np.prod(np.arange(1, i + 1)) for i in range(d1)], dtype=float)
+    grid = np.linspace(0, 1, ft.OPEN_LOOP_POINTS + 1)[1:]
+    spans = []
+    for j in range(len(ds)):
+        derivs = np.stack([traj._spl.derivative(i)(br[j]) if i else traj._spl(br[j])
+                           for i in range(d1)], axis=1)
+        spans.append((derivs * ds[j] ** np.arange(d1) / fact, ds[j] * T,
+                      T * (br[j] + ds[j] * grid)))
+    t_ref, x_ref, ok_ref = ft.integrate_segments(integ, traj.state(0.0)[0, :2 * traj.n],
+                                                 spans)
+    assert ok_ref
+    assert np.array_equal(t, t_ref)
+    assert np.array_equal(x, x_ref)
+
+
 def test_certificate_fails_a_faster_or_displaced_motion(panda_limited):
     """The same path run 2 % faster leaves the control set and the velocity limits; the
     last control points moved by 1 mrad miss the target: each check can fail."""

@@ -345,6 +345,66 @@ def test_the_buffered_derivatives_and_steps_equal_the_functions_calls(panda_case
                                atol=1e-9 * max(1.0, np.max(np.abs(old.lam_g))))
 
 
+def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case):
+    """A plan's warm state keeps the set's values between the samples that its check
+    evaluated (the serving solution's and a parametric answer's): equal to the bit to the
+    values of its path evaluated again, and the next re-solve's pads per sample read off
+    them are the pads evaluated from the path; another k or mesh evaluates them."""
+    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct.flat import FlatResult
+    from tocontrol_ros.core.direct.flat_trajectory import SET_POINTS, FlatTrajectory
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    assert par.success and _route(par) == "parametric", par.warnings
+    for ws in (serving.warm_state, par.warm_state):
+        assert ws.set_values is not None and ws.k == moved.k
+        assert ws.torque_scale == moved.torque_scale
+        assert not ws.set_values.flags.writeable
+        flat = planner.flat(moved, ws.breaks, warm="dual")
+        path = FlatResult(success=True, message="", T=float(ws.T), iterations=0,
+                          solve_time=0.0, P=np.asarray(ws.P, dtype=float), residual=0.0)
+        fresh = FlatTrajectory(flat, path, moved.k)
+        assert fresh.known_set_values() is None
+        again = fresh.set_values()
+        assert len(again) == (len(ws.breaks) - 1) * SET_POINTS
+        assert np.array_equal(ws.set_values, again)
+        evaluated = limited._row_pads(flat, replace(ws, set_values=None), moved.k)
+        assert np.array_equal(limited._row_pads(flat, ws, moved.k), evaluated)
+        # Kept values of another exponent or torque scale are not read (a planted wrong
+        # value shows where they are).
+        planted = replace(ws, set_values=np.full_like(again, 2.0))
+        assert not np.array_equal(limited._row_pads(flat, planted, moved.k), evaluated)
+        for other in (replace(planted, k=moved.k + 1.0),
+                      replace(planted, torque_scale=0.9 * ws.torque_scale)):
+            assert np.array_equal(limited._row_pads(flat, other, moved.k), evaluated)
+
+
+def test_the_buffered_rows_are_the_row_function_to_the_bit(panda_case):
+    """The NLP's rows through NumPy buffers (the residual of every solve and time stretch)
+    equal the row function called with DM, at the serving solution, a parametric answer and
+    that answer slowed down; so do the residuals."""
+    from tocontrol_ros.core.direct.flat import violation
+    from tocontrol_ros.core.direct.kkt_step import buffered_rows
+
+    planner, problem, serving = panda_case
+    moved = _moved(problem, MOVE)
+    par = planner.plan(moved, SERVE, warm_start=serving)
+    assert par.success, par.message
+    flat = planner.flat(moved, serving.warm_state.breaks, warm="dual")
+    values = (moved.start.value, moved.target.value, moved.k)
+    p = flat.parameters(*values)
+    bounds = state_bounds(moved, PAD)
+    for P, T in ((serving.warm_state.P, serving.T), (par.trajectory.result.P, par.T),
+                 (par.trajectory.result.P, par.T * (1.0 + 3e-4))):
+        w = np.concatenate([np.ravel(P), [T]])
+        plain = np.array(flat.row_function(w, p)).ravel()
+        assert np.array_equal(buffered_rows(flat)(w, p)[0], plain)
+        assert flat.residual(*values, T, P, *bounds) == violation(
+            w, plain, *flat.bounds(*bounds, SET_PAD, values[:2]))
+
+
 def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, monkeypatch):
     """The bounded motion's re-integration in one call on the compiled right-hand side
     equals CVODES span by span on the symbolic one (the route before) to 1e-12, and the
@@ -378,10 +438,11 @@ def test_the_certificate_in_one_compiled_call_equals_span_by_span(panda_case, mo
     with monkeypatch.context() as m:
         m.setattr(ft, "compile_open_loop", compile_open_loop)
         m.setattr(ft, "open_loop_sweep", span_by_span)
+        m.setattr(ft, "open_loop_sweep_buffered", span_by_span)
         m.setattr(ft, "mapped_controls",
                   lambda model, fun, count: lambda *a: [np.array(fun.map(count)(*a))])
         t_old, x_old, ok_old = traj.open_loop(1e-8, 1e-10)
-        u_old = traj.set_values()
+        u_old = traj.with_result(traj.result).set_values()  # not the values kept
         before = planner.plan(moved, SERVE, warm_start=serving)
     assert ok and ok_old
     np.testing.assert_array_equal(t, t_old)

@@ -99,7 +99,9 @@ def verified(ctx: SolveContext, res: FlatResult, traj: FlatTrajectory, records: 
         warnings=tuple(notes) + limit_warnings(problem, sample), starts=tuple(records),
         problem=problem, method="direct",
         warm_state=PathWarmState(np.array(traj.breaks), np.array(res.P), res.T,
-                                 res.lam_g, res.lam_x) if success else None)
+                                 res.lam_g, res.lam_x, set_values=traj.known_set_values(),
+                                 k=problem.k, torque_scale=problem.torque_scale)
+        if success else None)
 
 
 def stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, values,
@@ -127,11 +129,11 @@ def stretched(flat: FlatTranscription, out: FlatResult, traj: FlatTrajectory, va
             stretches.append((T, resid))
     if not stretches:
         return None
-    peaks = np.max(traj.slower_set_values([T for T, _ in stretches]), axis=1)
-    for (T, resid), peak in zip(stretches, peaks, strict=True):
-        if float(peak) <= 1.0 - SET_MARGIN:
+    values = traj.slower_set_values([T for T, _ in stretches])
+    for (T, resid), row in zip(stretches, values, strict=True):
+        if float(np.max(row)) <= 1.0 - SET_MARGIN:
             res = replace(out, T=T, residual=resid)
-            return res, traj.with_result(res)
+            return res, traj.with_result(res, set_values=row)
     return None
 
 

@@ -55,6 +55,7 @@ from tocontrol_ros.core.direct.clearance import (
 )
 from tocontrol_ros.core.direct.collocation_nlp import Scatter
 from tocontrol_ros.core.direct.ipopt import IpoptOutcome, ipopt_options
+from tocontrol_ros.core.direct.kkt_step import buffered_rows
 from tocontrol_ros.core.direct.tuning import (
     FAR_MU,
     RESTART_MAX_PERTURBATION,
@@ -444,7 +445,7 @@ class FlatTranscription:
         opts.update(_warm_options(warm))
         self._interrupt = _Interrupt(nw, ng, allp.numel())
         opts["iteration_callback"] = self._interrupt
-        self._g = ca.Function("g", [w, allp], [g])
+        self.row_function = ca.Function("g", [w, allp], [g])  # the rows (w, p) -> g
         self.solver = ca.nlpsol("flat", "ipopt", {"x": w, "f": T, "g": g, "p": allp}, opts)
 
     def _velocity_rows(self, Pm: ca.MX, T: ca.MX, cvec: ca.MX) -> ca.MX:
@@ -875,7 +876,7 @@ class FlatTranscription:
         """
         par = self.parameters(start_value, target_value, k)
         w = np.concatenate([np.asarray(P, dtype=float).ravel(), [T]])
-        g = np.array(self._g(w, par)).ravel()[self._ng - self._ng_clear:]
+        g = np.array(self.row_function(w, par)).ravel()[self._ng - self._ng_clear:]
         allow = self.clearance_allowance(start_value, target_value)[self.clearance_samples]
         return g.reshape(allow.shape) + allow
 
@@ -895,6 +896,4 @@ class FlatTranscription:
         return np.concatenate([lam_g[:head], full.ravel()])
 
     def _residual(self, w, par, lbg, ubg, lbx, ubx) -> float:
-        return violation(w, np.array(self._g(w, par)).ravel(), lbg, ubg, lbx, ubx)
-
-
+        return violation(w, buffered_rows(self)(w, par)[0], lbg, ubg, lbx, ubx)

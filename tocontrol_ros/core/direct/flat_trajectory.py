@@ -23,13 +23,23 @@ from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
-           "open_loop_sweep_buffered",
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "SET_POINTS", "compile_open_loop",
+           "integrate_segments", "open_loop_sweep_buffered",
            "mapped_controls", "open_loop_sweep", "polynomial_path", "polynomial_segment_ode",
            "refined_breaks", "segment_dae"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
+#: Times per span of the control set's check between the samples
+#: (:meth:`FlatTrajectory.set_values`).
+SET_POINTS = 32
+
+
+def _read_only(values: np.ndarray) -> np.ndarray:
+    """``values`` as a float array that cannot be written (kept and shared)."""
+    values = np.array(values, dtype=float)
+    values.setflags(write=False)
+    return values
 
 
 #: CVODES integrators of the open loop, per model, degree and tolerances (with the DAE
@@ -241,9 +251,14 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     transcription : FlatTranscription
     result : FlatResult
     k : float
+    set_values : ndarray, shape (L SET_POINTS,), optional
+        :meth:`set_values` of this result at :data:`SET_POINTS` times a span, where they are
+        known already (a warm state's, from the check of the plan that made it): kept, not
+        evaluated again.
     """
 
-    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float) -> None:
+    def __init__(self, transcription: FlatTranscription, result: FlatResult, k: float,
+                 set_values: np.ndarray | None = None) -> None:
         # Only what evaluating needs: not the transcription (its NLP solver is large, and a
         # refined mesh's transcription serves one motion).
         model = transcription.model
@@ -255,21 +270,29 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         self.breaks, self._degree = transcription.breaks, transcription.degree
         self._id = transcription._id
         self._scale = transcription.scale
-        self._set_result(result)
+        self._set_result(result, set_values)
 
-    def with_result(self, result: FlatResult) -> FlatTrajectory:
-        """The same mesh and model with other control points and ``T`` (e.g. to test)."""
+    def with_result(self, result: FlatResult, set_values: np.ndarray | None = None
+                    ) -> FlatTrajectory:
+        """The same mesh and model with other control points and ``T`` (e.g. to test).
+
+        ``set_values``: the new result's :meth:`set_values` where already known (as
+        :meth:`slower_set_values` gives them for a time stretch).
+        """
         other = copy.copy(self)
-        other._set_result(result)
+        other._set_result(result, set_values)
         return other
 
-    def _set_result(self, result: FlatResult) -> None:
+    def _set_result(self, result: FlatResult, set_values: np.ndarray | None = None) -> None:
+        # The set's values at SET_POINTS times a span, once evaluated (read-only).
+        self._set_known = None if set_values is None else _read_only(set_values)
         self.result = result
         self.T = result.T
         self._P = result.P
         self._spl = BSpline(knots(self.breaks, self._degree), result.P, self._degree)
         self._d1 = self._spl.derivative(1)
         self._d2 = self._spl.derivative(2)
+        self._higher = (self._spl, self._d1, self._d2)  # more by _derivatives
         self.t_grid = self.breaks * self.T
         x = self._path(self.t_grid)[:2]
         self.z_grid = np.hstack([x[0], x[1], np.full((len(self.t_grid), 2 * self.n), np.nan)])
@@ -325,16 +348,15 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         ds = np.diff(br)
         # Taylor coefficients at each span's start (right-hand derivatives), in sigma:
         # (L, n, d1), each derivative's spline made once and evaluated at every start.
-        derivs = np.stack([self._spl.derivative(i)(br[:-1]) if i else self._spl(br[:-1])
-                           for i in range(d1)], axis=2)
+        derivs = np.stack([spl(br[:-1]) for spl in self._derivatives(d1)], axis=2)
         coefs = derivs * (ds[:, None] ** np.arange(d1))[:, None, :] / fact
         times = self.T * (br[:-1, None] + ds[:, None] * grid[None, :])
         x0 = self.state(0.0)[0, :2 * self.n]
-        try:  # every span in one call (open_loop_sweep), the same CVODES calls
+        try:  # every span in one call (open_loop_sweep, buffered), the same CVODES calls
             params = np.vstack([coefs.reshape(L, -1, order="F").T, self.T * ds[None, :]])
-            _, states = open_loop_sweep(self._model, integ, L)(x0, params)
+            _, states = open_loop_sweep_buffered(self._model, integ, L)(x0, params)
             return np.concatenate([[0.0], times.ravel()]), \
-                np.vstack([x0[None, :], np.array(states).T]), True
+                np.vstack([x0[None, :], states.T]), True
         except RuntimeError:  # a span failed: again one by one, to say where
             pass
         spans = ((coefs[j], ds[j] * self.T, times[j]) for j in range(L))
@@ -343,10 +365,39 @@ class FlatTrajectory(InverseDynamicsTrajectory):
             return self.open_loop(rtol, atol, stiff=True)
         return t, x, success
 
-    def set_values(self, points: int = 32) -> np.ndarray:
-        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,)."""
+    def _derivatives(self, count: int) -> list:
+        """The path's spline and its first ``count - 1`` derivatives' splines.
+
+        The first two are the trajectory's own; a higher one is the last one's derivative
+        (scipy differentiates a B-spline one order at a time: the same coefficients as
+        ``derivative(i)`` of the path, to the bit), kept for the next call.
+        """
+        splines = getattr(self, "_higher", (self._spl, self._d1, self._d2))
+        if len(splines) < count:  # a new tuple: a thread that races only repeats the work
+            more = list(splines)
+            while len(more) < count:
+                more.append(more[-1].derivative(1))
+            self._higher = splines = tuple(more)
+        return list(splines[:count])
+
+    def set_values(self, points: int = SET_POINTS) -> np.ndarray:
+        """``sum_i |u_i|^(2k)`` at ``points`` equally spaced times per span, shape (L points,).
+
+        At :data:`SET_POINTS` evaluated once and kept (read-only): the answer's check, a pad
+        round's widening and the warm state of the plan ask for the same values.
+        """
+        known = self.known_set_values()
+        if points == SET_POINTS and known is not None:
+            return known
         u = self.control_at(self.set_fractions(points) * self.T)
-        return np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+        values = np.sum(np.abs(u) ** (2 * self.law.k), axis=1)
+        if points == SET_POINTS:
+            self._set_known = values = _read_only(values)
+        return values
+
+    def known_set_values(self) -> np.ndarray | None:
+        """:meth:`set_values` at :data:`SET_POINTS` where evaluated already, else None."""
+        return getattr(self, "_set_known", None)  # (None in one pickled before it kept them)
 
     def set_fractions(self, points: int) -> np.ndarray:
         """The times of :meth:`set_values` as fractions of ``T``, shape (L points,)."""
@@ -354,7 +405,7 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         frac = (np.arange(points) + 0.5) / points
         return (br[:-1, None] + frac[None, :] * np.diff(br)[:, None]).ravel()
 
-    def slower_set_values(self, durations, points: int = 32) -> np.ndarray:
+    def slower_set_values(self, durations, points: int = SET_POINTS) -> np.ndarray:
         """:meth:`set_values` of the same path run in each of ``durations``, in one call.
 
         The same numbers to the bit as ``with_result(replace(result, T=T)).set_values()``

@@ -467,13 +467,20 @@ def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
     Read off the warm state's path and ``T`` as a trajectory of ``flat`` (its inverse
     dynamics, so that the mapped calls are the ones the answer's checks use)
     (:func:`~.set_pads.row_pads`, with :data:`~.set_pads.ROW_PADS`); else :data:`SET_PAD`.
+    The set's values between the samples are the warm state's own where it has them for
+    this ``k``, torque scale and mesh (its plan's check evaluated them: the same numbers),
+    else evaluated.
     """
     if not set_pads.ROW_PADS:
         return SET_PAD
     path = FlatResult(success=True, message="warm state", T=float(warm.T),
                       iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
                       residual=0.0)
-    return set_pads.row_pads(FlatTrajectory(flat, path, k), flat.samples)
+    known = getattr(warm, "set_values", None)  # (a warm state pickled before it had them)
+    if known is None or warm.k != k or warm.torque_scale != flat.torque_scale \
+            or not np.array_equal(warm.breaks, flat.breaks):
+        known = None
+    return set_pads.row_pads(FlatTrajectory(flat, path, k, set_values=known), flat.samples)
 
 
 def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,

@@ -198,6 +198,9 @@ class BandedKKT:
         pos = np.full(N, -1)
         pos[order] = np.arange(len(order))
         self.pos, self.iT, self.nw, self.ng, self.M = pos, iT, nw, ng, len(order)
+        # The core's unknowns (all but T) and their places in the band, for the solves.
+        self.core_at = np.flatnonzero(pos >= 0)
+        self.core_pos = pos[self.core_at]
         # The matrix's entries: H (upper triangle, mirrored), the diagonal, J and J^T.
         off = hr != hc
         rows = np.concatenate([hr, hc[off], np.arange(N), nw + jr, jc])
@@ -239,13 +242,12 @@ class BandedKKT:
         """The solution (N,) of the factorised system for ``rhs`` (N,), original order."""
         lub, piv, b, u, schur = fact
         r1 = np.empty(self.M)
-        core = self.pos >= 0
-        r1[self.pos[core]] = rhs[core]
-        v, _ = lapack.dgbtrs(lub, self.kl, self.ku, r1, piv)
+        r1[self.core_pos] = rhs[self.core_at]
+        v, _ = lapack.dgbtrs(lub, self.kl, self.ku, r1, piv, overwrite_b=True)
         xT = (rhs[self.iT] - float(b @ v)) / schur
         x1 = v - u * xT
         out = np.empty_like(rhs)
-        out[core] = x1[self.pos[core]]
+        out[self.core_at] = x1[self.core_pos]
         out[self.iT] = xT
         return out
 
@@ -451,20 +453,29 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     w, vl, vu = _barrier_start(w, lbx, ubx, lam_x0, has_lx, has_ux)
     y = np.where(eq, lam_g0, zu - zl)
     s = np.where(eq, lbg, s)
-    room_lg = np.where(has_lg, s - lbg, 1.0)
-    room_ug = np.where(has_ug, ubg - s, 1.0)
-    room_lx = np.where(has_lx, w - lbx, 1.0)
-    room_ux = np.where(has_ux, ubx - w, 1.0)
+    # The four kinds of bounds side by side: the rows' lower and upper bounds, then the
+    # variables' (slices lo_g, up_g, lo_x, up_x of the multipliers z, the rooms and the
+    # masks), so that a step's complementarity, barrier terms, fraction to the boundary
+    # and updates are one NumPy operation each instead of four: the same elementwise
+    # arithmetic as one array per kind, to the bit (issue 47).
+    lo_g, up_g = slice(0, ng), slice(ng, 2 * ng)
+    lo_x, up_x = slice(2 * ng, 2 * ng + nw), slice(2 * ng + nw, 2 * (ng + nw))
+    z = np.concatenate([zl, zu, vl, vu])
+    room = np.where(np.concatenate([has_lg, has_ug, has_lx, has_ux]),
+                    np.concatenate([s - lbg, ubg - s, w - lbx, ubx - w]), 1.0)
     g, jv = der.rows(w, par)
-    active0 = (np.minimum(room_lg, room_ug) < 1e-6)
+    active0 = (np.minimum(room[lo_g], room[up_g]) < 1e-6)
     # The move in sub-moves (a Newton homotopy, the path-following in the parameter):
     # sub-move j of m solves the KKT conditions less (1 - j / m) of their residual at the
     # old point on the new parameters (j = 0: the old point, solved; j = m: the new
     # problem). Each sub-move's first step is the tangent predictor to the next point of
     # the path, the following ones its correctors; it is done when its residual is within
     # SUB_TOL times the tolerances (the held rows carried on), the last one converged.
-    r_w0 = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) + vu - vl
-    r_y0 = np.where(eq, g - lbg, g - s)
+    r_w0 = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
+        + z[up_x] - z[lo_x]
+    # The rows' residual: s is lbg on the equality rows and the bound on the held rows
+    # (their steps are zero), so g - s is g - lbg, g - bound and g - s as before.
+    r_y0 = g - s
     sub, fresh, sub_from = 1, 1, (0, 0)
     hessians, steps, last, reason = 1, 0, np.inf, f"not converged in {max_steps} steps"
     full, blocked, solves, retry, holds, released = False, 0, 0, False, 0, 0
@@ -473,41 +484,44 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
     # Rows held at a bound (+1 upper, -1 lower; 0: the barrier's slack): a row that blocks
     # a step, held there as an equality while its multiplier has the right sign.
     side = np.zeros(ng, dtype=np.int8)
+    stale = True  # the masks below follow side (made again when a row is held or released)
     # A zero room or a step that is not finite ends as a failure ("KKT step not finite").
     with np.errstate(divide="ignore", invalid="ignore"):
         while True:
-            held = side != 0
-            heq = eq | held
-            hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
-            b_held = np.where(side > 0, ubg, lbg)
+            if stale:
+                held = side != 0
+                any_held = bool(np.any(held))
+                heq = eq | held
+                hlg, hug, hin = has_lg & ~held, has_ug & ~held, ~heq
+                b_held = np.where(side > 0, ubg, lbg)
+                has = np.concatenate([hlg, hug, has_lx, has_ux])
+                stale = False
             r_w = grad_f + np.bincount(banded.jc, weights=jv * y[banded.jr], minlength=nw) \
-                + vu - vl
-            r_s = np.where(hin, -y - zl + zu, 0.0)
-            r_y = np.where(eq, g - lbg, np.where(held, g - b_held, g - s))
+                + z[up_x] - z[lo_x]
+            r_s = np.where(hin, -y - z[lo_g] + z[up_g], 0.0)
+            r_y = g - s
             if sub < submoves:  # the homotopy's share of the old point's residual
                 r_w = r_w - (1.0 - sub / submoves) * r_w0
                 r_y = r_y - (1.0 - sub / submoves) * r_y0
-            r_zl = np.where(hlg, zl * room_lg - MU, 0.0)
-            r_zu = np.where(hug, zu * room_ug - MU, 0.0)
-            r_vl = np.where(has_lx, vl * room_lx - MU, 0.0)
-            r_vu = np.where(has_ux, vu * room_ux - MU, 0.0)
-            wrong = (side > 0) & (y < -SIGN_TOL) | (side < 0) & (y > SIGN_TOL)
+            r_z = np.where(has, z * room - MU, 0.0)
+            wrong = (side > 0) & (y < -SIGN_TOL) | (side < 0) & (y > SIGN_TOL) \
+                if any_held else None
+            any_wrong = wrong is not None and bool(np.any(wrong))
             err = max(float(np.max(np.abs(r_w))) / STAT_TOL,
                       float(np.max(np.abs(r_s))) / STAT_TOL,
                       float(np.max(np.abs(r_y))) / PRIMAL_TOL,
-                      float(np.max(np.abs(np.concatenate([r_zl, r_zu, r_vl, r_vu]))))
-                      / (COMPL_FACTOR * MU))
-            if on_step is not None and seen < steps and (err > 1.0 or np.any(wrong)):
+                      float(np.max(np.abs(r_z))) / (COMPL_FACTOR * MU))
+            if on_step is not None and seen < steps and (err > 1.0 or any_wrong):
                 # A new iterate that is not the answer (the answer is the caller's).
                 seen = steps
                 on_step(iterate(flat, w, g, (lbg, ubg, lbx, ubx), steps,
                                 time.perf_counter() - t0,
-                                np.where(eq | (side != 0), y, zu - zl), vu - vl))
+                                np.where(heq, y, z[up_g] - z[lo_g]), z[up_x] - z[lo_x]))
             if sub < submoves and err <= SUB_TOL:
                 sub += 1
                 blocked, full, last, fresh, sub_from = 0, False, np.inf, 0, (steps, solves)
                 continue
-            if err <= 1.0 and not np.any(wrong):
+            if err <= 1.0 and not any_wrong:
                 reason = "converged"
                 break
             if steps >= max_steps:
@@ -527,15 +541,18 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
             if should_stop is not None and should_stop():
                 reason = "cancelled"
                 break
-            if np.any(wrong) and full and err <= RELEASE_ERR:
+            if any_wrong and full and err <= RELEASE_ERR:
                 # A held row whose multiplier has turned: back to the barrier, a little inside.
                 s = np.where(wrong, b_held - side * RELEASE_ROOM, s)
-                zu = np.where(wrong & (side > 0), MU / RELEASE_ROOM, zu)
-                zl = np.where(wrong & (side < 0), MU / RELEASE_ROOM, zl)
+                z = z.copy()
+                z[up_g] = np.where(wrong & (side > 0), MU / RELEASE_ROOM, z[up_g])
+                z[lo_g] = np.where(wrong & (side < 0), MU / RELEASE_ROOM, z[lo_g])
                 side = np.where(wrong, 0, side).astype(np.int8)
-                room_lg = np.where(has_lg & (side == 0), s - lbg, 1.0)
-                room_ug = np.where(has_ug & (side == 0), ubg - s, 1.0)
+                room = room.copy()
+                room[lo_g] = np.where(has_lg & (side == 0), s - lbg, 1.0)
+                room[up_g] = np.where(has_ug & (side == 0), ubg - s, 1.0)
                 released += int(np.sum(wrong))
+                stale = True
                 continue
             if not retry and steps > 0 and (not full or err > CONTRACTION * last) \
                     and fresh <= REFRESHES:
@@ -543,14 +560,13 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 hessians += 1
                 fresh += 1
             last = err
-            sig_x = np.where(has_lx, vl / room_lx, 0.0) + np.where(has_ux, vu / room_ux, 0.0)
-            sig_s = np.where(hlg, zl / room_lg, 0.0) + np.where(hug, zu / room_ug, 0.0)
+            sig = np.where(has, z / room, 0.0)
+            sig_x, sig_s = sig[lo_x] + sig[up_x], sig[lo_g] + sig[up_g]
             d_row = np.where(heq, DUAL_REG, 1.0 / np.where(hin, sig_s, 1.0))
             diag = np.concatenate([sig_x + PRIMAL_REG, -d_row])
-            rt_s = r_s + np.where(hlg, r_zl / room_lg, 0.0) \
-                - np.where(hug, r_zu / room_ug, 0.0)
-            rhs_w = -r_w - np.where(has_lx, r_vl / room_lx, 0.0) \
-                + np.where(has_ux, r_vu / room_ux, 0.0)
+            r_q = np.where(has, r_z / room, 0.0)
+            rt_s = r_s + r_q[lo_g] - r_q[up_g]
+            rhs_w = -r_w - r_q[lo_x] + r_q[up_x]
             rhs_y = np.where(heq, -r_y, -r_y - rt_s * d_row)
             fact = banded.factor(hv, diag, jv)
             solves += 1
@@ -563,21 +579,18 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                 break
             dw, dy = sol[:nw], sol[nw:]
             ds = np.where(hin, (dy - rt_s) * d_row, 0.0)
-            dzl = np.where(hlg, (-r_zl - zl * ds) / room_lg, 0.0)
-            dzu = np.where(hug, (-r_zu + zu * ds) / room_ug, 0.0)
-            dvl = np.where(has_lx, (-r_vl - vl * dw) / room_lx, 0.0)
-            dvu = np.where(has_ux, (-r_vu + vu * dw) / room_ux, 0.0)
+            # Each bound's direction: an upper bound's room shrinks as the value grows
+            # (-r - z (-d) is -r + z d to the bit).
+            dir_ = np.concatenate([ds, -ds, dw, -dw])
+            dz = np.where(has, (-r_z - z * dir_) / room, 0.0)
             # The four kinds of bounds in one pass (the same minimum as four).
-            a_p = _boundary_step(np.concatenate([np.where(hlg, ds, 0.0),
-                                                       np.where(hug, -ds, 0.0),
-                                                       np.where(has_lx, dw, 0.0),
-                                                       np.where(has_ux, -dw, 0.0)]),
-                                 np.concatenate([room_lg, room_ug, room_lx, room_ux]))
+            a_p = _boundary_step(np.where(has, dir_, 0.0), room)
             retry = False
             if hold and a_p < HOLD_BELOW:
                 # Rows the whole step would carry across their bounds: held there, the step
                 # solved again (the same Hessian).
                 reach = HOLD_SPREAD * a_p
+                room_lg, room_ug = room[lo_g], room[up_g]
                 cross_u = hug & (ds > room_ug) & (room_ug <= reach * ds)
                 cross_l = hlg & (ds < -room_lg) & (room_lg <= -reach * ds)
                 if np.any(cross_u | cross_l):
@@ -589,40 +602,35 @@ def sensitivity_solve(flat: FlatTranscription, w0: np.ndarray, lam_g0: np.ndarra
                     side = np.where(cross_u, 1, np.where(cross_l, -1, side)).astype(np.int8)
                     held = side != 0
                     s = np.where(cross_u, ubg, np.where(cross_l, lbg, s))
-                    zl, zu = np.where(held, 0.0, zl), np.where(held, 0.0, zu)
-                    room_lg = np.where(has_lg & ~held, s - lbg, 1.0)
-                    room_ug = np.where(has_ug & ~held, ubg - s, 1.0)
+                    z = z.copy()
+                    z[lo_g], z[up_g] = np.where(held, 0.0, z[lo_g]), np.where(held, 0.0, z[up_g])
+                    room = room.copy()
+                    room[lo_g] = np.where(has_lg & ~held, s - lbg, 1.0)
+                    room[up_g] = np.where(has_ug & ~held, ubg - s, 1.0)
                     holds += int(np.sum(cross_u | cross_l))
                     retry = True
+                    stale = True
                     continue
-            a_d = _boundary_step(np.concatenate([dzl, dzu, dvl, dvu]),
-                                 np.concatenate([zl + ~hlg, zu + ~hug, vl + ~has_lx,
-                                                 vu + ~has_ux]))
+            # The dual step's fraction to the boundary (the whole move's reset takes it in
+            # full: not computed there).
+            a_d = 1.0 if reset else _boundary_step(dz, z + ~has)
             full = a_p == 1.0
             blocked = blocked + 1 if a_p < BLOCKED_FRACTION else 0
             rounds = 0
             w = w + a_p * dw
             s = s + a_p * ds
             y = y + a_p * dy
+            z = z + a_d * dz
+            room = np.where(has, np.concatenate([s - lbg, ubg - s, w - lbx, ubx - w]), 1.0)
             if reset:
-                a_d = 1.0
-            zl, zu, vl, vu = zl + a_d * dzl, zu + a_d * dzu, vl + a_d * dvl, vu + a_d * dvu
-            room_lg = np.where(hlg, s - lbg, 1.0)
-            room_ug = np.where(hug, ubg - s, 1.0)
-            room_lx = np.where(has_lx, w - lbx, 1.0)
-            room_ux = np.where(has_ux, ubx - w, 1.0)
-            if reset:
-                zl = np.where(hlg & (zl * room_lg < MU / KAPPA), MU / room_lg, zl)
-                zu = np.where(hug & (zu * room_ug < MU / KAPPA), MU / room_ug, zu)
-                vl = np.where(has_lx & (vl * room_lx < MU / KAPPA), MU / room_lx, vl)
-                vu = np.where(has_ux & (vu * room_ux < MU / KAPPA), MU / room_ux, vu)
+                z = np.where(has & (z * room < MU / KAPPA), MU / room, z)
             steps += 1
             g, jv = der.rows(w, par)
-    active1 = (np.minimum(room_lg, room_ug) < 1e-6) | (side != 0)
+    active1 = (np.minimum(room[lo_g], room[up_g]) < 1e-6) | (side != 0)
     outcome = SensitivityOutcome(steps, hessians, int(np.sum(active0 != active1)), reason,
                                  holds, released, solves)
-    lam_g = np.where(eq | (side != 0), y, zu - zl)
-    lam_x = vu - vl
+    lam_g = np.where(eq | (side != 0), y, z[up_g] - z[lo_g])
+    lam_x = z[up_x] - z[lo_x]
     residual = violation(w, g, lbg, ubg, lbx, ubx)
     ok = reason == "converged"
     moves = f" in {submoves} sub-moves" if submoves > 1 else ""

@@ -29,6 +29,15 @@ class PathWarmState:
         planner's self rows after a refused motion): it breaks the new rows, so a warm
         solve that fails is tried once more from IPOPT's default start (docs/collision.md,
         session 34: case 1 table of bench/collision.py).
+    set_values : ndarray or None
+        The control set's values ``sum_i |u_i|^(2k)`` along this path at
+        :data:`~tocontrol_ros.core.direct.flat_trajectory.SET_POINTS` times a span (L 32,),
+        as the plan's check between the samples evaluated them (for its ``k`` and torque
+        scale): a warm re-solve on this mesh with the same two reads its pads per sample
+        off them (:func:`~tocontrol_ros.core.direct.set_pads.row_pads`) instead of
+        evaluating them again (issue 47). None where not known (a stored motion's).
+    k, torque_scale : float or None
+        The exponent and the torque scale (fraction of ``tau_max``) of ``set_values``.
     """
 
     breaks: np.ndarray
@@ -37,3 +46,6 @@ class PathWarmState:
     lam_g: np.ndarray | None = None
     lam_x: np.ndarray | None = None
     rows_added: bool = False
+    set_values: np.ndarray | None = None
+    k: float | None = None
+    torque_scale: float | None = None
