@@ -26,7 +26,9 @@ on one new transcription per option set: iterations, CPU time, ``T`` against the
 
 Run alone: ``scripts/dev run python -P bench/knobs_panda.py [CASES] [VARIANT ...]``, e.g.
 ``bench/knobs_panda.py 10 T_SETTLED=5e-4 REFINE_WINDOW=5e-3+T_SETTLED=5e-4``, or
-``bench/knobs_panda.py 6 --uniform '{"ipopt.mu_strategy": "monotone", "ipopt.mu_init": 1e-3}'``.
+``bench/knobs_panda.py 6 --uniform '{"ipopt.mu_strategy": "monotone", "ipopt.mu_init": 1e-3}'``;
+``--reference`` after the count plans ``bench/reference_panda.py``'s cases instead (a variant
+with the default's ``T`` on all 50 keeps its standing against the reference).
 """
 
 from __future__ import annotations
@@ -59,9 +61,14 @@ OPTION_FIELDS = {"guess_tol": float, "guess_intervals": int, "candidates": int}
 CONSTANTS = ("T_SETTLED", "REFINE_WINDOW", "GUESS_WINDOW")
 
 
-def cases(count: int) -> list[Problem]:
-    """``bench/deployed_panda.py``'s cases: point to point, k = 4, the URDF limits."""
+def cases(count: int, reference: bool = False) -> list[Problem]:
+    """``bench/deployed_panda.py``'s cases: point to point, k = 4, the URDF limits; with
+    ``reference`` those of ``bench/reference_panda.py`` (odd ones from a joint state)."""
     model, limits = robots()["Panda"]
+    if reference:
+        from bench.peer_compiled import _problems
+
+        return _problems(model, limits, count)
     return [Problem(model, point(model.point(q0)), point(target), k=K, limits=limits)
             for q0, _qd0, target in draw_cases(model, limits, count, seed=SEED)]
 
@@ -95,9 +102,9 @@ class Variant:
                 setattr(limited, name, value)
 
 
-def run(count: int, specs: list[str]) -> list[str]:
+def run(count: int, specs: list[str], reference: bool = False) -> list[str]:
     variants = [Variant("default")] + [Variant(s) for s in specs]
-    problems = cases(count)
+    problems = cases(count, reference)
     plan(problems[0], SolverOptions(time_limit=600.0))  # warm-up: compile cache
     per: dict = {v.name: [] for v in variants}
     with Recorder() as rec:
@@ -129,10 +136,14 @@ def run(count: int, specs: list[str]) -> list[str]:
                      f"{sum(abs(x) <= 1e-3 for x in gap)}/{len(gap)}",
                      f"{sum(x > 1e-3 for x in gap)}", f"{sum(x < -1e-3 for x in gap)}",
                      f"{max(gap):.1e}"])
-    return [f"{count} Panda cases (bench/deployed_panda.py's, point to point, k = {K:g}), "
+    which = "bench/reference_panda.py's, odd ones from a joint state" if reference else \
+        "bench/deployed_panda.py's, point to point"
+    flag = " --reference" if reference else ""
+    return [f"{count} Panda cases ({which}, k = {K:g}), "
             "one process, paired with the defaults. CPU: process time per plan; two "
             "cores: the estimate of bench/profile_panda.py (CPU-scaled). Command: "
-            f"`scripts/dev run python -P bench/knobs_panda.py {count} {' '.join(specs)}`.",
+            f"`scripts/dev run python -P bench/knobs_panda.py {count}{flag} "
+            f"{' '.join(specs)}`.",
             "", *table(["variant", "CPU median (s)", "CPU / default's", "two cores median (s)",
                         "two cores max (s)", "IPOPT iterations / plan",
                         "T within 1e-3 of the default's", "worse by more",
@@ -194,6 +205,8 @@ def main(argv=None) -> int:
     rest = argv[1:] if argv and argv[0].isdigit() else argv
     if rest and rest[0] == "--uniform":
         lines = run_uniform(count, [json.loads(s) for s in rest[1:]])
+    elif rest and rest[0] == "--reference":  # the 50 cases of the independent reference
+        lines = run(count, rest[1:], reference=True)
     else:
         lines = run(count, rest)
     print("\n".join(lines))
