@@ -103,17 +103,17 @@ def _low_point(rng: np.random.Generator, azimuth: float) -> np.ndarray:
 
 
 def draw_table(model: RobotModel, limits: JointLimits, col: CollisionModel, count: int,
-               seed: int = SEED) -> list:
+               seed: int = SEED, start_room: float = START_ROOM) -> list:
     """The table stream's ``count`` draws: ``(q0, target, why)`` each.
 
     ``q0`` (rad, shape (n,)) the first configuration found clear of the table by the
-    margin and :data:`START_ROOM` that reaches the start's hand point (None, and ``why``
-    says so, when there is none); ``target`` (m, shape (3,)) the target's hand point.
-    The generator's draws do not depend on the outcomes: draw ``i`` is the same whichever
-    draws are run.
+    margin and ``start_room`` (default :data:`START_ROOM`, m) that reaches the start's hand
+    point (None, and ``why`` says so, when there is none); ``target`` (m, shape (3,)) the
+    target's hand point. The generator's draws do not depend on the outcomes: draw ``i`` is
+    the same whichever draws are run.
     """
     rng = np.random.default_rng([seed, 1])
-    roomy = col.with_scene(margin=col.margin + START_ROOM)
+    roomy = col.with_scene(margin=col.margin + start_room)
     out = []
     for _ in range(count):
         a0 = rng.uniform(-np.pi, np.pi)
@@ -226,7 +226,7 @@ def _peer(problem: Problem, col) -> dict:
 class _Bench:
     """One run's model, options, counts and rows (see the module)."""
 
-    def __init__(self, draw_only: bool) -> None:
+    def __init__(self, draw_only: bool, start_room: float = START_ROOM) -> None:
         urdf = panda_urdf()
         srdf = urdf.parent.parent / "srdf" / "panda.srdf"
         self.model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
@@ -236,6 +236,7 @@ class _Bench:
                                                           "bench scene table"))
         self.options = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
         self.draw_only = draw_only
+        self.start_room = start_room
         self.rows: list = []
         self.stats = {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
                              "skipped": 0, "draws": 0, "ours": [], "theirs": []}
@@ -316,7 +317,8 @@ class _Bench:
     def table_stream(self, count: int, cases: set[int] | None) -> None:
         st = self.stats["table"]
         for i, (q0, target, why) in enumerate(draw_table(self.model, self.limits, self.table,
-                                                         DRAWS * count)):
+                                                         DRAWS * count,
+                                                         start_room=self.start_room)):
             if st["cases"] >= count:
                 break
             if cases is not None and i not in cases:  # only these draws
@@ -374,11 +376,12 @@ class _Bench:
 
 
 def run(count: int = CASES, cases: set[int] | None = None,
-        scenes: tuple[str, ...] = SCENES, draw_only: bool = False) -> Section:
+        scenes: tuple[str, ...] = SCENES, draw_only: bool = False,
+        start_room: float = START_ROOM) -> Section:
     if panda_urdf() is None:
         return Section("Collision-free motions (issue 51)",
                        ["example-robot-data is not installed: no Panda, no section."])
-    bench = _Bench(draw_only)
+    bench = _Bench(draw_only, start_room)
     if "table" in scenes:
         bench.table_stream(count, cases)
     placed = tuple(name for name in scenes if name != "table")
@@ -396,6 +399,9 @@ def run(count: int = CASES, cases: set[int] | None = None,
              f"wall seconds in one process on a machine shared with other jobs.", ""]
     if draw_only:
         lines += ["**Draws only** (`--draw-only`): no plan with the scene, no peer.", ""]
+    if start_room != START_ROOM:
+        lines += [f"**The table's starts keep {start_room:g} m more than the margin** "
+                  f"(`--start-room`; default {START_ROOM:g}).", ""]
     summary = []
     for name in scenes:
         st = stats[name]
@@ -437,6 +443,10 @@ if __name__ == "__main__":
                         help="only this scene (repeatable)")
     parser.add_argument("--draw-only", action="store_true",
                         help="the draws and their free optima only: no plan with the scene")
+    parser.add_argument("--start-room", type=float, default=START_ROOM, metavar="M",
+                        help=f"the table's starts keep this more than the margin (m; "
+                        f"default {START_ROOM:g})")
     args = parser.parse_args()
     run(args.count, set(args.case) if args.case else None,
-        tuple(args.scene) if args.scene else SCENES, args.draw_only).print()
+        tuple(args.scene) if args.scene else SCENES, args.draw_only,
+        args.start_room).print()

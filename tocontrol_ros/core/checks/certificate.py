@@ -112,15 +112,32 @@ def limit_checks(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
 
 
 
-def clearance_checks(problem: Problem, trajectory) -> tuple[list[CertificateItem], dict]:
+#: What bounded the joint speeds between the clearance's times (its figure ``clearance_speeds``).
+SPEEDS_MEANING = {"motion": "the motion's own joint speed bound on each interval",
+                  "limits": "the joint velocity limits"}
+
+
+def clearance_checks(problem: Problem, trajectory, steps: int = CERTIFY_STEPS
+                     ) -> tuple[list[CertificateItem], dict]:
     """The motion's clearance on the URDF's own geometry (none without ``problem.collision``).
 
     Coal's exact distances of every checked pair (:class:`~tocontrol_ros.core.geometry.
-    collision.CollisionModel`) at :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_STEPS`
-    equally spaced times, and between them the bound of
-    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` under the joint
+    collision.CollisionModel`) at ``steps + 1`` equally spaced times (by default
+    :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_STEPS` + 1), and between them the bound of
+    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` under a bound of the
+    joint speeds: the motion's own on each interval where the trajectory proves one
+    (``joint_speed_bounds(t)``, e.g. :meth:`~tocontrol_ros.core.direct.flat_trajectory.
+    FlatTrajectory.joint_speed_bounds`, from its spline's coefficients), else the joint
     velocity limits (which the ``velocity_limits`` item checks; a joint without one: twice
     its largest sampled speed). Independent of the optimiser's spheres.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : object
+        With ``T`` (s) and ``evaluate``; optionally ``joint_speed_bounds``.
+    steps : int
+        Intervals between the exact distances' times (the certificate's default).
 
     Returns
     -------
@@ -129,22 +146,29 @@ def clearance_checks(problem: Problem, trajectory) -> tuple[list[CertificateItem
         the times (passes at <= 0).
     figures : dict
         ``min_clearance`` (m, the least exact distance at the times), ``closest_pair``
-        ("link/obstacle"), ``closest_time`` (s), ``clearance_bound`` (m).
+        ("link/obstacle"), ``closest_time`` (s), ``clearance_bound`` (m),
+        ``clearance_speeds`` ("motion" or "limits": which joint speed bound).
     """
     col = problem.collision
     if col is None:
         return [], {}
-    t = np.linspace(0.0, trajectory.T, CERTIFY_STEPS + 1)
+    t = np.linspace(0.0, trajectory.T, steps + 1)
     sample = trajectory.evaluate(t)
-    v = problem.limits.velocity
-    v = np.where(np.isfinite(v), v, 2.0 * np.max(np.abs(sample.qd), axis=0))
+    own = getattr(trajectory, "joint_speed_bounds", None)
+    if own is not None and len(t) > 1:
+        v, speeds = own(t), "motion"
+    else:
+        v = problem.limits.velocity
+        v, speeds = np.where(np.isfinite(v), v, 2.0 * np.max(np.abs(sample.qd), axis=0)), \
+            "limits"
     swept = col.swept(t, sample.q, v)
     item = check_item("clearance", col.margin - swept.lower_bound, 0.0, "m",
                       f"margin ({col.margin:g} m) minus the least distance of any checked "
-                      f"pair over the motion (exact at {CERTIFY_STEPS + 1} times, bounded "
-                      f"between them)")
+                      f"pair over the motion (exact at {steps + 1} times, bounded "
+                      f"between them by {SPEEDS_MEANING[speeds]})")
     return [item], {"min_clearance": swept.minimum, "closest_pair": "/".join(swept.pair),
-                    "closest_time": swept.time, "clearance_bound": swept.lower_bound}
+                    "closest_time": swept.time, "clearance_bound": swept.lower_bound,
+                    "clearance_speeds": speeds}
 
 
 def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions | None = None,
