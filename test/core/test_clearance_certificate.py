@@ -178,3 +178,36 @@ def test_the_bound_is_never_above_the_exact_distance_between_the_times(setup):
     # and close: 1.1-1.4 mm below Coal at mid-motion (the lever arms' bound of the links'
     # speeds, times half the step), where the velocity limits' bound takes about 5 mm
     assert len(slack) >= 30 and max(slack) < 0.0025, max(slack)
+
+
+def test_a_fast_pass_just_over_the_margin_passes_once_its_intervals_are_halved(setup):
+    """The fingers sweep past a ball 1.2 cm away at mid-motion (margin 1 cm).
+
+    At the certificate's times the bound falls 2-3 mm below their distances there (the
+    links' speed bound times half a step): below the margin. Halving those intervals
+    (``CERTIFY_BISECTIONS``) brings it within the margin's 2 mm, and Coal on a resampling
+    20 times finer confirms the motion keeps the margin.
+    """
+    model, col, flat = setup
+    q_to = Q0 + np.array([2.0, 0.3, 0.0, 0.4, 0.0, 0.0, 0.0])
+    motion = _motion(flat, Q0, q_to, 1.0)
+    mid = 0.5 * motion.T
+    q_mid = motion.evaluate(np.array([mid])).q[0]
+    rot, tip = tip_pose(model, q_mid)
+    _, ahead = tip_pose(model, motion.evaluate(np.array([mid + 1e-4])).q[0])
+    v = (ahead - tip) / np.linalg.norm(ahead - tip)
+    side = rot[:, 2] - (rot[:, 2] @ v) * v
+    scene = dataclasses.replace(_ball_at_gap(
+        col, tip + 0.1 * rot[:, 2] + 0.1 * side / np.linalg.norm(side), q_mid, 0.012),
+        self_pairs=())  # the ball's pairs only
+    problem = Problem(model, joint_state(Q0), joint_state(q_to), collision=scene)
+    t = np.linspace(0.0, motion.T, CERTIFY_STEPS + 1)
+    first = scene.swept(t, motion.evaluate(t).q, motion.joint_speed_bounds(t))
+    assert first.lower_bound < col.margin  # before halving: refused
+    items, figures = clearance_checks(problem, motion)
+    assert items[0].passed, figures
+    assert figures["clearance_refined"] > 0
+    assert col.margin <= figures["clearance_bound"] <= figures["min_clearance"]
+    near = t[np.abs(t - mid) < 0.03]
+    fine = np.linspace(near[0], near[-1], FINE * (len(near) - 1) + 1)
+    assert scene.clearance(motion.evaluate(fine).q).minimum >= figures["clearance_bound"]

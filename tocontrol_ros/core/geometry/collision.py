@@ -148,6 +148,9 @@ class SweptClearance:
         A distance no pair comes below at any time, between the samples included (m).
     exact_calls : int
         Coal distance queries made (the others were certified by bounding spheres).
+    interval_bounds : ndarray, shape (K - 1,)
+        A distance no pair comes below on each interval between two sampled times (m);
+        ``lower_bound`` is their least (or the one sample's distance).
     """
 
     minimum: float
@@ -155,6 +158,7 @@ class SweptClearance:
     time: float
     lower_bound: float
     exact_calls: int
+    interval_bounds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -402,6 +406,7 @@ class CollisionModel:
                                     poss[k, b] + rots[k, b] @ shape.translation)
 
         best, lower, calls = (np.inf, ("", ""), 0), np.inf, 0
+        per_interval = np.full(len(h), np.inf)
         for a, b in self.obstacle_pairs() + self.self_pairs:
             rate = speeds[a] + (0.0 if b in obstacles else speeds[b])
             fall = np.concatenate([[0.0], rate * h / 2, [0.0]])  # on each side of a time
@@ -426,10 +431,11 @@ class CollisionModel:
             if d[k] < best[0]:
                 best = (float(d[k]), (a, b), float(t[k]))
             if len(h):
-                lower = min(lower, float(np.min(0.5 * (d[:-1] + d[1:]) - rate * h / 2)))
+                per_interval = np.minimum(per_interval, 0.5 * (d[:-1] + d[1:]) - rate * h / 2)
+                lower = min(lower, float(np.min(per_interval)))
             else:
                 lower = min(lower, float(d[0]))
-        return SweptClearance(best[0], best[1], best[2], lower, calls)
+        return SweptClearance(best[0], best[1], best[2], lower, calls, per_interval)
 
 
 def _margin(margin) -> float:
