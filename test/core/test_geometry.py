@@ -201,7 +201,7 @@ def test_a_replans_noted_configuration_spares_the_clear_search(panda):
 
 
 def test_a_pose_whose_first_solution_touches_an_obstacle_has_a_clear_one_found(panda):
-    """A ball on the elbow of the pose's IK solution from the start; another is clear.
+    """A ball on the forearm of the pose's IK solution from the start; another is clear.
 
     The solution found puts the tip on the pose (its residuals), is inside the limits and
     keeps the margin by Coal pair by pair; the same answer from another collision model
@@ -209,13 +209,14 @@ def test_a_pose_whose_first_solution_touches_an_obstacle_has_a_clear_one_found(p
     """
     model, _, _, col = panda
     lo, hi = model.q_lower, model.q_upper
-    rot, pos = tip_pose(model, Q0 + np.array([0.3, 0.2, 0.1, 0.2, 0.0, -0.2, 0.1]))
+    rot, pos = tip_pose(model, Q0 + np.array([1.2, 0.3, 0.0, 0.3, 0.0, -0.2, 0.0]))
     [first], _, _ = ik_pose(model, pos, rot, Q0[None], lo, hi)  # what the start's seed finds
-    elbow = body_frames(model, first[None])[1][0, 4]
+    frames = body_frames(model, first[None])[1][0]
+    forearm = 0.5 * (frames[3] + frames[5])  # between the elbow and the wrist
     ball = {"obstacles": [{"name": "ball", "type": "sphere", "radius": 0.05,
-                           "position": elbow.tolist()}]}
+                           "position": forearm.tolist()}]}
     scene = col.with_scene(scene_from_dict(ball))
-    assert scene.clearance(first).minimum < 0.0  # the elbow in the ball
+    assert scene.clearance(first).minimum < 0.0  # the forearm in the ball
     found = clear_pose_configuration(scene, pos, rot, lo, hi)
     assert found.found and found.seeds <= sum(c for c, _ in CLEAR_POSE_ROUNDS)
     pos_err, ang_err = pose_errors(model, found.q, pos, rot)
