@@ -19,7 +19,8 @@ model object (no remembered verdict), processor time.
 
 Run: ``scripts/dev run python -P bench/certificate_ab.py 35:0 4:0 3:0.01`` (``CASE:ROOM``:
 the table stream's draw and its start room, ``--start-room`` of bench/collision.py);
-``... bench/certificate_ab.py --pose``. docs/collision.md (session 37) has what these
+``... bench/certificate_ab.py --pose``; ``--time-limit S`` (wall seconds a plan, default
+the bench's), ``--only A|B``. docs/collision.md (session 37) has what these
 measured.
 """
 
@@ -76,11 +77,12 @@ def _models():
     return model, urdf, srdf, collision_model(model, urdf, srdf)
 
 
-def paired(cases: list[tuple[int, float]]) -> None:
+def paired(cases: list[tuple[int, float]], time_limit: float = TIME_LIMIT,
+           which: tuple[str, ...] = ("A", "B")) -> None:
     model, _, _, base = _models()
     limits = JointLimits.from_model(model)
     table = base.with_scene(scene_from_dict(load_scene_dict("table"), "bench scene table"))
-    options = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
+    options = SolverOptions(starts=4, candidates=1, time_limit=time_limit)
     draws = {}
     for n, (case, room) in enumerate(cases):
         if room not in draws:
@@ -91,14 +93,14 @@ def paired(cases: list[tuple[int, float]]) -> None:
             continue
         problem = Problem(model, joint_state(q0), point(target), k=K, limits=limits,
                           collision=table)
-        for which in (("A", "B") if n % 2 == 0 else ("B", "A")):
-            certificate.clearance_checks = limits_clearance_checks if which == "A" \
+        for mode in (which if n % 2 == 0 else which[::-1]):
+            certificate.clearance_checks = limits_clearance_checks if mode == "A" \
                 else COMMITTED
             t0 = time.process_time()
             res = plan(problem, options)
             cpu = time.process_time() - t0
             fig = res.certificate.figures if res.certificate is not None else {}
-            print(f"[{time.strftime('%H:%M:%S')}] case {case} room {room} {which}: "
+            print(f"[{time.strftime('%H:%M:%S')}] case {case} room {room} {mode}: "
                   f"{res.status.name} T {res.T:.6f} cpu {cpu:.1f} s bound "
                   f"{fig.get('clearance_bound')} refined {fig.get('clearance_refined')}",
                   flush=True)
@@ -127,7 +129,18 @@ def pose_search() -> None:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] == ["--pose"]:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("cases", nargs="*", help="CASE:ROOM (the table stream's draw, its "
+                        "start room in m)")
+    parser.add_argument("--pose", action="store_true", help="the pose search's cost instead")
+    parser.add_argument("--time-limit", type=float, default=TIME_LIMIT,
+                        help=f"each plan's (wall s; default the bench's {TIME_LIMIT:g})")
+    parser.add_argument("--only", choices=("A", "B"), help="one certificate only")
+    args = parser.parse_args()
+    if args.pose:
         pose_search()
     else:
-        paired([(int(c.split(":")[0]), float(c.split(":")[1])) for c in sys.argv[1:]])
+        paired([(int(c.split(":")[0]), float(c.split(":")[1])) for c in args.cases],
+               args.time_limit, (args.only,) if args.only else ("A", "B"))

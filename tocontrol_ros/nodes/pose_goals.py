@@ -318,7 +318,7 @@ class PoseGoals:
         return None, (f"; searched further with the scene: of {found.tried} more IK solutions "
                     f"inside the limits (from {found.seeds} seeds) none is clear by the margin "
                     f"({service.collision.margin:g} m), the clearest has "
-                    f"{' and '.join(found.pair)} {found.clearance:.4g} m apart")
+                    f"{' and '.join(found.pair)} {found.clearance:.4f} m apart")
 
     def _at_rest_on_the_pose(self, req) -> bool:
         """Finish ``req`` when its start is at rest on the pose already (True): T = 0."""
