@@ -17,24 +17,19 @@ from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.direct.bspline import knots
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
-from tocontrol_ros.core.direct.tuning import REFINE_JUMP
+from tocontrol_ros.core.direct.tuning import REFINE_JUMP, SPEED_BOUND_SLACK
 from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
 from tocontrol_ros.core.types.trajectory import InverseDynamicsTrajectory
 
-__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "SPEED_BOUND_SLACK", "compile_open_loop",
-           "integrate_segments", "open_loop_sweep_buffered",
+__all__ = ["FlatTrajectory", "OPEN_LOOP_POINTS", "compile_open_loop", "integrate_segments",
+           "open_loop_sweep_buffered",
            "mapped_controls", "open_loop_sweep", "polynomial_path", "polynomial_segment_ode",
            "refined_breaks", "segment_dae"]
 
 #: Output times per span of the open-loop re-integration (:meth:`FlatTrajectory.open_loop`).
 OPEN_LOOP_POINTS = 8
-
-#: :meth:`FlatTrajectory.joint_speed_bounds` is raised by this fraction plus this much
-#: (rad/s): the spline's coefficients and samples carry rounding errors of about 1e-15 of
-#: their size, and a bound must not fall short by them.
-SPEED_BOUND_SLACK = 1e-9
 
 
 #: CVODES integrators of the open loop, per model, degree and tolerances (with the DAE
@@ -396,7 +391,8 @@ class FlatTrajectory(InverseDynamicsTrajectory):
         hull property). On ``[t0, t1]`` (``h = t1 - t0``) with ``|qdd| <= A`` on the spans it
         touches, ``|qd(t)| <= min(|qd(t0)| + A (t - t0), |qd(t1)| + A (t1 - t)) <=
         (|qd(t0)| + |qd(t1)|) / 2 + A h / 2``; the bound is the smaller of that and the
-        hull of ``qd`` itself there, raised by :data:`SPEED_BOUND_SLACK` for rounding. The
+        hull of ``qd`` itself there, raised by
+        :data:`~tocontrol_ros.core.direct.tuning.SPEED_BOUND_SLACK` for rounding. The
         clearance certificate's between-samples bound uses it (a motion at rest moves its
         links slowly, where the joint velocity limits would allow them to move fast).
 
