@@ -16,10 +16,20 @@ coal = pytest.importorskip("coal")
 
 from tocontrol_ros.core.checks.certificate import certify_open_loop  # noqa: E402
 from tocontrol_ros.core.direct.first_motion import first_motion  # noqa: E402
-from tocontrol_ros.core.geometry.collision import collision_model, disabled_pairs  # noqa: E402
-from tocontrol_ros.core.geometry.reach import clear_configuration, note_clear  # noqa: E402
+from tocontrol_ros.core.geometry.collision import (  # noqa: E402
+    body_frames,
+    collision_model,
+    disabled_pairs,
+)
+from tocontrol_ros.core.geometry.reach import (  # noqa: E402
+    CLEAR_POSE_ROUNDS,
+    clear_configuration,
+    clear_pose_configuration,
+    note_clear,
+)
 from tocontrol_ros.core.geometry.scene import load_scene, scene_from_dict  # noqa: E402
 from tocontrol_ros.core.geometry.shapes import LinkShape  # noqa: E402
+from tocontrol_ros.core.robot.ik import ik_pose, pose_errors  # noqa: E402
 from tocontrol_ros.core.robot.kinematics import tip_pose  # noqa: E402
 from tocontrol_ros.core.types.problem import (  # noqa: E402
     Problem,
@@ -188,6 +198,40 @@ def test_a_replans_noted_configuration_spares_the_clear_search(panda):
     q_low = clear_configuration(col, low, lo, hi).q  # reaches it without the table
     assert not note_clear(table, low, q_low)
     assert clear_configuration(table, low, lo, hi).seeds > 0
+
+
+def test_a_pose_whose_first_solution_touches_an_obstacle_has_a_clear_one_found(panda):
+    """A ball on the forearm of the pose's IK solution from the start; another is clear.
+
+    The solution found puts the tip on the pose (its residuals), is inside the limits and
+    keeps the margin by Coal pair by pair; the same answer from another collision model
+    object. A pose inside a 10 cm ball has none: the clearest tried and its pair.
+    """
+    model, _, _, col = panda
+    lo, hi = model.q_lower, model.q_upper
+    rot, pos = tip_pose(model, Q0 + np.array([1.2, 0.3, 0.0, 0.3, 0.0, -0.2, 0.0]))
+    [first], _, _ = ik_pose(model, pos, rot, Q0[None], lo, hi)  # what the start's seed finds
+    frames = body_frames(model, first[None])[1][0]
+    forearm = 0.5 * (frames[3] + frames[5])  # between the elbow and the wrist
+    ball = {"obstacles": [{"name": "ball", "type": "sphere", "radius": 0.05,
+                           "position": forearm.tolist()}]}
+    scene = col.with_scene(scene_from_dict(ball))
+    assert scene.clearance(first).minimum < 0.0  # the forearm in the ball
+    found = clear_pose_configuration(scene, pos, rot, lo, hi)
+    assert found.found and found.seeds <= sum(c for c, _ in CLEAR_POSE_ROUNDS)
+    pos_err, ang_err = pose_errors(model, found.q, pos, rot)
+    assert pos_err[0] < 1e-6 and ang_err[0] < 1e-6
+    assert np.all(found.q >= lo) and np.all(found.q <= hi)
+    assert min(float(d[0]) for d in scene.clearance(found.q).pair_distances.values()) \
+        >= scene.margin
+    again = clear_pose_configuration(col.with_scene(scene_from_dict(ball)), pos, rot, lo, hi)
+    assert np.array_equal(again.q, found.q)
+    inside = col.with_scene(scene_from_dict({"obstacles": [
+        {"name": "block", "type": "sphere", "radius": 0.1, "position": pos.tolist()}]}))
+    none = clear_pose_configuration(inside, pos, rot, lo, hi)
+    assert not none.found and none.tried > 0
+    assert none.seeds == sum(c for c, _ in CLEAR_POSE_ROUNDS)
+    assert none.pair[1] == "block" and none.clearance < 0.0
 
 
 def test_certificate_refuses_a_motion_through_a_box(panda):

@@ -579,7 +579,8 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
                                   r".* \w+ and block closest")
         assert req.path is None
         # A pose there (the hand pointing down): each IK solution a joint-state target, each
-        # refused as in collision with the block; the request fails naming it.
+        # refused as in collision with the block, and none of the further search's clear
+        # either (reach.clear_pose_configuration); the request fails naming it.
         start = ("state", np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8]), np.zeros(7))
         pose = pose_target((0.3, 0.4, 0.5), (1.0, 0.0, 0.0, 0.0), "panda_link0", panda,
                            "panda_link0", start, "goal_pose")
@@ -587,7 +588,10 @@ def test_a_target_with_no_clear_configuration_fails_before_any_solve():
                             target_pose=pose)
         _refused_before_any_solve(service, out, posed, r"none of the pose's \d+ IK solutions "
                                   r"can be planned to: `target` joint state is in collision: "
-                                  r"\w+ and block")
+                                  r"\w+ and block .*; searched further with the scene: of "
+                                  r"\d+ more IK solutions inside the limits \(from 128 seeds\) "
+                                  r"none is clear by the margin \(0\.01 m\), the clearest has "
+                                  r"\w+ and block -[0-9.]+ m apart")
     finally:
         service.planner.gate.set()
         service.stop()

@@ -204,3 +204,65 @@ def test_the_end_pose_check_agrees_with_the_ik_residuals():
         ref_pos, ref_ang = pose_errors(MODEL, q, goal.position, goal.rotation)
         assert pos_err == pytest.approx(ref_pos[0], abs=1e-12)
         assert ang_err == pytest.approx(ref_ang[0], abs=1e-9)
+
+
+@pytest.mark.slow  # the Panda's collision model (seconds), its IK and exact distances
+def test_a_pose_whose_ik_solutions_touch_an_obstacle_is_planned_to_a_clear_one():
+    """A ball on the forearm of the pose's only IK solution (``pose_ik_seeds`` 1: the start's).
+
+    The solution is refused as a target in collision; the search with the scene finds
+    another, clear by the margin, and the planner is asked to plan to it (a fake planner:
+    whose motions fail: what is tested is the target it is given).
+    """
+    pytest.importorskip("coal")
+    from skip_policy import panda_srdf, panda_urdf
+    from test_planning_service import FakeArm, FakeResult
+
+    from tocontrol_ros.core.geometry.collision import body_frames, collision_model
+    from tocontrol_ros.core.geometry.scene import scene_from_dict
+    from tocontrol_ros.core.robot.ik import pose_errors
+    from tocontrol_ros.nodes.pose_goals import PoseGoals
+
+    urdf = panda_urdf()
+    panda = load_robot(urdf, tip_link="panda_hand",
+                       locked_joints={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0})
+    q0 = np.array([0.0, -0.5, 0.0, -2.0, 0.0, 1.6, 0.8])
+    rotation, position = tip_pose(panda, q0 + np.array([1.2, 0.3, 0.0, 0.3, 0.0, -0.2, 0.0]))
+    config = config_from_values({"pose_ik_seeds": 1}, task_dim=panda.m)
+    out = Outputs()
+    service = PlanningService(panda, planner_limits(config, panda), config, "panda_link0",
+                              out, FakeArm(), FakeClock().clock(), planner_factory=FakePlanner)
+    start = ("state", q0, np.zeros(7))
+    pose = pose_target(position, Rotation.from_matrix(rotation).as_quat(), "panda_link0",
+                       panda, "panda_link0", start, "goal_pose")
+    req = PlanRequest(service.next_id(), "goal_pose", start, pose.position, config,
+                      target_pose=pose)
+    [first] = PoseGoals(service).solutions(req)  # the pose's IK solution from the start
+    frames = body_frames(panda, first[None])[1][0]
+    forearm = 0.5 * (frames[3] + frames[5])  # between the elbow and the wrist
+    service.collision = collision_model(panda, urdf, panda_srdf(), scene_from_dict(
+        {"obstacles": [{"name": "ball", "type": "sphere", "radius": 0.05,
+                        "position": forearm.tolist()}]}))
+    assert service.collision.clearance(first).minimum < 0.0
+    assert service.collision.clearance(q0).minimum > service.collision.margin
+    service.start()
+    try:
+        assert service.ready.wait(WAIT), "no warm-up"
+        # The fake's motions (a 3-joint arm's) fail: the request ends without a motion.
+        service.planner.first_result = FakeResult(T=2.0, success=False, message="fake")
+        service.planner.optimum = FakeResult(T=1.5, success=False, message="fake")
+        service.planner.hold.set()
+        service.planner.gate.set()
+        service.submit(req)
+        assert req.done.wait(6 * WAIT), "no outcome"
+        outcome = final(out, req)
+        assert "no certified motion to the pose's IK solutions" in outcome["message"]
+        assert outcome["values"]["ik_solutions"] == 2 and outcome["values"]["ik_refused"] == 1
+        [problem] = service.planner.solved  # the clear solution, planned to
+        q = problem.target.value[:7]
+        assert service.collision.clearance(q).minimum >= service.collision.margin
+        pos_err, ang_err = pose_errors(panda, q, position, rotation)
+        assert pos_err[0] < 1e-6 and ang_err[0] < 1e-6
+    finally:
+        service.planner.gate.set()
+        service.stop()

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from tocontrol_ros.core.errors import TocontrolError
+from tocontrol_ros.core.geometry.reach import clear_pose_configuration
 from tocontrol_ros.core.robot.ik import ik_pose
 from tocontrol_ros.core.robot.kinematics import joint_transform, quaternion_from_matrix, tip_pose
 from tocontrol_ros.core.types.problem import REST_SPEED
@@ -252,9 +253,20 @@ class PoseGoals:
                 problems.append(service.problem(config, req.start, service.model.point(q), q))
             except TocontrolError as exc:
                 refused.append(str(exc))
+        searched = ""
+        if not problems and service.collision is not None:  # look further for a clear one
+            q, searched = self._clear_solution(req)
+            if q is not None:
+                solutions.append(q)
+                try:
+                    problems.append(service.problem(config, req.start,
+                                                    service.model.point(q), q))
+                except TocontrolError as exc:
+                    refused.append(str(exc))
         if not problems:
             service.finish(req, "ERROR", "failed", f"none of the pose's {len(solutions)} IK "
-                           f"solutions can be planned to: {'; '.join(dict.fromkeys(refused))}")
+                           f"solutions can be planned to: {'; '.join(dict.fromkeys(refused))}"
+                           f"{searched}")
             return
         options = solver_options(config)
         firsts = []
@@ -286,6 +298,27 @@ class PoseGoals:
         if service.finish_stopped(req, extra):
             return
         self._publish(req, motions, extra)
+
+    def _clear_solution(self, req) -> tuple[np.ndarray | None, str]:
+        """A solution of the pose clear of the scene, when none of the first ones was.
+
+        :func:`~tocontrol_ros.core.geometry.reach.clear_pose_configuration`: more IK seeds
+        (a fixed amount), the first solution clear by the margin (n,) (rad), or None; and
+        what the search found, for the refusal's message.
+        """
+        service, config, pose = self.service, req.config, req.target_pose
+        limits = service.limits.with_margin(config.limit_margin)
+        found = clear_pose_configuration(service.collision, pose.position, pose.rotation,
+                                         limits.lower, limits.upper)
+        if found.found:
+            return found.q, ""
+        if not found.tried:
+            return None, (f"; searched further with the scene: no IK solution inside the limits "
+                        f"from {found.seeds} more seeds")
+        return None, (f"; searched further with the scene: of {found.tried} more IK solutions "
+                    f"inside the limits (from {found.seeds} seeds) none is clear by the margin "
+                    f"({service.collision.margin:g} m), the clearest has "
+                    f"{' and '.join(found.pair)} {found.clearance:.4f} m apart")
 
     def _at_rest_on_the_pose(self, req) -> bool:
         """Finish ``req`` when its start is at rest on the pose already (True): T = 0."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tocontrol_ros.core.geometry.tuning import CERTIFY_STEPS
+from tocontrol_ros.core.geometry.tuning import CERTIFY_BISECTIONS, CERTIFY_REFINED, CERTIFY_STEPS
 from tocontrol_ros.core.types.certificate import Certificate, CertificateItem, CertificateOptions
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.trajectory import TrajectorySample
@@ -112,15 +112,36 @@ def limit_checks(problem: Problem, sample: TrajectorySample, x_end: np.ndarray,
 
 
 
-def clearance_checks(problem: Problem, trajectory) -> tuple[list[CertificateItem], dict]:
+#: What bounded the joint speeds between the clearance's times (its figure ``clearance_speeds``).
+SPEEDS_MEANING = {"motion": "the motion's own joint speed bound on each interval",
+                  "limits": "the joint velocity limits"}
+
+
+def clearance_checks(problem: Problem, trajectory, steps: int = CERTIFY_STEPS
+                     ) -> tuple[list[CertificateItem], dict]:
     """The motion's clearance on the URDF's own geometry (none without ``problem.collision``).
 
     Coal's exact distances of every checked pair (:class:`~tocontrol_ros.core.geometry.
-    collision.CollisionModel`) at :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_STEPS`
-    equally spaced times, and between them the bound of
-    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` under the joint
+    collision.CollisionModel`) at ``steps + 1`` equally spaced times (by default
+    :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_STEPS` + 1), and between them the bound of
+    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` under a bound of the
+    joint speeds: the motion's own on each interval where the trajectory proves one
+    (``joint_speed_bounds(t)``, e.g. :meth:`~tocontrol_ros.core.direct.flat_trajectory.
+    FlatTrajectory.joint_speed_bounds`, from its spline's coefficients), else the joint
     velocity limits (which the ``velocity_limits`` item checks; a joint without one: twice
-    its largest sampled speed). Independent of the optimiser's spheres.
+    its largest sampled speed). An interval whose bound falls below the margin is halved
+    (:data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_BISECTIONS` times at most, on
+    :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_REFINED` intervals at most): exact
+    distances at the new times, the bound on each part. Independent of the optimiser's
+    spheres.
+
+    Parameters
+    ----------
+    problem : Problem
+    trajectory : object
+        With ``T`` (s) and ``evaluate``; optionally ``joint_speed_bounds``.
+    steps : int
+        Intervals between the exact distances' times (the certificate's default).
 
     Returns
     -------
@@ -129,22 +150,63 @@ def clearance_checks(problem: Problem, trajectory) -> tuple[list[CertificateItem
         the times (passes at <= 0).
     figures : dict
         ``min_clearance`` (m, the least exact distance at the times), ``closest_pair``
-        ("link/obstacle"), ``closest_time`` (s), ``clearance_bound`` (m).
+        ("link/obstacle"), ``closest_time`` (s), ``clearance_bound`` (m),
+        ``clearance_speeds`` ("motion" or "limits": which joint speed bound),
+        ``clearance_refined`` (intervals halved: those whose bound was below the margin).
     """
     col = problem.collision
     if col is None:
         return [], {}
-    t = np.linspace(0.0, trajectory.T, CERTIFY_STEPS + 1)
+    t = np.linspace(0.0, trajectory.T, steps + 1)
     sample = trajectory.evaluate(t)
-    v = problem.limits.velocity
-    v = np.where(np.isfinite(v), v, 2.0 * np.max(np.abs(sample.qd), axis=0))
-    swept = col.swept(t, sample.q, v)
-    item = check_item("clearance", col.margin - swept.lower_bound, 0.0, "m",
+    own = getattr(trajectory, "joint_speed_bounds", None)
+    if own is not None and len(t) > 1:
+        speeds = "motion"
+    else:
+        v = problem.limits.velocity
+        v = np.where(np.isfinite(v), v, 2.0 * np.max(np.abs(sample.qd), axis=0))
+        own, speeds = (lambda times: v), "limits"
+    swept = col.swept(t, sample.q, own(t))
+    bounds, refined = _bisected(col, trajectory, own, t, swept.interval_bounds)
+    lower = float(np.min(bounds)) if len(bounds) else swept.lower_bound
+    item = check_item("clearance", col.margin - lower, 0.0, "m",
                       f"margin ({col.margin:g} m) minus the least distance of any checked "
-                      f"pair over the motion (exact at {CERTIFY_STEPS + 1} times, bounded "
-                      f"between them)")
+                      f"pair over the motion (exact at {steps + 1} times, bounded "
+                      f"between them by {SPEEDS_MEANING[speeds]}, {refined} intervals "
+                      f"halved up to {CERTIFY_BISECTIONS} times)")
     return [item], {"min_clearance": swept.minimum, "closest_pair": "/".join(swept.pair),
-                    "closest_time": swept.time, "clearance_bound": swept.lower_bound}
+                    "closest_time": swept.time, "clearance_bound": lower,
+                    "clearance_speeds": speeds, "clearance_refined": refined}
+
+
+def _bisected(col, trajectory, speeds, t: np.ndarray, bounds: np.ndarray
+              ) -> tuple[np.ndarray, int]:
+    """The intervals' bounds (K - 1,) (m), those below the margin halved again and again.
+
+    Each of the first :data:`~tocontrol_ros.core.geometry.tuning.CERTIFY_REFINED` intervals
+    whose bound is below ``col.margin`` is cut into 2, 4, ... 2^CERTIFY_BISECTIONS equal
+    parts until its bound (the least over its parts, each by
+    :meth:`~tocontrol_ros.core.geometry.collision.CollisionModel.swept` with ``speeds`` of
+    the parts' times) reaches the margin; an interval keeps the best of its bounds (each is
+    one). Returns the bounds and how many intervals were cut.
+    """
+    bounds = bounds.copy()
+    todo = np.flatnonzero(bounds < col.margin)[:CERTIFY_REFINED]
+    refined = len(todo)
+    for depth in range(1, CERTIFY_BISECTIONS + 1):
+        if not len(todo):
+            break
+        parts = 2 ** depth
+        frac = np.linspace(0.0, 1.0, parts + 1)
+        # every interval's parts in one grid; the gaps between two intervals are intervals
+        # of that grid too, and their bounds are not read
+        grid = (t[todo, None] + frac[None, :] * (t[todo + 1] - t[todo])[:, None]).ravel()
+        q = trajectory.state(grid)[:, :col.model.n]  # positions only: no torques
+        sub = col.swept(grid, q, speeds(grid)).interval_bounds
+        sub = np.append(sub, np.inf).reshape(len(todo), parts + 1)[:, :parts]
+        bounds[todo] = np.maximum(bounds[todo], sub.min(axis=1))
+        todo = todo[bounds[todo] < col.margin]
+    return bounds, refined
 
 
 def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions | None = None,

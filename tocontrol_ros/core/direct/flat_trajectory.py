@@ -17,7 +17,7 @@ from scipy.interpolate import BSpline
 
 from tocontrol_ros.core.direct.bspline import knots
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
-from tocontrol_ros.core.direct.tuning import REFINE_JUMP
+from tocontrol_ros.core.direct.tuning import REFINE_JUMP, SPEED_BOUND_SLACK
 from tocontrol_ros.core.robot.compiled import BufferedFunction, compile_owned
 from tocontrol_ros.core.robot.model import RobotModel
 from tocontrol_ros.core.types.law import LawParams
@@ -433,6 +433,57 @@ class FlatTrajectory(InverseDynamicsTrajectory):
     def control_at(self, t: np.ndarray) -> np.ndarray:
         """Normalised controls at times ``t`` (K,), shape (K, n)."""
         return self._controls(*self._path(t))
+
+    def joint_speed_bounds(self, t: np.ndarray) -> np.ndarray:
+        """A rigorous bound of each joint's speed on each interval between times ``t``.
+
+        On a span of the spline, ``dq/ds`` and ``d2q/ds2`` lie in the convex hull of the
+        span's control points of the first and second derivative splines (B-splines' convex
+        hull property). On ``[t0, t1]`` (``h = t1 - t0``) with ``|qdd| <= A`` on the spans it
+        touches, ``|qd(t)| <= min(|qd(t0)| + A (t - t0), |qd(t1)| + A (t1 - t)) <=
+        (|qd(t0)| + |qd(t1)|) / 2 + A h / 2``; the bound is the smaller of that and the
+        hull of ``qd`` itself there, raised by
+        :data:`~tocontrol_ros.core.direct.tuning.SPEED_BOUND_SLACK` for rounding. The
+        clearance certificate's between-samples bound uses it (a motion at rest moves its
+        links slowly, where the joint velocity limits would allow them to move fast).
+
+        Parameters
+        ----------
+        t : ndarray, shape (K,)
+            Increasing times in ``[0, T]`` (s), ``K >= 2``.
+
+        Returns
+        -------
+        ndarray, shape (K - 1, n)
+            ``max |qd_j|`` over ``[t_k, t_k+1]`` is at most this (rad/s, m/s).
+        """
+        t = np.asarray(t, dtype=float)
+        if t.ndim != 1 or len(t) < 2 or np.any(np.diff(t) < 0):
+            raise ValueError(f"`t` must be increasing times, shape (K >= 2,), got {t.shape}")
+        T, br, p = self.T, self.breaks, self._degree
+        last = len(br) - 2
+        s = np.clip(t / T, 0.0, 1.0)
+        first = np.clip(np.searchsorted(br, s[:-1], side="right") - 1, 0, last)
+        final = np.clip(np.searchsorted(br, s[1:], side="left") - 1, first, last)
+
+        def hull(order: int) -> np.ndarray:  # (L, n): max |coefficient| on each span
+            c = np.abs(np.asarray(self._spl.derivative(order).c))
+            width = p - order + 1  # the span's coefficients: i ... i + p - order
+            return np.max(np.stack([c[j:j + last + 1] for j in range(width)]), axis=0)
+
+        def over_intervals(per_span: np.ndarray) -> np.ndarray:  # max over touched spans
+            out = per_span[first]
+            for d in range(1, int(np.max(final - first, initial=0)) + 1):
+                out = np.maximum(out, per_span[np.minimum(first + d, final)])
+            return out
+
+        speed = over_intervals(hull(1)) / T
+        qd = np.abs(self._path(t)[1])
+        if p >= 2:
+            acc = over_intervals(hull(2)) / T ** 2
+            ends = 0.5 * (qd[:-1] + qd[1:]) + 0.5 * acc * np.diff(t)[:, None]
+            speed = np.minimum(speed, ends)
+        return speed * (1.0 + SPEED_BOUND_SLACK) + SPEED_BOUND_SLACK
 
 
 #: model -> {count: (its inverse dynamics function, mapped over count times and buffered)},

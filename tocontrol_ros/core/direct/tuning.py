@@ -292,3 +292,9 @@ QUICK_TIME_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0)
 #: the larger of its speed at the start and its peak on the straight path's rest-to-rest
 #: timing (first_motion.quick_motion).
 QUICK_SPEED_SLACK = 0.01
+
+#: ``FlatTrajectory.joint_speed_bounds`` (the clearance certificate's joint speeds between
+#: its times) is raised by this fraction plus this much (rad/s): the spline's coefficients
+#: and samples carry rounding errors of about 1e-15 of their size, and a bound must not fall
+#: short by them.
+SPEED_BOUND_SLACK = 1e-9

@@ -148,6 +148,9 @@ class SweptClearance:
         A distance no pair comes below at any time, between the samples included (m).
     exact_calls : int
         Coal distance queries made (the others were certified by bounding spheres).
+    interval_bounds : ndarray, shape (K - 1,)
+        A distance no pair comes below on each interval between two sampled times (m);
+        ``lower_bound`` is their least (or the one sample's distance).
     """
 
     minimum: float
@@ -155,6 +158,7 @@ class SweptClearance:
     time: float
     lower_bound: float
     exact_calls: int
+    interval_bounds: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -298,15 +302,20 @@ class CollisionModel:
             out[link_spheres.link] = self.lever_arms(link_spheres.body, reach)
         return out
 
-    def speed_bounds(self, velocity: np.ndarray) -> dict[str, float]:
-        """How fast any point of each link can move under joint speeds ``velocity`` (n,).
+    def speed_bounds(self, velocity: np.ndarray) -> dict:
+        """How fast any point of each link can move under joint speeds ``velocity``.
 
-        ``sum_j |qd_j| rho_jb`` with :attr:`link_levers`. Returns link -> m/s (``inf``
-        with an infinite joint speed).
+        ``sum_j |qd_j| rho_jb`` with :attr:`link_levers`. ``velocity`` (n,) gives link ->
+        float (m/s; ``inf`` with an infinite joint speed that moves the link); (M, n), one
+        row of joint speed bounds per interval of a motion, gives link -> ndarray (M,).
         """
         velocity = np.abs(np.asarray(velocity, dtype=float))
-        return {link: float(sum(v * r for v, r in zip(velocity, lever, strict=True) if v > 0))
-                for link, lever in self.link_levers.items()}
+        out = {}
+        with np.errstate(invalid="ignore"):
+            for link, lever in self.link_levers.items():
+                rate = np.sum(np.where(lever > 0, velocity * lever, 0.0), axis=-1)
+                out[link] = float(rate) if velocity.ndim == 1 else rate
+        return out
 
     def clearance(self, q: np.ndarray) -> Clearance:
         """Exact distances (Coal, the URDF's geometry) of every checked pair at ``q`` (K, n).
@@ -365,8 +374,11 @@ class CollisionModel:
         obstacle); Coal's exact distance replaces it where it is within
         :data:`~.tuning.EXACT_BAND` of the margin plus the between-samples bound. Between
         two times ``h`` apart a pair's distance falls at most ``v h / 2`` below the mean of
-        its two ends (``v``: :meth:`speed_bounds` of both links under ``velocity`` (n,),
-        the joint speed limits the motion keeps): that is :attr:`SweptClearance.lower_bound`.
+        its two ends (``v``: :meth:`speed_bounds` of both links under ``velocity``: (n,),
+        joint speeds the motion never exceeds, e.g. the velocity limits it keeps; or
+        (K - 1, n), a bound of the joint speeds on each interval, e.g.
+        :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.joint_speed_bounds`):
+        that is :attr:`SweptClearance.lower_bound`.
         """
         import coal
 
@@ -374,6 +386,10 @@ class CollisionModel:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         rots, poss = body_frames(self.model, q)
         h = np.diff(t)
+        velocity = np.asarray(velocity, dtype=float)
+        if velocity.shape not in ((self.model.n,), (len(h), self.model.n)):
+            raise ValueError(f"`velocity` must have shape ({self.model.n},) or ({len(h)}, "
+                             f"{self.model.n}), got {velocity.shape}")
         speeds = self.speed_bounds(velocity)
         shapes: dict[str, list] = {}
         for s in self.shapes:
@@ -390,9 +406,11 @@ class CollisionModel:
                                     poss[k, b] + rots[k, b] @ shape.translation)
 
         best, lower, calls = (np.inf, ("", ""), 0), np.inf, 0
+        per_interval = np.full(len(h), np.inf)
         for a, b in self.obstacle_pairs() + self.self_pairs:
             rate = speeds[a] + (0.0 if b in obstacles else speeds[b])
-            need = self.margin + (rate * float(h.max()) / 2 if len(h) else 0.0) + EXACT_BAND
+            fall = np.concatenate([[0.0], rate * h / 2, [0.0]])  # on each side of a time
+            need = self.margin + np.maximum(fall[:-1], fall[1:]) + EXACT_BAND
             d = np.full(len(t), np.inf)
             for sa, wa, ra in shapes[a]:
                 if b in obstacles:
@@ -413,10 +431,11 @@ class CollisionModel:
             if d[k] < best[0]:
                 best = (float(d[k]), (a, b), float(t[k]))
             if len(h):
-                lower = min(lower, float(np.min(0.5 * (d[:-1] + d[1:]) - rate * h / 2)))
+                per_interval = np.minimum(per_interval, 0.5 * (d[:-1] + d[1:]) - rate * h / 2)
+                lower = min(lower, float(np.min(per_interval)))
             else:
                 lower = min(lower, float(d[0]))
-        return SweptClearance(best[0], best[1], best[2], lower, calls)
+        return SweptClearance(best[0], best[1], best[2], lower, calls, per_interval)
 
 
 def _margin(margin) -> float:

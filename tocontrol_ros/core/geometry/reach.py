@@ -24,15 +24,21 @@ import numpy as np
 
 from tocontrol_ros.core.geometry.collision import CollisionModel
 from tocontrol_ros.core.memo import OwnedMemo
-from tocontrol_ros.core.robot.ik import ik_family
+from tocontrol_ros.core.robot.ik import ik_family, ik_pose
 
-__all__ = ["ClearReach", "clear_configuration", "note_clear", "CLEAR_IK_ROUNDS"]
+__all__ = ["ClearReach", "clear_configuration", "clear_pose_configuration", "note_clear",
+           "CLEAR_IK_ROUNDS", "CLEAR_POSE_ROUNDS"]
 
 #: IK seeds of each round (``ik_family``'s ``count``) and the generator seed of each: a
 #: target with room around it has a clear configuration among the first round's solutions
 #: (checked one at a time, stopping at the first clear one); only a point with none found
 #: pays for the later rounds. 8 + 48 + 96 = 152 seeds bound the work of a refusal.
 CLEAR_IK_ROUNDS = ((8, 0), (48, 1), (96, 2))
+
+#: The same for a pose (:func:`clear_pose_configuration`), asked only when none of a
+#: planner's first IK solutions of the pose (``pose_ik_seeds``) is clear: 32 + 96 = 128 more
+#: seeds bound the work of a refusal.
+CLEAR_POSE_ROUNDS = ((32, 1), (96, 2))
 
 #: Verdicts remembered per collision model (newest last): a replan makes several problems
 #: to one target with one collision model, and each check is up to 152 IK solves and as many
@@ -107,11 +113,75 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
     noted = _NOTED.get(collision, key[0])
     if noted is not None and np.all(noted.q >= lo) and np.all(noted.q <= hi):
         return noted
+    best = _first_clear(collision, lo, hi, (
+        (count, ik_family(model, p, count=count, rng=np.random.default_rng(seed)))
+        for count, seed in CLEAR_IK_ROUNDS))
+    _KNOWN.put(collision, key, best)
+    return best
+
+
+def clear_pose_configuration(collision: CollisionModel, position, rotation, lower, upper
+                             ) -> ClearReach:
+    """A configuration putting the tip at a pose inside ``[lower, upper]``, clear by the margin.
+
+    A pose goal's IK solutions are joint-state targets, and those closer to the scene than
+    the margin are refused; when none of a planner's first solutions is clear, this looks
+    further: :func:`~tocontrol_ros.core.robot.ik.ik_pose` from the seeds of
+    :data:`CLEAR_POSE_ROUNDS` (uniform within the bounds, continuous joints in
+    ``[-pi, pi]``, fixed generators: the same pose gives the same verdict on any load),
+    each solution measured as :func:`clear_configuration` measures a point's, stopping at
+    the first clear one. Remembered per collision model, pose and bounds.
+
+    Parameters
+    ----------
+    collision : CollisionModel
+    position : array_like, shape (3,)
+        The tip's position in the base frame (m).
+    rotation : array_like, shape (3, 3)
+        The tip's orientation in the base frame (rotation matrix).
+    lower, upper : array_like, shape (n,)
+        Joint position bounds (rad, m; infinite where unbounded).
+
+    Returns
+    -------
+    ClearReach
+        The first clear solution in the rounds' order; or, when none is clear, the clearest
+        tried and its closest pair (``-inf`` and no pair when no solution was found).
+    """
+    model = collision.model
+    position = np.asarray(position, dtype=float).reshape(3)
+    rotation = np.asarray(rotation, dtype=float).reshape(3, 3)
+    lo = np.asarray(lower, dtype=float)
+    hi = np.asarray(upper, dtype=float)
+    key = ("pose", position.tobytes(), rotation.tobytes(), lo.tobytes(), hi.tobytes())
+    known = _KNOWN.get(collision, key)
+    if known is not None:
+        return known
+    low = np.where(np.isfinite(lo), lo, -np.pi)
+    high = np.where(np.isfinite(hi), hi, np.pi)
+
+    def rounds():
+        for count, seed in CLEAR_POSE_ROUNDS:
+            seeds = np.random.default_rng(seed).uniform(low, high, size=(count, model.n))
+            yield count, ik_pose(model, position, rotation, seeds, lo, hi)[0]
+
+    best = _first_clear(collision, lo, hi, rounds())
+    _KNOWN.put(collision, key, best)
+    return best
+
+
+def _first_clear(collision: CollisionModel, lo: np.ndarray, hi: np.ndarray, rounds
+                 ) -> ClearReach:
+    """The first configuration of ``rounds`` inside ``[lo, hi]`` and clear by the margin.
+
+    ``rounds`` yields ``(seeds spent, configurations found)``; each new configuration
+    (a later round's repeat is skipped) is measured by the exact distances
+    (:meth:`CollisionModel.clearance`), and the rounds stop at the first clear one.
+    """
     best = ClearReach(None, -np.inf, (), 0, 0, 0)
     tried = solutions = seeds = 0
     seen: list[np.ndarray] = []
-    for count, seed in CLEAR_IK_ROUNDS:
-        found = ik_family(model, p, count=count, rng=np.random.default_rng(seed))
+    for count, found in rounds:
         seeds += count
         solutions += len(found)
         for q in found:
@@ -123,16 +193,10 @@ def clear_configuration(collision: CollisionModel, p, lower, upper) -> ClearReac
             tried += 1
             c = collision.clearance(q)
             if c.minimum >= collision.margin:
-                best = ClearReach(q, c.minimum, tuple(c.pair), tried, solutions, seeds)
-                break
+                return ClearReach(q, c.minimum, tuple(c.pair), tried, solutions, seeds)
             if c.minimum > best.clearance:
                 best = ClearReach(None, c.minimum, tuple(c.pair), tried, solutions, seeds)
-        if best.found:
-            break
-    if not best.found:
-        best = ClearReach(None, best.clearance, best.pair, tried, solutions, seeds)
-    _KNOWN.put(collision, key, best)
-    return best
+    return ClearReach(None, best.clearance, best.pair, tried, solutions, seeds)
 
 
 def note_clear(collision: CollisionModel, p, q) -> bool:

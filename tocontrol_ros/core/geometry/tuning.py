@@ -39,6 +39,16 @@ DEFAULT_MARGIN = 0.01
 #: step (CollisionModel.swept), so the finer the step the less margin that bound eats.
 CERTIFY_STEPS = 1000
 
+#: Where that bound falls below the margin on an interval, the interval is halved up to this
+#: many times (Coal's exact distances at the new times, the motion's speed bound on each
+#: part): the fall halves each time, and a motion that keeps the margin by more than the
+#: last fall passes (a fixed amount of work, the same verdict on any load)...
+CERTIFY_BISECTIONS = 5
+
+#: ...on at most this many intervals of a motion (the first ones; the others keep their
+#: bound).
+CERTIFY_REFINED = 400
+
 #: Where a bounding sphere's distance (a lower bound) is more than this above what must
 #: hold, Coal is not asked for the exact distance (m): the bound already certifies it.
 EXACT_BAND = 0.02
