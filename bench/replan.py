@@ -400,6 +400,8 @@ def measure(name: str, workdir: Path, planner_args: tuple = (), label: str = "",
     (workdir / f"{tag}_outcomes.json").write_text(json.dumps(outcomes, default=str))
     (workdir / f"{tag}_statuses.json").write_text(
         json.dumps(client.snapshot("planner")[since:], default=str))
+    (workdir / f"{tag}_tracker_statuses.json").write_text(
+        json.dumps(client.snapshot("tracker"), default=str))
     kinds = {}
     for s in published:
         kinds.setdefault(s.get("replan", "none"), []).append(float(s["publish_latency"]))
