@@ -261,13 +261,13 @@ def read_trajectory_cdr(data: bytes, max_points: int | None = None) -> Trajector
 def _same_layout(r: _Reader, second: list, more: int) -> np.ndarray | None:
     """The points after the second as numpy records of its layout, if all share it.
 
-    A point whose size is a multiple of 8 from a start at a multiple of 8 leaves the next one
-    at the same alignment, so every point with the same counts has the same layout. None
+    A point starts at a multiple of 4; one whose size is a multiple of 8 leaves the next one
+    at the same offset modulo 8, so every point with the same counts has the same layout. None
     where they do not (a count differs, or the size is not a multiple of 8): read one by one.
     """
     start = second[0][0]
     size = second[-1] + 8 - start
-    if size % 8 or start % 8 not in (0, 4) or more * size > len(r.buf) - r.pos:
+    if size % 8 or more * size > len(r.buf) - r.pos:
         return None
     names, formats, offsets = [], [], []
     for name, (c_at, v_at, c) in zip(POINT_FIELDS, second[:-1], strict=True):
