@@ -34,9 +34,11 @@ more torque than the plan), its waypoints joined by a cubic spline; both plannin
 (wall, this one process, a machine shared with other jobs).
 
 Run alone: ``scripts/dev run python -P bench/collision.py [CASES] [--case I ...] [--scene
-NAME ...] [--draw-only]`` (prints the section; ``--case``/``--scene``: only those draws
-(of each stream) and scenes, e.g. the failed cases one at a time; ``--draw-only``: the
-draws, their free optima and the count per scene, no plan with the scene, no peer).
+NAME ...] [--draw-only] [--workers N]`` (prints the section; ``--case``/``--scene``: only
+those draws (of each stream) and scenes, e.g. the failed cases one at a time;
+``--draw-only``: the draws, their free optima and the count per scene, no plan with the
+scene, no peer; ``--workers``: the counted cases planned in N spawned processes, default
+:data:`WORKERS`, while the main process draws on; 0: all in one process).
 """
 
 import os
@@ -94,6 +96,11 @@ START_ROOM = 0.0
 #: Where on the free optimum a shelf or pillar is placed: the hand point at these fractions
 #: of its time, in order, until the start and the target are clear of it.
 PLACE_AT = (0.5, 0.4, 0.6, 0.3, 0.7)
+#: Worker processes planning the counted cases (0: all in the main process). The draws and
+#: their free optima stay in the main process, in order; each case (its plan with the
+#: scene, Coal's check, the peer) is one worker's, so a case's figures do not depend on the
+#: others.
+WORKERS = 2
 #: The bar of issue 51: planned per scene (of CASES), and ours shorter on this share.
 PLANNED_BAR, SHORTER_BAR = 19, 0.9
 
@@ -131,7 +138,10 @@ def draw_table(model: RobotModel, limits: JointLimits, col: CollisionModel, coun
 
 
 def _scene(name: str, free, model, at: float = 0.5) -> tuple:
-    """The scene ``name`` placed on the free optimum's hand point at ``at`` T; and where."""
+    """The scene ``name`` placed on the free optimum's hand point at ``at`` T.
+
+    Returns the scene, where its obstacle went and the scene's mapping (for a worker).
+    """
     _, tips = tip_poses(model, free.trajectory.evaluate(np.array([at * free.T])).q)
     mid = tips[0]
     data = load_scene_dict(name)
@@ -143,7 +153,7 @@ def _scene(name: str, free, model, at: float = 0.5) -> tuple:
             where[ob["name"]] = [round(float(v), 3) for v in ob["position"]]
     if where and at != 0.5:
         where["at"] = at
-    return scene_from_dict(data, f"bench scene {name}"), where
+    return scene_from_dict(data, f"bench scene {name}"), where, data
 
 
 def load_scene_dict(name: str) -> dict:
@@ -228,7 +238,7 @@ def _peer(problem: Problem, col) -> dict:
 class _Bench:
     """One run's model, options, counts and rows (see the module)."""
 
-    def __init__(self, draw_only: bool, start_room: float = START_ROOM) -> None:
+    def __init__(self, draw_only: bool, start_room: float = START_ROOM, pool=None) -> None:
         urdf = panda_urdf()
         srdf = urdf.parent.parent / "srdf" / "panda.srdf"
         self.model = load_robot(str(urdf), tip_link="panda_hand", locked_joints=PANDA_LOCKED)
@@ -240,6 +250,9 @@ class _Bench:
         self.draw_only = draw_only
         self.start_room = start_room
         self.rows: list = []
+        self.pool = pool  # a ProcessPoolExecutor planning the cases, or None: in this one
+        self.pending: list = []
+        self.done: list = []
         self.stats = {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
                              "skipped": 0, "draws": 0, "ours": [], "theirs": []}
                       for name in SCENES}
@@ -272,49 +285,45 @@ class _Bench:
             return None
         return cert.figures
 
-    def case(self, i: int, name: str, problem: Problem, free, fig: dict, where: dict
-             ) -> None:
-        """A case that counts: planned with the scene, checked by Coal, the peer's."""
-        st = self.stats[name]
-        st["cases"] += 1
-        col = problem.collision
+    def case(self, i: int, name: str, job: tuple, free, fig: dict, where: dict) -> None:
+        """A case that counts: planned with the scene, checked by Coal, the peer's.
+
+        ``job`` is ``(q0, target, scene mapping)``; with workers the case is planned in a
+        worker process (:func:`_case_in_worker`) and its row filled in by :meth:`finish`.
+        """
+        self.stats[name]["cases"] += 1
         free_cell = (f"{free.T:.4f}, {fig['min_clearance'] * 100:.1f} "
                      f"({fig['closest_pair']})")
         if self.draw_only:
             self.rows.append([i, name, "counted (--draw-only: not planned)", "", "", "",
                               free_cell, "", "", str(where)])
             return
-        t0 = time.perf_counter()
-        res = plan(problem, self.options)
-        ours_time = time.perf_counter() - t0
-        clear, pair = np.nan, None
-        if res.success:
-            st["planned"] += 1
-            sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
-            exact = col.clearance(sample.q)
-            clear, pair = exact.minimum, exact.pair
-            st["clear"] += int(clear >= col.margin)
-            st["ours"].append(ours_time)
-        log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
-            f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
-        if not res.success:  # what refused it: the message, the certificate's pair
-            cf = res.certificate.figures if res.certificate is not None else {}
-            log(f"collision: case {i} {name}: certificate's closest "
-                f"{cf.get('closest_pair')} {cf.get('min_clearance')} at "
-                f"{cf.get('closest_time')} s")
-            log(f"collision: case {i} {name}: starts " + "; ".join(
-                f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
-        peer = _peer(problem, col)
-        if peer["ok"]:
-            st["peer"] += 1
-            st["theirs"].append(peer["time"])
-            if res.success:
-                st["shorter"] += int(res.T < peer["T"])
-        log(f"collision: case {i} {name}: peer {peer}")
-        self.rows.append([i, name, res.status.name, f"{res.T:.4f}" if res.success else "—",
-                          f"{clear * 100:.1f}" if res.success else "—", f"{ours_time:.1f}",
-                          free_cell, f"{peer['T']:.4f}" if peer["ok"] else peer["why"],
-                          f"{peer['time']:.1f}", str(where)])
+        slot = len(self.rows)
+        self.rows.append(None)
+        args = (i, name, *job)
+        if self.pool is None:
+            self.done.append((slot, name, free_cell, where, _run_case(self, *args)))
+        else:
+            self.pending.append((slot, name, free_cell, where,
+                                 self.pool.submit(_case_in_worker, self.start_room, *args)))
+
+    def finish(self) -> None:
+        """The workers' cases, waited for in draw order, into the rows and counts."""
+        for slot, name, free_cell, where, future in self.pending:
+            self.done.append((slot, name, free_cell, where, future.result()))
+        self.pending = []
+        for slot, name, free_cell, where, out in self.done:
+            st = self.stats[name]
+            st["planned"] += int(out["planned"])
+            st["clear"] += int(out["clear"])
+            if out["planned"]:
+                st["ours"].append(out["time"])
+            if out["peer"]["ok"]:
+                st["peer"] += 1
+                st["theirs"].append(out["peer"]["time"])
+                st["shorter"] += int(out["planned"] and out["T"] < out["peer"]["T"])
+            self.rows[slot] = out["row"][:6] + [free_cell] + out["row"][6:] + [str(where)]
+        self.done = []
 
     def table_stream(self, count: int, cases: set[int] | None) -> None:
         st = self.stats["table"]
@@ -338,7 +347,8 @@ class _Bench:
             if free is None:
                 self.left_out(i, "table", "the free plan failed")
             elif (fig := self.collides(i, "table", problem, free)) is not None:
-                self.case(i, "table", problem, free, fig, {})
+                self.case(i, "table", (q0, target, load_scene_dict("table")), free, fig,
+                          {})
 
     def placed_stream(self, count: int, cases: set[int] | None, names: tuple) -> None:
         stats = self.stats
@@ -364,7 +374,7 @@ class _Bench:
                     continue
                 problem, why = None, ""
                 for at in PLACE_AT:
-                    scene, where = _scene(name, free, self.model, at)
+                    scene, where, data = _scene(name, free, self.model, at)
                     try:
                         problem = self.problem(q0, target, self.base.with_scene(scene))
                         break
@@ -374,21 +384,74 @@ class _Bench:
                     self.left_out(i, name, f"not clear at any of {len(PLACE_AT)} placements: "
                                            f"{why}")
                 elif (fig := self.collides(i, name, problem, free)) is not None:
-                    self.case(i, name, problem, free, fig, where)
+                    self.case(i, name, (q0, target, data), free, fig, where)
+
+
+def _run_case(bench: _Bench, i: int, name: str, q0, target, scene: dict) -> dict:
+    """Plan case ``i`` of ``name`` with its scene, check it with Coal, and the peer's."""
+    col = bench.base.with_scene(scene_from_dict(scene, f"bench scene {name}"))
+    problem = bench.problem(q0, target, col)
+    t0 = time.perf_counter()
+    res = plan(problem, bench.options)
+    ours_time = time.perf_counter() - t0
+    clear, pair = np.nan, None
+    if res.success:
+        sample = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001))
+        exact = col.clearance(sample.q)
+        clear, pair = exact.minimum, exact.pair
+    log(f"collision: case {i} {name}: {res.status.name} T {res.T:.4f} clear "
+        f"{clear:.4f} {pair} ({ours_time:.1f} s): {res.message}")
+    if not res.success:  # what refused it: the message, the certificate's pair
+        cf = res.certificate.figures if res.certificate is not None else {}
+        log(f"collision: case {i} {name}: certificate's closest "
+            f"{cf.get('closest_pair')} {cf.get('min_clearance')} at "
+            f"{cf.get('closest_time')} s")
+        log(f"collision: case {i} {name}: starts " + "; ".join(
+            f"{r.index}: T {r.T:.4f} {r.status[:80]}" for r in res.starts))
+    peer = _peer(problem, col)
+    log(f"collision: case {i} {name}: peer {peer}")
+    return {"planned": bool(res.success), "clear": bool(res.success and clear >= col.margin),
+            "T": float(res.T), "time": ours_time, "peer": peer,
+            "row": [i, name, res.status.name, f"{res.T:.4f}" if res.success else "—",
+                    f"{clear * 100:.1f}" if res.success else "—", f"{ours_time:.1f}",
+                    f"{peer['T']:.4f}" if peer["ok"] else peer["why"],
+                    f"{peer['time']:.1f}"]}
+
+
+#: A worker process's bench (its model and options), made on its first case.
+_WORKER: dict = {}
+
+
+def _case_in_worker(start_room: float, *args) -> dict:
+    """:func:`_run_case` in a worker process (``ProcessPoolExecutor``, spawned)."""
+    if "bench" not in _WORKER:
+        _WORKER["bench"] = _Bench(False, start_room)
+    return _run_case(_WORKER["bench"], *args)
 
 
 def run(count: int = CASES, cases: set[int] | None = None,
         scenes: tuple[str, ...] = SCENES, draw_only: bool = False,
-        start_room: float = START_ROOM) -> Section:
+        start_room: float = START_ROOM, workers: int = WORKERS) -> Section:
     if panda_urdf() is None:
         return Section("Collision-free motions (issue 51)",
                        ["example-robot-data is not installed: no Panda, no section."])
-    bench = _Bench(draw_only, start_room)
-    if "table" in scenes:
-        bench.table_stream(count, cases)
-    placed = tuple(name for name in scenes if name != "table")
-    if placed:
-        bench.placed_stream(count, cases, placed)
+    pool = None
+    if workers > 0 and not draw_only:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        bench = _Bench(draw_only, start_room, pool)
+        if "table" in scenes:
+            bench.table_stream(count, cases)
+        placed = tuple(name for name in scenes if name != "table")
+        if placed:
+            bench.placed_stream(count, cases, placed)
+        bench.finish()
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     stats, rows = bench.stats, bench.rows
     lines = [f"The Panda (hand tip, URDF limits, SRDF), k = {K:g}, margin "
              f"{bench.base.margin * 100:g} cm, up to {count} cases per scene, each stream "
@@ -397,8 +460,12 @@ def run(count: int = CASES, cases: set[int] | None = None,
              f"the shelf and pillar placed on each case's obstacle-free optimum "
              f"(`bench/collision.py`, `bench/scenes/`). Regenerate: `scripts/dev bench "
              f"run_all.py --update --only collision` (`--collision-cases N`); the draws "
-             f"alone: `scripts/dev run python -P bench/collision.py N --draw-only`. Times are "
-             f"wall seconds in one process on a machine shared with other jobs.", ""]
+             f"alone: `scripts/dev run python -P bench/collision.py N --draw-only`. "
+             + (f"The cases with a scene are planned in {workers} worker processes (one "
+                f"case each at a time, `--workers`), the draws and their free optima in the "
+                f"main process beside them; times" if pool is not None else "Times")
+             + " are wall seconds of each case's process on a machine shared with other "
+             "jobs.", ""]
     if draw_only:
         lines += ["**Draws only** (`--draw-only`): no plan with the scene, no peer.", ""]
     if start_room != START_ROOM:
@@ -445,10 +512,13 @@ if __name__ == "__main__":
                         help="only this scene (repeatable)")
     parser.add_argument("--draw-only", action="store_true",
                         help="the draws and their free optima only: no plan with the scene")
+    parser.add_argument("--workers", type=int, default=WORKERS, metavar="N",
+                        help=f"worker processes planning the cases (default {WORKERS}; 0: "
+                        "in this process)")
     parser.add_argument("--start-room", type=float, default=START_ROOM, metavar="M",
                         help=f"the table's starts keep this more than the margin (m; "
                         f"default {START_ROOM:g})")
     args = parser.parse_args()
     run(args.count, set(args.case) if args.case else None,
         tuple(args.scene) if args.scene else SCENES, args.draw_only,
-        args.start_room).print()
+        args.start_room, args.workers).print()
