@@ -46,7 +46,8 @@ planning throughput: loop, process pool, Ray), ``limits`` (random cases with joi
 enforced), ``first_motion`` (the first motion's time and T against the full plan, the
 Panda), ``collision`` (issue 51: the Panda in three scenes placed on each case's
 obstacle-free optimum, planned with the clearance rows, checked exactly with Coal, against
-OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene),
+OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene; the cases in
+``--collision-workers`` processes),
 ``memory`` (issue 50: a memory of optimal motions of a Panda cell, built with the
 ``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
 then 50 requests inside the cell and 20 outside through a planner node with it against one
@@ -123,6 +124,9 @@ def _parse(argv):
                              "(default --limit-cases)")
     parser.add_argument("--collision-cases", type=int, default=20,
                         help="drawn cases of the collision part (20; 2 with --quick)")
+    parser.add_argument("--collision-workers", type=int, default=2,
+                        help="worker processes planning the collision part's cases (2; 0: "
+                             "in the main process)")
     parser.add_argument("--out", type=Path, default=common.REPO / "BENCHMARKS.md")
     parser.add_argument("--update", action="store_true",
                         help="replace only the sections of the parts run (and their target "
@@ -272,7 +276,8 @@ def _run(args):
         section(lambda: first_motion.run(runs=3 if args.quick else args.runs,
                                          count=3 if args.quick else 9))
     if "collision" in args.only:
-        section(lambda: collision.run(2 if args.quick else args.collision_cases))
+        section(lambda: collision.run(2 if args.quick else args.collision_cases,
+                                      workers=args.collision_workers))
     if "memory" in args.only:
         counts = (5, 2, 2) if args.quick else (50, 20, memory.PEER_CASES)
         if args.memory_requests:
