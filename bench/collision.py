@@ -68,7 +68,11 @@ from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa
 SEED = 51
 K = 4.0
 CASES = 20
-TIME_LIMIT = 600.0
+#: The bench's deadline per plan (s of wall time): the caller's, the one clock the solver
+#: obeys. 600 s cut draw 5 table (about 360 s of processor time) at a load of 5 with its
+#: best certified motion (``TIME_LIMIT``); a count that depends on the load measures the
+#: machine, so the deadline is far above the cases' processor times.
+TIME_LIMIT = 1800.0
 SCENES = ("table", "shelf", "pillar")
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 #: OMPL's budget per case (s of planning, its own clock: the peer's, not ours).
