@@ -154,3 +154,86 @@ def test_a_detour_only_where_the_seeds_paths_collide(panda):
     assert len(out) == 1 and out[0][0] == 0 and len(records) == 1
     assert records[0].status == "detour seed" and "RRTConnect" in notes[0]
     np.testing.assert_array_equal(out[0][1].waypoints[0], Q0)
+
+
+def test_a_detour_that_fails_on_its_spans_is_solved_again_on_finer_ones(panda, monkeypatch):
+    """``_detour_solve``: its steps on ``SPANS``; where one fails, all again on ``DETOUR_SPANS``.
+
+    A stand-in planner records the solves (spans, speed-term scale, exponent) and fails the
+    true rows on ``SPANS``: the steps are run again on ``DETOUR_SPANS`` from the guess, and
+    the result has that mesh's control points (``plan_limited`` builds its trajectory on the
+    spans of the result).
+    """
+    from types import SimpleNamespace
+
+    from tocontrol_ros.core.direct import limited
+
+    model, col = panda
+    problem = _wall_problem(model, col)
+    n, calls = model.n, []
+
+    class Flat:
+        def __init__(self, spans, scale=1.0):
+            self.spans, self.scale = spans, scale
+
+        def fit(self, T, t, q, qd):
+            return np.zeros((self.spans + 3, n))
+
+        def with_speed_term(self, scale):
+            return Flat(self.spans, scale)
+
+        def solve(self, start, target, k, T, P, lower, upper, **budget):
+            calls.append((self.spans, self.scale, k))
+            ok = not (self.spans == limited.SPANS and self.scale == 1.0)
+            return SimpleNamespace(success=ok, T=T * 0.9, P=np.ones((self.spans + 3, n)),
+                                   message="Solve_Succeeded" if ok else "stopped")
+
+    planner = SimpleNamespace(flat=lambda problem, spans, warm=False: Flat(spans))
+    ctx = SimpleNamespace(problem=problem, check=lambda: None, deadline=np.inf,
+                          should_stop=None)
+    guess = SimpleNamespace(T=2.0, t=np.linspace(0, 2, 5), x=np.zeros((5, 2 * n)))
+    out = limited._detour_solve(planner, ctx, (None, None), guess)
+    steps = [(1.0, 0.0), (4.0, 0.0), (4.0, 1.0)]
+    assert calls == [(limited.SPANS, s, k) for k, s in steps] + \
+        [(limited.DETOUR_SPANS, s, k) for k, s in steps]
+    assert out.success and out.P.shape == (limited.DETOUR_SPANS + 3, n)
+    assert limited.DETOUR_SPANS > limited.SPANS
+
+
+#: Draws 13 and 25 of bench/collision.py's table stream: start joint states (rad) and target
+#: hand points (m), each low over the table on the other side of the base.
+TABLE_DRAWS = {
+    13: ([0.7676883784319524, -0.66987192105332, 2.586024063934725, -2.1133950210454104,
+          -2.800645792255568, 2.9316036789713413, -2.702685025334956],
+         [0.5784100301509182, 0.2357042291468865, 0.10632463568848585]),
+    25: ([0.18924609623768482, -1.591823141703669, -1.9077044175198494, -1.8317329811602316,
+          -2.578154398670878, 2.300149624247468, 2.786248454072743],
+         [0.04956826700555722, 0.6970174356100234, 0.1526618623742641])}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("draw", [13, 25])
+def test_the_table_draws_whose_seeds_fail_plan_on_the_detour(panda, draw):
+    """Draws 13 and 25 of the bench's table (4 starts, 1 candidate) plan, clear by Coal.
+
+    Before session 38 both were ``LIMITS_INFEASIBLE``: every basin's bounded solve stopped
+    at its iteration limit. Draw 13 got no detour (the coarse guess of its first basin was
+    clear of the table; the finer guess its solve starts from goes through it); draw 25's
+    detour stopped at 300 iterations on 32 spans and converges on 64. The motion returned is
+    the detour's (the last start record).
+    """
+    from tocontrol_ros.core import SolverOptions, plan
+
+    model, col = panda
+    q0, target = TABLE_DRAWS[draw]
+    scene = scene_from_dict({"obstacles": [
+        {"name": "table", "type": "box", "size": [1.6, 1.6, 0.04], "position": [0.3, 0, -0.02]}],
+        "allowed": [["panda_link0", "table"], ["panda_link1", "table"]]})
+    problem = Problem(model, joint_state(np.array(q0)), point(np.array(target)), k=4.0,
+                      limits=JointLimits.from_model(model), collision=col.with_scene(scene))
+    res = plan(problem, SolverOptions(starts=4, candidates=1, time_limit=600))
+    assert res.success, res.message
+    assert res.starts[-1].status == "returned" and any("detour" in w for w in res.warnings)
+    q = res.trajectory.evaluate(np.linspace(0.0, res.T, 2001)).q
+    assert problem.collision.clearance(q).minimum >= problem.collision.margin
+    np.testing.assert_allclose(model.point(q[-1]), target, atol=1e-4)

@@ -247,6 +247,50 @@ def test_certificate_fails_a_faster_or_displaced_motion(panda_limited):
     assert "end_point" in {item.name for item in cert.failures}, cert.summary()
 
 
+def test_an_open_loop_that_drifts_by_its_integrator_is_integrated_again_tighter(panda_limited):
+    """The end items judged on the integration at ``rtol``, else once more at
+    ``OPEN_LOOP_TIGHTER`` times it: an open loop whose end velocity error is the integrator's
+    (here 1e7 times ``rtol``: 1e-3 rad/s at 1e-10, over the tolerance) passes at the tighter
+    one, figure ``rtol`` saying which; a motion that misses its end fails at both."""
+    from tocontrol_ros.core.checks import certificate
+
+    res = panda_limited
+    traj = res.trajectory
+    n, calls = traj.n, []
+
+    class Drifting:  # the motion, its open loop off by an integrator-like error
+        def __init__(self, inner, drift=1e7):
+            self.inner, self.drift = inner, drift
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+        def open_loop(self, rtol, atol):
+            calls.append((rtol, atol))
+            t, x, ok = self.inner.open_loop(rtol, atol)
+            x = x.copy()
+            x[-1, n:] += self.drift * rtol * 1.01
+            return t, x, ok
+
+    options = CertificateOptions()
+    assert certificate.OPEN_LOOP_TIGHTER <= 1e-2
+    cert = certify_open_loop(res.problem, Drifting(traj), options)
+    assert cert.passed, cert.summary()
+    tight = options.rtol * certificate.OPEN_LOOP_TIGHTER
+    assert cert.figures["rtol"] == tight
+    assert calls == [(options.rtol, options.atol),
+                     (tight, options.atol * certificate.OPEN_LOOP_TIGHTER)]
+    calls.clear()
+    cert = certify_open_loop(res.problem, Drifting(traj, 0.0), options)  # one integration
+    assert cert.passed and cert.figures["rtol"] == options.rtol and len(calls) == 1
+    calls.clear()
+    P = traj.result.P.copy()
+    P[-2:] += 1e-3
+    cert = certify_open_loop(res.problem, Drifting(traj.with_result(replace(traj.result, P=P))),
+                             options)
+    assert "end_point" in {item.name for item in cert.failures} and len(calls) == 2
+
+
 def test_refined_breaks_keep_the_old_ones(panda_limited):
     traj = panda_limited.trajectory
     new = refined_breaks(traj)

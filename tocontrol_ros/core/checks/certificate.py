@@ -23,6 +23,14 @@ from tocontrol_ros.core.types.certificate import Certificate, CertificateItem, C
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.trajectory import TrajectorySample
 
+#: Where the end items fail, the open loop is integrated once more with ``rtol`` and ``atol``
+#: this many times smaller (a fixed amount of work). The integrator's own error grows along
+#: an arm whose open loop is unstable: case 14 shelf of bench/collision.py (a 1.96 s motion,
+#: 32 spans) ended at 0.0047 rad/s with ``rtol`` 1e-10, atol 1e-11, at 1.1e-3 with atol
+#: 1e-12 and 9e-5 with rtol 1e-12 (the motion's own end velocity is 0): the check failed on
+#: the integration, not the motion. A motion that misses its end fails either way.
+OPEN_LOOP_TIGHTER = 1e-2
+
 __all__ = ["CertificateOptions", "CertificateItem", "Certificate", "certify_open_loop",
            "check_item", "end_checks", "torque_checks", "solver_and_limit_checks",
            "certificate_of", "clearance_checks"]
@@ -222,7 +230,8 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     quick motion: the deviation from each segment's path by explicit Heun steps, one per
     output, each step's local error estimate within ``dsigma (atol + rtol |e|)`` in every
     component, or by CVODES where a step fails that test). Either way the forward dynamics
-    are integrated under error control at ``options.rtol`` and ``atol``, with a local error
+    are integrated under error control at ``options.rtol`` and ``atol`` (where the end items
+    fail, once more at :data:`OPEN_LOOP_TIGHTER` times both, figure ``rtol``), with a local error
     test per step, not a global error bound: CVODES tests the weighted RMS norm of its
     estimate per step against ``rtol |e| + atol``, the explicit steps every component of
     theirs against an eighth of that (their eight steps a segment sum to at most one such
@@ -258,19 +267,26 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
     def rhs(t, x):
         return np.array(f(x, trajectory.control(t) * scale)).ravel()
 
-    if hasattr(trajectory, "open_loop"):  # its own (faster) re-integration, see its docs
-        _, x_path, success = trajectory.open_loop(options.rtol, options.atol)
-        nfev = -1
-    else:
+    def integrated(rtol: float, atol: float) -> tuple:
+        if hasattr(trajectory, "open_loop"):  # its own (faster) re-integration, see its docs
+            return (*trajectory.open_loop(rtol, atol)[1:], -1)
         x0 = trajectory.state(0.0)[0, :2 * n]
-        sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=options.rtol,
-                        atol=options.atol, t_eval=sample.t)
-        x_path, success, nfev = sol.y.T, bool(sol.success), int(sol.nfev)
-    x_T = x_path[-1]
-    point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+        sol = solve_ivp(rhs, (0.0, trajectory.T), x0, method="DOP853", rtol=rtol,
+                        atol=atol, t_eval=sample.t)
+        return sol.y.T, bool(sol.success), int(sol.nfev)
+
     target_qd = problem.target.value[n:] if problem.target.kind == "state" else 0.0
-    vel_err = float(np.max(np.abs(x_T[n:] - target_qd)))
-    items = end_checks(problem, x_T, point_err, vel_err, success, options)
+    rtol, atol = options.rtol, options.atol
+    for again in (False, True):
+        if again:  # the end items failed: once more, tighter (OPEN_LOOP_TIGHTER)
+            rtol, atol = rtol * OPEN_LOOP_TIGHTER, atol * OPEN_LOOP_TIGHTER
+        x_path, success, nfev = integrated(rtol, atol)
+        x_T = x_path[-1]
+        point_err = float(np.linalg.norm(model.point(x_T[:n]) - problem.target_point))
+        vel_err = float(np.max(np.abs(x_T[n:] - target_qd)))
+        items = end_checks(problem, x_T, point_err, vel_err, success, options)
+        if all(item.passed for item in items):
+            break
     items += torque_checks(problem, sample.u, options)[1]
     max_u = float(np.max(np.abs(sample.u)))
     items += solver_and_limit_checks(
@@ -282,4 +298,4 @@ def certify_open_loop(problem: Problem, trajectory, options: CertificateOptions 
         "point_error": point_err, "velocity_error": vel_err,
         "state_error": float(np.max(np.abs(x_T - trajectory.state(trajectory.T)[0, :2 * n]))),
         "max_abs_u": max_u, "integrator_success": success, "nfev": nfev,
-        "rtol": options.rtol}, options, x_T)
+        "rtol": rtol}, options, x_T)

@@ -76,6 +76,8 @@ from tocontrol_ros.core.types.result import PlanResult, StartRecord, Status
 
 #: The seeds' guesses are checked for collisions at this many times their mesh's intervals.
 DETOUR_DENSITY = 8
+#: Uniform spans of the detour's second try, where its solve on SPANS fails (_detour_solve).
+DETOUR_SPANS = 64
 
 __all__ = ["finer_guess", "plan_limited", "plan_limited_warm", "state_bounds", "touches"]
 
@@ -189,8 +191,11 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
         cutoff = (1 + GUESS_WINDOW) * basins[0][1].T
         near = sum(b[1].T <= cutoff for b in basins)
     # With a scene: one more candidate on a collision-free route where the seeds collide.
-    extra = _detour(ctx, pairs, basins[:count], records, notes) \
-        if problem.collision is not None and not options.replan_spans else []
+    extra = []
+    if problem.collision is not None and not options.replan_spans:
+        if fallback:  # the paths the solves start from (_uniform_item's), checked
+            basins[:count] = [(i, _finer(planner, problem, g)) for i, g in basins[:count]]
+        extra = _detour(ctx, pairs, basins[:count], records, notes)
     # The detour does not count among the candidates: the seeds' basins are solved as
     # without it (case 1 table of bench/collision.py: its first basin failed, the detour
     # stood alone and was refused on a self pair, the next basin was not solved).
@@ -212,6 +217,8 @@ def plan_limited(planner: Compiled, ctx: SolveContext, timings: dict, t_start: f
                 continue
             records[idx] = replace(records[idx], T=res.T, status="continued")
             flat = planner.flat(problem, SPANS)
+            if flat.K != len(res.P):  # a detour solved on DETOUR_SPANS
+                flat = planner.flat(problem, len(res.P) - flat.degree)
             out = (res, FlatTrajectory(flat, res, problem.k), flat)
             first.append((idx, out))
             found += idx not in detour
@@ -606,10 +613,17 @@ def _uniform_item(planner: Compiled, ctx: SolveContext, bounds, guess: DirectRes
     """
     if not finer:
         return _detour_solve(planner, ctx, bounds, guess)
-    if fallback and len(guess.t) - 1 != FINE_GUESS_INTERVALS:
-        fine = finer_guess(planner, ctx.problem, guess)
-        guess = fine if fine.success else guess
+    if fallback:
+        guess = _finer(planner, ctx.problem, guess)
     return _uniform(planner, ctx, bounds, guess, in_k=fallback or bool(ctx.options.replan_spans))
+
+
+def _finer(planner: Compiled, problem: Problem, guess: DirectResult) -> DirectResult:
+    """The fallback's guess, :func:`finer_guess` of ``guess`` (itself: on that mesh, or failed)."""
+    if len(guess.t) - 1 == FINE_GUESS_INTERVALS:
+        return guess
+    fine = finer_guess(planner, problem, guess)
+    return fine if fine.success else guess
 
 
 def _detour_solve(planner: Compiled, ctx: SolveContext, bounds, guess) -> FlatResult:
@@ -621,21 +635,27 @@ def _detour_solve(planner: Compiled, ctx: SolveContext, bounds, guess) -> FlatRe
     of bench/collision.py). So first the rows without the speed term
     (:meth:`~.flat.FlatTranscription.with_speed_term` 0) at ``k`` = 1, then at the
     problem's ``k`` warm from it, then the true rows at ``k`` warm from that: on that case 13 + 12
-    iterations, then 125 (T 1.290 s). A step that fails stops (its result returned).
+    iterations, then 125 (T 1.290 s). A step that fails stops; where one does, the steps
+    again on :data:`DETOUR_SPANS` (the speed term halves with the spans; case 25 table:
+    the true rows stopped at 300 iterations on 32 spans, T rising to 4.7 s, and converged in
+    66 on 64, T 1.164 s). Returns the last solve.
     """
     problem = ctx.problem
     n = problem.model.n
     values = (problem.start.value, problem.target.value)
-    T, P = guess.T, planner.flat(problem, SPANS).fit(guess.T, guess.t, guess.x[:, :n],
-                                                     guess.x[:, n:])
     steps = list(dict.fromkeys([(1.0, 0.0), (problem.k, 0.0), (problem.k, 1.0)]))
-    for i, (k, scale) in enumerate(steps):
-        flat = planner.flat(problem, SPANS, warm=i > 0).with_speed_term(scale)
-        out = flat.solve(*values, k, T, P, *bounds, **_budget(ctx))
-        ctx.check()
-        if not out.success:
+    for spans in (SPANS, DETOUR_SPANS):
+        T, P = guess.T, planner.flat(problem, spans).fit(guess.T, guess.t, guess.x[:, :n],
+                                                         guess.x[:, n:])
+        for i, (k, scale) in enumerate(steps):
+            flat = planner.flat(problem, spans, warm=i > 0).with_speed_term(scale)
+            out = flat.solve(*values, k, T, P, *bounds, **_budget(ctx))
+            ctx.check()
+            if not out.success:
+                break
+            T, P = out.T, out.P
+        if out.success:
             break
-        T, P = out.T, out.P
     return out
 
 
