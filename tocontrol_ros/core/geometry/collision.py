@@ -139,7 +139,8 @@ class SweptClearance:
     Attributes
     ----------
     minimum : float
-        The least exact distance at the sampled times (m).
+        The least exact distance at the sampled times (m): Coal's, over every checked pair
+        (where the bounding spheres' bound of a pair lies below it, that pair and time too).
     pair : tuple of str
         The closest pair there.
     time : float
@@ -378,7 +379,10 @@ class CollisionModel:
         joint speeds the motion never exceeds, e.g. the velocity limits it keeps; or
         (K - 1, n), a bound of the joint speeds on each interval, e.g.
         :meth:`~tocontrol_ros.core.direct.flat_trajectory.FlatTrajectory.joint_speed_bounds`):
-        that is :attr:`SweptClearance.lower_bound`.
+        that is :attr:`SweptClearance.lower_bound`. :attr:`SweptClearance.minimum` is the
+        least exact distance at the times: where a pair's spheres' bound (not made exact by
+        the band) lies below the least exact distance found, Coal is asked there too,
+        nearest bound first (:func:`_least_exact`).
         """
         import coal
 
@@ -405,8 +409,9 @@ class CollisionModel:
             return coal.Transform3s(rots[k, b] @ shape.rotation,
                                     poss[k, b] + rots[k, b] @ shape.translation)
 
-        best, lower, calls = (np.inf, ("", ""), 0), np.inf, 0
+        best, lower, calls = (np.inf, ("", ""), 0.0), np.inf, 0
         per_interval = np.full(len(h), np.inf)
+        loose: list = []  # per piece: its pair, shapes, placement and the bounds not made exact
         for a, b in self.obstacle_pairs() + self.self_pairs:
             rate = speeds[a] + (0.0 if b in obstacles else speeds[b])
             fall = np.concatenate([[0.0], rate * h / 2, [0.0]])  # on each side of a time
@@ -422,20 +427,56 @@ class CollisionModel:
                                lambda k, sb=sb: placed(sb, k)) for sb, wb, rb in shapes[b]]
                 for bound, geom, where in pieces:
                     exact = bound.copy()
-                    for k in np.flatnonzero(bound < need):
+                    near = bound < need
+                    for k in np.flatnonzero(near):
                         calls += 1
                         exact[k] = coal.distance(sa.geometry(), placed(sa, k), geom,
                                                  where(k), request, coal.DistanceResult())
                     d = np.minimum(d, exact)
-            k = int(np.argmin(d))
-            if d[k] < best[0]:
-                best = (float(d[k]), (a, b), float(t[k]))
+                    known = np.where(near, exact, np.inf)
+                    k = int(np.argmin(known))
+                    if known[k] < best[0]:
+                        best = (float(known[k]), (a, b), float(t[k]))
+                    loose.append(((a, b), sa, geom, where, np.where(near, np.inf, bound)))
             if len(h):
                 per_interval = np.minimum(per_interval, 0.5 * (d[:-1] + d[1:]) - rate * h / 2)
                 lower = min(lower, float(np.min(per_interval)))
             else:
                 lower = min(lower, float(d[0]))
+        if loose:  # the least exact distance where a sphere bound lies below it
+            best, more = _least_exact(best, loose, t, sa_placed=placed, request=request)
+            calls += more
         return SweptClearance(best[0], best[1], best[2], lower, calls, per_interval)
+
+
+def _least_exact(best: tuple, loose: list, t: np.ndarray, sa_placed, request
+                 ) -> tuple[tuple, int]:
+    """``best`` made the least exact distance over every pair and time; and Coal's calls.
+
+    ``best`` is ``(distance, pair, time)`` over the distances made exact (those near the
+    check's need); ``loose`` holds, per piece, the bounding spheres' lower bounds where no
+    exact distance was taken. An exact distance is at least its bound, so Coal is asked at
+    the loose entries whose bound lies below the least exact distance found, nearest bound
+    first, until the next bound is not below it (a fixed amount of work: at most those
+    entries). Far from every obstacle this is a few calls.
+    """
+    import coal
+
+    bounds = np.concatenate([item[-1] for item in loose])
+    count = len(loose[0][-1])
+    todo = np.flatnonzero(bounds < best[0])
+    calls = 0
+    for j in todo[np.argsort(bounds[todo], kind="stable")]:
+        if bounds[j] >= best[0]:
+            break
+        pair, sa, geom, where, _ = loose[j // count]
+        k = int(j % count)
+        calls += 1
+        dist = coal.distance(sa.geometry(), sa_placed(sa, k), geom, where(k), request,
+                             coal.DistanceResult())
+        if dist < best[0]:
+            best = (float(dist), pair, float(t[k]))
+    return best, calls
 
 
 def _margin(margin) -> float:
