@@ -370,3 +370,65 @@ def test_builds_into_another_cache_neither_count_nor_keep_a_wait(private_cache, 
         with compiled._done:
             compiled._pending.difference_update({other, own})
             compiled._done.notify_all()
+
+
+#: A process that builds ``_function("race_probe")`` into the cache and, as its compile
+#: starts (inside the build's lock), waits for the file ``go`` before it goes on.
+_HOLDER = """
+import sys, time
+from pathlib import Path
+import casadi as ca
+from tocontrol_ros.core.robot import compiled
+here = Path(sys.argv[1])
+def hold(event, name, info):
+    if event == "compiling" and name.startswith("race_probe"):
+        (here / "holding").touch()
+        for _ in range(1200):
+            if (here / "go").exists():
+                break
+            time.sleep(0.05)
+compiled.add_listener(hold)
+x = ca.SX.sym("x", 3)
+y = ca.vertcat(ca.sin(x[0]) * x[1] ** 3, ca.exp(-x[2] ** 2) + x[0] * x[1])
+fun = ca.Function("race_probe", [x], [y, ca.jacobian(y, x)])
+print(compiled.compile_function(fun)[1])
+"""
+
+
+def test_a_library_another_process_is_building_is_waited_for_not_built_again(
+        private_cache, tmp_path):
+    """Two processes missing the same library: the second waits for the first's build.
+
+    The other process (a child) holds its build open (a listener at the start of its
+    compile waits for a file); this process's build of the same source, started then, must
+    wait for the lock and find the library (``cached``), not compile it a second time.
+    """
+    import os
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "TOCONTROL_CACHE": str(private_cache)})
+    try:
+        for _ in range(2400):  # bounded: the child's import and source generation
+            if (tmp_path / "holding").exists() or child.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert (tmp_path / "holding").exists(), child.communicate()[1][-2000:]
+        out: dict = {}
+        mine = threading.Thread(target=lambda: out.update(
+            how=compiled.compile_function(_function("race_probe"))[1]))
+        mine.start()
+        mine.join(2.0)  # this build reaches the lock (or, without one, compiles) meanwhile
+        (tmp_path / "go").touch()
+        mine.join(120.0)
+        stdout, stderr = child.communicate(timeout=120.0)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 0, stderr[-2000:]
+    assert stdout.split() == ["compiled"]
+    assert out["how"] == "cached"
+    assert len(_libraries(private_cache, "race_probe")) == 1

@@ -16,6 +16,8 @@ priority. :func:`generation` counts the optimised libraries that have landed in 
 since the process started; a :class:`~tocontrol_ros.core.planning.solver.Planner` made after that
 loads them (the cache holds both). ``TOCONTROL_COMPILE_TIERS=0`` builds the optimised
 library at once instead. :func:`add_listener` reports every build as it starts and ends.
+A library is built by one process at a time: another process that misses it meanwhile (the
+planner's workers, a batch's) waits for that build's lock and loads it (:func:`_process_lock`).
 
 :func:`compile_owned` keeps the functions of one owner (a model) for its lifetime: its
 symbolic functions are built once, a later call returns the loaded library, or the optimised
@@ -44,6 +46,11 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+
+try:  # POSIX: the builds' lock across processes (_process_lock)
+    import fcntl
+except ImportError:  # pragma: no cover - not on Linux
+    fcntl = None
 
 __all__ = ["compile_function", "compile_functions", "cache_dir", "c_name", "generation",
            "pending_builds", "wait_for_builds", "add_listener", "remove_listener",
@@ -208,6 +215,28 @@ def _target_lock(target: Path) -> threading.Lock:
         return _target_locks.setdefault(target, threading.Lock())
 
 
+@contextmanager
+def _process_lock(target: Path) -> Iterator[None]:
+    """Held while ``target`` is built, across processes (``flock`` on ``<target>.lock``).
+
+    The planner's workers and a caller's own processes share one cache: without it each
+    process that misses a library compiles it (the same source, at once: three gcc runs of
+    one library were seen in a benchmark's main process and its two workers). With it the
+    others wait and find it built. Where ``fcntl`` is missing, no lock (the builds stay
+    correct: a library lands by an atomic rename).
+    """
+    if fcntl is None:
+        yield
+        return
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with open(target.with_name(target.name + ".lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 def _target(name: str, source: bytes, cflags: Sequence[str]) -> Path:
     digest = hashlib.sha256(source + " ".join(cflags).encode() + _cpu_tag()
                             ).hexdigest()[:20]
@@ -248,7 +277,7 @@ def _optimise(cc: str, name: str, source: bytes, cflags: Sequence[str],
     with _meta_lock:
         slot = _background_slots.setdefault(target.parent, threading.Semaphore(1))
     try:
-        with slot, _target_lock(target):
+        with slot, _target_lock(target), _process_lock(target):
             if target.is_file():
                 ok = True
             else:
@@ -299,7 +328,7 @@ def _build(cc: str, name: str, tmp: str, cflags: Sequence[str] | None = None
                              name=f"optimise {name}", daemon=True).start()
         target, cflags = quick_target, QUICK_CFLAGS
     how = "cached (quick build)" if quick else "cached"
-    with _target_lock(target):
+    with _target_lock(target), _process_lock(target):
         if not target.is_file():
             why = _gcc(cc, name, tmp, cflags, target, "compiling")
             if why:
