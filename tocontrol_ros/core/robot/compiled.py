@@ -217,24 +217,26 @@ def _target_lock(target: Path) -> threading.Lock:
 
 @contextmanager
 def _process_lock(target: Path) -> Iterator[None]:
-    """Held while ``target`` is built, across processes (``flock`` on ``<target>.lock``).
+    """Held while ``target`` is built, across processes (``lockf`` on ``<target>.lock``).
 
     The planner's workers and a caller's own processes share one cache: without it each
     process that misses a library compiles it (the same source, at once: three gcc runs of
     one library were seen in a benchmark's main process and its two workers). With it the
     others wait and find it built. Where ``fcntl`` is missing, no lock (the builds stay
-    correct: a library lands by an atomic rename).
+    correct: a library lands by an atomic rename). A POSIX record lock, not ``flock``: it
+    belongs to this process, so a worker forked while a build holds it does not keep it
+    (the threads of one process are kept apart by :func:`_target_lock`).
     """
     if fcntl is None:
         yield
         return
     target.parent.mkdir(parents=True, exist_ok=True)
     with open(target.with_name(target.name + ".lock"), "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
+        fcntl.lockf(handle, fcntl.LOCK_EX)
         try:
             yield
         finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+            fcntl.lockf(handle, fcntl.LOCK_UN)
 
 
 def _target(name: str, source: bytes, cflags: Sequence[str]) -> Path:
