@@ -210,7 +210,7 @@ def _bisected(col, trajectory, speeds, t: np.ndarray, bounds: np.ndarray
         # of that grid too, and their bounds are not read
         grid = (t[todo, None] + frac[None, :] * (t[todo + 1] - t[todo])[:, None]).ravel()
         q = trajectory.state(grid)[:, :col.model.n]  # positions only: no torques
-        sub = col.swept(grid, q, speeds(grid)).interval_bounds
+        sub = col.swept(grid, q, speeds(grid), least_exact=False).interval_bounds
         sub = np.append(sub, np.inf).reshape(len(todo), parts + 1)[:, :parts]
         bounds[todo] = np.maximum(bounds[todo], sub.min(axis=1))
         todo = todo[bounds[todo] < col.margin]

@@ -367,7 +367,8 @@ class CollisionModel:
         return Clearance(distance, pair, index, float(distance[index]), out)
 
 
-    def swept(self, t: np.ndarray, q: np.ndarray, velocity: np.ndarray) -> SweptClearance:
+    def swept(self, t: np.ndarray, q: np.ndarray, velocity: np.ndarray,
+              least_exact: bool = True) -> SweptClearance:
         """The clearance along a motion sampled at times ``t`` (K,) with positions ``q`` (K, n).
 
         At each time every checked pair gets a lower bound from bounding spheres
@@ -382,7 +383,9 @@ class CollisionModel:
         that is :attr:`SweptClearance.lower_bound`. :attr:`SweptClearance.minimum` is the
         least exact distance at the times: where a pair's spheres' bound (not made exact by
         the band) lies below the least exact distance found, Coal is asked there too,
-        nearest bound first (:func:`_least_exact`).
+        nearest bound first (:func:`_least_exact`). ``least_exact=False`` leaves that search
+        out, for a caller that reads only the bounds (``lower_bound``, ``interval_bounds``):
+        ``minimum``, ``pair`` and ``time`` are then the least of the distances made exact.
         """
         import coal
 
@@ -437,24 +440,27 @@ class CollisionModel:
                     k = int(np.argmin(known))
                     if known[k] < best[0]:
                         best = (float(known[k]), (a, b), float(t[k]))
-                    loose.append(((a, b), sa, geom, where, np.where(near, np.inf, bound)))
+                    if least_exact:
+                        loose.append(((a, b), sa, geom, where,
+                                      np.where(near, np.inf, bound)))
             if len(h):
                 per_interval = np.minimum(per_interval, 0.5 * (d[:-1] + d[1:]) - rate * h / 2)
                 lower = min(lower, float(np.min(per_interval)))
             else:
                 lower = min(lower, float(d[0]))
         if loose:  # the least exact distance where a sphere bound lies below it
-            best, more = _least_exact(best, loose, t, sa_placed=placed, request=request)
+            best, more = _least_exact(best, loose, t, placed, request)
             calls += more
         return SweptClearance(best[0], best[1], best[2], lower, calls, per_interval)
 
 
-def _least_exact(best: tuple, loose: list, t: np.ndarray, sa_placed, request
+def _least_exact(best: tuple, loose: list, t: np.ndarray, placed, request
                  ) -> tuple[tuple, int]:
     """``best`` made the least exact distance over every pair and time; and Coal's calls.
 
     ``best`` is ``(distance, pair, time)`` over the distances made exact (those near the
-    check's need); ``loose`` holds, per piece, the bounding spheres' lower bounds where no
+    check's need); ``placed(shape, k)`` a shape's placement at time ``k``; ``loose`` holds,
+    per piece, the bounding spheres' lower bounds (shape (K,), ``t``'s) where no
     exact distance was taken. An exact distance is at least its bound, so Coal is asked at
     the loose entries whose bound lies below the least exact distance found, nearest bound
     first, until the next bound is not below it (a fixed amount of work: at most those
@@ -463,16 +469,15 @@ def _least_exact(best: tuple, loose: list, t: np.ndarray, sa_placed, request
     import coal
 
     bounds = np.concatenate([item[-1] for item in loose])
-    count = len(loose[0][-1])
     todo = np.flatnonzero(bounds < best[0])
     calls = 0
     for j in todo[np.argsort(bounds[todo], kind="stable")]:
         if bounds[j] >= best[0]:
             break
-        pair, sa, geom, where, _ = loose[j // count]
-        k = int(j % count)
+        pair, sa, geom, where, _ = loose[j // len(t)]
+        k = int(j % len(t))
         calls += 1
-        dist = coal.distance(sa.geometry(), sa_placed(sa, k), geom, where(k), request,
+        dist = coal.distance(sa.geometry(), placed(sa, k), geom, where(k), request,
                              coal.DistanceResult())
         if dist < best[0]:
             best = (float(dist), pair, float(t[k]))
