@@ -97,6 +97,8 @@ TURN = (0.5 * np.pi, np.pi)
 #: and 35 (the counted draws whose starts that room changed) plan and pass with none
 #: (docs/collision.md, session 37).
 START_ROOM = 0.0
+#: The bench's search: the free optima's and the cases' plans (and bench/collision_ab.py's).
+OPTIONS = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
 #: Where on the free optimum a shelf or pillar is placed: the hand point at these fractions
 #: of its time, in order, until the start and the target are clear of it.
 PLACE_AT = (0.5, 0.4, 0.6, 0.3, 0.7)
@@ -141,7 +143,7 @@ def draw_table(model: RobotModel, limits: JointLimits, col: CollisionModel, coun
     return out
 
 
-def _scene(name: str, free, model, at: float = 0.5) -> tuple:
+def place_scene(name: str, free, model, at: float = 0.5) -> tuple:
     """The scene ``name`` placed on the free optimum's hand point at ``at`` T.
 
     Returns the scene, where its obstacle went and the scene's mapping (for a worker).
@@ -250,7 +252,7 @@ class _Bench:
         self.base = collision_model(self.model, urdf, srdf)
         self.table = self.base.with_scene(scene_from_dict(load_scene_dict("table"),
                                                           "bench scene table"))
-        self.options = SolverOptions(starts=4, candidates=1, time_limit=TIME_LIMIT)
+        self.options = OPTIONS
         self.draw_only = draw_only
         self.start_room = start_room
         self.rows: list = []
@@ -380,7 +382,7 @@ class _Bench:
                     continue
                 problem, why = None, ""
                 for at in PLACE_AT:
-                    scene, where, data = _scene(name, free, self.model, at)
+                    scene, where, data = place_scene(name, free, self.model, at)
                     try:
                         problem = self.problem(q0, target, self.base.with_scene(scene))
                         break

@@ -31,32 +31,13 @@ from bench.limits import draw_cases  # noqa: E402
 from tocontrol_ros.core.errors import ProblemError  # noqa: E402
 from tocontrol_ros.core.geometry.collision import CollisionModel, collision_model  # noqa: E402
 from tocontrol_ros.core.geometry.scene import scene_from_dict  # noqa: E402
-from tocontrol_ros.core.planning.solver import SolverOptions, plan  # noqa: E402
-from tocontrol_ros.core.robot.kinematics import tip_poses  # noqa: E402
+from tocontrol_ros.core.planning.solver import plan  # noqa: E402
 from tocontrol_ros.core.robot.limits import JointLimits  # noqa: E402
 from tocontrol_ros.core.robot.model import load_robot  # noqa: E402
 from tocontrol_ros.core.types.problem import Problem, joint_state, point  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LIMITED = "tocontrol_ros/core/direct/limited.py"
-
-
-#: The bench's options (``bench/collision.py``).
-OPTIONS = SolverOptions(starts=4, candidates=1, time_limit=bc.TIME_LIMIT)
-
-
-def placed(name: str, free, model, at: float):
-    """The scene ``name`` with its shelf or pillar on the free optimum's hand point at ``at`` T.
-
-    As ``bench/collision.py`` places it.
-    """
-    _, tips = tip_poses(model, free.trajectory.evaluate(np.array([at * free.T])).q)
-    data = bc.load_scene_dict(name)
-    for ob in data["obstacles"]:
-        if ob["name"] in ("shelf", "pillar"):
-            z = ob.get("position", [0, 0, 0])[2] if ob["name"] == "pillar" else tips[0][2]
-            ob["position"] = [float(tips[0][0]), float(tips[0][1]), float(z)]
-    return scene_from_dict(data, f"bench scene {name}")
 
 
 def case_problem(model, limits: JointLimits, base: CollisionModel, scene: str, draw: int
@@ -71,10 +52,10 @@ def case_problem(model, limits: JointLimits, base: CollisionModel, scene: str, d
         q0, target, _ = bc.draw_table(model, limits, table, draw + 1)[draw]
         return None if q0 is None else problem(q0, target, table)
     q0, _, target = draw_cases(model, limits, draw + 1, bc.SEED)[draw]
-    free = plan(problem(q0, target, None), OPTIONS)
+    free = plan(problem(q0, target, None), bc.OPTIONS)
     for at in bc.PLACE_AT:
         try:
-            return problem(q0, target, base.with_scene(placed(scene, free, model, at)))
+            return problem(q0, target, base.with_scene(bc.place_scene(scene, free, model, at)[0]))
         except ProblemError:
             continue
     return None
@@ -112,7 +93,7 @@ def main(cases: list[str], before: str, only: str) -> None:
         for which in only:
             direct_method.plan_limited = indirect_method.plan_limited = impl[which]
             t0, c0 = time.perf_counter(), time.process_time()
-            res = plan(problem, OPTIONS)
+            res = plan(problem, bc.OPTIONS)
             cpu, wall = time.process_time() - c0, time.perf_counter() - t0
             clear = "—"
             if res.success:
