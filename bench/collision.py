@@ -44,6 +44,7 @@ scene, no peer; ``--workers``: the counted cases planned in N spawned processes,
 import os
 import sys
 import time
+from concurrent.futures import Future
 from pathlib import Path
 
 if __name__ == "__main__":
@@ -257,8 +258,7 @@ class _Bench:
         self.start_room = start_room
         self.rows: list = []
         self.pool = pool  # a ProcessPoolExecutor planning the cases, or None: in this one
-        self.pending: list = []
-        self.done: list = []
+        self.pending: list = []  # the counted cases' (row slot, scene, cells, Future)
         self.stats = {name: {"cases": 0, "planned": 0, "clear": 0, "shorter": 0, "peer": 0,
                              "both": 0,
                              "skipped": 0, "draws": 0, "ours": [], "theirs": []}
@@ -308,18 +308,17 @@ class _Bench:
         slot = len(self.rows)
         self.rows.append(None)
         args = (i, name, *job)
-        if self.pool is None:
-            self.done.append((slot, name, free_cell, where, _run_case(self, *args)))
+        if self.pool is None:  # planned here and now, its result waiting as a worker's would
+            future = Future()
+            future.set_result(_run_case(self, *args))
         else:
-            self.pending.append((slot, name, free_cell, where,
-                                 self.pool.submit(_case_in_worker, self.start_room, *args)))
+            future = self.pool.submit(_case_in_worker, self.start_room, *args)
+        self.pending.append((slot, name, free_cell, where, future))
 
     def finish(self) -> None:
         """The workers' cases, waited for in draw order, into the rows and counts."""
         for slot, name, free_cell, where, future in self.pending:
-            self.done.append((slot, name, free_cell, where, future.result()))
-        self.pending = []
-        for slot, name, free_cell, where, out in self.done:
+            out = future.result()
             st = self.stats[name]
             st["planned"] += int(out["planned"])
             st["clear"] += int(out["clear"])
@@ -331,7 +330,7 @@ class _Bench:
                 st["both"] += int(out["planned"])
                 st["shorter"] += int(out["planned"] and out["T"] < out["peer"]["T"])
             self.rows[slot] = out["row"][:6] + [free_cell] + out["row"][6:] + [str(where)]
-        self.done = []
+        self.pending = []
 
     def table_stream(self, count: int, cases: set[int] | None) -> None:
         st = self.stats["table"]
