@@ -432,3 +432,75 @@ def test_a_library_another_process_is_building_is_waited_for_not_built_again(
     assert stdout.split() == ["compiled"]
     assert out["how"] == "cached"
     assert len(_libraries(private_cache, "race_probe")) == 1
+
+
+#: A process that holds ``two``'s build lock and, once this one waits for it, asks on
+#: another thread for ``one``'s, which this process holds: a cycle for the kernel's
+#: per-process deadlock detection, which refuses one of the two requests (``EDEADLK``).
+_CROSSED = """
+import sys, threading, time
+from pathlib import Path
+from tocontrol_ros.core.robot import compiled
+here = Path(sys.argv[1])
+errors = []
+def ask_one():
+    try:
+        with compiled._process_lock(here / "one.so"):
+            pass
+    except OSError as exc:
+        errors.append(repr(exc))
+with compiled._process_lock(here / "two.so"):
+    (here / "child holds two").touch()
+    for _ in range(2400):
+        if (here / "parent waits").exists():
+            break
+        time.sleep(0.05)
+    other = threading.Thread(target=ask_one)
+    other.start()
+    other.join(1.0)  # it waits for one (or is refused) meanwhile
+other.join(120.0)
+print(errors)
+sys.exit(1 if errors or other.is_alive() else 0)
+"""
+
+
+def test_a_lock_refused_as_a_deadlock_between_processes_is_waited_out(tmp_path):
+    """Build locks crossed between two processes on two threads each (a library each
+    builds, the other's asked for meanwhile): no real deadlock (each build ends), but the
+    kernel sees locks per process and refuses one request with ``EDEADLK``; that request
+    waits and gets its lock instead of failing (a warm-up thread died of it before)."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    out: dict = {}
+
+    def ask_two():
+        try:
+            with compiled._process_lock(tmp_path / "two.so"):
+                out["two"] = True
+        except OSError as exc:
+            out["error"] = repr(exc)
+
+    with compiled._process_lock(tmp_path / "one.so"):
+        child = subprocess.Popen([sys.executable, "-c", _CROSSED, str(tmp_path)],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 env=dict(os.environ))
+        for _ in range(2400):  # bounded: the child's import
+            if (tmp_path / "child holds two").exists() or child.poll() is not None:
+                break
+            time.sleep(0.05)
+        assert (tmp_path / "child holds two").exists(), child.communicate()[1][-2000:]
+        mine = threading.Thread(target=ask_two)
+        mine.start()
+        mine.join(1.0)  # it waits for two (or is refused) meanwhile
+        (tmp_path / "parent waits").touch()
+        mine.join(120.0)  # the child lets two go once its other thread asked for one
+    try:
+        stdout, stderr = child.communicate(timeout=120.0)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert out == {"two": True}, out
+    assert child.returncode == 0, (stdout, stderr[-2000:])

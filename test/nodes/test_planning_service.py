@@ -242,6 +242,32 @@ def test_the_warm_up_reports_ready(make_service):
     assert events[0] == "warming up" and events[-1] == "ready"
 
 
+class BrokenBuildPlanner(FakePlanner):
+    """Its warm-up build fails as a compile lock refused by the kernel once did."""
+
+    def prepare(self, problem, options) -> None:
+        raise OSError(35, "Resource deadlock avoided")
+
+
+def test_a_warm_up_that_fails_says_so_and_the_service_still_serves():
+    config = config_from_values({}, task_dim=MODEL.m)
+    out = FakeOutputs()
+    service = PlanningService(MODEL, planner_limits(config, MODEL), config, "base_link",
+                              out, FakeArm(), FakeClock().clock(),
+                              planner_factory=BrokenBuildPlanner)
+    service.start()
+    try:
+        assert service.ready.wait(WAIT), "the worker died in the warm-up"
+        ready = [e for e in out.statuses() if e[3]["event"] == "ready"]
+        assert len(ready) == 1 and "warm-up failed: OSError" in ready[0][2], ready
+        req = request(service)
+        service.submit(req)
+        wait_done(req)
+        assert final(out, req)["event"] == "solved"
+    finally:
+        service.stop()
+
+
 def test_a_newer_request_supersedes_the_pending_one_and_cancels_the_running_one(make_service):
     service, out = make_service()
     a = request(service)

@@ -99,6 +99,10 @@ def _warm_up_solves(service: Any) -> str:
                 note = f" (warm-up solve: {result.message})"
     except TocontrolError as exc:
         note = f" (warm-up skipped: {exc})"
+    except Exception as exc:  # noqa: BLE001  (the worker must go on to serve requests)
+        # An error of the builds (a compiler, the cache's disk or lock): the node serves
+        # anyway, each request building what it needs and failing with its own message.
+        note = f" (warm-up failed: {type(exc).__name__}: {exc})"
     return note
 
 
@@ -119,7 +123,7 @@ def load_optimised(service: Any) -> None:
     try:
         for problem in warm_up_problems(config, service.model, service.limits):
             planner.prepare(problem, options)
-    except TocontrolError:
+    except Exception:  # noqa: BLE001  (the worker serves on with the planner it has)
         return
     service.planner = planner
     service.out.status("OK", f"optimised code loaded in {service.clock.monotonic() - t0:.1f} s",

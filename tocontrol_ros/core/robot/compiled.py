@@ -26,6 +26,7 @@ one once it has landed, without generating the source again.
 
 from __future__ import annotations
 
+import errno
 import functools
 import glob
 import hashlib
@@ -83,6 +84,9 @@ QUICK_SOURCE = 200_000
 QUICK_CFLAGS = ("-O0", "-march=native", *SAME_BITS, "-shared", "-fPIC")
 #: Niceness of the background builds: a solve running meanwhile keeps its core.
 BACKGROUND_NICE = 10
+#: Seconds between requests for a library's build lock that the kernel refused as a
+#: deadlock between processes (:func:`_process_lock`: a false one, seen per process).
+LOCK_RETRY = 0.05
 #: Background builds run one at a time per cache directory (gcc takes up to a GB on the
 #: longest sources); a process has one cache unless ``TOCONTROL_CACHE`` changes (tests).
 _background_slots: dict[Path, threading.Semaphore] = {}
@@ -226,13 +230,28 @@ def _process_lock(target: Path) -> Iterator[None]:
     correct: a library lands by an atomic rename). A POSIX record lock, not ``flock``: it
     belongs to this process, so a worker forked while a build holds it does not keep it
     (the threads of one process are kept apart by :func:`_target_lock`).
+
+    The kernel's deadlock detection sees locks per process, not per thread: process A
+    building library 1 on one thread and waiting for library 2 on another, while process B
+    builds 2 and waits for 1, is refused with ``EDEADLK`` although each build ends and
+    lets the other go on (no build holds one library's lock while it waits for another's).
+    Seen with three planner nodes warming up on one new cache (a warm-up thread killed by
+    the error). Such a refusal is waited out: the request is made again every
+    :data:`LOCK_RETRY` seconds until it is granted.
     """
     if fcntl is None:
         yield
         return
     target.parent.mkdir(parents=True, exist_ok=True)
     with open(target.with_name(target.name + ".lock"), "a") as handle:
-        fcntl.lockf(handle, fcntl.LOCK_EX)
+        while True:
+            try:
+                fcntl.lockf(handle, fcntl.LOCK_EX)
+                break
+            except OSError as exc:
+                if exc.errno != errno.EDEADLK:
+                    raise
+                time.sleep(LOCK_RETRY)
         try:
             yield
         finally:
