@@ -108,7 +108,8 @@ class Harness:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.probe)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         if spin:
             self.start()
         self.wait(lambda: self.pub.get_subscription_count() > 0, "tracker subscription")
@@ -116,6 +117,13 @@ class Harness:
     def start(self):
         """Spin the executor (a harness made with ``spin=False``: nothing taken until now)."""
         self.thread.start()
+
+    def _spin(self):
+        # Spun here until stop() asks, so that the executor is shut down only once no
+        # callback runs: shutting it down under a running spin() raced with the callback's
+        # guard condition (rclpy InvalidHandle in the spin thread, seen under load).
+        while not self._stopping.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def _keep(self, store):
         def callback(msg):
@@ -141,9 +149,10 @@ class Harness:
             return found()[0]
 
     def stop(self):
-        self.executor.shutdown(timeout_sec=2.0)
+        self._stopping.set()
         if self.thread.is_alive():
-            self.thread.join(timeout=2.0)
+            self.thread.join(timeout=30.0)  # a hang guard: one callback, then the loop ends
+        self.executor.shutdown(timeout_sec=2.0)
         self.node.destroy_node()
         self.probe.destroy_node()
         rclpy.try_shutdown(context=self.context)
