@@ -115,6 +115,26 @@ def test_recall_hands_the_first_motion_over_once_and_the_hit_is_unchanged(memory
     assert found.result.T == plain.result.T and found.iterations == plain.iterations
 
 
+def test_a_first_motion_much_slower_than_the_stored_one_is_not_offered(memory, monkeypatch):
+    """The bound on a hit's first motion: at FIRST_MAX_RATIO times the stored motion's T
+    (0.5 here, below any motion of the request) no iterate is offered, the slow ones are
+    not even checked, and the hit's answer is the one without a receiver."""
+    from tocontrol_ros.core.memory import recall as recall_mod
+
+    planner, store = memory
+    options = replace(OPTIONS, time_limit=SLOW_OK)
+    plain = recall(planner, problem(HITS[1]), options, store, spans=SPANS)
+    monkeypatch.setattr(recall_mod, "FIRST_MAX_RATIO", 0.5)
+    firsts = []
+    found = recall(planner, problem(HITS[1]), options, store, spans=SPANS,
+                   first=firsts.append)
+    assert firsts == [] and found.first is None
+    assert found.result is not None and found.result.T == plain.result.T
+    assert found.iterations == plain.iterations
+    with pytest.raises(ValueError, match="max_T"):
+        EarlyMotion(offer=firsts.append, max_T=0.0)
+
+
 def test_a_hit_never_feasible_before_convergence_offers_nothing(memory, monkeypatch):
     # Every iterate taken as outside the residual's tolerance (the watcher's test alone: the
     # converged answer is judged by the bounded solve's own, unchanged).

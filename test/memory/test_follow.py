@@ -148,6 +148,32 @@ def test_a_distant_warm_start_goes_to_ipopt_with_its_wider_barrier(served):
     assert far.T == pytest.approx(single.T, rel=1e-6)
 
 
+@pytest.mark.parametrize("move, step", [(0.004, True), (0.013, False)])
+def test_a_near_hit_tries_the_step_then_the_distant_start(served, move, step):
+    """``warm_far`` whatever the move: a hit within ``FAR_STEP_MOVE`` sub-moves (0.6 cm)
+    tries the single parametric step first (where it fails, IPOPT goes on from the distant
+    start and says so); a farther one, 1.3 cm here, goes to IPOPT's distant start at once,
+    no step. Each answer certified, the same optimum of the NLP as the replans' route."""
+    from tocontrol_ros.core.direct.tuning import FAR_MU
+
+    planner, serve = served
+    target = STORED + move * np.array([0.6, 0.8])
+    options = replace(OPTIONS, warm_only=True, replan_spans=SPANS, warm_far=True,
+                      time_limit=SLOW_OK)
+    res = solve_once(planner, problem(target), options, serve, None,
+                     time.perf_counter() + SLOW_OK)
+    assert res.success and res.certificate.passed, res.message
+    assert certify_open_loop(problem(target), res.trajectory, res.certificate.options).passed
+    text = " ".join(res.warnings)
+    if step:
+        assert _route(res) == "parametric" or (
+            "parametric step" in text and f"barrier from {FAR_MU:g} (route: ipopt)" in text), text
+    else:
+        assert "a distant warm start (warm_far)" in text and "parametric step" not in text
+    single = _warm(planner, serve, target, follow=False)
+    assert res.T == pytest.approx(single.T, rel=1e-6)
+
+
 def test_recall_re_solves_a_hit_as_a_distant_warm_start(served, tmp_path):
     from tocontrol_ros.core.memory.recall import open_memory, recall, remember
     from tocontrol_ros.core.memory.serve import convert

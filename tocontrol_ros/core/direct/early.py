@@ -77,7 +77,9 @@ def iterate_watch(ctx: SolveContext, flat: FlatTranscription, values: tuple, bou
         residual = violation(w, g, lbg, ubg, lbx, ubx)
         seen = {"iteration": iteration, "T": T, "residual": residual, "inside": None,
                 "certified": None, "at": t0}
-        if residual <= RESIDUAL_TOL or early.full:
+        if T > early.max_T:
+            seen["slow"] = True  # not worth its checks: not offered
+        elif residual <= RESIDUAL_TOL or early.full:
             try:
                 _check(ctx, seen, flat, iteration, T, P, residual, values, bounds,
                        dict(timings), t_start, what)
@@ -106,5 +108,7 @@ def _check(ctx: SolveContext, seen: dict, flat: FlatTranscription, iteration: in
     early: EarlyMotion = ctx.early
     seen["certified"] = bool(result.success)
     seen["published_T"] = float(result.T)
-    if result.success:
+    if result.success and result.T > early.max_T:
+        seen["slow"] = True  # slowed down into the set beyond the bound: not offered
+    elif result.success:
         early.done = bool(early.offer(result))

@@ -37,7 +37,7 @@ from tocontrol_ros.core.direct.detour import detour_guess, path_collides
 from tocontrol_ros.core.direct.early import iterate_watch
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory, refined_breaks
-from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, sub_moves
+from tocontrol_ros.core.direct.path_following import MAX_MOVES, follow, move_size, sub_moves
 from tocontrol_ros.core.direct.sensitivity import (
     PATH_SOLVES,
     PATH_STEPS,
@@ -47,6 +47,7 @@ from tocontrol_ros.core.direct.sensitivity import (
 )
 from tocontrol_ros.core.direct.tuning import (
     FAR_MU,
+    FAR_STEP_MOVE,
     FINE_GUESS_INTERVALS,
     FINE_GUESS_TOL,
     GUESS_WINDOW,
@@ -327,11 +328,12 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
     tried first; with ``ctx.options.warm_follow`` and ``solved``, the problem the warm state
     solves, of the same kinds of ends, it walks from it in sub-moves
     (:func:`~.path_following.follow`: a memory's hit, 2-8 cm from its stored neighbour),
-    else in one move (a replan). With ``ctx.options.warm_far`` (a memory's hit) and a move
-    from ``solved`` of more than one sub-move (more than 2 cm of a point end, or ``solved``
-    not comparable), IPOPT starts from the multipliers as
-    ``FlatTranscription(warm="dual_far")`` does, and the single step is not tried (the walk
-    is, with ``warm_follow``). IPOPT's certified iterates go to ``ctx.early`` (:mod:`~.early`).
+    else in one move (a replan). With ``ctx.options.warm_far`` (a memory's hit), IPOPT
+    starts from the multipliers as ``FlatTranscription(warm="dual_far")`` does, whatever the
+    move; the single step is tried before it only for a move from ``solved`` of at most
+    :data:`~.tuning.FAR_STEP_MOVE` sub-moves (0.6 cm of a point end; the walk, with
+    ``warm_follow``, for longer ones). IPOPT's certified iterates go to ``ctx.early``
+    (:mod:`~.early`).
     """
     problem = ctx.problem
     t0 = time.perf_counter()
@@ -348,19 +350,24 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
         pad = _row_pads(flat, warm, problem.k)  # its own mesh: the pads its path asks for
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
-            # A distant warm start (a memory's hit) farther than one sub-move; a move of a
-            # replan's size keeps the replans' start (the wider barrier costs it iterations).
-            far = ctx.options.warm_far and not (
-                _same_kinds(solved, problem) and sub_moves(
-                    (solved.start.value, solved.target.value, solved.k), values) <= 1)
+            # A memory's hit (warm_far): IPOPT from the distant start whatever the move; a
+            # move of FAR_STEP_MOVE or less tries the parametric step first (a replan, one
+            # sub-move or less). From the replans' start IPOPT failed 10 of 72 hits of
+            # 0.5-2 cm (150 iterations, up to 8 s) where the distant start certified 72 of
+            # 72 (bench/memory_density.py, docs/memory.md "A denser memory").
+            far = ctx.options.warm_far
+            step_first = not far or (_same_kinds(solved, problem) and move_size(
+                (solved.start.value, solved.target.value, solved.k), values) <= FAR_STEP_MOVE)
             flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-            if ctx.options.warm_parametric and (ctx.options.warm_follow or not far):
+            if ctx.options.warm_parametric and (ctx.options.warm_follow or step_first):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
                                         solved, pad)
                 if done is not None:
                     return done
-                route = [f"{why}; solved by IPOPT instead (route: ipopt)"]
+                route = [f"{why}; solved by IPOPT instead"
+                         + (f", from its multipliers with the barrier from {FAR_MU:g}"
+                            if far else "") + " (route: ipopt)"]
             elif far:
                 route = [f"a distant warm start (warm_far): IPOPT from its multipliers, the "
                          f"barrier from {FAR_MU:g} (route: ipopt)"]

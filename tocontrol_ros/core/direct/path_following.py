@@ -28,8 +28,8 @@ import numpy as np
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
 from tocontrol_ros.core.direct.sensitivity import sensitivity_solve
 
-__all__ = ["FollowOutcome", "follow", "sub_moves", "POINT_STEP", "JOINT_STEP", "HALVINGS",
-           "MAX_MOVES"]
+__all__ = ["FollowOutcome", "follow", "move_size", "sub_moves", "POINT_STEP", "JOINT_STEP",
+           "HALVINGS", "MAX_MOVES"]
 
 #: Largest move of a point end per sub-move (m): the replans' 2 cm, where the parametric
 #: step converged on 12 of 20 Panda moves (docs/limits.md).
@@ -73,6 +73,20 @@ class FollowOutcome:
     reason: str
 
 
+def move_size(old: tuple, new: tuple) -> float:
+    """The move from ``old`` to ``new`` parameters, ``(start, target, k)`` each, in sub-moves.
+
+    A point end (shape (m,), m <= 3) in units of :data:`POINT_STEP` (Euclidean), a joint
+    state end (2n,) in units of :data:`JOINT_STEP` (max-norm); the larger of the two ends.
+    """
+    size = 0.0
+    for a, b in zip(old[:2], new[:2], strict=True):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        size = max(size, float(np.linalg.norm(b - a)) / POINT_STEP if a.size <= 3
+                   else float(np.max(np.abs(b - a))) / JOINT_STEP)
+    return size
+
+
 def sub_moves(old: tuple, new: tuple) -> int:
     """Sub-moves from ``old`` to ``new`` parameters, ``(start, target, k)`` each.
 
@@ -80,13 +94,7 @@ def sub_moves(old: tuple, new: tuple) -> int:
     sub-move, a joint state end (2n,) at most :data:`JOINT_STEP` (max-norm); ``k`` in as
     many as the ends need. At least 1.
     """
-    count = 1
-    for a, b in zip(old[:2], new[:2], strict=True):
-        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        move = float(np.linalg.norm(b - a)) / POINT_STEP if a.size <= 3 \
-            else float(np.max(np.abs(b - a))) / JOINT_STEP
-        count = max(count, math.ceil(move - 1e-9))
-    return count
+    return max(1, math.ceil(move_size(old, new) - 1e-9))
 
 
 def _along(old: tuple, new: tuple, s: float) -> tuple:

@@ -164,6 +164,14 @@ TIGHT_MU = 1e-9
 #: in all; 1e-4: median 70; 1e-5 with the default pushes: 13/14, median 55; IPOPT's
 #: adaptive barrier from 1e-3: 13/14, median 63 (docs/memory.md).
 FAR_MU = 1e-5
+#: A memory's hit (``warm_far``) tries the single parametric step before IPOPT only where
+#: its move is at most this many sub-moves (``path_following.move_size``: 0.6 cm of a point
+#: end, so that the measured 0.5 cm moves are in). On the Panda cell's 64-span serving
+#: states (bench/memory_density.py, 8 stored motions, 24 moves each): the step arrived on
+#: 15/24 moves of 0.5 cm (median 104 ms a hit against 170 ms from IPOPT's distant start),
+#: on 4/24 of 1 cm and 2/24 of 2 cm, where the failed steps cost more than they saved (276
+#: and 260 ms against 222 and 203).
+FAR_STEP_MOVE = 0.3
 
 #: IPOPT's first barrier parameter when a solution is solved again with a wider set pad
 #: (``FlatTranscription(warm="resume")``; the start moved at most ``WARM_PUSH`` inside its

@@ -67,6 +67,11 @@ class EarlyMotion:
     seen : list of dict
     done : bool
         Set when ``offer`` returned True.
+    max_T : float
+        An iterate slower than this (s), or whose motion held inside the set is, is not
+        offered (its record says ``slow``); the checks go on with the next iterates. A
+        memory hit's bound is its stored motions' (:mod:`~tocontrol_ros.core.memory.recall`):
+        an IPOPT iterate 14 times slower than the optimum was published first once.
     """
 
     offer: Callable[[PlanResult], bool]
@@ -74,10 +79,13 @@ class EarlyMotion:
     full: bool = False
     seen: list = field(default_factory=list)
     done: bool = False
+    max_T: float = float("inf")
 
     def __post_init__(self) -> None:
         if int(self.every) < 1:
             raise ValueError(f"`every` must be at least 1, got {self.every!r}")
+        if not float(self.max_T) > 0.0:
+            raise ValueError(f"`max_T` must be positive (s), got {self.max_T!r}")
 
 
 @dataclass(frozen=True)
