@@ -9,6 +9,8 @@ nothing is solved.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,25 @@ def test_first_success_stops_at_the_nearest_basin_that_solves(memory):
     assert first.result is not None and len(first.messages) == 1, first.messages
     assert first.starts == ("own mesh",) and first.iterations == first.result.iterations
     assert every.result is not None and every.result.T <= first.result.T
+
+
+def test_maximum_principle_basins_stay_one_after_the_other(memory, monkeypatch):
+    """With workers, the maximum principle's stored motions are not handed to the pool (its
+    results hold CasADi expressions that do not pickle): re-solved one after the other, the
+    same answer as with one worker. (The bounded motions' side by side: test_serve.py.)"""
+    planner, store = memory
+    problem = Problem(MODEL, point(PAPER_START), point([2.25, 1.45]), k=4)
+    alone = recall(planner, problem, OPTIONS, store, radius=10.0, basins=3)
+    maps = []
+    real = type(planner).map
+
+    def recorded(self, fn, ctx, items):
+        maps.append((fn.__name__, len(items), ctx.options.workers))
+        return real(self, fn, ctx, items)
+    monkeypatch.setattr(type(planner), "map", recorded)
+    side = recall(planner, problem, replace(OPTIONS, workers=2), store, radius=10.0, basins=3)
+    assert maps == [], maps
+    assert len(alone.entries) >= 2 and side.entries == alone.entries
+    assert side.result is not None and alone.result is not None
+    assert side.result.T == alone.result.T and side.result.success
+    assert (side.starts, side.iterations) == (alone.starts, alone.iterations)

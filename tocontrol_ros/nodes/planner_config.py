@@ -261,9 +261,10 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     ParameterSpec("memory_radius", 1.0, "Largest distance of a hit, in units of the warm "
                   "start's radii (each end point 0.1 m, each joint-state end 0.05 rad): a "
                   "stored motion farther from the request is not tried.", 0.0, 5.0),
-    ParameterSpec("memory_basins", 2, "Stored motions re-solved warm per hit, nearest "
-                  "first, one per basin (end configurations more than 0.3 rad apart); the "
-                  "least T certified is published.", 1, 16),
+    ParameterSpec("memory_basins", 3, "Stored motions re-solved warm per hit, nearest "
+                  "first, one per basin (end configurations more than 0.3 rad apart), side "
+                  "by side in the worker processes when workers is not 1; the least T "
+                  "certified is published.", 1, 16),
     ParameterSpec("memory_first_success", False, "Re-solve the next basin only when the "
                   "nearer one failed: one warm solve per hit instead of memory_basins, at the "
                   "nearest basin's T (above the multistart's by more than 1e-3 on 8 of 37 "
@@ -359,7 +360,7 @@ class PlannerConfig:
     robot_description_semantic: str = ""
     memory: str = ""
     memory_radius: float = 1.0
-    memory_basins: int = 2
+    memory_basins: int = 3
     memory_first_success: bool = False
     memory_spans: int = 64
     memory_learn: bool = False

@@ -36,6 +36,15 @@ fitted to the mesh, as before; on its own mesh
 (``spans`` 0), from its path and multipliers, then its path alone. Bounded by work: at most
 two warm solves per basin tried.
 
+With more than one basin to re-solve, all of them bounded motions (a real arm's; a maximum
+principle's result does not cross processes), and neither ``first_success`` nor ``first``,
+the basins' re-solves run side by side where ``options.workers`` gives more than one
+process (0: one per core, the planner node's default), as the multistart's pieces do
+(:meth:`~tocontrol_ros.core.planning.prepared.PreparedModel.map`: this process and the
+planner's worker processes), so a hit takes about its slowest basin's time instead of their
+sum; each re-solve is a deterministic function of its inputs and the results are compared
+in the same order, so the answer is the one of the re-solves one after the other.
+
 With a ``first`` receiver (the planner's ``publish: first_then_optimum``), the first warm
 re-solve's IPOPT iterates are checked as they come (every :data:`EARLY_EVERY`-th: the NLP's
 residual, the set between the samples, the certificate;
@@ -66,8 +75,8 @@ from tocontrol_ros.core.memory.codec import (
 )
 from tocontrol_ros.core.memory.keys import options_hash, options_summary, robot_hash
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, Request
-from tocontrol_ros.core.methods.context import EarlyMotion
-from tocontrol_ros.core.planning.solver import solve_once
+from tocontrol_ros.core.methods.context import EarlyMotion, SolveContext
+from tocontrol_ros.core.planning.solver import solve_in
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.core.types.result import PlanResult
 from tocontrol_ros.core.types.tuning import WARM_RADIUS
@@ -80,9 +89,11 @@ __all__ = ["Recall", "recall", "distances", "choose", "remember", "entry_fields"
 #: Panda's distinct optima of one request differ by tenths of a radian to radians in some
 #: joint, neighbours of one basin by far less.
 BASIN_RADIUS = 0.3
-#: Basins re-solved per request by default: the nearest and one more (each costs one warm
-#: solve; more than two rarely changed the answer in the benchmark's cell).
-DEFAULT_BASINS = 2
+#: Basins re-solved per request by default: the nearest three (each costs one warm solve;
+#: side by side on the planner's worker processes). On the benchmark's full cell (50 hits,
+#: session 39) two basins left `T` more than 1e-3 above the default multistart's on 3
+#: (cases 32, 39, 42: +2.3, +0.45, +1.8 %), three on 2 (case 32 then +0.04 %), four on 1.
+DEFAULT_BASINS = 3
 #: Default radius of a hit, in warm units (1 = the warm start's own radius).
 DEFAULT_RADIUS = 1.0
 #: Uniform B-spline spans of a bounded warm re-solve (``SolverOptions.replan_spans``): the
@@ -98,6 +109,11 @@ DEFAULT_SPANS = 64
 EARLY_EVERY = 1
 #: Spacing of the stored trajectory's samples (s): the planner's default sample period.
 SAMPLE_PERIOD = 0.005
+#: A hit's first motion (a certified IPOPT iterate, ``first``) is offered only when its
+#: ``T`` is at most this times the slowest of the stored motions re-solved: on the Panda
+#: cell's 50 hits the first motions were a median 1.45 % above the optimum that followed,
+#: and one 14 times above it (BENCHMARKS.md, issue 50), which a node then ran first.
+FIRST_MAX_RATIO = 1.5
 
 
 @dataclass(frozen=True)
@@ -247,7 +263,8 @@ def recall(planner, problem: Problem, options, store: MotionStore,
     first : callable, optional
         ``first(result)``: called once, from inside the solve, with the first certified
         IPOPT iterate of the re-solves (checked every :data:`EARLY_EVERY` iterations)
-        before it converged; the re-solves then go on as without it.
+        before it converged, not slower than :data:`FIRST_MAX_RATIO` times the slowest
+        stored motion chosen; the re-solves then go on as without it.
 
     Returns
     -------
@@ -280,39 +297,58 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         offered.append((time.perf_counter() - t0, result))
         first(result)
         return True
-    early = EarlyMotion(offer, EARLY_EVERY) if first is not None else None
+    early = EarlyMotion(offer, EARLY_EVERY, max_T=FIRST_MAX_RATIO * max(
+        float(keys["T"][i]) for i in rows)) if first is not None else None
+    # The early receiver offers once (EarlyMotion.done), whichever re-solve comes first.
+    ctx = SolveContext(planner.system, problem, warm_options, deadline, should_stop,
+                       early=early)
+    # Side by side where nothing depends on the order (PreparedModel.map decides whether
+    # there are workers to share them with).
+    side_by_side = early is None and not first_success and len(rows) > 1
+    pending: list = []  # (row, entry, its starts): decoded, not yet re-solved
+    solved: list = []  # (row, entry, _entry_item's out), in the rows' order
     for i in rows:
+        if should_stop is not None and should_stop():
+            break
         t1 = time.perf_counter()
         try:
             entry = store.get(int(keys["id"][i]))
-            tries = _warm_starts(problem, entry, spans)
+            pending.append((i, entry, _warm_starts(problem, entry, spans)))
         except (CodecError, MemoryFileError) as exc:
             messages.append(f"entry {int(keys['id'][i])}: {exc}")
-            t_decode += time.perf_counter() - t1
             continue
+        finally:
+            t_decode += time.perf_counter() - t1
+        if side_by_side:
+            continue
+        i, entry, tries = pending.pop()
         t2 = time.perf_counter()
-        t_decode += t2 - t1
-        result, tried = None, []
-        for start, warm in tries:
-            if warm is None or (result is not None and result.success) or \
-                    (should_stop is not None and should_stop()):
-                continue
-            result = solve_once(planner, problem, warm_options, warm, should_stop, deadline,
-                                None if offered else early)
-            iterations += int(result.iterations)
-            t_cert += float(result.timings.get("verify", 0.0))
-            tried.append(start)
+        out = _entry_item(planner, ctx, tries)
         t_solve += time.perf_counter() - t2
-        starts.extend(tried)
-        messages.append(f"entry {entry.id} (d = {dist[i]:.3g}, stored T = {entry.T:.6g} s, "
-                        f"from {' then '.join(tried)}): "
-                        + (result.message if result is not None else "not solved"))
-        if result is not None and result.success and (best is None or result.T < best.T):
-            best = result
-        if first_success and best is not None:
+        solved.append((i, entry, out))
+        if first_success and out[0] is not None and out[0].success:
             break
-        if should_stop is not None and should_stop():
-            break
+    if pending:
+        t2 = time.perf_counter()
+        outs = None
+        if all(entry.warm_kind == "path" for _, entry, _ in pending):
+            # The basins' re-solves side by side (the planner's worker processes, as the
+            # multistart's pieces): the hit takes the slowest one's time, not their sum;
+            # each result is a deterministic function of its inputs: the same answer.
+            try:
+                outs = list(planner.map(_entry_item, ctx, [(t,) for _, _, t in pending]))
+            except RuntimeError as exc:  # a worker's failure (a result that won't pickle)
+                messages.append(f"side by side failed ({exc}): one after the other")
+        if outs is None:
+            # A maximum principle's motion holds CasADi expressions that do not cross
+            # processes: one after the other (a bounded motion, a real arm's, goes above).
+            outs = [_entry_item(planner, ctx, tries) for _, _, tries in pending]
+        t_solve += time.perf_counter() - t2
+        solved += [(i, entry, out) for (i, entry, _), out in zip(pending, outs, strict=True)]
+    for i, entry, out in solved:
+        best = _count(out, entry, dist[i], best, messages, starts)
+        iterations += out[2]
+        t_cert += out[3]
     total = time.perf_counter() - t0
     return Recall(True, nearest, best, tuple(int(keys["id"][i]) for i in rows),
                   tuple(float(keys["T"][i]) for i in rows), tuple(messages),
@@ -320,6 +356,39 @@ def recall(planner, problem: Problem, options, store: MotionStore,
                    "certificate": t_cert, "total": total}, iterations, tuple(starts),
                   offered[0][1] if offered else None,
                   offered[0][0] if offered else math.nan)
+
+
+def _entry_item(compiled, ctx: SolveContext, tries: list) -> tuple:
+    """One entry's warm re-solves, its starts in order until one succeeds.
+
+    A piece of :meth:`~tocontrol_ros.core.planning.prepared.PreparedModel.map` (maybe in a
+    worker process: ``compiled`` is then the worker's prepared model). Each re-solve in a
+    context of its own (:func:`~tocontrol_ros.core.planning.solver.solve_in`). Returns
+    ``(result or None, the starts tried, IPOPT iterations, certificate seconds)``.
+    """
+    result, tried, iterations, cert = None, [], 0, 0.0
+    for start, warm in tries:
+        if warm is None or (result is not None and result.success) or \
+                (ctx.should_stop is not None and ctx.should_stop()):
+            continue
+        result = solve_in(compiled, replace(ctx, memo={}), warm)
+        iterations += int(result.iterations)
+        cert += float(result.timings.get("verify", 0.0))
+        tried.append(start)
+    return result, tried, iterations, cert
+
+
+def _count(out: tuple, entry, distance: float, best: PlanResult | None, messages: list,
+           starts: list) -> PlanResult | None:
+    """Record one entry's re-solves (:func:`_entry_item`'s ``out``); the better result."""
+    result, tried = out[0], out[1]
+    starts.extend(tried)
+    messages.append(f"entry {entry.id} (d = {distance:.3g}, stored T = {entry.T:.6g} s, "
+                    f"from {' then '.join(tried)}): "
+                    + (result.message if result is not None else "not solved"))
+    if result is not None and result.success and (best is None or result.T < best.T):
+        return result
+    return best
 
 
 def _warm_starts(problem: Problem, entry, spans: int) -> list:

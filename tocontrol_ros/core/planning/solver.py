@@ -73,7 +73,7 @@ from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, StartRecord, Status
 
 __all__ = ["Status", "SolverOptions", "StartRecord", "PlanResult", "Planner", "plan", "solve_once",
-           "verify"]
+           "solve_in", "verify"]
 
 
 #: Test hook (issue 53): ``TOCONTROL_SLOW_SOLVER=f`` (f > 1) makes each solve of this module
@@ -335,6 +335,22 @@ def solve_once(planner: Planner, problem: Problem, options: SolverOptions,
     """
     t_start = time.perf_counter()
     ctx = SolveContext(planner.system, problem, options, deadline, should_stop, early=early)
+    return solve_in(planner, ctx, warm_start, t_start)
+
+
+@_slowed
+def solve_in(compiled: PreparedModel, ctx: SolveContext, warm_start: PlanResult | None,
+             t_start: float | None = None) -> PlanResult:
+    """:func:`solve_once` in a given context: ``ctx.problem`` by ``compiled``'s functions.
+
+    A piece of :meth:`PreparedModel.map` may call it in a worker process with the context it
+    was given (``compiled`` is then the worker's own prepared model, whose system the
+    solve uses). ``t_start``: ``time.perf_counter()`` at the call (now by default).
+    """
+    t_start = time.perf_counter() if t_start is None else t_start
+    problem, options = ctx.problem, ctx.options
+    if ctx.system is None:
+        ctx = replace(ctx, system=compiled.system)
     timings = {"guess": 0.0, "shooting": 0.0, "refine": 0.0, "verify": 0.0}
     if problem.is_trivial():
         timings["total"] = time.perf_counter() - t_start
@@ -349,9 +365,9 @@ def solve_once(planner: Planner, problem: Problem, options: SolverOptions,
                     problem, Status.NEWTON_FAILED, "no method continues the warm start's "
                     f"state ({type(warm_start.warm_state).__name__})", timings,
                     k=float("nan"))
-            return owner.warm_start(planner, ctx, warm_start, timings, t_start)
-        ctx.extend(method.prepare(planner, problem, options))
-        return method.solve(planner, ctx, timings, t_start)
+            return owner.warm_start(compiled, ctx, warm_start, timings, t_start)
+        ctx.extend(method.prepare(compiled, problem, options))
+        return method.solve(compiled, ctx, timings, t_start)
     except StopError as stop:
         best = None
         if stop.status is Status.TIME_LIMIT:
