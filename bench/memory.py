@@ -21,13 +21,13 @@ Measured:
   wall time, motions converted, median iterations, the serving mesh's ``T`` against the
   stored one.
 - *Serving, through the node as deployed*: three planner processes (``python -P -m
-  tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default options
-  otherwise: one with ``memory`` set (two basins re-solved, the least ``T``), one with
-  ``memory``, ``memory_first_success`` (the next basin only when the nearest failed; the
-  inside requests only) and ``publish: first_then_optimum`` (a hit's first certified IPOPT
-  iterate published at once: the time from the request to it and its ``T``, from its
-  ``first`` status), one without (the full default multistart: the reference). A client
-  in this process calls ``~/plan`` on each in turn (the order
+  tocontrol_ros.planner``) with the Panda as above, ``warm_start:=false``, the default
+  options otherwise: one with ``memory`` set (``memory_basins`` basins re-solved, the least
+  ``T``), one with ``memory``, ``memory_first_success`` (the next basin only when the
+  nearest failed; the inside requests only) and ``publish: first_then_optimum`` (a hit's
+  first certified IPOPT iterate published at once: the time from the request to it and its
+  ``T``, from its ``first`` status), one without (the full default multistart: the
+  reference). A client in this process calls ``~/plan`` on each in turn (the order
   alternating), after one uncounted call each; the round trip is request sent to response
   received, ``T``, the certificate and ``memory: hit|miss`` come from the request's final
   ``~/status``. Inside: median and p95 latency with the memory, certified count, ``T``
@@ -437,6 +437,8 @@ def first_motions(f: dict) -> str:
 
 def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
              files: tuple = (CELL, REQUESTS)) -> Section:
+    from tocontrol_ros.core.memory.recall import DEFAULT_BASINS
+
     ins, outs = out["inside"], out["outside"]
     mem, first = _served(ins, "memory"), _served(ins, "first")
     cold_lat = [g["cold"][0] for g in ins]
@@ -508,7 +510,8 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
         f"{statistics.median(cold_lat):.2f} s, p95 {_quantile(cold_lat, 0.95):.2f} s, on the "
         f"memory node's hits median {_med(hit_cold):.2f} s).",
         "",
-        "- " + served(mem, "memory, 2 basins re-solved (the default)"),
+        "- " + served(mem, f"memory, {DEFAULT_BASINS} basins re-solved side by side (the "
+                      f"default)"),
         "- " + served(first, "memory, `memory_first_success` and `publish: "
                       "first_then_optimum` (the second basin only when the nearest failed; "
                       "asked only the requests with a stored motion within the radius: the "
@@ -517,7 +520,7 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
         "",
         "Where a hit's time goes (medians over the hits):",
         "",
-        "- " + went(where, "two basins"),
+        "- " + went(where, f"{DEFAULT_BASINS} basins"),
         "- " + went(where_first, "`memory_first_success`"),
         "",
         f"The memory node's first hit after start (not counted: it builds the transcriptions "

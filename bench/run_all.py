@@ -10,7 +10,7 @@ Run from the repository root::
                 panda_peer,
                 peer_compiled,first_use,deployed_panda,
                 verification,deployed,replan,replan_moving,quick_motion,batch,limits,
-                first_motion,collision,memory,cancel,pose_goals]
+                first_motion,collision,memory,memory_build,cancel,pose_goals]
         [--memory-file FILE]
 
 Parts (one module each): ``paper`` (k = 1 ... 16 and the box: cold, warm, multistart), ``peers``
@@ -51,7 +51,9 @@ OMPL + TOPP-RA; ``--collision-cases``, about a minute a case and scene; the case
 ``memory`` (issue 50: a memory of optimal motions of a Panda cell, built with the
 ``memory`` tool (resumed in ``--memory-file``; about half an hour on two cores from scratch),
 then 50 requests inside the cell and 20 outside through a planner node with it against one
-without, and the compiled peer from the same stored motions), ``cancel`` (a cancel during a
+without, and the compiled peer from the same stored motions), ``memory_build`` (the
+memory's build on the local worker pool against a local Ray cluster, the cell's first 24
+tasks each, a few minutes), ``cancel`` (a cancel during a
 Panda plan through ``~/plan_motion``: cancel to result, issue 52), ``pose_goals`` (pose goals
 on the Panda through the planning service against the joint goal they came from, issue 52).
 Every timing is taken in
@@ -82,7 +84,7 @@ PARTS = ("paper", "peers", "random", "optimum", "reference_paper", "optimum_pand
          "verification", "deployed", "deployed_panda", "replan", "replan_moving",
          "quick_motion", "batch",
          "limits", "stagewise", "warm_resolve",
-         "first_motion", "collision", "memory", "cancel", "pose_goals")
+         "first_motion", "collision", "memory", "memory_build", "cancel", "pose_goals")
 
 
 def _parse(argv):
@@ -174,6 +176,7 @@ def _run(args):
         first_use,
         limits,
         memory,
+        memory_build,
         optimum,
         optimum_panda,
         panda_peer,
@@ -284,6 +287,8 @@ def _run(args):
             counts = tuple(int(v) for v in args.memory_requests.split(","))
         section(lambda: memory.run(args.memory_file, *counts,
                                    build=not args.memory_no_build))
+    if "memory_build" in args.only:
+        section(lambda: memory_build.run(4 if args.quick else memory_build.TASKS))
     if "cancel" in args.only:
         section(lambda: cancel.run(4 if args.quick else 12))
     if "pose_goals" in args.only:
