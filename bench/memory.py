@@ -25,8 +25,9 @@ Measured:
   options otherwise: one with ``memory`` set (``memory_basins`` basins re-solved, the least
   ``T``), one with ``memory``, ``memory_first_success`` (the next basin only when the
   nearest failed; the inside requests only) and ``publish: first_then_optimum`` (a hit's
-  first certified IPOPT iterate published at once: the time from the request to it and its
-  ``T``, from its ``first`` status), one without (the full default multistart: the
+  first motion published at once: the nearest stored motion moved onto the request, or
+  where that fails the first certified IPOPT iterate; the time from the request to it and
+  its ``T``, from its ``first`` status), one without (the full default multistart: the
   reference). A client in this process calls ``~/plan`` on each in turn (the order
   alternating), after one uncounted call each; the round trip is request sent to response
   received, ``T``, the certificate and ``memory: hit|miss`` come from the request's final
@@ -424,11 +425,14 @@ def _served(ins: list, name: str) -> dict:
 
 def first_motions(f: dict) -> str:
     """The first motions published on the hits of node ``f`` (``publish: first_then_optimum``:
-    a hit's first certified IPOPT iterate): the time from the request to it, its ``T``."""
+    the stored motion moved, ``memory_first_iteration`` 0, else a certified IPOPT iterate):
+    the time from the request to it, its ``T``."""
     got = [g["first"][1] for g in f["hits"] if "first_latency" in g["first"][1]]
     lat = [_f(v, "first_latency") for v in got]
     gap = [_f(v, "first_T") / _f(v, "T") - 1 for v in got]
-    return (f"its first motions (a hit's first certified IPOPT iterate, published at once): "
+    moved = sum(str(v.get("memory_first_iteration")) == "0" for v in got)
+    return (f"its first motions (published at once: the nearest stored motion moved onto the "
+            f"request on {moved}, a certified IPOPT iterate on {len(got) - moved}): "
             f"on {len(got)}/{len(f['hits'])} hits, published a median {_med(lat) * 1e3:.0f} ms "
             f"after the request (p95 {_quantile(lat, 0.95) * 1e3:.0f} ms), `T` above the "
             f"final motion's by a median {100 * _med(gap):.2f} % (worst "

@@ -16,17 +16,19 @@ sys.path.append(str(Path(__file__).resolve().parents[2]))
 from bench.memory import first_motions  # noqa: E402
 
 
-def _hit(latency, T_first, T):
+def _hit(latency, T_first, T, iteration=None):
     values = {"memory": "hit", "T": str(T)}
     if latency is not None:
-        values.update(first_latency=str(latency), first_T=str(T_first))
+        values.update(first_latency=str(latency), first_T=str(T_first),
+                      memory_first_iteration=str(iteration))
     return {"first": (1.0, values)}
 
 
 def test_the_first_motions_are_summarised_over_the_hits_that_published_one():
-    hits = [_hit(0.2, 1.01, 1.0), _hit(0.4, 1.03, 1.0), _hit(None, None, 1.0)]
+    hits = [_hit(0.2, 1.01, 1.0, 0), _hit(0.4, 1.03, 1.0, 12), _hit(None, None, 1.0)]
     text = first_motions({"hits": hits})
     assert "on 2/3 hits" in text
+    assert "moved onto the request on 1, a certified IPOPT iterate on 1" in text
     assert "median 300 ms" in text
     assert "median 2.00 %" in text and "worst 3.00 %" in text
 

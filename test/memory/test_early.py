@@ -10,6 +10,8 @@ optimum is the same to the bit with and without the watcher; through ``recall``,
 motion goes to its receiver once and the hit's result is unchanged; a hit whose iterates are
 never within the residual's tolerance before convergence offers nothing (the converged
 motion alone); an exception in the checks or the receiver ends the checks, not the solve.
+Here the stored motion moved onto the request (offered before IPOPT starts since session 40,
+test_shifted.py) is switched off: these are IPOPT's iterates.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import pytest
 from limited_arm import LIMITS, MODEL, OPTIONS, SPANS, problem
 
 import tocontrol_ros.core.direct.early as early_mod
+import tocontrol_ros.core.direct.shifted as shifted
 from tocontrol_ros.core import Planner
 from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
 from tocontrol_ros.core.examples import PAPER_START
@@ -36,6 +39,12 @@ HITS = (STORED + np.array([0.04, 0.03]), STORED + np.array([0.08, 0.0]))
 #: Generous: the first solve of a kind compiles its NLP (an event bound, not a timing).
 SLOW_OK = 600.0
 FAR = replace(OPTIONS, warm_only=True, replan_spans=SPANS, warm_far=True, time_limit=SLOW_OK)
+
+
+@pytest.fixture(autouse=True)
+def iterates_only(monkeypatch):
+    """IPOPT's iterates alone (no moved stored motion before them)."""
+    monkeypatch.setattr(shifted, "SHIFTED_FIRST", False)
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,12 @@
-"""A memory hit with ``publish: first_then_optimum``: its first certified IPOPT iterate first.
+"""A memory hit with ``publish: first_then_optimum``: the stored motion moved, then the optimum.
 
 The paper's arm with velocity limits that bind (a ``joint_limits`` file: the bounded
 B-spline solve, as a real arm's memory holds), one motion stored with its serving state
 (the node's own problem: its config, limits and defaults), then the planner node in process
 with ``memory`` and ``publish: first_then_optimum``: a request 8 cm from the stored one is a
-hit, and the node publishes first the warm re-solve's first certified iterate (a ``first``
-status with ``memory: hit``, certified, slower than the optimum), then the converged
+hit, and the node publishes first the stored motion moved onto the request's ends and
+timed (``core/direct/shifted.py``, before the warm re-solve starts: a ``first`` status with
+``memory: hit``, certified, slower than the optimum), then the converged
 optimum (the final status, ``published: optimum``, with ``memory_first_T``); both
 trajectories end on the target at rest. The optimum is the one the node serves with
 ``publish: optimum`` (the same ``T`` to the bit).
@@ -81,11 +82,12 @@ def planner(suffix: str, *params):
 
 
 # A memory built and a node run (20 s under load): with the slow tests. The default run keeps
-# a hit's first certified iterate (test/memory/test_early.py), the node's first motion then
+# a hit's moved stored motion and first certified iterate (test/memory/test_shifted.py,
+# test_early.py), the node's first motion then
 # the optimum (test_planner_node.py::test_first_then_optimum_publishes_both_in_order) and
 # a memory hit through the planner process (test/e2e/test_memory_node.py).
 @pytest.mark.slow
-def test_a_hit_publishes_its_first_certified_iterate_then_the_optimum(memory):
+def test_a_hit_publishes_its_stored_motion_moved_then_the_optimum(memory):
     limits_file, path = memory
     common = [Parameter("joint_limits", value=str(limits_file)),
               Parameter("memory", value=str(path)), Parameter("warm_start", value=False)]
@@ -101,12 +103,12 @@ def test_a_hit_publishes_its_first_certified_iterate_then_the_optimum(memory):
         first = firsts[0]
         assert first.values["published"] == "first" and first.values["memory"] == "hit"
         assert first.values["certified"] == "true" and first.values["method"] == "direct"
-        assert "before it converged" in first.message, first.message
+        assert "route: shifted" in first.message, first.message
         T_first, T_opt = float(first.values["T"]), float(status.values["T"])
         assert T_first >= T_opt * (1 - 1e-4), (T_first, T_opt)
         assert float(status.values["memory_first_T"]) == T_first
-        assert 0 < int(status.values["memory_first_iteration"]) \
-            < int(status.values["memory_iterations"])
+        assert int(status.values["memory_first_iteration"]) == 0 \
+            < int(status.values["memory_iterations"])  # before IPOPT's first iteration
         assert first.received <= status.received
         published = running.node.last_result
         model = running.node.model

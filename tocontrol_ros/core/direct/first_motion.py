@@ -75,7 +75,7 @@ from tocontrol_ros.core.types.options import SolverOptions
 from tocontrol_ros.core.types.problem import Problem
 from tocontrol_ros.core.types.result import PlanResult, Status
 
-__all__ = ["first_motion", "quick_motion"]
+__all__ = ["configuration_near", "first_motion", "quick_motion"]
 
 
 def first_motion(problem: Problem, options: SolverOptions | None = None,
@@ -314,15 +314,38 @@ def _followed(problem: Problem, qa: np.ndarray) -> np.ndarray | None:
 def _newton_near(problem: Problem, q: np.ndarray) -> np.ndarray | None:
     """The target's configuration by Newton steps from ``q`` (near it), or None.
 
-    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps (:func:`_newton`),
-    straight at the target; None unless within ``IK_TOL`` of it (the caller then follows
-    the task-space line, :func:`_followed`).
+    :func:`configuration_near` of the target point (the caller then follows the task-space
+    line, :func:`_followed`).
     """
-    lim, target = problem.limits, problem.target.value
+    return configuration_near(problem, problem.target.value, q)
+
+
+def configuration_near(problem: Problem, goal: np.ndarray, q: np.ndarray
+                       ) -> np.ndarray | None:
+    """A configuration reaching the task point ``goal`` found from ``q`` near it, or None.
+
+    At most :data:`QUICK_IK_ITERATIONS` weighted least-norm steps straight at ``goal`` (least
+    ``sum (dq_i / v_i)^2``, ``v`` the velocity limits; the position limits of ``problem``
+    held); None unless within ``IK_TOL`` of it.
+
+    Parameters
+    ----------
+    problem : Problem
+        Its model and planning limits.
+    goal : ndarray, shape (m,)
+        Task point (m).
+    q : ndarray, shape (n,)
+        Where the steps start (rad, m).
+
+    Returns
+    -------
+    ndarray, shape (n,) or None
+    """
+    lim, goal = problem.limits, np.asarray(goal, dtype=float)
     q = np.clip(np.array(q, dtype=float), lim.plan_lower, lim.plan_upper)
-    q = _newton(problem, q, target, QUICK_IK_ITERATIONS, early=True)
+    q = _newton(problem, q, goal, QUICK_IK_ITERATIONS, early=True)
     return q if q is not None and np.linalg.norm(
-        target - problem.model.point_and_jacobian(q)[0]) <= IK_TOL else None
+        goal - problem.model.point_and_jacobian(q)[0]) <= IK_TOL else None
 
 
 def _newton(problem: Problem, q: np.ndarray, goal: np.ndarray, iterations: int,

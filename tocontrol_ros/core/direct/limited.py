@@ -45,6 +45,7 @@ from tocontrol_ros.core.direct.sensitivity import (
     PATH_SUBMOVES,
     sensitivity_solve,
 )
+from tocontrol_ros.core.direct.shifted import offer_shifted
 from tocontrol_ros.core.direct.tuning import (
     FAR_MU,
     FAR_STEP_MOVE,
@@ -360,6 +361,8 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                 (solved.start.value, solved.target.value, solved.k), values) <= FAR_STEP_MOVE)
             flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
+            if far:  # a hit's first motion at once: the stored one moved (ctx.early's)
+                offer_shifted(ctx, flat, warm, bounds, values, pad, timings, t_start)
             if ctx.options.warm_parametric and (ctx.options.warm_follow or step_first):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
                                         solved, pad)

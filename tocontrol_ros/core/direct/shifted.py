@@ -1,0 +1,262 @@
+"""A memory hit's first motion at once: the stored motion moved onto the request's ends.
+
+A memory's hit re-solves a stored optimum 2-8 cm from the request (IPOPT, a median 40-100
+iterations on the Panda's cell: about a second through the node, docs/memory.md); its first
+certified IPOPT iterate came a median 200 ms after the request. But the stored motion is
+already nearly the answer: the same basin, the same path up to a few centimetres. Moved
+onto the request's ends and run a little slower, it is a motion to publish at once:
+
+1. the ends: a joint-state end is the request's; a point end is reached by Newton steps
+   from the stored motion's end configuration (:func:`~.first_motion.configuration_near`:
+   weighted least norm, the position limits held), so the end configuration stays in the
+   stored motion's basin;
+2. the control points moved: ``P_j + (1 - w_j) (q_a - P_0) + w_j (q_b - P_last)``, where
+   ``w_j`` rises smoothly (:func:`blend_weights`: a quintic smoothstep of the control
+   points' Greville abscissae) from 0 on the first three control points to 1 on the last
+   three, so the path's position, velocity and acceleration at each end are the stored
+   motion's, moved (a motion from rest ends at rest);
+3. the least ``T`` whose NLP rows hold (the set at the samples with the solve's pads, the
+   velocity and position rows, the ends: :meth:`~.flat.FlatTranscription.residual` within
+   :data:`~.tuning.RESIDUAL_TOL`), among the stored ``T`` times :data:`SHIFT_FACTORS`, then
+   :data:`SHIFT_BISECTIONS` halvings between the least factor that holds and the one below
+   it (decided by work, never the clock);
+4. the motion checked as an IPOPT iterate is (:func:`~.checked.checked_iterate`: the
+   torques between the samples held inside the set, slowed down where needed, and the
+   certificate, re-integrated open loop).
+
+:func:`offer_shifted` offers it to the solve's
+:class:`~tocontrol_ros.core.methods.context.EarlyMotion` (the planner's ``publish:
+first_then_optimum`` receiver) before the warm re-solve starts; IPOPT's iterates are then
+not checked (the receiver offers once). Where it fails (an end not reached near the stored
+one, no factor that holds, the certificate), the re-solve offers its first certified
+iterate as before. The re-solve itself, and so the answer, is the same either way.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from tocontrol_ros.core.direct.checked import checked_iterate
+from tocontrol_ros.core.direct.first_motion import configuration_near
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+from tocontrol_ros.core.direct.warm import PathWarmState
+from tocontrol_ros.core.methods.context import SolveContext
+from tocontrol_ros.core.types.result import PlanResult
+
+__all__ = ["SHIFT_FACTORS", "SHIFT_BISECTIONS", "SHIFTED_FIRST", "blend_weights",
+           "slack_moved", "shifted_motion", "offer_shifted"]
+
+#: Multiples of the stored ``T`` tried for the moved path, least first (the least that
+#: holds the NLP's rows is kept, then refined by :data:`SHIFT_BISECTIONS` halvings).
+SHIFT_FACTORS = (0.9, 0.95, 0.98, 1.0, 1.01, 1.02, 1.03, 1.05, 1.08, 1.12, 1.2, 1.35, 1.5,
+                 2.0)
+#: Halvings of the interval between the least factor that holds and the one below it.
+SHIFT_BISECTIONS = 5
+#: Control points at each end moved with that end alone (position, velocity and
+#: acceleration at the ends kept).
+END_POINTS = 3
+#: Offer the moved motion first (False: a hit's first motion is IPOPT's first certified
+#: iterate, as before session 40; bench/memory_shifted.py measures one against the other).
+SHIFTED_FIRST = True
+#: Derivative control points over which the speed to spare is averaged (a Hann window).
+SPARE_WINDOW = 9
+
+
+def blend_weights(flat: FlatTranscription) -> np.ndarray:
+    """The weights ``w`` (K,) of the target's move on each control point.
+
+    0 on the first :data:`END_POINTS`, 1 on the last ones, a quintic smoothstep of the
+    control points' Greville abscissae (the mean of their ``degree`` inner knots) between.
+    """
+    d, K = flat.degree, flat.K
+    knots = np.concatenate([np.zeros(d), np.asarray(flat.breaks, dtype=float), np.ones(d)])
+    greville = np.array([knots[j + 1:j + d + 1].mean() for j in range(K)])
+    lo, hi = greville[END_POINTS - 1], greville[K - END_POINTS]
+    x = np.clip((greville - lo) / (hi - lo), 0.0, 1.0) if hi > lo else \
+        (np.arange(K) >= K - END_POINTS).astype(float)
+    return x ** 3 * (10.0 - 15.0 * x + 6.0 * x ** 2)
+
+
+def slack_moved(flat: FlatTranscription, P: np.ndarray, T: float, qa: np.ndarray,
+                qb: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """The control points (K, n) moved onto ``qa``, ``qb`` where the joints have speed to spare.
+
+    The path's derivative is a B-spline whose control points ``Q_j = d (P_(j+1) - P_j) /
+    (t_(j+d+1) - t_(j+1))`` bound it (the convex hull property). Each joint's extra move
+    ``D = (qb - qa) - (P_last - P_0)`` is added to its ``Q_j`` in proportion to the speed it
+    has to spare there in the move's direction (``speed T - sign(D) Q_j``, at least 0), none
+    on the first and last two (the ends' velocity and acceleration kept); a joint without
+    a finite speed limit, or with no speed to spare, takes :func:`blend_weights`' share.
+    The time-optimal motions of an arm whose velocity limits bind run at those limits
+    between their ends, where the smooth blend adds its largest speed.
+
+    Parameters
+    ----------
+    flat : FlatTranscription
+    P : ndarray, shape (K, n)
+        The stored control points (rad, m).
+    T : float
+        The stored motion's time (s).
+    qa, qb : ndarray, shape (n,)
+        The request's end configurations.
+    speed : ndarray, shape (n,)
+        The joints' velocity limits (rad/s, m/s; inf: none).
+    """
+    d, K = flat.degree, flat.K
+    knots = np.concatenate([np.zeros(d), np.asarray(flat.breaks, dtype=float), np.ones(d)])
+    gap = (knots[d + 1:d + K] - knots[1:K]) / d  # (K - 1,): P_(j+1) - P_j = Q_j gap_j
+    Q = np.diff(P, axis=0) / gap[:, None]
+    D = (qb - qa) - (P[-1] - P[0])
+    inner = np.zeros(K - 1)
+    inner[2:K - 3] = 1.0
+    spare = np.where(np.isfinite(speed), speed * T, 0.0)[None, :] - np.sign(D)[None, :] * Q
+    spare = np.clip(spare, 0.0, None) * inner[:, None]
+    kernel = np.hanning(SPARE_WINDOW + 2)[1:-1]  # shares without jumps: bounded accelerations
+    spare = np.apply_along_axis(lambda c: np.convolve(c, kernel, mode="same"), 0, spare)
+    spare *= inner[:, None]
+    mass = spare.T @ gap  # (n,)
+    w = blend_weights(flat)
+    smooth = np.diff(w) / gap  # the smooth blend's share, sum(smooth * gap) = 1
+    own = (mass > 0.0) & np.isfinite(speed)  # joints that take shares of their own
+    share = np.where(own[None, :], spare / np.where(own, mass, 1.0)[None, :],
+                     smooth[:, None])
+    moved = np.empty_like(P)
+    moved[0] = qa
+    moved[1:] = qa + np.cumsum((Q + D[None, :] * share) * gap[:, None], axis=0)
+    moved[-END_POINTS:] = P[-END_POINTS:] + (qb - P[-1])  # the same, without the sums' round-off
+    return moved
+
+
+def _end(ctx: SolveContext, end, q_stored: np.ndarray) -> np.ndarray | None:
+    """The configuration of one of the request's ends near the stored one, or None."""
+    n = ctx.problem.model.n
+    if end.kind == "state":
+        return np.asarray(end.value[:n], dtype=float)
+    return configuration_near(ctx.problem, end.value, q_stored)
+
+
+def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
+                   bounds: tuple, values: tuple, pad: float | np.ndarray, timings: dict,
+                   t_start: float) -> tuple[PlanResult | None, str]:
+    """The stored motion ``warm`` moved onto ``ctx.problem``'s ends and timed (the module).
+
+    Parameters
+    ----------
+    ctx : SolveContext
+        The warm re-solve's (its problem, options for the certificate).
+    flat : FlatTranscription
+        The NLP on ``warm``'s mesh (``warm.breaks``).
+    warm : PathWarmState
+        The stored motion: control points (K, n) on ``flat``'s mesh, ``T`` (s).
+    bounds : tuple of ndarray
+        The state bounds (lower, upper), shape (2n,) each, as for the solve.
+    values : tuple
+        The request's start value, target value and ``k``.
+    pad : float or ndarray, shape (S,)
+        The set's pad of the solve's rows.
+    timings : dict
+        The plan's timings so far (copied into the result).
+    t_start : float
+        ``time.perf_counter()`` at the plan's start.
+
+    Returns
+    -------
+    result : PlanResult or None
+        The moved motion checked and certified (``success`` says whether it passed); None
+        where it could not be made.
+    why : str
+        What was done, or why there is none.
+    """
+    problem = ctx.problem
+    P = np.asarray(warm.P, dtype=float)
+    if P.shape != (flat.K, problem.model.n) or len(warm.breaks) != len(flat.breaks):
+        return None, "the stored motion is not on the re-solve's mesh"
+    qa, qb = _end(ctx, problem.start, P[0]), _end(ctx, problem.target, P[-1])
+    if qa is None or qb is None:
+        return None, "the request's end configuration was not reached near the stored one"
+    w = blend_weights(flat)[:, None]
+    paths = {"smooth": P + (1.0 - w) * (qa - P[0]) + w * (qb - P[-1]),
+             "speed": slack_moved(flat, P, warm.T, qa, qb, problem.limits.plan_velocity)}
+    timed = {name: _least_factor(flat, values, warm.T, moved, bounds, pad)
+             for name, moved in paths.items()}
+    timed = {name: f for name, f in timed.items() if f is not None}
+    if not timed:
+        return None, (f"the moved path holds the NLP's rows at none of {SHIFT_FACTORS[0]:g}-"
+                      f"{SHIFT_FACTORS[-1]:g} times the stored T")
+    name = min(timed, key=timed.get)
+    best, moved = timed[name], paths[name]
+
+    def residual(factor: float) -> float:
+        return flat.residual(values[0], values[1], values[2], warm.T * factor, moved,
+                             *bounds, set_pad=pad)
+
+    T = warm.T * best
+    it = FlatResult(success=True, message="the stored motion moved", T=T, P=moved,
+                    residual=residual(best), iterations=0, solve_time=0.0)
+    held_in, result = checked_iterate(
+        ctx, flat, it, values, bounds, "the nearest stored motion moved onto the request's "
+        f"ends and run {100.0 * (best - 1.0):+.1f} % of its time: certified, not the optimum "
+        "(a first motion; route: shifted)", dict(timings), t_start)
+    if result is None:
+        return None, "the moved path's torques leave the set between the samples"
+    return result, f"moved ({name} blend) and timed at {best:.4g} times the stored T"
+
+
+def _least_factor(flat: FlatTranscription, values: tuple, T: float, moved: np.ndarray,
+                  bounds: tuple, pad) -> float | None:
+    """The least multiple of ``T`` at which ``moved`` holds the NLP's rows, or None.
+
+    The least of :data:`SHIFT_FACTORS` that holds, then :data:`SHIFT_BISECTIONS` halvings
+    towards the one below it.
+    """
+    def holds(factor: float) -> bool:
+        return flat.residual(values[0], values[1], values[2], T * factor, moved, *bounds,
+                             set_pad=pad) <= RESIDUAL_TOL
+
+    best = next((f for f in SHIFT_FACTORS if holds(f)), None)
+    if best is None:
+        return None
+    below = [f for f in SHIFT_FACTORS if f < best]
+    if below:
+        lo = below[-1]
+        for _ in range(SHIFT_BISECTIONS):
+            mid = 0.5 * (lo + best)
+            if holds(mid):
+                best = mid
+            else:
+                lo = mid
+    return best
+
+
+def offer_shifted(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
+                  bounds: tuple, values: tuple, pad: float | np.ndarray, timings: dict,
+                  t_start: float) -> None:
+    """:func:`shifted_motion` offered to ``ctx.early`` when certified, before the re-solve.
+
+    Offered when not slower than ``ctx.early.max_T``; recorded in ``ctx.early.seen`` with
+    ``"shifted": True`` either way. Never raises: an exception ends the receiver's checks
+    (as in IPOPT's watcher) and is recorded; the warm re-solve goes on as without it.
+    """
+    early = ctx.early
+    if early is None or early.done or not SHIFTED_FIRST:
+        return
+    t0 = time.perf_counter()
+    seen = {"iteration": 0, "shifted": True, "T": float("nan"), "certified": None, "at": t0}
+    try:
+        result, why = shifted_motion(ctx, flat, warm, bounds, values, pad, timings, t_start)
+        seen["why"] = why
+        if result is not None:
+            seen["T"] = float(result.T)
+            seen["certified"] = bool(result.success)
+            if result.success and result.T <= early.max_T:
+                early.done = bool(early.offer(result))
+            elif result.success:
+                seen["slow"] = True
+    except Exception as exc:  # noqa: BLE001  (a first motion must never end the solve)
+        early.done = True
+        seen["error"] = f"{type(exc).__name__}: {exc}"
+    seen["seconds"] = time.perf_counter() - t0
+    early.seen.append(seen)
