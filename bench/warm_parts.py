@@ -8,7 +8,7 @@ move is answered by ``Planner.plan(moved, replan options, warm_start=serving)`` 
 times after one call, and per call the parts' processor times (``time.thread_time``) are
 summed by wrappers around them: the Newton steps (``sensitivity_solve``; inside it the
 rows and their Jacobian, the Hessians, the banded factorisations and back-substitutions,
-and the rest: the loop's NumPy), the pads per sample (``_row_pads``), the trajectories
+and the rest: the loop's NumPy), the pads per sample (``set_pads.warm_row_pads``), the trajectories
 (``FlatTrajectory``), the set's check between the samples (``set_values``), the time
 stretches (``stretched``), the certificate (``verified``; inside it the fine sample and the
 open loop), and the rest of the call. Reported: the medians over the calls of each move,
@@ -56,7 +56,7 @@ PARTS = (
     ("hessian", "tocontrol_ros.core.direct.kkt_step", "KKTDerivatives.hessian"),
     ("factor", "tocontrol_ros.core.direct.sensitivity", "BandedKKT.factor"),
     ("backsolve", "tocontrol_ros.core.direct.sensitivity", "BandedKKT.solve"),
-    ("row pads", "tocontrol_ros.core.direct.limited", "_row_pads"),
+    ("row pads", "tocontrol_ros.core.direct.set_pads", "warm_row_pads"),
     ("trajectory", "tocontrol_ros.core.direct.flat_trajectory", "FlatTrajectory._set_result"),
     ("set check", "tocontrol_ros.core.direct.flat_trajectory", "FlatTrajectory.set_values"),
     ("stretch", "tocontrol_ros.core.direct.limited", "stretched"),
@@ -185,7 +185,7 @@ def as_base(base_parts: tuple):
     with ``DM``."""
     from dataclasses import replace
 
-    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct import limited, set_pads
     from tocontrol_ros.core.direct.flat import FlatTranscription, violation
     from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
 
@@ -193,20 +193,21 @@ def as_base(base_parts: tuple):
         return violation(w, np.array(self.row_function(w, par)).ravel(), lbg, ubg, lbx, ubx)
 
     old_sens, old_ft = base_parts
-    row_pads = limited._row_pads
+    row_pads = set_pads.warm_row_pads
     saved = (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values,
              FlatTranscription.__dict__["_residual"])
     limited.sensitivity_solve = old_sens.sensitivity_solve
     FlatTrajectory.open_loop = old_ft.FlatTrajectory.open_loop
     FlatTrajectory.set_values = old_ft.FlatTrajectory.set_values
     FlatTranscription._residual = plain_residual
-    limited._row_pads = lambda flat, warm, k: row_pads(flat, replace(warm, set_values=None), k)
+    set_pads.warm_row_pads = lambda flat, warm, k: row_pads(
+        flat, replace(warm, set_values=None), k)
     try:
         yield
     finally:
         (limited.sensitivity_solve, FlatTrajectory.open_loop, FlatTrajectory.set_values,
          FlatTranscription._residual) = saved
-        limited._row_pads = row_pads
+        set_pads.warm_row_pads = row_pads
 
 
 def calls_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
@@ -265,7 +266,7 @@ def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
     row function called with ``DM`` as DIR does, against ``FlatTranscription.residual``)."""
     from dataclasses import replace
 
-    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct import limited, set_pads
     from tocontrol_ros.core.direct.flat import violation
     from tocontrol_ros.core.direct.tuning import PAD, RESIDUAL_TOL, SET_PAD, STRETCHES
 
@@ -285,8 +286,8 @@ def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
             lambda traj=traj: traj.open_loop(cert.rtol, cert.atol)), calls)
         same_ol = all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
         (o2, n2), (c, d) = paired((
-            lambda flat=flat, bare=bare, k=moved.k: limited._row_pads(flat, bare, k),
-            lambda flat=flat, ws=ws, k=moved.k: limited._row_pads(flat, ws, k)), calls)
+            lambda flat=flat, bare=bare, k=moved.k: set_pads.warm_row_pads(flat, bare, k),
+            lambda flat=flat, ws=ws, k=moved.k: set_pads.warm_row_pads(flat, ws, k)), calls)
         # The six time stretches' residuals of the answer (checked.stretched): the rows
         # called with DM conversions as DIR does, against flat.residual (buffered).
         res = traj.result
@@ -320,7 +321,7 @@ def checks_ab(planner, ropts, cases, base: Path, calls: int, only: set) -> None:
 
 def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:
     """The Newton steps alone, DIR's ``sensitivity_solve`` against this tree's (see module)."""
-    from tocontrol_ros.core.direct import limited, sensitivity
+    from tocontrol_ros.core.direct import limited, sensitivity, set_pads
     from tocontrol_ros.core.direct.tuning import PAD
 
     old = base_module(base)
@@ -331,7 +332,7 @@ def steps_ab(planner, cases, base: Path, calls: int, only: set) -> None:
         moved, serving = case
         ws = serving.warm_state
         flat = planner.flat(moved, ws.breaks, warm="dual")
-        pad = limited._row_pads(flat, ws, moved.k)
+        pad = set_pads.warm_row_pads(flat, ws, moved.k)
         args = (flat, np.concatenate([ws.P.ravel(), [ws.T]]), ws.lam_g, ws.lam_x,
                 moved.start.value, moved.target.value, moved.k,
                 *limited.state_bounds(moved, PAD), pad)

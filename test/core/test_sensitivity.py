@@ -350,7 +350,7 @@ def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case
     evaluated (the serving solution's and a parametric answer's): equal to the bit to the
     values of its path evaluated again, and the next re-solve's pads per sample read off
     them are the pads evaluated from the path; another k or mesh evaluates them."""
-    from tocontrol_ros.core.direct import limited
+    from tocontrol_ros.core.direct import set_pads
     from tocontrol_ros.core.direct.flat import FlatResult
     from tocontrol_ros.core.direct.flat_trajectory import SET_POINTS, FlatTrajectory
 
@@ -370,15 +370,15 @@ def test_a_warm_state_keeps_its_set_values_and_the_pads_read_off_them(panda_case
         again = fresh.set_values()
         assert len(again) == (len(ws.breaks) - 1) * SET_POINTS
         assert np.array_equal(ws.set_values, again)
-        evaluated = limited._row_pads(flat, replace(ws, set_values=None), moved.k)
-        assert np.array_equal(limited._row_pads(flat, ws, moved.k), evaluated)
+        evaluated = set_pads.warm_row_pads(flat, replace(ws, set_values=None), moved.k)
+        assert np.array_equal(set_pads.warm_row_pads(flat, ws, moved.k), evaluated)
         # Kept values of another exponent or torque scale are not read (a planted wrong
         # value shows where they are).
         planted = replace(ws, set_values=np.full_like(again, 2.0))
-        assert not np.array_equal(limited._row_pads(flat, planted, moved.k), evaluated)
+        assert not np.array_equal(set_pads.warm_row_pads(flat, planted, moved.k), evaluated)
         for other in (replace(planted, k=moved.k + 1.0),
                       replace(planted, torque_scale=0.9 * ws.torque_scale)):
-            assert np.array_equal(limited._row_pads(flat, other, moved.k), evaluated)
+            assert np.array_equal(set_pads.warm_row_pads(flat, other, moved.k), evaluated)
 
 
 def test_the_buffered_rows_are_the_row_function_to_the_bit(panda_case):

@@ -243,7 +243,8 @@ def test_bounded_basins_go_side_by_side_with_the_answer_of_one_after_the_other(
         tmp_path, planner, stored, monkeypatch):
     """Two stored bounded motions taken as two basins (``BASIN_RADIUS`` 0 here), re-solved
     with two workers: one map of the planner's pool with both entries, and the result, the
-    starts, the messages and the iterations of the re-solves one after the other."""
+    starts, the messages and the iterations of the re-solves one after the other; with a
+    ``first`` receiver too, once the moved stored motion went to it."""
     from tocontrol_ros.core.memory import recall as recall_mod
 
     other = planner.plan(problem([2.21, 1.49]), OPTIONS)
@@ -264,6 +265,11 @@ def test_bounded_basins_go_side_by_side_with_the_answer_of_one_after_the_other(
         monkeypatch.setattr(type(planner), "map", recorded)
         side = recall(planner, near, replace(options, workers=2), store, radius=10.0,
                       basins=2, spans=SPANS)
+        # With a first receiver: the nearest's stored motion moved is offered before the
+        # re-solves, which then go side by side all the same.
+        firsts = []
+        with_first = recall(planner, near, replace(options, workers=2), store, radius=10.0,
+                            basins=2, spans=SPANS, first=firsts.append)
 
         def broken(self, fn, ctx, items):
             raise RuntimeError("worker: Exception('cannot pickle')")
@@ -273,7 +279,9 @@ def test_bounded_basins_go_side_by_side_with_the_answer_of_one_after_the_other(
     assert "side by side failed" in fallback.messages[0] and "cannot pickle" in \
         fallback.messages[0], fallback.messages
     assert fallback.result.T == alone.result.T and fallback.starts == alone.starts
-    assert maps == [("_entry_item", 2)], maps
+    assert maps == [("_entry_item", 2)] * 2, maps
+    assert len(firsts) == 1 and firsts[0].iterations == 0 and firsts[0].certificate.passed
+    assert with_first.result.T == alone.result.T and with_first.starts == alone.starts
     assert len(alone.entries) == 2 and side.entries == alone.entries
     assert side.result is not None and alone.result is not None
     assert side.result.T == alone.result.T and side.result.certificate.passed

@@ -4,17 +4,16 @@ The paper's arm with the velocity limits of test_bounded.py (the bounded B-splin
 motion stored with its 64-span serving state, and hits 5 and 8 cm away (test_early.py's).
 Checked: the blends keep each end's first three control points together (position,
 velocity and acceleration at the ends kept) and move nothing when the ends do not move;
-the moved motion is offered before IPOPT starts (no iteration), certified, and checked
-again independently (the start and the target, rest at both ends, the velocity limits and
-the torque set along a fine sampling), never faster than the optimum; the optimum is the
-same to the bit with it; where no time factor holds the rows, IPOPT's first certified
-iterate is offered instead; an exception in the moved motion's checks ends the checks, not
-the solve.
+through ``recall``, the moved motion is offered before any re-solve (no iteration),
+certified, and checked again independently (the start and the target, rest at both ends,
+the velocity limits and the torque set along a fine sampling), never faster than the
+optimum; the answer is the same to the bit with it; where no time factor holds the rows, or
+the moved motion's checks raise, IPOPT's first certified iterate is offered instead and the
+answer is unchanged. (Side by side with a receiver: test_serve.py.)
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -25,10 +24,8 @@ import tocontrol_ros.core.direct.shifted as shifted
 from tocontrol_ros.core import Planner
 from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.memory.codec import warm_result
-from tocontrol_ros.core.memory.recall import open_memory, remember, stored_problem
+from tocontrol_ros.core.memory.recall import open_memory, recall, remember, stored_problem
 from tocontrol_ros.core.memory.serve import convert
-from tocontrol_ros.core.methods.context import EarlyMotion
-from tocontrol_ros.core.planning.solver import solve_once
 
 STORED = np.array([2.2, 1.5])
 HITS = (STORED + np.array([0.04, 0.03]), STORED + np.array([0.08, 0.0]))
@@ -58,12 +55,6 @@ def _warm(store, target):
                        entry.method, "stored")
 
 
-def _hit(planner, store, target, early=None):
-    """The nearest's warm re-solve as recall makes it (its serving state, warm_far)."""
-    return solve_once(planner, problem(target), FAR, _warm(store, target), None,
-                      time.perf_counter() + SLOW_OK, early)
-
-
 def test_the_blends_keep_the_ends_and_move_nothing_without_a_move(memory):
     planner, store = memory
     warm = _warm(store, HITS[0]).warm_state
@@ -86,20 +77,23 @@ def test_the_blends_keep_the_ends_and_move_nothing_without_a_move(memory):
                                smooth, atol=1e-12)
 
 
+def _recall(planner, store, target, first=None):
+    return recall(planner, problem(target), replace(OPTIONS, time_limit=SLOW_OK), store,
+                  spans=SPANS, first=first)
+
+
 @pytest.mark.parametrize("target", HITS, ids=["5cm", "8cm"])
-def test_a_hit_offers_its_stored_motion_moved_before_ipopt_starts(memory, target):
+def test_a_hit_offers_its_stored_motion_moved_before_any_re_solve(memory, target):
     planner, store = memory
-    optimum = _hit(planner, store, target)
-    assert optimum.success, optimum.message
-    offered = []
-    early = EarlyMotion(offer=lambda r: offered.append(r) or True)
-    again = _hit(planner, store, target, early)
-    assert len(offered) == 1 and early.done, early.seen
-    first = offered[0]
+    plain = _recall(planner, store, target)
+    assert plain.result is not None and plain.result.success, plain.messages
+    firsts = []
+    found = _recall(planner, store, target, firsts.append)
+    assert len(firsts) == 1 and found.first is firsts[0]
+    first = firsts[0]
     assert first.success and first.certificate is not None and first.certificate.passed
     assert first.iterations == 0 and any("route: shifted" in w for w in first.warnings)
-    assert early.seen[0]["shifted"] and early.seen[0]["certified"], early.seen
-    assert len(early.seen) == 1, "IPOPT's iterates not checked once a motion was offered"
+    optimum = found.result
     assert first.T >= optimum.T * (1 - 1e-4), (first.T, optimum.T)
     # Checked independently of the certificate, along a fine sampling of the motion.
     s = first.trajectory.sample(1e-3)
@@ -108,34 +102,45 @@ def test_a_hit_offers_its_stored_motion_moved_before_ipopt_starts(memory, target
     np.testing.assert_allclose(s.qd[[0, -1]], 0.0, atol=1e-5)
     assert np.all(np.abs(s.qd) <= LIMITS.velocity * (1 + 1e-6) + 1e-9)
     assert np.max(np.sum(np.abs(s.u) ** (2 * first.k), axis=1)) <= 1.0 + 1e-6
-    # Offered before the solve: the optimum is the same to the bit.
-    assert again.success and again.T == optimum.T and again.iterations == optimum.iterations
-    np.testing.assert_array_equal(again.warm_state.P, optimum.warm_state.P)
+    # Offered before the re-solves: the answer is the same to the bit.
+    assert optimum.T == plain.result.T and found.iterations == plain.iterations
+    np.testing.assert_array_equal(optimum.warm_state.P, plain.result.warm_state.P)
+
+
+def test_the_moved_motion_of_a_warm_state_by_its_method(memory):
+    """The bounded method's ``first_from`` (what recall calls): with its ``why``; and the
+    default of a method that has none."""
+    from tocontrol_ros.core.methods.context import SolveContext
+    from tocontrol_ros.core.methods.contract import method_named, method_owning
+
+    planner, store = memory
+    warm = _warm(store, HITS[0])
+    ctx = SolveContext(planner.system, problem(HITS[0]), FAR, float("inf"))
+    result, why = method_owning(warm.warm_state).first_from(planner, ctx, warm)
+    assert result is not None and result.success and "times the stored T" in why, why
+    none, why = method_named("first").first_from(planner, ctx, warm)
+    assert none is None and "no first motion" in why
 
 
 def test_without_a_time_that_holds_ipopts_iterate_is_offered(memory, monkeypatch):
     planner, store = memory
     monkeypatch.setattr(shifted, "SHIFT_FACTORS", (0.5,))  # far too fast: no row holds
-    offered = []
-    early = EarlyMotion(offer=lambda r: offered.append(r) or True)
-    res = _hit(planner, store, HITS[1], early)
-    assert res.success, res.message
-    assert early.seen[0]["shifted"] and "none of" in early.seen[0]["why"], early.seen[0]
-    assert len(offered) == 1 and offered[0].iterations > 0
-    assert any("before it converged" in w for w in offered[0].warnings)
+    firsts = []
+    found = _recall(planner, store, HITS[1], firsts.append)
+    assert found.result is not None and found.result.success, found.messages
+    assert len(firsts) == 1 and firsts[0].iterations > 0
+    assert any("before it converged" in w for w in firsts[0].warnings)
 
 
-def test_an_exception_in_the_moved_motions_checks_ends_the_checks_not_the_solve(
+def test_an_exception_in_the_moved_motion_leaves_ipopts_iterate_and_the_answer(
         memory, monkeypatch):
     planner, store = memory
-    plain = _hit(planner, store, HITS[0])
+    plain = _recall(planner, store, HITS[0])
 
     def broken(*args, **kwargs):
         raise RuntimeError("broken check")
     monkeypatch.setattr(shifted, "checked_iterate", broken)
-    offered = []
-    early = EarlyMotion(offer=lambda r: offered.append(r) or True)
-    res = _hit(planner, store, HITS[0], early)
-    assert offered == [] and early.done
-    assert "broken check" in early.seen[0]["error"], early.seen
-    assert res.success and res.T == plain.T and res.iterations == plain.iterations
+    firsts = []
+    found = _recall(planner, store, HITS[0], firsts.append)
+    assert len(firsts) == 1 and firsts[0].iterations > 0  # IPOPT's, as before
+    assert found.result.T == plain.result.T and found.iterations == plain.iterations

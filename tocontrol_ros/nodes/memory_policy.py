@@ -77,8 +77,9 @@ class MemoryPolicy:
         ``memory_decode_time``, ``memory_solve_time`` (the warm re-solves, certificates
         included), ``memory_certificate_time`` (s), ``memory_iterations`` (IPOPT, all
         re-solves), ``memory_starts`` (what each started from, comma-separated); with
-        ``first`` (``first(result)``, :func:`recall`'s: a certified IPOPT iterate before the
-        re-solve converged) and one given to it, ``memory_first_T`` (s),
+        ``first`` (``first(result)``, :func:`recall`'s: the stored motion moved onto the
+        request, or a certified IPOPT iterate before the re-solve converged) and one given
+        to it, ``memory_first_T`` (s),
         ``memory_first_iteration`` and ``memory_first_time`` (s from the lookup's start).
         """
         if not config.memory:

@@ -445,7 +445,8 @@ class PlanningService:
         options = solver_options(config)
         t0 = self.clock.monotonic()
         # A memory hit answers by warm re-solves of stored motions; a miss plans as before.
-        # With first_then_optimum, a hit's first certified IPOPT iterate is published at once.
+        # With first_then_optimum, a hit's first motion (its stored motion moved, or a
+        # certified IPOPT iterate of its re-solve) is published at once.
         early: list = []
         recalled, memory_values = self.memory.lookup(
             config, self.planner, problem, options, self.should_stop(req),
@@ -530,7 +531,7 @@ class PlanningService:
             self.out.markers(result, path, req.config, start_point, req.target)
 
     def _hit_first(self, req: PlanRequest, result, problem) -> tuple | None:
-        """A memory hit's first motion (a certified iterate of its warm re-solve), published.
+        """A memory hit's first motion (its stored motion moved, or an iterate), published.
 
         Returns ``(result, path, samples)``, or None when cancelled meanwhile (it is then
         the request's best certified motion at the cancel, as ``_first``'s) or the

@@ -45,7 +45,6 @@ from tocontrol_ros.core.direct.sensitivity import (
     PATH_SUBMOVES,
     sensitivity_solve,
 )
-from tocontrol_ros.core.direct.shifted import offer_shifted
 from tocontrol_ros.core.direct.tuning import (
     FAR_MU,
     FAR_STEP_MOVE,
@@ -348,7 +347,7 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
         P = flat.fit(warm.T, path.t, path.q, path.qd)
     else:
         flat = planner.flat(problem, warm.breaks, warm=True)  # usually kept from the refinement
-        pad = _row_pads(flat, warm, problem.k)  # its own mesh: the pads its path asks for
+        pad = set_pads.warm_row_pads(flat, warm, problem.k)  # the pads its path asks for
         if (warm.lam_g is not None and warm.lam_x is not None and len(warm.lam_g) == flat.rows
                 and len(warm.lam_x) == flat.K * flat.model.n + 1):
             # A memory's hit (warm_far): IPOPT from the distant start whatever the move; a
@@ -361,8 +360,6 @@ def plan_limited_warm(planner: Compiled, ctx: SolveContext, warm: PathWarmState,
                 (solved.start.value, solved.target.value, solved.k), values) <= FAR_STEP_MOVE)
             flat = planner.flat(problem, warm.breaks, warm="dual_far" if far else "dual")
             duals = {"lam_g0": warm.lam_g, "lam_x0": warm.lam_x}
-            if far:  # a hit's first motion at once: the stored one moved (ctx.early's)
-                offer_shifted(ctx, flat, warm, bounds, values, pad, timings, t_start)
             if ctx.options.warm_parametric and (ctx.options.warm_follow or step_first):
                 done, why = _parametric(ctx, flat, warm, bounds, values, timings, t_start, t0,
                                         solved, pad)
@@ -421,7 +418,8 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
     work budget, the torques leave the set between the samples even slowed down, or the
     certificate failed. The caller then re-solves with IPOPT.
 
-    The steps start at ``pad``, the set's pad (one, or one per sample: :func:`_row_pads`);
+    The steps start at ``pad``, the set's pad (one, or one per sample:
+    :func:`~.set_pads.warm_row_pads`);
     a pad round widens it (:func:`_wider`).
     """
     problem = ctx.problem
@@ -475,29 +473,6 @@ def _parametric(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
         return done, why
     timings["shooting"] -= elapsed
     return None, f"{why}, but not certified ({done.message})"
-
-
-def _row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
-              ) -> float | np.ndarray:
-    """The set's pad per sample (S,) for a warm re-solve from ``warm`` on its mesh ``flat``.
-
-    Read off the warm state's path and ``T`` as a trajectory of ``flat`` (its inverse
-    dynamics, so that the mapped calls are the ones the answer's checks use)
-    (:func:`~.set_pads.row_pads`, with :data:`~.set_pads.ROW_PADS`); else :data:`SET_PAD`.
-    The set's values between the samples are the warm state's own where it has them for
-    this ``k``, torque scale and mesh (its plan's check evaluated them: the same numbers),
-    else evaluated.
-    """
-    if not set_pads.ROW_PADS:
-        return SET_PAD
-    path = FlatResult(success=True, message="warm state", T=float(warm.T),
-                      iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
-                      residual=0.0)
-    known = getattr(warm, "set_values", None)  # (a warm state pickled before it had them)
-    if known is None or warm.k != k or warm.torque_scale != flat.torque_scale \
-            or not np.array_equal(warm.breaks, flat.breaks):
-        known = None
-    return set_pads.row_pads(FlatTrajectory(flat, path, k, set_values=known), flat.samples)
 
 
 def _wider(pad: float | np.ndarray, excess: float, traj: FlatTrajectory,

@@ -16,6 +16,7 @@ from __future__ import annotations
 from tocontrol_ros.core.checks.certificate import certify_open_loop
 from tocontrol_ros.core.direct.first_motion import first_motion
 from tocontrol_ros.core.direct.limited import plan_limited, plan_limited_warm
+from tocontrol_ros.core.direct.shifted import first_from_warm
 from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.methods.context import SolveContext
 from tocontrol_ros.core.methods.contract import Compiled, Method, register
@@ -57,6 +58,11 @@ class BoundedPath(_OpenLoopCertified):
         """On the previous solution's mesh, from its path and multipliers (and problem)."""
         return plan_limited_warm(compiled, ctx, previous.warm_state, timings, t_start,
                                  previous.trajectory, previous.problem)
+
+    def first_from(self, compiled: Compiled, ctx: SolveContext, previous: PlanResult
+                   ) -> tuple[PlanResult | None, str]:
+        """The stored path moved onto the request's ends and timed (:mod:`~.shifted`)."""
+        return first_from_warm(compiled, ctx, previous.warm_state)
 
 
 class FirstMotion(_OpenLoopCertified):

@@ -21,10 +21,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
 from tocontrol_ros.core.direct.tuning import SET_PAD
+from tocontrol_ros.core.direct.warm import PathWarmState
 
 __all__ = ["FALLBACK_PADS", "LOCAL_ROUNDS", "ROW_PADS", "ROW_PAD_CAP", "ROW_PAD_FACTOR",
-           "ROW_PAD_NEAR", "row_pads", "widened"]
+           "ROW_PAD_NEAR", "row_pads", "warm_row_pads", "widened"]
 
 #: A warm re-solve on its warm state's own mesh (``limited.plan_limited_warm``: the
 #: parametric steps, and IPOPT's solve) starts at these pads, read off the warm state's
@@ -115,3 +118,25 @@ def row_pads(trajectory, samples: np.ndarray, floor: float = SET_PAD,
     bulge = np.where(peak >= 1.0 - ROW_PAD_NEAR, peak - ends, 0.0)
     pad = _spread(np.full(len(samples), float(floor)), ROW_PAD_FACTOR * np.maximum(bulge, 0.0))
     return np.minimum(pad, max(float(floor), ROW_PAD_CAP))
+
+
+def warm_row_pads(flat: FlatTranscription, warm: PathWarmState, k: float
+                  ) -> float | np.ndarray:
+    """The set's pad per sample (S,) for a warm re-solve from ``warm`` on its mesh ``flat``.
+
+    Read off the warm state's path and ``T`` as a trajectory of ``flat`` (its inverse
+    dynamics, so that the mapped calls are the ones the answer's checks use)
+    (:func:`row_pads`, with :data:`ROW_PADS`); else :data:`SET_PAD`. The set's values
+    between the samples are the warm state's own where it has them for this ``k``, torque
+    scale and mesh (its plan's check evaluated them: the same numbers), else evaluated.
+    """
+    if not ROW_PADS:
+        return SET_PAD
+    path = FlatResult(success=True, message="warm state", T=float(warm.T),
+                      iterations=0, solve_time=0.0, P=np.asarray(warm.P, dtype=float),
+                      residual=0.0)
+    known = getattr(warm, "set_values", None)  # (a warm state pickled before it had them)
+    if known is None or warm.k != k or warm.torque_scale != flat.torque_scale \
+            or not np.array_equal(warm.breaks, flat.breaks):
+        known = None
+    return row_pads(FlatTrajectory(flat, path, k, set_values=known), flat.samples)

@@ -24,12 +24,13 @@ onto the request's ends and run a little slower, it is a motion to publish at on
    torques between the samples held inside the set, slowed down where needed, and the
    certificate, re-integrated open loop).
 
-:func:`offer_shifted` offers it to the solve's
-:class:`~tocontrol_ros.core.methods.context.EarlyMotion` (the planner's ``publish:
-first_then_optimum`` receiver) before the warm re-solve starts; IPOPT's iterates are then
-not checked (the receiver offers once). Where it fails (an end not reached near the stored
-one, no factor that holds, the certificate), the re-solve offers its first certified
-iterate as before. The re-solve itself, and so the answer, is the same either way.
+:func:`first_from_warm` makes it for a warm state on its own mesh (the bounded method's
+:meth:`~tocontrol_ros.core.methods.contract.Method.first_from`): the memory's ``recall``
+hands it to its ``first`` receiver (the planner's ``publish: first_then_optimum``) before
+any re-solve starts, and the re-solves then go on without checking IPOPT's iterates (side
+by side where there are workers). Where it fails (an end not reached near the stored one,
+no factor that holds, the certificate), the nearest re-solve offers its first certified
+IPOPT iterate as before. The re-solves, and so the answer, are the same either way.
 """
 
 from __future__ import annotations
@@ -41,13 +42,15 @@ import numpy as np
 from tocontrol_ros.core.direct.checked import checked_iterate
 from tocontrol_ros.core.direct.first_motion import configuration_near
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
-from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
+from tocontrol_ros.core.direct.limited import state_bounds
+from tocontrol_ros.core.direct.set_pads import warm_row_pads
+from tocontrol_ros.core.direct.tuning import PAD, RESIDUAL_TOL
 from tocontrol_ros.core.direct.warm import PathWarmState
 from tocontrol_ros.core.methods.context import SolveContext
 from tocontrol_ros.core.types.result import PlanResult
 
 __all__ = ["SHIFT_FACTORS", "SHIFT_BISECTIONS", "SHIFTED_FIRST", "blend_weights",
-           "slack_moved", "shifted_motion", "offer_shifted"]
+           "slack_moved", "shifted_motion", "first_from_warm"]
 
 #: Multiples of the stored ``T`` tried for the moved path, least first (the least that
 #: holds the NLP's rows is kept, then refined by :data:`SHIFT_BISECTIONS` halvings).
@@ -231,32 +234,38 @@ def _least_factor(flat: FlatTranscription, values: tuple, T: float, moved: np.nd
     return best
 
 
-def offer_shifted(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmState,
-                  bounds: tuple, values: tuple, pad: float | np.ndarray, timings: dict,
-                  t_start: float) -> None:
-    """:func:`shifted_motion` offered to ``ctx.early`` when certified, before the re-solve.
+def first_from_warm(compiled, ctx: SolveContext, warm: PathWarmState
+                    ) -> tuple[PlanResult | None, str]:
+    """:func:`shifted_motion` of a warm state on its own mesh: a hit's first motion.
 
-    Offered when not slower than ``ctx.early.max_T``; recorded in ``ctx.early.seen`` with
-    ``"shifted": True`` either way. Never raises: an exception ends the receiver's checks
-    (as in IPOPT's watcher) and is recorded; the warm re-solve goes on as without it.
+    The NLP is the one the warm re-solve solves (``compiled.flat(problem, warm.breaks,
+    warm="dual_far")``: built once, the re-solve's), the state bounds and the set's pads
+    per sample those of the re-solve (:func:`~.set_pads.warm_row_pads`).
+
+    Parameters
+    ----------
+    compiled : Compiled
+        The planner's compiled functions (``flat``).
+    ctx : SolveContext
+        Its problem (the request) and options (the certificate's).
+    warm : PathWarmState
+        The stored motion (its serving state).
+
+    Returns
+    -------
+    result : PlanResult or None
+        The moved motion, certified or not (``success``); None where none was made.
+    why : str
+        What was done, or why there is none.
     """
-    early = ctx.early
-    if early is None or early.done or not SHIFTED_FIRST:
-        return
-    t0 = time.perf_counter()
-    seen = {"iteration": 0, "shifted": True, "T": float("nan"), "certified": None, "at": t0}
-    try:
-        result, why = shifted_motion(ctx, flat, warm, bounds, values, pad, timings, t_start)
-        seen["why"] = why
-        if result is not None:
-            seen["T"] = float(result.T)
-            seen["certified"] = bool(result.success)
-            if result.success and result.T <= early.max_T:
-                early.done = bool(early.offer(result))
-            elif result.success:
-                seen["slow"] = True
-    except Exception as exc:  # noqa: BLE001  (a first motion must never end the solve)
-        early.done = True
-        seen["error"] = f"{type(exc).__name__}: {exc}"
-    seen["seconds"] = time.perf_counter() - t0
-    early.seen.append(seen)
+    if not SHIFTED_FIRST:
+        return None, "switched off (shifted.SHIFTED_FIRST)"
+    t_start = time.perf_counter()
+    problem = ctx.problem
+    flat = compiled.flat(problem, warm.breaks, warm="dual_far")
+    bounds = state_bounds(problem, PAD)
+    values = (problem.start.value, problem.target.value, problem.k)
+    pad = warm_row_pads(flat, warm, problem.k)
+    timings = {"guess": time.perf_counter() - t_start, "shooting": 0.0, "refine": 0.0,
+               "verify": 0.0}
+    return shifted_motion(ctx, flat, warm, bounds, values, pad, timings, t_start)

@@ -37,22 +37,28 @@ fitted to the mesh, as before; on its own mesh
 two warm solves per basin tried.
 
 With more than one basin to re-solve, all of them bounded motions (a real arm's; a maximum
-principle's result does not cross processes), and neither ``first_success`` nor ``first``,
-the basins' re-solves run side by side where ``options.workers`` gives more than one
-process (0: one per core, the planner node's default), as the multistart's pieces do
+principle's result does not cross processes), and neither ``first_success`` nor a ``first``
+receiver still waiting for its motion (below), the basins' re-solves run side by side where
+``options.workers`` gives more than one process (0: one per core, the planner node's
+default), as the multistart's pieces do
 (:meth:`~tocontrol_ros.core.planning.prepared.PreparedModel.map`: this process and the
 planner's worker processes), so a hit takes about its slowest basin's time instead of their
-sum; each re-solve is a deterministic function of its inputs and the results are compared
-in the same order, so the answer is the one of the re-solves one after the other.
+sum; each re-solve is a deterministic function of its inputs and the results are compared in
+the same order, so the answer is the one of the re-solves one after the other.
 
-With a ``first`` receiver (the planner's ``publish: first_then_optimum``), the first warm
-re-solve's IPOPT iterates are checked as they come (every :data:`EARLY_EVERY`-th: the NLP's
-residual, the set between the samples, the certificate;
-:mod:`~tocontrol_ros.core.direct.early`), and the first certified one goes to ``first`` at
-once, a motion to run while IPOPT goes on to the optimum (whose answer is the same to the
-bit with or without it). Measured on the small cell's hits (docs/memory.md, "A hit at its
-first publishable iterate"): it comes at about half of the solve's iterations, a few per
-cent slower than the optimum.
+With a ``first`` receiver (the planner's ``publish: first_then_optimum``), a motion to run
+while the re-solves go on to the optimum (whose answer is the same to the bit with or
+without it) goes to ``first`` once. First, before any re-solve, the nearest entry's stored
+motion moved onto the request's ends and timed (its method's
+:meth:`~tocontrol_ros.core.methods.contract.Method.first_from`:
+:mod:`~tocontrol_ros.core.direct.shifted`, tens of milliseconds, a median 20 % slower than
+the optimum on the Panda's cell, docs/memory.md "A hit's first motion at once"); the
+re-solves then need no receiver and go side by side as above. Where that motion is not
+made or not certified, the first warm re-solve's IPOPT iterates are checked as they come
+(every :data:`EARLY_EVERY`-th: the NLP's residual, the set between the samples, the
+certificate; :mod:`~tocontrol_ros.core.direct.early`) and the first certified one goes to
+``first``: it comes at about half of the solve's iterations, a few per cent slower than the
+optimum (docs/memory.md, "A hit at its first publishable iterate").
 """
 
 from __future__ import annotations
@@ -76,6 +82,7 @@ from tocontrol_ros.core.memory.codec import (
 from tocontrol_ros.core.memory.keys import options_hash, options_summary, robot_hash
 from tocontrol_ros.core.memory.store import MemoryFileError, MotionStore, Request
 from tocontrol_ros.core.methods.context import EarlyMotion, SolveContext
+from tocontrol_ros.core.methods.contract import method_owning
 from tocontrol_ros.core.planning.solver import solve_in
 from tocontrol_ros.core.types.problem import Problem, joint_state, point
 from tocontrol_ros.core.types.result import PlanResult
@@ -109,10 +116,11 @@ DEFAULT_SPANS = 64
 EARLY_EVERY = 1
 #: Spacing of the stored trajectory's samples (s): the planner's default sample period.
 SAMPLE_PERIOD = 0.005
-#: A hit's first motion (a certified IPOPT iterate, ``first``) is offered only when its
-#: ``T`` is at most this times the slowest of the stored motions re-solved: on the Panda
-#: cell's 50 hits the first motions were a median 1.45 % above the optimum that followed,
-#: and one 14 times above it (BENCHMARKS.md, issue 50), which a node then ran first.
+#: A hit's first motion (``first``: the stored motion moved, or a certified IPOPT iterate)
+#: is offered only when its ``T`` is at most this times the slowest of the stored motions
+#: re-solved: on the Panda cell's 50 hits the first motions were a median 1.45 % above the
+#: optimum that followed, and one 14 times above it (BENCHMARKS.md, issue 50), which a node
+#: then ran first.
 FIRST_MAX_RATIO = 1.5
 
 
@@ -146,8 +154,9 @@ class Recall:
         What each warm re-solve started from: ``serve+multipliers``, ``serve``,
         ``path fit`` (a stored path fitted to the mesh), ``own mesh``, ``own path``.
     first : PlanResult or None
-        The certified iterate given to ``first`` before the solve converged (None: none,
-        or no ``first`` receiver); its ``iterations`` the IPOPT iteration it came from.
+        The certified motion given to ``first`` before the answer (None: none, or no
+        ``first`` receiver); its ``iterations`` the IPOPT iteration it came from (0: the
+        stored motion moved onto the request).
     first_time : float
         Seconds from the call's start to it (nan: none).
     """
@@ -261,10 +270,12 @@ def recall(planner, problem: Problem, options, store: MotionStore,
         Re-solve as a distant warm start (``SolverOptions.warm_far``: IPOPT's barrier from
         1e-5, no single parametric step); False: as a replan's (the route before).
     first : callable, optional
-        ``first(result)``: called once, from inside the solve, with the first certified
-        IPOPT iterate of the re-solves (checked every :data:`EARLY_EVERY` iterations)
-        before it converged, not slower than :data:`FIRST_MAX_RATIO` times the slowest
-        stored motion chosen; the re-solves then go on as without it.
+        ``first(result)``: called once with a certified motion before the answer: the
+        nearest stored motion moved onto the request (``iterations`` 0), else from inside
+        the solve the first certified IPOPT iterate of the re-solves (checked every
+        :data:`EARLY_EVERY` iterations) before it converged; not slower than
+        :data:`FIRST_MAX_RATIO` times the slowest stored motion chosen. The re-solves then
+        go on as without it.
 
     Returns
     -------
@@ -319,6 +330,14 @@ def recall(planner, problem: Problem, options, store: MotionStore,
             continue
         finally:
             t_decode += time.perf_counter() - t1
+        if early is not None and not solved and len(pending) == 1:
+            # The nearest's stored motion moved onto the request, offered before any
+            # re-solve; once offered, IPOPT's iterates are not checked and the re-solves
+            # may go side by side (their receiver is gone).
+            _moved_first(planner, ctx, pending[0][2], early)
+            if early.done:
+                ctx = replace(ctx, early=None)
+                side_by_side = not first_success and len(rows) > 1
         if side_by_side:
             continue
         i, entry, tries = pending.pop()
@@ -356,6 +375,35 @@ def recall(planner, problem: Problem, options, store: MotionStore,
                    "certificate": t_cert, "total": total}, iterations, tuple(starts),
                   offered[0][1] if offered else None,
                   offered[0][0] if offered else math.nan)
+
+
+def _moved_first(compiled, ctx: SolveContext, tries: list, early: EarlyMotion) -> None:
+    """The nearest entry's stored motion moved onto the request, offered to ``early``.
+
+    Its method's :meth:`~tocontrol_ros.core.methods.contract.Method.first_from` (the
+    bounded method's: :mod:`~tocontrol_ros.core.direct.shifted`) from the entry's first
+    start; offered when certified and not slower than ``early.max_T``. Recorded in
+    ``early.seen`` (``"shifted": True``, ``why``, ``error``) either way; an exception is
+    recorded and the re-solves' iterates are offered as before.
+    """
+    warm = next((w for _, w in tries if w is not None), None)
+    method = method_owning(warm.warm_state) if warm is not None else None
+    if method is None:
+        return
+    t0 = time.perf_counter()
+    seen = {"iteration": 0, "shifted": True, "T": math.nan, "certified": None, "at": t0}
+    try:
+        result, seen["why"] = method.first_from(compiled, ctx, warm)
+        if result is not None:
+            seen.update(T=float(result.T), certified=bool(result.success))
+            if result.success and result.T <= early.max_T:
+                early.done = bool(early.offer(result))
+            elif result.success:
+                seen["slow"] = True
+    except Exception as exc:  # noqa: BLE001  (a first motion never ends the hit)
+        seen["error"] = f"{type(exc).__name__}: {exc}"
+    seen["seconds"] = time.perf_counter() - t0
+    early.seen.append(seen)
 
 
 def _entry_item(compiled, ctx: SolveContext, tries: list) -> tuple:

@@ -125,6 +125,16 @@ class Method(ABC):
         """
         return self.solve(compiled, ctx, timings, t_start)
 
+    def first_from(self, compiled: Compiled, ctx: SolveContext, previous: PlanResult
+                   ) -> tuple[PlanResult | None, str]:
+        """A motion for ``ctx.problem`` made at once from ``previous`` (whose state it owns).
+
+        No solve: a first motion to publish while :meth:`warm_start` solves (a memory hit's,
+        ``publish: first_then_optimum``); checked like every plan (``success`` says whether
+        it is certified). Returns ``(result or None, why)``; the default has none.
+        """
+        return None, f"the {self.name or 'method'} method makes no first motion from a warm state"
+
     @abstractmethod
     def certify(self, problem: Problem, motion: Motion,
                 options: CertificateOptions) -> Certificate:
