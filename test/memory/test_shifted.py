@@ -82,6 +82,27 @@ def _recall(planner, store, target, first=None):
                   spans=SPANS, first=first)
 
 
+def test_spans_stretched_run_a_too_fast_path_slower_where_it_breaks_the_limits(memory):
+    """The stored path run at half its time breaks the velocity rows and the set: stretched
+    span by span, it takes more time and breaks the rows by less."""
+    from tocontrol_ros.core.direct.limited import state_bounds
+    from tocontrol_ros.core.direct.tuning import PAD
+
+    planner, store = memory
+    own = problem(STORED)
+    warm = _warm(store, STORED).warm_state
+    flat = planner.flat(own, warm.breaks, warm="dual_far")
+    P, T = np.asarray(warm.P), 0.5 * float(warm.T)
+    values = (own.start.value, own.target.value, own.k)
+    bounds = state_bounds(own, PAD)
+    breaks, T_spans = shifted.span_stretched(flat, P, T, own.k, LIMITS.velocity)
+    assert len(breaks) == len(flat.breaks) and breaks[0] == 0.0 and breaks[-1] == 1.0
+    assert np.all(np.diff(breaks) > 0.0) and T_spans > T
+    fast = flat.residual(*values, T, P, *bounds)
+    stretched = flat.on(breaks).residual(*values, T_spans, P, *bounds)
+    assert stretched < 0.5 * fast, (stretched, fast)
+
+
 @pytest.mark.parametrize("target", HITS, ids=["5cm", "8cm"])
 def test_a_hit_offers_its_stored_motion_moved_before_any_re_solve(memory, target):
     planner, store = memory

@@ -10,16 +10,20 @@ onto the request's ends and run a little slower, it is a motion to publish at on
    from the stored motion's end configuration (:func:`~.first_motion.configuration_near`:
    weighted least norm, the position limits held), so the end configuration stays in the
    stored motion's basin;
-2. the control points moved: ``P_j + (1 - w_j) (q_a - P_0) + w_j (q_b - P_last)``, where
-   ``w_j`` rises smoothly (:func:`blend_weights`: a quintic smoothstep of the control
-   points' Greville abscissae) from 0 on the first three control points to 1 on the last
-   three, so the path's position, velocity and acceleration at each end are the stored
-   motion's, moved (a motion from rest ends at rest);
-3. the least ``T`` whose NLP rows hold (the set at the samples with the solve's pads, the
-   velocity and position rows, the ends: :meth:`~.flat.FlatTranscription.residual` within
-   :data:`~.tuning.RESIDUAL_TOL`), among the stored ``T`` times :data:`SHIFT_FACTORS`, then
-   :data:`SHIFT_BISECTIONS` halvings between the least factor that holds and the one below
-   it (decided by work, never the clock);
+2. the control points moved two ways: by a smooth blend, ``P_j + (1 - w_j) (q_a - P_0) +
+   w_j (q_b - P_last)``, where ``w_j`` rises (:func:`blend_weights`: a quintic smoothstep
+   of the control points' Greville abscissae) from 0 on the first three control points to
+   1 on the last three, so the path's position, velocity and acceleration at each end are
+   the stored motion's, moved (a motion from rest ends at rest); and by the joints' speed
+   to spare (:func:`slack_moved`: the Panda's time-optimal motions run at the velocity
+   limits between their ends, where the smooth blend adds its largest speed);
+3. each moved path timed on the stored breakpoints and on breakpoints stretched span by
+   span (:func:`span_stretched`: each span slower where its speeds or torques exceed the
+   limits, faster where they have room), at the least multiple of its time whose NLP rows
+   hold (the set at the samples with the solve's pads, the velocity and position rows, the
+   ends: :meth:`~.flat.FlatTranscription.residual` within :data:`~.tuning.RESIDUAL_TOL`),
+   among :data:`SHIFT_FACTORS`, then :data:`SHIFT_BISECTIONS` halvings towards the one
+   below it (decided by work, never the clock); the fastest of the four is kept;
 4. the motion checked as an IPOPT iterate is (:func:`~.checked.checked_iterate`: the
    torques between the samples held inside the set, slowed down where needed, and the
    certificate, re-integrated open loop).
@@ -42,6 +46,7 @@ import numpy as np
 from tocontrol_ros.core.direct.checked import checked_iterate
 from tocontrol_ros.core.direct.first_motion import configuration_near
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
+from tocontrol_ros.core.direct.flat_trajectory import FlatTrajectory
 from tocontrol_ros.core.direct.limited import state_bounds
 from tocontrol_ros.core.direct.set_pads import warm_row_pads
 from tocontrol_ros.core.direct.tuning import PAD, RESIDUAL_TOL
@@ -64,6 +69,12 @@ END_POINTS = 3
 #: Offer the moved motion first (False: a hit's first motion is IPOPT's first certified
 #: iterate, as before session 40; bench/memory_shifted.py measures one against the other).
 SHIFTED_FIRST = True
+#: Rounds of :func:`span_stretched` (each measures the path on the previous breakpoints).
+STRETCH_ROUNDS = 6
+#: Times per span at which :func:`span_stretched` measures speeds and torques.
+STRETCH_POINTS = 8
+#: Least and greatest stretch of a span in one round.
+STRETCH_RANGE = (0.7, 2.0)
 #: Derivative control points over which the speed to spare is averaged (a Hann window).
 SPARE_WINDOW = 9
 
@@ -133,6 +144,38 @@ def slack_moved(flat: FlatTranscription, P: np.ndarray, T: float, qa: np.ndarray
     return moved
 
 
+def span_stretched(flat: FlatTranscription, P: np.ndarray, T: float, k: float,
+                   speed: np.ndarray, rounds: int = STRETCH_ROUNDS
+                   ) -> tuple[np.ndarray, float]:
+    """Breakpoints (L + 1,) and ``T`` (s) that run each span of a path as fast as it allows.
+
+    A span's duration is scaled by how far its speeds exceed the velocity limits (speeds
+    scale as 1 / the stretch) and its torques the set (inertial torques scale as 1 / the
+    stretch squared: the square root of the set's norm ``(sum u_i^(2k))^(1 / 2k)``), the
+    larger of the two over its :data:`STRETCH_POINTS` times and its neighbours' (a B-spline's
+    point reaches over several spans), between :data:`STRETCH_RANGE`: spans with room to
+    spare run faster. Each of ``rounds`` rounds measures the path on the breakpoints the
+    previous one made. The control points stay: only the time each span takes changes.
+    """
+    breaks = np.asarray(flat.breaks, dtype=float)
+    finite = np.isfinite(speed)
+    for _ in range(rounds):
+        on = flat.on(breaks)
+        traj = FlatTrajectory(on, FlatResult(success=True, message="moved", T=T, P=P,
+                                             residual=0.0, iterations=0, solve_time=0.0), k)
+        got = traj.evaluate(traj.set_fractions(STRETCH_POINTS) * T)
+        L = len(breaks) - 1
+        fast = np.max(np.abs(got.qd[:, finite]) / speed[finite], axis=1, initial=0.0)
+        norm = np.sum(np.abs(got.u) ** (2 * k), axis=1) ** (1.0 / (2 * k))
+        need = np.maximum(fast, np.sqrt(norm)).reshape(L, STRETCH_POINTS).max(axis=1)
+        need = np.maximum.reduce([need, np.r_[need[1:], need[-1]], np.r_[need[0], need[:-1]]])
+        h = np.diff(breaks) * np.clip(need, *STRETCH_RANGE)
+        T = T * float(np.sum(h))
+        breaks = np.r_[0.0, np.cumsum(h) / np.sum(h)]
+        breaks[-1] = 1.0
+    return breaks, T
+
+
 def _end(ctx: SolveContext, end, q_stored: np.ndarray) -> np.ndarray | None:
     """The configuration of one of the request's ends near the stored one, or None."""
     n = ctx.problem.model.n
@@ -181,31 +224,34 @@ def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmSta
     if qa is None or qb is None:
         return None, "the request's end configuration was not reached near the stored one"
     w = blend_weights(flat)[:, None]
+    speed = problem.limits.plan_velocity
     paths = {"smooth": P + (1.0 - w) * (qa - P[0]) + w * (qb - P[-1]),
-             "speed": slack_moved(flat, P, warm.T, qa, qb, problem.limits.plan_velocity)}
-    timed = {name: _least_factor(flat, values, warm.T, moved, bounds, pad)
-             for name, moved in paths.items()}
-    timed = {name: f for name, f in timed.items() if f is not None}
+             "speed": slack_moved(flat, P, warm.T, qa, qb, speed)}
+    # Each path on the stored mesh, and on breakpoints stretched span by span.
+    tries = []
+    for name, moved in paths.items():
+        tries.append((name, flat, moved, warm.T))
+        breaks, T_spans = span_stretched(flat, moved, warm.T, problem.k, speed)
+        tries.append((f"{name}, spans stretched", flat.on(breaks), moved, T_spans))
+    timed = []
+    for name, on, moved, T0 in tries:
+        factor = _least_factor(on, values, T0, moved, bounds, pad)
+        if factor is not None:
+            timed.append((T0 * factor, name, on, moved))
     if not timed:
         return None, (f"the moved path holds the NLP's rows at none of {SHIFT_FACTORS[0]:g}-"
                       f"{SHIFT_FACTORS[-1]:g} times the stored T")
-    name = min(timed, key=timed.get)
-    best, moved = timed[name], paths[name]
-
-    def residual(factor: float) -> float:
-        return flat.residual(values[0], values[1], values[2], warm.T * factor, moved,
-                             *bounds, set_pad=pad)
-
-    T = warm.T * best
+    T, name, on, moved = min(timed, key=lambda x: x[0])
+    residual = on.residual(values[0], values[1], values[2], T, moved, *bounds, set_pad=pad)
     it = FlatResult(success=True, message="the stored motion moved", T=T, P=moved,
-                    residual=residual(best), iterations=0, solve_time=0.0)
+                    residual=residual, iterations=0, solve_time=0.0)
     held_in, result = checked_iterate(
-        ctx, flat, it, values, bounds, "the nearest stored motion moved onto the request's "
-        f"ends and run {100.0 * (best - 1.0):+.1f} % of its time: certified, not the optimum "
-        "(a first motion; route: shifted)", dict(timings), t_start)
+        ctx, on, it, values, bounds, "the nearest stored motion moved onto the request's "
+        f"ends and timed ({name}; {100.0 * (T / warm.T - 1.0):+.1f} % of its time): "
+        "certified, not the optimum (a first motion; route: shifted)", dict(timings), t_start)
     if result is None:
         return None, "the moved path's torques leave the set between the samples"
-    return result, f"moved ({name} blend) and timed at {best:.4g} times the stored T"
+    return result, f"moved ({name}) and timed at {T / warm.T:.4g} times the stored T"
 
 
 def _least_factor(flat: FlatTranscription, values: tuple, T: float, moved: np.ndarray,
