@@ -33,26 +33,38 @@ from bench.common import load_text, log, table  # noqa: E402
 REQUESTS = Path(__file__).resolve().parent / "memory_cell" / "requests.yaml"
 
 
-def run(memory: Path, count: int) -> tuple[list[dict], str]:
-    """One dict per hit with two basins or more; and the load at the start."""
+def cell_problems(count: int) -> tuple:
+    """A planner of the Panda and the first ``count`` inside requests as problems.
+
+    The Panda of example-robot-data with its URDF limits (``bench.limits.robots``), the
+    cell's class (``k`` 4, ``reserve`` 0.1); the requests of :data:`REQUESTS`, from their
+    stations' points. Returns ``(planner, problems)``.
+    """
     from bench.limits import robots
-    from tocontrol_ros.core import Planner, SolverOptions
-    from tocontrol_ros.core.memory.recall import recall
-    from tocontrol_ros.core.memory.store import MotionStore
+    from tocontrol_ros.core import Planner
     from tocontrol_ros.core.types.problem import Problem, point
 
     model, limits = robots()["Panda"]
-    planner = Planner(model)
     requests = yaml.safe_load(REQUESTS.read_text())
     stations = {k: v["point"] for k, v in requests["stations"].items()}
+    return Planner(model), [
+        Problem(model, point(stations[r["start"]]), point(r["target"]), k=4.0, reserve=0.1,
+                limits=limits) for r in requests["inside"][:count]]
+
+
+def run(memory: Path, count: int) -> tuple[list[dict], str]:
+    """One dict per hit with two basins or more; and the load at the start."""
+    from tocontrol_ros.core import SolverOptions
+    from tocontrol_ros.core.memory.recall import recall
+    from tocontrol_ros.core.memory.store import MotionStore
+
+    planner, problems = cell_problems(count)
     base = SolverOptions(time_limit=600.0)
     variants = {"one after the other": replace(base, workers=1),
                 "side by side": replace(base, workers=2)}
     start = load_text()
     rows = []
     with MotionStore(memory) as store:
-        problems = [Problem(model, point(stations[r["start"]]), point(r["target"]), k=4.0,
-                            reserve=0.1, limits=limits) for r in requests["inside"][:count]]
         for options in variants.values():  # uncounted: libraries, transcriptions
             recall(planner, problems[0], options, store)
         for case, problem in enumerate(problems, start=1):

@@ -26,30 +26,24 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 if __name__ == "__main__":
     sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 from bench.common import load_text, log, table  # noqa: E402
 
-REQUESTS = Path(__file__).resolve().parent / "memory_cell" / "requests.yaml"
 VARIANTS = ("shifted", "IPOPT's iterate")
 
 
 def run(memory: Path, count: int) -> tuple[list[dict], str]:
     """One dict per hit; and the load at the start."""
-    from bench.limits import robots
-    from tocontrol_ros.core import Planner, SolverOptions
+    from bench.memory_basins import cell_problems
+    from tocontrol_ros.core import SolverOptions
     from tocontrol_ros.core.direct import shifted
     from tocontrol_ros.core.memory.recall import recall
     from tocontrol_ros.core.memory.store import MotionStore
-    from tocontrol_ros.core.types.problem import Problem, point
 
-    model, limits = robots()["Panda"]
-    planner = Planner(model)
-    requests = yaml.safe_load(REQUESTS.read_text())
-    stations = {k: v["point"] for k, v in requests["stations"].items()}
+    planner, problems = cell_problems(count)
     options = replace(SolverOptions(time_limit=600.0), workers=1)
 
     def call(problem, store, variant: str):
@@ -66,8 +60,6 @@ def run(memory: Path, count: int) -> tuple[list[dict], str]:
     start = load_text()
     rows = []
     with MotionStore(memory) as store:
-        problems = [Problem(model, point(stations[r["start"]]), point(r["target"]), k=4.0,
-                            reserve=0.1, limits=limits) for r in requests["inside"][:count]]
         for variant in VARIANTS:  # uncounted: libraries, transcriptions
             call(problems[0], store, variant)
         for case, problem in enumerate(problems, start=1):

@@ -21,15 +21,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from limited_arm import LIMITS, MODEL, OPTIONS, SPANS, problem
+from limited_arm import OPTIONS, SPANS, check_motion, problem, served_memory
 
 import tocontrol_ros.core.direct.early as early_mod
 import tocontrol_ros.core.direct.shifted as shifted
-from tocontrol_ros.core import Planner
 from tocontrol_ros.core.direct.tuning import RESIDUAL_TOL
-from tocontrol_ros.core.examples import PAPER_START
-from tocontrol_ros.core.memory.recall import open_memory, recall, remember
-from tocontrol_ros.core.memory.serve import convert
+from tocontrol_ros.core.memory.recall import recall
 from tocontrol_ros.core.methods.context import EarlyMotion
 from tocontrol_ros.core.planning.solver import solve_once
 
@@ -50,14 +47,7 @@ def iterates_only(monkeypatch):
 @pytest.fixture(scope="module")
 def memory(tmp_path_factory):
     """The planner and a memory holding the stored motion with its serving state."""
-    planner = Planner(MODEL)
-    stored = planner.plan(problem(STORED), OPTIONS)
-    assert stored.success and stored.method == "direct", stored.message
-    store = open_memory(tmp_path_factory.mktemp("early") / "m.sqlite", stored.problem,
-                        create=True)
-    assert remember(store, stored, "test", 0.0)
-    done = convert(store, planner, stored.problem, replace(OPTIONS, time_limit=SLOW_OK), SPANS)
-    assert done.converted == 1, done.messages
+    planner, store = served_memory(tmp_path_factory.mktemp("early") / "m.sqlite", STORED)
     yield planner, store
     store.close()
 
@@ -96,13 +86,7 @@ def test_a_hits_first_iterate_is_a_certified_motion_before_the_optimum(memory, t
     assert 0 < first.iterations < optimum.iterations
     assert first.T >= optimum.T * (1 - 1e-4), (first.T, optimum.T)
     assert any("before it converged" in w for w in first.warnings)
-    # Checked independently of the certificate, along a fine sampling of the motion.
-    s = first.trajectory.sample(1e-3)
-    np.testing.assert_allclose(MODEL.point(s.q[0]), PAPER_START, atol=1e-6)
-    np.testing.assert_allclose(MODEL.point(s.q[-1]), target, atol=1e-5)
-    np.testing.assert_allclose(s.qd[[0, -1]], 0.0, atol=1e-5)
-    assert np.all(np.abs(s.qd) <= LIMITS.velocity * (1 + 1e-6) + 1e-9)
-    assert np.max(np.sum(np.abs(s.u) ** (2 * first.k), axis=1)) <= 1.0 + 1e-6
+    check_motion(first, target)  # independently of the certificate
     # The watcher only reads: the optimum is the same to the bit.
     assert again.success and again.T == optimum.T and again.iterations == optimum.iterations
     np.testing.assert_array_equal(again.warm_state.P, optimum.warm_state.P)

@@ -18,14 +18,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from limited_arm import LIMITS, MODEL, OPTIONS, SPANS, problem
+from limited_arm import LIMITS, OPTIONS, SPANS, check_motion, problem, served_memory
 
 import tocontrol_ros.core.direct.shifted as shifted
-from tocontrol_ros.core import Planner
-from tocontrol_ros.core.examples import PAPER_START
 from tocontrol_ros.core.memory.codec import warm_result
-from tocontrol_ros.core.memory.recall import open_memory, recall, remember, stored_problem
-from tocontrol_ros.core.memory.serve import convert
+from tocontrol_ros.core.memory.recall import recall, stored_problem
 
 STORED = np.array([2.2, 1.5])
 HITS = (STORED + np.array([0.04, 0.03]), STORED + np.array([0.08, 0.0]))
@@ -37,14 +34,7 @@ FAR = replace(OPTIONS, warm_only=True, replan_spans=SPANS, warm_far=True, time_l
 @pytest.fixture(scope="module")
 def memory(tmp_path_factory):
     """The planner and a memory holding the stored motion with its serving state."""
-    planner = Planner(MODEL)
-    stored = planner.plan(problem(STORED), OPTIONS)
-    assert stored.success and stored.method == "direct", stored.message
-    store = open_memory(tmp_path_factory.mktemp("shifted") / "m.sqlite", stored.problem,
-                        create=True)
-    assert remember(store, stored, "test", 0.0)
-    done = convert(store, planner, stored.problem, replace(OPTIONS, time_limit=SLOW_OK), SPANS)
-    assert done.converted == 1, done.messages
+    planner, store = served_memory(tmp_path_factory.mktemp("shifted") / "m.sqlite", STORED)
     yield planner, store
     store.close()
 
@@ -116,13 +106,7 @@ def test_a_hit_offers_its_stored_motion_moved_before_any_re_solve(memory, target
     assert first.iterations == 0 and any("route: shifted" in w for w in first.warnings)
     optimum = found.result
     assert first.T >= optimum.T * (1 - 1e-4), (first.T, optimum.T)
-    # Checked independently of the certificate, along a fine sampling of the motion.
-    s = first.trajectory.sample(1e-3)
-    np.testing.assert_allclose(MODEL.point(s.q[0]), PAPER_START, atol=1e-6)
-    np.testing.assert_allclose(MODEL.point(s.q[-1]), target, atol=1e-5)
-    np.testing.assert_allclose(s.qd[[0, -1]], 0.0, atol=1e-5)
-    assert np.all(np.abs(s.qd) <= LIMITS.velocity * (1 + 1e-6) + 1e-9)
-    assert np.max(np.sum(np.abs(s.u) ** (2 * first.k), axis=1)) <= 1.0 + 1e-6
+    check_motion(first, target)  # independently of the certificate
     # Offered before the re-solves: the answer is the same to the bit.
     assert optimum.T == plain.result.T and found.iterations == plain.iterations
     np.testing.assert_array_equal(optimum.warm_state.P, plain.result.warm_state.P)
