@@ -16,7 +16,8 @@ onto the request's ends and run a little slower, it is a motion to publish at on
    1 on the last three, so the path's position, velocity and acceleration at each end are
    the stored motion's, moved (a motion from rest ends at rest); and by the joints' speed
    to spare (:func:`slack_moved`: the Panda's time-optimal motions run at the velocity
-   limits between their ends, where the smooth blend adds its largest speed);
+   limits between their ends, where the smooth blend adds its largest speed); the inner
+   control points held inside the position bounds (a stored optimum often rides one);
 3. each moved path timed on the stored breakpoints and on breakpoints stretched span by
    span (:func:`span_stretched`: each span slower where its speeds or torques exceed the
    limits, faster where they have room), at the least multiple of its time whose NLP rows
@@ -227,6 +228,12 @@ def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmSta
     speed = problem.limits.plan_velocity
     paths = {"smooth": P + (1.0 - w) * (qa - P[0]) + w * (qb - P[-1]),
              "speed": slack_moved(flat, P, warm.T, qa, qb, speed)}
+    # A stored optimum often rides a position bound for a while: the move would push its
+    # inner control points past it. Held at the bound (the spline inside the control
+    # points' hull); the ends' points keep the ends.
+    n, inner = problem.model.n, slice(END_POINTS, -END_POINTS)
+    for moved in paths.values():
+        moved[inner] = np.clip(moved[inner], bounds[0][:n], bounds[1][:n])
     # Each path on the stored mesh, and on breakpoints stretched span by span.
     tries = []
     for name, moved in paths.items():
