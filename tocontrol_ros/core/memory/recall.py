@@ -51,7 +51,7 @@ while the re-solves go on to the optimum (whose answer is the same to the bit wi
 without it) goes to ``first`` once. First, before any re-solve, the nearest entry's stored
 motion moved onto the request's ends and timed (its method's
 :meth:`~tocontrol_ros.core.methods.contract.Method.first_from`:
-:mod:`~tocontrol_ros.core.direct.shifted`, tens of milliseconds, a median 20 % slower than
+:mod:`~tocontrol_ros.core.direct.shifted`, tens of milliseconds, a median 12 % slower than
 the optimum on the Panda's cell, docs/memory.md "A hit's first motion at once"); the
 re-solves then need no receiver and go side by side as above. Where that motion is not
 made or not certified, the first warm re-solve's IPOPT iterates are checked as they come
