@@ -423,14 +423,20 @@ def _served(ins: list, name: str) -> dict:
                 for g in hits)}
 
 
+def _first_figures(f: dict) -> tuple[list, list, list, int]:
+    """Node ``f``'s hits with a first motion: their values, its latency (s), its ``T`` above
+    the final motion's (relative), and how many were the moved stored motion."""
+    got = [g["first"][1] for g in f["hits"] if "first_latency" in g["first"][1]]
+    lat = [_f(v, "first_latency") for v in got]
+    gap = [_f(v, "first_T") / _f(v, "T") - 1 for v in got]
+    return got, lat, gap, sum(str(v.get("memory_first_iteration")) == "0" for v in got)
+
+
 def first_motions(f: dict) -> str:
     """The first motions published on the hits of node ``f`` (``publish: first_then_optimum``:
     the stored motion moved, ``memory_first_iteration`` 0, else a certified IPOPT iterate):
     the time from the request to it, its ``T``."""
-    got = [g["first"][1] for g in f["hits"] if "first_latency" in g["first"][1]]
-    lat = [_f(v, "first_latency") for v in got]
-    gap = [_f(v, "first_T") / _f(v, "T") - 1 for v in got]
-    moved = sum(str(v.get("memory_first_iteration")) == "0" for v in got)
+    got, lat, gap, moved = _first_figures(f)
     return (f"its first motions (published at once: the nearest stored motion moved onto the "
             f"request on {moved}, a certified IPOPT iterate on {len(got) - moved}): "
             f"on {len(got)}/{len(f['hits'])} hits, published a median {_med(lat) * 1e3:.0f} ms "
@@ -577,6 +583,7 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
           f"{_f(g['memory'][1], 'T'):.5f}", f"{g['cold'][0]:.2f}", f"{_f(g['cold'][1], 'T'):.5f}",
           f"{(_f(g['memory'][1], 'T') / _f(g['cold'][1], 'T') - 1):+.1e}", *first_cells(g)]
          for which, gs in (("inside", ins), ("outside", outs)) for i, g in enumerate(gs)])]
+    _, first_lat, first_gap, _ = _first_figures(first)
     targets = [
         (f"inside: median <= {TARGET_MEDIAN * 1e3:.0f} ms, p95 <= {TARGET_P95 * 1e3:.0f} ms",
          ("**yes**" if med <= TARGET_MEDIAN and p95 <= TARGET_P95 else "**no**")
@@ -585,6 +592,10 @@ def _section(title, build, build_wall, upgrade, out, peer, first_hit, load,
          ("**yes**" if mem["certified"] == len(ins)
           and mem["within"] >= TARGET_T_COUNT * len(ins) / 50 else "**no**")
          + f": {mem['certified']}/{len(ins)} certified, {mem['within']}/{len(ins)} within"),
+        ("inside, `first_then_optimum` (reported; not the bar: its `T` is above the "
+         "answer's): a certified motion published, median and p95",
+         f"{_med(first_lat) * 1e3:.0f} ms, {_quantile(first_lat, 0.95) * 1e3:.0f} ms, `T` a "
+         f"median {100 * _med(first_gap):.1f} % above the answer's"),
         ("outside: no worse T than without the memory",
          ("**yes**" if o_worse == 0 else "**no**") + f": worse on {o_worse}/{len(outs)}"),
     ]
