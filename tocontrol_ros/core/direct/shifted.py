@@ -252,7 +252,7 @@ def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmSta
     residual = on.residual(values[0], values[1], values[2], T, moved, *bounds, set_pad=pad)
     it = FlatResult(success=True, message="the stored motion moved", T=T, P=moved,
                     residual=residual, iterations=0, solve_time=0.0)
-    held_in, result = checked_iterate(
+    _, result = checked_iterate(
         ctx, on, it, values, bounds, "the nearest stored motion moved onto the request's "
         f"ends and timed ({name}; {100.0 * (T / warm.T - 1.0):+.1f} % of its time): "
         "certified, not the optimum (a first motion; route: shifted)", dict(timings), t_start)
