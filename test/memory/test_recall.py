@@ -115,3 +115,17 @@ def test_maximum_principle_basins_stay_one_after_the_other(memory, monkeypatch):
     assert side.result is not None and alone.result is not None
     assert side.result.T == alone.result.T and side.result.success
     assert (side.starts, side.iterations) == (alone.starts, alone.iterations)
+
+
+def test_a_maximum_principle_hit_with_a_first_receiver_gives_the_answer_alone(memory):
+    """The maximum principle's method makes no first motion from a warm state (the
+    contract's default) and its re-solve offers no iterates: a ``first`` receiver gets
+    nothing, and the hit's answer is the one without it."""
+    planner, store = memory
+    problem = Problem(MODEL, point(PAPER_START), point([2.25, 1.45]), k=4)
+    plain = recall(planner, problem, OPTIONS, store, radius=10.0)
+    firsts = []
+    found = recall(planner, problem, OPTIONS, store, radius=10.0, first=firsts.append)
+    assert plain.result is not None and plain.result.method != "direct"
+    assert firsts == [] and found.first is None and np.isnan(found.first_time)
+    assert found.result.T == plain.result.T and found.iterations == plain.iterations
