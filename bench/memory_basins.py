@@ -100,16 +100,21 @@ def report(rows: list[dict], start: str) -> str:
             f"{len(rows)}.\n\n" + "\n".join(table(head, body)))
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def cell_main(doc: str, run_fn, report_fn, argv=None) -> int:
+    """A cell bench's command line: ``--memory FILE`` (read only), ``--count N`` requests;
+    ``report_fn(*run_fn(memory, count))`` printed."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--memory", type=Path, required=True)
     parser.add_argument("--count", type=int, default=50)
     args = parser.parse_args(argv)
     if not args.memory.is_file():
         parser.error(f"--memory: no file {args.memory}")
-    rows, start = run(args.memory, args.count)
-    print(report(rows, start))
+    print(report_fn(*run_fn(args.memory, args.count)))
     return 0
+
+
+def main(argv=None) -> int:
+    return cell_main(__doc__, run, report, argv)
 
 
 if __name__ == "__main__":

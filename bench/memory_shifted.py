@@ -19,7 +19,6 @@ Figures from one run are in docs/memory.md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import replace
@@ -120,15 +119,9 @@ def report(rows: list[dict], start: str) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--memory", type=Path, required=True)
-    parser.add_argument("--count", type=int, default=50)
-    args = parser.parse_args(argv)
-    if not args.memory.is_file():
-        parser.error(f"--memory: no file {args.memory}")
-    rows, start = run(args.memory, args.count)
-    print(report(rows, start))
-    return 0
+    from bench.memory_basins import cell_main
+
+    return cell_main(__doc__, run, report, argv)
 
 
 if __name__ == "__main__":
