@@ -44,6 +44,7 @@ import time
 
 import numpy as np
 
+from tocontrol_ros.core.direct.bspline import knots
 from tocontrol_ros.core.direct.checked import checked_iterate
 from tocontrol_ros.core.direct.first_motion import configuration_near
 from tocontrol_ros.core.direct.flat import FlatResult, FlatTranscription
@@ -87,8 +88,8 @@ def blend_weights(flat: FlatTranscription) -> np.ndarray:
     control points' Greville abscissae (the mean of their ``degree`` inner knots) between.
     """
     d, K = flat.degree, flat.K
-    knots = np.concatenate([np.zeros(d), np.asarray(flat.breaks, dtype=float), np.ones(d)])
-    greville = np.array([knots[j + 1:j + d + 1].mean() for j in range(K)])
+    t = knots(np.asarray(flat.breaks, dtype=float), d)
+    greville = np.array([t[j + 1:j + d + 1].mean() for j in range(K)])
     lo, hi = greville[END_POINTS - 1], greville[K - END_POINTS]
     x = np.clip((greville - lo) / (hi - lo), 0.0, 1.0) if hi > lo else \
         (np.arange(K) >= K - END_POINTS).astype(float)
@@ -121,8 +122,8 @@ def slack_moved(flat: FlatTranscription, P: np.ndarray, T: float, qa: np.ndarray
         The joints' velocity limits (rad/s, m/s; inf: none).
     """
     d, K = flat.degree, flat.K
-    knots = np.concatenate([np.zeros(d), np.asarray(flat.breaks, dtype=float), np.ones(d)])
-    gap = (knots[d + 1:d + K] - knots[1:K]) / d  # (K - 1,): P_(j+1) - P_j = Q_j gap_j
+    t = knots(np.asarray(flat.breaks, dtype=float), d)
+    gap = (t[d + 1:d + K] - t[1:K]) / d  # (K - 1,): P_(j+1) - P_j = Q_j gap_j
     Q = np.diff(P, axis=0) / gap[:, None]
     D = (qb - qa) - (P[-1] - P[0])
     inner = np.zeros(K - 1)
