@@ -243,14 +243,13 @@ def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmSta
         tries.append((f"{name}, spans stretched", flat.on(breaks), moved, T_spans))
     timed = []
     for name, on, moved, T0 in tries:
-        factor = _least_factor(on, values, T0, moved, bounds, pad)
-        if factor is not None:
-            timed.append((T0 * factor, name, on, moved))
+        least = _least_factor(on, values, T0, moved, bounds, pad)
+        if least is not None:
+            timed.append((T0 * least[0], least[1], name, on, moved))
     if not timed:
         return None, (f"the moved path holds the NLP's rows at none of {SHIFT_FACTORS[0]:g}-"
                       f"{SHIFT_FACTORS[-1]:g} times the stored T")
-    T, name, on, moved = min(timed, key=lambda x: x[0])
-    residual = on.residual(values[0], values[1], values[2], T, moved, *bounds, set_pad=pad)
+    T, residual, name, on, moved = min(timed, key=lambda x: x[0])
     it = FlatResult(success=True, message="the stored motion moved", T=T, P=moved,
                     residual=residual, iterations=0, solve_time=0.0)
     _, result = checked_iterate(
@@ -263,26 +262,32 @@ def shifted_motion(ctx: SolveContext, flat: FlatTranscription, warm: PathWarmSta
 
 
 def _least_factor(flat: FlatTranscription, values: tuple, T: float, moved: np.ndarray,
-                  bounds: tuple, pad) -> float | None:
-    """The least multiple of ``T`` at which ``moved`` holds the NLP's rows, or None.
+                  bounds: tuple, pad) -> tuple[float, float] | None:
+    """``(factor, residual)``: the least multiple of ``T`` whose NLP rows hold, or None.
 
-    The least of :data:`SHIFT_FACTORS` that holds, then :data:`SHIFT_BISECTIONS` halvings
-    towards the one below it.
+    ``residual``: the NLP's residual there. The least of :data:`SHIFT_FACTORS` that holds,
+    then :data:`SHIFT_BISECTIONS` halvings towards the one below it.
     """
-    def holds(factor: float) -> bool:
+    def residual(factor: float) -> float:
         return flat.residual(values[0], values[1], values[2], T * factor, moved, *bounds,
-                             set_pad=pad) <= RESIDUAL_TOL
+                             set_pad=pad)
 
-    best = next((f for f in SHIFT_FACTORS if holds(f)), None)
+    best = None
+    for factor in SHIFT_FACTORS:
+        r = residual(factor)
+        if r <= RESIDUAL_TOL:
+            best = (factor, r)
+            break
     if best is None:
         return None
-    below = [f for f in SHIFT_FACTORS if f < best]
+    below = [f for f in SHIFT_FACTORS if f < best[0]]
     if below:
         lo = below[-1]
         for _ in range(SHIFT_BISECTIONS):
-            mid = 0.5 * (lo + best)
-            if holds(mid):
-                best = mid
+            mid = 0.5 * (lo + best[0])
+            r = residual(mid)
+            if r <= RESIDUAL_TOL:
+                best = (mid, r)
             else:
                 lo = mid
     return best
