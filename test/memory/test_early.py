@@ -69,6 +69,22 @@ def test_every_must_be_a_count():
         EarlyMotion(offer=lambda r: True, every=0)
 
 
+def test_a_motion_is_given_when_certified_and_not_slower_than_max_t():
+    """The one rule every source of a first motion offers through (IPOPT's iterates, the
+    parametric steps', a hit's moved stored motion)."""
+    from types import SimpleNamespace
+
+    offered = []
+    early = EarlyMotion(offer=lambda r: offered.append(r) or True, max_T=1.0)
+    seen: dict = {}
+    early.give(SimpleNamespace(success=False, T=0.5), seen)
+    early.give(SimpleNamespace(success=True, T=1.5), seen)
+    assert offered == [] and not early.done and seen == {"slow": True}
+    fast = SimpleNamespace(success=True, T=0.9)
+    early.give(fast)
+    assert offered == [fast] and early.done
+
+
 @pytest.mark.parametrize("target", HITS, ids=["5cm", "8cm"])
 def test_a_hits_first_iterate_is_a_certified_motion_before_the_optimum(memory, target):
     planner, store = memory

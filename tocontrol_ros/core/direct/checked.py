@@ -241,4 +241,4 @@ class FirstIterate:
         if first is not None and first.success:
             self.result = first
             early: EarlyMotion = self.ctx.early
-            early.done = bool(early.offer(first))
+            early.give(first)

@@ -108,7 +108,4 @@ def _check(ctx: SolveContext, seen: dict, flat: FlatTranscription, iteration: in
     early: EarlyMotion = ctx.early
     seen["certified"] = bool(result.success)
     seen["published_T"] = float(result.T)
-    if result.success and result.T > early.max_T:
-        seen["slow"] = True  # slowed down into the set beyond the bound: not offered
-    elif result.success:
-        early.done = bool(early.offer(result))
+    early.give(result, seen)  # not when slowed down into the set beyond the bound

@@ -396,10 +396,7 @@ def _moved_first(compiled, ctx: SolveContext, tries: list, early: EarlyMotion) -
         result, seen["why"] = method.first_from(compiled, ctx, warm)
         if result is not None:
             seen.update(T=float(result.T), certified=bool(result.success))
-            if result.success and result.T <= early.max_T:
-                early.done = bool(early.offer(result))
-            elif result.success:
-                seen["slow"] = True
+            early.give(result, seen)
     except Exception as exc:  # noqa: BLE001  (a first motion never ends the hit)
         seen["error"] = f"{type(exc).__name__}: {exc}"
     seen["seconds"] = time.perf_counter() - t0

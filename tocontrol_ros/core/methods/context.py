@@ -87,6 +87,21 @@ class EarlyMotion:
         if not float(self.max_T) > 0.0:
             raise ValueError(f"`max_T` must be positive (s), got {self.max_T!r}")
 
+    def give(self, result: PlanResult, seen: dict | None = None) -> None:
+        """Offer ``result`` when it is certified (``success``) and not slower than ``max_T``.
+
+        A slower one is not offered (``seen["slow"]`` where a record is given); ``done`` is
+        set when ``offer`` returned True. Every source of a first motion offers through here
+        (IPOPT's iterates, the parametric steps', a memory hit's moved stored motion).
+        """
+        if not result.success:
+            return
+        if result.T > self.max_T:
+            if seen is not None:
+                seen["slow"] = True
+            return
+        self.done = bool(self.offer(result))
+
 
 @dataclass(frozen=True)
 class SolveContext:
