@@ -189,6 +189,15 @@ def _build(memory: Path, cell: Path = CELL) -> float:
     return time.perf_counter() - t0
 
 
+def build_span(tasks: dict) -> tuple[float, float]:
+    """A build's span from its log (``MotionStore.tasks()``): the first to the last finish
+    plus one median solve, and that median solve (s); nan without finished tasks."""
+    finished = sorted(t["finished"] for t in tasks.values())
+    solves = [t["solve_time"] for t in tasks.values() if t["solve_time"] is not None]
+    solve = statistics.median(solves) if solves else float("nan")
+    return (finished[-1] - finished[0] + solve if finished else float("nan")), solve
+
+
 def _build_figures(memory: Path, model, radius: float = 1.0, cell_file: Path = CELL) -> dict:
     from tocontrol_ros.core.memory.recall import distances
     from tocontrol_ros.core.memory.store import MotionStore
@@ -199,9 +208,7 @@ def _build_figures(memory: Path, model, radius: float = 1.0, cell_file: Path = C
         tasks = store.tasks()
         keys = store.keys()
         count = store.count()
-    finished = sorted(t["finished"] for t in tasks.values())
-    solves = [t["solve_time"] for t in tasks.values() if t["solve_time"] is not None]
-    span = finished[-1] - finished[0] + statistics.median(solves) if finished else float("nan")
+    span, solve = build_span(tasks)
     box = cell["targets"]["boxes"][0]
     lo, hi = np.array(box["lower"]), np.array(box["upper"])
     stations = [np.array(s["point"]) for s in cell["starts"]["stations"].values()]
@@ -214,7 +221,7 @@ def _build_figures(memory: Path, model, radius: float = 1.0, cell_file: Path = C
         covered += bool(np.min(distances(keys, problem, 0.05)) <= radius)
     return {"tasks": len(tasks), "ok": sum(t["status"] == "SUCCESS" for t in tasks.values()),
             "motions": count, "per_minute": 60.0 * count / span, "span": span,
-            "solve_median": statistics.median(solves), "size": memory.stat().st_size,
+            "solve_median": solve, "size": memory.stat().st_size,
             "coverage": covered / draws, "total": len(cell_tasks(cell_file))}
 
 

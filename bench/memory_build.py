@@ -18,7 +18,6 @@ bench run_all.py --update --only memory_build``.
 from __future__ import annotations
 
 import argparse
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -46,16 +45,15 @@ def _build(memory: Path, tasks: int, extra: list) -> float:
 
 
 def _figures(memory: Path) -> dict:
+    from bench.memory import build_span
     from tocontrol_ros.core.memory.store import MotionStore
 
     with MotionStore(memory) as store:
         tasks = store.tasks()
     Ts = {key: t["T"] for key, t in tasks.items() if t["status"] == "SUCCESS"}
-    finished = sorted(t["finished"] for t in tasks.values())
-    solves = [t["solve_time"] for t in tasks.values() if t["solve_time"] is not None]
-    span = finished[-1] - finished[0] + statistics.median(solves)
+    span, solve = build_span(tasks)
     return {"ok": sum(t["status"] == "SUCCESS" for t in tasks.values()), "T": Ts,
-            "span": span, "solve": statistics.median(solves)}
+            "span": span, "solve": solve}
 
 
 def run(tasks: int = TASKS) -> Section:
